@@ -1,0 +1,37 @@
+# Two commands do all the set-up on a fresh machine: `make demo` and `make test`.
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test lint typecheck pytest bench warm clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+# numba compiles the kernels once into its on-disk cache; later starts load it in < 1 s
+warm: $(STAMP)
+	$(PY) -m haptic_server.warmup
+
+demo: $(STAMP) warm
+	$(VENV)/bin/haptic-run --duration 10 --summary-json runs/demo-summary.json
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+typecheck: $(STAMP)
+	$(VENV)/bin/mypy
+
+pytest: $(STAMP) warm
+	$(PY) -m pytest -q
+
+test: lint typecheck pytest
+
+bench: $(STAMP) warm
+	$(PY) -m benchmarks.loop_timing
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache .mypy_cache .ruff_cache

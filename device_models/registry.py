@@ -1,0 +1,32 @@
+"""From the `model` name in a device config file to the class that simulates or drives it."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from device_models.ideal import IdealDevice, IdealDeviceConfig
+from shared.config import ConfigError, load_device_table
+
+#: model name -> (config class with from_toml_dict, device factory)
+DEVICE_MODELS: dict[str, tuple[Any, Callable[[Any], Any]]] = {
+    "ideal": (IdealDeviceConfig, IdealDevice),
+}
+
+
+def load_device(name_or_path: str) -> Any:
+    """Build the device named by a config file (bare name: configs/devices/<name>.toml)."""
+    model, table, source = load_device_table(name_or_path)
+    if model not in DEVICE_MODELS:
+        raise ConfigError(
+            source, "model", f"unknown device model {model!r} (known: {sorted(DEVICE_MODELS)})"
+        )
+    config_cls, factory = DEVICE_MODELS[model]
+    try:
+        config = config_cls.from_toml_dict(table, source)
+    except ConfigError:
+        raise
+    except ValueError as exc:
+        key, _, problem = str(exc).partition(": ")
+        raise ConfigError(source, key, problem or str(exc)) from None
+    return factory(config)

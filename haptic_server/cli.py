@@ -1,0 +1,51 @@
+"""`haptic-server`: the 1 kHz haptic loop against a simulated device, over Zenoh."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+from pathlib import Path
+
+from shared.cli import add_config_args, emit, run_main
+from shared.config import load_network, load_scene, load_user, resolve
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="haptic-server", description=__doc__)
+    add_config_args(parser)
+    parser.add_argument("--log", type=Path, default=None, help="MCAP log path (default: no log)")
+    parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    parser.add_argument("--summary-json", type=Path, default=None)
+    args = parser.parse_args(argv)
+
+    def body() -> int:
+        from device_models.registry import load_device
+        from haptic_server.server import HapticServer
+
+        scene = load_scene(args.scene)
+        user = load_user(args.user)
+        network = load_network(args.network)
+        device = load_device(args.device)
+        configs = {
+            "scene": resolve("scenes", args.scene).read_text(),
+            "device": resolve("devices", args.device).read_text(),
+            "user": resolve("users", args.user).read_text(),
+            "network": resolve("network", args.network).read_text(),
+        }
+        server = HapticServer(scene, device, user, network, args.log, configs)
+        signal.signal(signal.SIGTERM, server.request_stop)
+        signal.signal(signal.SIGINT, server.request_stop)
+        server.warm_up(lambda: load_device(args.device), user)
+        summary = server.run(args.duration, ready=lambda: emit("ready", process="haptic"))
+        if args.summary_json:
+            args.summary_json.write_text(json.dumps(summary, indent=2))
+        emit("stopped", process="haptic", **summary)
+        return 0
+
+    return run_main(body)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,264 @@
+"""The haptic side without a clock or a network: install updates, run ticks.
+
+`HapticEngine` owns the preallocated records the kernels work on, the device and the
+simulated user. The real-time server, the virtual clock and `haptic-replay` all drive this
+same object, so a replay of a log runs exactly the code that produced it.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from device_models.base import SENSOR_DTYPE, SimulatedDevice
+from haptic_server.kernels import begin_tick, haptic_tick, inherit_contact_state
+from haptic_server.layout import (
+    FAULT_NONE,
+    METHOD_IDS,
+    METHOD_VIRTUAL_COUPLING_FOH,
+    PARAMS_DTYPE,
+    SCRATCH_DTYPE,
+    SLOT_DTYPE,
+    STATE_DTYPE,
+    TICK_DTYPE,
+)
+from haptic_server.users import hand_wrench, user_record
+from shared.config import RenderingSpec, SceneConfig, UserConfig
+from shared.messages import DEFAULT_LIMITS, limits_array
+from shared.wire import REASONS, UpdateParser
+
+CONTACT_MATCH_RADIUS_M = 2.0e-3  # a contact keeps its state if its tool point moved less
+
+
+@dataclass
+class EngineCounters:
+    """What the engine has installed, rejected and why (logged and summarised)."""
+
+    installed: int = 0
+    rejected: int = 0
+    rejected_by_reason: dict[str, int] = field(default_factory=dict)
+    epochs: int = 0
+    reinitialisations: int = 0
+
+    def reject(self, reason: str) -> None:
+        self.rejected += 1
+        self.rejected_by_reason[reason] = self.rejected_by_reason.get(reason, 0) + 1
+
+
+def params_record(
+    rendering: RenderingSpec,
+    max_wrench: np.ndarray,
+    dt_nominal: float,
+    foh: dict[str, object] | None = None,
+    safe_ramp_s: float = 0.05,
+) -> np.ndarray:
+    """The gains as a kernel record (DESIGN §4, §6)."""
+    rec = np.zeros(1, PARAMS_DTYPE)
+    p = rec[0]
+    p["method"] = METHOD_IDS[rendering.method]
+    p["coordination_stiffness"] = rendering.coordination_stiffness
+    p["coordination_damping"] = rendering.coordination_damping
+    p["penalty_stiffness"] = rendering.penalty_stiffness
+    p["penalty_damping"] = rendering.penalty_damping
+    p["desired_damping"] = rendering.desired_damping
+    p["desired_stiffness"] = rendering.desired_stiffness
+    p["impulses"] = 1 if rendering.impulses else 0
+    p["collision_speed"] = rendering.collision_speed_m_per_s
+    p["friction_stiffness_ratio"] = rendering.friction_stiffness_ratio
+    p["blend_s"] = rendering.blend_ms / 1000.0
+    p["vc_stiffness"] = rendering.virtual_coupling_stiffness
+    p["vc_damping"] = rendering.virtual_coupling_damping
+    foh = foh or {}
+    p["foh_stiffness"] = foh.get("stiffness", (4000.0, 4000.0, 25.0))
+    p["foh_damping"] = foh.get("damping", (100.0, 100.0, 0.5))
+    p["foh_interpolate"] = 1 if foh.get("interpolate", True) else 0
+    p["safe_damping"] = (5.0, 5.0, 0.01)
+    p["safe_ramp_s"] = safe_ramp_s
+    p["max_wrench"] = max_wrench
+    return rec
+
+
+class HapticEngine:
+    """Local model + device control around a device and a simulated user (DESIGN §4)."""
+
+    def __init__(
+        self,
+        scene: SceneConfig,
+        device: SimulatedDevice,
+        user: UserConfig,
+        safe_ramp_s: float = 0.05,
+    ) -> None:
+        self.scene = scene
+        self.device = device
+        self.dt_nominal = 1.0 / scene.haptic_rate_hz
+        limits = device.limits()
+        self.params = params_record(
+            scene.rendering,
+            np.array(limits.max_wrench),
+            self.dt_nominal,
+            getattr(device, "foh_gains", None),
+            safe_ramp_s,
+        )
+        self.method = int(self.params[0]["method"])
+        self.slots = np.zeros(2, SLOT_DTYPE)
+        self.state = np.zeros(1, STATE_DTYPE)
+        self.scratch = np.zeros(1, SCRATCH_DTYPE)
+        self.row = np.zeros(1, TICK_DTYPE)
+        self.sensors = np.zeros(1, SENSOR_DTYPE)
+        self.world_sensors = np.zeros(1, SENSOR_DTYPE)
+        self.user = user_record(user)
+        self.offset = np.zeros(3)  # world pose = device pose + offset
+        self.hand = np.zeros(3)
+        self.hand_measured = np.zeros(3)
+        self._true_pose = np.zeros(3)
+        self._true_twist = np.zeros(3)
+        self.counters = EngineCounters()
+        self.parser = UpdateParser(limits_array(DEFAULT_LIMITS))
+        self.epoch = -1
+        self.last_seq = -1
+        self.tick_index = 0
+        self.time = 0.0
+        self._sim_times: deque[float] = deque(maxlen=4)
+        self.state[0]["safe"] = 1.0
+        self.state[0]["safe_target"] = 1.0
+
+    @property
+    def ready(self) -> bool:
+        return bool(self.slots[0]["valid"])
+
+    # --- updates ------------------------------------------------------------------------
+
+    def receive(self, raw: bytes) -> str:
+        """Validate and install an update's bytes; returns "" or the rejection reason.
+
+        The newest model becomes slot 0 and the previous one slot 1, cross-faded over
+        blend_ms (DESIGN §4.4); contacts keep their state across the update by key.
+        """
+        code = self.parser.parse(raw)
+        reason = REASONS[code] if code else self._order_problem(self.parser.out[0])
+        if reason:
+            self.counters.reject(reason)
+            return reason
+        self._install(self.parser.out)
+        return ""
+
+    def _order_problem(self, m: np.void) -> str:
+        """Epoch and sequence order (DESIGN §3): stale epochs and repeats are rejected."""
+        epoch, seq = int(m["epoch"]), int(m["seq"])
+        if epoch < self.epoch:
+            return "epoch"
+        if epoch == self.epoch and seq <= self.last_seq:
+            return "sequence"
+        if epoch == self.epoch and self.ready and int(m["dof"]) != int(self.slots[0]["dof"]):
+            return "dof"
+        return ""
+
+    def _install(self, parsed: np.ndarray) -> None:
+        m = parsed[0]
+        new_epoch = int(m["epoch"]) != self.epoch
+        slots = self.slots
+        if new_epoch:
+            slots[1]["valid"] = 0
+        else:
+            slots[1] = slots[0]
+        slots[0] = m
+        inherit_contact_state(slots[0], slots[1], CONTACT_MATCH_RADIUS_M)
+        st = self.state[0]
+        st["blend"] = 0.0 if slots[1]["valid"] else 1.0
+        self.last_seq = int(m["seq"])
+        self.counters.installed += 1
+        self._sim_times.append(float(m["sim_time"]))
+        if self.method == METHOD_VIRTUAL_COUPLING_FOH:
+            self._advance_foh(slots[0]["tool_pose"])
+        if new_epoch:
+            self.epoch = int(m["epoch"])
+            self.counters.epochs += 1
+            self._reinitialise(slots[0])
+
+    def _reinitialise(self, m: np.void) -> None:
+        """Start (or restart) from the sim's tool state; the device is mapped onto the VM so
+        the coupling starts at rest, and forces fade in from the safe state."""
+        st = self.state[0]
+        st["q"] = m["q"]
+        st["qd"] = m["qd"]
+        st["fault"] = FAULT_NONE
+        st["foh_goal"] = m["tool_pose"]
+        st["foh_steps_left"] = 0
+        self.device.true_state(self._true_pose, self._true_twist)
+        first = self.counters.epochs == 1
+        if first and hasattr(self.device, "reset"):
+            # a simulated device starts at its home pose, offset from the VM as the scene says
+            self.device.reset(np.zeros(3))
+            self.device.true_state(self._true_pose, self._true_twist)
+            target = m["tool_pose"] + np.array(self.scene.initial_device_offset)
+        else:
+            target = m["tool_pose"].copy()
+            self.counters.reinitialisations += 1
+        self.offset = target - self._true_pose
+        st["prev_device_twist"] = self._true_twist
+        self.user[0]["start_pose"] = self._true_pose
+        st["safe_target"] = 0.0
+        if first:
+            st["safe"] = 0.0  # everything starts at rest: no force to fade in
+
+    def _advance_foh(self, target: np.ndarray) -> None:
+        """Seed 002's setpoint interpolation: move toward the sim's newest tool pose over the
+        mean of the last three sim intervals (first-order hold), or jump (zero-order hold)."""
+        st = self.state[0]
+        if int(self.params[0]["foh_interpolate"]) == 0 or len(self._sim_times) < 2:
+            st["foh_goal"] = target
+            st["foh_steps_left"] = 0
+            return
+        times = np.array(self._sim_times)
+        t_avg = float(np.mean(np.diff(times)[-3:]))
+        steps = max(1, round(t_avg / self.dt_nominal))
+        st["foh_step"] = (target - st["foh_goal"]) / steps
+        st["foh_steps_left"] = steps
+
+    # --- ticks --------------------------------------------------------------------------
+
+    def set_safe(self, safe: bool) -> None:
+        """Ramp to (or back from) the safe state: damping only (watchdog, shutdown)."""
+        self.state[0]["safe_target"] = 1.0 if safe else 0.0
+
+    def tick(self, dt: float) -> np.ndarray:
+        """One tick: user -> device sensors -> local model + control -> device. Returns the row."""
+        dev = self.device
+        row = self.row
+        r = row[0]
+        dev.true_state(self._true_pose, self._true_twist)
+        hand_wrench(self.user, self.time, self._true_pose, self._true_twist, self.hand)
+        dev.sense_hand(self.hand)
+        dev.read(self.sensors)
+        ws = self.world_sensors
+        begin_tick(
+            self.sensors,
+            self.offset,
+            self.hand,
+            self.tick_index,
+            self.time,
+            ws,
+            self.hand_measured,
+            row,
+        )
+        if self.ready:
+            haptic_tick(
+                self.slots, self.params, self.state, ws, self.hand_measured, dt, self.scratch, row
+            )
+        command = r["wrench_command"]
+        r["wrench_applied"] = dev.command(command)
+        dev.advance(dt, self.hand)
+        self.tick_index += 1
+        self.time += dt
+        return row
+
+    def proxy_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        d = int(self.slots[0]["dof"])
+        st = self.state[0]
+        return st["q"][:d].copy(), st["qd"][:d].copy()
+
+    def device_world_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        self.device.true_state(self._true_pose, self._true_twist)
+        return self._true_pose + self.offset, self._true_twist.copy()

@@ -1,0 +1,236 @@
+"""The MCAP log of a haptic run (docs/log-format.md is the reference).
+
+Topics:
+- `/haptic/tick`: every tick, `ros1` encoding with a `ros1msg` schema generated from
+  TICK_DTYPE (a packed little-endian record: Foxglove and the mcap tools read it, and numpy
+  decodes it with one `frombuffer`).
+- `/haptic/update`: every local-model update as received, JSON with a jsonschema schema.
+- `/haptic/event`: watchdog, rejected messages, faults, re-initialisations, JSON.
+Run metadata (configs, version, host, start time) is written as MCAP metadata records.
+
+Chunks are small and flushed often so a log cut by SIGKILL is recoverable record by record
+(`recover`), and the real-time server writes through a separate process (`log_process`).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from mcap.reader import NonSeekingReader, make_reader
+from mcap.writer import CompressionType, Writer
+
+from haptic_server.layout import TICK_DTYPE
+from shared.messages import LocalModelUpdate, MessageError, decode_update
+
+TICK_TOPIC = "/haptic/tick"
+UPDATE_TOPIC = "/haptic/update"
+EVENT_TOPIC = "/haptic/event"
+TICK_SCHEMA_NAME = "haptic_server/Tick"
+CHUNK_SIZE = 256 * 1024  # bytes: about 0.5 s of ticks, so a crash loses at most that
+
+_ROS1_TYPES = {
+    np.dtype(np.float64): "float64",
+    np.dtype(np.int64): "int64",
+    np.dtype(np.uint64): "uint64",
+    np.dtype(np.int32): "int32",
+    np.dtype(np.uint8): "uint8",
+}
+
+
+def ros1msg_schema(dtype: np.dtype) -> str:
+    """The ros1msg definition whose serialization is exactly a packed record of `dtype`."""
+    lines = []
+    for name in dtype.names or ():
+        sub = dtype.fields[name][0]  # type: ignore[index]
+        if sub.subdtype is not None:
+            base, shape = sub.subdtype
+            lines.append(f"{_ROS1_TYPES[base]}[{int(np.prod(shape))}] {name}")
+        else:
+            lines.append(f"{_ROS1_TYPES[sub]} {name}")
+    return "\n".join(lines) + "\n"
+
+
+UPDATE_JSON_SCHEMA = {
+    "type": "object",
+    "title": "haptic_server/LocalModelUpdate",
+    "properties": {
+        "tick": {"type": "integer", "description": "haptic tick at which it was received"},
+        "installed": {"type": "boolean"},
+        "reason": {"type": "string", "description": "rejection reason, empty if installed"},
+        "epoch": {"type": "integer"},
+        "seq": {"type": "integer"},
+        "sim_time": {"type": "number"},
+        "age_ms": {"type": "number"},
+        "dof": {"type": "integer"},
+        "q": {"type": "array", "items": {"type": "number"}},
+        "n_contacts": {"type": "integer"},
+        "n_resisted": {"type": "integer"},
+        "has_gravity": {"type": "boolean"},
+        "tool_touching": {"type": "boolean"},
+        "size_bytes": {"type": "integer"},
+        "raw_b64": {"type": "string", "description": "the message bytes as received"},
+    },
+}
+EVENT_JSON_SCHEMA = {
+    "type": "object",
+    "title": "haptic_server/Event",
+    "properties": {
+        "tick": {"type": "integer"},
+        "kind": {"type": "string"},
+        "detail": {"type": "string"},
+    },
+}
+
+
+class LogWriter:
+    """Writes ticks, updates and events to an MCAP file (synchronously)."""
+
+    def __init__(self, path: Path | str, metadata: dict[str, dict[str, str]] | None = None) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh: IO[bytes] = self.path.open("wb")
+        self._writer = Writer(self._fh, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        self._writer.start(profile="", library="haptic-local-model")
+        tick_schema = self._writer.register_schema(
+            TICK_SCHEMA_NAME, "ros1msg", ros1msg_schema(TICK_DTYPE).encode()
+        )
+        update_schema = self._writer.register_schema(
+            "haptic_server/LocalModelUpdate", "jsonschema", json.dumps(UPDATE_JSON_SCHEMA).encode()
+        )
+        event_schema = self._writer.register_schema(
+            "haptic_server/Event", "jsonschema", json.dumps(EVENT_JSON_SCHEMA).encode()
+        )
+        self._tick_ch = self._writer.register_channel(TICK_TOPIC, "ros1", tick_schema)
+        self._update_ch = self._writer.register_channel(UPDATE_TOPIC, "json", update_schema)
+        self._event_ch = self._writer.register_channel(EVENT_TOPIC, "json", event_schema)
+        for name, data in (metadata or {}).items():
+            self._writer.add_metadata(name, data)
+        self._seq = 0
+        self.closed = False
+
+    def tick(self, row_bytes: bytes, log_time_ns: int) -> None:
+        self._seq += 1
+        self._writer.add_message(self._tick_ch, log_time_ns, row_bytes, log_time_ns, self._seq)
+
+    def update(self, record: dict[str, Any], log_time_ns: int) -> None:
+        """Log a received update given as update_record(...) (decoded here, off the loop)."""
+        self._seq += 1
+        msg = json.dumps(update_json(record)).encode()
+        self._writer.add_message(self._update_ch, log_time_ns, msg, log_time_ns, self._seq)
+
+    def event(self, tick: int, kind: str, detail: str, log_time_ns: int) -> None:
+        self._seq += 1
+        msg = json.dumps({"tick": tick, "kind": kind, "detail": detail}).encode()
+        self._writer.add_message(self._event_ch, log_time_ns, msg, log_time_ns, self._seq)
+
+    def flush(self) -> None:
+        self._fh.flush()
+
+    def close(self) -> None:
+        if not self.closed:
+            self._writer.finish()
+            self._fh.close()
+            self.closed = True
+
+
+def update_record(tick: int, raw: bytes, reason: str, age_ms: float) -> dict[str, Any]:
+    """What the loop logs of a received update: the bytes and the verdict (cheap)."""
+    return {"tick": tick, "reason": reason, "age_ms": age_ms, "raw": raw}
+
+
+def update_json(record: dict[str, Any]) -> dict[str, Any]:
+    """The JSON form of a received update (installed or rejected), decoded for the log."""
+    raw = record["raw"]
+    reason = record["reason"]
+    try:
+        update: LocalModelUpdate | None = decode_update(raw)
+    except MessageError:
+        update = None
+    rec: dict[str, Any] = {
+        "tick": record["tick"],
+        "installed": update is not None and not reason,
+        "reason": reason,
+        "size_bytes": len(raw),
+        "age_ms": record["age_ms"],
+        "raw_b64": base64.b64encode(raw).decode(),
+    }
+    if update is not None:
+        rec.update(
+            epoch=update.epoch, seq=update.seq, sim_time=update.sim_time, dof=update.dof,
+            q=update.q.tolist(), n_contacts=update.contacts.count,
+            n_resisted=0 if update.resisted is None else len(update.resisted),
+            has_gravity=update.gravity is not None, tool_touching=update.tool_touching,
+        )  # fmt: skip
+    return rec
+
+
+def run_metadata(
+    configs: dict[str, str], extra: dict[str, str] | None = None
+) -> dict[str, dict[str, str]]:
+    """Metadata records: the config files' text, version, host and start time."""
+    import platform
+
+    from shared import __version__
+
+    meta = {
+        "run": {
+            "version": __version__,
+            "host": platform.node(),
+            "start_time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            **(extra or {}),
+        }
+    }
+    meta["configs"] = configs
+    return meta
+
+
+# --- reading ------------------------------------------------------------------------------
+
+
+def read_ticks(path: Path | str) -> np.ndarray:
+    """All tick records of a log as a TICK_DTYPE array (indexed reader, else streaming)."""
+    rows = [data for topic, data in iter_messages(path) if topic == TICK_TOPIC]
+    if not rows:
+        return np.zeros(0, TICK_DTYPE)
+    return np.frombuffer(b"".join(rows), TICK_DTYPE)
+
+
+def iter_messages(path: Path | str) -> Iterator[tuple[str, bytes]]:
+    """(topic, payload) of every message in file order; tolerates a missing footer."""
+    if is_indexed(path):
+        with Path(path).open("rb") as fh:
+            for _schema, channel, message in make_reader(fh).iter_messages(log_time_order=False):
+                yield channel.topic, message.data
+            return
+    with Path(path).open("rb") as fh:
+        stream = NonSeekingReader(fh)
+        try:
+            for _schema, channel, message in stream.iter_messages(log_time_order=False):
+                yield channel.topic, message.data
+        except Exception:
+            return
+
+
+def is_indexed(path: Path | str) -> bool:
+    """True if the file has a readable summary (it was closed properly)."""
+    with Path(path).open("rb") as fh:
+        try:
+            return make_reader(fh).get_summary() is not None
+        except Exception:
+            return False
+
+
+def read_json_topic(path: Path | str, topic: str) -> list[dict[str, Any]]:
+    return [json.loads(data) for t, data in iter_messages(path) if t == topic]
+
+
+def read_metadata(path: Path | str) -> dict[str, dict[str, str]]:
+    with Path(path).open("rb") as fh:
+        reader = make_reader(fh)
+        return {m.name: dict(m.metadata) for m in reader.iter_metadata()}

@@ -1,0 +1,215 @@
+"""`haptic-run`: launch the sim and haptic servers as two OS processes, run, stop, summarise.
+
+With `--clock virtual` it runs the same code in one process on a simulated clock instead.
+Children get PR_SET_PDEATHSIG, so they never outlive haptic-run, and every child is stopped
+by its own pid whatever happens to the other.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import IO, Any
+
+from shared.cli import add_config_args, run_main
+from shared.config import REPO_ROOT, load_network, load_scene, load_user, resolve
+
+READY_TIMEOUT_S = 300.0  # a cold numba cache compiles for a minute or two on 2 cores
+STOP_TIMEOUT_S = 30.0
+
+
+def _die_with_parent() -> None:
+    """Child side of Popen: SIGTERM us if haptic-run dies (Linux prctl PR_SET_PDEATHSIG)."""
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGTERM)
+    except OSError:
+        pass
+
+
+class Child:
+    """A server process whose JSON event lines are read on a thread."""
+
+    def __init__(self, name: str, argv: list[str]) -> None:
+        self.name = name
+        self.proc = subprocess.Popen(
+            argv, stdout=subprocess.PIPE, stderr=None, text=True, cwd=REPO_ROOT,
+            preexec_fn=_die_with_parent,
+        )  # fmt: skip
+        self.events: list[dict[str, Any]] = []
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=self._read, args=(self.proc.stdout,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream: IO[str] | None) -> None:
+        assert stream is not None
+        for line in stream:
+            try:
+                event = json.loads(line)
+            except json.JSONDecodeError:
+                sys.stdout.write(f"[{self.name}] {line}")
+                continue
+            self.events.append(event)
+            if event.get("event") == "ready":
+                self._ready.set()
+
+    def wait_ready(self, timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if self._ready.wait(0.1):
+                return True
+            if self.proc.poll() is not None:
+                return False
+        return False
+
+    def stop(self, timeout: float = STOP_TIMEOUT_S) -> int:
+        """SIGTERM, then SIGKILL after `timeout`; returns the exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+        try:
+            code = self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            code = self.proc.wait()
+        self._thread.join(2.0)
+        return code
+
+
+def _server_argv(module: str, args: argparse.Namespace, extra: list[str]) -> list[str]:
+    argv = [sys.executable, "-m", module, "--scene", args.scene, "--network", args.network]
+    return argv + extra
+
+
+def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
+    """The two-process system: haptic (listener) first, then the sim, then the duration."""
+    # validate every file here so a bad config fails fast with exit 2
+    load_scene(args.scene)
+    load_user(args.user)
+    load_network(args.network)
+    resolve("devices", args.device)
+    from device_models.registry import load_device
+
+    load_device(args.device)
+    summary_dir = Path(args.log).parent if args.log else REPO_ROOT / "runs"
+    summary_dir.mkdir(parents=True, exist_ok=True)
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    haptic_json = summary_dir / f"haptic-summary-{stamp}-{os.getpid()}.json"
+    sim_json = summary_dir / f"sim-summary-{stamp}-{os.getpid()}.json"
+    haptic_extra = [
+        "--device",
+        args.device,
+        "--user",
+        args.user,
+        "--duration",
+        str(args.duration),
+        "--summary-json",
+        str(haptic_json),
+    ]
+    if args.log:
+        haptic_extra += ["--log", str(args.log)]
+    haptic = Child("haptic", _server_argv("haptic_server.cli", args, haptic_extra))
+    sim: Child | None = None
+    try:
+        if not haptic.wait_ready(READY_TIMEOUT_S):
+            raise RuntimeError(f"haptic server did not become ready (exit {haptic.proc.poll()})")
+        sim = Child("sim", _server_argv("sim_server.cli", args, ["--summary-json", str(sim_json)]))
+        if not sim.wait_ready(READY_TIMEOUT_S):
+            raise RuntimeError(f"sim server did not become ready (exit {sim.proc.poll()})")
+        code = haptic.proc.wait(args.duration + STOP_TIMEOUT_S + 30.0)
+        if code != 0:
+            raise RuntimeError(f"haptic server exited with {code}")
+    finally:
+        codes = {"haptic": haptic.stop()}
+        if sim is not None:
+            codes["sim"] = sim.stop()
+    summary = json.loads(haptic_json.read_text())
+    summary["sim"] = json.loads(sim_json.read_text()) if sim_json.exists() else None
+    summary["exit_codes"] = codes
+    haptic_json.unlink(missing_ok=True)
+    sim_json.unlink(missing_ok=True)
+    return summary
+
+
+def run_virtual_clock(args: argparse.Namespace) -> dict[str, Any]:
+    from haptic_server.virtual import run_virtual_named
+
+    result = run_virtual_named(args.scene, args.device, args.user, args.duration, args.log)
+    ticks = result.ticks
+    return {
+        "clock": "virtual",
+        "ticks": int(ticks.shape[0]),
+        "simulated_s": result.sim_s,
+        "wall_s": result.wall_s,
+        "speedup": result.speedup,
+        "updates_received": result.updates,
+        "log": str(args.log) if args.log else None,
+    }
+
+
+def print_summary(s: dict[str, Any]) -> None:
+    if s.get("clock") == "virtual":
+        print(
+            f"virtual clock: {s['ticks']} ticks, {s['simulated_s']:.2f} s simulated in "
+            f"{s['wall_s']:.2f} s ({s['speedup']:.0f}x real time), {s['updates_received']} updates"
+        )
+    else:
+        lat, work, age = s["lateness_us"], s["work_us"], s["update_age_ms"]
+        print(
+            f"ticks:         {s['ticks']} in {s['duration_s']:.2f} s ({s['tick_rate_hz']:.1f} Hz)"
+        )
+        print(
+            f"lateness (us): p50 {lat['p50']:.1f}  p99 {lat['p99']:.1f}  "
+            f"p99.9 {lat['p99_9']:.1f}  max {lat['max']:.1f}"
+        )
+        print(f"late > 1 ms:   {s['late_ticks_over_1ms']}   overruns: {s['overruns']}")
+        print(f"work (us):     p50 {work['p50']:.1f}  p99 {work['p99']:.1f}  max {work['max']:.1f}")
+        print(
+            f"updates:       {s['updates_received']} ({s['update_rate_hz']:.1f} Hz), "
+            f"age p50 {age['p50']:.2f} ms  p99 {age['p99']:.2f} ms"
+        )
+        print(f"watchdog:      {s['watchdog_trips']} trips; exit codes {s.get('exit_codes')}")
+    if s.get("log"):
+        print(f"log:           {s['log']}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="haptic-run", description=__doc__)
+    add_config_args(parser)
+    parser.add_argument("--duration", type=float, default=10.0, help="seconds to run (default 10)")
+    parser.add_argument("--clock", choices=["real", "virtual"], default="real")
+    parser.add_argument(
+        "--log", type=Path, default=None, help="MCAP log (default runs/<time>.mcap)"
+    )
+    parser.add_argument("--no-log", action="store_true", help="run without a log")
+    parser.add_argument("--summary-json", type=Path, default=None)
+    args = parser.parse_args(argv)
+    if args.log is None and not args.no_log:
+        args.log = REPO_ROOT / "runs" / f"{time.strftime('%Y%m%d-%H%M%S')}-{args.scene}.mcap"
+    if args.no_log:
+        args.log = None
+
+    def body() -> int:
+        summary = run_virtual_clock(args) if args.clock == "virtual" else run_real_time(args)
+        print_summary(summary)
+        if args.summary_json:
+            args.summary_json.parent.mkdir(parents=True, exist_ok=True)
+            args.summary_json.write_text(json.dumps(summary, indent=2))
+        return 0
+
+    try:
+        return run_main(body)
+    except RuntimeError as exc:
+        print(f"haptic-run: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

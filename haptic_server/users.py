@@ -1,0 +1,66 @@
+"""Simulated users ("hands", DESIGN §5): a constant wrench, or a spring-damper hand that
+follows waypoints relative to where the device started."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from shared.config import UserConfig
+
+MAX_WAYPOINTS = 64
+USER_CONSTANT = 0
+USER_WAYPOINTS = 1
+
+USER_DTYPE = np.dtype(
+    [
+        ("kind", np.int64),
+        ("wrench", np.float64, (3,)),
+        ("stiffness", np.float64, (3,)),
+        ("damping", np.float64, (3,)),
+        ("max_wrench", np.float64, (3,)),
+        ("n_waypoints", np.int64),
+        ("waypoints", np.float64, (MAX_WAYPOINTS, 4)),  # t, dx, dy, dtheta
+        ("start_pose", np.float64, (3,)),
+    ]
+)
+
+
+def user_record(config: UserConfig) -> np.ndarray:
+    """The user as a kernel record; waypoints beyond MAX_WAYPOINTS are rejected."""
+    if len(config.waypoints) > MAX_WAYPOINTS:
+        raise ValueError(f"waypoints: at most {MAX_WAYPOINTS} supported")
+    rec = np.zeros(1, USER_DTYPE)
+    u = rec[0]
+    u["kind"] = USER_CONSTANT if config.kind == "constant_wrench" else USER_WAYPOINTS
+    u["wrench"] = config.wrench
+    u["stiffness"] = config.stiffness
+    u["damping"] = config.damping
+    u["max_wrench"] = config.max_wrench
+    u["n_waypoints"] = len(config.waypoints)
+    if config.waypoints:
+        u["waypoints"][: len(config.waypoints)] = np.array(config.waypoints)
+    return rec
+
+
+@njit(cache=True)
+def hand_wrench(user, t, pose, twist, out):
+    """The hand's wrench on the device at time t for the device's true pose and twist."""
+    u = user[0]
+    if u.kind == USER_CONSTANT:
+        for c in range(3):
+            out[c] = u.wrench[c]
+        return
+    n = u.n_waypoints
+    wp = u.waypoints
+    k = 0
+    while k + 1 < n and wp[k + 1, 0] <= t:
+        k += 1
+    for c in range(3):
+        if t <= wp[0, 0] or k + 1 >= n:
+            target = wp[k, c + 1] if t > wp[0, 0] else wp[0, c + 1]
+        else:
+            s = (t - wp[k, 0]) / (wp[k + 1, 0] - wp[k, 0])
+            target = wp[k, c + 1] + s * (wp[k + 1, c + 1] - wp[k, c + 1])
+        f = u.stiffness[c] * (u.start_pose[c] + target - pose[c]) - u.damping[c] * twist[c]
+        out[c] = min(u.max_wrench[c], max(-u.max_wrench[c], f))

@@ -1,0 +1,21 @@
+"""Compile every numba kernel into the on-disk cache (`make warm`), so servers start fast."""
+
+from __future__ import annotations
+
+import time
+
+from device_models.registry import DEVICE_MODELS, load_device
+from haptic_server.virtual import run_virtual_named
+
+
+def main() -> None:
+    started = time.perf_counter()
+    for device in DEVICE_MODELS:
+        load_device(device)
+    for scene in ("free_box",):
+        run_virtual_named(scene, "ideal", "waypoints", 1.0)
+    print(f"numba kernels ready in {time.perf_counter() - started:.1f} s")
+
+
+if __name__ == "__main__":
+    main()

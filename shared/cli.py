@@ -1,0 +1,46 @@
+"""Helpers shared by the console scripts: config errors exit 2, JSON event lines."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable
+from typing import Any
+
+from shared.config import ConfigError
+
+EXIT_CONFIG = 2
+
+
+def add_config_args(
+    parser: argparse.ArgumentParser, device: bool = True, user: bool = True
+) -> None:
+    parser.add_argument(
+        "--scene", default="free_box", help="scene name in configs/scenes or a path"
+    )
+    if device:
+        parser.add_argument(
+            "--device", default="ideal", help="device name in configs/devices or a path"
+        )
+    if user:
+        parser.add_argument(
+            "--user", default="waypoints", help="user name in configs/users or a path"
+        )
+    parser.add_argument(
+        "--network", default="loopback", help="network name in configs/network or a path"
+    )
+
+
+def run_main(body: Callable[[], int]) -> int:
+    """Run a CLI body; a ConfigError prints its message and exits with code 2."""
+    try:
+        return body()
+    except ConfigError as exc:
+        print(f"config error: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
+
+
+def emit(kind: str, **fields: Any) -> None:
+    """One JSON line on stdout: how haptic-run and the tests follow a server."""
+    print(json.dumps({"event": kind, **fields}), flush=True)

@@ -1,0 +1,421 @@
+"""Configuration: TOML files loaded once into frozen dataclasses, validated at load.
+
+Every problem is reported as a `ConfigError` naming the file, the dotted key and what is
+wrong; the command-line entry points turn it into exit code 2. CLI flags only choose files
+(and a few overrides), they never mutate a loaded config.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+CONFIG_ROOT = REPO_ROOT / "configs"
+
+Vec2 = tuple[float, float]
+Vec3 = tuple[float, float, float]
+
+
+class ConfigError(Exception):
+    """A config file is missing, unreadable or wrong: names the file, the key and the problem."""
+
+    def __init__(self, source: str, key: str, problem: str) -> None:
+        self.source, self.key, self.problem = source, key, problem
+        where = f"key '{key}'" if key else "file"
+        super().__init__(f"{source}: {where}: {problem}")
+
+
+# --- generic strict loader ------------------------------------------------------------------
+
+
+def _type_name(tp: Any) -> str:
+    origin = typing.get_origin(tp)
+    if origin is Literal:
+        return " | ".join(repr(a) for a in typing.get_args(tp))
+    if origin in (tuple, dict) or isinstance(tp, types.UnionType):
+        return str(tp).replace("typing.", "")
+    return getattr(tp, "__name__", str(tp))
+
+
+def _convert(value: Any, tp: Any, source: str, key: str) -> Any:
+    """Check `value` against the annotation `tp` and convert lists to tuples."""
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    bad = ConfigError(source, key, f"expected {_type_name(tp)}, got {value!r}")
+    if isinstance(tp, types.UnionType) or origin is typing.Union:
+        for option in args:
+            if option is type(None) and value is None:
+                return None
+        non_none = [a for a in args if a is not type(None)]
+        return _convert(value, non_none[0], source, key)
+    if origin is Literal:
+        if value not in args:
+            raise ConfigError(source, key, f"must be one of {list(args)}, got {value!r}")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise bad
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise bad
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise bad
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise bad
+        return value
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise bad
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(v, args[0], source, f"{key}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise ConfigError(source, key, f"expected {len(args)} values, got {len(value)}")
+        return tuple(
+            _convert(v, a, source, f"{key}[{i}]")
+            for i, (v, a) in enumerate(zip(value, args, strict=True))
+        )
+    if origin is dict:
+        if not isinstance(value, Mapping):
+            raise bad
+        return {k: _convert(v, args[1], source, f"{key}.{k}") for k, v in value.items()}
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, Mapping):
+            raise ConfigError(source, key, f"expected a table, got {value!r}")
+        return load_dataclass(tp, value, source, key)
+    raise TypeError(f"unsupported config annotation {tp!r} at {key}")
+
+
+def load_dataclass(cls: Any, data: Mapping[str, Any], source: str, prefix: str = "") -> Any:
+    """Build the frozen dataclass `cls` from a TOML table, rejecting unknown or missing keys."""
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    for key in data:
+        if key not in fields:
+            known = ", ".join(sorted(fields))
+            raise ConfigError(source, _join(prefix, key), f"unknown key (known keys: {known})")
+    kwargs: dict[str, Any] = {}
+    for name, f in fields.items():
+        key = _join(prefix, name)
+        if name in data:
+            kwargs[name] = _convert(data[name], hints[name], source, key)
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise ConfigError(source, key, "missing required key")
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:  # raised by __post_init__ checks as "key: problem"
+        sub_key, _, problem = str(exc).partition(": ")
+        raise ConfigError(source, _join(prefix, sub_key), problem or str(exc)) from None
+
+
+def _join(prefix: str, key: str) -> str:
+    return f"{prefix}.{key}" if prefix else key
+
+
+def read_toml(path: Path | str) -> dict[str, Any]:
+    """Read a TOML file, turning every failure into a ConfigError naming the file."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(str(p), "", "file not found")
+    try:
+        with p.open("rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(str(p), "", f"not valid TOML: {exc}") from None
+
+
+def resolve(kind: str, name_or_path: str) -> Path:
+    """A bare name `free_box` means configs/<kind>/free_box.toml; anything else is a path."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.parent != Path("."):
+        return p
+    return CONFIG_ROOT / kind / f"{name_or_path}.toml"
+
+
+def _require(cond: bool, key: str, problem: str) -> None:
+    if not cond:
+        raise ValueError(f"{key}: {problem}")
+
+
+# --- scene ----------------------------------------------------------------------------------
+
+RenderingMethod = Literal[
+    "local_model", "impedance_only", "virtual_coupling", "virtual_coupling_foh"
+]
+BodyKind = Literal["static", "dynamic", "kinematic"]
+ShapeKind = Literal["box", "segment", "circle"]
+
+
+@dataclass(frozen=True)
+class Material:
+    """Contact parameters of a surface (seed 001 eq 8; Poisson restitution)."""
+
+    stiffness_n_per_m: float
+    damping_ns_per_m: float
+    friction: float = 0.0
+    restitution: float = 0.0
+
+    def __post_init__(self) -> None:
+        _require(self.stiffness_n_per_m > 0, "stiffness_n_per_m", "must be > 0")
+        _require(self.damping_ns_per_m >= 0, "damping_ns_per_m", "must be >= 0")
+        _require(self.friction >= 0, "friction", "must be >= 0")
+        _require(0 <= self.restitution <= 1, "restitution", "must be in [0, 1]")
+
+
+@dataclass(frozen=True)
+class BodySpec:
+    """A rigid body of the world: walls are static boxes or segments."""
+
+    name: str
+    kind: BodyKind
+    shape: ShapeKind
+    material: str
+    position: Vec2 = (0.0, 0.0)
+    angle: float = 0.0
+    size: Vec2 = (0.0, 0.0)  # box width, height (m)
+    a: Vec2 = (0.0, 0.0)  # segment end points in the body frame (m)
+    b: Vec2 = (0.0, 0.0)
+    radius: float = 0.0  # circle radius or segment half-thickness (m)
+    mass: float = 1.0  # kg (dynamic bodies)
+    velocity: Vec2 = (0.0, 0.0)  # initial (dynamic) or constant (kinematic), m/s
+    angular_velocity: float = 0.0
+    oscillation_amplitude: Vec2 = (0.0, 0.0)  # kinematic bodies: x(t) = x0 + A sin(2 pi t / T)
+    oscillation_period_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.shape == "box":
+            _require(self.size[0] > 0 and self.size[1] > 0, "size", "box sides must be > 0")
+        if self.shape == "circle":
+            _require(self.radius > 0, "radius", "circle radius must be > 0")
+        if self.shape == "segment":
+            _require(self.a != self.b, "b", "segment end points must differ")
+        _require(self.mass > 0, "mass", "must be > 0")
+        _require(self.oscillation_period_s >= 0, "oscillation_period_s", "must be >= 0")
+
+
+@dataclass(frozen=True)
+class LinkageSpec:
+    """A grounded planar serial linkage with revolute joints (DESIGN §2)."""
+
+    name: str
+    base: Vec2
+    lengths: tuple[float, ...]
+    masses: tuple[float, ...]
+    inertias: tuple[float, ...]  # about each link's COM, kg m^2
+    com_offsets: tuple[Vec2, ...]  # COM in the link frame (x along the link), m
+    initial_angles: tuple[float, ...]  # joint angles q0, rad
+    material: str
+    base_angle: float = 0.0
+    radius: float = 0.004  # half-thickness of the capsule drawn for each link, m
+
+    def __post_init__(self) -> None:
+        n = len(self.lengths)
+        _require(n >= 1, "lengths", "a linkage needs at least one link")
+        for key in ("masses", "inertias", "com_offsets", "initial_angles"):
+            _require(len(getattr(self, key)) == n, key, f"needs {n} entries, one per link")
+        _require(all(v > 0 for v in self.lengths), "lengths", "must be > 0")
+        _require(all(v > 0 for v in self.masses), "masses", "must be > 0")
+        _require(all(v > 0 for v in self.inertias), "inertias", "must be > 0")
+        _require(self.radius > 0, "radius", "must be > 0")
+
+
+@dataclass(frozen=True)
+class ToolSpec:
+    """What the user holds: a free body, or link `link` of a linkage, at `point` (local frame)."""
+
+    kind: Literal["body", "linkage"]
+    name: str
+    link: int = 0
+    point: Vec2 = (0.0, 0.0)
+    characteristic_length_m: float = 0.05  # scales the angular row of J_h (DESIGN §3)
+    rank_tolerance: float = 0.05  # relative singular value below which a direction is resisted
+    neighbourhood_margin_m: float = 0.02  # contacts within this gap are sent (DESIGN §3)
+    tracking_bandwidth_hz: float = 8.0  # how hard the sim's tool follows the proxy
+
+    def __post_init__(self) -> None:
+        _require(self.characteristic_length_m > 0, "characteristic_length_m", "must be > 0")
+        _require(0 < self.rank_tolerance < 1, "rank_tolerance", "must be in (0, 1)")
+        _require(self.neighbourhood_margin_m > 0, "neighbourhood_margin_m", "must be > 0")
+        _require(self.tracking_bandwidth_hz > 0, "tracking_bandwidth_hz", "must be > 0")
+
+
+@dataclass(frozen=True)
+class RenderingSpec:
+    """Haptic-side gains and the rendering method (DESIGN §4, §6)."""
+
+    method: RenderingMethod = "local_model"
+    coordination_stiffness: Vec3 = (100.0, 100.0, 0.5)  # K_pc, N/m, N/m, Nm/rad
+    coordination_damping: Vec3 = (70.0, 70.0, 0.375)  # B_pc
+    penalty_stiffness: float = 200.0  # k_j, N/m/kg (seed 000 eq 17)
+    penalty_damping: float = 50.0  # b_j, N s/m/kg
+    desired_damping: Vec3 = (0.0, 0.0, 0.0)  # b_d of the VM at the hand (seed 000 eq 4)
+    desired_stiffness: Vec3 = (0.0, 0.0, 0.0)  # k_d
+    impulses: bool = True  # colliding contacts resolved by impulses (seed 001 §3.2)
+    collision_speed_m_per_s: float = 0.01  # approach speed above which a new contact collides
+    friction_stiffness_ratio: float = 1.0  # tangential stick stiffness / normal stiffness
+    blend_ms: float = 8.0  # cross-fade of old and new geometry after an update
+    virtual_coupling_stiffness: Vec3 = (50.0, 50.0, 0.2)  # seed 000 §VIII baseline
+    virtual_coupling_damping: Vec3 = (3.0, 3.0, 0.005)
+    # virtual_coupling_foh, sim side (seed 002 table, SI): the tool's spring to the device
+    foh_spring_stiffness: Vec3 = (1.0e5, 1.0e5, 800.0)
+    foh_spring_damping: Vec3 = (1.0e4, 1.0e4, 20.0)
+
+    def __post_init__(self) -> None:
+        for key in ("coordination_stiffness", "coordination_damping", "desired_damping"):
+            _require(all(v >= 0 for v in getattr(self, key)), key, "must be >= 0")
+        _require(self.penalty_stiffness >= 0, "penalty_stiffness", "must be >= 0")
+        _require(self.penalty_damping >= 0, "penalty_damping", "must be >= 0")
+        _require(self.blend_ms >= 0, "blend_ms", "must be >= 0")
+        _require(self.collision_speed_m_per_s >= 0, "collision_speed_m_per_s", "must be >= 0")
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """A scene: the world the sim builds and the gains the haptic side renders it with."""
+
+    name: str
+    description: str
+    tool: ToolSpec
+    materials: dict[str, Material]
+    gravity: Vec2 = (0.0, 0.0)
+    sim_rate_hz: float = 60.0
+    sim_substeps: int = 10
+    haptic_rate_hz: float = 1000.0
+    initial_device_offset: Vec3 = (0.0, 0.0, 0.0)  # device start pose minus the VM's, m, rad
+    bodies: tuple[BodySpec, ...] = ()
+    linkages: tuple[LinkageSpec, ...] = ()
+    rendering: RenderingSpec = field(default_factory=RenderingSpec)
+
+    def __post_init__(self) -> None:
+        _require(10.0 <= self.sim_rate_hz <= 500.0, "sim_rate_hz", "must be in [10, 500] Hz")
+        _require(self.sim_substeps >= 1, "sim_substeps", "must be >= 1")
+        _require(
+            100.0 <= self.haptic_rate_hz <= 5000.0, "haptic_rate_hz", "must be in [100, 5000] Hz"
+        )
+        names = [b.name for b in self.bodies] + [lk.name for lk in self.linkages]
+        _require(len(names) == len(set(names)), "bodies", "body and linkage names must be unique")
+        for i, b in enumerate(self.bodies):
+            _require(
+                b.material in self.materials,
+                f"bodies[{i}].material",
+                f"unknown material {b.material!r}",
+            )
+        for i, lk in enumerate(self.linkages):
+            _require(
+                lk.material in self.materials,
+                f"linkages[{i}].material",
+                f"unknown material {lk.material!r}",
+            )
+        if self.tool.kind == "body":
+            match = [b for b in self.bodies if b.name == self.tool.name]
+            _require(bool(match), "tool.name", f"no body named {self.tool.name!r}")
+            _require(match[0].kind == "dynamic", "tool.name", "the held body must be dynamic")
+        else:
+            match_l = [lk for lk in self.linkages if lk.name == self.tool.name]
+            _require(bool(match_l), "tool.name", f"no linkage named {self.tool.name!r}")
+            _require(0 <= self.tool.link < len(match_l[0].lengths), "tool.link", "no such link")
+
+    @property
+    def tool_body(self) -> BodySpec:
+        return next(b for b in self.bodies if b.name == self.tool.name)
+
+    @property
+    def tool_linkage(self) -> LinkageSpec:
+        return next(lk for lk in self.linkages if lk.name == self.tool.name)
+
+
+# --- users (simulated hands) ----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class UserConfig:
+    """A simulated hand: a constant wrench, or a spring-damper following waypoints.
+
+    Waypoints are (t_s, dx, dy, dtheta) relative to the device's start pose, linearly
+    interpolated and held after the last one.
+    """
+
+    name: str
+    kind: Literal["constant_wrench", "waypoints"]
+    wrench: Vec3 = (0.0, 0.0, 0.0)  # N, N, N m (constant_wrench)
+    stiffness: Vec3 = (200.0, 200.0, 0.5)  # hand grip stiffness (waypoints)
+    damping: Vec3 = (10.0, 10.0, 0.02)
+    waypoints: tuple[tuple[float, float, float, float], ...] = ()
+    max_wrench: Vec3 = (20.0, 20.0, 1.0)  # a hand pushes no harder than this
+
+    def __post_init__(self) -> None:
+        if self.kind == "waypoints":
+            _require(len(self.waypoints) >= 1, "waypoints", "needs at least one waypoint")
+            times = [w[0] for w in self.waypoints]
+            _require(times == sorted(times), "waypoints", "times must be increasing")
+        _require(all(v > 0 for v in self.max_wrench), "max_wrench", "must be > 0")
+
+
+# --- network --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class EndpointSpec:
+    """Zenoh endpoints of one process (peer mode, no multicast scouting)."""
+
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Key-expression namespace and the endpoints of both processes."""
+
+    namespace: str = "haptic/default"
+    haptic: EndpointSpec = field(default_factory=EndpointSpec)
+    sim: EndpointSpec = field(default_factory=EndpointSpec)
+    proxy_publish_hz: float = 250.0  # haptic -> sim proxy state rate
+    watchdog_ms: float = 100.0  # no valid update for this long: device to safe state
+    safe_ramp_ms: float = 50.0  # force ramp into (and out of) the safe state
+
+    def __post_init__(self) -> None:
+        _require(
+            bool(self.namespace) and "*" not in self.namespace, "namespace", "must be a plain key"
+        )
+        _require(self.proxy_publish_hz > 0, "proxy_publish_hz", "must be > 0")
+        _require(self.watchdog_ms > 0, "watchdog_ms", "must be > 0")
+        _require(self.safe_ramp_ms > 0, "safe_ramp_ms", "must be > 0")
+
+
+# --- loading entry points -------------------------------------------------------------------
+
+
+def load_scene(name_or_path: str) -> SceneConfig:
+    path = resolve("scenes", name_or_path)
+    return load_dataclass(SceneConfig, read_toml(path), str(path))
+
+
+def load_user(name_or_path: str) -> UserConfig:
+    path = resolve("users", name_or_path)
+    return load_dataclass(UserConfig, read_toml(path), str(path))
+
+
+def load_network(name_or_path: str) -> NetworkConfig:
+    path = resolve("network", name_or_path)
+    return load_dataclass(NetworkConfig, read_toml(path), str(path))
+
+
+def load_device_table(name_or_path: str) -> tuple[str, dict[str, Any], str]:
+    """Read a device file: returns (model name, the rest of the table, source path)."""
+    path = resolve("devices", name_or_path)
+    data = read_toml(path)
+    model = data.pop("model", None)
+    if not isinstance(model, str):
+        raise ConfigError(str(path), "model", 'missing or not a string (e.g. model = "ideal")')
+    return model, data, str(path)

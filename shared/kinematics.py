@@ -1,0 +1,117 @@
+"""Planar serial-chain kinematics and dynamics terms shared by the sim and the haptic kernels.
+
+A tool is a chain of joints (DESIGN §2). A free rigid body is the chain
+(prismatic x, prismatic y, revolute) with zero lengths, so one set of kernels serves both.
+Link i's frame sits at joint i with absolute angle phi_i; points on a link are given in that
+frame. All functions are numba kernels over preallocated arrays (no allocation inside).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+REVOLUTE = 0
+PRISMATIC_X = 1  # slides along the world x axis (used before any revolute joint)
+PRISMATIC_Y = 2
+
+MAX_DOF = 12
+
+
+@njit(cache=True)
+def link_frames(joint_types, lengths, base, base_angle, q, dof, frame_pos, frame_angle):
+    """Origin (joint position) and absolute angle of every link frame at configuration q."""
+    px = base[0]
+    py = base[1]
+    phi = base_angle
+    for i in range(dof):
+        jt = joint_types[i]
+        if jt == REVOLUTE:
+            phi += q[i]
+        elif jt == PRISMATIC_X:
+            px += q[i]
+        else:
+            py += q[i]
+        frame_pos[i, 0] = px
+        frame_pos[i, 1] = py
+        frame_angle[i] = phi
+        px += lengths[i] * math.cos(phi)
+        py += lengths[i] * math.sin(phi)
+
+
+@njit(cache=True)
+def point_on_link(frame_pos, frame_angle, link, local_point, out):
+    """World position of `local_point` given in the frame of `link`."""
+    c = math.cos(frame_angle[link])
+    s = math.sin(frame_angle[link])
+    out[0] = frame_pos[link, 0] + c * local_point[0] - s * local_point[1]
+    out[1] = frame_pos[link, 1] + s * local_point[0] + c * local_point[1]
+
+
+@njit(cache=True)
+def point_jacobian(joint_types, frame_pos, dof, link, px, py, jac):
+    """3 x dof Jacobian of (P_x, P_y, phi_link) for world point P on `link` (DESIGN §2)."""
+    for j in range(dof):
+        if j > link:
+            jac[0, j] = 0.0
+            jac[1, j] = 0.0
+            jac[2, j] = 0.0
+        elif joint_types[j] == REVOLUTE:
+            jac[0, j] = -(py - frame_pos[j, 1])
+            jac[1, j] = px - frame_pos[j, 0]
+            jac[2, j] = 1.0
+        elif joint_types[j] == PRISMATIC_X:
+            jac[0, j] = 1.0
+            jac[1, j] = 0.0
+            jac[2, j] = 0.0
+        else:
+            jac[0, j] = 0.0
+            jac[1, j] = 1.0
+            jac[2, j] = 0.0
+
+
+@njit(cache=True)
+def mass_matrix_and_gravity(
+    joint_types,
+    lengths,
+    base,
+    base_angle,
+    masses,
+    inertias,
+    com_offsets,
+    gravity,
+    q,
+    dof,
+    frame_pos,
+    frame_angle,
+    jac,
+    mass_out,
+    gravity_out,
+):
+    """D(q) = sum m J_v^T J_v + I J_w^T J_w and G(q) = -sum m J_v^T g (DESIGN §2)."""
+    link_frames(joint_types, lengths, base, base_angle, q, dof, frame_pos, frame_angle)
+    com = np.empty(2)
+    for a in range(dof):
+        gravity_out[a] = 0.0
+        for b in range(dof):
+            mass_out[a, b] = 0.0
+    for i in range(dof):
+        if masses[i] == 0.0 and inertias[i] == 0.0:
+            continue
+        point_on_link(frame_pos, frame_angle, i, com_offsets[i], com)
+        point_jacobian(joint_types, frame_pos, dof, i, com[0], com[1], jac)
+        for a in range(dof):
+            gravity_out[a] -= masses[i] * (jac[0, a] * gravity[0] + jac[1, a] * gravity[1])
+            for b in range(dof):
+                mass_out[a, b] += masses[i] * (jac[0, a] * jac[0, b] + jac[1, a] * jac[1, b])
+                mass_out[a, b] += inertias[i] * jac[2, a] * jac[2, b]
+
+
+def free_body_chain() -> tuple[np.ndarray, np.ndarray]:
+    """Joint types and lengths of a free rigid body: q = (x, y, theta) of its frame."""
+    return (
+        np.array([PRISMATIC_X, PRISMATIC_Y, REVOLUTE], dtype=np.int64),
+        np.zeros(3),
+    )

@@ -1,0 +1,65 @@
+"""Loop timing: a sleep-then-spin wait, and bounded-memory statistics of lateness and work.
+
+STACK-NOTES: sleeping to ~0.5 ms before a deadline and spinning the rest on
+perf_counter_ns gives p50 lateness < 1 us on these VMs, where a plain sleep gives ~75 us.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+SPIN_NS = 500_000
+
+
+def wait_until(deadline_ns: int, spin_ns: int = SPIN_NS) -> int:
+    """Sleep until spin_ns before the deadline, then spin; returns perf_counter_ns() at exit."""
+    now = time.perf_counter_ns()
+    remaining = deadline_ns - now - spin_ns
+    if remaining > 0:
+        time.sleep(remaining / 1e9)
+    now = time.perf_counter_ns()
+    while now < deadline_ns:
+        now = time.perf_counter_ns()
+    return now
+
+
+class SampleWindow:
+    """The newest `capacity` samples of a quantity (preallocated), plus exact totals."""
+
+    def __init__(self, capacity: int) -> None:
+        self._buf = np.zeros(capacity, dtype=np.float64)
+        self.count = 0
+        self.maximum = 0.0
+
+    def add(self, value: float) -> None:
+        self._buf[self.count % self._buf.shape[0]] = value
+        self.count += 1
+        if value > self.maximum:
+            self.maximum = value
+
+    def values(self) -> np.ndarray:
+        return self._buf[: min(self.count, self._buf.shape[0])]
+
+    def percentiles(self, *qs: float) -> dict[str, float]:
+        v = self.values()
+        if v.size == 0:
+            return {f"p{_q_name(q)}": float("nan") for q in qs} | {"max": float("nan")}
+        out = {f"p{_q_name(q)}": float(np.percentile(v, q)) for q in qs}
+        out["max"] = float(self.maximum)
+        return out
+
+
+def _q_name(q: float) -> str:
+    return str(q).replace(".", "_").removesuffix("_0")
+
+
+@dataclass
+class LoopCounters:
+    """Exact counts over the whole run."""
+
+    ticks: int = 0
+    late_over_1ms: int = 0
+    overruns: int = 0  # ticks that started more than one period late (resynchronised)

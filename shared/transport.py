@@ -1,0 +1,53 @@
+"""Zenoh sessions and key expressions (peer mode, explicit endpoints, no multicast scouting).
+
+Key expressions under the configured namespace (docs/protocol.md):
+- `<ns>/local_model`: LocalModelUpdate, sim -> haptic
+- `<ns>/proxy`: ProxyState, haptic -> sim
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+
+from shared.config import EndpointSpec
+
+
+@dataclass(frozen=True)
+class Keys:
+    update: str
+    proxy: str
+
+
+def keys(namespace: str) -> Keys:
+    return Keys(update=f"{namespace}/local_model", proxy=f"{namespace}/proxy")
+
+
+def session_config(endpoints: EndpointSpec, extra: dict[str, Any] | None = None) -> zenoh.Config:
+    """A peer-mode config on explicit endpoints; gossip and multicast off (STACK-NOTES)."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/gossip/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps(list(endpoints.listen)))
+    conf.insert_json5("connect/endpoints", json.dumps(list(endpoints.connect)))
+    for key, value in (extra or {}).items():
+        conf.insert_json5(key, json.dumps(value))
+    return conf
+
+
+def open_session(endpoints: EndpointSpec, extra: dict[str, Any] | None = None) -> zenoh.Session:
+    return zenoh.open(session_config(endpoints, extra))
+
+
+def newest_payload(subscriber: Any) -> list[bytes]:
+    """Everything waiting in a ring-channel subscriber, oldest first, without blocking."""
+    out: list[bytes] = []
+    while True:
+        sample = subscriber.try_recv()
+        if sample is None:
+            return out
+        out.append(sample.payload.to_bytes())

@@ -1,0 +1,118 @@
+"""The real-time sim server: steps the pymunk world at the scene's rate and publishes the
+local model over Zenoh; follows the newest proxy state from the haptic server.
+
+The step is wall-clock paced (sleep to the next period; resynchronise after an overrun).
+Each step's update carries a sequence number, the sim time and an epoch that is new for
+every start, so a haptic server can tell a restarted sim from a late message.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from haptic_server.layout import METHOD_VIRTUAL_COUPLING_FOH
+from shared.config import NetworkConfig, SceneConfig
+from shared.messages import MessageError, ProxyState, decode_proxy, encode_update
+from shared.timing import SampleWindow
+from shared.transport import keys, newest_payload, open_session
+from sim_server.world import SimWorld, ToolTarget
+
+
+@dataclass
+class SimStats:
+    steps: int = 0
+    overruns: int = 0
+    proxies_received: int = 0
+    proxies_rejected: int = 0
+    update_bytes: int = 0
+
+
+class SimServer:
+    """One sim process: world + Zenoh + the paced loop."""
+
+    def __init__(
+        self, scene: SceneConfig, network: NetworkConfig, zenoh_extra: dict[str, Any] | None = None
+    ) -> None:
+        self.scene = scene
+        self.network = network
+        self.world = SimWorld(scene)
+        self.epoch = time.time_ns()
+        self.zenoh_extra = zenoh_extra
+        self.stats = SimStats()
+        self.step_ms = SampleWindow(100_000)
+        self._stop = False
+        self._proxy: ProxyState | None = None
+        self._proxy_wall_ns = 0
+
+    def request_stop(self, *_: object) -> None:
+        self._stop = True
+
+    def target(self, now_ns: int) -> ToolTarget | None:
+        """The newest proxy as a drive target; not fresh once the haptic side is silent."""
+        p = self._proxy
+        if p is None or not p.valid or p.epoch != self.epoch:
+            return None
+        fresh = now_ns - self._proxy_wall_ns < self.network.watchdog_ms * 1e6 and not p.safe_state
+        return ToolTarget(
+            q=p.q, qd=p.qd, device_pose=p.device_pose, device_twist=p.device_twist,
+            coupled_to_device=p.method == METHOD_VIRTUAL_COUPLING_FOH, fresh=fresh,
+        )  # fmt: skip
+
+    def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
+        k = keys(self.network.namespace)
+        session = open_session(self.network.sim, self.zenoh_extra)
+        pub = session.declare_publisher(k.update, congestion_control=zenoh.CongestionControl.DROP)
+        sub = session.declare_subscriber(k.proxy, zenoh.handlers.RingChannel(4))
+        period_ns = round(1e9 / self.scene.sim_rate_hz)
+        if ready is not None:
+            ready()
+        start = time.perf_counter_ns()
+        end = start + int(duration_s * 1e9) if duration_s else None
+        deadline = start
+        seq = 0
+        try:
+            while not self._stop:
+                now = time.perf_counter_ns()
+                if deadline > now:
+                    time.sleep((deadline - now) / 1e9)
+                now = time.perf_counter_ns()
+                if now - deadline > period_ns:
+                    self.stats.overruns += 1
+                    deadline = now
+                for raw in newest_payload(sub):
+                    self.stats.proxies_received += 1
+                    try:
+                        self._proxy = decode_proxy(raw)
+                        self._proxy_wall_ns = now
+                    except MessageError:
+                        self.stats.proxies_rejected += 1
+                t0 = time.perf_counter_ns()
+                if seq > 0:
+                    self.world.step(self.target(now))
+                raw_update = encode_update(self.world.local_model(self.epoch, seq, time.time_ns()))
+                pub.put(raw_update)
+                self.step_ms.add((time.perf_counter_ns() - t0) / 1e6)
+                self.stats.update_bytes = len(raw_update)
+                self.stats.steps += 1
+                seq += 1
+                deadline += period_ns
+                if end is not None and now >= end:
+                    break
+        finally:
+            session.close()
+        q, _ = self.world.tool_state()
+        return {
+            "steps": self.stats.steps,
+            "overruns": self.stats.overruns,
+            "proxies_received": self.stats.proxies_received,
+            "proxies_rejected": self.stats.proxies_rejected,
+            "step_ms": self.step_ms.percentiles(50, 99),
+            "update_bytes": self.stats.update_bytes,
+            "tool_q": np.asarray(q).tolist(),
+            "epoch": self.epoch,
+        }

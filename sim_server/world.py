@@ -1,0 +1,471 @@
+"""The pymunk world of a scene, its virtual tool, and the local model computed from it.
+
+`SimWorld.step(target)` advances the world by one sim period (with substeps), driving the
+tool toward the haptic proxy (or, for virtual_coupling_foh, coupling it to the device), and
+`SimWorld.local_model(...)` computes what DESIGN §3 says the sim publishes: D, G (only when
+g != 0), J_h, Lambda^-1, the resisted directions by SVD (only for a linkage) and the
+neighbourhood contacts of every tool shape.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pymunk
+
+from shared.config import BodySpec, Material, SceneConfig
+from shared.kinematics import (
+    MAX_DOF,
+    free_body_chain,
+    link_frames,
+    mass_matrix_and_gravity,
+    point_jacobian,
+    point_on_link,
+)
+from shared.messages import ContactSet, LocalModelUpdate
+from shared.wire import MAX_CONTACTS
+
+TOOL_GROUP = 1  # pymunk shape-filter group: tool shapes never collide with each other
+TOUCH_TOLERANCE_M = 1.0e-4  # gap below which the tool counts as touching (FOH force gate)
+
+
+@dataclass
+class ToolTarget:
+    """Where the haptic side wants the tool: proxy configuration, or the device pose (FOH)."""
+
+    q: np.ndarray
+    qd: np.ndarray
+    device_pose: np.ndarray
+    device_twist: np.ndarray
+    coupled_to_device: bool  # virtual_coupling_foh: spring to the device instead of the proxy
+    fresh: bool  # False: the haptic side is silent; hold the tool
+
+
+@dataclass
+class StageStats:
+    """Which optional stages the last local-model computation ran (leave out what is not needed)."""
+
+    svd: bool = False
+    gravity: bool = False
+    contacts_sent: int = 0
+    shapes_queried: int = 0
+
+
+class SimWorld:
+    """A scene built in pymunk, with the held tool as a chain (DESIGN §2)."""
+
+    def __init__(self, scene: SceneConfig) -> None:
+        self.scene = scene
+        self.space = pymunk.Space()
+        self.space.gravity = scene.gravity
+        self.space.collision_slop = 1.0e-4  # pymunk's default (0.1) assumes pixel units
+        self.time = 0.0
+        self.period = 1.0 / scene.sim_rate_hz
+        self.substeps = scene.sim_substeps
+        self._shape_material: dict[pymunk.Shape, Material] = {}
+        self._shape_key: dict[pymunk.Shape, int] = {}
+        self._kinematic: list[tuple[pymunk.Body, BodySpec]] = []
+        self.tool_bodies: list[pymunk.Body] = []
+        self.tool_shapes: list[tuple[pymunk.Shape, int]] = []  # (shape, link index)
+        for spec in scene.bodies:
+            self._add_body(spec)
+        for lk in scene.linkages:
+            self._add_linkage(lk.name)
+        self._setup_tool_chain()
+        self.stats = StageStats()
+
+    # --- construction -------------------------------------------------------------------
+
+    def _register(self, shape: pymunk.Shape, material: str) -> None:
+        self._shape_material[shape] = self.scene.materials[material]
+        self._shape_key[shape] = len(self._shape_key)
+
+    def _add_body(self, spec: BodySpec) -> None:
+        is_tool = self.scene.tool.kind == "body" and self.scene.tool.name == spec.name
+        if spec.kind == "static":
+            body = (
+                self.space.static_body
+                if spec.position == (0.0, 0.0) and spec.angle == 0.0
+                else pymunk.Body(body_type=pymunk.Body.STATIC)
+            )
+        elif spec.kind == "kinematic":
+            body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+            self._kinematic.append((body, spec))
+        else:
+            body = pymunk.Body(spec.mass, _moment(spec))
+        body.position = spec.position
+        body.angle = spec.angle
+        if spec.kind != "static":
+            body.velocity = spec.velocity
+            body.angular_velocity = spec.angular_velocity
+        shape: pymunk.Shape
+        if spec.shape == "box":
+            shape = pymunk.Poly.create_box(body, spec.size, radius=0.0)
+        elif spec.shape == "circle":
+            shape = pymunk.Circle(body, spec.radius)
+        else:
+            shape = pymunk.Segment(body, spec.a, spec.b, spec.radius)
+        mat = self.scene.materials[spec.material]
+        shape.friction = mat.friction
+        shape.elasticity = mat.restitution
+        if is_tool:
+            shape.filter = pymunk.ShapeFilter(group=TOOL_GROUP)
+            self.tool_bodies = [body]
+            self.tool_shapes = [(shape, 2)]
+        if body is self.space.static_body:
+            self.space.add(shape)
+        else:
+            self.space.add(body, shape)
+        self._register(shape, spec.material)
+
+    def _add_linkage(self, name: str) -> None:
+        lk = next(k for k in self.scene.linkages if k.name == name)
+        is_tool = self.scene.tool.kind == "linkage" and self.scene.tool.name == name
+        ground = self.space.static_body
+        prev: pymunk.Body = ground
+        angle = lk.base_angle
+        pos = np.array(lk.base, dtype=float)
+        mat = self.scene.materials[lk.material]
+        bodies = []
+        for i, length in enumerate(lk.lengths):
+            angle += lk.initial_angles[i]
+            body = pymunk.Body(lk.masses[i], lk.inertias[i])
+            body.center_of_gravity = lk.com_offsets[i]
+            body.position = tuple(pos)
+            body.angle = angle
+            shape = pymunk.Segment(body, (0.0, 0.0), (length, 0.0), lk.radius)
+            shape.friction = mat.friction
+            shape.elasticity = mat.restitution
+            shape.filter = pymunk.ShapeFilter(
+                group=TOOL_GROUP if is_tool else 100 + len(self._shape_key)
+            )
+            joint = pymunk.PivotJoint(prev, body, tuple(pos))
+            joint.collide_bodies = False
+            self.space.add(body, shape, joint)
+            self._register(shape, lk.material)
+            bodies.append(body)
+            if is_tool:
+                self.tool_shapes.append((shape, i))
+            pos = pos + length * np.array([math.cos(angle), math.sin(angle)])
+            prev = body
+        if is_tool:
+            self.tool_bodies = bodies
+
+    def _setup_tool_chain(self) -> None:
+        tool = self.scene.tool
+        if tool.kind == "body":
+            spec = self.scene.tool_body
+            self.joint_types, self.lengths = free_body_chain()
+            self.base = np.zeros(2)
+            self.base_angle = 0.0
+            self.masses = np.array([0.0, 0.0, spec.mass])
+            self.inertias = np.array([0.0, 0.0, _moment(spec)])
+            self.com_offsets = np.zeros((3, 2))
+            self.op_link = 2
+        else:
+            lk = self.scene.tool_linkage
+            n = len(lk.lengths)
+            self.joint_types = np.zeros(n, dtype=np.int64)
+            self.lengths = np.array(lk.lengths, dtype=float)
+            self.base = np.array(lk.base, dtype=float)
+            self.base_angle = lk.base_angle
+            self.masses = np.array(lk.masses, dtype=float)
+            self.inertias = np.array(lk.inertias, dtype=float)
+            self.com_offsets = np.array(lk.com_offsets, dtype=float)
+            self.op_link = tool.link
+        self.dof = len(self.joint_types)
+        if self.dof > MAX_DOF:
+            raise ValueError(f"tool has {self.dof} DOF; at most {MAX_DOF} supported")
+        self.op_point = np.array(tool.point, dtype=float)
+        self.gravity = np.array(self.scene.gravity, dtype=float)
+        self._frame_pos = np.zeros((self.dof, 2))
+        self._frame_angle = np.zeros(self.dof)
+        self._jac = np.zeros((3, self.dof))
+        self._point = np.zeros(2)
+
+    # --- tool state ---------------------------------------------------------------------
+
+    def tool_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The tool's configuration q and velocity qd read back from pymunk."""
+        if self.scene.tool.kind == "body":
+            b = self.tool_bodies[0]
+            q = np.array([b.position.x, b.position.y, b.angle])
+            qd = np.array([b.velocity.x, b.velocity.y, b.angular_velocity])
+            return q, qd
+        angles = np.array([b.angle for b in self.tool_bodies])
+        rates = np.array([b.angular_velocity for b in self.tool_bodies])
+        q = np.diff(np.concatenate([[self.base_angle], angles]))
+        qd = np.diff(np.concatenate([[0.0], rates]))
+        return q, qd
+
+    def set_tool_state(self, q: np.ndarray, qd: np.ndarray) -> None:
+        """Place the tool at q with velocity qd (used to start it where the proxy is)."""
+        if self.scene.tool.kind == "body":
+            b = self.tool_bodies[0]
+            b.position = (q[0], q[1])
+            b.angle = q[2]
+            b.velocity = (qd[0], qd[1])
+            b.angular_velocity = qd[2]
+        else:
+            link_frames(
+                self.joint_types,
+                self.lengths,
+                self.base,
+                self.base_angle,
+                q,
+                self.dof,
+                self._frame_pos,
+                self._frame_angle,
+            )
+            rate = 0.0
+            com = np.zeros(2)
+            for i, b in enumerate(self.tool_bodies):
+                rate += qd[i]
+                b.position = tuple(self._frame_pos[i])
+                b.angle = self._frame_angle[i]
+                b.angular_velocity = rate
+                # pymunk's body velocity is that of the centre of gravity
+                point_on_link(self._frame_pos, self._frame_angle, i, self.com_offsets[i], com)
+                point_jacobian(
+                    self.joint_types, self._frame_pos, self.dof, i, com[0], com[1], self._jac
+                )
+                b.velocity = tuple(self._jac[:2] @ qd)
+        for b in self.tool_bodies:
+            self.space.reindex_shapes_for_body(b)
+
+    def operational_pose(self, q: np.ndarray) -> np.ndarray:
+        link_frames(
+            self.joint_types,
+            self.lengths,
+            self.base,
+            self.base_angle,
+            q,
+            self.dof,
+            self._frame_pos,
+            self._frame_angle,
+        )
+        point_on_link(self._frame_pos, self._frame_angle, self.op_link, self.op_point, self._point)
+        return np.array([self._point[0], self._point[1], self._frame_angle[self.op_link]])
+
+    def dynamics_terms(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """D(q), G(q) and J_h(q) at the operational point."""
+        d = self.dof
+        mass = np.zeros((d, d))
+        grav = np.zeros(d)
+        jac = np.zeros((3, d))
+        mass_matrix_and_gravity(
+            self.joint_types, self.lengths, self.base, self.base_angle, self.masses, self.inertias,
+            self.com_offsets, self.gravity, q, d, self._frame_pos, self._frame_angle, jac, mass,
+            grav,
+        )  # fmt: skip
+        link_frames(
+            self.joint_types,
+            self.lengths,
+            self.base,
+            self.base_angle,
+            q,
+            d,
+            self._frame_pos,
+            self._frame_angle,
+        )
+        point_on_link(self._frame_pos, self._frame_angle, self.op_link, self.op_point, self._point)
+        point_jacobian(
+            self.joint_types, self._frame_pos, d, self.op_link, self._point[0], self._point[1], jac
+        )
+        return mass, grav, jac
+
+    # --- stepping -----------------------------------------------------------------------
+
+    def step(self, target: ToolTarget | None) -> None:
+        """Advance one sim period: drive the tool, move kinematic bodies, substep pymunk."""
+        h = self.period / self.substeps
+        q, _ = self.tool_state()
+        self._drive_mass, self._drive_gravity, _ = self.dynamics_terms(q)  # frozen for the period
+        for k in range(self.substeps):
+            t = self.time + k * h
+            for body, spec in self._kinematic:
+                self._move_kinematic(body, spec, t + h)
+            self._drive_tool(target, k * h)
+            self.space.step(h)
+        self.time += self.period
+
+    def _move_kinematic(self, body: pymunk.Body, spec: BodySpec, t: float) -> None:
+        if spec.oscillation_period_s > 0.0:
+            w = 2.0 * math.pi / spec.oscillation_period_s
+            body.velocity = (
+                spec.velocity[0] + spec.oscillation_amplitude[0] * w * math.cos(w * t),
+                spec.velocity[1] + spec.oscillation_amplitude[1] * w * math.cos(w * t),
+            )
+
+    def _drive_tool(self, target: ToolTarget | None, t_ahead: float) -> None:
+        """Computed-torque tracking of the proxy (seed 001 Fig. 1): the tool follows it with
+        bandwidth tracking_bandwidth_hz and pushes the world with the forces pymunk resolves."""
+        q, qd = self.tool_state()
+        mass, grav = self._drive_mass, self._drive_gravity
+        w = 2.0 * math.pi * self.scene.tool.tracking_bandwidth_hz
+        if target is None or not target.fresh:
+            acc = -2.0 * w * qd  # nobody drives it: damp the tool to rest
+            tau = mass @ acc
+        elif target.coupled_to_device:
+            tau = self._device_coupling(target, q, qd)
+        else:
+            q_goal = target.q + target.qd * t_ahead
+            acc = w * w * (q_goal - q) + 2.0 * w * (target.qd - qd)
+            tau = mass @ acc
+        # pymunk applies gravity itself (-G in generalized form): add G so the drive has no
+        # steady error.
+        self._apply_generalized(tau + grav)
+
+    def _device_coupling(self, target: ToolTarget, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """virtual_coupling_foh (seed 002 §4): K_spring (x_dev - x_tool) - K_damp v_tool."""
+        r = self.scene.rendering
+        _, _, jac = self.dynamics_terms(q)
+        x_tool = self.operational_pose(q)
+        v_tool = jac @ qd
+        f = (
+            np.array(r.foh_spring_stiffness) * (target.device_pose - x_tool)
+            - np.array(r.foh_spring_damping) * v_tool
+        )
+        return jac.T @ f
+
+    def _apply_generalized(self, tau: np.ndarray) -> None:
+        """Apply configuration-space forces to the pymunk tool bodies."""
+        if self.scene.tool.kind == "body":
+            b = self.tool_bodies[0]
+            b.apply_force_at_world_point(
+                (float(tau[0]), float(tau[1])), b.local_to_world(b.center_of_gravity)
+            )
+            b.torque += float(tau[2])
+            return
+        for i, b in enumerate(self.tool_bodies):  # joint torque: +tau on link i, -tau on link i-1
+            b.torque += float(tau[i])
+            if i > 0:
+                self.tool_bodies[i - 1].torque -= float(tau[i])
+
+    # --- local model --------------------------------------------------------------------
+
+    def local_model(self, epoch: int, seq: int, publish_time_ns: int) -> LocalModelUpdate:
+        """The local model of DESIGN §3 at the tool's current configuration."""
+        q, qd = self.tool_state()
+        mass, grav, jac = self.dynamics_terms(q)
+        has_gravity = bool(np.any(self.gravity != 0.0))
+        mass_inv_jt = np.linalg.solve(mass, jac.T)
+        lambda_inv = jac @ mass_inv_jt
+        tool = self.scene.tool
+        resisted = None
+        self.stats = StageStats(gravity=has_gravity)
+        if tool.kind == "linkage":  # a free body's J_h is always full rank: no SVD needed
+            self.stats.svd = True
+            resisted = resisted_directions(jac, tool.characteristic_length_m, tool.rank_tolerance)
+        contacts, touching = self.neighbourhood_contacts()
+        self.stats.contacts_sent = contacts.count
+        return LocalModelUpdate(
+            epoch=epoch, seq=seq, sim_time=self.time, publish_time_ns=publish_time_ns,
+            joint_types=self.joint_types, lengths=self.lengths, base=self.base,
+            base_angle=self.base_angle, op_link=self.op_link, op_point=self.op_point, q=q, qd=qd,
+            mass_matrix=mass, lambda_inv=lambda_inv, tool_pose=self.operational_pose(q),
+            gravity=grav if has_gravity else None,
+            resisted=resisted if resisted is not None and len(resisted) else None,
+            characteristic_length=tool.characteristic_length_m, contacts=contacts,
+            tool_touching=touching,
+        )  # fmt: skip
+
+    def neighbourhood_contacts(self) -> tuple[ContactSet, bool]:
+        """Contacts of every tool shape with world shapes within the neighbourhood margin.
+
+        Each tool shape is inflated by the margin and passed to `space.shape_query`; pymunk
+        returns the closest features, from which the tool point (link frame), the world
+        point, the outward normal and the world point's velocity are read (DESIGN §3).
+        """
+        margin = self.scene.tool.neighbourhood_margin_m
+        rows: list[tuple[float, int, int, list[float]]] = []
+        tool_set = {s for s, _ in self.tool_shapes}
+        for index, (shape, link) in enumerate(self.tool_shapes):
+            query = _inflated(shape, margin)
+            self.stats.shapes_queried += 1
+            for info in self.space.shape_query(query):
+                env = info.shape
+                if env is None or env in tool_set:
+                    continue
+                cps = info.contact_point_set
+                normal_out = -np.array([cps.normal.x, cps.normal.y])  # from the world to the tool
+                n_norm = float(np.hypot(*normal_out))
+                if n_norm < 0.5:
+                    continue
+                normal_out /= n_norm
+                mat = self._shape_material[env]
+                for pt in cps.points:
+                    tool_world = np.array([pt.point_a.x, pt.point_a.y]) + margin * normal_out
+                    env_world = np.array([pt.point_b.x, pt.point_b.y])
+                    gap = float(normal_out @ (tool_world - env_world))
+                    if gap > margin:
+                        continue
+                    assert shape.body is not None and env.body is not None
+                    local_pt = shape.body.world_to_local(tuple(tool_world))
+                    vel = (0.0, 0.0)
+                    if env.body.body_type != pymunk.Body.STATIC:
+                        vel = env.body.velocity_at_world_point(tuple(env_world))
+                    rows.append(
+                        (
+                            gap,
+                            link,
+                            self._shape_key[env] * 1024 + index,
+                            [
+                                local_pt[0], local_pt[1], env_world[0], env_world[1],
+                                normal_out[0], normal_out[1], vel[0], vel[1],
+                                mat.friction, mat.restitution, mat.stiffness_n_per_m,
+                                mat.damping_ns_per_m,
+                            ],
+                        )
+                    )  # fmt: skip
+        rows.sort(key=lambda r: r[0])
+        rows = rows[:MAX_CONTACTS]
+        touching = bool(rows) and rows[0][0] <= TOUCH_TOLERANCE_M
+        if not rows:
+            return ContactSet.empty(), False
+        return (
+            ContactSet(
+                link=np.array([r[1] for r in rows], dtype=np.int64),
+                key=np.array([r[2] for r in rows], dtype=np.int64),
+                floats=np.array([r[3] for r in rows], dtype=np.float64),
+            ),
+            touching,
+        )
+
+
+def resisted_directions(jac: np.ndarray, length: float, tolerance: float) -> np.ndarray:
+    """Unit directions (scaled space) spanning N(J_h^T): columns of U whose singular value of
+    diag(1, 1, length) J_h is below tolerance * the largest (DESIGN §3; seed 000 eq 14, 22)."""
+    scaled = jac.copy()
+    scaled[2, :] *= length
+    u, sigma, _ = np.linalg.svd(scaled, full_matrices=True)
+    s_full = np.zeros(3)
+    s_full[: len(sigma)] = sigma
+    top = s_full.max()
+    if top <= 0.0:
+        return np.eye(3)
+    return u[:, s_full < tolerance * top].T.copy()
+
+
+def _inflated(shape: pymunk.Shape, margin: float) -> pymunk.Shape:
+    """A copy of a tool shape grown by `margin`, on the same body, for neighbourhood queries."""
+    q: pymunk.Shape
+    if isinstance(shape, pymunk.Poly):
+        q = pymunk.Poly(shape.body, shape.get_vertices(), radius=shape.radius + margin)
+    elif isinstance(shape, pymunk.Segment):
+        q = pymunk.Segment(shape.body, shape.a, shape.b, shape.radius + margin)
+    else:
+        assert isinstance(shape, pymunk.Circle)
+        q = pymunk.Circle(shape.body, shape.radius + margin, shape.offset)
+    q.filter = pymunk.ShapeFilter(group=TOOL_GROUP)
+    return q
+
+
+def _moment(spec: BodySpec) -> float:
+    if spec.shape == "box":
+        return float(pymunk.moment_for_box(spec.mass, spec.size))
+    if spec.shape == "circle":
+        return float(pymunk.moment_for_circle(spec.mass, 0.0, spec.radius))
+    return float(pymunk.moment_for_segment(spec.mass, spec.a, spec.b, spec.radius))

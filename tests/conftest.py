@@ -1,0 +1,92 @@
+"""Shared fixtures: loopback endpoints on free ports, process helpers that always clean up."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+READY_TIMEOUT_S = 300.0  # a cold numba cache compiles for a while on 2 cores
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture
+def network_file(tmp_path: Path) -> Path:
+    """A loopback network config on a free port, so tests never collide."""
+    port = free_port()
+    path = tmp_path / "net.toml"
+    path.write_text(
+        f'namespace = "haptic/test{port}"\n'
+        "[haptic]\n"
+        f'listen = ["tcp/127.0.0.1:{port}"]\n'
+        "[sim]\n"
+        f'connect = ["tcp/127.0.0.1:{port}"]\n'
+    )
+    return path
+
+
+class ServerProcess:
+    """A server started by a test: JSON event lines read on a thread; stopped by its pid."""
+
+    def __init__(self, argv: list[str]) -> None:
+        self.proc = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, text=True)
+        self.events: list[dict[str, Any]] = []
+        self._ready = threading.Event()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            try:
+                event = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            self.events.append(event)
+            if event.get("event") == "ready":
+                self._ready.set()
+
+    def wait_ready(self, timeout: float = READY_TIMEOUT_S) -> None:
+        end = time.monotonic() + timeout
+        while not self._ready.wait(0.1):
+            if self.proc.poll() is not None or time.monotonic() > end:
+                raise AssertionError(f"{self.proc.args} not ready (exit {self.proc.poll()})")
+
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 30.0) -> int:
+        if self.proc.poll() is None:
+            os.kill(self.proc.pid, sig)
+        try:
+            return self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            os.kill(self.proc.pid, signal.SIGKILL)
+            return self.proc.wait()
+
+
+@pytest.fixture
+def start_server() -> Iterator[Any]:
+    """Start `python -m <module> args...`; every process is stopped at teardown by its pid."""
+    started: list[ServerProcess] = []
+
+    def start(module: str, *args: str) -> ServerProcess:
+        p = ServerProcess([sys.executable, "-m", module, *args])
+        started.append(p)
+        return p
+
+    yield start
+    for p in started:
+        p.stop(signal.SIGKILL if p.proc.poll() is None else signal.SIGTERM, timeout=10.0)

@@ -1,0 +1,81 @@
+"""Bad configs stop the program with exit code 2 and a message naming the file and the key."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from shared.config import ConfigError, load_scene, load_user
+
+REPO = Path(__file__).resolve().parent.parent
+GOOD_SCENE = (REPO / "configs/scenes/free_box.toml").read_text()
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "scene.toml"
+    p.write_text(text)
+    return p
+
+
+def test_shipped_configs_load() -> None:
+    for path in sorted((REPO / "configs/scenes").glob("*.toml")):
+        assert load_scene(str(path)).name == path.stem
+    for path in sorted((REPO / "configs/users").glob("*.toml")):
+        load_user(str(path))
+
+
+def test_unknown_key_is_named(tmp_path: Path) -> None:
+    p = _write(tmp_path, GOOD_SCENE.replace("[rendering]\n", "[rendering]\nstiffnes = 3.0\n"))
+    with pytest.raises(ConfigError) as err:
+        load_scene(str(p))
+    assert err.value.source == str(p) and err.value.key == "rendering.stiffnes"
+    assert "unknown key" in err.value.problem
+
+
+def test_wrong_type_is_named(tmp_path: Path) -> None:
+    p = _write(tmp_path, GOOD_SCENE.replace("sim_rate_hz = 60.0", 'sim_rate_hz = "fast"'))
+    with pytest.raises(ConfigError) as err:
+        load_scene(str(p))
+    assert err.value.key == "sim_rate_hz" and "expected float" in err.value.problem
+
+
+def test_nested_list_entry_is_named(tmp_path: Path) -> None:
+    p = _write(tmp_path, GOOD_SCENE.replace("size = [0.04, 0.02]", "size = [0.04]"))
+    with pytest.raises(ConfigError) as err:
+        load_scene(str(p))
+    assert err.value.key == "bodies[0].size"
+
+
+def test_missing_key_and_bad_value(tmp_path: Path) -> None:
+    p = _write(tmp_path, GOOD_SCENE.replace('name = "free_box"\n', ""))
+    with pytest.raises(ConfigError) as err:
+        load_scene(str(p))
+    assert err.value.key == "name" and "missing" in err.value.problem
+    p = _write(tmp_path, GOOD_SCENE.replace("sim_rate_hz = 60.0", "sim_rate_hz = 5000.0"))
+    with pytest.raises(ConfigError) as err:
+        load_scene(str(p))
+    assert err.value.key == "sim_rate_hz"
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--scene", "does_not_exist"], "does_not_exist.toml: file: file not found"),
+        (["--scene", "{bad}"], "key 'rendering.stiffnes': unknown key"),
+        (["--device", "{bad_device}"], "key 'inertia[0]': expected float"),
+    ],
+)
+def test_cli_exits_2_naming_file_and_key(tmp_path: Path, args: list[str], needle: str) -> None:
+    bad = _write(tmp_path, GOOD_SCENE.replace("[rendering]\n", "[rendering]\nstiffnes = 3.0\n"))
+    bad_device = tmp_path / "dev.toml"
+    bad_device.write_text('model = "ideal"\ninertia = ["heavy", 1.0, 1.0]\n')
+    argv = [a.replace("{bad}", str(bad)).replace("{bad_device}", str(bad_device)) for a in args]
+    res = subprocess.run(
+        [sys.executable, "-m", "haptic_server.run", "--duration", "1", "--no-log", *argv],
+        cwd=REPO, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert res.returncode == 2, res.stderr
+    assert needle.replace("{bad}", str(bad)) in res.stderr

@@ -1,0 +1,146 @@
+"""Wire format: round trips, a golden file that pins the bytes, and rejection of bad input."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shared.messages import (
+    ContactSet,
+    LocalModelUpdate,
+    MessageError,
+    ProxyState,
+    decode_proxy,
+    decode_update,
+    encode_proxy,
+    encode_update,
+)
+
+GOLDEN = Path(__file__).parent / "golden" / "update_v1_linkage.bin"
+
+
+def sample_update(n_contacts: int = 2, resisted: bool = True) -> LocalModelUpdate:
+    """A 3-link update with gravity, resisted directions and contacts."""
+    rng = np.random.default_rng(7)
+    a = rng.normal(size=(3, 3))
+    floats = np.zeros((n_contacts, 12))
+    for i in range(n_contacts):
+        floats[i] = [0.01 * i, 0.002, 0.1, -0.05 * i, 0.0, 1.0, 0.01, 0.0, 0.3, 0.1, 15000.0, 20.0]
+    return LocalModelUpdate(
+        epoch=1234567890123, seq=42, sim_time=1.25, publish_time_ns=987654321,
+        joint_types=np.zeros(3, np.int64), lengths=np.array([0.042, 0.042, 0.03]),
+        base=np.array([0.0, 0.01]), base_angle=0.0, op_link=2, op_point=np.array([0.015, 0.0]),
+        q=np.array([0.1, 0.2, -0.3]), qd=np.array([0.0, 0.5, -0.1]),
+        mass_matrix=a @ a.T + 3 * np.eye(3), lambda_inv=np.eye(3) * 0.5,
+        tool_pose=np.array([0.1, 0.05, 0.0]), gravity=np.array([0.1, 0.2, 0.3]),
+        resisted=np.array([[0.6, 0.8, 0.0]]) if resisted else None, characteristic_length=0.05,
+        contacts=ContactSet(np.arange(n_contacts) % 3, np.arange(n_contacts) + 100, floats),
+        tool_touching=True,
+    )  # fmt: skip
+
+
+def assert_same(a: LocalModelUpdate, b: LocalModelUpdate) -> None:
+    for name in (
+        "epoch",
+        "seq",
+        "sim_time",
+        "publish_time_ns",
+        "base_angle",
+        "op_link",
+        "characteristic_length",
+        "tool_touching",
+    ):
+        assert getattr(a, name) == getattr(b, name), name
+    for name in (
+        "joint_types",
+        "lengths",
+        "base",
+        "op_point",
+        "q",
+        "qd",
+        "mass_matrix",
+        "lambda_inv",
+        "tool_pose",
+        "gravity",
+        "resisted",
+    ):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    np.testing.assert_array_equal(a.contacts.floats, b.contacts.floats)
+    np.testing.assert_array_equal(a.contacts.link, b.contacts.link)
+    np.testing.assert_array_equal(a.contacts.key, b.contacts.key)
+
+
+def test_update_round_trip_exact() -> None:
+    u = sample_update()
+    assert_same(decode_update(encode_update(u)), u)
+
+
+def test_update_without_optional_sections() -> None:
+    u = sample_update(n_contacts=0, resisted=False)
+    u = LocalModelUpdate(**{**u.__dict__, "gravity": None})
+    raw = encode_update(u)
+    back = decode_update(raw)
+    assert back.gravity is None and back.resisted is None and back.contacts.count == 0
+    assert len(raw) < len(encode_update(sample_update()))  # left out, not zero-filled
+
+
+def test_golden_file_pins_the_wire_format() -> None:
+    raw = encode_update(sample_update())
+    if not GOLDEN.exists():  # written once; a change of the format must change PROTOCOL_VERSION
+        GOLDEN.write_bytes(raw)
+    assert raw == GOLDEN.read_bytes()
+    assert_same(decode_update(GOLDEN.read_bytes()), sample_update())
+
+
+def _corrupt_float(raw: bytes, value: float, index_from_end: int) -> bytes:
+    b = bytearray(raw)
+    struct.pack_into("<d", b, len(b) - 8 * index_from_end, value)
+    return bytes(b)
+
+
+@pytest.mark.parametrize(
+    ("mutate", "reason"),
+    [
+        (lambda r: r[:20], "short"),
+        (lambda r: b"XXXX" + r[4:], "magic"),
+        (lambda r: r[:4] + struct.pack("<H", 99) + r[6:], "version"),
+        (lambda r: r + b"\0" * 8, "size"),
+        (lambda r: _corrupt_float(r, float("nan"), 3), "nonfinite"),
+        (lambda r: _corrupt_float(r, float("inf"), 30), "nonfinite"),
+        (lambda r: _corrupt_float(r, -5.0, 2), "contact"),  # negative stiffness
+        (lambda r: _corrupt_float(r, 0.5, 8), "contact"),  # normal no longer unit
+    ],
+)
+def test_bad_updates_are_rejected_with_a_reason(mutate: object, reason: str) -> None:
+    raw = encode_update(sample_update())
+    with pytest.raises(MessageError) as err:
+        decode_update(mutate(raw))  # type: ignore[operator]
+    assert err.value.reason == reason
+
+
+def test_mass_matrix_must_be_spd_and_symmetric() -> None:
+    u = sample_update()
+    not_spd = LocalModelUpdate(**{**u.__dict__, "mass_matrix": -np.eye(3)})
+    with pytest.raises(MessageError, match="mass_matrix"):
+        decode_update(encode_update(not_spd))
+    m = u.mass_matrix.copy()
+    m[0, 1] += 1.0
+    with pytest.raises(MessageError, match="mass_matrix"):
+        decode_update(encode_update(LocalModelUpdate(**{**u.__dict__, "mass_matrix": m})))
+
+
+def test_proxy_round_trip_and_rejection() -> None:
+    p = ProxyState(
+        epoch=5, update_seq=9, tick=1000, haptic_time=1.0, publish_time_ns=11, method=0,
+        safe_state=True, valid=True, q=np.array([0.1, 0.2, 0.3]), qd=np.zeros(3),
+        device_pose=np.array([0.0, 1.0, 2.0]), device_twist=np.ones(3),
+    )  # fmt: skip
+    back = decode_proxy(encode_proxy(p))
+    assert back.safe_state and back.valid and back.tick == 1000
+    np.testing.assert_array_equal(back.q, p.q)
+    np.testing.assert_array_equal(back.device_twist, p.device_twist)
+    with pytest.raises(MessageError, match="nonfinite"):
+        decode_proxy(_corrupt_float(encode_proxy(p), float("nan"), 1))

@@ -1,0 +1,57 @@
+"""The two real processes over Zenoh on loopback, checked from the MCAP log."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from haptic_server.mcap_log import TICK_TOPIC, UPDATE_TOPIC, iter_messages, read_ticks
+
+REPO = Path(__file__).resolve().parent.parent
+RUN_S = 4.0
+PUSH_N, BOX_KG = 0.2, 1.0
+# The proxy integrates with the measured dt (clamped to 2 ms), so semi-implicit Euler lags
+# the closed form by at most a * dt_max * t / 2 = 0.2 mm over the first second.
+CLOSED_FORM_TOL_M = PUSH_N / BOX_KG * 2e-3 * 1.0 / 2 * 1.25
+MIN_TICK_FRACTION = 0.95
+MIN_UPDATE_RATE_HZ = 25.0
+
+
+@pytest.mark.processes
+def test_two_processes_over_zenoh(tmp_path: Path, network_file: Path) -> None:
+    log = tmp_path / "run.mcap"
+    summary_path = tmp_path / "summary.json"
+    res = subprocess.run(
+        [
+            sys.executable, "-m", "haptic_server.run", "--scene", "free_box", "--device", "ideal",
+            "--user", "constant_push", "--network", str(network_file), "--duration", str(RUN_S),
+            "--log", str(log), "--summary-json", str(summary_path),
+        ],
+        cwd=REPO, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr + res.stdout
+    summary = json.loads(summary_path.read_text())
+    assert summary["exit_codes"] == {"haptic": 0, "sim": 0}
+
+    ticks = read_ticks(log)
+    topics = [t for t, _ in iter_messages(log)]
+    assert topics.count(TICK_TOPIC) == len(ticks) == summary["ticks"]
+    assert len(ticks) >= MIN_TICK_FRACTION * RUN_S * 1000
+    updates = topics.count(UPDATE_TOPIC)
+    assert updates / RUN_S >= MIN_UPDATE_RATE_HZ
+    assert summary["updates_installed"] == summary["updates_received"] == updates
+
+    # the proxy under a constant push: x = F t^2 / 2m from the first installed update on
+    ready = ticks[ticks["update_seq"] >= 0]
+    t = ready["t"] - ready["t"][0]
+    x = ready["vm_pose"][:, 0] - ready["vm_pose"][0, 0]
+    before_contact = t < 1.0
+    assert ready["n_active"][before_contact].max() == 0
+    x_closed = PUSH_N * t[before_contact] ** 2 / (2 * BOX_KG)
+    err = np.abs(x[before_contact] - x_closed).max()
+    assert err < CLOSED_FORM_TOL_M, f"proxy off the closed form by {err * 1e3:.3f} mm"
