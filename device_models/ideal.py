@@ -20,7 +20,7 @@ from shared.config import Vec3, load_dataclass
 class IdealDeviceConfig:
     """Parameters of configs/devices/ideal.toml."""
 
-    inertia: Vec3 = (1.0, 1.0, 1.0)  # kg, kg, kg m^2 (diagonal M_d)
+    inertia: Vec3 = (1.0, 1.0, 0.001)  # kg, kg, kg m^2 (diagonal M_d)
     max_wrench: Vec3 = (50.0, 50.0, 5.0)  # N, N, N m
     workspace_half_extent: Vec3 = (1.0, 1.0, 10.0)  # m, m, rad around the home pose
     max_rate_hz: float = 10000.0

@@ -6,11 +6,15 @@ from collections.abc import Callable
 from typing import Any
 
 from device_models.ideal import IdealDevice, IdealDeviceConfig
+from device_models.maglev import Maglev, MaglevConfig
+from device_models.twin_pantograph import TwinPantograph, TwinPantographConfig
 from shared.config import ConfigError, load_device_table
 
 #: model name -> (config class with from_toml_dict, device factory)
 DEVICE_MODELS: dict[str, tuple[Any, Callable[[Any], Any]]] = {
     "ideal": (IdealDeviceConfig, IdealDevice),
+    "twin_pantograph": (TwinPantographConfig, TwinPantograph),
+    "maglev": (MaglevConfig, Maglev),
 }
 
 

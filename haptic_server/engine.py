@@ -13,7 +13,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from device_models.base import SENSOR_DTYPE, SimulatedDevice
-from haptic_server.kernels import begin_tick, haptic_tick, inherit_contact_state
+from haptic_server.kernels import (
+    ORDER_EPOCH,
+    ORDER_NEW_EPOCH,
+    ORDER_SEQ,
+    accept_update,
+    engine_step,
+    reason_of,
+)
 from haptic_server.layout import (
     FAULT_NONE,
     METHOD_IDS,
@@ -27,7 +34,7 @@ from haptic_server.layout import (
 from haptic_server.users import hand_wrench, user_record
 from shared.config import RenderingSpec, SceneConfig, UserConfig
 from shared.messages import DEFAULT_LIMITS, limits_array
-from shared.wire import REASONS, UpdateParser
+from shared.wire import R_SIZE, REASONS, UpdateParser
 
 CONTACT_MATCH_RADIUS_M = 2.0e-3  # a contact keeps its state if its tool point moved less
 
@@ -106,6 +113,9 @@ class HapticEngine:
         self.state = np.zeros(1, STATE_DTYPE)
         self.scratch = np.zeros(1, SCRATCH_DTYPE)
         self.row = np.zeros(1, TICK_DTYPE)
+        self._command = self.row[0]["wrench_command"]  # views into the row, made once
+        self._applied = self.row[0]["wrench_applied"]
+        self.ready = False
         self.sensors = np.zeros(1, SENSOR_DTYPE)
         self.world_sensors = np.zeros(1, SENSOR_DTYPE)
         self.user = user_record(user)
@@ -116,66 +126,60 @@ class HapticEngine:
         self._true_twist = np.zeros(3)
         self.counters = EngineCounters()
         self.parser = UpdateParser(limits_array(DEFAULT_LIMITS))
-        self.epoch = -1
-        self.last_seq = -1
+        self._order = np.array([-1, -1, 0, 0], dtype=np.int64)  # epoch, seq, ready, new epoch
         self.tick_index = 0
         self.time = 0.0
         self._sim_times: deque[float] = deque(maxlen=4)
         self.state[0]["safe"] = 1.0
         self.state[0]["safe_target"] = 1.0
 
-    @property
-    def ready(self) -> bool:
-        return bool(self.slots[0]["valid"])
-
     # --- updates ------------------------------------------------------------------------
 
     def receive(self, raw: bytes) -> str:
-        """Validate and install an update's bytes; returns "" or the rejection reason.
+        """Validate and install an update's bytes; returns "" or the rejection reason."""
+        parser = self.parser
+        n = len(raw)
+        if n > parser.buffer.shape[0]:
+            self.counters.reject(REASONS[R_SIZE])
+            return REASONS[R_SIZE]
+        parser.buffer[:n] = np.frombuffer(raw, np.uint8)
+        code = self.receive_buffer(parser.buffer, n)
+        return "" if code == 0 else reason_of(code)
 
-        The newest model becomes slot 0 and the previous one slot 1, cross-faded over
-        blend_ms (DESIGN §4.4); contacts keep their state across the update by key.
+    def receive_buffer(self, buf: np.ndarray, nbytes: int) -> int:
+        """Validate and install the update in an 8-byte aligned uint8 buffer; 0 or a reason code.
+
+        One numba call parses, validates, checks the epoch and sequence order (DESIGN §3)
+        and installs: the newest model becomes slot 0 and the previous one slot 1,
+        cross-faded over blend_ms (DESIGN §4.4); contacts keep their state by key.
         """
-        code = self.parser.parse(raw)
-        reason = REASONS[code] if code else self._order_problem(self.parser.out[0])
-        if reason:
-            self.counters.reject(reason)
-            return reason
-        self._install(self.parser.out)
-        return ""
-
-    def _order_problem(self, m: np.void) -> str:
-        """Epoch and sequence order (DESIGN §3): stale epochs and repeats are rejected."""
-        epoch, seq = int(m["epoch"]), int(m["seq"])
-        if epoch < self.epoch:
-            return "epoch"
-        if epoch == self.epoch and seq <= self.last_seq:
-            return "sequence"
-        if epoch == self.epoch and self.ready and int(m["dof"]) != int(self.slots[0]["dof"]):
-            return "dof"
-        return ""
-
-    def _install(self, parsed: np.ndarray) -> None:
-        m = parsed[0]
-        new_epoch = int(m["epoch"]) != self.epoch
-        slots = self.slots
-        if new_epoch:
-            slots[1]["valid"] = 0
-        else:
-            slots[1] = slots[0]
-        slots[0] = m
-        inherit_contact_state(slots[0], slots[1], CONTACT_MATCH_RADIUS_M)
-        st = self.state[0]
-        st["blend"] = 0.0 if slots[1]["valid"] else 1.0
-        self.last_seq = int(m["seq"])
+        parser = self.parser
+        code = int(
+            accept_update(
+                buf, nbytes, parser.limits, parser.out, parser.scratch, self.slots, self.state,
+                self._order, CONTACT_MATCH_RADIUS_M,
+            )
+        )  # fmt: skip
+        if code:
+            self.counters.reject(reason_of(code))
+            return code
+        self.ready = True
         self.counters.installed += 1
-        self._sim_times.append(float(m["sim_time"]))
         if self.method == METHOD_VIRTUAL_COUPLING_FOH:
-            self._advance_foh(slots[0]["tool_pose"])
-        if new_epoch:
-            self.epoch = int(m["epoch"])
+            self._sim_times.append(float(self.slots[0]["sim_time"]))
+            self._advance_foh(self.slots[0]["tool_pose"])
+        if self._order[ORDER_NEW_EPOCH]:
             self.counters.epochs += 1
-            self._reinitialise(slots[0])
+            self._reinitialise(self.slots[0])
+        return 0
+
+    @property
+    def epoch(self) -> int:
+        return int(self._order[ORDER_EPOCH])
+
+    @property
+    def last_seq(self) -> int:
+        return int(self._order[ORDER_SEQ])
 
     def _reinitialise(self, m: np.void) -> None:
         """Start (or restart) from the sim's tool state; the device is mapped onto the VM so
@@ -223,36 +227,33 @@ class HapticEngine:
         """Ramp to (or back from) the safe state: damping only (watchdog, shutdown)."""
         self.state[0]["safe_target"] = 1.0 if safe else 0.0
 
-    def tick(self, dt: float) -> np.ndarray:
-        """One tick: user -> device sensors -> local model + control -> device. Returns the row."""
+    def tick(
+        self,
+        dt: float,
+        lateness_us: float = 0.0,
+        work_us: float = 0.0,
+        update_seq: int = -1,
+        update_age_ms: float = 0.0,
+    ) -> np.ndarray:
+        """One tick: user -> device sensors -> local model + control -> device. Returns the row.
+
+        The timing arguments only go into the log row (the real-time server measures them).
+        """
         dev = self.device
-        row = self.row
-        r = row[0]
         dev.true_state(self._true_pose, self._true_twist)
         hand_wrench(self.user, self.time, self._true_pose, self._true_twist, self.hand)
         dev.sense_hand(self.hand)
         dev.read(self.sensors)
-        ws = self.world_sensors
-        begin_tick(
-            self.sensors,
-            self.offset,
-            self.hand,
-            self.tick_index,
-            self.time,
-            ws,
-            self.hand_measured,
-            row,
-        )
-        if self.ready:
-            haptic_tick(
-                self.slots, self.params, self.state, ws, self.hand_measured, dt, self.scratch, row
-            )
-        command = r["wrench_command"]
-        r["wrench_applied"] = dev.command(command)
+        engine_step(
+            self.sensors, self.offset, self.hand, self.tick_index, self.time, self.world_sensors,
+            self.hand_measured, self.slots, self.params, self.state, dt, self.scratch, self.row,
+            self.ready, lateness_us, work_us, update_seq, update_age_ms,
+        )  # fmt: skip
+        self._applied[:] = dev.command(self._command)
         dev.advance(dt, self.hand)
         self.tick_index += 1
         self.time += dt
-        return row
+        return self.row
 
     def proxy_pose(self) -> tuple[np.ndarray, np.ndarray]:
         d = int(self.slots[0]["dof"])

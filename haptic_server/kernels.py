@@ -22,6 +22,7 @@ from haptic_server.layout import (
 )
 from shared.kinematics import link_frames, point_jacobian, point_on_link
 from shared.linalg import cholesky_inplace, cholesky_solve
+from shared.wire import REASONS, parse_update
 
 
 @njit(cache=True)
@@ -305,7 +306,7 @@ def haptic_tick(slots, params, state, sensors, hand_measured, dt, ws, row):
         active += contact_stage(new, alpha, True, p, st, w, dt)
         ran = 1
     if old.valid == 1 and alpha < 1.0 and old.n_contacts > 0 and old.dof == d:
-        active += contact_stage(old, 1.0 - alpha, False, p, st, w, dt)
+        contact_stage(old, 1.0 - alpha, False, p, st, w, dt)  # fading out: not counted
         ran = 1
     new.age_s += dt
     old.age_s += dt
@@ -579,6 +580,73 @@ def begin_tick(sensors, offset, hand, tick, t, world_sensors, hand_measured, row
     r.tick = tick
     r.t = t
     r.device_fault = src.fault
+
+
+@njit(cache=True)
+def engine_step(
+    sensors, offset, hand, tick, t, world_sensors, hand_measured, slots, params, state, dt, ws,
+    row, ready, lateness_us, work_us, update_seq, update_age_ms,
+):  # fmt: skip
+    """begin_tick + haptic_tick in one call (one Python -> numba transition per tick)."""
+    begin_tick(sensors, offset, hand, tick, t, world_sensors, hand_measured, row)
+    r = row[0]
+    r.lateness_us = lateness_us
+    r.work_us = work_us
+    r.update_seq = update_seq
+    r.update_age_ms = update_age_ms
+    r.update_epoch = slots[0].epoch
+    r.dof = slots[0].dof
+    r.dt = dt
+    if ready:
+        haptic_tick(slots, params, state, world_sensors, hand_measured, dt, ws, row)
+
+
+ORDER_EPOCH, ORDER_SEQ, ORDER_READY, ORDER_NEW_EPOCH = 0, 1, 2, 3
+R_STALE_EPOCH, R_SEQUENCE, R_DOF_CHANGE = 16, 17, 18
+ORDER_REASONS = {R_STALE_EPOCH: "epoch", R_SEQUENCE: "sequence", R_DOF_CHANGE: "dof"}
+
+
+def reason_of(code: int) -> str:
+    """A verdict code (from parse_update or accept_update) as its reason tag."""
+    return ORDER_REASONS.get(code) or (REASONS[code] if 0 <= code < len(REASONS) else "size")
+
+
+@njit(cache=True)
+def accept_update(buf, nbytes, limits, parsed, scratch, slots, state, order, match_radius):
+    """Parse, validate, order-check and install an update: 0, or the reason code.
+
+    order = [epoch, last seq, ready, new-epoch flag]: an older epoch or a repeated sequence
+    number is rejected (DESIGN §3); a new epoch is installed without cross-fade.
+    """
+    code = parse_update(buf, nbytes, limits, parsed, scratch)
+    if code != 0:
+        return code
+    m = parsed[0]
+    if m.epoch < order[ORDER_EPOCH]:
+        return R_STALE_EPOCH
+    new_epoch = m.epoch != order[ORDER_EPOCH]
+    if not new_epoch and m.seq <= order[ORDER_SEQ]:
+        return R_SEQUENCE
+    if not new_epoch and order[ORDER_READY] == 1 and m.dof != slots[0].dof:
+        return R_DOF_CHANGE
+    install_update(parsed, slots, state, new_epoch, match_radius)
+    order[ORDER_EPOCH] = m.epoch
+    order[ORDER_SEQ] = m.seq
+    order[ORDER_READY] = 1
+    order[ORDER_NEW_EPOCH] = 1 if new_epoch else 0
+    return 0
+
+
+@njit(cache=True)
+def install_update(parsed, slots, state, new_epoch, match_radius):
+    """Make a parsed model the newest slot; the previous one fades out over blend_s."""
+    if new_epoch:
+        slots[1].valid = 0
+    else:
+        slots[1] = slots[0]
+    slots[0] = parsed[0]
+    inherit_contact_state(slots[0], slots[1], match_radius)
+    state[0].blend = 1.0 if slots[1].valid == 0 else 0.0
 
 
 @njit(cache=True)

@@ -120,7 +120,9 @@ TICK_DTYPE = np.dtype(
         ("dt", F8),  # the step used this tick, s
         ("lateness_us", F8),
         ("work_us", F8),  # compute time of the previous tick
+        ("update_epoch", np.int64),  # epoch of the newest installed update
         ("update_seq", np.int64),  # seq of the newest installed update (-1: none)
+        ("dof", np.int32),  # entries of proxy_q / proxy_qd in use
         ("update_age_ms", F8),  # publish -> install latency of the newest update
         ("device_pose", F8, (3,)),  # measured, world frame
         ("device_twist", F8, (3,)),

@@ -17,17 +17,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import zenoh
+import numpy as np
 
 from device_models.base import SimulatedDevice
 from haptic_server.engine import HapticEngine
-from haptic_server.log_process import LogProcess
-from haptic_server.mcap_log import run_metadata, update_record
+from haptic_server.io_process import N_CTL, LoopIO, push_row
+from haptic_server.layout import TICK_DTYPE
+from haptic_server.mcap_log import run_metadata
 from haptic_server.virtual import run_virtual
 from shared.config import NetworkConfig, SceneConfig, UserConfig
-from shared.messages import ProxyState, encode_proxy
-from shared.timing import LoopCounters, SampleWindow, wait_until
-from shared.transport import keys, newest_payload, open_session
+from shared.timing import LoopCounters, SampleWindow, try_realtime_priority, wait_until
+from shared.wire import R_SIZE
 
 DT_CLAMP = (0.25, 2.0)  # measured dt is clamped to these multiples of the nominal period
 WINDOW_TICKS = 600_000  # percentiles over the newest 10 min at 1 kHz
@@ -46,6 +46,9 @@ class HapticRunStats:
     watchdog_trips: int = 0
     wall_s: float = 0.0
     lost_log_ticks: int = 0
+    proxy_published: int = 0
+    updates_lost: int = 0
+    realtime_priority: bool = False
 
     def summary(self, log_path: Path | None) -> dict[str, Any]:
         c = self.counters
@@ -62,7 +65,10 @@ class HapticRunStats:
             "update_rate_hz": self.updates_received / self.wall_s if self.wall_s > 0 else 0.0,
             "update_age_ms": self.update_age_ms.percentiles(50, 99),
             "watchdog_trips": self.watchdog_trips,
+            "realtime_priority": self.realtime_priority,
             "lost_log_ticks": self.lost_log_ticks,
+            "updates_lost": self.updates_lost,
+            "proxy_published": self.proxy_published,
             "log": str(log_path) if log_path else None,
         }
 
@@ -94,35 +100,38 @@ class HapticServer:
 
     def warm_up(self, device_factory: Any, user: UserConfig) -> None:
         """Compile (or load from cache) every kernel before the loop starts."""
-        run_virtual(self.scene, device_factory(), user, 0.05)
+        result = run_virtual(self.scene, device_factory(), user, 0.05)
+        push_row(np.zeros(2, TICK_DTYPE), np.zeros(N_CTL, np.int64), result.ticks[:1])
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         """The loop; returns the summary. `ready` is called once the loop is about to start."""
         engine = self.engine
-        k = keys(self.network.namespace)
-        session = open_session(self.network.haptic, self.zenoh_extra)
-        sub = session.declare_subscriber(k.update, zenoh.handlers.RingChannel(16))
-        pub = session.declare_publisher(
-            k.proxy, congestion_control=zenoh.CongestionControl.DROP, express=True
-        )
+        stats = self.stats
+        counters = stats.counters
         wall_start_ns = time.time_ns()
-        log = (
-            LogProcess(
-                self.log_path, run_metadata(self.configs, {"clock": "real-time"}), wall_start_ns
-            )
-            if self.log_path
-            else None
+        io = LoopIO(
+            {
+                "namespace": self.network.namespace,
+                "endpoints": {
+                    "listen": self.network.haptic.listen,
+                    "connect": self.network.haptic.connect,
+                },
+                "zenoh_extra": self.zenoh_extra,
+                "log_path": str(self.log_path) if self.log_path else None,
+                "metadata": run_metadata(self.configs, {"clock": "real-time"}),
+                "wall_start_ns": wall_start_ns,
+                "proxy_publish_hz": self.network.proxy_publish_hz,
+                "method": engine.method,
+            }
         )
         period_ns = round(1e9 / self.scene.haptic_rate_hz)
         dt_nominal = period_ns / 1e9
-        publish_every = max(1, round(self.scene.haptic_rate_hz / self.network.proxy_publish_hz))
         watchdog_ns = int(self.network.watchdog_ms * 1e6)
-        stats = self.stats
-        counters = stats.counters
-        row_meta_seq = -1
-        row_age_ms = float("nan")
+        newest_seq = -1
+        newest_age_ms = float("nan")
         last_valid_ns = 0
         stale = False
+        stats.realtime_priority = try_realtime_priority()
         if ready is not None:
             ready()
         start_ns = time.perf_counter_ns()
@@ -143,56 +152,38 @@ class HapticServer:
                     counters.late_over_1ms += 1
                 dt = min(max(dt_ns / 1e9, DT_CLAMP[0] * dt_nominal), DT_CLAMP[1] * dt_nominal)
 
-                for raw in newest_payload(sub):
+                slot = io.pending_update()
+                while slot >= 0:
+                    buf, nbytes = io.update_bytes(slot)
+                    code = engine.receive_buffer(buf, nbytes) if nbytes > 0 else R_SIZE
+                    io.verdict(slot, code, counters.ticks)
                     stats.updates_received += 1
-                    reason = engine.receive(raw)
-                    if reason:
-                        if log:
-                            log.event(counters.ticks, "rejected", reason, engine.time)
-                    else:
+                    if code == 0:
                         stats.updates_installed += 1
                         last_valid_ns = now
-                        newest = engine.slots[0]
-                        row_meta_seq = int(newest["seq"])
-                        row_age_ms = (time.time_ns() - int(newest["publish_time_ns"])) / 1e6
-                        stats.update_age_ms.add(row_age_ms)
+                        newest_seq = engine.last_seq
+                        newest_age_ms = (
+                            time.time_ns() - int(engine.slots[0]["publish_time_ns"])
+                        ) / 1e6
+                        stats.update_age_ms.add(newest_age_ms)
                         if stale:
                             stale = False
                             engine.set_safe(False)
-                            if log:
-                                log.event(
-                                    counters.ticks,
-                                    "watchdog_clear",
-                                    f"update seq {row_meta_seq}",
-                                    engine.time,
-                                )
-                    if log:
-                        log.update(
-                            update_record(counters.ticks, raw, reason, row_age_ms), engine.time
-                        )
+                            io.event(counters.ticks, "watchdog_clear", f"update seq {newest_seq}")
+                    slot = io.pending_update()
 
                 if engine.ready and not stale and now - last_valid_ns > watchdog_ns:
                     stale = True
                     stats.watchdog_trips += 1
                     engine.set_safe(True)
-                    if log:
-                        log.event(
-                            counters.ticks,
-                            "watchdog",
-                            f"no valid update for {(now - last_valid_ns) / 1e6:.1f} ms",
-                            engine.time,
-                        )
+                    io.event(
+                        counters.ticks,
+                        "watchdog",
+                        f"no valid update for {(now - last_valid_ns) / 1e6:.1f} ms",
+                    )
 
-                row = engine.tick(dt)
-                r = row[0]
-                r["lateness_us"] = lateness_ns / 1e3
-                r["work_us"] = work_prev_us
-                r["update_seq"] = row_meta_seq
-                r["update_age_ms"] = row_age_ms
-                if engine.ready and counters.ticks % publish_every == 0:
-                    pub.put(encode_proxy(self._proxy_state(stale)))
-                if log:
-                    log.tick(row)
+                row = engine.tick(dt, lateness_ns / 1e3, work_prev_us, newest_seq, newest_age_ms)
+                io.tick(row)
                 counters.ticks += 1
                 stats.lateness_us.add(lateness_ns / 1e3)
                 work_prev_us = (time.perf_counter_ns() - now) / 1e3
@@ -203,21 +194,12 @@ class HapticServer:
         finally:
             stats.wall_s = (time.perf_counter_ns() - start_ns) / 1e9
             engine.device.safe_stop()
-            if log:
-                log.event(counters.ticks, "stop", "loop ended", engine.time)
-                stats.lost_log_ticks = log.close()
-            session.close()
+            io.event(counters.ticks, "stop", "loop ended")
+            io_counters = io.close()
+            stats.lost_log_ticks = io_counters["lost_log_ticks"]
+            stats.proxy_published = io_counters["proxy_published"]
+            stats.updates_lost = io_counters["lost_updates"]
         return stats.summary(self.log_path)
-
-    def _proxy_state(self, stale: bool) -> ProxyState:
-        engine = self.engine
-        q, qd = engine.proxy_pose()
-        pose, twist = engine.device_world_pose()
-        return ProxyState(
-            epoch=engine.epoch, update_seq=engine.last_seq, tick=engine.tick_index,
-            haptic_time=engine.time, publish_time_ns=time.time_ns(), method=engine.method,
-            safe_state=stale, valid=engine.ready, q=q, qd=qd, device_pose=pose, device_twist=twist,
-        )  # fmt: skip
 
 
 def install_signal_handlers(server: HapticServer) -> None:

@@ -77,7 +77,7 @@ def run_virtual(
                     log.update(update_record(k, raw, reason, 0.0), int(t * 1e9))
                 seq += 1
                 next_sim_t += sim_period
-            row = engine.tick(dt)
+            row = engine.tick(dt, update_seq=engine.last_seq, update_age_ms=0.0)
             rows[k] = row[0]
             if log is not None:
                 log.tick(row.tobytes(), int(t * 1e9))

@@ -23,7 +23,7 @@ Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
 
 
-class ConfigError(Exception):
+class ConfigError(ValueError):
     """A config file is missing, unreadable or wrong: names the file, the key and the problem."""
 
     def __init__(self, source: str, key: str, problem: str) -> None:

@@ -14,9 +14,12 @@ positive definite, unit normals, magnitudes within `MessageLimits`) and raises
 from __future__ import annotations
 
 import struct
+import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numba import njit
 
 from shared.kinematics import MAX_DOF
 from shared.wire import LIMIT_FIELDS, PROTOCOL_VERSION, REASONS, UpdateParser
@@ -237,6 +240,69 @@ def encode_proxy(p: ProxyState) -> bytes:
     )  # fmt: skip
     body = np.concatenate([p.q, p.qd, p.device_pose, p.device_twist]).astype("<f8")
     return header + body.tobytes()
+
+
+class ProxyEncoder:
+    """encode_proxy into a preallocated buffer, straight from the engine (the 1 kHz path)."""
+
+    def __init__(self) -> None:
+        self._buf = np.zeros(_PROXY_HEADER.size + 8 * (2 * MAX_DOF + 6), np.uint8)
+        _PROXY_HEADER.pack_into(
+            self._buf.data, 0, PROXY_MAGIC, PROTOCOL_VERSION, 0, 0, 0, 0, 0.0, 0, 0, 0
+        )
+
+    def encode(self, engine: Any, safe: bool) -> bytes:
+        """The ProxyState of a HapticEngine: proxy q, qd and the measured device pose (world)."""
+        flags = (PROXY_SAFE_STATE if safe else 0) | (PROXY_VALID if engine.ready else 0)
+        n = _encode_proxy_body(
+            self._buf, flags, engine.epoch, engine.last_seq, engine.tick_index, engine.time,
+            time.time_ns(), engine.method, engine.slots, engine.state, engine.world_sensors,
+        )  # fmt: skip
+        return self._buf[:n].tobytes()
+
+    def encode_row(self, row: np.ndarray, method: int) -> bytes:
+        """The ProxyState of a logged tick (TICK_DTYPE[1]): what the I/O process publishes."""
+        r = row[0]
+        d = int(r["dof"])
+        flags = (PROXY_SAFE_STATE if r["safe"] > 0.0 else 0) | PROXY_VALID
+        _PROXY_HEADER.pack_into(
+            self._buf.data, 0, PROXY_MAGIC, PROTOCOL_VERSION, flags, int(r["update_epoch"]),
+            int(r["update_seq"]), int(r["tick"]), float(r["t"]), time.time_ns(), d, method,
+        )  # fmt: skip
+        n = _PROXY_HEADER.size + 8 * (2 * d + 6)
+        body = self._buf[_PROXY_HEADER.size : n].view("<f8")
+        body[:d] = r["proxy_q"][:d]
+        body[d : 2 * d] = r["proxy_qd"][:d]
+        body[2 * d : 2 * d + 3] = r["device_pose"]
+        body[2 * d + 3 :] = r["device_twist"]
+        return self._buf[:n].tobytes()
+
+
+@njit(cache=True)
+def _encode_proxy_body(buf, flags, epoch, seq, tick, t, pub_ns, method, slots, state, sensors):
+    """Fill the ProxyState fields after the constant magic and version; returns its size."""
+    d = slots[0].dof
+    buf[6] = flags & 0xFF
+    buf[7] = (flags >> 8) & 0xFF
+    head = buf[8:40].view(np.int64)
+    head[0] = epoch
+    head[1] = seq
+    head[2] = tick
+    buf[32:40].view(np.float64)[0] = t
+    buf[40:48].view(np.int64)[0] = pub_ns
+    buf[48] = d & 0xFF
+    buf[49] = (d >> 8) & 0xFF
+    buf[50] = method & 0xFF
+    buf[51] = (method >> 8) & 0xFF
+    body = buf[52 : 52 + 8 * (2 * d + 6)].view(np.float64)
+    st = state[0]
+    for k in range(d):
+        body[k] = st.q[k]
+        body[d + k] = st.qd[k]
+    for c in range(3):
+        body[2 * d + c] = sensors[0].pose[c]
+        body[2 * d + 3 + c] = sensors[0].twist[c]
+    return 52 + 8 * (2 * d + 6)
 
 
 def decode_proxy(data: bytes, limits: MessageLimits = DEFAULT_LIMITS) -> ProxyState:

@@ -6,6 +6,7 @@ perf_counter_ns gives p50 lateness < 1 us on these VMs, where a plain sleep give
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass
 
@@ -24,6 +25,21 @@ def wait_until(deadline_ns: int, spin_ns: int = SPIN_NS) -> int:
     while now < deadline_ns:
         now = time.perf_counter_ns()
     return now
+
+
+REALTIME_PRIORITY = 10
+
+
+def try_realtime_priority() -> bool:
+    """Best effort: SCHED_FIFO for the calling thread, so a loop that sleeps most of each
+    period preempts ordinary processes when it wakes (measured here: lateness p99.9 from
+    ~1.3 ms to ~60 us). Falls back quietly where not permitted. Children inherit it: call
+    it after starting any helper process."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(REALTIME_PRIORITY))
+        return True
+    except (OSError, AttributeError):
+        return False
 
 
 class SampleWindow:

@@ -43,7 +43,7 @@ def test_wrong_type_is_named(tmp_path: Path) -> None:
 
 
 def test_nested_list_entry_is_named(tmp_path: Path) -> None:
-    p = _write(tmp_path, GOOD_SCENE.replace("size = [0.04, 0.02]", "size = [0.04]"))
+    p = _write(tmp_path, GOOD_SCENE.replace("size = [0.06, 0.04]", "size = [0.06]"))
     with pytest.raises(ConfigError) as err:
         load_scene(str(p))
     assert err.value.key == "bodies[0].size"

@@ -144,3 +144,31 @@ def test_proxy_round_trip_and_rejection() -> None:
     np.testing.assert_array_equal(back.device_twist, p.device_twist)
     with pytest.raises(MessageError, match="nonfinite"):
         decode_proxy(_corrupt_float(encode_proxy(p), float("nan"), 1))
+
+
+def test_proxy_encoder_of_the_loop_matches_the_reference_codec() -> None:
+    """The loop's in-place encoder writes what encode_proxy would, for the engine's state."""
+    from device_models.registry import load_device
+    from haptic_server.engine import HapticEngine
+    from shared.config import load_scene, load_user
+    from shared.messages import ProxyEncoder
+    from sim_server.world import SimWorld
+
+    scene = load_scene("free_box")
+    engine = HapticEngine(scene, load_device("ideal"), load_user("constant_push"))
+    assert engine.receive(encode_update(SimWorld(scene).local_model(7, 0, 0))) == ""
+    for _ in range(5):
+        engine.tick(1e-3)
+    raw = ProxyEncoder().encode(engine, safe=True)
+    back = decode_proxy(raw)
+    assert (back.epoch, back.update_seq, back.tick, back.method) == (7, 0, 5, 0)
+    assert back.safe_state and back.valid and back.haptic_time == engine.time
+    np.testing.assert_array_equal(back.q, engine.state[0]["q"][:3])
+    np.testing.assert_array_equal(back.qd, engine.state[0]["qd"][:3])
+    np.testing.assert_array_equal(back.device_pose, engine.world_sensors[0]["pose"])
+    reference = ProxyState(
+        epoch=7, update_seq=0, tick=5, haptic_time=engine.time,
+        publish_time_ns=back.publish_time_ns, method=0, safe_state=True, valid=True,
+        q=back.q, qd=back.qd, device_pose=back.device_pose, device_twist=back.device_twist,
+    )  # fmt: skip
+    assert encode_proxy(reference) == raw

@@ -1,0 +1,285 @@
+"""All of the haptic server's I/O in a sidecar process, so the 1 kHz loop does none.
+
+The loop and the sidecar share one block of memory:
+- the **update mailbox**: the sidecar's Zenoh subscriber thread copies each received
+  LocalModelUpdate into the next slot; the loop validates and installs it in place (one
+  numba call) and writes its verdict next to it;
+- the **tick ring**: the loop copies each tick record in (one numba call);
+- the **event ring**: watchdog trips and other events, as short text.
+The sidecar publishes the proxy state (read from the newest tick record) at
+`proxy_publish_hz`, and writes ticks, updates (with their verdicts) and events to MCAP. It
+runs no Python code in the loop's process, so it never competes for the loop's GIL; if the
+loop dies, even by SIGKILL, the sidecar notices, drains what is there and closes the log.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import struct
+import time
+from multiprocessing import shared_memory
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from haptic_server.layout import TICK_DTYPE
+
+RING_TICKS = 16384  # 16 s of ticks at 1 kHz: the writer may stall this long without loss
+MAILBOX_SLOTS = 64  # updates waiting for the loop (about 1 s at 60 Hz)
+SLOT_BYTES = 16384  # >= the largest valid update (12 DOF, 64 contacts: about 9 KB)
+EVENT_SLOTS = 256
+EVENT_BYTES = 256
+VERDICT_PENDING = -1
+IO_POLL_S = 0.004  # the sidecar wakes at least this often (and for each proxy publish)
+IO_NICENESS = 10
+
+# control words
+C_READY, C_CLOSED, C_TICK_HEAD, C_TICK_LOST, C_UPD_HEAD, C_UPD_READ = 0, 1, 2, 3, 4, 5
+C_UPD_LOST, C_EVT_HEAD, C_EVT_LOST, C_PUBLISHED, C_RECEIVED = 6, 7, 8, 9, 10
+N_CTL = 16
+
+
+class SharedBlock:
+    """The layout of the shared memory (both sides map the same named segment)."""
+
+    def __init__(self, shm: shared_memory.SharedMemory) -> None:
+        self.shm = shm
+        buf = shm.buf
+        o = 0
+        self.ctl = np.ndarray((N_CTL,), np.int64, buf, o)
+        o += 8 * N_CTL
+        self.ticks = np.ndarray((RING_TICKS,), TICK_DTYPE, buf, o)
+        o += RING_TICKS * TICK_DTYPE.itemsize
+        o = (o + 7) // 8 * 8
+        self.update_len = np.ndarray((MAILBOX_SLOTS,), np.int64, buf, o)
+        o += 8 * MAILBOX_SLOTS
+        self.update_verdict = np.ndarray((MAILBOX_SLOTS,), np.int64, buf, o)
+        o += 8 * MAILBOX_SLOTS
+        self.update_tick = np.ndarray((MAILBOX_SLOTS,), np.int64, buf, o)
+        o += 8 * MAILBOX_SLOTS
+        self.update_recv_ns = np.ndarray((MAILBOX_SLOTS,), np.int64, buf, o)
+        o += 8 * MAILBOX_SLOTS
+        self.updates = np.ndarray((MAILBOX_SLOTS, SLOT_BYTES), np.uint8, buf, o)
+        o += MAILBOX_SLOTS * SLOT_BYTES
+        self.events = np.ndarray((EVENT_SLOTS, EVENT_BYTES), np.uint8, buf, o)
+        o += EVENT_SLOTS * EVENT_BYTES
+        self.size = o
+
+    @staticmethod
+    def nbytes() -> int:
+        return (
+            8 * N_CTL
+            + (RING_TICKS * TICK_DTYPE.itemsize + 7) // 8 * 8
+            + 4 * 8 * MAILBOX_SLOTS
+            + MAILBOX_SLOTS * SLOT_BYTES
+            + EVENT_SLOTS * EVENT_BYTES
+        )
+
+    def release(self) -> None:
+        for name in (
+            "ctl", "ticks", "update_len", "update_verdict", "update_tick", "update_recv_ns",
+            "updates", "events",
+        ):  # fmt: skip
+            setattr(self, name, None)
+
+
+@njit(cache=True)
+def push_row(ring, ctl, row):
+    """Copy the row into the ring slot of the head, then publish the new head."""
+    head = ctl[C_TICK_HEAD]
+    ring[head % ring.shape[0]] = row[0]
+    ctl[C_TICK_HEAD] = head + 1
+
+
+class LoopIO:
+    """The loop's side: take updates, give verdicts, push ticks and events. No syscalls."""
+
+    def __init__(self, config: dict[str, Any], ready_timeout_s: float = 120.0) -> None:
+        self._shm = shared_memory.SharedMemory(create=True, size=SharedBlock.nbytes())
+        self.block = SharedBlock(self._shm)
+        self.block.ctl[:] = 0
+        self.block.update_verdict[:] = VERDICT_PENDING
+        ctx = mp.get_context("spawn")
+        self._proc = ctx.Process(
+            target=_sidecar_main, args=(self._shm.name, config, os.getpid()),
+            name="haptic-io", daemon=False,
+        )  # fmt: skip
+        self._proc.start()
+        end = time.monotonic() + ready_timeout_s
+        while self.block.ctl[C_READY] == 0:
+            if not self._proc.is_alive() or time.monotonic() > end:
+                self.close()
+                raise RuntimeError("the haptic I/O process did not start")
+            time.sleep(0.01)
+
+    def pending_update(self) -> int:
+        """Mailbox slot of the oldest unread update, or -1."""
+        ctl = self.block.ctl
+        read = int(ctl[C_UPD_READ])
+        if read >= int(ctl[C_UPD_HEAD]):
+            return -1
+        return read % MAILBOX_SLOTS
+
+    def update_bytes(self, slot: int) -> tuple[np.ndarray, int]:
+        return self.block.updates[slot], int(self.block.update_len[slot])
+
+    def verdict(self, slot: int, code: int, tick: int) -> None:
+        """The loop's verdict on the update in `slot` (0 installed, else a reason code)."""
+        self.block.update_tick[slot] = tick
+        self.block.update_verdict[slot] = code
+        self.block.ctl[C_UPD_READ] += 1
+
+    def tick(self, row: np.ndarray) -> None:
+        push_row(self.block.ticks, self.block.ctl, row)
+
+    def event(self, tick: int, kind: str, detail: str) -> None:
+        """A rare event (watchdog, stop): text into the event ring, dropped if full."""
+        ctl = self.block.ctl
+        head = int(ctl[C_EVT_HEAD])
+        data = f"{tick}\t{kind}\t{detail}".encode()[: EVENT_BYTES - 1]
+        slot = self.block.events[head % EVENT_SLOTS]
+        slot[: len(data)] = np.frombuffer(data, np.uint8)
+        slot[len(data)] = 0
+        ctl[C_EVT_HEAD] = head + 1
+
+    @property
+    def counters(self) -> dict[str, int]:
+        c = self.block.ctl
+        return {
+            "lost_log_ticks": int(c[C_TICK_LOST]),
+            "lost_updates": int(c[C_UPD_LOST]),
+            "proxy_published": int(c[C_PUBLISHED]),
+            "updates_arrived": int(c[C_RECEIVED]),
+        }
+
+    def close(self, timeout_s: float = 30.0) -> dict[str, int]:
+        """Stop the sidecar (it finishes the log); returns its counters."""
+        self.block.ctl[C_CLOSED] = 1
+        self._proc.join(timeout_s)
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(5.0)
+        counters = self.counters
+        self.block.release()
+        self._shm.close()
+        self._shm.unlink()
+        return counters
+
+
+# --- the sidecar process ----------------------------------------------------------------
+
+
+def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None:
+    """Zenoh in and out, MCAP out, until the loop closes the block or dies."""
+    import signal
+
+    import zenoh
+
+    from haptic_server.kernels import reason_of
+    from haptic_server.mcap_log import LogWriter, update_record
+    from shared.config import EndpointSpec
+    from shared.messages import ProxyEncoder
+    from shared.transport import keys, open_session
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the loop decides when I/O ends
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    os.nice(IO_NICENESS)  # yield the CPU to the loop when both want it
+    shm = shared_memory.SharedMemory(name=shm_name)
+    block = SharedBlock(shm)
+    ctl = block.ctl
+    k = keys(config["namespace"])
+    session = open_session(EndpointSpec(**config["endpoints"]), config.get("zenoh_extra"))
+    publisher = session.declare_publisher(
+        k.proxy, congestion_control=zenoh.CongestionControl.DROP, express=True
+    )
+
+    def receive(sample: Any) -> None:
+        """Subscriber callback (a Zenoh thread of this process): the update into the mailbox."""
+        raw = sample.payload.to_bytes()
+        ctl[C_RECEIVED] += 1
+        head = int(ctl[C_UPD_HEAD])
+        if head - int(ctl[C_UPD_READ]) >= MAILBOX_SLOTS:
+            ctl[C_UPD_LOST] += 1  # the loop is not reading: it is stopped or dead
+            return
+        slot = head % MAILBOX_SLOTS
+        n = min(len(raw), SLOT_BYTES)
+        block.updates[slot, :n] = np.frombuffer(raw, np.uint8, n)
+        block.update_len[slot] = len(raw) if len(raw) <= SLOT_BYTES else -len(raw)
+        block.update_verdict[slot] = VERDICT_PENDING
+        block.update_recv_ns[slot] = time.time_ns()
+        ctl[C_UPD_HEAD] = head + 1
+
+    subscriber = session.declare_subscriber(k.update, receive)
+    log = LogWriter(config["log_path"], config["metadata"]) if config.get("log_path") else None
+    wall_start_ns = int(config["wall_start_ns"])
+    encoder = ProxyEncoder()
+    publish_period = 1.0 / float(config["proxy_publish_hz"])
+    method = int(config["method"])
+    tick_tail = 0
+    upd_logged = 0
+    evt_tail = 0
+    last_published_tick = -1
+    next_publish = time.monotonic()
+    last_flush = time.monotonic()
+    ctl[C_READY] = 1
+    try:
+        while True:
+            closing = ctl[C_CLOSED] == 1 or os.getppid() != parent_pid
+            head = int(ctl[C_TICK_HEAD])
+            now = time.monotonic()
+            if head > 0 and now >= next_publish:
+                newest = block.ticks[(head - 1) % RING_TICKS : (head - 1) % RING_TICKS + 1]
+                if (
+                    int(newest["tick"][0]) != last_published_tick
+                    and int(newest["update_seq"][0]) >= 0
+                ):
+                    publisher.put(encoder.encode_row(newest, method))
+                    ctl[C_PUBLISHED] += 1
+                    last_published_tick = int(newest["tick"][0])
+                next_publish = now + publish_period
+            if log is not None:
+                if head - tick_tail > RING_TICKS:
+                    ctl[C_TICK_LOST] += head - tick_tail - RING_TICKS
+                    tick_tail = head - RING_TICKS
+                while tick_tail < head:
+                    row = block.ticks[tick_tail % RING_TICKS : tick_tail % RING_TICKS + 1]
+                    log.tick(row.tobytes(), wall_start_ns + int(float(row["t"][0]) * 1e9))
+                    tick_tail += 1
+                read = int(ctl[C_UPD_READ])
+                while upd_logged < read:
+                    slot = upd_logged % MAILBOX_SLOTS
+                    n = int(block.update_len[slot])
+                    code = int(block.update_verdict[slot])
+                    raw = block.updates[slot, : min(abs(n), SLOT_BYTES)].tobytes()
+                    recv_ns = int(block.update_recv_ns[slot])
+                    age_ms = (recv_ns - _publish_time_ns(raw)) / 1e6
+                    reason = "" if code == 0 else reason_of(code)
+                    rec = update_record(int(block.update_tick[slot]), raw, reason, age_ms)
+                    log.update(rec, recv_ns)
+                    upd_logged += 1
+                evt_head = int(ctl[C_EVT_HEAD])
+                while evt_tail < evt_head:
+                    text = bytes(block.events[evt_tail % EVENT_SLOTS]).split(b"\0", 1)[0].decode()
+                    tick_s, kind, detail = [*text.split("\t", 2), "", ""][:3]
+                    log.event(int(tick_s or 0), kind, detail, time.time_ns())
+                    evt_tail += 1
+                if now - last_flush > 0.2:
+                    log.flush()
+                    last_flush = now
+            if (closing and int(ctl[C_TICK_HEAD]) == tick_tail) or (closing and log is None):
+                break
+            time.sleep(max(0.0005, min(next_publish - time.monotonic(), IO_POLL_S)))
+    finally:
+        subscriber.undeclare()
+        if log is not None:
+            log.close()
+        session.close()
+        block.release()
+        shm.close()
+
+
+def _publish_time_ns(raw: bytes) -> int:
+    """The publish time in an update's header (0 if the message is too short to have one)."""
+    return int(struct.unpack_from("<q", raw, 32)[0]) if len(raw) >= 40 else 0
