@@ -135,7 +135,7 @@ class HapticEngine:
 
     # --- updates ------------------------------------------------------------------------
 
-    def receive(self, raw: bytes) -> str:
+    def receive(self, raw: bytes, latency_s: float = 0.0) -> str:
         """Validate and install an update's bytes; returns "" or the rejection reason."""
         parser = self.parser
         n = len(raw)
@@ -143,10 +143,10 @@ class HapticEngine:
             self.counters.reject(REASONS[R_SIZE])
             return REASONS[R_SIZE]
         parser.buffer[:n] = np.frombuffer(raw, np.uint8)
-        code = self.receive_buffer(parser.buffer, n)
+        code = self.receive_buffer(parser.buffer, n, latency_s)
         return "" if code == 0 else reason_of(code)
 
-    def receive_buffer(self, buf: np.ndarray, nbytes: int) -> int:
+    def receive_buffer(self, buf: np.ndarray, nbytes: int, latency_s: float = 0.0) -> int:
         """Validate and install the update in an 8-byte aligned uint8 buffer; 0 or a reason code.
 
         One numba call parses, validates, checks the epoch and sequence order (DESIGN §3)
@@ -157,7 +157,7 @@ class HapticEngine:
         code = int(
             accept_update(
                 buf, nbytes, parser.limits, parser.out, parser.scratch, self.slots, self.state,
-                self._order, CONTACT_MATCH_RADIUS_M,
+                self._order, CONTACT_MATCH_RADIUS_M, latency_s,
             )
         )  # fmt: skip
         if code:

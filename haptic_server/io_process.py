@@ -125,6 +125,14 @@ class LoopIO:
     def update_bytes(self, slot: int) -> tuple[np.ndarray, int]:
         return self.block.updates[slot], int(self.block.update_len[slot])
 
+    def update_latency_s(self, slot: int) -> float:
+        """Publish -> now for the update in `slot`, from its header (one host clock; clamped
+        to [0, 1] s so a clock step between hosts cannot move contacts far)."""
+        if self.block.update_len[slot] < 40:
+            return 0.0
+        published = int(self.block.updates[slot, 32:40].view(np.int64)[0])
+        return min(max((time.time_ns() - published) / 1e9, 0.0), 1.0)
+
     def verdict(self, slot: int, code: int, tick: int) -> None:
         """The loop's verdict on the update in `slot` (0 installed, else a reason code)."""
         self.block.update_tick[slot] = tick

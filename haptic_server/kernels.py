@@ -430,6 +430,10 @@ def haptic_tick(slots, params, state, sensors, hand_measured, dt, ws, row):
         _mat3_vec(M, acc_c0, acc_c1, acc_c2, r.f_contact, 1.0)
         _mat3_vec(M, acc_g0, acc_g1, acc_g2, r.f_gravity, 1.0)
         _mat3_vec(M, acc_i0, acc_i1, acc_i2, r.f_impulse, 1.0)
+        # what the device limits kept back of earlier impulses is delivered now
+        for c in range(3):
+            r.f_impulse[c] += st.impulse_carry[c] / dt
+            st.impulse_carry[c] = 0.0
         # (C_d - M_d L^-1 b_d) xd_h - M_d L^-1 k_d x_h
         bd = p.desired_damping
         kd = p.desired_stiffness
@@ -518,8 +522,14 @@ def haptic_tick(slots, params, state, sensors, hand_measured, dt, ws, row):
             finite = False
         v = (1.0 - st.safe) * u + st.safe * u_safe
         lim = p.max_wrench[c]
-        v = min(lim, max(-lim, v))
-        r.wrench_command[c] = v
+        clipped = min(lim, max(-lim, v))
+        # an impulse clipped at the device limit is not lost: the rest is carried to the next
+        # ticks, so the device still receives the momentum change (seed 001 eq 7)
+        f_imp = r.f_impulse[c]
+        excess = v - clipped
+        if st.safe == 0.0 and f_imp != 0.0 and excess * f_imp > 0.0:
+            st.impulse_carry[c] = math.copysign(min(abs(excess), abs(f_imp)), f_imp) * dt
+        r.wrench_command[c] = clipped
     for a in range(d):
         if not (math.isfinite(st.q[a]) and math.isfinite(st.qd[a])):
             finite = False
@@ -612,7 +622,9 @@ def reason_of(code: int) -> str:
 
 
 @njit(cache=True)
-def accept_update(buf, nbytes, limits, parsed, scratch, slots, state, order, match_radius):
+def accept_update(
+    buf, nbytes, limits, parsed, scratch, slots, state, order, match_radius, latency_s
+):
     """Parse, validate, order-check and install an update: 0, or the reason code.
 
     order = [epoch, last seq, ready, new-epoch flag]: an older epoch or a repeated sequence
@@ -629,6 +641,7 @@ def accept_update(buf, nbytes, limits, parsed, scratch, slots, state, order, mat
         return R_SEQUENCE
     if not new_epoch and order[ORDER_READY] == 1 and m.dof != slots[0].dof:
         return R_DOF_CHANGE
+    m.age_s += latency_s  # it travelled this long: moving contacts have moved on
     install_update(parsed, slots, state, new_epoch, match_radius)
     order[ORDER_EPOCH] = m.epoch
     order[ORDER_SEQ] = m.seq

@@ -69,6 +69,7 @@ STATE_DTYPE = np.dtype(
         ("safe_target", F8),
         ("fault", I8),
         ("prev_device_twist", F8, (3,)),  # to predict the device's motion over a step
+        ("impulse_carry", F8, (3,)),  # impulse (N s) held back by the device limits
         ("foh_goal", F8, (3,)),
         ("foh_step", F8, (3,)),
         ("foh_steps_left", I8),

@@ -155,7 +155,8 @@ class HapticServer:
                 slot = io.pending_update()
                 while slot >= 0:
                     buf, nbytes = io.update_bytes(slot)
-                    code = engine.receive_buffer(buf, nbytes) if nbytes > 0 else R_SIZE
+                    latency_s = io.update_latency_s(slot)
+                    code = engine.receive_buffer(buf, nbytes, latency_s) if nbytes > 0 else R_SIZE
                     io.verdict(slot, code, counters.ticks)
                     stats.updates_received += 1
                     if code == 0:

@@ -32,6 +32,7 @@ class VirtualResult:
 
     ticks: np.ndarray  # TICK_DTYPE records of every tick
     updates: int
+    world: SimWorld  # the sim's world at the end (bodies, tool)
     wall_s: float
     sim_s: float
     log_path: Path | None
@@ -67,9 +68,11 @@ def run_virtual(
         for k in range(n_ticks):
             t = k * dt
             if t >= next_sim_t - 1e-12:
+                lead = 0.0
                 if seq > 0:
                     world.step(_target(engine, coupled))
-                raw = encode_update(world.local_model(VIRTUAL_EPOCH, seq, 0))
+                    lead = sim_period  # the world now holds one period ahead of the proxy
+                raw = encode_update(world.local_model(VIRTUAL_EPOCH, seq, 0, lead))
                 reason = engine.receive(raw)
                 if reason:
                     raise RuntimeError(f"the sim's own update was rejected: {reason}")
@@ -85,7 +88,7 @@ def run_virtual(
         if log is not None:
             log.close()
     wall = time.perf_counter() - started
-    return VirtualResult(rows, seq, wall, n_ticks * dt, Path(log_path) if log_path else None)
+    return VirtualResult(rows, seq, world, wall, n_ticks * dt, Path(log_path) if log_path else None)
 
 
 def _target(engine: HapticEngine, coupled: bool) -> ToolTarget:

@@ -190,6 +190,7 @@ class BodySpec:
     mass: float = 1.0  # kg (dynamic bodies)
     velocity: Vec2 = (0.0, 0.0)  # initial (dynamic) or constant (kinematic), m/s
     angular_velocity: float = 0.0
+    linear_damping_per_s: float = 0.0  # dynamic bodies: drag of the table they slide on
     oscillation_amplitude: Vec2 = (0.0, 0.0)  # kinematic bodies: x(t) = x0 + A sin(2 pi t / T)
     oscillation_period_s: float = 0.0
 
@@ -202,6 +203,7 @@ class BodySpec:
             _require(self.a != self.b, "b", "segment end points must differ")
         _require(self.mass > 0, "mass", "must be > 0")
         _require(self.oscillation_period_s >= 0, "oscillation_period_s", "must be >= 0")
+        _require(self.linear_damping_per_s >= 0, "linear_damping_per_s", "must be >= 0")
 
 
 @dataclass(frozen=True)

@@ -28,8 +28,8 @@ UPDATE_MAGIC = b"HLMU"
 PROXY_MAGIC = b"HPXY"
 
 # magic, version, flags, epoch, seq, sim_time, publish_time_ns, dof, n_contacts, n_resisted,
-# op_link, characteristic_length
-_UPDATE_HEADER = struct.Struct("<4sHHQQdqHHHHd")
+# op_link, characteristic_length, state_lead_s
+_UPDATE_HEADER = struct.Struct("<4sHHQQdqHHHHdd")
 # magic, version, flags, epoch, update_seq, tick, haptic_time, publish_time_ns, dof, method
 _PROXY_HEADER = struct.Struct("<4sHHQQQdqHH")
 
@@ -115,6 +115,9 @@ class LocalModelUpdate:
     characteristic_length: float
     contacts: ContactSet
     tool_touching: bool
+    # how far ahead of its publication the state holds (s): the sim steps its world over the
+    # coming period, so moving contacts are extrapolated back by this much at install
+    state_lead_s: float = 0.0
 
     @property
     def dof(self) -> int:
@@ -155,7 +158,7 @@ def encode_update(u: LocalModelUpdate) -> bytes:
     j = 0 if u.resisted is None else len(u.resisted)
     header = _UPDATE_HEADER.pack(
         UPDATE_MAGIC, PROTOCOL_VERSION, flags, u.epoch, u.seq, u.sim_time, u.publish_time_ns,
-        d, n, j, u.op_link, u.characteristic_length,
+        d, n, j, u.op_link, u.characteristic_length, u.state_lead_s,
     )  # fmt: skip
     ints = np.concatenate([u.joint_types, u.contacts.link, u.contacts.key]).astype("<i8")
     parts = [
@@ -225,6 +228,7 @@ def update_from_record(m: np.void) -> LocalModelUpdate:
         characteristic_length=float(m["characteristic_length"]),
         contacts=ContactSet(m["c_link"][:n].copy(), m["c_key"][:n].copy(), floats),
         tool_touching=bool(m["tool_touching"]),
+        state_lead_s=float(m["state_lead_s"]),
     )  # fmt: skip
 
 

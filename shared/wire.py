@@ -20,7 +20,7 @@ from shared.linalg import cholesky_inplace
 PROTOCOL_VERSION = 1
 MAX_CONTACTS = 64
 MAX_RESISTED = 3
-HEADER_BYTES = 56  # struct "<4sHHQQdqHHHHd", see shared.messages
+HEADER_BYTES = 64  # struct "<4sHHQQdqHHHHdd", see shared.messages
 CONTACT_FLOATS = 12
 MAGIC_UPDATE = (0x48, 0x4C, 0x4D, 0x55)  # b"HLMU"
 
@@ -58,7 +58,8 @@ LOCAL_MODEL_DTYPE = np.dtype(
         ("penalty_projection", F8, (3, 3)),  # sum (S n)(S n)^T, S = diag(1, 1, L)
         ("tool_pose", F8, (3,)),  # the sim's operational point pose
         ("tool_touching", I8),
-        ("age_s", F8),  # time since install: moving environment points are extrapolated by it
+        ("state_lead_s", F8),  # the state holds this long after its publication
+        ("age_s", F8),  # time since the state held (negative at install): contacts move by it
         ("n_contacts", I8),
         ("c_link", I8, (MAX_CONTACTS,)),
         ("c_key", I8, (MAX_CONTACTS,)),
@@ -131,7 +132,7 @@ def parse_update(buf, nbytes, limits, out, scratch):
         return R_VERSION
     flags = _u16(buf, 6)
     head_i = buf[8:40].view(np.int64)
-    head_f = buf[8:56].view(np.float64)
+    head_f = buf[8:64].view(np.float64)
     d = _u16(buf, 40)
     n = _u16(buf, 42)
     j = _u16(buf, 44)
@@ -156,8 +157,11 @@ def parse_update(buf, nbytes, limits, out, scratch):
     fl = buf[HEADER_BYTES + 8 * n_int : nbytes].view(np.float64)
     sim_time = head_f[2]
     char_len = head_f[5]
-    if not (math.isfinite(sim_time) and math.isfinite(char_len)):
+    lead = head_f[6]
+    if not (math.isfinite(sim_time) and math.isfinite(char_len) and math.isfinite(lead)):
         return R_NONFINITE
+    if abs(lead) > 1.0:
+        return R_MAGNITUDE
     for k in range(n_float):
         if not math.isfinite(fl[k]):
             return R_NONFINITE
@@ -298,7 +302,8 @@ def parse_update(buf, nbytes, limits, out, scratch):
     m.n_resisted = j
     m.characteristic_length = char_len
     m.tool_touching = 1 if (flags & FLAG_TOUCHING) != 0 else 0
-    m.age_s = 0.0
+    m.state_lead_s = lead
+    m.age_s = -lead  # contacts move with their velocity from the time the state holds
     m.n_contacts = n
     m.valid = 1
     return R_OK

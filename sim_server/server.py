@@ -92,9 +92,13 @@ class SimServer:
                     except MessageError:
                         self.stats.proxies_rejected += 1
                 t0 = time.perf_counter_ns()
+                lead_s = 0.0
                 if seq > 0:
                     self.world.step(self.target(now))
-                raw_update = encode_update(self.world.local_model(self.epoch, seq, time.time_ns()))
+                    # the step covered [deadline, deadline + period]: the state holds then
+                    lead_s = (deadline + period_ns - time.perf_counter_ns()) / 1e9
+                update = self.world.local_model(self.epoch, seq, time.time_ns(), lead_s)
+                raw_update = encode_update(update)
                 pub.put(raw_update)
                 self.step_ms.add((time.perf_counter_ns() - t0) / 1e6)
                 self.stats.update_bytes = len(raw_update)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pymunk
@@ -95,6 +96,8 @@ class SimWorld:
             self._kinematic.append((body, spec))
         else:
             body = pymunk.Body(spec.mass, _moment(spec))
+            if spec.linear_damping_per_s > 0.0 and not is_tool:
+                body.velocity_func = _table_drag(spec.linear_damping_per_s)
         body.position = spec.position
         body.angle = spec.angle
         if spec.kind != "static":
@@ -346,8 +349,14 @@ class SimWorld:
 
     # --- local model --------------------------------------------------------------------
 
-    def local_model(self, epoch: int, seq: int, publish_time_ns: int) -> LocalModelUpdate:
-        """The local model of DESIGN §3 at the tool's current configuration."""
+    def local_model(
+        self, epoch: int, seq: int, publish_time_ns: int, state_lead_s: float = 0.0
+    ) -> LocalModelUpdate:
+        """The local model of DESIGN §3 at the tool's current configuration.
+
+        state_lead_s: how long after publication the state holds (the step just computed
+        covers the coming period, driven by the extrapolated proxy).
+        """
         q, qd = self.tool_state()
         mass, grav, jac = self.dynamics_terms(q)
         has_gravity = bool(np.any(self.gravity != 0.0))
@@ -369,7 +378,7 @@ class SimWorld:
             gravity=grav if has_gravity else None,
             resisted=resisted if resisted is not None and len(resisted) else None,
             characteristic_length=tool.characteristic_length_m, contacts=contacts,
-            tool_touching=touching,
+            tool_touching=touching, state_lead_s=state_lead_s,
         )  # fmt: skip
 
     def neighbourhood_contacts(self) -> tuple[ContactSet, bool]:
@@ -396,6 +405,9 @@ class SimWorld:
                     continue
                 normal_out /= n_norm
                 mat = self._shape_material[env]
+                # a material's stiffness and damping belong to the shape pair: the points of
+                # one contact manifold share them, so a face on a wall is as stiff as a corner
+                share = 1.0 / max(1, len(cps.points))
                 for pt in cps.points:
                     tool_world = np.array([pt.point_a.x, pt.point_a.y]) + margin * normal_out
                     env_world = np.array([pt.point_b.x, pt.point_b.y])
@@ -415,8 +427,8 @@ class SimWorld:
                             [
                                 local_pt[0], local_pt[1], env_world[0], env_world[1],
                                 normal_out[0], normal_out[1], vel[0], vel[1],
-                                mat.friction, mat.restitution, mat.stiffness_n_per_m,
-                                mat.damping_ns_per_m,
+                                mat.friction, mat.restitution, share * mat.stiffness_n_per_m,
+                                share * mat.damping_ns_per_m,
                             ],
                         )
                     )  # fmt: skip
@@ -461,6 +473,15 @@ def _inflated(shape: pymunk.Shape, margin: float) -> pymunk.Shape:
         q = pymunk.Circle(shape.body, shape.radius + margin, shape.offset)
     q.filter = pymunk.ShapeFilter(group=TOOL_GROUP)
     return q
+
+
+def _table_drag(rate_per_s: float) -> Any:
+    """A pymunk velocity function adding exponential drag: a block sliding on a table."""
+
+    def update(body: pymunk.Body, gravity: Any, damping: float, dt: float) -> None:
+        pymunk.Body.update_velocity(body, gravity, damping * math.exp(-rate_per_s * dt), dt)
+
+    return update
 
 
 def _moment(spec: BodySpec) -> float:

@@ -1,0 +1,132 @@
+"""Cost of the local-model kernel per tick against the number of contacts (issue 3).
+
+A free body resting on 1..32 penetrating contacts (continuous contact: penalty, damping and
+friction every tick), timed two ways: the kernel alone, run N times inside one compiled
+loop (its own cost), and one Python call per tick (what the real-time loop pays). Compile
+time is reported apart; figures are medians and p99 over repeats.
+
+    python -m benchmarks.kernel_cost [--ticks 20000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+
+import numpy as np
+from numba import njit
+
+from device_models.ideal import IdealDevice, IdealDeviceConfig
+from haptic_server.engine import HapticEngine
+from haptic_server.kernels import haptic_tick
+from shared.config import UserConfig, load_scene
+from shared.kinematics import free_body_chain
+from shared.messages import ContactSet, LocalModelUpdate, encode_update
+
+TARGET_US = 5.0  # issue 3: the local-model kernel with 16 contacts
+
+
+def engine_with_contacts(n: int) -> HapticEngine:
+    """A box pressed 0.1 mm into n contact points spread along a floor."""
+    scene = load_scene("free_box")
+    scene = dataclasses.replace(scene, rendering=dataclasses.replace(scene.rendering, blend_ms=0.0))
+    device = IdealDevice(IdealDeviceConfig())
+    engine = HapticEngine(
+        scene, device, UserConfig(name="push", kind="constant_wrench", wrench=(0.5, -1.0, 0.0))
+    )
+    jt, lengths = free_body_chain()
+    xs = np.linspace(-0.03, 0.03, n)
+    rows = [[x, -0.02, x, -0.0199, 0.0, 1.0, 0.0, 0.0, 0.3, 0.0, 15000.0 / n, 20.0 / n] for x in xs]
+    update = LocalModelUpdate(
+        epoch=1, seq=0, sim_time=0.0, publish_time_ns=0, joint_types=jt, lengths=lengths,
+        base=np.zeros(2), base_angle=0.0, op_link=2, op_point=np.zeros(2), q=np.zeros(3),
+        qd=np.zeros(3), mass_matrix=np.diag([1.0, 1.0, 4.3e-4]), lambda_inv=np.eye(3),
+        tool_pose=np.zeros(3), gravity=None, resisted=None, characteristic_length=0.05,
+        contacts=ContactSet(np.full(n, 2), np.arange(n), np.array(rows)), tool_touching=True,
+    )  # fmt: skip
+    assert engine.receive(encode_update(update)) == ""
+    return engine
+
+
+@njit(cache=True)
+def _run(slots, params, state, sensors, hand, dt, ws, row, n):
+    for _ in range(n):
+        haptic_tick(slots, params, state, sensors, hand, dt, ws, row)
+
+
+def kernel_us(engine: HapticEngine, ticks: int) -> float:
+    e = engine
+    e.tick(1e-3)
+    args = (e.slots, e.params, e.state, e.world_sensors, e.hand_measured, 1e-3, e.scratch, e.row)
+    _run(*args, 10)
+    start = time.perf_counter_ns()
+    _run(*args, ticks)
+    return (time.perf_counter_ns() - start) / ticks / 1e3
+
+
+def python_call_us(engine: HapticEngine, ticks: int) -> np.ndarray:
+    e = engine
+    out = np.zeros(ticks)
+    for i in range(ticks):
+        t0 = time.perf_counter_ns()
+        haptic_tick(
+            e.slots, e.params, e.state, e.world_sensors, e.hand_measured, 1e-3, e.scratch, e.row
+        )
+        out[i] = (time.perf_counter_ns() - t0) / 1e3
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--ticks", type=int, default=20000)
+    parser.add_argument("--repeats", type=int, default=7)
+    args = parser.parse_args(argv)
+    t0 = time.perf_counter()
+    engine_with_contacts(1).tick(1e-3)
+    _run(
+        *(
+            lambda e: (
+                e.slots,
+                e.params,
+                e.state,
+                e.world_sensors,
+                e.hand_measured,
+                1e-3,
+                e.scratch,
+                e.row,
+            )
+        )(engine_with_contacts(1)),
+        1,
+    )
+    print(f"compile / cache load: {time.perf_counter() - t0:.2f} s")
+    head = ("contacts", "active", "kernel us/tick", "max", "py call p50", "p99")
+    print("".join(f"{h:>15}" for h in head) + "   (kernel: median of repeats)")
+    result = {}
+    for n in (0, 1, 4, 8, 16, 32):
+        eng = engine_with_contacts(max(n, 1)) if n else engine_with_contacts(1)
+        if n == 0:
+            eng.slots[0]["n_contacts"] = 0
+        reps = [kernel_us(eng, args.ticks) for _ in range(args.repeats)]
+        calls = python_call_us(eng, args.ticks)
+        active = int(eng.row[0]["n_active"])
+        result[n] = float(np.median(reps))
+        row = (
+            n,
+            active,
+            np.median(reps),
+            max(reps),
+            np.percentile(calls, 50),
+            np.percentile(calls, 99),
+        )
+        print("".join(f"{v:>15.2f}" if isinstance(v, float) else f"{v:>15}" for v in row))
+    verdict = "meets" if result[16] <= TARGET_US else "misses"
+    print(f"\n16 contacts: {result[16]:.2f} us per tick ({verdict} the {TARGET_US} us target)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,146 @@
+"""Seed 001 §5's first experiment, both contact models, measured and plotted (issue 3).
+
+A rectangle driven into a wall (K = 15000 N/m, B = 20 N s/m) by a constant 2 N, in the
+virtual clock: penalty forces alone (`wall_push_penalty`, seed 001 Fig. 4) against penalty
+plus impulses (`wall_push`, Fig. 5). Prints penetration against F/K, contact losses after
+the first impact, settling time and peak forces, and draws contact force and position over
+time for both.
+
+    python -m benchmarks.wall_push [--seconds 3] [--out docs/figures/wall_push.png]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from haptic_server.virtual import run_virtual_named
+
+PUSH_N = 2.0
+WALL_K = 15000.0
+WALL_X = 0.05  # inner face of the wall in configs/scenes/wall_push*.toml (m)
+HALF_LENGTH = 0.03  # of the rectangle (m)
+SETTLE_BAND = 0.05  # settled: contact force within 5% of the push from then on
+STEADY_S = 0.5  # penetration averaged over the last half second
+
+
+@dataclass
+class WallPushMetrics:
+    scene: str
+    first_impact_s: float
+    contact_losses: int
+    settling_s: float
+    steady_force_n: float
+    steady_penetration_mm: float
+    penetration_error: float  # relative to F/K
+    peak_contact_force_n: float
+    peak_rendered_force_n: float
+
+
+def measure(scene: str, seconds: float) -> tuple[WallPushMetrics, np.ndarray]:
+    ticks = run_virtual_named(scene, "ideal", "push_2n", seconds).ticks
+    t = ticks["t"]
+    force = -ticks["contact_force_world"][:, 0]  # the wall pushes back along -x
+    touching = force > 0.0
+    first = int(np.argmax(touching))
+    losses = int(np.sum(touching[first:-1] & ~touching[first + 1 :]))
+    outside = np.abs(force - PUSH_N) > SETTLE_BAND * PUSH_N
+    last_out = int(np.nonzero(outside)[0][-1]) if outside.any() else first
+    steady = t >= t[-1] - STEADY_S
+    penetration = ticks["vm_pose"][steady, 0] + HALF_LENGTH - WALL_X
+    expected = PUSH_N / WALL_K
+    metrics = WallPushMetrics(
+        scene=scene,
+        first_impact_s=float(t[first]),
+        contact_losses=losses,
+        settling_s=float(t[min(last_out + 1, len(t) - 1)] - t[first]),
+        steady_force_n=float(force[steady].mean()),
+        steady_penetration_mm=float(penetration.mean() * 1e3),
+        penetration_error=float(abs(penetration.mean() - expected) / expected),
+        peak_contact_force_n=float(force.max()),
+        peak_rendered_force_n=float(np.abs(ticks["wrench_command"][:, 0]).max()),
+    )
+    return metrics, ticks
+
+
+def plot(results: list[tuple[WallPushMetrics, np.ndarray]], out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, len(results), figsize=(11, 6), sharex=True, squeeze=False)
+    for col, (m, ticks) in enumerate(results):
+        t = ticks["t"]
+        window = (t > m.first_impact_s - 0.05) & (t < m.first_impact_s + 0.6)
+        ax = axes[0, col]
+        ax.plot(
+            t[window], -ticks["contact_force_world"][window, 0], label="contact force on the proxy"
+        )
+        ax.plot(
+            t[window],
+            -ticks["wrench_command"][window, 0],
+            lw=0.8,
+            alpha=0.7,
+            label="force rendered to the user",
+        )
+        ax.axhline(PUSH_N, color="k", lw=0.6, ls="--")
+        ax.set_ylabel("force (N)")
+        ax.set_title(
+            f"{m.scene}: {m.contact_losses} contact losses, settles in {m.settling_s * 1e3:.0f} ms"
+        )
+        ax.legend(fontsize=8)
+        ax = axes[1, col]
+        ax.plot(
+            t[window],
+            (ticks["device_pose"][window, 0] + HALF_LENGTH - WALL_X) * 1e3,
+            label="device",
+        )
+        ax.plot(
+            t[window],
+            (ticks["vm_pose"][window, 0] + HALF_LENGTH - WALL_X) * 1e3,
+            lw=0.8,
+            label="proxy",
+        )
+        ax.axhline(PUSH_N / WALL_K * 1e3, color="k", lw=0.6, ls="--", label="F/K")
+        ax.set_ylabel("position - wall (mm)")
+        ax.set_xlabel("time (s)")
+        ax.legend(fontsize=8)
+    fig.suptitle("Seed 001 §5: a rectangle pushed into a wall by 2 N (K = 15000 N/m, B = 20 N s/m)")
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--seconds", type=float, default=3.0)
+    parser.add_argument("--out", type=Path, default=Path("docs/figures/wall_push.png"))
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args(argv)
+    results = [measure(scene, args.seconds) for scene in ("wall_push_penalty", "wall_push")]
+    for m, _ in results:
+        print(
+            f"{m.scene:<18} impact {m.first_impact_s:.3f} s  losses {m.contact_losses}  "
+            f"settles in {m.settling_s * 1e3:6.1f} ms  steady force {m.steady_force_n:.4f} N  "
+            f"penetration {m.steady_penetration_mm:.4f} mm (F/K {PUSH_N / WALL_K * 1e3:.4f}, "
+            f"error {m.penetration_error * 100:.2f}%)  "
+            f"peak contact {m.peak_contact_force_n:.1f} N  "
+            f"peak rendered {m.peak_rendered_force_n:.1f} N"
+        )
+    plot(results, args.out)
+    print(f"plot: {args.out}")
+    if args.json:
+        args.json.write_text(json.dumps([asdict(m) for m, _ in results], indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
