@@ -17,6 +17,7 @@ import numpy as np
 from device_models.base import SimulatedDevice
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
+from haptic_server.kernels import store_row
 from haptic_server.layout import METHOD_VIRTUAL_COUPLING_FOH, TICK_DTYPE
 from haptic_server.mcap_log import LogWriter, run_metadata, update_record
 from shared.config import SceneConfig, UserConfig, load_scene, load_user, resolve
@@ -80,8 +81,8 @@ def run_virtual(
                     log.update(update_record(k, raw, reason, 0.0), int(t * 1e9))
                 seq += 1
                 next_sim_t += sim_period
-            row = engine.tick(dt, update_seq=engine.last_seq, update_age_ms=0.0)
-            rows[k] = row[0]
+            row = engine.tick(dt, 0.0, 0.0, seq - 1, 0.0)
+            store_row(rows, k, row)
             if log is not None:
                 log.tick(row.tobytes(), int(t * 1e9))
     finally:

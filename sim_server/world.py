@@ -75,6 +75,7 @@ class SimWorld:
         for lk in scene.linkages:
             self._add_linkage(lk.name)
         self._setup_tool_chain()
+        self._queries: list[pymunk.Shape] | None = None
         self.stats = StageStats()
 
     # --- construction -------------------------------------------------------------------
@@ -305,6 +306,9 @@ class SimWorld:
     def _drive_tool(self, target: ToolTarget | None, t_ahead: float) -> None:
         """Computed-torque tracking of the proxy (seed 001 Fig. 1): the tool follows it with
         bandwidth tracking_bandwidth_hz and pushes the world with the forces pymunk resolves."""
+        if self.scene.tool.kind == "body" and (target is None or not target.coupled_to_device):
+            self._drive_body(target, t_ahead)
+            return
         q, qd = self.tool_state()
         mass, grav = self._drive_mass, self._drive_gravity
         w = 2.0 * math.pi * self.scene.tool.tracking_bandwidth_hz
@@ -320,6 +324,26 @@ class SimWorld:
         # pymunk applies gravity itself (-G in generalized form): add G so the drive has no
         # steady error.
         self._apply_generalized(tau + grav)
+
+    def _drive_body(self, target: ToolTarget | None, t_ahead: float) -> None:
+        """_drive_tool for a free body (D = diag(m, m, I), no gravity term), in plain floats:
+        this runs every substep, and numpy on three numbers costs more than the physics."""
+        b = self.tool_bodies[0]
+        w = 2.0 * math.pi * self.scene.tool.tracking_bandwidth_hz
+        px, py = b.position
+        vx, vy = b.velocity
+        th, om = b.angle, b.angular_velocity
+        if target is None or not target.fresh:
+            ax, ay, al = -2.0 * w * vx, -2.0 * w * vy, -2.0 * w * om
+        else:
+            gq, gv = target.q, target.qd
+            ax = w * w * (gq[0] + gv[0] * t_ahead - px) + 2.0 * w * (gv[0] - vx)
+            ay = w * w * (gq[1] + gv[1] * t_ahead - py) + 2.0 * w * (gv[1] - vy)
+            al = w * w * (gq[2] + gv[2] * t_ahead - th) + 2.0 * w * (gv[2] - om)
+        m = b.mass
+        fx, fy = m * ax - m * self.scene.gravity[0], m * ay - m * self.scene.gravity[1]
+        b.apply_force_at_world_point((fx, fy), b.local_to_world(b.center_of_gravity))
+        b.torque += b.moment * al
 
     def _device_coupling(self, target: ToolTarget, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
         """virtual_coupling_foh (seed 002 §4): K_spring (x_dev - x_tool) - K_damp v_tool."""
@@ -391,8 +415,10 @@ class SimWorld:
         margin = self.scene.tool.neighbourhood_margin_m
         rows: list[tuple[float, int, int, list[float]]] = []
         tool_set = {s for s, _ in self.tool_shapes}
+        if self._queries is None:  # inflated copies ride on the tool's own bodies: make once
+            self._queries = [_inflated(shape, margin) for shape, _ in self.tool_shapes]
         for index, (shape, link) in enumerate(self.tool_shapes):
-            query = _inflated(shape, margin)
+            query = self._queries[index]
             self.stats.shapes_queried += 1
             for info in self.space.shape_query(query):
                 env = info.shape
