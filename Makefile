@@ -34,4 +34,4 @@ bench: $(STAMP) warm
 	$(PY) -m benchmarks.loop_timing
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) runs .numba_cache .pytest_cache .mypy_cache .ruff_cache

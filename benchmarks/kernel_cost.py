@@ -43,7 +43,8 @@ def engine_with_contacts(n: int) -> HapticEngine:
         epoch=1, seq=0, sim_time=0.0, publish_time_ns=0, joint_types=jt, lengths=lengths,
         base=np.zeros(2), base_angle=0.0, op_link=2, op_point=np.zeros(2), q=np.zeros(3),
         qd=np.zeros(3), mass_matrix=np.diag([1.0, 1.0, 4.3e-4]), lambda_inv=np.eye(3),
-        tool_pose=np.zeros(3), gravity=None, resisted=None, characteristic_length=0.05,
+        tool_pose=np.zeros(3), gravity=None, velocity_torque=None, resisted=None,
+        characteristic_length=0.05,
         contacts=ContactSet(np.full(n, 2), np.arange(n), np.array(rows)), tool_touching=True,
     )  # fmt: skip
     assert engine.receive(encode_update(update)) == ""

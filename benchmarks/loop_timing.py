@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--network", default="loopback")
-    parser.add_argument("--scene", default="free_box")
+    parser.add_argument("--scene", default="testbed")
     parser.add_argument("--device", default="ideal")
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--bare-only", action="store_true", help=argparse.SUPPRESS)

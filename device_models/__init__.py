@@ -1,0 +1,3 @@
+"""Device interface, registry and simulated devices."""
+
+import shared as _shared  # noqa: F401 - first: sets up the numba cache (shared/__init__.py)

@@ -223,13 +223,19 @@ def impulse_stage(d, state, ws):
 
 @njit(cache=True)
 def blend_mass_and_gravity(new, old, alpha, d, ws):
-    """Cross-fade the frozen D^ and G^ of the two slots into ws.mass / ws.tau_total (as -G)."""
+    """Cross-fade the frozen D^ and bias G^ + C^qd of the two slots into ws.mass and
+    ws.tau_total (as -bias)."""
     for a in range(d):
         g = 0.0
         if new.has_gravity == 1:
             g += alpha * new.gravity[a]
-        if old.valid == 1 and old.has_gravity == 1 and alpha < 1.0:
-            g += (1.0 - alpha) * old.gravity[a]
+        if new.has_velocity_torque == 1:
+            g += alpha * new.velocity_torque[a]
+        if old.valid == 1 and alpha < 1.0 and old.dof == d:
+            if old.has_gravity == 1:
+                g += (1.0 - alpha) * old.gravity[a]
+            if old.has_velocity_torque == 1:
+                g += (1.0 - alpha) * old.velocity_torque[a]
         ws.tau_total[a] = -g
         for b in range(d):
             v = new.mass[a, b]
@@ -353,7 +359,7 @@ def haptic_tick(slots, params, state, sensors, hand_measured, dt, ws, row):
         r.f_user[c] = 0.0
         r.f_contact[c] = 0.0
         r.f_impulse[c] = 0.0
-        r.f_gravity[c] = 0.0
+        r.f_bias[c] = 0.0
         r.f_penalty[c] = 0.0
         r.f_coordination[c] = 0.0
         r.f_damping[c] = 0.0
@@ -428,7 +434,7 @@ def haptic_tick(slots, params, state, sensors, hand_measured, dt, ws, row):
             acc_i1 += w.minv_jt[a, 1] * w.impulse_q[a] / dt
             acc_i2 += w.minv_jt[a, 2] * w.impulse_q[a] / dt
         _mat3_vec(M, acc_c0, acc_c1, acc_c2, r.f_contact, 1.0)
-        _mat3_vec(M, acc_g0, acc_g1, acc_g2, r.f_gravity, 1.0)
+        _mat3_vec(M, acc_g0, acc_g1, acc_g2, r.f_bias, 1.0)
         _mat3_vec(M, acc_i0, acc_i1, acc_i2, r.f_impulse, 1.0)
         # what the device limits kept back of earlier impulses is delivered now
         for c in range(3):
@@ -512,7 +518,7 @@ def haptic_tick(slots, params, state, sensors, hand_measured, dt, ws, row):
     finite = ok
     for c in range(3):
         u = (
-            r.f_user[c] + r.f_contact[c] + r.f_impulse[c] + r.f_gravity[c] + r.f_penalty[c]
+            r.f_user[c] + r.f_contact[c] + r.f_impulse[c] + r.f_bias[c] + r.f_penalty[c]
             + r.f_coordination[c] + r.f_damping[c]
         )  # fmt: skip
         u_safe = -p.safe_damping[c] * sen.twist[c]

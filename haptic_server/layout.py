@@ -136,7 +136,7 @@ TICK_DTYPE = np.dtype(
         ("f_user", F8, (3,)),  # (M_d L^-1 - I) F_h
         ("f_contact", F8, (3,)),  # M_d J_h D^-1 tau_c (penalty + friction contacts)
         ("f_impulse", F8, (3,)),  # M_d J_h D^-1 P_cs / dt
-        ("f_gravity", F8, (3,)),  # -M_d J_h D^-1 G
+        ("f_bias", F8, (3,)),  # -M_d J_h D^-1 (G + C qd), the frozen bias torques
         ("f_penalty", F8, (3,)),  # joint-constraint penalties (seed 000 eq 17)
         ("f_coordination", F8, (3,)),  # M_d L^-1 F_c, or the coupling force
         ("f_damping", F8, (3,)),  # (C_d - M_d L^-1 b_d) xd - M_d L^-1 k_d x

@@ -12,8 +12,12 @@ def main() -> None:
     started = time.perf_counter()
     for device in DEVICE_MODELS:
         load_device(device)
-    for scene in ("free_box",):
-        run_virtual_named(scene, "ideal", "waypoints", 1.0)
+    for scene, user in (
+        ("free_box", "waypoints"),
+        ("testbed", "swing"),
+        ("linkage_distal", "push_04n"),
+    ):
+        run_virtual_named(scene, "ideal", user, 1.0)
     print(f"numba kernels ready in {time.perf_counter() - started:.1f} s")
 
 

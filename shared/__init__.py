@@ -1,3 +1,30 @@
-"""Code shared by the sim and the haptic server: config, messages, kinematics, timing."""
+"""Code shared by the sim and the haptic server: config, messages, kinematics, timing.
+
+Importing this package (every package of the project does, first) points numba's on-disk
+cache at a directory named by a hash of the project's sources: numba does not notice that a
+kernel's callee in another module changed, so without this a stale compiled kernel could
+outlive a code change.
+"""
+
+import hashlib
+import os
+from pathlib import Path
 
 __version__ = "0.1.0"
+
+_ROOT = Path(__file__).resolve().parent.parent
+_PACKAGES = ("shared", "haptic_server", "sim_server", "device_models", "benchmarks")
+
+
+def _source_hash() -> str:
+    digest = hashlib.sha1()
+    for package in _PACKAGES:
+        for path in sorted((_ROOT / package).glob("*.py")):
+            digest.update(path.name.encode())
+            digest.update(path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
+if "NUMBA_CACHE_DIR" not in os.environ:
+    os.environ["NUMBA_CACHE_DIR"] = str(_ROOT / ".numba_cache" / _source_hash())
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # 3x3 algebra: no BLAS thread pools

@@ -16,17 +16,13 @@ EXIT_CONFIG = 2
 def add_config_args(
     parser: argparse.ArgumentParser, device: bool = True, user: bool = True
 ) -> None:
-    parser.add_argument(
-        "--scene", default="free_box", help="scene name in configs/scenes or a path"
-    )
+    parser.add_argument("--scene", default="testbed", help="scene name in configs/scenes or a path")
     if device:
         parser.add_argument(
             "--device", default="ideal", help="device name in configs/devices or a path"
         )
     if user:
-        parser.add_argument(
-            "--user", default="waypoints", help="user name in configs/users or a path"
-        )
+        parser.add_argument("--user", default="swing", help="user name in configs/users or a path")
     parser.add_argument(
         "--network", default="loopback", help="network name in configs/network or a path"
     )

@@ -115,3 +115,46 @@ def free_body_chain() -> tuple[np.ndarray, np.ndarray]:
         np.array([PRISMATIC_X, PRISMATIC_Y, REVOLUTE], dtype=np.int64),
         np.zeros(3),
     )
+
+
+@njit(cache=True)
+def velocity_product_torque(
+    joint_types, lengths, base, base_angle, masses, inertias, com_offsets, q, qd, dof, step, out,
+):  # fmt: skip
+    """C(q, qd) qd = Ddot qd - 1/2 grad_q(qd^T D qd): Coriolis and centripetal torques.
+
+    dD/dq_k by central differences of `mass_matrix_and_gravity` (step ~1e-6 rad gives
+    ~1e-12 relative error); the sim sends the result with each update.
+    """
+    frame_pos = np.zeros((dof, 2))
+    frame_angle = np.zeros(dof)
+    jac = np.zeros((3, dof))
+    grav = np.zeros(dof)
+    zero_g = np.zeros(2)
+    d_plus = np.zeros((dof, dof))
+    d_minus = np.zeros((dof, dof))
+    qq = q.copy()
+    for i in range(dof):
+        out[i] = 0.0
+    for k in range(dof):
+        qq[k] = q[k] + step
+        mass_matrix_and_gravity(
+            joint_types, lengths, base, base_angle, masses, inertias, com_offsets, zero_g, qq,
+            dof, frame_pos, frame_angle, jac, d_plus, grav,
+        )  # fmt: skip
+        qq[k] = q[k] - step
+        mass_matrix_and_gravity(
+            joint_types, lengths, base, base_angle, masses, inertias, com_offsets, zero_g, qq,
+            dof, frame_pos, frame_angle, jac, d_minus, grav,
+        )  # fmt: skip
+        qq[k] = q[k]
+        # dD/dq_k contributes (dD/dq_k qd_k) qd to Ddot qd and -1/2 qd^T dD/dq_k qd to row k
+        quad = 0.0
+        for i in range(dof):
+            row = 0.0
+            for j in range(dof):
+                dd = (d_plus[i, j] - d_minus[i, j]) / (2.0 * step)
+                row += dd * qd[j]
+                quad += qd[i] * dd * qd[j]
+            out[i] += row * qd[k]
+        out[k] -= 0.5 * quad

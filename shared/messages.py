@@ -36,6 +36,7 @@ _PROXY_HEADER = struct.Struct("<4sHHQQQdqHH")
 UPDATE_HAS_GRAVITY = 1
 UPDATE_HAS_RESISTED = 2
 UPDATE_TOOL_TOUCHING = 4
+UPDATE_HAS_VELOCITY_TORQUE = 8
 
 PROXY_SAFE_STATE = 1
 PROXY_VALID = 2  # the haptic side has installed a model of this epoch
@@ -111,6 +112,7 @@ class LocalModelUpdate:
     lambda_inv: np.ndarray  # (3, 3) J_h D^-1 J_h^T
     tool_pose: np.ndarray  # (3,) operational point pose at the sim
     gravity: np.ndarray | None  # (d,) G(q), None when g = 0
+    velocity_torque: np.ndarray | None  # (d,) C(q, qd) qd, None for a free body (D constant)
     resisted: np.ndarray | None  # (j, 3) unit directions in the scaled space, None when j = 0
     characteristic_length: float
     contacts: ContactSet
@@ -155,6 +157,8 @@ def encode_update(u: LocalModelUpdate) -> bytes:
         flags |= UPDATE_HAS_RESISTED
     if u.tool_touching:
         flags |= UPDATE_TOOL_TOUCHING
+    if u.velocity_torque is not None:
+        flags |= UPDATE_HAS_VELOCITY_TORQUE
     j = 0 if u.resisted is None else len(u.resisted)
     header = _UPDATE_HEADER.pack(
         UPDATE_MAGIC, PROTOCOL_VERSION, flags, u.epoch, u.seq, u.sim_time, u.publish_time_ns,
@@ -167,6 +171,8 @@ def encode_update(u: LocalModelUpdate) -> bytes:
     ]  # fmt: skip
     if u.gravity is not None:
         parts.append(u.gravity)
+    if u.velocity_torque is not None:
+        parts.append(u.velocity_torque)
     if j:
         assert u.resisted is not None
         parts.append(u.resisted.ravel())
@@ -224,6 +230,7 @@ def update_from_record(m: np.void) -> LocalModelUpdate:
         qd=m["qd"][:d].copy(), mass_matrix=m["mass"][:d, :d].copy(),
         lambda_inv=m["lambda_inv"].copy(), tool_pose=m["tool_pose"].copy(),
         gravity=m["gravity"][:d].copy() if m["has_gravity"] else None,
+        velocity_torque=m["velocity_torque"][:d].copy() if m["has_velocity_torque"] else None,
         resisted=m["resisted"][:j].copy() if j else None,
         characteristic_length=float(m["characteristic_length"]),
         contacts=ContactSet(m["c_link"][:n].copy(), m["c_key"][:n].copy(), floats),

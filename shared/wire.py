@@ -27,6 +27,7 @@ MAGIC_UPDATE = (0x48, 0x4C, 0x4D, 0x55)  # b"HLMU"
 FLAG_GRAVITY = 1
 FLAG_RESISTED = 2
 FLAG_TOUCHING = 4
+FLAG_VELOCITY_TORQUE = 8
 
 F8 = np.float64
 I8 = np.int64
@@ -52,6 +53,8 @@ LOCAL_MODEL_DTYPE = np.dtype(
         ("lambda_inv", F8, (3, 3)),
         ("has_gravity", I8),
         ("gravity", F8, (MAX_DOF,)),  # G^ (frozen)
+        ("has_velocity_torque", I8),
+        ("velocity_torque", F8, (MAX_DOF,)),  # C(q, qd) qd at the sim's state (frozen)
         ("n_resisted", I8),
         ("characteristic_length", F8),
         ("resisted", F8, (MAX_RESISTED, 3)),  # unit directions in the scaled space
@@ -147,10 +150,10 @@ def parse_update(buf, nbytes, limits, out, scratch):
     if op_link >= d:
         return R_OP_LINK
     has_g = (flags & FLAG_GRAVITY) != 0
+    has_c = (flags & FLAG_VELOCITY_TORQUE) != 0
     n_int = d + 2 * n
-    n_float = (
-        d + 2 + 1 + 2 + d + d + d * d + 9 + 3 + (d if has_g else 0) + 3 * j + CONTACT_FLOATS * n
-    )
+    n_float = d + 2 + 1 + 2 + 2 * d + d * d + 9 + 3 + 3 * j + CONTACT_FLOATS * n
+    n_float += (d if has_g else 0) + (d if has_c else 0)
     if nbytes != HEADER_BYTES + 8 * (n_int + n_float):
         return R_SIZE
     ints = buf[HEADER_BYTES : HEADER_BYTES + 8 * n_int].view(np.int64)
@@ -204,6 +207,10 @@ def parse_update(buf, nbytes, limits, out, scratch):
     if has_g:
         for k in range(d):
             m.gravity[k] = fl[o + k]
+        o += d
+    if has_c:
+        for k in range(d):
+            m.velocity_torque[k] = fl[o + k]
         o += d
     for r in range(j):
         for c in range(3):
@@ -299,6 +306,7 @@ def parse_update(buf, nbytes, limits, out, scratch):
     m.dof = d
     m.op_link = op_link
     m.has_gravity = 1 if has_g else 0
+    m.has_velocity_torque = 1 if has_c else 0
     m.n_resisted = j
     m.characteristic_length = char_len
     m.tool_touching = 1 if (flags & FLAG_TOUCHING) != 0 else 0

@@ -24,11 +24,13 @@ from shared.kinematics import (
     mass_matrix_and_gravity,
     point_jacobian,
     point_on_link,
+    velocity_product_torque,
 )
 from shared.messages import ContactSet, LocalModelUpdate
 from shared.wire import MAX_CONTACTS
 
 TOOL_GROUP = 1  # pymunk shape-filter group: tool shapes never collide with each other
+VELOCITY_TORQUE_STEP = 1.0e-6  # rad, central differences of D(q) for C(q, qd) qd
 TOUCH_TOLERANCE_M = 1.0e-4  # gap below which the tool counts as touching (FOH force gate)
 
 
@@ -392,6 +394,14 @@ class SimWorld:
         if tool.kind == "linkage":  # a free body's J_h is always full rank: no SVD needed
             self.stats.svd = True
             resisted = resisted_directions(jac, tool.characteristic_length_m, tool.rank_tolerance)
+        velocity_torque = None
+        if tool.kind == "linkage":  # a free body's D is constant: no velocity-product terms
+            velocity_torque = np.zeros(self.dof)
+            velocity_product_torque(
+                self.joint_types, self.lengths, self.base, self.base_angle, self.masses,
+                self.inertias, self.com_offsets, q, qd, self.dof, VELOCITY_TORQUE_STEP,
+                velocity_torque,
+            )  # fmt: skip
         contacts, touching = self.neighbourhood_contacts()
         self.stats.contacts_sent = contacts.count
         return LocalModelUpdate(
@@ -399,7 +409,7 @@ class SimWorld:
             joint_types=self.joint_types, lengths=self.lengths, base=self.base,
             base_angle=self.base_angle, op_link=self.op_link, op_point=self.op_point, q=q, qd=qd,
             mass_matrix=mass, lambda_inv=lambda_inv, tool_pose=self.operational_pose(q),
-            gravity=grav if has_gravity else None,
+            gravity=grav if has_gravity else None, velocity_torque=velocity_torque,
             resisted=resisted if resisted is not None and len(resisted) else None,
             characteristic_length=tool.characteristic_length_m, contacts=contacts,
             tool_touching=touching, state_lead_s=state_lead_s,

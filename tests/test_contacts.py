@@ -41,7 +41,7 @@ def engine_with(q, qd, rows, impulses=True) -> HapticEngine:
         base=np.zeros(2), base_angle=0.0, op_link=2, op_point=np.zeros(2), q=np.array(q, float),
         qd=np.array(qd, float), mass_matrix=np.diag([MASS, MASS, INERTIA]),
         lambda_inv=np.diag([1 / MASS, 1 / MASS, 1 / INERTIA]), tool_pose=np.array(q, float),
-        gravity=None, resisted=None, characteristic_length=0.05,
+        gravity=None, velocity_torque=None, resisted=None, characteristic_length=0.05,
         contacts=ContactSet(np.full(n, 2), np.arange(n), np.array(rows, float).reshape(n, 12)),
         tool_touching=True,
     )  # fmt: skip

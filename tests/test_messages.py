@@ -36,6 +36,7 @@ def sample_update(n_contacts: int = 2, resisted: bool = True) -> LocalModelUpdat
         q=np.array([0.1, 0.2, -0.3]), qd=np.array([0.0, 0.5, -0.1]),
         mass_matrix=a @ a.T + 3 * np.eye(3), lambda_inv=np.eye(3) * 0.5,
         tool_pose=np.array([0.1, 0.05, 0.0]), gravity=np.array([0.1, 0.2, 0.3]),
+        velocity_torque=np.array([1e-3, -2e-3, 5e-4]),
         resisted=np.array([[0.6, 0.8, 0.0]]) if resisted else None, characteristic_length=0.05,
         contacts=ContactSet(np.arange(n_contacts) % 3, np.arange(n_contacts) + 100, floats),
         tool_touching=True,
@@ -80,10 +81,11 @@ def test_update_round_trip_exact() -> None:
 
 def test_update_without_optional_sections() -> None:
     u = sample_update(n_contacts=0, resisted=False)
-    u = LocalModelUpdate(**{**u.__dict__, "gravity": None})
+    u = LocalModelUpdate(**{**u.__dict__, "gravity": None, "velocity_torque": None})
     raw = encode_update(u)
     back = decode_update(raw)
     assert back.gravity is None and back.resisted is None and back.contacts.count == 0
+    assert back.velocity_torque is None
     assert len(raw) < len(encode_update(sample_update()))  # left out, not zero-filled
 
 
