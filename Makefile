@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck pytest bench warm clean
+.PHONY: demo test lint typecheck pytest bench soak-ci soak warm clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -29,6 +29,14 @@ pytest: $(STAMP) warm
 	$(PY) -m pytest -q
 
 test: lint typecheck pytest
+
+# the CI soak (.ci/run); a longer one locally: make soak MINUTES=60
+soak-ci: $(STAMP) warm
+	$(PY) -m haptic_server.soak --minutes 3 --out runs/soak-ci
+
+MINUTES ?= 60
+soak: $(STAMP) warm
+	$(PY) -m haptic_server.soak --minutes $(MINUTES) --out runs/soak-$(MINUTES)min
 
 bench: $(STAMP) warm
 	$(PY) -m benchmarks.loop_timing

@@ -18,11 +18,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--log", type=Path, default=None, help="MCAP log path (default: no log)")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     parser.add_argument("--summary-json", type=Path, default=None)
+    parser.add_argument("--inject-leak", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--inject-nan-after", type=float, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
 
     def body() -> int:
         from device_models.registry import load_device
-        from haptic_server.server import HapticServer
+        from haptic_server.server import HapticServer, InjectedFaults
 
         scene = load_scene(args.scene)
         user = load_user(args.user)
@@ -34,7 +36,8 @@ def main(argv: list[str] | None = None) -> int:
             "user": resolve("users", args.user).read_text(),
             "network": resolve("network", args.network).read_text(),
         }
-        server = HapticServer(scene, device, user, network, args.log, configs)
+        faults = InjectedFaults(2048 if args.inject_leak else 0, args.inject_nan_after)
+        server = HapticServer(scene, device, user, network, args.log, configs, faults=faults)
         signal.signal(signal.SIGTERM, server.request_stop)
         signal.signal(signal.SIGINT, server.request_stop)
         server.warm_up(lambda: load_device(args.device), user)

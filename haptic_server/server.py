@@ -73,6 +73,14 @@ class HapticRunStats:
         }
 
 
+@dataclass(frozen=True)
+class InjectedFaults:
+    """Deliberate faults for testing the soak's checks (haptic-server --inject-*)."""
+
+    leak_bytes_per_tick: int = 0
+    nan_after_s: float | None = None
+
+
 class HapticServer:
     """One haptic server process: engine + Zenoh + log process + the real-time loop."""
 
@@ -85,6 +93,7 @@ class HapticServer:
         log_path: Path | None,
         configs: dict[str, str],
         zenoh_extra: dict[str, Any] | None = None,
+        faults: InjectedFaults | None = None,
     ) -> None:
         self.scene = scene
         self.network = network
@@ -93,6 +102,7 @@ class HapticServer:
         self.configs = configs
         self.zenoh_extra = zenoh_extra
         self.stats = HapticRunStats()
+        self.faults = faults or InjectedFaults()
         self._stop = False
 
     def request_stop(self, *_: object) -> None:
@@ -139,6 +149,12 @@ class HapticServer:
         deadline = start_ns + period_ns
         last_start = start_ns
         work_prev_us = 0.0
+        leak: list[bytes] = []  # only ever grows under --inject-leak
+        nan_tick = (
+            round(self.faults.nan_after_s * self.scene.haptic_rate_hz)
+            if self.faults.nan_after_s is not None
+            else -1
+        )
         try:
             while not self._stop:
                 now = wait_until(deadline)
@@ -183,6 +199,11 @@ class HapticServer:
                         f"no valid update for {(now - last_valid_ns) / 1e6:.1f} ms",
                     )
 
+                if self.faults.leak_bytes_per_tick:
+                    leak.append(bytes(self.faults.leak_bytes_per_tick))
+                if counters.ticks == nan_tick:
+                    engine.user[0]["kind"] = 0  # the hand's wrench turns NaN from now on
+                    engine.user[0]["wrench"] = float("nan")
                 row = engine.tick(dt, lateness_ns / 1e3, work_prev_us, newest_seq, newest_age_ms)
                 io.tick(row)
                 counters.ticks += 1

@@ -47,6 +47,7 @@ class SampleWindow:
 
     def __init__(self, capacity: int) -> None:
         self._buf = np.zeros(capacity, dtype=np.float64)
+        self._buf.fill(0.0)  # touch every page now: memory stays flat while the loop runs
         self.count = 0
         self.maximum = 0.0
 
