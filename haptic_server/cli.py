@@ -16,7 +16,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="haptic-server", description=__doc__)
     add_config_args(parser)
     parser.add_argument("--log", type=Path, default=None, help="MCAP log path (default: no log)")
-    parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    parser.add_argument(
+        "--duration", type=float, default=None,
+        help="stop this many seconds after the first update (or 60 s later without one)",
+    )  # fmt: skip
     parser.add_argument("--summary-json", type=Path, default=None)
     parser.add_argument("--inject-leak", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--inject-nan-after", type=float, default=None, help=argparse.SUPPRESS)

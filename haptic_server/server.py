@@ -30,6 +30,7 @@ from shared.timing import LoopCounters, SampleWindow, try_realtime_priority, wai
 from shared.wire import R_SIZE
 
 DT_CLAMP = (0.25, 2.0)  # measured dt is clamped to these multiples of the nominal period
+FIRST_UPDATE_WAIT_S = 60.0  # --duration starts at the first update, or gives up after this
 WINDOW_TICKS = 600_000  # percentiles over the newest 10 min at 1 kHz
 
 
@@ -145,7 +146,11 @@ class HapticServer:
         if ready is not None:
             ready()
         start_ns = time.perf_counter_ns()
-        end_ns = start_ns + int(duration_s * 1e9) if duration_s else None
+        # the duration counts from the first installed update (a sim that starts later, or
+        # compiles first, does not eat into it); without any update it ends all the same
+        # after FIRST_UPDATE_WAIT_S more
+        duration_ns = int(duration_s * 1e9) if duration_s else None
+        end_ns = start_ns + duration_ns + int(FIRST_UPDATE_WAIT_S * 1e9) if duration_ns else None
         deadline = start_ns + period_ns
         last_start = start_ns
         work_prev_us = 0.0
@@ -176,6 +181,8 @@ class HapticServer:
                     io.verdict(slot, code, counters.ticks)
                     stats.updates_received += 1
                     if code == 0:
+                        if stats.updates_installed == 0 and duration_ns is not None:
+                            end_ns = now + duration_ns
                         stats.updates_installed += 1
                         last_valid_ns = now
                         newest_seq = engine.last_seq

@@ -17,11 +17,14 @@ _PACKAGES = ("shared", "haptic_server", "sim_server", "device_models", "benchmar
 
 
 def _source_hash() -> str:
+    """Hash of the modules that hold numba kernels (numba tracks each file on its own)."""
     digest = hashlib.sha1()
     for package in _PACKAGES:
         for path in sorted((_ROOT / package).glob("*.py")):
-            digest.update(path.name.encode())
-            digest.update(path.read_bytes())
+            text = path.read_bytes()
+            if b"njit" in text:
+                digest.update(path.name.encode())
+                digest.update(text)
     return digest.hexdigest()[:12]
 
 
