@@ -33,7 +33,6 @@ EVENT_SLOTS = 256
 EVENT_BYTES = 256
 VERDICT_PENDING = -1
 IO_POLL_S = 0.004  # the sidecar wakes at least this often (and for each proxy publish)
-IO_NICENESS = 10
 
 # control words
 C_READY, C_CLOSED, C_TICK_HEAD, C_TICK_LOST, C_UPD_HEAD, C_UPD_READ = 0, 1, 2, 3, 4, 5
@@ -195,7 +194,6 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the loop decides when I/O ends
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    os.nice(IO_NICENESS)  # yield the CPU to the loop when both want it
     shm = shared_memory.SharedMemory(name=shm_name)
     block = SharedBlock(shm)
     ctl = block.ctl

@@ -34,6 +34,9 @@ class VirtualResult:
     ticks: np.ndarray  # TICK_DTYPE records of every tick
     updates: int
     world: SimWorld  # the sim's world at the end (bodies, tool)
+    stage_ns: dict[str, int]  # total time spent in each stage (sim_step, local_model, ...)
+    update_bytes: list[int]  # size of every update
+    svd_steps: int  # sim steps that ran the SVD of J_h (0 for a free body)
     wall_s: float
     sim_s: float
     log_path: Path | None
@@ -64,24 +67,42 @@ def run_virtual(
     next_sim_t = 0.0
     seq = 0
     coupled = engine.method == METHOD_VIRTUAL_COUPLING_FOH
+    stage = dict.fromkeys(("sim_step", "local_model", "encode", "install", "tick"), 0)
+    sizes: list[int] = []
+    svd_steps = 0
+    clock = time.perf_counter_ns
     started = time.perf_counter()
     try:
         for k in range(n_ticks):
             t = k * dt
             if t >= next_sim_t - 1e-12:
                 lead = 0.0
+                t0 = clock()
                 if seq > 0:
                     world.step(_target(engine, coupled))
                     lead = sim_period  # the world now holds one period ahead of the proxy
-                raw = encode_update(world.local_model(VIRTUAL_EPOCH, seq, 0, lead))
+                t1 = clock()
+                update = world.local_model(VIRTUAL_EPOCH, seq, 0, lead)
+                svd_steps += world.stats.svd
+                t2 = clock()
+                raw = encode_update(update)
+                t3 = clock()
                 reason = engine.receive(raw)
+                t4 = clock()
+                stage["sim_step"] += t1 - t0
+                stage["local_model"] += t2 - t1
+                stage["encode"] += t3 - t2
+                stage["install"] += t4 - t3
+                sizes.append(len(raw))
                 if reason:
                     raise RuntimeError(f"the sim's own update was rejected: {reason}")
                 if log is not None:
                     log.update(update_record(k, raw, reason, 0.0), int(t * 1e9))
                 seq += 1
                 next_sim_t += sim_period
+            t5 = clock()
             row = engine.tick(dt, 0.0, 0.0, seq - 1, 0.0)
+            stage["tick"] += clock() - t5
             store_row(rows, k, row)
             if log is not None:
                 log.tick(row.tobytes(), int(t * 1e9))
@@ -89,7 +110,10 @@ def run_virtual(
         if log is not None:
             log.close()
     wall = time.perf_counter() - started
-    return VirtualResult(rows, seq, world, wall, n_ticks * dt, Path(log_path) if log_path else None)
+    return VirtualResult(
+        rows, seq, world, stage, sizes, svd_steps, wall, n_ticks * dt,
+        Path(log_path) if log_path else None,
+    )  # fmt: skip
 
 
 def _target(engine: HapticEngine, coupled: bool) -> ToolTarget:

@@ -119,3 +119,17 @@ def test_impacts_reach_the_user_unfiltered() -> None:
             assert ticks["n_colliding"].max() >= 1
             assert force.max() >= 10 * np.percentile(free, 95)
     assert peaks["virtual_coupling"] < peaks["local_model"] / 5
+
+
+def test_leave_out_what_the_scene_does_not_need() -> None:
+    """Gravity only when g != 0; no contact work while nothing is near (DESIGN §6)."""
+    scene = load_scene("linkage_middle")
+    assert SimWorld(scene).local_model(1, 0, 0).gravity is None
+    heavy = dataclasses.replace(scene, gravity=(0.0, -9.81))
+    update = SimWorld(heavy).local_model(1, 0, 0)
+    assert update.gravity is not None and np.abs(update.gravity).max() > 0
+    ticks = run_virtual(
+        load_scene("free_box"), load_device("ideal"), load_user("constant_push"), 0.5
+    ).ticks
+    nothing_near = ticks["n_contacts"] == 0
+    assert nothing_near.any() and (ticks["contact_stage"][nothing_near] == 0).all()

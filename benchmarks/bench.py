@@ -1,0 +1,389 @@
+"""`haptic-bench`: error against run time, scaling with the world, what each scene leaves out.
+
+In the virtual clock (issue 7):
+1. the seed scenes across rendering methods and rates (sim 30/60/120 Hz, haptic 500/1000/
+   2000 Hz): drift |x_h - x_VM|, the VM's error against the independent RNEA reference and
+   the wall's penetration against F/K; run time as cost per simulated second, split by
+   stage (sim step, local model, encode, install, haptic tick), and per tick p50/p99;
+2. scaling: the haptic tick cost as the world grows (10, 100, 1000 bodies) for the local
+   model, against stepping the whole pymunk world inside the 1 kHz loop;
+3. per scene: which optional stages ran (SVD, gravity and velocity terms, penalties, the
+   contact stage), the contacts sent and the update sizes.
+Writes docs/bench/report.md with PNG plots; `--quick` runs a subset.
+
+    haptic-bench [--quick] [--out docs/bench]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from benchmarks.linkage import drift_mm
+from device_models.registry import load_device
+from haptic_server.engine import HapticEngine
+from haptic_server.virtual import VirtualResult, run_virtual
+from shared.config import BodySpec, SceneConfig, load_scene, load_user
+from shared.messages import encode_update
+from shared.reference import ChainSpec, simulate
+from sim_server.world import SimWorld
+
+SIM_RATES = (30.0, 60.0, 120.0)
+HAPTIC_RATES = (500.0, 1000.0, 2000.0)
+METHODS = ("local_model", "impedance_only", "virtual_coupling")
+WORLD_SIZES = (10, 100, 1000, 3000, 10000)
+TICK_BUDGET_US = 1000.0  # 1 kHz
+
+
+def configure(scene: SceneConfig, method: str, sim_hz: float, haptic_hz: float) -> SceneConfig:
+    rendering = dataclasses.replace(scene.rendering, method=method)  # type: ignore[arg-type]
+    return dataclasses.replace(
+        scene, rendering=rendering, sim_rate_hz=sim_hz, haptic_rate_hz=haptic_hz
+    )
+
+
+def reference_rms_mm(scene: SceneConfig, result: VirtualResult) -> float:
+    lk = scene.tool_linkage
+    spec = ChainSpec(
+        base=lk.base, lengths=lk.lengths, masses=lk.masses, inertias=lk.inertias,
+        com_offsets=lk.com_offsets, base_angle=lk.base_angle,
+    )  # fmt: skip
+    t = result.ticks["t"]
+    push = np.array(load_user("push_04n").wrench)
+    ref = simulate(
+        spec,
+        np.array(lk.initial_angles),
+        np.zeros(len(lk.lengths)),
+        push,
+        scene.tool.link,
+        np.array(scene.tool.point),
+        float(t[-1]) + 1e-9,
+        t,
+    )
+    err = 1e3 * np.hypot(*(result.ticks["vm_pose"][:, :2] - ref.pose[:, :2]).T)
+    return float(np.sqrt(np.mean(err**2)))
+
+
+def accuracy_runs(seconds: float, quick: bool) -> list[dict[str, Any]]:
+    rows = []
+    holds = ("linkage_middle", "linkage_distal")
+    sims = (60.0,) if quick else SIM_RATES
+    haptics = (1000.0,) if quick else HAPTIC_RATES
+    configs = [(h, m, s, r) for h in holds for m in METHODS for s in sims for r in haptics]
+    for hold, method, sim_hz, haptic_hz in tqdm(configs, desc="linkage runs", leave=False):
+        base = dataclasses.replace(load_scene(hold), initial_device_offset=(0.0, 0.0, 0.0))
+        scene = configure(base, method, sim_hz, haptic_hz)
+        result = run_virtual(scene, load_device("ideal_identity"), load_user("push_04n"), seconds)
+        drift = drift_mm(result.ticks)
+        rows.append(_row(hold, method, sim_hz, haptic_hz, result, {
+            "steady_drift_mm": float(drift[-max(1, len(drift) // 5):].mean()),
+            "max_drift_mm": float(drift.max()),
+            "reference_rms_mm": reference_rms_mm(scene, result),
+        }))  # fmt: skip
+    for impulses in (True, False):
+        for sim_hz in sims:
+            for haptic_hz in haptics:
+                scene = load_scene("wall_push")
+                scene = dataclasses.replace(
+                    configure(scene, "local_model", sim_hz, haptic_hz),
+                    rendering=dataclasses.replace(scene.rendering, impulses=impulses),
+                )
+                result = run_virtual(scene, load_device("ideal"), load_user("push_2n"), seconds)
+                tail = result.ticks[-max(1, len(result.ticks) // 5) :]
+                penetration = tail["vm_pose"][:, 0].mean() + 0.03 - 0.05
+                expected = 2.0 / 15000.0
+                rows.append(
+                    _row(
+                        "wall_push" + ("" if impulses else "_penalty"),
+                        "local_model",
+                        sim_hz,
+                        haptic_hz,
+                        result,
+                        {"penetration_error": float(abs(penetration - expected) / expected)},
+                    )
+                )
+    return rows
+
+
+def _row(
+    scene: str,
+    method: str,
+    sim_hz: float,
+    haptic_hz: float,
+    r: VirtualResult,
+    errors: dict[str, float],
+) -> dict[str, Any]:
+    per_s = {k: v / 1e9 / r.sim_s for k, v in r.stage_ns.items()}
+    return {
+        "scene": scene, "method": method, "sim_hz": sim_hz, "haptic_hz": haptic_hz,
+        "cost_ms_per_sim_s": 1e3 * sum(per_s.values()),
+        "stage_ms_per_sim_s": {k: 1e3 * v for k, v in per_s.items()},
+        "tick_us": 1e6 * per_s["tick"] / haptic_hz,
+        **errors,
+    }  # fmt: skip
+
+
+def crowded_scene(n: int) -> SceneConfig:
+    """free_box with n extra small boxes moving about a larger enclosure, far from the tool."""
+    base = load_scene("free_box")
+    rng = np.random.default_rng(n)
+    extra = []
+    side = int(np.ceil(np.sqrt(n)))
+    for i in range(n):
+        x = 0.3 + 0.02 * (i % side)
+        y = -0.4 + 0.02 * (i // side)
+        extra.append(BodySpec(
+            name=f"crowd{i}", kind="dynamic", shape="box", material="wall", size=(0.01, 0.01),
+            mass=0.05, position=(x, y), velocity=tuple(rng.uniform(-0.2, 0.2, 2)),
+        ))  # fmt: skip
+    walls = [
+        BodySpec(name=f"outer{i}", kind="static", shape="segment", material="wall", a=a, b=b, radius=0.005)
+        for i, (a, b) in enumerate((((0.25, -0.5), (0.25, 1.0)), ((1.0, -0.5), (1.0, 1.0)), ((0.25, -0.5), (1.0, -0.5)), ((0.25, 1.0), (1.0, 1.0))))
+    ]  # fmt: skip
+    return dataclasses.replace(base, bodies=base.bodies + tuple(walls) + tuple(extra))
+
+
+def scaling(ticks: int = 3000) -> list[dict[str, Any]]:
+    """Per-tick cost (median and p99 of individually timed ticks) against the world size."""
+    rows = []
+    for n in tqdm(WORLD_SIZES, desc="world sizes", leave=False):
+        scene = crowded_scene(n)
+        world = SimWorld(scene)
+        engine = HapticEngine(scene, load_device("ideal"), load_user("waypoints"))
+        engine.receive(encode_update(world.local_model(1, 0, 0)))
+        local = np.zeros(ticks)
+        for k in range(ticks):
+            t0 = time.perf_counter_ns()
+            engine.tick(1e-3)
+            local[k] = (time.perf_counter_ns() - t0) / 1e3
+        sim = np.zeros(20)
+        for k in range(sim.shape[0]):
+            t0 = time.perf_counter_ns()
+            world.step(None)
+            world.local_model(1, k + 1, 0)
+            sim[k] = (time.perf_counter_ns() - t0) / 1e6
+        # the alternative: step the whole pymunk world at 1 kHz inside the loop
+        world.substeps = 1
+        world.period = 1e-3
+        in_loop = np.zeros(min(ticks, 500))
+        for k in range(in_loop.shape[0]):
+            t0 = time.perf_counter_ns()
+            world.step(None)
+            world.tool_state()
+            in_loop[k] = (time.perf_counter_ns() - t0) / 1e3
+        rows.append({
+            "bodies": n,
+            "local_model_tick_us_p50": float(np.percentile(local[100:], 50)),
+            "local_model_tick_us_p99": float(np.percentile(local[100:], 99)),
+            "sim_step_ms_at_60hz": float(np.median(sim)),
+            "pymunk_in_loop_us_p50": float(np.percentile(in_loop[20:], 50)),
+            "pymunk_in_loop_us_p99": float(np.percentile(in_loop[20:], 99)),
+        })  # fmt: skip
+    return rows
+
+
+def stages_per_scene(seconds: float) -> list[dict[str, Any]]:
+    rows = []
+    for scene_name, device, user in (
+        ("free_box", "ideal", "waypoints"), ("wall_push", "ideal", "push_2n"),
+        ("testbed_free_tool", "ideal", "push_block"), ("linkage_middle", "ideal_identity", "push_04n"),
+        ("linkage_distal", "ideal_identity", "push_04n"), ("testbed", "ideal", "swing"),
+    ):  # fmt: skip
+        scene = load_scene(scene_name)
+        result = run_virtual(scene, load_device(device), load_user(user), seconds)
+        t = result.ticks
+        world = SimWorld(scene)
+        sample = world.local_model(1, 0, 0)
+        rows.append({
+            "scene": scene_name,
+            "svd_steps_fraction": result.svd_steps / max(result.updates, 1),
+            "gravity_section": sample.gravity is not None,
+            "velocity_terms_section": sample.velocity_torque is not None,
+            "penalty_ticks_fraction": float((t["n_resisted"] > 0).mean()),
+            "contact_stage_ticks_fraction": float(t["contact_stage"].mean()),
+            "contacts_sent_mean": float(t["n_contacts"].mean()),
+            "update_bytes_mean": float(np.mean(result.update_bytes)),
+            "update_bytes_max": int(np.max(result.update_bytes)),
+            "tick_us": result.stage_ns["tick"] / 1e3 / len(t),
+            "sim_ms_per_step": (result.stage_ns["sim_step"] + result.stage_ns["local_model"]) / 1e6 / result.updates,
+        })  # fmt: skip
+    return rows
+
+
+def plot(
+    acc: list[dict[str, Any]], scale: list[dict[str, Any]], out: Path, seconds: float
+) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
+    markers = {"local_model": "o", "impedance_only": "s", "virtual_coupling": "^"}
+    for hold, ax in zip(("linkage_middle", "linkage_distal"), axes[:2], strict=True):
+        for r in acc:
+            if r["scene"] != hold:
+                continue
+            ax.loglog(r["cost_ms_per_sim_s"], max(r["reference_rms_mm"], 1e-3), markers[r["method"]],
+                      color=plt.cm.viridis(SIM_RATES.index(r["sim_hz"]) / 2), alpha=0.4 + 0.3 * HAPTIC_RATES.index(r["haptic_hz"]))  # fmt: skip
+        for m, mk in markers.items():
+            ax.plot([], [], mk, color="k", label=m)
+        for i, hz in enumerate(SIM_RATES):
+            ax.plot([], [], "o", color=plt.cm.viridis(i / 2), label=f"sim {hz:g} Hz")
+        ax.set_xlabel("cost per simulated second (ms)")
+        ax.set_ylabel("VM error vs reference, RMS (mm)")
+        ax.set_title(f"{hold}: error against run time")
+        ax.legend(fontsize=7)
+    ax = axes[2]
+    for r in acc:
+        if r["scene"].startswith("wall_push"):
+            ax.loglog(
+                r["cost_ms_per_sim_s"],
+                max(r["penetration_error"], 1e-6),
+                "o" if r["scene"] == "wall_push" else "x",
+                color=plt.cm.viridis(SIM_RATES.index(r["sim_hz"]) / 2),
+            )
+    ax.plot([], [], "o", color="k", label="penalty + impulses")
+    ax.plot([], [], "x", color="k", label="penalty only")
+    ax.set_xlabel("cost per simulated second (ms)")
+    ax.set_ylabel("steady penetration error vs F/K")
+    ax.set_title("wall_push")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    paths.append(out / "error_vs_runtime.png")
+    fig.savefig(paths[-1], dpi=100)
+
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    n = [r["bodies"] for r in scale]
+    ax.loglog(
+        n,
+        [r["local_model_tick_us_p50"] for r in scale],
+        "o-",
+        label="local model: haptic tick (p50)",
+    )
+    ax.loglog(
+        n, [r["pymunk_in_loop_us_p50"] for r in scale], "s-", label="pymunk world in the loop (p50)"
+    )
+    ax.loglog(
+        n,
+        [r["pymunk_in_loop_us_p99"] for r in scale],
+        "s--",
+        label="pymunk world in the loop (p99)",
+    )
+    ax.axhline(TICK_BUDGET_US, color="r", lw=0.8, label="1 kHz budget")
+    ax.set_xlabel("bodies in the world")
+    ax.set_ylabel("cost per 1 ms tick (us)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    paths.append(out / "scaling.png")
+    fig.savefig(paths[-1], dpi=100)
+
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4))
+    for hold, ax in zip(("linkage_middle", "linkage_distal"), axes, strict=True):
+        for method in METHODS:
+            base = dataclasses.replace(load_scene(hold), initial_device_offset=(0.0, 0.0, 0.0))
+            result = run_virtual(
+                configure(base, method, 60.0, 1000.0),
+                load_device("ideal_identity"),
+                load_user("push_04n"),
+                seconds,
+            )
+            ax.semilogy(result.ticks["t"], np.maximum(drift_mm(result.ticks), 1e-3), label=method)
+        ax.set_title(f"{hold}: drift over the run (sim 60 Hz, haptic 1 kHz)")
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("drift (mm)")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    paths.append(out / "error_over_run.png")
+    fig.savefig(paths[-1], dpi=100)
+    return paths
+
+
+def write_report(
+    acc: list[dict[str, Any]],
+    scale: list[dict[str, Any]],
+    stages: list[dict[str, Any]],
+    out: Path,
+    seconds: float,
+    wall_s: float,
+) -> None:
+    lines = [
+        "# haptic-bench report", "",
+        f"Virtual clock, {seconds:g} s per run; generated by `haptic-bench` in {wall_s / 60:.1f} min on {time.strftime('%Y-%m-%d')}.", "",
+        "## Error against run time", "",
+        "| scene | method | sim Hz | haptic Hz | cost ms / sim s | tick us | steady drift mm | max drift mm | ref RMS mm | penetration err |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for r in acc:
+        lines.append(
+            f"| {r['scene']} | {r['method']} | {r['sim_hz']:g} | {r['haptic_hz']:g} | {r['cost_ms_per_sim_s']:.1f} | {r['tick_us']:.2f} "
+            f"| {r.get('steady_drift_mm', float('nan')):.3f} | {r.get('max_drift_mm', float('nan')):.2f} | {r.get('reference_rms_mm', float('nan')):.3f} "
+            f"| {r.get('penetration_error', float('nan')):.4f} |"
+        )
+    lines += ["", "Cost by stage (ms per simulated second), first configuration of each scene:", ""]
+    seen = set()
+    for r in acc:
+        if r["scene"] in seen:
+            continue
+        seen.add(r["scene"])
+        stages_txt = ", ".join(f"{k} {v:.2f}" for k, v in r["stage_ms_per_sim_s"].items())
+        lines.append(
+            f"- {r['scene']} ({r['method']}, sim {r['sim_hz']:g} Hz, haptic {r['haptic_hz']:g} Hz): {stages_txt}"
+        )
+    lines += ["", "![error vs run time](error_vs_runtime.png)", "", "![error over a run](error_over_run.png)", "", "## Scaling with the world", "",
+              "| bodies | local model haptic tick p50 / p99 (us) | sim step + local model at 60 Hz (ms) | pymunk world in the 1 kHz loop p50 / p99 (us) |", "|---|---|---|---|"]  # fmt: skip
+    for r in scale:
+        lines.append(
+            f"| {r['bodies']} | {r['local_model_tick_us_p50']:.2f} / {r['local_model_tick_us_p99']:.2f} | {r['sim_step_ms_at_60hz']:.2f} | {r['pymunk_in_loop_us_p50']:.0f} / {r['pymunk_in_loop_us_p99']:.0f} |"
+        )
+    over = [r["bodies"] for r in scale if r["pymunk_in_loop_us_p50"] > TICK_BUDGET_US]
+    small = [r for r in scale if r["bodies"] <= 1000]
+    ratio = max(r["local_model_tick_us_p50"] for r in small) / min(
+        r["local_model_tick_us_p50"] for r in small
+    )
+    lines += ["", f"Local model tick cost (p50) from 10 to 1000 bodies: max/min = {ratio:.2f}.",
+              f"The in-loop pymunk alternative misses the 1 kHz budget (p50 > 1 ms) from {over[0] if over else 'none of the measured'} bodies.", "",
+              "![scaling](scaling.png)", "", "## What each scene leaves out", "",
+              "| scene | SVD steps | gravity section | velocity terms | penalty ticks | contact-stage ticks | contacts sent (mean) | update bytes mean / max | tick us | sim ms / step |",
+              "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r in stages:
+        lines.append(
+            f"| {r['scene']} | {r['svd_steps_fraction']:.0%} | {'yes' if r['gravity_section'] else 'no'} | {'yes' if r['velocity_terms_section'] else 'no'} "
+            f"| {r['penalty_ticks_fraction']:.0%} | {r['contact_stage_ticks_fraction']:.0%} | {r['contacts_sent_mean']:.1f} | {r['update_bytes_mean']:.0f} / {r['update_bytes_max']} "
+            f"| {r['tick_us']:.2f} | {r['sim_ms_per_step']:.2f} |"
+        )
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="haptic-bench",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--seconds", type=float, default=5.0)
+    parser.add_argument("--out", type=Path, default=Path("docs/bench"))
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    seconds = 2.0 if args.quick else args.seconds
+    acc = accuracy_runs(seconds, args.quick)
+    scale = scaling()
+    stages = stages_per_scene(seconds)
+    plot(acc, scale, args.out, seconds)
+    write_report(acc, scale, stages, args.out, seconds, time.perf_counter() - started)
+    print((args.out / "report.md").read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
