@@ -153,8 +153,3 @@ TICK_DTYPE = np.dtype(
         ("device_fault", np.int32),
     ]
 )
-
-
-def new_record(dtype: np.dtype, count: int = 1) -> np.ndarray:
-    """A zeroed preallocated record array (what the kernels take)."""
-    return np.zeros(count, dtype=dtype)

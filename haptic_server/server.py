@@ -10,8 +10,6 @@ state; a restarted sim (new epoch) re-initialises the proxy and forces fade back
 
 from __future__ import annotations
 
-import json
-import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -229,13 +227,3 @@ class HapticServer:
             stats.proxy_published = io_counters["proxy_published"]
             stats.updates_lost = io_counters["lost_updates"]
         return stats.summary(self.log_path)
-
-
-def install_signal_handlers(server: HapticServer) -> None:
-    signal.signal(signal.SIGTERM, server.request_stop)
-    signal.signal(signal.SIGINT, server.request_stop)
-
-
-def print_event(kind: str, **fields: Any) -> None:
-    """One JSON line on stdout: how haptic-run and tests learn what the process is doing."""
-    print(json.dumps({"event": kind, **fields}), flush=True)
