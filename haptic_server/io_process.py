@@ -198,7 +198,9 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     block = SharedBlock(shm)
     ctl = block.ctl
     k = keys(config["namespace"])
-    session = open_session(EndpointSpec(**config["endpoints"]), config.get("zenoh_extra"))
+    session = open_session(
+        EndpointSpec(**config["endpoints"]), config.get("zenoh_extra"), config["namespace"]
+    )
     publisher = session.declare_publisher(
         k.proxy, congestion_control=zenoh.CongestionControl.DROP, express=True
     )
