@@ -491,6 +491,14 @@ def load_network(name_or_path: str, roles: tuple[str, ...] = ("haptic", "sim")) 
                 raise ConfigError(str(path), f"{role}.{key}", f"file not found: {file}")
         specs[role] = spec
     network = dataclasses.replace(network, haptic=specs["haptic"], sim=specs["sim"])
+    from shared.transport import session_config  # Zenoh checks its own keys (and is heavy)
+
+    for role in roles:
+        try:
+            session_config(getattr(network, role), None, network.namespace)
+        except ValueError as exc:
+            key, _, problem = str(exc).partition(": ")
+            raise ConfigError(str(path), f"{role}.{key}", problem) from None
     if "haptic" in roles and network.haptic.users_file:
         users = _read_users(network.haptic.users_file, str(path))
         if "sim" in roles and network.sim.user:

@@ -39,7 +39,10 @@ def session_config(
     conf.insert_json5("listen/endpoints", json.dumps(list(endpoints.listen)))
     conf.insert_json5("connect/endpoints", json.dumps(list(endpoints.connect)))
     for key, text in zenoh_keys(endpoints, namespace).items():
-        conf.insert_json5(key, text)
+        try:
+            conf.insert_json5(key, text)
+        except zenoh.ZError as exc:  # e.g. an unknown path in the config's `zenoh` table
+            raise ValueError(f"zenoh.{key}: {exc}") from None
     for key, value in (extra or {}).items():
         conf.insert_json5(key, json.dumps(value))
     return conf

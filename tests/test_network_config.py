@@ -74,6 +74,8 @@ def test_a_host_needs_only_its_own_secrets(tmp_path: Path) -> None:
         ('zenoh = { "access_control" = "{}" }\n', "", "haptic.zenoh.access_control",
          "set by the endpoint keys"),
         ('observer_users = ["a:b"]\n', "", "haptic.observer_users", "bad user name"),
+        ("", 'zenoh = { "connect/retry/period_ms" = "250" }\n', "sim.zenoh.connect/retry/period_ms",
+         "unknown key"),
     ],
 )  # fmt: skip
 def test_bad_security_keys_are_named(
