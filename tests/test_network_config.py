@@ -4,6 +4,8 @@ Zenoh config they turn into (shared/security.py)."""
 from __future__ import annotations
 
 import json
+import re
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -114,3 +116,15 @@ def test_access_control_needs_authentication(tmp_path: Path) -> None:
     with pytest.raises(ConfigError) as err:
         load_network(str(path))
     assert err.value.key == "haptic.sim_users" and "users_file" in err.value.problem
+
+
+def test_the_deployment_example_in_the_docs_loads(tmp_path: Path) -> None:
+    doc = (CONFIG_ROOT.parent / "docs/security.md").read_text()
+    block = re.search(r"<!-- credentials-config.*?```toml\n(.*?)```", doc, re.S)
+    assert block
+    (tmp_path / "users.txt").write_text((CREDENTIALS / "example_users.txt").read_text())
+    (tmp_path / "sim.password").write_text(SIM_PASSWORD + "\n")
+    path = tmp_path / "lab1.toml"
+    path.write_text(textwrap.dedent(block.group(1)).replace("/etc/haptic/", f"{tmp_path}/"))
+    network = load_network(str(path))
+    assert network.haptic.sim_users == ("sim",) and network.sim.user == "sim"
