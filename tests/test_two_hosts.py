@@ -42,9 +42,9 @@ LINK_CUT_S = 3.0
 LOG_POLL_S = 0.25  # the log grows by 256 KiB chunks, about 0.4 s of ticks
 LOG_LAG_S = 5.0  # a chunk reaches the file this long after its ticks, at worst (loaded VM)
 STALE_AGE_MS = 500.0  # a backlog from the cut would be up to LINK_CUT_S old; jitter is far less
-# Measured: resumption 4-115 ms after the link comes back (a new session: the 1 s lease closed
-# the old one; reconnect attempts every 250 ms). Bound: two retry periods, the handshake and
-# VM noise.
+# Measured: resumption 17-274 ms after the link comes back (a new session: the 1 s lease
+# closed the old one; reconnect attempts every 250 ms). Bound: a few retry periods, the
+# handshake and VM noise.
 RESUME_BOUND_S = 1.0
 AFTER_RESUME_S = 1.5  # the run goes on this long after the bound, updates flowing again
 MIN_FLOW_FRACTION = 0.5  # of the sim's updates installed while the link is up (noisy VM)
@@ -277,10 +277,9 @@ def test_link_cut_makes_the_device_safe_and_restoring_it_resumes(
     assert run.tick_time(back) - run.tick_time(r) <= network.safe_ramp_ms / 1e3 + RAMP_TOL_S
     after = run.installed(after_ns=t_up)
     assert len(after) >= MIN_FLOW_FRACTION * AFTER_RESUME_S * rate_hz
-    assert np.all(np.diff([u["seq"] for u in after]) > 0)
     # the 1 s lease closed the silent link: no backlog of stale updates after the cut
-    stale = [u for u in after if u["age_ms"] > STALE_AGE_MS]
-    assert not stale, f"{len(stale)} stale updates, oldest {max(u['age_ms'] for u in stale)} ms"
+    ages_ms = run.rows["update_age_ms"][r:]  # of the update installed at each tick
+    assert ages_ms.max() <= STALE_AGE_MS, f"{np.sum(ages_ms > STALE_AGE_MS)} stale ticks"
     print(
         f"\ntwo hosts: watchdog {silence_s * 1e3:.1f} ms after the last update, safe "
         f"{(t_safe - run.tick_time(w)) * 1e3:.1f} ms later; resumed {resumption_ms:.1f} ms "
