@@ -86,12 +86,16 @@ class TwoHosts:
         self.stop_timeout_s = stop_timeout_s
         self.processes: list[ServerProcess] = []
         self.exit_codes: dict[int, int] = {}
+        self.namespaces: list[str] = []  # created here: only these are deleted
+        self.veth = False
 
     def __enter__(self) -> TwoHosts:
         try:
-            _ip("netns", "add", self.haptic_ns)
-            _ip("netns", "add", self.sim_ns)
+            for ns in (self.haptic_ns, self.sim_ns):
+                _ip("netns", "add", ns)
+                self.namespaces.append(ns)
             _ip("link", "add", self.haptic_if, "type", "veth", "peer", "name", self.sim_if)
+            self.veth = True
             for ns, dev, n in ((self.haptic_ns, self.haptic_if, 1), (self.sim_ns, self.sim_if, 2)):
                 _ip("link", "set", dev, "netns", ns)
                 _ip("-n", ns, "addr", "add", SUBNET.format(n), "dev", dev)
@@ -128,13 +132,14 @@ class TwoHosts:
         for p in self.processes:
             if p.proc.poll() is None:
                 self.stop(p)
-        for ns in (self.haptic_ns, self.sim_ns):
+        for ns in self.namespaces:
             left = _ip("netns", "pids", ns, check=False).stdout.split()
             for pid in left:  # only processes started in the namespaces this test made
                 with contextlib.suppress(ProcessLookupError):
                     os.kill(int(pid), signal.SIGKILL)
             _ip("netns", "del", ns, check=False)
-        _ip("link", "del", self.haptic_if, check=False)
+        if self.veth:  # gone with its namespace, unless it never left this one
+            _ip("link", "del", self.haptic_if, check=False)
 
     def leftovers(self) -> list[str]:
         """What of ours still exists (empty after cleanup)."""
