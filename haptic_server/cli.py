@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
 
         scene = load_scene(args.scene)
         user = load_user(args.user)
-        network = load_network(args.network)
+        network = load_network(args.network, roles=("haptic",))
         device = load_device(args.device)
         configs = {
             "scene": resolve("scenes", args.scene).read_text(),

@@ -201,7 +201,9 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         np.ndarray((shm.size,), np.uint8, shm.buf)[::4096].sum()
     )  # map every page now, not while logging
     k = keys(config["namespace"])
-    session = open_session(EndpointSpec(**config["endpoints"]), config.get("zenoh_extra"))
+    session = open_session(
+        EndpointSpec(**config["endpoints"]), config.get("zenoh_extra"), config["namespace"]
+    )
     publisher = session.declare_publisher(
         k.proxy, congestion_control=zenoh.CongestionControl.DROP, express=True
     )

@@ -10,6 +10,7 @@ state; a restarted sim (new epoch) re-initialises the proxy and forces fade back
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -121,10 +122,7 @@ class HapticServer:
         io = LoopIO(
             {
                 "namespace": self.network.namespace,
-                "endpoints": {
-                    "listen": self.network.haptic.listen,
-                    "connect": self.network.haptic.connect,
-                },
+                "endpoints": dataclasses.asdict(self.network.haptic),  # with credentials
                 "zenoh_extra": self.zenoh_extra,
                 "log_path": str(self.log_path) if self.log_path else None,
                 "metadata": run_metadata(self.configs, {"clock": "real-time"}),

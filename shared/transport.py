@@ -14,6 +14,7 @@ from typing import Any
 import zenoh
 
 from shared.config import EndpointSpec
+from shared.security import zenoh_keys
 
 
 @dataclass(frozen=True)
@@ -26,21 +27,31 @@ def keys(namespace: str) -> Keys:
     return Keys(update=f"{namespace}/local_model", proxy=f"{namespace}/proxy")
 
 
-def session_config(endpoints: EndpointSpec, extra: dict[str, Any] | None = None) -> zenoh.Config:
-    """A peer-mode config on explicit endpoints; gossip and multicast off (STACK-NOTES)."""
+def session_config(
+    endpoints: EndpointSpec, extra: dict[str, Any] | None = None, namespace: str | None = None
+) -> zenoh.Config:
+    """A peer-mode config on explicit endpoints; gossip and multicast off (STACK-NOTES); the
+    endpoint's credentials and access control (rules under `namespace`, shared/security.py)."""
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("scouting/gossip/enabled", "false")
     conf.insert_json5("listen/endpoints", json.dumps(list(endpoints.listen)))
     conf.insert_json5("connect/endpoints", json.dumps(list(endpoints.connect)))
+    for key, text in zenoh_keys(endpoints, namespace).items():
+        try:
+            conf.insert_json5(key, text)
+        except zenoh.ZError as exc:  # e.g. an unknown path in the config's `zenoh` table
+            raise ValueError(f"zenoh.{key}: {exc}") from None
     for key, value in (extra or {}).items():
         conf.insert_json5(key, json.dumps(value))
     return conf
 
 
-def open_session(endpoints: EndpointSpec, extra: dict[str, Any] | None = None) -> zenoh.Session:
-    return zenoh.open(session_config(endpoints, extra))
+def open_session(
+    endpoints: EndpointSpec, extra: dict[str, Any] | None = None, namespace: str | None = None
+) -> zenoh.Session:
+    return zenoh.open(session_config(endpoints, extra, namespace))
 
 
 def newest_payload(subscriber: Any) -> list[bytes]:

@@ -23,7 +23,7 @@ def main(argv: list[str] | None = None) -> int:
         from sim_server.server import SimServer
 
         scene = load_scene(args.scene)
-        network = load_network(args.network)
+        network = load_network(args.network, roles=("sim",))
         server = SimServer(scene, network)
         signal.signal(signal.SIGTERM, server.request_stop)
         signal.signal(signal.SIGINT, server.request_stop)

@@ -65,7 +65,7 @@ class SimServer:
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         k = keys(self.network.namespace)
-        session = open_session(self.network.sim, self.zenoh_extra)
+        session = open_session(self.network.sim, self.zenoh_extra, self.network.namespace)
         pub = session.declare_publisher(k.update, congestion_control=zenoh.CongestionControl.DROP)
         sub = session.declare_subscriber(k.proxy, zenoh.handlers.RingChannel(4))
         period_ns = round(1e9 / self.scene.sim_rate_hz)

@@ -1,0 +1,80 @@
+"""Zenoh authentication and access control from a network config's endpoint (docs/security.md).
+
+Username/password (`usrpwd`) authenticates the connecting peer to the listener at the
+handshake: the listener (the haptic server) holds the `user:password` lines of the peers it
+accepts, a connecting peer (the sim) presents its own user and password. Access control on the
+listener then allows, by user name and key expression, only what the protocol needs and denies
+the rest: a sim user may publish local models and follow the proxy, an observer may only
+follow the proxy.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from shared.config import EndpointSpec
+
+
+def read_password(path: str) -> str:
+    """The password in a password file: its first line, without the line end."""
+    lines = Path(path).read_text().splitlines()
+    if not lines or not lines[0]:
+        raise ValueError(f"{path}: empty password file")
+    return lines[0]
+
+
+def access_control(namespace: str, sim_users: tuple[str, ...], observers: tuple[str, ...]) -> Any:
+    """The listener's access-control table: default deny, then the protocol's flows only.
+
+    The listener's own `declare_subscriber` must be allowed on egress too, or the sim never
+    learns that anyone subscribes and publishes nothing (STACK-NOTES).
+    """
+    update, proxy = f"{namespace}/local_model", f"{namespace}/proxy"
+    rules = [
+        {"id": "put_update_in", "messages": ["put"], "flows": ["ingress"],
+         "permission": "allow", "key_exprs": [update]},
+        {"id": "announce_update_sub", "messages": ["declare_subscriber"], "flows": ["egress"],
+         "permission": "allow", "key_exprs": [update]},
+        {"id": "follow_proxy_in", "messages": ["declare_subscriber"], "flows": ["ingress"],
+         "permission": "allow", "key_exprs": [proxy]},
+        {"id": "put_proxy_out", "messages": ["put"], "flows": ["egress"],
+         "permission": "allow", "key_exprs": [proxy]},
+    ]  # fmt: skip
+    subjects = [{"id": "sims", "usernames": list(sim_users)}]
+    policies = [
+        {"id": "sims_drive", "subjects": ["sims"],
+         "rules": ["put_update_in", "announce_update_sub", "follow_proxy_in", "put_proxy_out"]},
+    ]  # fmt: skip
+    if observers:
+        subjects.append({"id": "observers", "usernames": list(observers)})
+        policies.append(
+            {"id": "observers_follow", "subjects": ["observers"],
+             "rules": ["follow_proxy_in", "put_proxy_out"]}
+        )  # fmt: skip
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
+
+
+def zenoh_keys(endpoints: EndpointSpec, namespace: str | None) -> dict[str, str]:
+    """Zenoh config path -> JSON5 value for the endpoint's credentials, access control and
+    extra `zenoh` keys (empty for a plain endpoint)."""
+    out: dict[str, str] = {}
+    if endpoints.user:
+        out["transport/auth/usrpwd/user"] = json.dumps(endpoints.user)
+        out["transport/auth/usrpwd/password"] = json.dumps(read_password(endpoints.password_file))
+    if endpoints.users_file:
+        out["transport/auth/usrpwd/dictionary_file"] = json.dumps(endpoints.users_file)
+    if endpoints.sim_users:
+        if namespace is None:
+            raise ValueError("access control needs the key-expression namespace")
+        acl = access_control(namespace, endpoints.sim_users, endpoints.observer_users)
+        out["access_control"] = json.dumps(acl)
+    out.update(endpoints.zenoh)
+    return out
