@@ -61,6 +61,8 @@ class SharedBlock:
         o += 8 * MAILBOX_SLOTS
         self.update_recv_ns = np.ndarray((MAILBOX_SLOTS,), np.int64, buf, o)
         o += 8 * MAILBOX_SLOTS
+        self.update_latency_s = np.ndarray((MAILBOX_SLOTS,), np.float64, buf, o)
+        o += 8 * MAILBOX_SLOTS
         self.updates = np.ndarray((MAILBOX_SLOTS, SLOT_BYTES), np.uint8, buf, o)
         o += MAILBOX_SLOTS * SLOT_BYTES
         self.events = np.ndarray((EVENT_SLOTS, EVENT_BYTES), np.uint8, buf, o)
@@ -72,7 +74,7 @@ class SharedBlock:
         return (
             8 * N_CTL
             + (RING_TICKS * TICK_DTYPE.itemsize + 7) // 8 * 8
-            + 4 * 8 * MAILBOX_SLOTS
+            + 5 * 8 * MAILBOX_SLOTS
             + MAILBOX_SLOTS * SLOT_BYTES
             + EVENT_SLOTS * EVENT_BYTES
         )
@@ -80,7 +82,7 @@ class SharedBlock:
     def release(self) -> None:
         for name in (
             "ctl", "ticks", "update_len", "update_verdict", "update_tick", "update_recv_ns",
-            "updates", "events",
+            "update_latency_s", "updates", "events",
         ):  # fmt: skip
             setattr(self, name, None)
 
@@ -133,9 +135,11 @@ class LoopIO:
         published = int(self.block.updates[slot, 32:40].view(np.int64)[0])
         return min(max((time.time_ns() - published) / 1e9, 0.0), 1.0)
 
-    def verdict(self, slot: int, code: int, tick: int) -> None:
-        """The loop's verdict on the update in `slot` (0 installed, else a reason code)."""
+    def verdict(self, slot: int, code: int, tick: int, latency_s: float = 0.0) -> None:
+        """The loop's verdict on the update in `slot` (0 installed, else a reason code), with
+        the tick and the latency it was installed with (logged, so a replay is exact)."""
         self.block.update_tick[slot] = tick
+        self.block.update_latency_s[slot] = latency_s
         self.block.update_verdict[slot] = code
         self.block.ctl[C_UPD_READ] += 1
 
@@ -248,14 +252,11 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
                     last_published_tick = int(newest["tick"][0])
                 next_publish = now + publish_period
             if log is not None:
-                if head - tick_tail > RING_TICKS:
-                    ctl[C_TICK_LOST] += head - tick_tail - RING_TICKS
-                    tick_tail = head - RING_TICKS
-                while tick_tail < head:
-                    row = block.ticks[tick_tail % RING_TICKS : tick_tail % RING_TICKS + 1]
-                    log.tick(row.tobytes(), wall_start_ns + int(float(row["t"][0]) * 1e9))
-                    tick_tail += 1
+                # `head` was read first: every update and event of a tick below it is already
+                # in the mailbox / ring, and is written before that tick's row, so a file cut
+                # anywhere holds all the updates of every complete tick it holds (replay).
                 read = int(ctl[C_UPD_READ])
+                evt_head = int(ctl[C_EVT_HEAD])
                 while upd_logged < read:
                     slot = upd_logged % MAILBOX_SLOTS
                     n = int(block.update_len[slot])
@@ -264,15 +265,24 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
                     recv_ns = int(block.update_recv_ns[slot])
                     age_ms = (recv_ns - _publish_time_ns(raw)) / 1e6
                     reason = "" if code == 0 else reason_of(code)
-                    rec = update_record(int(block.update_tick[slot]), raw, reason, age_ms)
+                    rec = update_record(
+                        int(block.update_tick[slot]), raw, reason, age_ms,
+                        float(block.update_latency_s[slot]), abs(n),
+                    )  # fmt: skip
                     log.update(rec, recv_ns)
                     upd_logged += 1
-                evt_head = int(ctl[C_EVT_HEAD])
                 while evt_tail < evt_head:
                     text = bytes(block.events[evt_tail % EVENT_SLOTS]).split(b"\0", 1)[0].decode()
                     tick_s, kind, detail = [*text.split("\t", 2), "", ""][:3]
                     log.event(int(tick_s or 0), kind, detail, time.time_ns())
                     evt_tail += 1
+                if head - tick_tail > RING_TICKS:
+                    ctl[C_TICK_LOST] += head - tick_tail - RING_TICKS
+                    tick_tail = head - RING_TICKS
+                while tick_tail < head:
+                    row = block.ticks[tick_tail % RING_TICKS : tick_tail % RING_TICKS + 1]
+                    log.tick(row.tobytes(), wall_start_ns + int(float(row["t"][0]) * 1e9))
+                    tick_tail += 1
                 if now - last_flush > 0.2:
                     log.flush()
                     last_flush = now

@@ -157,7 +157,7 @@ class HapticServer:
                     buf, nbytes = io.update_bytes(slot)
                     latency_s = io.update_latency_s(slot)
                     code = engine.receive_buffer(buf, nbytes, latency_s) if nbytes > 0 else R_SIZE
-                    io.verdict(slot, code, counters.ticks)
+                    io.verdict(slot, code, counters.ticks, latency_s)
                     stats.updates_received += 1
                     if code == 0:
                         stats.updates_installed += 1
