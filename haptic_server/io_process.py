@@ -14,6 +14,7 @@ loop dies, even by SIGKILL, the sidecar notices, drains what is there and closes
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
 import struct
@@ -27,7 +28,7 @@ from numba import njit
 from haptic_server.layout import TICK_DTYPE
 
 RING_TICKS = 16384  # 16 s of ticks at 1 kHz: the writer may stall this long without loss
-MAILBOX_SLOTS = 64  # updates waiting for the loop (about 1 s at 60 Hz)
+MAILBOX_SLOTS = 256  # updates waiting for the loop or the log writer (about 4 s at 60 Hz)
 SLOT_BYTES = 16384  # >= the largest valid update (12 DOF, 64 contacts: about 9 KB)
 EVENT_SLOTS = 256
 EVENT_BYTES = 256
@@ -38,6 +39,8 @@ IO_NICENESS = 10
 # control words
 C_READY, C_CLOSED, C_TICK_HEAD, C_TICK_LOST, C_UPD_HEAD, C_UPD_READ = 0, 1, 2, 3, 4, 5
 C_UPD_LOST, C_EVT_HEAD, C_EVT_LOST, C_PUBLISHED, C_RECEIVED = 6, 7, 8, 9, 10
+C_UPD_LOGGED = 11  # updates the log writer has written (a slot is reused only after that)
+C_LOWER_IO = 12  # set by the loop when it runs without real-time priority
 N_CTL = 16
 
 
@@ -143,6 +146,10 @@ class LoopIO:
         self.block.update_verdict[slot] = code
         self.block.ctl[C_UPD_READ] += 1
 
+    def lower_io_priority(self) -> None:
+        """Ask the sidecar to yield the CPU to the loop (when the loop is not real-time)."""
+        self.block.ctl[C_LOWER_IO] = 1
+
     def tick(self, row: np.ndarray) -> None:
         push_row(self.block.ticks, self.block.ctl, row)
 
@@ -197,7 +204,6 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the loop decides when I/O ends
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    os.nice(IO_NICENESS)  # yield the CPU to the loop when both want it
     shm = shared_memory.SharedMemory(name=shm_name)
     block = SharedBlock(shm)
     ctl = block.ctl
@@ -207,13 +213,18 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         k.proxy, congestion_control=zenoh.CongestionControl.DROP, express=True
     )
 
+    logging = bool(config.get("log_path"))
+
     def receive(sample: Any) -> None:
         """Subscriber callback (a Zenoh thread of this process): the update into the mailbox."""
         raw = sample.payload.to_bytes()
         ctl[C_RECEIVED] += 1
         head = int(ctl[C_UPD_HEAD])
-        if head - int(ctl[C_UPD_READ]) >= MAILBOX_SLOTS:
-            ctl[C_UPD_LOST] += 1  # the loop is not reading: it is stopped or dead
+        done = int(ctl[C_UPD_READ])
+        if logging:  # a slot the writer has not logged yet is not free either
+            done = min(done, int(ctl[C_UPD_LOGGED]))
+        if head - done >= MAILBOX_SLOTS:
+            ctl[C_UPD_LOST] += 1  # the loop (or the writer) is not reading: stopped or dead
             return
         slot = head % MAILBOX_SLOTS
         n = min(len(raw), SLOT_BYTES)
@@ -235,10 +246,14 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     last_published_tick = -1
     next_publish = time.monotonic()
     last_flush = time.monotonic()
+    lowered = False
     ctl[C_READY] = 1
     try:
         while True:
             closing = ctl[C_CLOSED] == 1 or os.getppid() != parent_pid
+            if ctl[C_LOWER_IO] == 1 and not lowered:
+                _lower_priority()
+                lowered = True
             head = int(ctl[C_TICK_HEAD])
             now = time.monotonic()
             if head > 0 and now >= next_publish:
@@ -271,6 +286,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
                     )  # fmt: skip
                     log.update(rec, recv_ns)
                     upd_logged += 1
+                    ctl[C_UPD_LOGGED] = upd_logged
                 while evt_tail < evt_head:
                     text = bytes(block.events[evt_tail % EVENT_SLOTS]).split(b"\0", 1)[0].decode()
                     tick_s, kind, detail = [*text.split("\t", 2), "", ""][:3]
@@ -296,6 +312,15 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         session.close()
         block.release()
         shm.close()
+
+
+def _lower_priority() -> None:
+    """Nice every thread of this process (Linux nice is per thread): a loop without real-time
+    priority then gets the CPU first. A SCHED_FIFO loop preempts us anyway, and a niced
+    sidecar starved by other work on a busy machine delays updates and loses log ticks."""
+    for tid in os.listdir("/proc/self/task"):
+        with contextlib.suppress(OSError):  # the thread ended meanwhile
+            os.setpriority(os.PRIO_PROCESS, int(tid), IO_NICENESS)
 
 
 def _publish_time_ns(raw: bytes) -> int:

@@ -132,6 +132,8 @@ class HapticServer:
         last_valid_ns = 0
         stale = False
         stats.realtime_priority = try_realtime_priority()
+        if not stats.realtime_priority:
+            io.lower_io_priority()
         if ready is not None:
             ready()
         start_ns = time.perf_counter_ns()
