@@ -323,13 +323,17 @@ def plot_run(log: LogContents, out: Path | str, title: str = "") -> Path:
     import matplotlib.pyplot as plt
 
     ticks = log.ticks
-    ready = ticks[ticks["update_seq"] >= 0]
+    if len(ticks) == 0:
+        raise ReplayError("the log holds no ticks: nothing to plot")
+    ready = ticks[ticks["update_seq"] >= 0]  # the VM exists once the first update arrived
+    title = title or _default_title(log)
     if len(ready) == 0:
-        raise ReplayError("no tick with an installed update: nothing to plot")
+        ready = ticks
+        title += " — no update was received"
     t = ready["t"]
     hand, vm = ready["device_pose"], ready["vm_pose"]
     fig, axes = plt.subplots(3, 2, figsize=(14, 12), constrained_layout=True)
-    fig.suptitle(title or _default_title(log))
+    fig.suptitle(title)
 
     ax = axes[0, 0]
     ax.plot(hand[:, 0] * 1e3, hand[:, 1] * 1e3, lw=1.2, label="hand (device)")
