@@ -139,6 +139,7 @@ def replay(
     mismatches: list[dict[str, Any]] = []
     replayed = 0
     bar = _progress_bar(n, progress)
+    k = -1
     try:
         for k in range(n):
             for rec in updates_at.get(k, ()):
@@ -154,6 +155,7 @@ def replay(
                 bar.update(PROGRESS_EVERY)
     finally:
         if bar is not None:
+            bar.update(len(out) - bar.n if k == n - 1 else 0)
             bar.close()
     diffs = max_abs_differences(out, logged[:n])
     return ReplayResult(out, diffs, replayed, mismatches, engine.counters, note)
