@@ -444,9 +444,12 @@ def _plot_timing(ax: Any, log: LogContents) -> None:
         ax.plot(t[late], lateness[late], "rx", ms=5, label=f"late > 1 ms ({late.sum()})")
     ax.axhline(LATE_TICK_US, color="r", lw=0.6, ls=":")
     tick_t = {int(k): float(v) for k, v in zip(ticks["tick"], t, strict=True)}
-    for ev in log.events:
-        if ev["kind"] == "watchdog" and int(ev["tick"]) in tick_t:
-            ax.axvline(tick_t[int(ev["tick"])], color="m", lw=0.8)
+    trips = [tick_t[int(ev["tick"])] for ev in log.events
+             if ev["kind"] == "watchdog" and int(ev["tick"]) in tick_t]  # fmt: skip
+    for trip in trips:
+        ax.axvline(trip, color="m", lw=0.8)
+    if trips:
+        ax.plot([], [], color="m", lw=0.8, label=f"watchdog trips ({len(trips)})")
     rejected = [tick_t[int(u["tick"])] for u in log.updates
                 if not u.get("installed") and int(u["tick"]) in tick_t]  # fmt: skip
     if rejected:
