@@ -16,7 +16,8 @@ warm: $(STAMP)
 	$(PY) -m haptic_server.warmup
 
 demo: $(STAMP) warm
-	$(VENV)/bin/haptic-run --duration 10 --summary-json runs/demo-summary.json
+	$(VENV)/bin/haptic-run --duration 10 --log runs/demo.mcap --summary-json runs/demo-summary.json
+	$(VENV)/bin/haptic-replay runs/demo.mcap --plot runs/demo.png
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

@@ -234,14 +234,20 @@ class HapticEngine:
         work_us: float = 0.0,
         update_seq: int = -1,
         update_age_ms: float = 0.0,
+        hand: np.ndarray | None = None,
     ) -> np.ndarray:
         """One tick: user -> device sensors -> local model + control -> device. Returns the row.
 
         The timing arguments only go into the log row (the real-time server measures them).
+        `hand`, if given, is the hand's wrench this tick instead of the simulated user's
+        (a replay feeds the logged one).
         """
         dev = self.device
         dev.true_state(self._true_pose, self._true_twist)
-        hand_wrench(self.user, self.time, self._true_pose, self._true_twist, self.hand)
+        if hand is None:
+            hand_wrench(self.user, self.time, self._true_pose, self._true_twist, self.hand)
+        else:
+            self.hand[:] = hand
         dev.sense_hand(self.hand)
         dev.read(self.sensors)
         engine_step(

@@ -14,6 +14,7 @@ loop dies, even by SIGKILL, the sidecar notices, drains what is there and closes
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
 import struct
@@ -27,7 +28,7 @@ from numba import njit
 from haptic_server.layout import TICK_DTYPE
 
 RING_TICKS = 16384  # 16 s of ticks at 1 kHz: the writer may stall this long without loss
-MAILBOX_SLOTS = 64  # updates waiting for the loop (about 1 s at 60 Hz)
+MAILBOX_SLOTS = 256  # updates waiting for the loop or the log writer (about 4 s at 60 Hz)
 SLOT_BYTES = 16384  # >= the largest valid update (12 DOF, 64 contacts: about 9 KB)
 EVENT_SLOTS = 256
 EVENT_BYTES = 256
@@ -37,6 +38,8 @@ IO_POLL_S = 0.004  # the sidecar wakes at least this often (and for each proxy p
 # control words
 C_READY, C_CLOSED, C_TICK_HEAD, C_TICK_LOST, C_UPD_HEAD, C_UPD_READ = 0, 1, 2, 3, 4, 5
 C_UPD_LOST, C_EVT_HEAD, C_EVT_LOST, C_PUBLISHED, C_RECEIVED = 6, 7, 8, 9, 10
+C_UPD_LOGGED = 11  # updates the log writer has written (a slot is reused only after that)
+C_LOWER_IO = 12  # set by the loop when it runs without real-time priority
 N_CTL = 16
 
 
@@ -60,6 +63,8 @@ class SharedBlock:
         o += 8 * MAILBOX_SLOTS
         self.update_recv_ns = np.ndarray((MAILBOX_SLOTS,), np.int64, buf, o)
         o += 8 * MAILBOX_SLOTS
+        self.update_latency_s = np.ndarray((MAILBOX_SLOTS,), np.float64, buf, o)
+        o += 8 * MAILBOX_SLOTS
         self.updates = np.ndarray((MAILBOX_SLOTS, SLOT_BYTES), np.uint8, buf, o)
         o += MAILBOX_SLOTS * SLOT_BYTES
         self.events = np.ndarray((EVENT_SLOTS, EVENT_BYTES), np.uint8, buf, o)
@@ -71,7 +76,7 @@ class SharedBlock:
         return (
             8 * N_CTL
             + (RING_TICKS * TICK_DTYPE.itemsize + 7) // 8 * 8
-            + 4 * 8 * MAILBOX_SLOTS
+            + 5 * 8 * MAILBOX_SLOTS
             + MAILBOX_SLOTS * SLOT_BYTES
             + EVENT_SLOTS * EVENT_BYTES
         )
@@ -79,7 +84,7 @@ class SharedBlock:
     def release(self) -> None:
         for name in (
             "ctl", "ticks", "update_len", "update_verdict", "update_tick", "update_recv_ns",
-            "updates", "events",
+            "update_latency_s", "updates", "events",
         ):  # fmt: skip
             setattr(self, name, None)
 
@@ -134,11 +139,17 @@ class LoopIO:
         published = int(self.block.updates[slot, 32:40].view(np.int64)[0])
         return min(max((time.time_ns() - published) / 1e9, 0.0), 1.0)
 
-    def verdict(self, slot: int, code: int, tick: int) -> None:
-        """The loop's verdict on the update in `slot` (0 installed, else a reason code)."""
+    def verdict(self, slot: int, code: int, tick: int, latency_s: float = 0.0) -> None:
+        """The loop's verdict on the update in `slot` (0 installed, else a reason code), with
+        the tick and the latency it was installed with (logged, so a replay is exact)."""
         self.block.update_tick[slot] = tick
+        self.block.update_latency_s[slot] = latency_s
         self.block.update_verdict[slot] = code
         self.block.ctl[C_UPD_READ] += 1
+
+    def lower_io_priority(self) -> None:
+        """Ask the sidecar to yield the CPU to the loop (when the loop is not real-time)."""
+        self.block.ctl[C_LOWER_IO] = 1
 
     def tick(self, row: np.ndarray) -> None:
         push_row(self.block.ticks, self.block.ctl, row)
@@ -208,13 +219,18 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         k.proxy, congestion_control=zenoh.CongestionControl.DROP, express=True
     )
 
+    logging = bool(config.get("log_path"))
+
     def receive(sample: Any) -> None:
         """Subscriber callback (a Zenoh thread of this process): the update into the mailbox."""
         raw = sample.payload.to_bytes()
         ctl[C_RECEIVED] += 1
         head = int(ctl[C_UPD_HEAD])
-        if head - int(ctl[C_UPD_READ]) >= MAILBOX_SLOTS:
-            ctl[C_UPD_LOST] += 1  # the loop is not reading: it is stopped or dead
+        done = int(ctl[C_UPD_READ])
+        if logging:  # a slot the writer has not logged yet is not free either
+            done = min(done, int(ctl[C_UPD_LOGGED]))
+        if head - done >= MAILBOX_SLOTS:
+            ctl[C_UPD_LOST] += 1  # the loop (or the writer) is not reading: stopped or dead
             return
         slot = head % MAILBOX_SLOTS
         n = min(len(raw), SLOT_BYTES)
@@ -236,10 +252,14 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     last_published_tick = -1
     next_publish = time.monotonic()
     last_flush = time.monotonic()
+    lowered = False
     ctl[C_READY] = 1
     try:
         while True:
             closing = ctl[C_CLOSED] == 1 or os.getppid() != parent_pid
+            if ctl[C_LOWER_IO] == 1 and not lowered:
+                _lower_priority()
+                lowered = True
             head = int(ctl[C_TICK_HEAD])
             now = time.monotonic()
             if head > 0 and now >= next_publish:
@@ -253,14 +273,11 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
                     last_published_tick = int(newest["tick"][0])
                 next_publish = now + publish_period
             if log is not None:
-                if head - tick_tail > RING_TICKS:
-                    ctl[C_TICK_LOST] += head - tick_tail - RING_TICKS
-                    tick_tail = head - RING_TICKS
-                while tick_tail < head:
-                    row = block.ticks[tick_tail % RING_TICKS : tick_tail % RING_TICKS + 1]
-                    log.tick(row.tobytes(), wall_start_ns + int(float(row["t"][0]) * 1e9))
-                    tick_tail += 1
+                # `head` was read first: every update and event of a tick below it is already
+                # in the mailbox / ring, and is written before that tick's row, so a file cut
+                # anywhere holds all the updates of every complete tick it holds (replay).
                 read = int(ctl[C_UPD_READ])
+                evt_head = int(ctl[C_EVT_HEAD])
                 while upd_logged < read:
                     slot = upd_logged % MAILBOX_SLOTS
                     n = int(block.update_len[slot])
@@ -269,15 +286,25 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
                     recv_ns = int(block.update_recv_ns[slot])
                     age_ms = (recv_ns - _publish_time_ns(raw)) / 1e6
                     reason = "" if code == 0 else reason_of(code)
-                    rec = update_record(int(block.update_tick[slot]), raw, reason, age_ms)
+                    rec = update_record(
+                        int(block.update_tick[slot]), raw, reason, age_ms,
+                        float(block.update_latency_s[slot]), abs(n),
+                    )  # fmt: skip
                     log.update(rec, recv_ns)
                     upd_logged += 1
-                evt_head = int(ctl[C_EVT_HEAD])
+                    ctl[C_UPD_LOGGED] = upd_logged
                 while evt_tail < evt_head:
                     text = bytes(block.events[evt_tail % EVENT_SLOTS]).split(b"\0", 1)[0].decode()
                     tick_s, kind, detail = [*text.split("\t", 2), "", ""][:3]
                     log.event(int(tick_s or 0), kind, detail, time.time_ns())
                     evt_tail += 1
+                if head - tick_tail > RING_TICKS:
+                    ctl[C_TICK_LOST] += head - tick_tail - RING_TICKS
+                    tick_tail = head - RING_TICKS
+                while tick_tail < head:
+                    row = block.ticks[tick_tail % RING_TICKS : tick_tail % RING_TICKS + 1]
+                    log.tick(row.tobytes(), wall_start_ns + int(float(row["t"][0]) * 1e9))
+                    tick_tail += 1
                 if now - last_flush > 0.2:
                     log.flush()
                     last_flush = now
@@ -291,6 +318,15 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         session.close()
         block.release()
         shm.close()
+
+
+def _lower_priority() -> None:
+    """Nice every thread of this process (Linux nice is per thread): a loop without real-time
+    priority then gets the CPU first. A SCHED_FIFO loop preempts us anyway, and a niced
+    sidecar starved by other work on a busy machine delays updates and loses log ticks."""
+    for tid in os.listdir("/proc/self/task"):
+        with contextlib.suppress(OSError):  # the thread ended meanwhile
+            os.setpriority(os.PRIO_PROCESS, int(tid), IO_NICENESS)
 
 
 def _publish_time_ns(raw: bytes) -> int:

@@ -18,11 +18,14 @@ import base64
 import json
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
 from mcap.reader import NonSeekingReader, make_reader
+from mcap.records import Channel, McapRecord, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from haptic_server.layout import TICK_DTYPE
@@ -33,6 +36,7 @@ UPDATE_TOPIC = "/haptic/update"
 EVENT_TOPIC = "/haptic/event"
 TICK_SCHEMA_NAME = "haptic_server/Tick"
 CHUNK_SIZE = 256 * 1024  # bytes: about 0.5 s of ticks, so a crash loses at most that
+RECORD_SIZE_LIMIT = 64 * 2**20  # no record of ours is this big: a larger length is garbage
 
 _ROS1_TYPES = {
     np.dtype(np.float64): "float64",
@@ -67,13 +71,17 @@ UPDATE_JSON_SCHEMA = {
         "seq": {"type": "integer"},
         "sim_time": {"type": "number"},
         "age_ms": {"type": "number"},
+        "latency_s": {
+            "type": "number",
+            "description": "latency added to the contacts' extrapolation age at install (s)",
+        },
         "dof": {"type": "integer"},
         "q": {"type": "array", "items": {"type": "number"}},
         "n_contacts": {"type": "integer"},
         "n_resisted": {"type": "integer"},
         "has_gravity": {"type": "boolean"},
         "tool_touching": {"type": "boolean"},
-        "size_bytes": {"type": "integer"},
+        "size_bytes": {"type": "integer", "description": "size received (raw is cut to fit)"},
         "raw_b64": {"type": "string", "description": "the message bytes as received"},
     },
 }
@@ -139,9 +147,21 @@ class LogWriter:
             self.closed = True
 
 
-def update_record(tick: int, raw: bytes, reason: str, age_ms: float) -> dict[str, Any]:
-    """What the loop logs of a received update: the bytes and the verdict (cheap)."""
-    return {"tick": tick, "reason": reason, "age_ms": age_ms, "raw": raw}
+def update_record(
+    tick: int,
+    raw: bytes,
+    reason: str,
+    age_ms: float,
+    latency_s: float = 0.0,
+    size_bytes: int | None = None,
+) -> dict[str, Any]:
+    """What the loop logs of a received update: the bytes, the verdict and the latency it was
+    installed with (cheap). `size_bytes` is the size received if `raw` was cut to fit."""
+    size = len(raw) if size_bytes is None else size_bytes
+    return {
+        "tick": tick, "reason": reason, "age_ms": age_ms, "raw": raw, "latency_s": latency_s,
+        "size_bytes": size,
+    }  # fmt: skip
 
 
 def update_json(record: dict[str, Any]) -> dict[str, Any]:
@@ -156,8 +176,9 @@ def update_json(record: dict[str, Any]) -> dict[str, Any]:
         "tick": record["tick"],
         "installed": update is not None and not reason,
         "reason": reason,
-        "size_bytes": len(raw),
+        "size_bytes": record["size_bytes"],
         "age_ms": record["age_ms"],
+        "latency_s": record["latency_s"],
         "raw_b64": base64.b64encode(raw).decode(),
     }
     if update is not None:
@@ -176,11 +197,12 @@ def run_metadata(
     """Metadata records: the config files' text, version, host and start time."""
     import platform
 
-    from shared import __version__
+    from shared import __version__, source_hash
 
     meta = {
         "run": {
             "version": __version__,
+            "source_hash": source_hash(),
             "host": platform.node(),
             "start_time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             **(extra or {}),
@@ -231,6 +253,89 @@ def read_json_topic(path: Path | str, topic: str) -> list[dict[str, Any]]:
 
 
 def read_metadata(path: Path | str) -> dict[str, dict[str, str]]:
+    """The metadata records by name (also from a file without a footer)."""
+    return {
+        rec.name: dict(rec.metadata) for rec in stream_records(path) if isinstance(rec, Metadata)
+    }
+
+
+def stream_records(path: Path | str) -> Iterator[McapRecord]:
+    """Every complete record in file order, chunks opened; stops quietly where the file was
+    cut (a writer killed mid-chunk): the streaming path of issue 6 / STACK-NOTES."""
     with Path(path).open("rb") as fh:
-        reader = make_reader(fh)
-        return {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        reader = StreamReader(fh, record_size_limit=RECORD_SIZE_LIMIT)
+        try:
+            yield from reader.records
+        except Exception:  # a cut record: short read, short zstd frame, bad length
+            return
+
+
+@dataclass
+class LogContents:
+    """Everything a haptic log holds, read in one pass."""
+
+    ticks: np.ndarray  # TICK_DTYPE rows in file order
+    updates: list[dict[str, Any]]
+    events: list[dict[str, Any]]
+    metadata: dict[str, dict[str, str]]
+    indexed: bool  # closed properly (footer and summary readable by make_reader)
+
+
+def read_log(path: Path | str) -> LogContents:
+    """Read a log, complete or cut short (streaming: every complete record)."""
+    topics: dict[int, str] = {}
+    rows: list[bytes] = []
+    updates: list[dict[str, Any]] = []
+    events: list[dict[str, Any]] = []
+    metadata: dict[str, dict[str, str]] = {}
+    for rec in stream_records(path):
+        if isinstance(rec, Message):
+            topic = topics.get(rec.channel_id)
+            if topic == TICK_TOPIC:
+                rows.append(rec.data)
+            elif topic == UPDATE_TOPIC:
+                updates.append(json.loads(rec.data))
+            elif topic == EVENT_TOPIC:
+                events.append(json.loads(rec.data))
+        elif isinstance(rec, Channel):
+            topics[rec.id] = rec.topic
+        elif isinstance(rec, Metadata):
+            metadata[rec.name] = dict(rec.metadata)
+    ticks = np.frombuffer(b"".join(rows), TICK_DTYPE) if rows else np.zeros(0, TICK_DTYPE)
+    return LogContents(ticks, updates, events, metadata, is_indexed(path))
+
+
+def recover_log(src: Path | str, dst: Path | str) -> dict[str, int]:
+    """Rewrite every complete record of `src` (e.g. a log whose writer was killed, without
+    footer or index) into a valid, indexed MCAP file `dst`; returns counts of what was kept."""
+    schema_ids: dict[int, int] = {}
+    channel_ids: dict[int, int] = {}
+    counts = {"messages": 0, "ticks": 0, "metadata": 0}
+    tick_channels: set[int] = set()
+    dst_path = Path(dst)
+    dst_path.parent.mkdir(parents=True, exist_ok=True)
+    with dst_path.open("wb") as out:
+        writer = Writer(out, chunk_size=CHUNK_SIZE, compression=CompressionType.ZSTD)
+        writer.start(profile="", library="haptic-local-model (recovered)")
+        for rec in stream_records(src):
+            if isinstance(rec, Schema) and rec.id not in schema_ids:
+                schema_ids[rec.id] = writer.register_schema(rec.name, rec.encoding, rec.data)
+            elif isinstance(rec, Channel) and rec.id not in channel_ids:
+                channel_ids[rec.id] = writer.register_channel(
+                    rec.topic, rec.message_encoding, schema_ids.get(rec.schema_id, 0),
+                    dict(rec.metadata),
+                )  # fmt: skip
+                if rec.topic == TICK_TOPIC:
+                    tick_channels.add(rec.id)
+            elif isinstance(rec, Message) and rec.channel_id in channel_ids:
+                writer.add_message(
+                    channel_ids[rec.channel_id], rec.log_time, rec.data, rec.publish_time,
+                    rec.sequence,
+                )  # fmt: skip
+                counts["messages"] += 1
+                counts["ticks"] += rec.channel_id in tick_channels
+            elif isinstance(rec, Metadata):
+                writer.add_metadata(rec.name, dict(rec.metadata))
+                counts["metadata"] += 1
+        writer.finish()
+    return counts

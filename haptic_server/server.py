@@ -139,6 +139,8 @@ class HapticServer:
         last_valid_ns = 0
         stale = False
         stats.realtime_priority = try_realtime_priority()
+        if not stats.realtime_priority:
+            io.lower_io_priority()
         if ready is not None:
             ready()
         start_ns = time.perf_counter_ns()
@@ -174,7 +176,7 @@ class HapticServer:
                     buf, nbytes = io.update_bytes(slot)
                     latency_s = io.update_latency_s(slot)
                     code = engine.receive_buffer(buf, nbytes, latency_s) if nbytes > 0 else R_SIZE
-                    io.verdict(slot, code, counters.ticks)
+                    io.verdict(slot, code, counters.ticks, latency_s)
                     stats.updates_received += 1
                     if code == 0:
                         if stats.updates_installed == 0 and duration_ns is not None:

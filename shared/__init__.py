@@ -28,6 +28,12 @@ def _source_hash() -> str:
     return digest.hexdigest()[:12]
 
 
+def source_hash() -> str:
+    """The hash of the project's sources: it names the numba cache, and the build a log was
+    recorded with (a replay is exact only on the same build)."""
+    return _source_hash()
+
+
 if "NUMBA_CACHE_DIR" not in os.environ:
     os.environ["NUMBA_CACHE_DIR"] = str(_ROOT / ".numba_cache" / _source_hash())
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # 3x3 algebra: no BLAS thread pools

@@ -136,6 +136,19 @@ def read_toml(path: Path | str) -> dict[str, Any]:
         raise ConfigError(str(p), "", f"not valid TOML: {exc}") from None
 
 
+def parse_toml_text(text: str, source: str) -> dict[str, Any]:
+    """Parse TOML text (e.g. a config file's text stored in a log) into a table."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(source, "", f"not valid TOML: {exc}") from None
+
+
+def load_config_text(cls: Any, text: str, source: str) -> Any:
+    """Build config dataclass `cls` from TOML text, as strictly as from a file."""
+    return load_dataclass(cls, parse_toml_text(text, source), source)
+
+
 def resolve(kind: str, name_or_path: str) -> Path:
     """A bare name `free_box` means configs/<kind>/free_box.toml; anything else is a path."""
     p = Path(name_or_path)
@@ -542,8 +555,12 @@ def _require_config(cond: bool, source: str, key: str, problem: str) -> None:
 def load_device_table(name_or_path: str) -> tuple[str, dict[str, Any], str]:
     """Read a device file: returns (model name, the rest of the table, source path)."""
     path = resolve("devices", name_or_path)
-    data = read_toml(path)
+    return split_device_table(read_toml(path), str(path))
+
+
+def split_device_table(data: dict[str, Any], source: str) -> tuple[str, dict[str, Any], str]:
+    """A device table as (model name, the rest of the table, source)."""
     model = data.pop("model", None)
     if not isinstance(model, str):
-        raise ConfigError(str(path), "model", 'missing or not a string (e.g. model = "ideal")')
-    return model, data, str(path)
+        raise ConfigError(source, "model", 'missing or not a string (e.g. model = "ideal")')
+    return model, data, source
