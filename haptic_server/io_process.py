@@ -34,6 +34,7 @@ EVENT_SLOTS = 256
 EVENT_BYTES = 256
 VERDICT_PENDING = -1
 IO_POLL_S = 0.004  # the sidecar wakes at least this often (and for each proxy publish)
+IO_NICENESS = 10  # only when the loop could not get real-time priority (see _lower_priority)
 
 # control words
 C_READY, C_CLOSED, C_TICK_HEAD, C_TICK_LOST, C_UPD_HEAD, C_UPD_READ = 0, 1, 2, 3, 4, 5
