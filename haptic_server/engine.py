@@ -129,6 +129,7 @@ class HapticEngine:
         self._order = np.array([-1, -1, 0, 0], dtype=np.int64)  # epoch, seq, ready, new epoch
         self.tick_index = 0
         self.time = 0.0
+        self._user_t0 = 0.0
         self._sim_times: deque[float] = deque(maxlen=4)
         self.state[0]["safe"] = 1.0
         self.state[0]["safe_target"] = 1.0
@@ -206,6 +207,7 @@ class HapticEngine:
         st["safe_target"] = 0.0
         if first:
             st["safe"] = 0.0  # everything starts at rest: no force to fade in
+            self._user_t0 = self.time  # the simulated user's script starts with the scene
 
     def _advance_foh(self, target: np.ndarray) -> None:
         """Seed 002's setpoint interpolation: move toward the sim's newest tool pose over the
@@ -245,7 +247,9 @@ class HapticEngine:
         dev = self.device
         dev.true_state(self._true_pose, self._true_twist)
         if hand is None:
-            hand_wrench(self.user, self.time, self._true_pose, self._true_twist, self.hand)
+            hand_wrench(
+                self.user, self.time - self._user_t0, self._true_pose, self._true_twist, self.hand
+            )
         else:
             self.hand[:] = hand
         dev.sense_hand(self.hand)
