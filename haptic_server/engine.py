@@ -9,10 +9,11 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from device_models.base import SENSOR_DTYPE, DeviceRenderingSpec, SimulatedDevice
+from device_models.base import SENSOR_DTYPE, Device, DeviceRenderingSpec, SimulatedDevice
 from device_models.world_map import DeviceWorldMap
 from haptic_server.kernels import (
     ORDER_EPOCH,
@@ -108,12 +109,17 @@ class HapticEngine:
     def __init__(
         self,
         scene: SceneConfig,
-        device: SimulatedDevice,
+        device: Device | SimulatedDevice,
         user: UserConfig,
         safe_ramp_s: float = 0.05,
     ) -> None:
         self.scene = scene
-        self.device = device
+        self.device: Any = device
+        # a hardware driver has a real hand on it: no simulated user, no physics to advance
+        self.simulated = all(
+            hasattr(device, m) for m in ("reset", "true_state", "sense_hand", "advance")
+        )
+        self.user_start_s = 0.0  # the simulated user's script starts at the first update
         self.dt_nominal = 1.0 / scene.haptic_rate_hz
         limits = device.limits()
         # the device's own map (shared: rate control moves its offset), or scale 1 + offset
@@ -219,19 +225,23 @@ class HapticEngine:
         st["foh_goal"] = m["tool_pose"]
         st["foh_steps_left"] = 0
         first = self.counters.epochs == 1
-        if first and hasattr(self.device, "reset"):
+        if first and self.simulated:
             # a simulated device starts at its home pose, offset from the VM as the scene says
             self.device.reset(np.zeros(3))
             target = m["tool_pose"] + np.array(self.scene.initial_device_offset)
         else:
-            target = m["tool_pose"].copy()
+            target = m["tool_pose"].copy()  # the device stays where it is: map it onto the tool
+        if not first:
             self.counters.reinitialisations += 1
         self.device.read(self.sensors)
         wm = self.world_map[0]
         wm["offset"] = target - wm["scale"] * self.sensors[0]["pose"]
         st["prev_device_twist"] = wm["scale"] * self.sensors[0]["twist"]
-        self.device.true_state(self._true_pose, self._true_twist)
-        self.user[0]["start_pose"] = self._true_pose
+        if self.simulated:
+            self.device.true_state(self._true_pose, self._true_twist)
+            self.user[0]["start_pose"] = self._true_pose
+            if first:
+                self.user_start_s = self.time
         st["safe_target"] = 0.0
         if first:
             st["safe"] = 0.0  # everything starts at rest: no force to fade in
@@ -270,9 +280,11 @@ class HapticEngine:
         The timing arguments only go into the log row (the real-time server measures them).
         """
         dev = self.device
-        dev.true_state(self._true_pose, self._true_twist)
-        hand_wrench(self.user, self.time, self._true_pose, self._true_twist, self.hand)
-        dev.sense_hand(self.hand)
+        if self.simulated:  # the simulated hand holds the simulated device
+            dev.true_state(self._true_pose, self._true_twist)
+            t_user = self.time - self.user_start_s
+            hand_wrench(self.user, t_user, self._true_pose, self._true_twist, self.hand)
+            dev.sense_hand(self.hand)
         dev.read(self.sensors)
         engine_step(
             self.sensors, self.world_map, self.hand, self.tick_index, self.time,
@@ -281,7 +293,8 @@ class HapticEngine:
             self.device_limits, self._device_command,
         )  # fmt: skip
         store_applied(self.world_map, dev.command(self._device_command), self.row)
-        dev.advance(dt, self.hand)
+        if self.simulated:
+            dev.advance(dt, self.hand)
         self.tick_index += 1
         self.time += dt
         return self.row
