@@ -35,7 +35,7 @@ from haptic_server.layout import (
     TICK_DTYPE,
 )
 from haptic_server.users import hand_wrench, user_record
-from shared.config import RenderingSpec, SceneConfig, UserConfig
+from shared.config import ConfigError, RenderingSpec, SceneConfig, UserConfig
 from shared.messages import DEFAULT_LIMITS, limits_array
 from shared.wire import R_SIZE, REASONS, UpdateParser
 
@@ -122,6 +122,13 @@ class HapticEngine:
         self.user_start_s = 0.0  # the simulated user's script starts at the first update
         self.dt_nominal = 1.0 / scene.haptic_rate_hz
         limits = device.limits()
+        if scene.haptic_rate_hz > limits.max_rate_hz:
+            raise ConfigError(
+                f"scene {scene.name!r} on device {device.name!r}",
+                "haptic_rate_hz",
+                f"{scene.haptic_rate_hz:g} Hz exceeds the device's max_rate_hz "
+                f"{limits.max_rate_hz:g} Hz",
+            )
         # the device's own map (shared: rate control moves its offset), or scale 1 + offset
         own_map = getattr(device, "world_map", None)
         self.world_map = (own_map or DeviceWorldMap.identity()).record

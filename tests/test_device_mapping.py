@@ -17,7 +17,7 @@ from device_models.world_map import (
     map_sensors_to_world,
 )
 from haptic_server.engine import HapticEngine
-from shared.config import UserConfig, load_scene
+from shared.config import ConfigError, UserConfig, load_scene
 from shared.kinematics import free_body_chain
 from shared.messages import ContactSet, LocalModelUpdate, encode_update
 
@@ -254,6 +254,13 @@ def test_world_map_table_is_validated(bad: dict[str, float]) -> None:
 
     with pytest.raises(ValueError, match=next(iter(bad))):
         dataclasses.replace(WorldMapSection(), **bad)
+
+
+def test_a_scene_faster_than_the_device_is_refused() -> None:
+    scene = dataclasses.replace(load_scene("maglev_scoop"), haptic_rate_hz=2000.0)
+    driver = ScriptedDriver(None)  # max_rate_hz 1000
+    with pytest.raises(ConfigError, match=r"haptic_rate_hz.*exceeds the device's max_rate_hz"):
+        HapticEngine(scene, driver, UserConfig(name="none", kind="constant_wrench"))
 
 
 def test_identity_map_changes_nothing() -> None:

@@ -18,3 +18,25 @@ def test_log_format_documents_every_tick_field_and_topic() -> None:
         assert f"`{name}`" in text, f"update field {name} missing from docs/log-format.md"
     for topic in (TICK_TOPIC, UPDATE_TOPIC, EVENT_TOPIC):
         assert f"`{topic}`" in text
+
+
+def test_devices_doc_covers_every_model_its_aux_and_the_rendering_table() -> None:
+    from dataclasses import fields
+
+    from device_models.base import DeviceRenderingSpec
+    from device_models.maglev import AUX_NAMES as MAGLEV_AUX
+    from device_models.registry import DEVICE_MODELS
+    from device_models.twin_pantograph import AUX_NAMES as PANTOGRAPH_AUX
+
+    text = (DOCS / "devices.md").read_text()
+    for model in DEVICE_MODELS:
+        assert f"`{model}`" in text, f"device model {model} missing from docs/devices.md"
+    for f in fields(DeviceRenderingSpec):
+        assert f"`{f.name}`" in text, f"[rendering] key {f.name} missing from docs/devices.md"
+    log = (DOCS / "log-format.md").read_text()
+    assert "4 encoder angles" in log and len(PANTOGRAPH_AUX) == 8
+    assert "measured z (m), roll, pitch" in log and MAGLEV_AUX[:3] == (
+        "z_m",
+        "roll_rad",
+        "pitch_rad",
+    )
