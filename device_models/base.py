@@ -5,15 +5,23 @@ preallocated record, commands a task-space wrench, and asks for limits and healt
 driver implements `Device`; simulated devices also implement `SimulatedDevice.advance`, which
 moves their physics forward over one tick under the held command and the true hand wrench.
 All arrays are planar task space: pose (x, y, theta) in m and rad, twist (vx, vy, omega),
-wrench (fx, fy, tau) in N and N*m.
+wrench (fx, fy, tau) in N and N*m, in the device's own frame; the engine maps them to the
+world through the device's `world_map` (device_models/world_map.py) when it has one.
+docs/devices.md says what a driver must implement and guarantee.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Literal, Protocol
 
 import numpy as np
+
+from shared.config import Vec3
+
+#: Entries of SENSOR_DTYPE.aux: device-specific readings the engine logs as `device_aux`.
+AUX_SIZE = 8
 
 #: One reading of the device's sensors, as the haptic loop consumes it (device frame).
 SENSOR_DTYPE = np.dtype(
@@ -25,6 +33,8 @@ SENSOR_DTYPE = np.dtype(
         ("hand_wrench", np.float64, (3,)),  # measured hand wrench (zeros without a sensor)
         ("has_force_sensor", np.int64),
         ("fault", np.int64),  # non-zero: the device reports a fault (see device docs)
+        ("aux", np.float64, (AUX_SIZE,)),  # device-specific readings (the device's aux_names)
+        ("frame_twist", np.float64, (3,)),  # world frame only: the offset's velocity; 0 here
     ]
 )
 
@@ -45,10 +55,49 @@ class DeviceLimits:
     max_rate_hz: float
 
 
+def _require(cond: bool, key: str, problem: str) -> None:
+    if not cond:
+        raise ValueError(f"{key}: {problem}")
+
+
+@dataclass(frozen=True)
+class DeviceRenderingSpec:
+    """The `[rendering]` table of a device config: gains that belong to the device.
+
+    The servo of `virtual_coupling_foh` (seed 002 §4), in the device's own frame:
+    f_dev = f_g + K_p (x_goal - x_dev) - K_v xd_dev. Defaults are seed 002's table in SI
+    (K_p 4 N/mm, 25 N m/rad; K_v 0.1 N/mm/s, 0.5 N m s/rad). `setpoint_hold` chooses the
+    seed's first-order hold of the sim's setpoints or a plain zero-order hold (for
+    comparison). `safe_damping` is the only force of the safe state.
+    """
+
+    foh_stiffness: Vec3 = (4000.0, 4000.0, 25.0)  # K_p: N/m, N/m, N m/rad
+    foh_damping: Vec3 = (100.0, 100.0, 0.5)  # K_v: N s/m, N s/m, N m s/rad
+    setpoint_hold: Literal["first_order", "zero_order"] = "first_order"
+    gravity_feedforward: Vec3 = (0.0, 0.0, 0.0)  # f_g: N, N, N m, always added (FOH)
+    safe_damping: Vec3 = (5.0, 5.0, 0.01)  # N s/m, N s/m, N m s/rad
+
+    def __post_init__(self) -> None:
+        for key in ("foh_stiffness", "foh_damping", "safe_damping"):
+            values = getattr(self, key)
+            _require(all(math.isfinite(v) and v >= 0 for v in values), key, "must be >= 0")
+        _require(
+            all(math.isfinite(v) for v in self.gravity_feedforward),
+            "gravity_feedforward",
+            "must be finite",
+        )
+
+
 class Device(Protocol):
-    """What a hardware driver must provide to the haptic loop."""
+    """What a hardware driver must provide to the haptic loop.
+
+    Besides these, the engine uses two optional attributes: `world_map` (a
+    device_models.world_map.DeviceWorldMap; without one the device maps to the world with
+    scale 1 and an offset the engine sets) and `aux_names` (what SENSOR_DTYPE.aux holds).
+    """
 
     name: str
+    rendering: DeviceRenderingSpec
 
     def limits(self) -> DeviceLimits: ...
 

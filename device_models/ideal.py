@@ -6,13 +6,14 @@ clipped at `max_wrench`; the pose and the hand wrench are sensed exactly.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numba import njit
 
-from device_models.base import FAULT_NONE, FAULT_SATURATED, DeviceLimits
+from device_models.base import FAULT_NONE, FAULT_SATURATED, DeviceLimits, DeviceRenderingSpec
+from device_models.world_map import DeviceWorldMap, WorldMapSection
 from shared.config import Vec3, load_dataclass
 
 
@@ -24,6 +25,8 @@ class IdealDeviceConfig:
     max_wrench: Vec3 = (50.0, 50.0, 5.0)  # N, N, N m
     workspace_half_extent: Vec3 = (1.0, 1.0, 10.0)  # m, m, rad around the home pose
     max_rate_hz: float = 10000.0
+    rendering: DeviceRenderingSpec = field(default_factory=DeviceRenderingSpec)
+    world_map: WorldMapSection | None = None  # None: scale 1, the engine sets the offset
 
     def __post_init__(self) -> None:
         if min(self.inertia) <= 0:
@@ -81,9 +84,16 @@ class IdealDevice:
     """Seed 000's transparent device; implements device_models.base.SimulatedDevice."""
 
     name = "ideal"
+    aux_names: tuple[str, ...] = ()
 
     def __init__(self, config: IdealDeviceConfig) -> None:
         self.config = config
+        self.rendering = config.rendering
+        self.world_map: DeviceWorldMap | None = None
+        if config.world_map is not None:
+            self.world_map = DeviceWorldMap.from_config(
+                config.world_map, config.workspace_half_extent
+            )
         self._inertia = np.array(config.inertia, dtype=np.float64)
         self._max_wrench = np.array(config.max_wrench, dtype=np.float64)
         self._pose = np.zeros(3)

@@ -9,20 +9,29 @@ commands is applied at the flotor centre while the hand's wrench acts at the han
 
 Rotations use small-angle dynamics (I_k d(omega_k)/dt = tau_k, angle rates = omega; no
 gyroscopic or attitude coupling): within the +-8 deg range the neglected terms are < 1 %.
-`DeviceWorldMap` is the device-to-world mapping with rate control of seed 002 §4.
+Its `world_map` (device_models/world_map.py, the `[world_map]` table) is the device-to-world
+mapping with rate control of seed 002 §4; the engine applies and steps it. `aux` readings:
+measured z, roll, pitch and the levitation's fz, tau_roll, tau_pitch (`AUX_NAMES`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numba import njit
 
-from device_models.base import FAULT_NONE, FAULT_SATURATED, FAULT_WORKSPACE, DeviceLimits
+from device_models.base import (
+    FAULT_NONE,
+    FAULT_SATURATED,
+    FAULT_WORKSPACE,
+    DeviceLimits,
+    DeviceRenderingSpec,
+)
+from device_models.world_map import DeviceWorldMap, WorldMapSection
 from shared.config import ConfigError, load_dataclass, read_toml
 
 #: Device-specific fault bit (base.py defines bits 0-2): the command held NaN or Inf.
@@ -73,21 +82,6 @@ STATE_DTYPE = np.dtype(
         ("pose_fault", I8),  # FAULT_WORKSPACE when a measured coordinate is at a stop
     ]
 )
-
-#: The device-to-world mapping with rate control (seed 002 §4).
-MAP_DTYPE = np.dtype(
-    [
-        ("offset", F8, (3,)),  # world pose of the device's centred handle: m, m, rad
-        ("scale", F8, (3,)),  # position, position, angle scale (world per device unit)
-        ("force_scale", F8),  # device power / world power
-        ("rate_enabled", I8),
-        ("rate_threshold", F8, (3,)),  # device units beyond which rate control acts
-        ("rate_gain", F8),  # 1/s: offset speed per unit of excess (scaled to world units)
-        ("offset_rate", F8, (3,)),  # current offset velocity, world units/s
-        ("rate_active", I8),
-    ]
-)
-
 
 # --------------------------------------------------------------------------------- config
 
@@ -196,28 +190,6 @@ class SensorSection:
 
 
 @dataclass(frozen=True)
-class WorldMapSection:
-    """Device-to-world mapping and automatic rate control near the motion limits."""
-
-    offset: Vec3
-    position_scale: float
-    angle_scale: float
-    force_scale: float
-    rate_control: bool
-    rate_threshold_fraction: float
-    rate_gain_per_s: float
-
-    def __post_init__(self) -> None:
-        _require(self.position_scale > 0, "position_scale", "must be > 0")
-        _require(self.angle_scale > 0, "angle_scale", "must be > 0")
-        _require(self.force_scale > 0, "force_scale", "must be > 0")
-        _require(
-            0 < self.rate_threshold_fraction < 1, "rate_threshold_fraction", "must be in (0, 1)"
-        )
-        _require(self.rate_gain_per_s >= 0, "rate_gain_per_s", "must be >= 0")
-
-
-@dataclass(frozen=True)
 class SimulationSection:
     """Integration of the true dynamics."""
 
@@ -239,6 +211,7 @@ class MaglevConfig:
     sensors: SensorSection
     world_map: WorldMapSection
     simulation: SimulationSection
+    rendering: DeviceRenderingSpec = field(default_factory=DeviceRenderingSpec)
 
     def __post_init__(self) -> None:
         weight = self.flotor.mass_kg * self.flotor.gravity_m_per_s2
@@ -303,165 +276,6 @@ def pack_parameters(config: MaglevConfig) -> np.ndarray:
     return rec
 
 
-# ------------------------------------------------------------------ device-to-world mapping
-
-
-@njit(cache=True)
-def map_pose_to_world(world_map, device_pose, world_pose):
-    """x_world = offset + scale x_device, per axis (seed 002 §4)."""
-    m = world_map[0]
-    for c in range(3):
-        world_pose[c] = m.offset[c] + m.scale[c] * device_pose[c]
-
-
-@njit(cache=True)
-def map_pose_to_device(world_map, world_pose, device_pose):
-    """Inverse of map_pose_to_world."""
-    m = world_map[0]
-    for c in range(3):
-        device_pose[c] = (world_pose[c] - m.offset[c]) / m.scale[c]
-
-
-@njit(cache=True)
-def map_twist_to_world(world_map, device_twist, world_twist):
-    """v_world = scale v_device + the offset's velocity (non-zero under rate control)."""
-    m = world_map[0]
-    for c in range(3):
-        world_twist[c] = m.scale[c] * device_twist[c] + m.offset_rate[c]
-
-
-@njit(cache=True)
-def map_twist_to_device(world_map, world_twist, device_twist):
-    """Inverse of map_twist_to_world."""
-    m = world_map[0]
-    for c in range(3):
-        device_twist[c] = (world_twist[c] - m.offset_rate[c]) / m.scale[c]
-
-
-@njit(cache=True)
-def map_wrench_to_device(world_map, world_wrench, device_wrench):
-    """F_device = force_scale scale F_world: then F_device . v_device equals force_scale
-    times F_world . (scale v_device), so force_scale = 1 keeps the port power consistent."""
-    m = world_map[0]
-    for c in range(3):
-        device_wrench[c] = m.force_scale * m.scale[c] * world_wrench[c]
-
-
-@njit(cache=True)
-def map_wrench_to_world(world_map, device_wrench, world_wrench):
-    """Inverse of map_wrench_to_device."""
-    m = world_map[0]
-    for c in range(3):
-        world_wrench[c] = device_wrench[c] / (m.force_scale * m.scale[c])
-
-
-@njit(cache=True)
-def map_rate_step(world_map, device_pose, dt):
-    """Rate control (seed 002 §4): beyond the threshold the offset moves, outward, at
-    rate_gain * scale * (|x| - threshold), so the workspace follows the handle. Returns
-    whether rate control is active."""
-    m = world_map[0]
-    active = 0
-    for c in range(3):
-        excess = abs(device_pose[c]) - m.rate_threshold[c]
-        rate = 0.0
-        if m.rate_enabled == 1 and excess > 0.0:
-            rate = math.copysign(m.rate_gain * m.scale[c] * excess, device_pose[c])
-            active = 1
-        m.offset_rate[c] = rate
-        m.offset[c] += rate * dt
-    m.rate_active = active
-    return active == 1
-
-
-class DeviceWorldMap:
-    """Device-to-world mapping x_world = offset + scale x_device with rate control near the
-    device's motion limits (seed 002 §4). Wrenches map by force_scale * scale (power scale
-    force_scale; see `map_wrench_to_device`). Methods write into `out` when given."""
-
-    def __init__(
-        self,
-        offset: tuple[float, float, float],
-        position_scale: float,
-        angle_scale: float,
-        force_scale: float,
-        rate_threshold: tuple[float, float, float],
-        rate_gain_per_s: float,
-        rate_control: bool,
-    ) -> None:
-        self.record = np.zeros(1, MAP_DTYPE)
-        m = self.record[0]
-        m["offset"] = offset
-        m["scale"] = (position_scale, position_scale, angle_scale)
-        m["force_scale"] = force_scale
-        m["rate_threshold"] = rate_threshold
-        m["rate_gain"] = rate_gain_per_s
-        m["rate_enabled"] = 1 if rate_control else 0
-
-    @classmethod
-    def from_config(
-        cls, section: WorldMapSection, motion_range: tuple[float, float, float]
-    ) -> DeviceWorldMap:
-        """The map of a config; rate thresholds are a fraction of the (x, y, yaw) range."""
-        threshold = tuple(section.rate_threshold_fraction * r for r in motion_range)
-        return cls(
-            offset=section.offset,
-            position_scale=section.position_scale,
-            angle_scale=section.angle_scale,
-            force_scale=section.force_scale,
-            rate_threshold=(threshold[0], threshold[1], threshold[2]),
-            rate_gain_per_s=section.rate_gain_per_s,
-            rate_control=section.rate_control,
-        )
-
-    @property
-    def offset(self) -> np.ndarray:
-        """Current offset (world pose of the centred handle), a copy."""
-        return np.array(self.record["offset"][0])
-
-    def pose_to_world(self, device_pose: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        out = np.empty(3) if out is None else out
-        map_pose_to_world(self.record, device_pose, out)
-        return out
-
-    def pose_to_device(self, world_pose: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        out = np.empty(3) if out is None else out
-        map_pose_to_device(self.record, world_pose, out)
-        return out
-
-    def twist_to_world(self, device_twist: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        out = np.empty(3) if out is None else out
-        map_twist_to_world(self.record, device_twist, out)
-        return out
-
-    def twist_to_device(self, world_twist: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        out = np.empty(3) if out is None else out
-        map_twist_to_device(self.record, world_twist, out)
-        return out
-
-    def wrench_to_device(
-        self, world_wrench: np.ndarray, out: np.ndarray | None = None
-    ) -> np.ndarray:
-        out = np.empty(3) if out is None else out
-        map_wrench_to_device(self.record, world_wrench, out)
-        return out
-
-    def wrench_to_world(
-        self, device_wrench: np.ndarray, out: np.ndarray | None = None
-    ) -> np.ndarray:
-        out = np.empty(3) if out is None else out
-        map_wrench_to_world(self.record, device_wrench, out)
-        return out
-
-    def step(self, device_pose: np.ndarray, dt: float) -> bool:
-        """Advance the offset under rate control by dt; returns whether it is active."""
-        return bool(map_rate_step(self.record, device_pose, dt))
-
-    def rate_control_active(self) -> bool:
-        """Whether the last step moved the offset (the handle was beyond the threshold)."""
-        return bool(self.record["rate_active"][0] == 1)
-
-
 # -------------------------------------------------------------------------- tick kernels
 
 
@@ -521,9 +335,9 @@ def _sample_sensors(params, state, dt, normals, noise_index):
 
 
 @njit(cache=True)
-def advance_kernel(params, state, world_map, dt, hand_wrench, normals, noise_index):
+def advance_kernel(params, state, dt, hand_wrench, normals, noise_index):
     """Flotor dynamics over dt by semi-implicit Euler substeps (<= max_substep), then a
-    sensor sample and the rate-control step of the world map.
+    sensor sample.
 
     Per substep the levitation PD acts on z, roll, pitch measured with fresh sensor noise,
     with gravity feed-forward, saturated at the peak force/torque (seed 002 §2, §4 f_g).
@@ -577,7 +391,6 @@ def advance_kernel(params, state, world_map, dt, hand_wrench, normals, noise_ind
             st.q[k] += h * st.v[k]
     st.physics_fault = fault
     _sample_sensors(params, state, dt, normals, idx)
-    map_rate_step(world_map, st.measured_pose, dt)
 
 
 @njit(cache=True)
@@ -609,7 +422,7 @@ def command_kernel(params, state, wrench):
 @njit(cache=True)
 def read_kernel(params, state, sensors):
     """Copy the newest sample into a SENSOR_DTYPE record: the planar rigid body has constant
-    M_d = diag(m, m, I_yaw) and C_d = 0; no force sensor."""
+    M_d = diag(m, m, I_yaw) and C_d = 0; no force sensor. aux: AUX_NAMES."""
     p = params[0]
     st = state[0]
     r = sensors[0]
@@ -625,6 +438,11 @@ def read_kernel(params, state, sensors):
     r.inertia[2, 2] = p.inertia[2]
     r.has_force_sensor = 0
     r.fault = st.pose_fault | st.command_fault | st.physics_fault
+    for k in range(r.aux.shape[0]):
+        r.aux[k] = 0.0
+    for c in range(3):
+        r.aux[c] = st.measured_out_of_plane[c]
+        r.aux[3 + c] = st.levitation_effort[c]
 
 
 @njit(cache=True)
@@ -678,16 +496,31 @@ def _copy_out_of_plane(params, state, out):
 
 _NOISE_BLOCK = 3 * 8192  # standard normals per refill of the sensor-noise buffer
 
+#: What SENSOR_DTYPE.aux holds (the engine logs it as device_aux): the measured out-of-plane
+#: pose (with sensor noise) and the levitation loop's last efforts.
+AUX_NAMES = (
+    "z_m",
+    "roll_rad",
+    "pitch_rad",
+    "levitation_fz_n",
+    "levitation_roll_nm",
+    "levitation_pitch_nm",
+)
+
 
 class Maglev:
     """Simulated maglev device implementing `SimulatedDevice` (device frame, SI units).
 
-    `world_map` is stepped by `advance` (rate control acts on the measured pose).
+    `world_map` is the engine's device-to-world map (it steps rate control each tick on the
+    measured pose); `rendering` holds the FOH servo gains of the `[rendering]` table.
     """
+
+    aux_names = AUX_NAMES
 
     def __init__(self, config: MaglevConfig) -> None:
         self.name: str = "maglev"
         self.config = config
+        self.rendering = config.rendering
         self.params = pack_parameters(config)
         self.state = np.zeros(1, STATE_DTYPE)
         r = config.range
@@ -742,15 +575,7 @@ class Maglev:
                 raise ValueError(f"dt = {dt} s needs more substeps than the noise buffer holds")
             self._rng.standard_normal(out=self._normals)
             self._noise_index = 0
-        advance_kernel(
-            self.params,
-            self.state,
-            self.world_map.record,
-            dt,
-            hand_wrench,
-            self._normals,
-            self._noise_index,
-        )
+        advance_kernel(self.params, self.state, dt, hand_wrench, self._normals, self._noise_index)
         self._noise_index += needed
 
     def true_state(self, pose: np.ndarray, twist: np.ndarray) -> None:
@@ -768,5 +593,5 @@ class Maglev:
         return out
 
     def rate_control_active(self) -> bool:
-        """Whether rate control moved the world-map offset in the last advance."""
+        """Whether rate control moved the world-map offset in the engine's last tick."""
         return self.world_map.rate_control_active()

@@ -21,7 +21,7 @@ in numba kernels over the preallocated records PARAMS_DTYPE, STATE_DTYPE and WOR
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +34,9 @@ from device_models.base import (
     FAULT_SINGULAR,
     FAULT_WORKSPACE,
     DeviceLimits,
+    DeviceRenderingSpec,
 )
+from device_models.world_map import DeviceWorldMap, WorldMapSection
 from shared.config import ConfigError, load_dataclass, read_toml
 
 #: Device-specific fault bit (base.py defines bits 0-2): the command held NaN or Inf.
@@ -271,6 +273,8 @@ class TwinPantographConfig:
     workspace: WorkspaceSection
     sensors: SensorSection
     simulation: SimulationSection
+    rendering: DeviceRenderingSpec = field(default_factory=DeviceRenderingSpec)
+    world_map: WorldMapSection | None = None  # None: scale 1, the engine sets the offset
 
     def __post_init__(self) -> None:
         """The workspace box must lie inside the reach and singularity limits: checked on a
@@ -902,7 +906,8 @@ def command_kernel(params, state, wrench):
 
 @njit(cache=True)
 def read_kernel(params, state, sensors):
-    """Copy the newest sensor sample into a SENSOR_DTYPE record with the current faults."""
+    """Copy the newest sensor sample into a SENSOR_DTYPE record with the current faults;
+    aux: the quantised encoder angles and the held motor torques (AUX_NAMES)."""
     p = params[0]
     st = state[0]
     r = sensors[0]
@@ -918,6 +923,9 @@ def read_kernel(params, state, sensors):
     if st.measured_valid == 0:
         fault |= FAULT_WORKSPACE
     r.fault = fault
+    for i in range(4):
+        r.aux[i] = st.measured_motor_angles[i]
+        r.aux[4 + i] = st.held_torque[i]
 
 
 @njit(cache=True)
@@ -949,16 +957,42 @@ def _place_at_rest(params, state, work, handle_pose):
 
 _NOISE_BLOCK = 3 * 4096  # standard normals drawn per refill of the force-sensor noise buffer
 
+#: What SENSOR_DTYPE.aux holds (logged as device_aux): encoder angles (integer multiples of
+#: the encoder resolution) and the zero-order-held motor torques.
+AUX_NAMES = (
+    "encoder_0_rad",
+    "encoder_1_rad",
+    "encoder_2_rad",
+    "encoder_3_rad",
+    "torque_0_nm",
+    "torque_1_nm",
+    "torque_2_nm",
+    "torque_3_nm",
+)
+
 
 class TwinPantograph:
     """Simulated twin pantograph implementing `SimulatedDevice` (device frame, SI units).
 
     `command` returns a view of an internal buffer that the next command overwrites.
+    `world_map` exists only when the config has a `[world_map]` table.
     """
+
+    aux_names = AUX_NAMES
 
     def __init__(self, config: TwinPantographConfig) -> None:
         self.name: str = "twin_pantograph"
         self.config = config
+        self.rendering = config.rendering
+        self.world_map: DeviceWorldMap | None = None
+        if config.world_map is not None:
+            w = config.workspace
+            half = tuple(
+                min(-lo, hi) for lo, hi in zip(w.workspace_min, w.workspace_max, strict=True)
+            )
+            self.world_map = DeviceWorldMap.from_config(
+                config.world_map, (half[0], half[1], half[2])
+            )
         self.params = pack_parameters(config)
         self.state = np.zeros(1, STATE_DTYPE)
         self.work = np.zeros(1, WORK_DTYPE)

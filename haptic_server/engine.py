@@ -9,10 +9,12 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from device_models.base import SENSOR_DTYPE, SimulatedDevice
+from device_models.base import SENSOR_DTYPE, Device, DeviceRenderingSpec, SimulatedDevice
+from device_models.world_map import DeviceWorldMap
 from haptic_server.kernels import (
     ORDER_EPOCH,
     ORDER_NEW_EPOCH,
@@ -20,6 +22,7 @@ from haptic_server.kernels import (
     accept_update,
     engine_step,
     reason_of,
+    store_applied,
 )
 from haptic_server.layout import (
     FAULT_NONE,
@@ -32,7 +35,7 @@ from haptic_server.layout import (
     TICK_DTYPE,
 )
 from haptic_server.users import hand_wrench, user_record
-from shared.config import RenderingSpec, SceneConfig, UserConfig
+from shared.config import ConfigError, RenderingSpec, SceneConfig, UserConfig
 from shared.messages import DEFAULT_LIMITS, limits_array
 from shared.wire import R_SIZE, REASONS, UpdateParser
 
@@ -58,10 +61,23 @@ def params_record(
     rendering: RenderingSpec,
     max_wrench: np.ndarray,
     dt_nominal: float,
-    foh: dict[str, object] | None = None,
+    device_rendering: DeviceRenderingSpec | None = None,
     safe_ramp_s: float = 0.05,
+    world_map: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The gains as a kernel record (DESIGN §4, §6)."""
+    """The gains as a kernel record (DESIGN §4, §6), in the world frame.
+
+    The scene gives the rendering gains; the device (its `[rendering]` table, in its own
+    frame) gives the FOH servo gains, f_g and the safe damping, and its limits `max_wrench`.
+    Through a map of scale s and force scale f_s, device wrenches divide by f_s s and
+    stiffnesses and dampings by f_s s^2 (F_dev = f_s s F_world, x_world = s x_dev + offset).
+    """
+    dev = device_rendering or DeviceRenderingSpec()
+    scale, force_scale = np.ones(3), 1.0
+    if world_map is not None:
+        scale, force_scale = world_map[0]["scale"].copy(), float(world_map[0]["force_scale"])
+    per_wrench = 1.0 / (force_scale * scale)
+    per_gain = per_wrench / scale
     rec = np.zeros(1, PARAMS_DTYPE)
     p = rec[0]
     p["method"] = METHOD_IDS[rendering.method]
@@ -77,13 +93,13 @@ def params_record(
     p["blend_s"] = rendering.blend_ms / 1000.0
     p["vc_stiffness"] = rendering.virtual_coupling_stiffness
     p["vc_damping"] = rendering.virtual_coupling_damping
-    foh = foh or {}
-    p["foh_stiffness"] = foh.get("stiffness", (4000.0, 4000.0, 25.0))
-    p["foh_damping"] = foh.get("damping", (100.0, 100.0, 0.5))
-    p["foh_interpolate"] = 1 if foh.get("interpolate", True) else 0
-    p["safe_damping"] = (5.0, 5.0, 0.01)
+    p["foh_stiffness"] = np.array(dev.foh_stiffness) * per_gain
+    p["foh_damping"] = np.array(dev.foh_damping) * per_gain
+    p["foh_interpolate"] = 1 if dev.setpoint_hold == "first_order" else 0
+    p["foh_gravity"] = np.array(dev.gravity_feedforward) * per_wrench
+    p["safe_damping"] = np.array(dev.safe_damping) * per_gain
     p["safe_ramp_s"] = safe_ramp_s
-    p["max_wrench"] = max_wrench
+    p["max_wrench"] = np.asarray(max_wrench, dtype=np.float64) * per_wrench
     return rec
 
 
@@ -93,33 +109,48 @@ class HapticEngine:
     def __init__(
         self,
         scene: SceneConfig,
-        device: SimulatedDevice,
+        device: Device | SimulatedDevice,
         user: UserConfig,
         safe_ramp_s: float = 0.05,
     ) -> None:
         self.scene = scene
-        self.device = device
+        self.device: Any = device
+        # a hardware driver has a real hand on it: no simulated user, no physics to advance
+        self.simulated = all(
+            hasattr(device, m) for m in ("reset", "true_state", "sense_hand", "advance")
+        )
+        self.user_start_s = 0.0  # the simulated user's script starts at the first update
         self.dt_nominal = 1.0 / scene.haptic_rate_hz
         limits = device.limits()
+        if scene.haptic_rate_hz > limits.max_rate_hz:
+            raise ConfigError(
+                f"scene {scene.name!r} on device {device.name!r}",
+                "haptic_rate_hz",
+                f"{scene.haptic_rate_hz:g} Hz exceeds the device's max_rate_hz "
+                f"{limits.max_rate_hz:g} Hz",
+            )
+        # the device's own map (shared: rate control moves its offset), or scale 1 + offset
+        own_map = getattr(device, "world_map", None)
+        self.world_map = (own_map or DeviceWorldMap.identity()).record
+        self.device_limits = np.array(limits.max_wrench, dtype=np.float64)
+        self._device_command = np.zeros(3)
         self.params = params_record(
             scene.rendering,
-            np.array(limits.max_wrench),
+            self.device_limits,
             self.dt_nominal,
-            getattr(device, "foh_gains", None),
+            getattr(device, "rendering", None),
             safe_ramp_s,
+            self.world_map,
         )
         self.method = int(self.params[0]["method"])
         self.slots = np.zeros(2, SLOT_DTYPE)
         self.state = np.zeros(1, STATE_DTYPE)
         self.scratch = np.zeros(1, SCRATCH_DTYPE)
         self.row = np.zeros(1, TICK_DTYPE)
-        self._command = self.row[0]["wrench_command"]  # views into the row, made once
-        self._applied = self.row[0]["wrench_applied"]
         self.ready = False
         self.sensors = np.zeros(1, SENSOR_DTYPE)
         self.world_sensors = np.zeros(1, SENSOR_DTYPE)
         self.user = user_record(user)
-        self.offset = np.zeros(3)  # world pose = device pose + offset
         self.hand = np.zeros(3)
         self.hand_measured = np.zeros(3)
         self._true_pose = np.zeros(3)
@@ -129,8 +160,7 @@ class HapticEngine:
         self._order = np.array([-1, -1, 0, 0], dtype=np.int64)  # epoch, seq, ready, new epoch
         self.tick_index = 0
         self.time = 0.0
-        self._user_t0 = 0.0
-        self._sim_times: deque[float] = deque(maxlen=4)
+        self._install_ticks: deque[int] = deque(maxlen=4)  # FOH: arrival ticks of updates
         self.state[0]["safe"] = 1.0
         self.state[0]["safe_target"] = 1.0
 
@@ -166,12 +196,13 @@ class HapticEngine:
             return code
         self.ready = True
         self.counters.installed += 1
-        if self.method == METHOD_VIRTUAL_COUPLING_FOH:
-            self._sim_times.append(float(self.slots[0]["sim_time"]))
-            self._advance_foh(self.slots[0]["tool_pose"])
         if self._order[ORDER_NEW_EPOCH]:
             self.counters.epochs += 1
+            self._install_ticks.clear()
             self._reinitialise(self.slots[0])
+        if self.method == METHOD_VIRTUAL_COUPLING_FOH:
+            self._install_ticks.append(self.tick_index)
+            self._advance_foh(self.slots[0]["tool_pose"])
         return 0
 
     @property
@@ -182,44 +213,58 @@ class HapticEngine:
     def last_seq(self) -> int:
         return int(self._order[ORDER_SEQ])
 
+    @property
+    def offset(self) -> np.ndarray:
+        """The device-to-world map's offset (world pose of the device's origin), a copy."""
+        return self.world_map[0]["offset"].copy()
+
     def _reinitialise(self, m: np.void) -> None:
         """Start (or restart) from the sim's tool state; the device is mapped onto the VM so
-        the coupling starts at rest, and forces fade in from the safe state."""
+        the coupling starts at rest, and forces fade in from the safe state.
+
+        The map's offset is anchored from the device's measured pose (what a real driver
+        reports): world = offset + scale * measured pose lands on the target.
+        """
         st = self.state[0]
         st["q"] = m["q"]
         st["qd"] = m["qd"]
         st["fault"] = FAULT_NONE
         st["foh_goal"] = m["tool_pose"]
         st["foh_steps_left"] = 0
-        self.device.true_state(self._true_pose, self._true_twist)
         first = self.counters.epochs == 1
-        if first and hasattr(self.device, "reset"):
+        if first and self.simulated:
             # a simulated device starts at its home pose, offset from the VM as the scene says
             self.device.reset(np.zeros(3))
-            self.device.true_state(self._true_pose, self._true_twist)
             target = m["tool_pose"] + np.array(self.scene.initial_device_offset)
         else:
-            target = m["tool_pose"].copy()
+            target = m["tool_pose"].copy()  # the device stays where it is: map it onto the tool
+        if not first:
             self.counters.reinitialisations += 1
-        self.offset = target - self._true_pose
-        st["prev_device_twist"] = self._true_twist
-        self.user[0]["start_pose"] = self._true_pose
+        self.device.read(self.sensors)
+        wm = self.world_map[0]
+        wm["offset"] = target - wm["scale"] * self.sensors[0]["pose"]
+        st["prev_device_twist"] = wm["scale"] * self.sensors[0]["twist"]
+        if self.simulated:
+            self.device.true_state(self._true_pose, self._true_twist)
+            self.user[0]["start_pose"] = self._true_pose
+            if first:
+                self.user_start_s = self.time
         st["safe_target"] = 0.0
         if first:
             st["safe"] = 0.0  # everything starts at rest: no force to fade in
-            self._user_t0 = self.time  # the simulated user's script starts with the scene
 
     def _advance_foh(self, target: np.ndarray) -> None:
         """Seed 002's setpoint interpolation: move toward the sim's newest tool pose over the
-        mean of the last three sim intervals (first-order hold), or jump (zero-order hold)."""
+        mean of the last three update intervals, in ticks as they arrived (first-order
+        hold), or jump to it (zero-order hold)."""
         st = self.state[0]
-        if int(self.params[0]["foh_interpolate"]) == 0 or len(self._sim_times) < 2:
+        ticks = self._install_ticks
+        if int(self.params[0]["foh_interpolate"]) == 0 or len(ticks) < 2:
             st["foh_goal"] = target
             st["foh_steps_left"] = 0
             return
-        times = np.array(self._sim_times)
-        t_avg = float(np.mean(np.diff(times)[-3:]))
-        steps = max(1, round(t_avg / self.dt_nominal))
+        intervals = np.diff(np.array(ticks, dtype=np.float64))[-3:]
+        steps = max(1, round(float(np.mean(intervals))))
         st["foh_step"] = (target - st["foh_goal"]) / steps
         st["foh_steps_left"] = steps
 
@@ -245,22 +290,24 @@ class HapticEngine:
         (a replay feeds the logged one).
         """
         dev = self.device
-        dev.true_state(self._true_pose, self._true_twist)
-        if hand is None:
-            hand_wrench(
-                self.user, self.time - self._user_t0, self._true_pose, self._true_twist, self.hand
-            )
-        else:
-            self.hand[:] = hand
-        dev.sense_hand(self.hand)
+        if self.simulated:  # the simulated hand holds the simulated device
+            dev.true_state(self._true_pose, self._true_twist)
+            if hand is None:
+                t_user = self.time - self.user_start_s
+                hand_wrench(self.user, t_user, self._true_pose, self._true_twist, self.hand)
+            else:
+                self.hand[:] = hand  # replay: the recorded hand
+            dev.sense_hand(self.hand)
         dev.read(self.sensors)
         engine_step(
-            self.sensors, self.offset, self.hand, self.tick_index, self.time, self.world_sensors,
-            self.hand_measured, self.slots, self.params, self.state, dt, self.scratch, self.row,
-            self.ready, lateness_us, work_us, update_seq, update_age_ms,
+            self.sensors, self.world_map, self.hand, self.tick_index, self.time,
+            self.world_sensors, self.hand_measured, self.slots, self.params, self.state, dt,
+            self.scratch, self.row, self.ready, lateness_us, work_us, update_seq, update_age_ms,
+            self.device_limits, self._device_command,
         )  # fmt: skip
-        self._applied[:] = dev.command(self._command)
-        dev.advance(dt, self.hand)
+        store_applied(self.world_map, dev.command(self._device_command), self.row)
+        if self.simulated:
+            dev.advance(dt, self.hand)
         self.tick_index += 1
         self.time += dt
         return self.row
@@ -271,5 +318,7 @@ class HapticEngine:
         return st["q"][:d].copy(), st["qd"][:d].copy()
 
     def device_world_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        self.device.true_state(self._true_pose, self._true_twist)
-        return self._true_pose + self.offset, self._true_twist.copy()
+        """The device's measured pose and twist in the world frame at the last tick: what the
+        real-time server publishes to the sim (ProxyState)."""
+        ws = self.world_sensors[0]
+        return ws["pose"].copy(), ws["twist"].copy()

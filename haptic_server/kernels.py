@@ -13,6 +13,12 @@ import math
 
 from numba import njit
 
+from device_models.world_map import (
+    map_command_to_device,
+    map_rate_step,
+    map_sensors_to_world,
+    map_wrench_to_world,
+)
 from haptic_server.layout import (
     FAULT_NONFINITE,
     METHOD_IMPEDANCE_ONLY,
@@ -381,21 +387,22 @@ def haptic_tick(slots, params, state, sensors, hand_measured, dt, ws, row):
 
     if method == METHOD_VIRTUAL_COUPLING_FOH:
         # seed 002 §4: the device is servoed to a setpoint that follows the sim's tool by
-        # first-order hold; force is off while the tool touches nothing.
-        if st.foh_steps_left > 0:
+        # first-order hold; force is off while the tool touches nothing. K_v damps the
+        # handle's own motion: the world twist less the workspace's (rate control).
+        moving = st.foh_steps_left > 0
+        if moving:
             for c in range(3):
                 st.foh_goal[c] += st.foh_step[c]
             st.foh_steps_left -= 1
+        for c in range(3):
+            r.vm_twist[c] = st.foh_step[c] / dt if moving else 0.0
         if new.tool_touching == 1:
-            r.f_coordination[0] = (
-                p.foh_stiffness[0] * (st.foh_goal[0] - xh0) - p.foh_damping[0] * vh0
-            )
-            r.f_coordination[1] = (
-                p.foh_stiffness[1] * (st.foh_goal[1] - xh1) - p.foh_damping[1] * vh1
-            )
-            r.f_coordination[2] = (
-                p.foh_stiffness[2] * (st.foh_goal[2] - xh2) - p.foh_damping[2] * vh2
-            )
+            for c in range(3):
+                r.f_coordination[c] = p.foh_stiffness[c] * (
+                    st.foh_goal[c] - sen.pose[c]
+                ) - p.foh_damping[c] * (sen.twist[c] - sen.frame_twist[c])
+        for c in range(3):
+            r.f_bias[c] = p.foh_gravity[c]  # f_g, always on
     elif method == METHOD_VIRTUAL_COUPLING:
         r.f_coordination[0] = fc0
         r.f_coordination[1] = fc1
@@ -521,7 +528,7 @@ def haptic_tick(slots, params, state, sensors, hand_measured, dt, ws, row):
             r.f_user[c] + r.f_contact[c] + r.f_impulse[c] + r.f_bias[c] + r.f_penalty[c]
             + r.f_coordination[c] + r.f_damping[c]
         )  # fmt: skip
-        u_safe = -p.safe_damping[c] * sen.twist[c]
+        u_safe = -p.safe_damping[c] * (sen.twist[c] - sen.frame_twist[c])
         if not math.isfinite(u_safe):
             u_safe = 0.0
         if not math.isfinite(u):
@@ -544,19 +551,23 @@ def haptic_tick(slots, params, state, sensors, hand_measured, dt, ws, row):
         st.safe = 1.0
         st.safe_target = 1.0
         for c in range(3):
-            u_safe = -p.safe_damping[c] * sen.twist[c]
+            u_safe = -p.safe_damping[c] * (sen.twist[c] - sen.frame_twist[c])
             if not math.isfinite(u_safe):
                 u_safe = 0.0
             lim = p.max_wrench[c]
             r.wrench_command[c] = min(lim, max(-lim, u_safe))
 
-    # log row
-    r.vm_pose[0] = x_vm0
-    r.vm_pose[1] = x_vm1
-    r.vm_pose[2] = x_vm2
-    r.vm_twist[0] = xd_vm0
-    r.vm_twist[1] = xd_vm1
-    r.vm_twist[2] = xd_vm2
+    # log row (virtual_coupling_foh: the VM is the sim's tool, seen through the setpoint)
+    if method == METHOD_VIRTUAL_COUPLING_FOH:
+        for c in range(3):
+            r.vm_pose[c] = st.foh_goal[c]
+    else:
+        r.vm_pose[0] = x_vm0
+        r.vm_pose[1] = x_vm1
+        r.vm_pose[2] = x_vm2
+        r.vm_twist[0] = xd_vm0
+        r.vm_twist[1] = xd_vm1
+        r.vm_twist[2] = xd_vm2
     for c in range(3):
         r.device_pose[c] = sen.pose[c]
         r.device_twist[c] = sen.twist[c]
@@ -576,23 +587,20 @@ def haptic_tick(slots, params, state, sensors, hand_measured, dt, ws, row):
 
 
 @njit(cache=True)
-def begin_tick(sensors, offset, hand, tick, t, world_sensors, hand_measured, row):
-    """Device reading -> world frame (pose + offset); start the log row of this tick."""
+def begin_tick(sensors, world_map, hand, tick, t, world_sensors, hand_measured, row):
+    """Device reading -> world frame through the device-to-world map; start the log row."""
+    map_sensors_to_world(world_map, sensors, world_sensors)
+    m = world_map[0]
     src = sensors[0]
     dst = world_sensors[0]
     r = row[0]
     for c in range(3):
-        dst.pose[c] = src.pose[c] + offset[c]
-        dst.twist[c] = src.twist[c]
-        dst.hand_wrench[c] = src.hand_wrench[c]
-        hand_measured[c] = src.hand_wrench[c]
-        r.hand_wrench[c] = hand[c]
+        hand_measured[c] = dst.hand_wrench[c]
+        r.hand_wrench[c] = hand[c] / (m.force_scale * m.scale[c])
         r.wrench_command[c] = 0.0
-        for k in range(3):
-            dst.inertia[c, k] = src.inertia[c, k]
-            dst.coriolis[c, k] = src.coriolis[c, k]
-    dst.has_force_sensor = src.has_force_sensor
-    dst.fault = src.fault
+        r.world_offset[c] = m.offset[c]
+    for k in range(r.device_aux.shape[0]):
+        r.device_aux[k] = src.aux[k]
     r.tick = tick
     r.t = t
     r.device_fault = src.fault
@@ -600,11 +608,14 @@ def begin_tick(sensors, offset, hand, tick, t, world_sensors, hand_measured, row
 
 @njit(cache=True)
 def engine_step(
-    sensors, offset, hand, tick, t, world_sensors, hand_measured, slots, params, state, dt, ws,
-    row, ready, lateness_us, work_us, update_seq, update_age_ms,
+    sensors, world_map, hand, tick, t, world_sensors, hand_measured, slots, params, state, dt,
+    ws, row, ready, lateness_us, work_us, update_seq, update_age_ms, device_limits,
+    device_command,
 ):  # fmt: skip
-    """begin_tick + haptic_tick in one call (one Python -> numba transition per tick)."""
-    begin_tick(sensors, offset, hand, tick, t, world_sensors, hand_measured, row)
+    """One tick in one Python -> numba transition: the reading mapped to the world, the
+    local model and control (haptic_tick), the command mapped back to the device frame and
+    clipped at the device's limits, then the map's rate-control step (seed 002 §4)."""
+    begin_tick(sensors, world_map, hand, tick, t, world_sensors, hand_measured, row)
     r = row[0]
     r.lateness_us = lateness_us
     r.work_us = work_us
@@ -615,6 +626,14 @@ def engine_step(
     r.dt = dt
     if ready:
         haptic_tick(slots, params, state, world_sensors, hand_measured, dt, ws, row)
+    map_command_to_device(world_map, r.wrench_command, device_limits, device_command)
+    map_rate_step(world_map, sensors[0].pose, dt)
+
+
+@njit(cache=True)
+def store_applied(world_map, applied, row):
+    """The wrench the device reports it applied (device frame), into the row (world frame)."""
+    map_wrench_to_world(world_map, applied, row[0].wrench_applied)
 
 
 ORDER_EPOCH, ORDER_SEQ, ORDER_READY, ORDER_NEW_EPOCH = 0, 1, 2, 3

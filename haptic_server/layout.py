@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from device_models.base import AUX_SIZE
 from shared.kinematics import MAX_DOF
 from shared.wire import LOCAL_MODEL_DTYPE, MAX_CONTACTS
 
@@ -53,9 +54,10 @@ PARAMS_DTYPE = np.dtype(
         ("foh_stiffness", F8, (3,)),  # K_p of seed 002
         ("foh_damping", F8, (3,)),  # K_v
         ("foh_interpolate", I8),  # 1: first-order hold, 0: zero-order hold of the setpoint
+        ("foh_gravity", F8, (3,)),  # f_g of seed 002 (world frame), added in every FOH tick
         ("safe_damping", F8, (3,)),  # the safe state: damping only
         ("safe_ramp_s", F8),
-        ("max_wrench", F8, (3,)),  # device limits: the command never exceeds them
+        ("max_wrench", F8, (3,)),  # device limits in the world frame: never exceeded
     ]
 )
 
@@ -151,5 +153,7 @@ TICK_DTYPE = np.dtype(
         ("safe", F8),  # safe-state blend 0..1
         ("fault", np.int32),
         ("device_fault", np.int32),
+        ("device_aux", F8, (AUX_SIZE,)),  # device-specific readings (the device's aux_names)
+        ("world_offset", F8, (3,)),  # device-to-world map offset (moves under rate control)
     ]
 )

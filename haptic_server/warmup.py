@@ -18,6 +18,8 @@ def main() -> None:
         ("linkage_distal", "push_04n"),
     ):
         run_virtual_named(scene, "ideal", user, 1.0)
+    for device in ("ideal", "twin_pantograph", "maglev"):  # FOH and each device's kernels
+        run_virtual_named("maglev_scoop", device, "scoop", 0.3)
     print(f"numba kernels ready in {time.perf_counter() - started:.1f} s")
 
 

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from shared import coupling
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 CONFIG_ROOT = REPO_ROOT / "configs"
 
@@ -288,7 +290,10 @@ class RenderingSpec:
     foh_spring_damping: Vec3 = (1.0e4, 1.0e4, 20.0)
 
     def __post_init__(self) -> None:
-        for key in ("coordination_stiffness", "coordination_damping", "desired_damping"):
+        for key in (
+            "coordination_stiffness", "coordination_damping", "desired_damping",
+            "foh_spring_stiffness", "foh_spring_damping",
+        ):  # fmt: skip
             _require(all(v >= 0 for v in getattr(self, key)), key, "must be >= 0")
         _require(self.penalty_stiffness >= 0, "penalty_stiffness", "must be >= 0")
         _require(self.penalty_damping >= 0, "penalty_damping", "must be >= 0")
@@ -341,6 +346,31 @@ class SceneConfig:
             match_l = [lk for lk in self.linkages if lk.name == self.tool.name]
             _require(bool(match_l), "tool.name", f"no linkage named {self.tool.name!r}")
             _require(0 <= self.tool.link < len(match_l[0].lengths), "tool.link", "no such link")
+        if self.rendering.method == "virtual_coupling_foh" and self.tool.kind == "body":
+            self._check_coupling_substeps(match[0])
+
+    def _check_coupling_substeps(self, body: BodySpec) -> None:
+        """The sim's stiff tool-device coupling must be stable in pymunk (shared/coupling.py;
+        checked for a held free body, whose effective mass is fixed)."""
+        if body.shape == "box":
+            moment = coupling.box_moment(body.mass, body.size[0], body.size[1])
+        elif body.shape == "circle":
+            moment = coupling.circle_moment(body.mass, body.radius)
+        else:
+            moment = coupling.segment_moment(body.mass, body.a, body.b, body.radius)
+        r = self.rendering
+        needed, h_max = coupling.coupling_substeps(
+            self.sim_rate_hz, body.mass, moment, self.tool.point,
+            r.foh_spring_stiffness, r.foh_spring_damping,
+        )  # fmt: skip
+        _require(
+            self.sim_substeps >= needed,
+            "sim_substeps",
+            f"virtual_coupling_foh needs >= {needed} at {self.sim_rate_hz:g} Hz for the tool "
+            f"{body.name!r} (m = {body.mass:g} kg, I = {moment:.3g} kg m^2): the coupling's "
+            f"semi-implicit Euler step limit is {1e3 * h_max:.3f} ms, and substeps must be "
+            f"at most half of it (shared/coupling.py)",
+        )
 
     @property
     def tool_body(self) -> BodySpec:

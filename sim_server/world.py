@@ -308,8 +308,13 @@ class SimWorld:
     def _drive_tool(self, target: ToolTarget | None, t_ahead: float) -> None:
         """Computed-torque tracking of the proxy (seed 001 Fig. 1): the tool follows it with
         bandwidth tracking_bandwidth_hz and pushes the world with the forces pymunk resolves."""
-        if self.scene.tool.kind == "body" and (target is None or not target.coupled_to_device):
-            self._drive_body(target, t_ahead)
+        coupled = target is not None and target.fresh and target.coupled_to_device
+        if self.scene.tool.kind == "body":
+            if coupled:
+                assert target is not None
+                self._couple_body(target, t_ahead)
+            else:
+                self._drive_body(target, t_ahead)
             return
         q, qd = self.tool_state()
         mass, grav = self._drive_mass, self._drive_gravity
@@ -318,7 +323,7 @@ class SimWorld:
             acc = -2.0 * w * qd  # nobody drives it: damp the tool to rest
             tau = mass @ acc
         elif target.coupled_to_device:
-            tau = self._device_coupling(target, q, qd)
+            tau = self._device_coupling(target, q, qd, t_ahead)
         else:
             q_goal = target.q + target.qd * t_ahead
             acc = w * w * (q_goal - q) + 2.0 * w * (target.qd - qd)
@@ -347,17 +352,43 @@ class SimWorld:
         b.apply_force_at_world_point((fx, fy), b.local_to_world(b.center_of_gravity))
         b.torque += b.moment * al
 
-    def _device_coupling(self, target: ToolTarget, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """virtual_coupling_foh (seed 002 §4): K_spring (x_dev - x_tool) - K_damp v_tool."""
+    def _device_coupling(
+        self, target: ToolTarget, q: np.ndarray, qd: np.ndarray, t_ahead: float
+    ) -> np.ndarray:
+        """virtual_coupling_foh (seed 002 §4): K_spring (x_dev - x_tool) - K_damp v_tool, the
+        device pose extrapolated by its twist over the period (as the proxy is)."""
         r = self.scene.rendering
         _, _, jac = self.dynamics_terms(q)
         x_tool = self.operational_pose(q)
         v_tool = jac @ qd
-        f = (
-            np.array(r.foh_spring_stiffness) * (target.device_pose - x_tool)
-            - np.array(r.foh_spring_damping) * v_tool
-        )
+        x_dev = target.device_pose + target.device_twist * t_ahead
+        stiffness = np.array(r.foh_spring_stiffness)
+        f = stiffness * (x_dev - x_tool) - np.array(r.foh_spring_damping) * v_tool
         return jac.T @ f
+
+    def _couple_body(self, target: ToolTarget, t_ahead: float) -> None:
+        """_device_coupling for a free body, in plain floats (it runs every substep, and the
+        stiff coupling needs many: shared/coupling.py). The spring acts at the operational
+        point r (body frame; the body's centre of mass is its origin); pymunk's gravity on the
+        tool is cancelled, as the proxy drive does."""
+        b = self.tool_bodies[0]
+        r = self.scene.rendering
+        k = r.foh_spring_stiffness
+        c = r.foh_spring_damping
+        dp, dv = target.device_pose, target.device_twist
+        x, y = b.position
+        vx, vy = b.velocity
+        th, om = b.angle, b.angular_velocity
+        cos_t, sin_t = math.cos(th), math.sin(th)
+        rx = cos_t * self.op_point[0] - sin_t * self.op_point[1]
+        ry = sin_t * self.op_point[0] + cos_t * self.op_point[1]
+        fx = k[0] * (dp[0] + dv[0] * t_ahead - x - rx) - c[0] * (vx - om * ry)
+        fy = k[1] * (dp[1] + dv[1] * t_ahead - y - ry) - c[1] * (vy + om * rx)
+        tau = k[2] * (dp[2] + dv[2] * t_ahead - th) - c[2] * om
+        g = self.scene.gravity
+        m = b.mass
+        b.apply_force_at_world_point((fx - m * g[0], fy - m * g[1]), (x, y))
+        b.torque += tau + rx * fy - ry * fx
 
     def _apply_generalized(self, tau: np.ndarray) -> None:
         """Apply configuration-space forces to the pymunk tool bodies."""

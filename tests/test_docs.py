@@ -35,3 +35,25 @@ def test_log_format_documents_the_metadata_and_replay() -> None:
             assert f"`{key}`" in text, f"metadata key {record}.{key} missing"
     for option in ("--summary", "--plot", "--recover", "--no-replay"):
         assert option in text, f"haptic-replay {option} missing from docs/log-format.md"
+
+
+def test_devices_doc_covers_every_model_its_aux_and_the_rendering_table() -> None:
+    from dataclasses import fields
+
+    from device_models.base import DeviceRenderingSpec
+    from device_models.maglev import AUX_NAMES as MAGLEV_AUX
+    from device_models.registry import DEVICE_MODELS
+    from device_models.twin_pantograph import AUX_NAMES as PANTOGRAPH_AUX
+
+    text = (DOCS / "devices.md").read_text()
+    for model in DEVICE_MODELS:
+        assert f"`{model}`" in text, f"device model {model} missing from docs/devices.md"
+    for f in fields(DeviceRenderingSpec):
+        assert f"`{f.name}`" in text, f"[rendering] key {f.name} missing from docs/devices.md"
+    log = (DOCS / "log-format.md").read_text()
+    assert "4 encoder angles" in log and len(PANTOGRAPH_AUX) == 8
+    assert "measured z (m), roll, pitch" in log and MAGLEV_AUX[:3] == (
+        "z_m",
+        "roll_rad",
+        "pitch_rad",
+    )
