@@ -26,13 +26,13 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from benchmarks.linkage import drift_mm
+from benchmarks.linkage import chain_spec, drift_mm
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
 from haptic_server.virtual import VirtualResult, run_virtual
 from shared.config import BodySpec, SceneConfig, load_scene, load_user
 from shared.messages import encode_update
-from shared.reference import ChainSpec, simulate
+from shared.reference import simulate
 from sim_server.world import SimWorld
 
 SIM_RATES = (30.0, 60.0, 120.0)
@@ -51,10 +51,7 @@ def configure(scene: SceneConfig, method: str, sim_hz: float, haptic_hz: float) 
 
 def reference_rms_mm(scene: SceneConfig, result: VirtualResult) -> float:
     lk = scene.tool_linkage
-    spec = ChainSpec(
-        base=lk.base, lengths=lk.lengths, masses=lk.masses, inertias=lk.inertias,
-        com_offsets=lk.com_offsets, base_angle=lk.base_angle,
-    )  # fmt: skip
+    spec = chain_spec(scene)
     t = result.ticks["t"]
     push = np.array(load_user("push_04n").wrench)
     ref = simulate(

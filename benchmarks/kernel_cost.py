@@ -28,17 +28,19 @@ from shared.messages import ContactSet, LocalModelUpdate, encode_update
 TARGET_US = 5.0  # issue 3: the local-model kernel with 16 contacts
 
 
-def engine_with_contacts(n: int) -> HapticEngine:
-    """A box pressed 0.1 mm into n contact points spread along a floor."""
+def engine_with_contacts(n: int, press_n: float = 1.0, depth_m: float = 1e-4) -> HapticEngine:
+    """A box pressed depth_m into n contact points along a floor by a hand pushing press_n
+    down (and 0.5 N sideways); one fixed synthetic local model, no sim."""
     scene = load_scene("free_box")
     scene = dataclasses.replace(scene, rendering=dataclasses.replace(scene.rendering, blend_ms=0.0))
     device = IdealDevice(IdealDeviceConfig())
     engine = HapticEngine(
-        scene, device, UserConfig(name="push", kind="constant_wrench", wrench=(0.5, -1.0, 0.0))
+        scene, device, UserConfig(name="push", kind="constant_wrench", wrench=(0.5, -press_n, 0.0))
     )
     jt, lengths = free_body_chain()
     xs = np.linspace(-0.03, 0.03, n)
-    rows = [[x, -0.02, x, -0.0199, 0.0, 1.0, 0.0, 0.0, 0.3, 0.0, 15000.0 / n, 20.0 / n] for x in xs]
+    floor = -0.02 + depth_m
+    rows = [[x, -0.02, x, floor, 0.0, 1.0, 0.0, 0.0, 0.3, 0.0, 15000.0 / n, 20.0 / n] for x in xs]
     update = LocalModelUpdate(
         epoch=1, seq=0, sim_time=0.0, publish_time_ns=0, joint_types=jt, lengths=lengths,
         base=np.zeros(2), base_angle=0.0, op_link=2, op_point=np.zeros(2), q=np.zeros(3),

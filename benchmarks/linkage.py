@@ -71,15 +71,21 @@ def drift_metrics(ticks: np.ndarray) -> dict[str, float]:
     }
 
 
+def chain_spec(scene: SceneConfig) -> ChainSpec:
+    """The held linkage of a scene as the independent reference's ChainSpec."""
+    lk = scene.tool_linkage
+    return ChainSpec(
+        base=lk.base, lengths=lk.lengths, masses=lk.masses, inertias=lk.inertias,
+        com_offsets=lk.com_offsets, base_angle=lk.base_angle,
+    )  # fmt: skip
+
+
 def reference_error(scene: SceneConfig, seconds: float, sim_hz: float) -> dict[str, float]:
     """local_model VM against the reference, the device starting on the operational point."""
     s = dataclasses.replace(scene, sim_rate_hz=sim_hz, initial_device_offset=(0.0, 0.0, 0.0))
     ticks = run(with_method(s, "local_model"), seconds)
     lk = s.tool_linkage
-    spec = ChainSpec(
-        base=lk.base, lengths=lk.lengths, masses=lk.masses, inertias=lk.inertias,
-        com_offsets=lk.com_offsets, base_angle=lk.base_angle,
-    )  # fmt: skip
+    spec = chain_spec(s)
     push = np.array(load_user(USER).wrench)
     ref = simulate(
         spec,

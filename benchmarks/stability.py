@@ -31,12 +31,10 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
+from benchmarks.kernel_cost import engine_with_contacts
 from device_models.ideal import IdealDevice, IdealDeviceConfig
-from haptic_server.engine import HapticEngine
 from haptic_server.virtual import run_virtual
 from shared.config import SceneConfig, UserConfig, load_scene, load_user
-from shared.kinematics import free_body_chain
-from shared.messages import ContactSet, LocalModelUpdate, encode_update
 from sim_server.world import SimWorld
 
 WORST_PERIOD_S = 1.0e-3 + 60e-6  # 1 kHz plus the p99.9 lateness measured by loop_timing
@@ -192,23 +190,7 @@ def _push(newtons: float) -> UserConfig:
 
 def many_contacts_case(n: int, seconds: float = 1.0) -> np.ndarray:
     """A box pressed onto n contact points (no sim: a fixed synthetic local model)."""
-    scene = load_scene("free_box")
-    device = IdealDevice(IdealDeviceConfig())
-    engine = HapticEngine(
-        scene, device, UserConfig(name="press", kind="constant_wrench", wrench=(0.5, -5.0, 0.0))
-    )
-    jt, lengths = free_body_chain()
-    xs = np.linspace(-0.03, 0.03, n)
-    rows = [[x, -0.02, x, -0.02, 0.0, 1.0, 0.0, 0.0, 0.3, 0.0, 15000.0 / n, 20.0 / n] for x in xs]
-    update = LocalModelUpdate(
-        epoch=1, seq=0, sim_time=0.0, publish_time_ns=0, joint_types=jt, lengths=lengths,
-        base=np.zeros(2), base_angle=0.0, op_link=2, op_point=np.zeros(2), q=np.zeros(3),
-        qd=np.zeros(3), mass_matrix=np.diag([1.0, 1.0, 4.3e-4]), lambda_inv=np.eye(3),
-        tool_pose=np.zeros(3), gravity=None, velocity_torque=None, resisted=None,
-        characteristic_length=0.05,
-        contacts=ContactSet(np.full(n, 2), np.arange(n), np.array(rows)), tool_touching=True,
-    )  # fmt: skip
-    assert engine.receive(encode_update(update)) == ""
+    engine = engine_with_contacts(n, press_n=5.0, depth_m=0.0)
     out = np.zeros(int(seconds * 1000), engine.row.dtype)
     for k in range(out.shape[0]):
         out[k] = engine.tick(1e-3)[0]
