@@ -132,6 +132,7 @@ class HapticEngine:
         self._sim_times: deque[float] = deque(maxlen=4)
         self.state[0]["safe"] = 1.0
         self.state[0]["safe_target"] = 1.0
+        self.stale = False  # the watchdog fired: the next installed update re-initialises
 
     # --- updates ------------------------------------------------------------------------
 
@@ -154,6 +155,9 @@ class HapticEngine:
         cross-faded over blend_ms (DESIGN §4.4); contacts keep their state by key.
         """
         parser = self.parser
+        if nbytes < 0 or nbytes > buf.shape[0]:  # the mailbox marks an oversize message < 0
+            self.counters.reject(REASONS[R_SIZE])
+            return R_SIZE
         code = int(
             accept_update(
                 buf, nbytes, parser.limits, parser.out, parser.scratch, self.slots, self.state,
@@ -168,9 +172,14 @@ class HapticEngine:
         if self.method == METHOD_VIRTUAL_COUPLING_FOH:
             self._sim_times.append(float(self.slots[0]["sim_time"]))
             self._advance_foh(self.slots[0]["tool_pose"])
-        if self._order[ORDER_NEW_EPOCH]:
+        new_epoch = bool(self._order[ORDER_NEW_EPOCH])
+        if new_epoch:
             self.counters.epochs += 1
-            self._reinitialise(self.slots[0])
+        if new_epoch or self.stale:
+            # a restarted sim, or the same sim after an outage: it has moved its tool (to rest)
+            # while the proxy went on, so start again from the sim's state
+            self._reinitialise(self.slots[0], first=new_epoch and self.counters.epochs == 1)
+        self.stale = False
         return 0
 
     @property
@@ -181,17 +190,19 @@ class HapticEngine:
     def last_seq(self) -> int:
         return int(self._order[ORDER_SEQ])
 
-    def _reinitialise(self, m: np.void) -> None:
+    def _reinitialise(self, m: np.void, first: bool) -> None:
         """Start (or restart) from the sim's tool state; the device is mapped onto the VM so
-        the coupling starts at rest, and forces fade in from the safe state."""
+        the coupling starts at rest, and forces fade in from the safe state. The model from
+        before is dropped (no cross-fade from a stale geometry)."""
         st = self.state[0]
+        self.slots[1]["valid"] = 0
+        st["blend"] = 1.0
         st["q"] = m["q"]
         st["qd"] = m["qd"]
         st["fault"] = FAULT_NONE
         st["foh_goal"] = m["tool_pose"]
         st["foh_steps_left"] = 0
         self.device.true_state(self._true_pose, self._true_twist)
-        first = self.counters.epochs == 1
         if first and hasattr(self.device, "reset"):
             # a simulated device starts at its home pose, offset from the VM as the scene says
             self.device.reset(np.zeros(3))
@@ -199,12 +210,15 @@ class HapticEngine:
             target = m["tool_pose"] + np.array(self.scene.initial_device_offset)
         else:
             target = m["tool_pose"].copy()
+        if not first:
             self.counters.reinitialisations += 1
         self.offset = target - self._true_pose
         st["prev_device_twist"] = self._true_twist
-        self.user[0]["start_pose"] = self._true_pose
         st["safe_target"] = 0.0
         if first:
+            # the simulated hand's waypoints are relative to where the device starts; a later
+            # re-initialisation moves the world, not the hand
+            self.user[0]["start_pose"] = self._true_pose
             st["safe"] = 0.0  # everything starts at rest: no force to fade in
 
     def _advance_foh(self, target: np.ndarray) -> None:
@@ -226,6 +240,12 @@ class HapticEngine:
     def set_safe(self, safe: bool) -> None:
         """Ramp to (or back from) the safe state: damping only (watchdog, shutdown)."""
         self.state[0]["safe_target"] = 1.0 if safe else 0.0
+
+    def set_stale(self) -> None:
+        """The watchdog fired (no valid update for watchdog_ms): ramp to the safe state; the
+        next update installed re-initialises the proxy from the sim's state, same epoch or not."""
+        self.set_safe(True)
+        self.stale = True
 
     def tick(
         self,
