@@ -33,6 +33,7 @@ from haptic_server.layout import (
 )
 from haptic_server.users import hand_wrench, user_record
 from shared.config import RenderingSpec, SceneConfig, UserConfig
+from shared.kinematics import MAX_DOF, link_frames, point_jacobian, point_on_link
 from shared.messages import DEFAULT_LIMITS, limits_array
 from shared.wire import R_SIZE, REASONS, UpdateParser
 
@@ -199,6 +200,11 @@ class HapticEngine:
         st["blend"] = 1.0
         st["q"] = m["q"]
         st["qd"] = m["qd"]
+        if not first:
+            # the sim held its tool while the haptic side was silent, but the hand did not
+            # stop: the proxy takes the device's velocity, so the coupling resumes at rest
+            self.device.true_state(self._true_pose, self._true_twist)
+            st["qd"] = self._joint_velocity(m, self._true_twist)
         st["fault"] = FAULT_NONE
         st["foh_goal"] = m["tool_pose"]
         st["foh_steps_left"] = 0
@@ -220,6 +226,26 @@ class HapticEngine:
             # re-initialisation moves the world, not the hand
             self.user[0]["start_pose"] = self._true_pose
             st["safe"] = 0.0  # everything starts at rest: no force to fade in
+
+    @staticmethod
+    def _joint_velocity(m: np.void, twist: np.ndarray) -> np.ndarray:
+        """The q velocity whose operational-point twist is closest to `twist` (least squares
+        through J_h at the model's q; only on re-initialisation, so numpy is fine here)."""
+        d = int(m["dof"])
+        frame_pos = np.zeros((MAX_DOF, 2))
+        frame_angle = np.zeros(MAX_DOF)
+        point = np.zeros(2)
+        jac = np.zeros((3, MAX_DOF))
+        link = int(m["op_link"])
+        link_frames(
+            m["joint_types"], m["lengths"], m["base"], m["base_angle"], m["q"], d, frame_pos,
+            frame_angle,
+        )  # fmt: skip
+        point_on_link(frame_pos, frame_angle, link, m["op_point"], point)
+        point_jacobian(m["joint_types"], frame_pos, d, link, point[0], point[1], jac)
+        qd = np.zeros(MAX_DOF)
+        qd[:d] = np.linalg.lstsq(jac[:, :d], twist, rcond=None)[0]
+        return qd
 
     def _advance_foh(self, target: np.ndarray) -> None:
         """Seed 002's setpoint interpolation: move toward the sim's newest tool pose over the
