@@ -233,7 +233,11 @@ def print_summary(s: dict[str, Any]) -> None:
             f"updates:       {s['updates_received']} ({s['update_rate_hz']:.1f} Hz), "
             f"age p50 {age['p50']:.2f} ms  p99 {age['p99']:.2f} ms"
         )
-        print(f"watchdog:      {s['watchdog_trips']} trips; exit codes {s.get('exit_codes')}")
+        print(f"rejected:      {s['updates_rejected']} {s['rejected_by_reason'] or ''}")
+        print(
+            f"watchdog:      {s['watchdog_trips']} trips, {s['reinitialisations']} "
+            f"re-initialisations; exit codes {s.get('exit_codes')}"
+        )
     if s.get("log"):
         print(f"log:           {s['log']}")
 
