@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 from device_models.ideal import IdealDevice
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
-from haptic_server.kernels import ORDER_REASONS
+from haptic_server.kernels import ORDER_REASONS, reason_of
 from haptic_server.mcap_log import update_json, update_record
 from shared.config import load_scene, load_user
 from shared.kinematics import MAX_DOF
@@ -506,11 +506,15 @@ class EngineHarness:
         self.reinitialisations += int(reinit)
         assert (e.epoch, e.last_seq) == (epoch, seq)
 
-    def send_bad(self, raw: bytes) -> None:
-        """A message that must be rejected: counted by its reason, nothing installed."""
+    def send_bad(self, raw: bytes | int) -> None:
+        """A message that must be rejected: counted by its reason, nothing installed. An int
+        is a mailbox slot length as the I/O process marks an oversize message (< 0)."""
         e = self.engine
         before = (e.slots.tobytes(), e.state.tobytes(), e.epoch, e.last_seq)
-        reason = e.receive(raw)
+        if isinstance(raw, int):
+            reason = reason_of(e.receive_buffer(e.parser.buffer, raw))
+        else:
+            reason = e.receive(raw)
         assert reason in KNOWN_REASONS
         self.rejected[reason] = self.rejected.get(reason, 0) + 1
         assert (e.slots.tobytes(), e.state.tobytes(), e.epoch, e.last_seq) == before
@@ -602,7 +606,8 @@ def test_live_engine_under_interleaved_garbage(
         elif kind == "new_epoch":  # a restarted sim: re-initialise
             h.send_valid(h.update(action[1], epoch=h.epoch + 1, seq=0), h.epoch + 1, 0)
         elif kind == "oversize":
-            h.send_bad(b"\0" * (h.engine.parser.buffer.shape[0] + action[1]))
+            size = h.engine.parser.buffer.shape[0] + action[1]
+            h.send_bad(b"\0" * size if action[1] % 2 else -size)
         elif kind == "stale":
             h.engine.set_stale()
         else:
