@@ -200,11 +200,6 @@ class HapticEngine:
         st["blend"] = 1.0
         st["q"] = m["q"]
         st["qd"] = m["qd"]
-        if not first:
-            # the sim held its tool while the haptic side was silent, but the hand did not
-            # stop: the proxy takes the device's velocity, so the coupling resumes at rest
-            self.device.true_state(self._true_pose, self._true_twist)
-            st["qd"] = self._joint_velocity(m, self._true_twist)
         st["fault"] = FAULT_NONE
         st["foh_goal"] = m["tool_pose"]
         st["foh_steps_left"] = 0
@@ -218,6 +213,9 @@ class HapticEngine:
             target = m["tool_pose"].copy()
         if not first:
             self.counters.reinitialisations += 1
+            # the sim held its tool while the haptic side was silent, but the hand did not
+            # stop: the proxy takes the device's velocity, so the coupling resumes at rest
+            st["qd"] = self._joint_velocity(m, self._true_twist)
         self.offset = target - self._true_pose
         st["prev_device_twist"] = self._true_twist
         st["safe_target"] = 0.0
