@@ -36,6 +36,7 @@ from haptic_server.layout import (
 )
 from haptic_server.users import hand_wrench, user_record
 from shared.config import ConfigError, RenderingSpec, SceneConfig, UserConfig
+from shared.kinematics import MAX_DOF, link_frames, point_jacobian, point_on_link
 from shared.messages import DEFAULT_LIMITS, limits_array
 from shared.wire import R_SIZE, REASONS, UpdateParser
 
@@ -163,6 +164,7 @@ class HapticEngine:
         self._install_ticks: deque[int] = deque(maxlen=4)  # FOH: arrival ticks of updates
         self.state[0]["safe"] = 1.0
         self.state[0]["safe_target"] = 1.0
+        self.stale = False  # the watchdog fired: the next installed update re-initialises
 
     # --- updates ------------------------------------------------------------------------
 
@@ -185,6 +187,9 @@ class HapticEngine:
         cross-faded over blend_ms (DESIGN §4.4); contacts keep their state by key.
         """
         parser = self.parser
+        if nbytes < 0 or nbytes > buf.shape[0]:  # the mailbox marks an oversize message < 0
+            self.counters.reject(REASONS[R_SIZE])
+            return R_SIZE
         code = int(
             accept_update(
                 buf, nbytes, parser.limits, parser.out, parser.scratch, self.slots, self.state,
@@ -196,10 +201,15 @@ class HapticEngine:
             return code
         self.ready = True
         self.counters.installed += 1
-        if self._order[ORDER_NEW_EPOCH]:
+        new_epoch = bool(self._order[ORDER_NEW_EPOCH])
+        if new_epoch:
             self.counters.epochs += 1
             self._install_ticks.clear()
-            self._reinitialise(self.slots[0])
+        if new_epoch or self.stale:
+            # a restarted sim, or the same sim after an outage: it has moved its tool (to rest)
+            # while the proxy went on, so start again from the sim's state
+            self._reinitialise(self.slots[0], first=new_epoch and self.counters.epochs == 1)
+        self.stale = False
         if self.method == METHOD_VIRTUAL_COUPLING_FOH:
             self._install_ticks.append(self.tick_index)
             self._advance_foh(self.slots[0]["tool_pose"])
@@ -218,40 +228,67 @@ class HapticEngine:
         """The device-to-world map's offset (world pose of the device's origin), a copy."""
         return self.world_map[0]["offset"].copy()
 
-    def _reinitialise(self, m: np.void) -> None:
+    def _reinitialise(self, m: np.void, first: bool) -> None:
         """Start (or restart) from the sim's tool state; the device is mapped onto the VM so
-        the coupling starts at rest, and forces fade in from the safe state.
+        the coupling starts at rest, and forces fade in from the safe state. The model from
+        before is dropped (no cross-fade from a stale geometry).
 
         The map's offset is anchored from the device's measured pose (what a real driver
         reports): world = offset + scale * measured pose lands on the target.
         """
         st = self.state[0]
+        self.slots[1]["valid"] = 0
+        st["blend"] = 1.0
         st["q"] = m["q"]
         st["qd"] = m["qd"]
         st["fault"] = FAULT_NONE
         st["foh_goal"] = m["tool_pose"]
         st["foh_steps_left"] = 0
-        first = self.counters.epochs == 1
         if first and self.simulated:
             # a simulated device starts at its home pose, offset from the VM as the scene says
             self.device.reset(np.zeros(3))
             target = m["tool_pose"] + np.array(self.scene.initial_device_offset)
         else:
             target = m["tool_pose"].copy()  # the device stays where it is: map it onto the tool
-        if not first:
-            self.counters.reinitialisations += 1
         self.device.read(self.sensors)
         wm = self.world_map[0]
         wm["offset"] = target - wm["scale"] * self.sensors[0]["pose"]
-        st["prev_device_twist"] = wm["scale"] * self.sensors[0]["twist"]
-        if self.simulated:
-            self.device.true_state(self._true_pose, self._true_twist)
-            self.user[0]["start_pose"] = self._true_pose
-            if first:
-                self.user_start_s = self.time
+        world_twist = wm["scale"] * self.sensors[0]["twist"]
+        st["prev_device_twist"] = world_twist
+        if not first:
+            self.counters.reinitialisations += 1
+            # the sim held its tool while the haptic side was silent, but the hand did not
+            # stop: the proxy takes the device's velocity, so the coupling resumes at rest
+            st["qd"] = self._joint_velocity(m, world_twist)
         st["safe_target"] = 0.0
         if first:
+            # the simulated hand's waypoints are relative to where the device starts; a later
+            # re-initialisation moves the world, not the hand
+            if self.simulated:
+                self.device.true_state(self._true_pose, self._true_twist)
+                self.user[0]["start_pose"] = self._true_pose
+            self.user_start_s = self.time
             st["safe"] = 0.0  # everything starts at rest: no force to fade in
+
+    @staticmethod
+    def _joint_velocity(m: np.void, twist: np.ndarray) -> np.ndarray:
+        """The q velocity whose operational-point twist is closest to `twist` (least squares
+        through J_h at the model's q; only on re-initialisation, so numpy is fine here)."""
+        d = int(m["dof"])
+        frame_pos = np.zeros((MAX_DOF, 2))
+        frame_angle = np.zeros(MAX_DOF)
+        point = np.zeros(2)
+        jac = np.zeros((3, MAX_DOF))
+        link = int(m["op_link"])
+        link_frames(
+            m["joint_types"], m["lengths"], m["base"], m["base_angle"], m["q"], d, frame_pos,
+            frame_angle,
+        )  # fmt: skip
+        point_on_link(frame_pos, frame_angle, link, m["op_point"], point)
+        point_jacobian(m["joint_types"], frame_pos, d, link, point[0], point[1], jac)
+        qd = np.zeros(MAX_DOF)
+        qd[:d] = np.linalg.lstsq(jac[:, :d], twist, rcond=None)[0]
+        return qd
 
     def _advance_foh(self, target: np.ndarray) -> None:
         """Seed 002's setpoint interpolation: move toward the sim's newest tool pose over the
@@ -273,6 +310,12 @@ class HapticEngine:
     def set_safe(self, safe: bool) -> None:
         """Ramp to (or back from) the safe state: damping only (watchdog, shutdown)."""
         self.state[0]["safe_target"] = 1.0 if safe else 0.0
+
+    def set_stale(self) -> None:
+        """The watchdog fired (no valid update for watchdog_ms): ramp to the safe state; the
+        next update installed re-initialises the proxy from the sim's state, same epoch or not."""
+        self.set_safe(True)
+        self.stale = True
 
     def tick(
         self,

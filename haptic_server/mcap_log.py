@@ -5,7 +5,7 @@ Topics:
   TICK_DTYPE (a packed little-endian record: Foxglove and the mcap tools read it, and numpy
   decodes it with one `frombuffer`).
 - `/haptic/update`: every local-model update as received, JSON with a jsonschema schema.
-- `/haptic/event`: watchdog, rejected messages, faults, re-initialisations, JSON.
+- `/haptic/event`: watchdog, re-initialisations, stop, JSON (rejections are update records).
 Run metadata (configs, version, host, start time) is written as MCAP metadata records.
 
 Chunks are small and flushed often so a log cut by SIGKILL is recoverable record by record

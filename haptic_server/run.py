@@ -1,8 +1,10 @@
 """`haptic-run`: launch the sim and haptic servers as two OS processes, run, stop, summarise.
 
 With `--clock virtual` it runs the same code in one process on a simulated clock instead.
-Children get PR_SET_PDEATHSIG, so they never outlive haptic-run, and every child is stopped
-by its own pid whatever happens to the other.
+Children get PR_SET_PDEATHSIG, so they never outlive haptic-run (even after a SIGKILL of
+haptic-run), and every child is stopped by its own pid whatever happens to the other: if
+either child exits early, the other is stopped and haptic-run exits non-zero. SIGINT and
+SIGTERM stop both servers cleanly (the device ramps to its safe state, the log is closed).
 """
 
 from __future__ import annotations
@@ -16,23 +18,38 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
-from shared.cli import add_config_args, run_main
+from shared.cli import add_config_args, emit, run_main
 from shared.config import REPO_ROOT, load_network, load_scene, load_user, resolve
 
 READY_TIMEOUT_S = 300.0  # a cold numba cache compiles for a minute or two on 2 cores
 STOP_TIMEOUT_S = 30.0
+POLL_S = 0.05  # how often haptic-run looks at its children while they run
+PR_SET_PDEATHSIG = 1
+
+try:
+    _LIBC: ctypes.CDLL | None = ctypes.CDLL("libc.so.6", use_errno=True)
+except OSError:
+    _LIBC = None
 
 
-def _die_with_parent() -> None:
-    """Child side of Popen: SIGTERM us if haptic-run dies (Linux prctl PR_SET_PDEATHSIG)."""
-    try:
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(1, signal.SIGTERM)
-    except OSError:
-        pass
+def _die_with_parent(parent_pid: int) -> Callable[[], None]:
+    """Child side of Popen: SIGTERM us if haptic-run dies (Linux prctl PR_SET_PDEATHSIG).
+
+    Runs between fork and exec, so it only calls what was loaded before the fork. If
+    haptic-run died before the prctl took effect, the child exits at once.
+    """
+
+    def preexec() -> None:
+        if _LIBC is not None:
+            _LIBC.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+        if os.getppid() != parent_pid:
+            os._exit(1)
+
+    return preexec
 
 
 class Child:
@@ -42,7 +59,7 @@ class Child:
         self.name = name
         self.proc = subprocess.Popen(
             argv, stdout=subprocess.PIPE, stderr=None, text=True, cwd=REPO_ROOT,
-            preexec_fn=_die_with_parent,
+            preexec_fn=_die_with_parent(os.getpid()),
         )  # fmt: skip
         self.events: list[dict[str, Any]] = []
         self._ready = threading.Event()
@@ -61,9 +78,10 @@ class Child:
             if event.get("event") == "ready":
                 self._ready.set()
 
-    def wait_ready(self, timeout: float) -> bool:
+    def wait_ready(self, timeout: float, abort: threading.Event | None = None) -> bool:
+        """True once the child said it is ready; False if it exited, timed out or `abort`."""
         end = time.monotonic() + timeout
-        while time.monotonic() < end:
+        while time.monotonic() < end and not (abort is not None and abort.is_set()):
             if self._ready.wait(0.1):
                 return True
             if self.proc.poll() is not None:
@@ -89,7 +107,11 @@ def _server_argv(module: str, args: argparse.Namespace, extra: list[str]) -> lis
 
 
 def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
-    """The two-process system: haptic (listener) first, then the sim, then the duration."""
+    """The two-process system: haptic (listener) first, then the sim, then the duration.
+
+    Returns the haptic server's summary with the sim's, the exit codes and, if something
+    went wrong (a child exited early or failed), `failure`.
+    """
     # validate every file here so a bad config fails fast with exit 2
     load_scene(args.scene)
     load_user(args.user)
@@ -115,27 +137,63 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
     ]
     if args.log:
         haptic_extra += ["--log", str(args.log)]
+    stop = threading.Event()
+    previous = {
+        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)
+    }
+    failure: str | None = None
     haptic = Child("haptic", _server_argv("haptic_server.cli", args, haptic_extra))
     sim: Child | None = None
     try:
-        if not haptic.wait_ready(READY_TIMEOUT_S):
-            raise RuntimeError(f"haptic server did not become ready (exit {haptic.proc.poll()})")
-        sim = Child("sim", _server_argv("sim_server.cli", args, ["--summary-json", str(sim_json)]))
-        if not sim.wait_ready(READY_TIMEOUT_S):
-            raise RuntimeError(f"sim server did not become ready (exit {sim.proc.poll()})")
-        code = haptic.proc.wait(args.duration + STOP_TIMEOUT_S + 30.0)
-        if code != 0:
-            raise RuntimeError(f"haptic server exited with {code}")
+        if not haptic.wait_ready(READY_TIMEOUT_S, stop):
+            if not stop.is_set():
+                failure = f"haptic server did not become ready (exit {haptic.proc.poll()})"
+        else:
+            sim = Child(
+                "sim", _server_argv("sim_server.cli", args, ["--summary-json", str(sim_json)])
+            )
+            if not sim.wait_ready(READY_TIMEOUT_S, stop):
+                if not stop.is_set():
+                    failure = f"sim server did not become ready (exit {sim.proc.poll()})"
+            else:
+                pids = {"haptic_pid": haptic.proc.pid, "sim_pid": sim.proc.pid}
+                emit("ready", process="haptic-run", **pids)
+                failure = _watch(haptic, sim, stop, args.duration + STOP_TIMEOUT_S + 30.0)
     finally:
-        codes = {"haptic": haptic.stop()}
+        codes = {"haptic": haptic.stop()}  # the haptic side first: it ramps the device to safe
         if sim is not None:
             codes["sim"] = sim.stop()
-    summary = json.loads(haptic_json.read_text())
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    if failure is None and any(code != 0 for code in codes.values()):
+        failure = f"a server exited with an error: {codes}"
+    summary: dict[str, Any] = (
+        json.loads(haptic_json.read_text()) if haptic_json.exists() else {"clock": "real-time"}
+    )
     summary["sim"] = json.loads(sim_json.read_text()) if sim_json.exists() else None
     summary["exit_codes"] = codes
+    summary["stopped_by_signal"] = stop.is_set()
+    if failure is not None:
+        summary["failure"] = failure
     haptic_json.unlink(missing_ok=True)
     sim_json.unlink(missing_ok=True)
     return summary
+
+
+def _watch(haptic: Child, sim: Child, stop: threading.Event, timeout_s: float) -> str | None:
+    """Wait for the run to end: the haptic server finishing its duration (None), a signal
+    (None), or a child exiting early or failing (a message: the caller stops the other)."""
+    end = time.monotonic() + timeout_s
+    while not stop.wait(POLL_S):
+        code = haptic.proc.poll()
+        if code is not None:
+            return None if code == 0 else f"haptic server exited with {code}"
+        code = sim.proc.poll()
+        if code is not None:
+            return f"sim server exited with {code} while the haptic server ran"
+        if time.monotonic() > end:
+            return "haptic server did not finish its run in time"
+    return None
 
 
 def run_virtual_clock(args: argparse.Namespace) -> dict[str, Any]:
@@ -175,7 +233,11 @@ def print_summary(s: dict[str, Any]) -> None:
             f"updates:       {s['updates_received']} ({s['update_rate_hz']:.1f} Hz), "
             f"age p50 {age['p50']:.2f} ms  p99 {age['p99']:.2f} ms"
         )
-        print(f"watchdog:      {s['watchdog_trips']} trips; exit codes {s.get('exit_codes')}")
+        print(f"rejected:      {s['updates_rejected']} {s['rejected_by_reason'] or ''}")
+        print(
+            f"watchdog:      {s['watchdog_trips']} trips, {s['reinitialisations']} "
+            f"re-initialisations; exit codes {s.get('exit_codes')}"
+        )
     if s.get("log"):
         print(f"log:           {s['log']}")
 
@@ -198,17 +260,16 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         summary = run_virtual_clock(args) if args.clock == "virtual" else run_real_time(args)
-        print_summary(summary)
         if args.summary_json:
             args.summary_json.parent.mkdir(parents=True, exist_ok=True)
             args.summary_json.write_text(json.dumps(summary, indent=2))
+        if "failure" in summary:
+            print(f"haptic-run: {summary['failure']}", file=sys.stderr)
+            return 1
+        print_summary(summary)
         return 0
 
-    try:
-        return run_main(body)
-    except RuntimeError as exc:
-        print(f"haptic-run: {exc}", file=sys.stderr)
-        return 1
+    return run_main(body)
 
 
 if __name__ == "__main__":

@@ -5,7 +5,9 @@ without blocking (validate, install the newest, count the rest), run the engine 
 publish the proxy state at `proxy_publish_hz`, copy the tick record to the log process.
 Overruns resynchronise instead of bursting catch-up ticks; dt is the measured period
 (clamped). A stale sim (no valid update for `watchdog_ms`) ramps the device to the safe
-state; a restarted sim (new epoch) re-initialises the proxy and forces fade back in.
+state; the next valid update, from a restarted sim (new epoch) or from the same sim after an
+outage, re-initialises the proxy from the sim's state and forces fade back in. A stop (signal
+or end of the run) ramps the device to the safe state before the loop ends.
 """
 
 from __future__ import annotations
@@ -26,10 +28,12 @@ from haptic_server.mcap_log import run_metadata
 from haptic_server.virtual import run_virtual
 from shared.config import NetworkConfig, SceneConfig, UserConfig
 from shared.timing import LoopCounters, SampleWindow, try_realtime_priority, wait_until
-from shared.wire import R_SIZE
 
 DT_CLAMP = (0.25, 2.0)  # measured dt is clamped to these multiples of the nominal period
 FIRST_UPDATE_WAIT_S = 60.0  # --duration starts at the first update, or gives up after this
+# updates taken from the mailbox per tick: a flood of messages (garbage or not) costs the loop
+# at most this many validations (~10 us each) per tick; the rest wait in the mailbox
+MAX_UPDATES_PER_TICK = 8
 WINDOW_TICKS = 600_000  # percentiles over the newest 10 min at 1 kHz
 
 
@@ -43,6 +47,8 @@ class HapticRunStats:
     update_age_ms: SampleWindow = field(default_factory=lambda: SampleWindow(100_000))
     updates_received: int = 0
     updates_installed: int = 0
+    rejected_by_reason: dict[str, int] = field(default_factory=dict)
+    reinitialisations: int = 0
     watchdog_trips: int = 0
     wall_s: float = 0.0
     lost_log_ticks: int = 0
@@ -62,6 +68,9 @@ class HapticRunStats:
             "work_us": self.work_us.percentiles(50, 99),
             "updates_received": self.updates_received,
             "updates_installed": self.updates_installed,
+            "updates_rejected": sum(self.rejected_by_reason.values()),
+            "rejected_by_reason": dict(self.rejected_by_reason),
+            "reinitialisations": self.reinitialisations,
             "update_rate_hz": self.updates_received / self.wall_s if self.wall_s > 0 else 0.0,
             "update_age_ms": self.update_age_ms.percentiles(50, 99),
             "watchdog_trips": self.watchdog_trips,
@@ -158,8 +167,9 @@ class HapticServer:
             if self.faults.nan_after_s is not None
             else -1
         )
+        stopping = False  # ramping to the safe state before the loop ends
         try:
-            while not self._stop:
+            while True:
                 now = wait_until(deadline)
                 lateness_ns = now - deadline
                 dt_ns = now - last_start if counters.ticks else period_ns
@@ -171,33 +181,55 @@ class HapticServer:
                     counters.late_over_1ms += 1
                 dt = min(max(dt_ns / 1e9, DT_CLAMP[0] * dt_nominal), DT_CLAMP[1] * dt_nominal)
 
-                slot = io.pending_update()
+                if not stopping and (self._stop or (end_ns is not None and now >= end_ns)):
+                    # a signal or the end of the run: ramp to the safe state, then stop
+                    stopping = True
+                    engine.set_safe(True)
+                    why = "stop requested" if self._stop else "duration reached"
+                    io.event(counters.ticks, "stop", f"{why}: ramping to the safe state")
+                if stopping and (not engine.ready or engine.state[0]["safe"] >= 1.0):
+                    break
+
+                slot = -1 if stopping else io.pending_update()
+                taken = 0
                 while slot >= 0:
                     buf, nbytes = io.update_bytes(slot)
                     latency_s = io.update_latency_s(slot)
-                    code = engine.receive_buffer(buf, nbytes, latency_s) if nbytes > 0 else R_SIZE
+                    epochs, was_stale = engine.counters.epochs, engine.stale
+                    code = engine.receive_buffer(buf, nbytes, latency_s)
                     io.verdict(slot, code, counters.ticks, latency_s)
                     stats.updates_received += 1
+                    taken += 1
                     if code == 0:
                         if stats.updates_installed == 0 and duration_ns is not None:
                             end_ns = now + duration_ns
                         stats.updates_installed += 1
                         last_valid_ns = now
                         newest_seq = engine.last_seq
-                        newest_age_ms = (
-                            time.time_ns() - int(engine.slots[0]["publish_time_ns"])
-                        ) / 1e6
+                        newest_age_ms = latency_s * 1e3
                         stats.update_age_ms.add(newest_age_ms)
+                        if engine.counters.epochs != epochs or was_stale:
+                            how = "new epoch" if engine.counters.epochs != epochs else "same epoch"
+                            io.event(
+                                counters.ticks,
+                                "reinitialise",
+                                f"{how} {engine.epoch} seq {newest_seq}: proxy from the sim",
+                            )
                         if stale:
                             stale = False
                             engine.set_safe(False)
                             io.event(counters.ticks, "watchdog_clear", f"update seq {newest_seq}")
-                    slot = io.pending_update()
+                    slot = io.pending_update() if taken < MAX_UPDATES_PER_TICK else -1
 
-                if engine.ready and not stale and now - last_valid_ns > watchdog_ns:
+                if (
+                    engine.ready
+                    and not stale
+                    and not stopping
+                    and now - last_valid_ns > watchdog_ns
+                ):
                     stale = True
                     stats.watchdog_trips += 1
-                    engine.set_safe(True)
+                    engine.set_stale()
                     io.event(
                         counters.ticks,
                         "watchdog",
@@ -216,12 +248,12 @@ class HapticServer:
                 work_prev_us = (time.perf_counter_ns() - now) / 1e3
                 stats.work_us.add(work_prev_us)
                 deadline += period_ns
-                if end_ns is not None and now >= end_ns:
-                    break
         finally:
             stats.wall_s = (time.perf_counter_ns() - start_ns) / 1e9
+            stats.rejected_by_reason = dict(engine.counters.rejected_by_reason)
+            stats.reinitialisations = engine.counters.reinitialisations
             engine.device.safe_stop()
-            io.event(counters.ticks, "stop", "loop ended")
+            io.event(counters.ticks, "stopped", "loop ended; device in its safe state")
             io_counters = io.close()
             stats.lost_log_ticks = io_counters["lost_log_ticks"]
             stats.proxy_published = io_counters["proxy_published"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Callable
 from typing import Any
@@ -38,5 +39,11 @@ def run_main(body: Callable[[], int]) -> int:
 
 
 def emit(kind: str, **fields: Any) -> None:
-    """One JSON line on stdout: how haptic-run and the tests follow a server."""
-    print(json.dumps({"event": kind, **fields}), flush=True)
+    """One JSON line on stdout: how haptic-run and the tests follow a server.
+
+    If the reader is gone (haptic-run was killed), there is nobody to tell: stdout goes to
+    /dev/null so the server still finishes cleanly."""
+    try:
+        print(json.dumps({"event": kind, **fields}), flush=True)
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

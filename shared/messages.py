@@ -70,6 +70,8 @@ class MessageLimits:
     max_damping_ns_per_m: float = 1.0e6
     max_friction: float = 10.0
     symmetry_tolerance: float = 1.0e-9  # relative
+    max_abs_generalized_force: float = 1.0e4  # N or N m: gravity and velocity-product torques
+    max_inverse_mass: float = 1.0e9  # entries of Lambda^-1 (1/kg, 1/(kg m), 1/(kg m^2))
 
 
 DEFAULT_LIMITS = MessageLimits()

@@ -91,7 +91,7 @@ R_NONFINITE, R_CHAR, R_JOINT, R_CLINK, R_MAGNITUDE, R_MASS, R_CONTACT = range(9,
 LIMIT_FIELDS = (
     "max_abs_position_m", "max_abs_angle_rad", "max_abs_velocity", "max_mass_entry",
     "min_mass_eigenvalue", "max_stiffness_n_per_m", "max_damping_ns_per_m", "max_friction",
-    "symmetry_tolerance",
+    "symmetry_tolerance", "max_abs_generalized_force", "max_inverse_mass",
 )  # fmt: skip
 
 
@@ -227,6 +227,20 @@ def parse_update(buf, nbytes, limits, out, scratch):
         return R_MAGNITUDE
     if abs(m.tool_pose[0]) > max_pos or abs(m.tool_pose[1]) > max_pos:
         return R_MAGNITUDE
+    # the rest of what the kernels read, so no finite but absurd value reaches them
+    if abs(m.tool_pose[2]) > max_ang or abs(m.base_angle) > max_ang or char_len > max_pos:
+        return R_MAGNITUDE
+    if abs(m.op_point[0]) > max_pos or abs(m.op_point[1]) > max_pos:
+        return R_MAGNITUDE
+    for k in range(d):
+        if (has_g and abs(m.gravity[k]) > limits[9]) or (
+            has_c and abs(m.velocity_torque[k]) > limits[9]
+        ):
+            return R_MAGNITUDE
+    for a in range(3):
+        for b in range(3):
+            if abs(m.lambda_inv[a, b]) > limits[10]:
+                return R_MAGNITUDE
     # D symmetric positive definite and bounded
     scale = 0.0
     for a in range(d):

@@ -69,7 +69,9 @@ class SimServer:
         pub = session.declare_publisher(k.update, congestion_control=zenoh.CongestionControl.DROP)
         sub = session.declare_subscriber(k.proxy, zenoh.handlers.RingChannel(4))
         period_ns = round(1e9 / self.scene.sim_rate_hz)
-        self.world.local_model(self.epoch, 0, 0)  # compile / load the kernels before ready
+        # the first local model loads the kernels (about a second on a busy machine): do it
+        # before saying ready, so a ready sim publishes within one period
+        self.world.local_model(self.epoch, 0, time.time_ns())
         if ready is not None:
             ready()
         start = time.perf_counter_ns()

@@ -1,0 +1,617 @@
+"""Hostile and malformed messages against the decoders and a live HapticEngine (hypothesis).
+
+Every message a receiver can get is thrown at it: random bytes, valid updates, and valid
+updates with one field broken (NaN/Inf, counts, sizes, magnitudes, a D that is not symmetric
+positive definite, wrong magic or version, truncated, padded, stale epoch or sequence). The
+verdict of `parse_update` is checked against an independent reference written from
+docs/protocol.md, and the engine, fed such messages between valid updates and ticks, must
+reject and count every bad one, leave its installed model untouched, keep installing the
+good ones, and command only finite wrenches within the device limits.
+
+Case counts (EXAMPLES) add up to more than 10,000; the runs are derandomized, so CI sees the
+same cases every time. Numeric contents come from a numpy generator seeded by hypothesis
+(drawing hundreds of floats through hypothesis would cost more than the checks).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from typing import Any
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from device_models.ideal import IdealDevice
+from device_models.registry import load_device
+from haptic_server.engine import HapticEngine
+from haptic_server.kernels import ORDER_REASONS, reason_of
+from haptic_server.mcap_log import update_json, update_record
+from shared.config import load_scene, load_user
+from shared.kinematics import MAX_DOF
+from shared.messages import (
+    DEFAULT_LIMITS,
+    MessageError,
+    ProxyState,
+    decode_proxy,
+    decode_update,
+    encode_proxy,
+    encode_update,
+    limits_array,
+)
+from shared.wire import MAX_CONTACTS, REASONS, UpdateParser
+
+EXAMPLES = {
+    "random_bytes": 3000,
+    "valid": 1000,
+    "broken": 3000,
+    "bit_flips": 2000,
+    "proxy": 1000,
+    "engine": 500,
+}
+assert sum(EXAMPLES.values()) >= 10_000  # issue 8
+
+
+def cases(name: str) -> Any:
+    return settings(
+        max_examples=EXAMPLES[name],
+        derandomize=True,
+        database=None,
+        deadline=None,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+    )
+
+
+LIM = DEFAULT_LIMITS
+HEADER = struct.Struct("<4sHHQQdqHHHHdd")  # docs/protocol.md, LocalModelUpdate header
+PROXY_HEADER = struct.Struct("<4sHHQQQdqHH")
+KNOWN_REASONS = set(REASONS[1:]) | set(ORDER_REASONS.values())
+UNIT_TOL = 1e-6  # docs/protocol.md: unit normals and directions
+PARSER = UpdateParser(limits_array(LIM))
+
+
+# --- an independent reference validator (docs/protocol.md) --------------------------------
+
+
+def float_groups(d: int, n: int, j: int, flags: int) -> list[tuple[str, int]]:
+    """The float section in wire order: (name, count)."""
+    groups = [("lengths", d), ("base", 2), ("base_angle", 1), ("op_point", 2), ("q", d)]
+    groups += [("qd", d), ("mass", d * d), ("lambda_inv", 9), ("tool_pose", 3)]
+    if flags & 1:
+        groups.append(("gravity", d))
+    if flags & 8:
+        groups.append(("velocity_torque", d))
+    return [*groups, ("resisted", 3 * j), ("contacts", 12 * n)]
+
+
+def layout(raw: bytes) -> tuple[int, int, int, int, dict[str, tuple[int, int]]]:
+    """d, n, j, flags and the byte offset and count of every float group of an update."""
+    flags = struct.unpack_from("<H", raw, 6)[0]
+    d, n, j = struct.unpack_from("<HHH", raw, 40)
+    offset = HEADER.size + 8 * (d + 2 * n)
+    groups = {}
+    for name, count in float_groups(d, n, j, flags):
+        groups[name] = (offset, count)
+        offset += 8 * count
+    return d, n, j, flags, groups
+
+
+def reference_accepts(raw: bytes) -> bool:
+    """Whether a LocalModelUpdate is valid, straight from the protocol document."""
+    if len(raw) < HEADER.size:
+        return False
+    magic, version, flags, _, _, sim_time, _, d, n, j, op_link, char_len, lead = HEADER.unpack_from(
+        raw
+    )
+    if magic != b"HLMU" or version != 1 or not 1 <= d <= MAX_DOF or n > MAX_CONTACTS:
+        return False
+    if j > 3 or (j > 0) != bool(flags & 2) or op_link >= d:
+        return False
+    groups = float_groups(d, n, j, flags)
+    n_int = d + 2 * n
+    n_float = sum(c for _, c in groups)
+    if len(raw) != HEADER.size + 8 * (n_int + n_float):
+        return False
+    if not all(math.isfinite(v) for v in (sim_time, char_len, lead)) or abs(lead) > 1.0:
+        return False
+    ints = np.frombuffer(raw, "<i8", n_int, HEADER.size)
+    fl = np.frombuffer(raw, "<f8", n_float, HEADER.size + 8 * n_int)
+    if not np.isfinite(fl).all() or not 0.0 < char_len <= LIM.max_abs_position_m:
+        return False
+    if not np.isin(ints[:d], (0, 1, 2)).all() or not ((ints[d : d + n] >= 0).all()):
+        return False
+    if (ints[d : d + n] >= d).any():
+        return False
+    g: dict[str, np.ndarray] = {}
+    o = 0
+    for name, count in groups:
+        g[name] = fl[o : o + count]
+        o += count
+    pos, ang, vel = LIM.max_abs_position_m, LIM.max_abs_angle_rad, LIM.max_abs_velocity
+    too_big = [
+        (g["lengths"], pos), (g["base"], pos), (g["base_angle"], ang), (g["op_point"], pos),
+        (g["q"], max(pos, ang)), (g["qd"], vel), (g["lambda_inv"], LIM.max_inverse_mass),
+        (g["tool_pose"][:2], pos), (g["tool_pose"][2:], ang),
+        (g.get("gravity", np.zeros(0)), LIM.max_abs_generalized_force),
+        (g.get("velocity_torque", np.zeros(0)), LIM.max_abs_generalized_force),
+    ]  # fmt: skip
+    if any((np.abs(values) > bound).any() for values, bound in too_big):
+        return False
+    mass = g["mass"].reshape(d, d)
+    scale = np.abs(mass).max()
+    if scale > LIM.max_mass_entry:
+        return False
+    if (np.abs(mass - mass.T) > LIM.symmetry_tolerance * max(scale, 1e-300)).any():
+        return False
+    lower = np.tril(mass) + np.tril(mass, -1).T  # the factorisation reads the lower triangle
+    try:
+        chol = np.linalg.cholesky(lower)
+    except np.linalg.LinAlgError:
+        return False
+    if (np.diag(chol) ** 2 < LIM.min_mass_eigenvalue).any():
+        return False
+    resisted = g["resisted"].reshape(j, 3)
+    if (np.abs(np.linalg.norm(resisted, axis=1) - 1.0) > UNIT_TOL).any():
+        return False
+    c = g["contacts"].reshape(n, 12)
+    return not (
+        (np.abs(c[:, 0:4]) > pos).any()
+        or (np.abs(np.hypot(c[:, 4], c[:, 5]) - 1.0) > UNIT_TOL).any()
+        or (np.abs(c[:, 6:8]) > vel).any()
+        or ((c[:, 8] < 0) | (c[:, 8] > LIM.max_friction)).any()
+        or ((c[:, 9] < 0) | (c[:, 9] > 1)).any()
+        or ((c[:, 10] <= 0) | (c[:, 10] > LIM.max_stiffness_n_per_m)).any()
+        or ((c[:, 11] < 0) | (c[:, 11] > LIM.max_damping_ns_per_m)).any()
+    )
+
+
+# --- valid updates ------------------------------------------------------------------------
+
+
+#: per float group: the range its random valid entries are drawn from
+VALID_RANGES = {
+    "lengths": (0.0, 0.1), "base": (-0.2, 0.2), "base_angle": (-np.pi, np.pi),
+    "op_point": (-0.05, 0.05), "q": (-0.2, 0.2), "qd": (-0.5, 0.5), "lambda_inv": (-5.0, 5.0),
+    "gravity": (-20.0, 20.0), "velocity_torque": (-1.0, 1.0),
+}  # fmt: skip
+CONTACT_RANGES = np.array(
+    [(-0.1, 0.1)] * 2 + [(-0.3, 0.3)] * 2 + [(0, 0)] * 2 + [(-0.5, 0.5)] * 2
+    + [(0.0, 1.0), (0.0, 1.0), (100.0, 1e5), (0.0, 300.0)]
+)  # fmt: skip
+
+
+def random_update(
+    rng: np.random.Generator, d: int, n: int, j: int, flags: int, epoch: int, seq: int
+) -> bytes:
+    """The bytes of a valid update of the given shape with random contents."""
+    groups = float_groups(d, n, j, flags)
+    g = {name: rng.uniform(*VALID_RANGES.get(name, (0, 0)), count) for name, count in groups}
+    a = rng.uniform(-2.0, 2.0, (d, d))
+    m = a @ a.T + rng.uniform(0.01, 5.0) * np.eye(d)
+    g["mass"] = (0.5 * (m + m.T)).ravel()
+    li = g["lambda_inv"].reshape(3, 3)
+    g["lambda_inv"] = (0.5 * (li + li.T)).ravel()
+    g["tool_pose"] = np.array([*rng.uniform(-0.2, 0.2, 2), rng.uniform(-np.pi, np.pi)])
+    dirs = rng.normal(size=(j, 3))
+    g["resisted"] = (dirs / np.linalg.norm(dirs, axis=1, keepdims=True)).ravel()
+    c = rng.uniform(CONTACT_RANGES[:, 0], CONTACT_RANGES[:, 1], (n, 12))
+    angles = rng.uniform(-np.pi, np.pi, n)
+    c[:, 4], c[:, 5] = np.cos(angles), np.sin(angles)
+    g["contacts"] = c.ravel()
+    header = HEADER.pack(
+        b"HLMU", 1, flags, epoch, seq, rng.uniform(0, 100), int(rng.integers(0, 2**62)), d, n,
+        j, int(rng.integers(0, d)), rng.uniform(0.01, 0.2), rng.uniform(-0.02, 0.02),
+    )  # fmt: skip
+    ints = np.concatenate(
+        [rng.integers(0, 3, d), rng.integers(0, d, n), rng.integers(-(2**62), 2**62, n)]
+    )
+    floats = np.concatenate([g[name] for name, _ in groups])
+    return header + ints.astype("<i8").tobytes() + floats.astype("<f8").tobytes()
+
+
+@st.composite
+def valid_updates(draw: Any) -> bytes:
+    """Shapes (dof, contacts) from hypothesis, so the edges 1, 12, 0 and 64 come up; the
+    rest from a seeded generator (each hypothesis draw costs more than a whole check)."""
+    d = draw(st.integers(1, MAX_DOF))
+    n = draw(st.one_of(st.integers(0, 4), st.integers(0, MAX_CONTACTS)))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    j = int(rng.integers(0, 4))
+    flags = int(rng.choice([0, 1, 4, 8, 9, 13])) | (2 if j else 0)
+    epoch, seq = (int(v) for v in rng.integers(1, 2**62, 2))
+    return random_update(rng, d, n, j, flags, epoch, seq)
+
+
+# --- breaking one field -------------------------------------------------------------------
+
+#: field group -> the bound its entries must respect (docs/protocol.md, MessageLimits)
+MAGNITUDE_BOUNDS = {
+    "lengths": LIM.max_abs_position_m,
+    "base": LIM.max_abs_position_m,
+    "base_angle": LIM.max_abs_angle_rad,
+    "op_point": LIM.max_abs_position_m,
+    "q": max(LIM.max_abs_position_m, LIM.max_abs_angle_rad),
+    "qd": LIM.max_abs_velocity,
+    "mass": LIM.max_mass_entry,
+    "lambda_inv": LIM.max_inverse_mass,
+    "tool_pose": LIM.max_abs_position_m,  # x, y; the angle's bound is larger still
+    "gravity": LIM.max_abs_generalized_force,
+    "velocity_torque": LIM.max_abs_generalized_force,
+}
+#: per contact column -> a value out of range for it
+CONTACT_BREAKS = {
+    0: 2 * LIM.max_abs_position_m, 2: -2 * LIM.max_abs_position_m,
+    4: 0.9, 6: 2 * LIM.max_abs_velocity, 8: -0.1, 9: 1.5, 10: 0.0, 11: -1.0,
+}  # fmt: skip
+BREAKS = [
+    "nonfinite", "magic", "version", "truncate", "pad", "count", "flag", "magnitude",
+    "header_float", "not_spd", "asymmetric", "contact", "resisted_norm", "joint_type",
+    "contact_link", "op_link",
+]  # fmt: skip
+
+
+def set_float(raw: bytearray, offset: int, value: float) -> None:
+    struct.pack_into("<d", raw, offset, value)
+
+
+def break_update(raw: bytes, kind: str, draw: Any) -> bytes | None:
+    """One field of a valid update made invalid; None if this update has no such field."""
+    d, n, j, flags, groups = layout(raw)
+    out = bytearray(raw)
+    big = draw(st.sampled_from([1.5, 10.0, 1e6, 1e100, 1e300]))
+    sign = draw(st.sampled_from([1.0, -1.0]))
+    if kind == "nonfinite":
+        n_float = (len(raw) - HEADER.size) // 8 - (d + 2 * n)
+        k = draw(st.integers(0, n_float - 1))
+        value = draw(st.sampled_from([math.nan, math.inf, -math.inf]))
+        set_float(out, HEADER.size + 8 * (d + 2 * n + k), value)
+    elif kind == "header_float":  # sim_time, characteristic length or state lead
+        offset, value = draw(
+            st.sampled_from([(24, math.nan), (48, -0.01), (48, 0.0), (48, math.inf),
+                             (48, 1e3), (56, 2.0), (56, -math.inf)])
+        )  # fmt: skip
+        set_float(out, offset, value)
+    elif kind == "magic":
+        k = draw(st.integers(0, 3))
+        out[k] ^= draw(st.integers(1, 255))
+    elif kind == "version":
+        struct.pack_into("<H", out, 4, draw(st.integers(0, 65535).filter(lambda v: v != 1)))
+    elif kind == "truncate":
+        return raw[: draw(st.integers(0, len(raw) - 1))]
+    elif kind == "pad":
+        return raw + draw(st.binary(min_size=1, max_size=64))
+    elif kind == "count":
+        offset, current = draw(st.sampled_from([(40, d), (42, n), (44, j)]))
+        struct.pack_into(
+            "<H", out, offset, draw(st.integers(0, 65535).filter(lambda v: v != current))
+        )
+    elif kind == "flag":  # gravity, resisted or velocity-torque section announced or not
+        struct.pack_into("<H", out, 6, flags ^ draw(st.sampled_from([1, 2, 8])))
+    elif kind == "magnitude":
+        name = draw(st.sampled_from(sorted(k for k in MAGNITUDE_BOUNDS if k in groups)))
+        offset, count = groups[name]
+        k = draw(st.integers(0, (2 if name == "tool_pose" else count) - 1))
+        set_float(out, offset + 8 * k, sign * MAGNITUDE_BOUNDS[name] * big)
+    elif kind in ("not_spd", "asymmetric"):
+        offset, count = groups["mass"]
+        mass = np.frombuffer(raw, "<f8", count, offset).reshape(d, d).copy()
+        if kind == "asymmetric":
+            if d < 2:
+                return None
+            a, b = draw(st.sampled_from([(r, c) for r in range(d) for c in range(d) if r != c]))
+            mass[a, b] += np.abs(mass).max() * draw(st.sampled_from([1e-6, 1e-3, 1.0]))
+        else:  # one eigenvalue clearly negative (a zero one is +-roundoff: not a sure break)
+            w, v = np.linalg.eigh(mass)
+            k = draw(st.integers(0, d - 1))
+            w[k] = -w.max() * draw(st.sampled_from([1e-3, 1.0]))
+            mass = v @ np.diag(w) @ v.T
+            mass = 0.5 * (mass + mass.T)
+        out[offset : offset + 8 * count] = mass.astype("<f8").tobytes()
+    elif kind == "contact":
+        if n == 0:
+            return None
+        offset, _ = groups["contacts"]
+        i = draw(st.integers(0, n - 1))
+        col = draw(st.sampled_from(sorted(CONTACT_BREAKS)))
+        set_float(out, offset + 8 * (12 * i + col), CONTACT_BREAKS[col])
+    elif kind == "resisted_norm":
+        if j == 0:
+            return None
+        offset, _ = groups["resisted"]
+        k = draw(st.integers(0, j - 1))
+        dirs = np.frombuffer(raw, "<f8", 3, offset + 24 * k) * draw(
+            st.sampled_from([0.0, 0.5, 1.0 + 1e-4, 2.0])
+        )
+        out[offset + 24 * k : offset + 24 * k + 24] = dirs.astype("<f8").tobytes()
+    elif kind == "joint_type":
+        k = draw(st.integers(0, d - 1))
+        struct.pack_into("<q", out, HEADER.size + 8 * k, draw(st.sampled_from([-1, 3, 2**40])))
+    elif kind == "contact_link":
+        if n == 0:
+            return None
+        k = draw(st.integers(0, n - 1))
+        struct.pack_into("<q", out, HEADER.size + 8 * (d + k), draw(st.sampled_from([-1, d, 99])))
+    elif kind == "op_link":
+        struct.pack_into("<H", out, 46, draw(st.integers(d, 65535)))
+    return bytes(out)
+
+
+def reason_of_parse(raw: bytes) -> str:
+    code = PARSER.parse(raw)
+    return "" if code == 0 else REASONS[code]
+
+
+def assert_logged_as_rejected(raw: bytes, reason: str) -> None:
+    """The I/O process logs every received message; a hostile one must not break that."""
+    rec = update_json(update_record(7, raw, reason, 0.0))
+    assert rec["installed"] is False and rec["reason"] == reason
+    assert rec["size_bytes"] == len(raw)
+
+
+# --- the decoder --------------------------------------------------------------------------
+
+
+@cases("random_bytes")
+@given(
+    st.one_of(
+        st.binary(max_size=2048),
+        st.binary(max_size=2048).map(lambda b: b"HLMU\x01\x00" + b),  # past magic and version
+    )
+)
+def test_random_bytes_are_rejected(raw: bytes) -> None:
+    reason = reason_of_parse(raw)
+    assert reason in KNOWN_REASONS
+    assert not reference_accepts(raw)
+    try:
+        decode_update(raw)
+        raise AssertionError("decode_update accepted random bytes")
+    except MessageError as exc:
+        assert exc.reason == reason
+    assert_logged_as_rejected(raw, reason)
+
+
+@cases("valid")
+@given(valid_updates())
+def test_valid_updates_are_accepted(raw: bytes) -> None:
+    assert reason_of_parse(raw) == ""
+    assert reference_accepts(raw)
+    back = decode_update(raw)
+    assert encode_update(back) == raw  # nothing lost or altered by the validating decoder
+
+
+@cases("broken")
+@given(valid_updates(), st.sampled_from(BREAKS), st.data())
+def test_each_broken_field_is_rejected(raw: bytes, kind: str, data: st.DataObject) -> None:
+    broken = break_update(raw, kind, data.draw)
+    if broken is None:
+        return
+    reason = reason_of_parse(broken)
+    assert reason in KNOWN_REASONS, kind
+    assert not reference_accepts(broken), kind
+    assert_logged_as_rejected(broken, reason)
+
+
+@cases("bit_flips")
+@given(
+    valid_updates(),
+    st.lists(st.tuples(st.integers(0, 2**31), st.integers(0, 7)), min_size=1, max_size=4),
+)
+def test_bit_flips_agree_with_the_reference(valid: bytes, flips: list[tuple[int, int]]) -> None:
+    """Arbitrary corruption: the decoder accepts exactly what the protocol allows."""
+    raw = bytearray(valid)
+    for position, bit in flips:
+        raw[position % len(raw)] ^= 1 << bit
+    reason = reason_of_parse(bytes(raw))
+    assert (reason == "") == reference_accepts(bytes(raw)), reason
+
+
+# --- the proxy decoder (what the sim receives) ---------------------------------------------
+
+
+def proxy_bytes(rng: np.random.Generator, d: int) -> bytes:
+    return encode_proxy(
+        ProxyState(
+            epoch=int(rng.integers(1, 2**40)), update_seq=int(rng.integers(0, 2**40)),
+            tick=int(rng.integers(0, 2**40)), haptic_time=float(rng.uniform(0, 100)),
+            publish_time_ns=int(rng.integers(0, 2**62)), method=int(rng.integers(0, 4)),
+            safe_state=bool(rng.integers(0, 2)), valid=True, q=rng.uniform(-1, 1, d),
+            qd=rng.uniform(-1, 1, d), device_pose=rng.uniform(-1, 1, 3),
+            device_twist=rng.uniform(-1, 1, 3),
+        )
+    )  # fmt: skip
+
+
+@cases("proxy")
+@given(
+    st.integers(0, MAX_DOF),
+    st.integers(0, 2**32 - 1),
+    st.lists(st.tuples(st.integers(0, 2**31), st.integers(0, 255)), max_size=4),
+    st.sampled_from(["none", "truncate", "pad", "nonfinite", "huge"]),
+    st.binary(max_size=300),
+)
+def test_proxy_decoder_rejects_or_returns_sane_state(
+    d: int, seed: int, edits: list[tuple[int, int]], kind: str, noise: bytes
+) -> None:
+    """The sim's decoder: anything it accepts is finite and bounded; anything else is a
+    MessageError (never another exception that would stop the sim)."""
+    rng = np.random.default_rng(seed)
+    raw = bytearray(proxy_bytes(rng, d))
+    for position, value in edits:
+        raw[position % len(raw)] = value
+    body = PROXY_HEADER.size
+    if kind == "truncate":
+        raw = raw[: seed % len(raw)]
+    elif kind == "pad":
+        raw += noise or b"\0"
+    elif kind in ("nonfinite", "huge") and len(raw) > body:
+        k = seed % ((len(raw) - body) // 8)
+        set_float(raw, body + 8 * k, math.nan if kind == "nonfinite" else 1e300)
+    for candidate in (bytes(raw), noise):
+        try:
+            p = decode_proxy(candidate)
+        except MessageError:
+            continue
+        values = np.concatenate([p.q, p.qd, p.device_pose, p.device_twist])
+        assert np.isfinite(values).all() and math.isfinite(p.haptic_time)
+        assert np.abs(values).max(initial=0.0) <= LIM.max_abs_angle_rad
+
+
+# --- a live engine ------------------------------------------------------------------------
+
+SCENE = load_scene("free_box")
+USER = load_user("waypoints")
+DEVICE_CONFIG = load_device("ideal").config
+MAX_WRENCH = np.array(IdealDevice(DEVICE_CONFIG).limits().max_wrench)
+
+ACTIONS = st.one_of(
+    st.tuples(st.just("valid"), st.integers(0, 2**32 - 1)),
+    st.tuples(st.just("broken"), st.integers(0, 2**32 - 1), st.sampled_from(BREAKS)),
+    st.tuples(st.just("random"), st.binary(max_size=600)),
+    st.tuples(st.just("ticks"), st.integers(1, 12)),
+    st.tuples(st.just("replay"), st.integers(0, 2**32 - 1)),
+    st.tuples(st.just("old_epoch"), st.integers(0, 2**32 - 1)),
+    st.tuples(st.just("new_epoch"), st.integers(0, 2**32 - 1)),
+    st.tuples(st.just("oversize"), st.integers(1, 64)),
+    st.tuples(st.just("stale"), st.just(0)),
+)
+
+
+class EngineHarness:
+    """A HapticEngine with the books a test keeps: what was sent, what must have happened."""
+
+    def __init__(self) -> None:
+        self.engine = HapticEngine(SCENE, IdealDevice(DEVICE_CONFIG), USER, 0.04)
+        self.epoch = 1_000
+        self.seq = 0
+        self.installed = 0
+        self.rejected: dict[str, int] = {}
+        self.reinitialisations = 0
+
+    def update(self, seed: int, epoch: int | None = None, seq: int | None = None) -> bytes:
+        """One of ENGINE_POOL stamped with an epoch and a sequence number (by default the
+        next of the current epoch)."""
+        raw = bytearray(ENGINE_POOL[seed % len(ENGINE_POOL)])
+        epoch = self.epoch if epoch is None else epoch
+        struct.pack_into("<QQ", raw, 8, epoch, self.seq + 1 if seq is None else seq)
+        return bytes(raw)
+
+    def send_valid(self, raw: bytes, epoch: int, seq: int) -> None:
+        e = self.engine
+        new_epoch = epoch != self.epoch
+        reinit = e.ready and (new_epoch or e.stale)
+        assert e.receive(raw) == ""
+        self.epoch, self.seq = epoch, seq
+        self.installed += 1
+        self.reinitialisations += int(reinit)
+        assert (e.epoch, e.last_seq) == (epoch, seq)
+
+    def send_bad(self, raw: bytes | int) -> None:
+        """A message that must be rejected: counted by its reason, nothing installed. An int
+        is a mailbox slot length as the I/O process marks an oversize message (< 0)."""
+        e = self.engine
+        before = (e.slots.tobytes(), e.state.tobytes(), e.epoch, e.last_seq)
+        if isinstance(raw, int):
+            reason = reason_of(e.receive_buffer(e.parser.buffer, raw))
+        else:
+            reason = e.receive(raw)
+        assert reason in KNOWN_REASONS
+        self.rejected[reason] = self.rejected.get(reason, 0) + 1
+        assert (e.slots.tobytes(), e.state.tobytes(), e.epoch, e.last_seq) == before
+
+    def ticks(self, k: int) -> None:
+        for _ in range(k):
+            row = self.engine.tick(SCENE_DT)[0]
+            for name in ("wrench_command", "wrench_applied"):
+                w = row[name]
+                assert np.isfinite(w).all(), name
+                assert (np.abs(w) <= MAX_WRENCH).all(), name
+            assert np.isfinite(row["device_pose"]).all()
+
+    def check_books(self) -> None:
+        c = self.engine.counters
+        assert c.installed == self.installed
+        assert c.rejected == sum(self.rejected.values())
+        assert c.rejected_by_reason == self.rejected
+        assert c.reinitialisations == self.reinitialisations
+
+
+SCENE_DT = 1.0 / SCENE.haptic_rate_hz
+EDGE = 0.99  # "at the limit": a fraction of each bound, so the message is still valid
+
+
+def extreme_update(rng: np.random.Generator) -> bytes:
+    """A valid update at the edges of MessageLimits: stiff, fast, ill-conditioned, heavy
+    gravity, contacts in deep penetration. The kernels must still command only finite
+    wrenches within the device limits."""
+    n = int(rng.integers(1, 9))
+    raw = bytearray(random_update(rng, 3, n, 1, 1 | 2 | 8, 1, 0))
+    _, _, _, _, groups = layout(bytes(raw))
+    w = 10.0 ** rng.uniform(-5, 5.9, 3)  # eigenvalues over 11 decades, entries < 1e6
+    v, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    mass = v @ np.diag(w) @ v.T
+    values = {
+        "mass": 0.5 * (mass + mass.T),
+        "qd": rng.choice([-1.0, 1.0], 3) * LIM.max_abs_velocity * EDGE,
+        "gravity": rng.choice([-1.0, 1.0], 3) * LIM.max_abs_generalized_force * EDGE,
+        "velocity_torque": rng.uniform(-1, 1, 3) * LIM.max_abs_generalized_force * EDGE,
+    }
+    for name, value in values.items():
+        offset, count = groups[name]
+        raw[offset : offset + 8 * count] = np.ravel(value).astype("<f8").tobytes()
+    offset, _ = groups["contacts"]
+    c = np.frombuffer(bytes(raw), "<f8", 12 * n, offset).reshape(n, 12).copy()
+    c[:, 10] = LIM.max_stiffness_n_per_m * EDGE
+    c[:, 11] = LIM.max_damping_ns_per_m * EDGE
+    c[:, 2:4] = c[:, 0:2] + 0.05 * c[:, 4:6]  # the tool point 5 cm inside the surface
+    raw[offset : offset + 96 * n] = c.astype("<f8").tobytes()
+    assert reference_accepts(bytes(raw))
+    return bytes(raw)
+
+
+_POOL_RNG = np.random.default_rng(8)
+#: valid updates for the engine (d = 3: a tool keeps its dof within an epoch), a quarter of
+#: them at the edges of the limits
+ENGINE_POOL = [
+    random_update(_POOL_RNG, 3, int(n), int(j), int(f) | (2 if j else 0), 1, 0)
+    for n, j, f in zip(
+        _POOL_RNG.integers(0, 5, 48), _POOL_RNG.integers(0, 2, 48),
+        _POOL_RNG.choice([0, 1, 8, 9, 13], 48), strict=True,
+    )
+] + [extreme_update(_POOL_RNG) for _ in range(16)]  # fmt: skip
+
+
+@cases("engine")
+@given(st.integers(0, 2**32 - 1), st.lists(ACTIONS, min_size=1, max_size=30), st.data())
+def test_live_engine_under_interleaved_garbage(
+    first: int, actions: list[Any], data: st.DataObject
+) -> None:
+    h = EngineHarness()
+    h.ticks(2)  # before any model: nothing rendered, nothing to break
+    h.send_valid(h.update(first, seq=0), h.epoch, 0)
+    for action in actions:
+        kind = action[0]
+        if kind == "valid":
+            h.send_valid(h.update(action[1]), h.epoch, h.seq + 1)
+        elif kind == "broken":
+            broken = break_update(h.update(action[1]), action[2], data.draw)
+            if broken is not None:
+                h.send_bad(broken)
+        elif kind == "random":
+            h.send_bad(action[1])
+        elif kind == "replay":  # a valid message again, or an older one of this epoch
+            h.send_bad(h.update(action[1], seq=max(0, h.seq - action[1] % 3)))
+        elif kind == "old_epoch":
+            h.send_bad(h.update(action[1], epoch=h.epoch - 1 - action[1] % 5))
+        elif kind == "new_epoch":  # a restarted sim: re-initialise
+            h.send_valid(h.update(action[1], epoch=h.epoch + 1, seq=0), h.epoch + 1, 0)
+        elif kind == "oversize":
+            size = h.engine.parser.buffer.shape[0] + action[1]
+            h.send_bad(b"\0" * size if action[1] % 2 else -size)
+        elif kind == "stale":
+            h.engine.set_stale()
+        else:
+            h.ticks(action[1])
+        h.check_books()
+    h.ticks(3)
+    h.check_books()
