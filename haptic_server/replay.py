@@ -122,12 +122,13 @@ def replay(
     updates_at: dict[int, list[dict[str, Any]]] = defaultdict(list)
     for rec in log.updates:
         updates_at[int(rec["tick"])].append(rec)
-    safe_at: dict[int, bool] = {}
-    for ev in log.events:  # within a tick the loop clears the watchdog before it trips it
-        if ev["kind"] == "watchdog":
-            safe_at[int(ev["tick"])] = True
-        elif ev["kind"] == "watchdog_clear":
-            safe_at.setdefault(int(ev["tick"]), False)
+    # the loop's safe-state switches, in its order within a tick: a stop (before any update;
+    # none is taken while stopping), the updates, the watchdog clearing (with the update that
+    # clears it), then the watchdog tripping (which makes the next update re-initialise)
+    events_at: dict[int, set[str]] = defaultdict(set)
+    for ev in log.events:
+        if ev["kind"] in ("stop", "watchdog_clear", "watchdog"):
+            events_at[int(ev["tick"])].add(ev["kind"])
 
     out = np.zeros(n, TICK_DTYPE)
     dt = logged["dt"][:n].tolist()
@@ -142,13 +143,18 @@ def replay(
     k = -1
     try:
         for k in range(n):
+            kinds = events_at.get(k, set())
+            if "stop" in kinds:
+                engine.set_safe(True)
             for rec in updates_at.get(k, ()):
                 reason = _install(engine, rec)
                 replayed += 1
                 if reason != rec["reason"]:
                     mismatches.append({"tick": k, "logged": rec["reason"], "replayed": reason})
-            if k in safe_at:
-                engine.set_safe(safe_at[k])
+            if "watchdog_clear" in kinds:
+                engine.set_safe(False)
+            if "watchdog" in kinds:
+                engine.set_stale()
             row = engine.tick(dt[k], lateness[k], work[k], seq[k], age[k], hand[k])
             store_row(out, k, row)
             if bar is not None and k % PROGRESS_EVERY == PROGRESS_EVERY - 1:
