@@ -171,7 +171,9 @@ def test_first_order_hold_removes_the_chatter_of_zero_order_hold() -> None:
 RT_RUN_S = 7.0
 #: The sim process starts after the haptic server is ready; loaded 2-core VMs measured
 #: 1-3 s until its first update. The script starts then, and touches the floor 1.3 s later.
-FIRST_UPDATE_BY_S = 4.5
+FIRST_UPDATE_BY_S = (
+    30.0  # liveness only: the sim starts and connects (slow on a loaded 2-core host)
+)
 MIN_TICK_FRACTION = 0.95
 
 
