@@ -248,7 +248,9 @@ def local_model_map(quick: bool) -> list[Case]:
         cases.append(
             _case("impact speed", f"v={v0:g} m/s", _wall_scene(15000.0, 20.0, v0=v0), push, seconds)
         )
-    for force in (50.0,) if quick else (1.0, 10.0, 25.0, 50.0):
+    # up to 90% of the device limit: at the limit itself the device cannot hold any wall (the
+    # hand overpowers it; the command stays clipped, tested in tests/test_stability.py)
+    for force in (45.0,) if quick else (1.0, 10.0, 25.0, 45.0):
         cases.append(
             _case("user force", f"F={force:g} N", _wall_scene(15000.0, 20.0), _push(force), seconds)
         )
