@@ -37,7 +37,7 @@ from device_models.base import (
     DeviceRenderingSpec,
 )
 from device_models.world_map import DeviceWorldMap, WorldMapSection
-from shared.config import ConfigError, load_dataclass, read_toml
+from shared.config import load_model_config, read_toml
 
 #: Device-specific fault bit (base.py defines bits 0-2): the command held NaN or Inf.
 FAULT_INVALID_COMMAND = 8
@@ -296,22 +296,14 @@ class TwinPantographConfig:
 
     @classmethod
     def from_toml_dict(cls, d: dict[str, Any], source: str) -> TwinPantographConfig:
-        """Build from a parsed TOML table; ValueError names `source`, the key and the problem."""
-        data = dict(d)
-        model = data.pop("model", "twin_pantograph")
-        if model != "twin_pantograph":
-            raise ConfigError(source, "model", f"expected 'twin_pantograph', got {model!r}")
-        config: TwinPantographConfig = load_dataclass(cls, data, source)
+        """Build from a parsed TOML table; a ConfigError names `source`, the key and the problem."""
+        config: TwinPantographConfig = load_model_config(cls, d, source, "twin_pantograph")
         return config
 
     @classmethod
     def from_toml_file(cls, path: str | Path) -> TwinPantographConfig:
         """Read and validate a device TOML file."""
-        try:
-            data = read_toml(path)
-        except ConfigError as exc:
-            raise ValueError(str(exc)) from None
-        return cls.from_toml_dict(data, str(path))
+        return cls.from_toml_dict(read_toml(path), str(path))
 
 
 def pack_parameters(config: TwinPantographConfig) -> np.ndarray:

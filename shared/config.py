@@ -582,6 +582,15 @@ def _require_config(cond: bool, source: str, key: str, problem: str) -> None:
         raise ConfigError(source, key, problem)
 
 
+def load_model_config(cls: Any, data: dict[str, Any], source: str, model: str) -> Any:
+    """A device model's config from its file's table; a `model` key, if present, must match."""
+    table = dict(data)
+    found = table.pop("model", model)
+    if found != model:
+        raise ConfigError(source, "model", f"expected {model!r}, got {found!r}")
+    return load_dataclass(cls, table, source)
+
+
 def load_device_table(name_or_path: str) -> tuple[str, dict[str, Any], str]:
     """Read a device file: returns (model name, the rest of the table, source path)."""
     path = resolve("devices", name_or_path)
