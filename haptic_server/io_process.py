@@ -18,6 +18,7 @@ import contextlib
 import multiprocessing as mp
 import os
 import struct
+import threading
 import time
 from multiprocessing import shared_memory
 from typing import Any
@@ -204,8 +205,11 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     from shared.messages import ProxyEncoder
     from shared.transport import keys, open_session
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the loop decides when I/O ends
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    # the loop decides when I/O ends: a Ctrl-C to the process group is ignored; SIGTERM (the
+    # loop's close() after a timeout, or anyone's kill) finishes the log and exits
+    terminated = threading.Event()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, lambda *_: terminated.set())
     shm = shared_memory.SharedMemory(name=shm_name)
     block = SharedBlock(shm)
     ctl = block.ctl
@@ -257,7 +261,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     ctl[C_READY] = 1
     try:
         while True:
-            closing = ctl[C_CLOSED] == 1 or os.getppid() != parent_pid
+            closing = ctl[C_CLOSED] == 1 or os.getppid() != parent_pid or terminated.is_set()
             if ctl[C_LOWER_IO] == 1 and not lowered:
                 _lower_priority()
                 lowered = True

@@ -140,34 +140,40 @@ class HapticServer:
                 "method": engine.method,
             }
         )
-        period_ns = round(1e9 / self.scene.haptic_rate_hz)
-        dt_nominal = period_ns / 1e9
-        watchdog_ns = int(self.network.watchdog_ms * 1e6)
-        newest_seq = -1
-        newest_age_ms = float("nan")
-        last_valid_ns = 0
-        stale = False
-        stats.realtime_priority = try_realtime_priority()
-        if not stats.realtime_priority:
-            io.lower_io_priority()
-        if ready is not None:
-            ready()
-        start_ns = time.perf_counter_ns()
-        # the duration counts from the first installed update (a sim that starts later, or
-        # compiles first, does not eat into it); without any update it ends all the same
-        # after FIRST_UPDATE_WAIT_S more
-        duration_ns = int(duration_s * 1e9) if duration_s else None
-        end_ns = start_ns + duration_ns + int(FIRST_UPDATE_WAIT_S * 1e9) if duration_ns else None
-        deadline = start_ns + period_ns
-        last_start = start_ns
-        work_prev_us = 0.0
-        leak: list[bytes] = []  # only ever grows under --inject-leak
-        nan_tick = (
-            round(self.faults.nan_after_s * self.scene.haptic_rate_hz)
-            if self.faults.nan_after_s is not None
-            else -1
-        )
-        stopping = False  # ramping to the safe state before the loop ends
+        try:  # from here on every exit path closes the I/O process (its log, its session)
+            period_ns = round(1e9 / self.scene.haptic_rate_hz)
+            dt_nominal = period_ns / 1e9
+            watchdog_ns = int(self.network.watchdog_ms * 1e6)
+            newest_seq = -1
+            newest_age_ms = float("nan")
+            last_valid_ns = 0
+            stale = False
+            stats.realtime_priority = try_realtime_priority()
+            if not stats.realtime_priority:
+                io.lower_io_priority()
+            if ready is not None:
+                ready()
+            start_ns = time.perf_counter_ns()
+            # the duration counts from the first installed update (a sim that starts later, or
+            # compiles first, does not eat into it); without any update it ends all the same
+            # after FIRST_UPDATE_WAIT_S more
+            duration_ns = int(duration_s * 1e9) if duration_s else None
+            end_ns = (
+                start_ns + duration_ns + int(FIRST_UPDATE_WAIT_S * 1e9) if duration_ns else None
+            )
+            deadline = start_ns + period_ns
+            last_start = start_ns
+            work_prev_us = 0.0
+            leak: list[bytes] = []  # only ever grows under --inject-leak
+            nan_tick = (
+                round(self.faults.nan_after_s * self.scene.haptic_rate_hz)
+                if self.faults.nan_after_s is not None
+                else -1
+            )
+            stopping = False  # ramping to the safe state before the loop ends
+        except BaseException:
+            io.close()
+            raise
         try:
             while True:
                 now = wait_until(deadline)
