@@ -11,7 +11,7 @@ memory over run time. Exit code 1 (with the failed checks named) if any bound is
 Bounds (generous, because CI machines are shared and noisy; see docs/soak.md):
 - no crash: both servers exit 0 on SIGTERM; no NaN/Inf anywhere in the log; fault = 0;
 - the applied wrench never beyond the device's limits;
-- late ticks (> 1 ms) below LATE_FRACTION_MAX (1%) of all ticks;
+- late ticks (> 1 ms) below LATE_FRACTION_MAX (3%) of all ticks;
 - updates received >= UPDATE_FRACTION_MIN of the sim's rate while it was up;
 - resident memory growth of each process <= MEMORY_GROWTH_MAX_MB after the warm-up;
 - every log readable to its end (ticks in the log == ticks the loop counted).
@@ -40,8 +40,9 @@ from haptic_server.run import Child
 from shared.config import load_scene
 
 # ticks starting > 1 ms late: the bare clock loop alone measured up to 0.43% on these VMs
-# (benchmarks/loop_timing.py, 43 of 10000); the bound is about twice that
-LATE_FRACTION_MAX = 0.01
+# (benchmarks/loop_timing.py); soak segments measured 0.03-1.2% on a quiet VM and up to 2.1%
+# with other work on the 2 cores (docs/soak.md). CI machines are shared: 3%.
+LATE_FRACTION_MAX = 0.03
 UPDATE_FRACTION_MIN = 0.95  # issue 9
 MEMORY_GROWTH_MAX_MB = 10.0  # issue 9, per process, after warm-up
 WARM_UP_FRACTION = 0.25  # memory is compared from the end of the first quarter of a segment
