@@ -18,7 +18,7 @@ from typing import Literal, Protocol
 
 import numpy as np
 
-from shared.config import Vec3
+from shared.config import Vec3, require
 
 #: Entries of SENSOR_DTYPE.aux: device-specific readings the engine logs as `device_aux`.
 AUX_SIZE = 8
@@ -55,11 +55,6 @@ class DeviceLimits:
     max_rate_hz: float
 
 
-def _require(cond: bool, key: str, problem: str) -> None:
-    if not cond:
-        raise ValueError(f"{key}: {problem}")
-
-
 @dataclass(frozen=True)
 class DeviceRenderingSpec:
     """The `[rendering]` table of a device config: gains that belong to the device.
@@ -80,8 +75,8 @@ class DeviceRenderingSpec:
     def __post_init__(self) -> None:
         for key in ("foh_stiffness", "foh_damping", "safe_damping"):
             values = getattr(self, key)
-            _require(all(math.isfinite(v) and v >= 0 for v in values), key, "must be >= 0")
-        _require(
+            require(all(math.isfinite(v) and v >= 0 for v in values), key, "must be >= 0")
+        require(
             all(math.isfinite(v) for v in self.gravity_feedforward),
             "gravity_feedforward",
             "must be finite",

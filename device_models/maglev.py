@@ -32,7 +32,7 @@ from device_models.base import (
     DeviceRenderingSpec,
 )
 from device_models.world_map import DeviceWorldMap, WorldMapSection
-from shared.config import load_model_config, read_toml
+from shared.config import load_model_config, read_toml, require
 
 #: Device-specific fault bit (base.py defines bits 0-2): the command held NaN or Inf.
 FAULT_INVALID_COMMAND = 8
@@ -86,11 +86,6 @@ STATE_DTYPE = np.dtype(
 # --------------------------------------------------------------------------------- config
 
 
-def _require(cond: bool, key: str, problem: str) -> None:
-    if not cond:
-        raise ValueError(f"{key}: {problem}")
-
-
 Vec3 = tuple[float, float, float]
 
 
@@ -104,10 +99,10 @@ class FlotorSection:
     handle_height_m: float
 
     def __post_init__(self) -> None:
-        _require(self.mass_kg > 0, "mass_kg", "must be > 0")
-        _require(all(v > 0 for v in self.inertia_kgm2), "inertia_kgm2", "must be > 0")
-        _require(self.gravity_m_per_s2 >= 0, "gravity_m_per_s2", "must be >= 0")
-        _require(self.handle_height_m >= 0, "handle_height_m", "must be >= 0")
+        require(self.mass_kg > 0, "mass_kg", "must be > 0")
+        require(all(v > 0 for v in self.inertia_kgm2), "inertia_kgm2", "must be > 0")
+        require(self.gravity_m_per_s2 >= 0, "gravity_m_per_s2", "must be >= 0")
+        require(self.handle_height_m >= 0, "handle_height_m", "must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -121,8 +116,8 @@ class LevitationSection:
     setpoint_pitch_rad: float
 
     def __post_init__(self) -> None:
-        _require(self.bandwidth_hz > 0, "bandwidth_hz", "must be > 0")
-        _require(self.damping_ratio > 0, "damping_ratio", "must be > 0")
+        require(self.bandwidth_hz > 0, "bandwidth_hz", "must be > 0")
+        require(self.damping_ratio > 0, "damping_ratio", "must be > 0")
 
 
 @dataclass(frozen=True)
@@ -134,7 +129,7 @@ class DampingSection:
 
     def __post_init__(self) -> None:
         for key in ("translational_ns_per_m", "rotational_nms_per_rad"):
-            _require(all(v >= 0 for v in getattr(self, key)), key, "must be >= 0")
+            require(all(v >= 0 for v in getattr(self, key)), key, "must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -149,15 +144,15 @@ class RangeSection:
     rotational_stop_damping_nms_per_rad: float
 
     def __post_init__(self) -> None:
-        _require(all(v > 0 for v in self.translation_m), "translation_m", "must be > 0")
-        _require(all(v > 0 for v in self.rotation_rad), "rotation_rad", "must be > 0")
+        require(all(v > 0 for v in self.translation_m), "translation_m", "must be > 0")
+        require(all(v > 0 for v in self.rotation_rad), "rotation_rad", "must be > 0")
         for key in (
             "translational_stop_stiffness_n_per_m",
             "translational_stop_damping_ns_per_m",
             "rotational_stop_stiffness_nm_per_rad",
             "rotational_stop_damping_nms_per_rad",
         ):
-            _require(getattr(self, key) >= 0, key, "must be >= 0")
+            require(getattr(self, key) >= 0, key, "must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -169,9 +164,9 @@ class ActuatorSection:
     max_rate_hz: float
 
     def __post_init__(self) -> None:
-        _require(self.peak_force_n > 0, "peak_force_n", "must be > 0")
-        _require(self.peak_torque_nm > 0, "peak_torque_nm", "must be > 0")
-        _require(self.max_rate_hz > 0, "max_rate_hz", "must be > 0")
+        require(self.peak_force_n > 0, "peak_force_n", "must be > 0")
+        require(self.peak_torque_nm > 0, "peak_torque_nm", "must be > 0")
+        require(self.max_rate_hz > 0, "max_rate_hz", "must be > 0")
 
 
 @dataclass(frozen=True)
@@ -184,9 +179,9 @@ class SensorSection:
     noise_seed: int
 
     def __post_init__(self) -> None:
-        _require(self.position_noise_std_m >= 0, "position_noise_std_m", "must be >= 0")
-        _require(self.angle_noise_std_rad >= 0, "angle_noise_std_rad", "must be >= 0")
-        _require(self.twist_cutoff_hz >= 0, "twist_cutoff_hz", "must be >= 0")
+        require(self.position_noise_std_m >= 0, "position_noise_std_m", "must be >= 0")
+        require(self.angle_noise_std_rad >= 0, "angle_noise_std_rad", "must be >= 0")
+        require(self.twist_cutoff_hz >= 0, "twist_cutoff_hz", "must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -196,7 +191,7 @@ class SimulationSection:
     max_substep_s: float
 
     def __post_init__(self) -> None:
-        _require(0 < self.max_substep_s <= 0.001, "max_substep_s", "must be in (0, 0.001] s")
+        require(0 < self.max_substep_s <= 0.001, "max_substep_s", "must be in (0, 0.001] s")
 
 
 @dataclass(frozen=True)
@@ -215,7 +210,7 @@ class MaglevConfig:
 
     def __post_init__(self) -> None:
         weight = self.flotor.mass_kg * self.flotor.gravity_m_per_s2
-        _require(
+        require(
             weight < self.actuators.peak_force_n,
             "actuators.peak_force_n",
             f"cannot levitate the flotor's weight {weight:.2f} N",

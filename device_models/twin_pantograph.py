@@ -37,7 +37,7 @@ from device_models.base import (
     DeviceRenderingSpec,
 )
 from device_models.world_map import DeviceWorldMap, WorldMapSection
-from shared.config import load_model_config, read_toml
+from shared.config import load_model_config, read_toml, require
 
 #: Device-specific fault bit (base.py defines bits 0-2): the command held NaN or Inf.
 FAULT_INVALID_COMMAND = 8
@@ -129,11 +129,6 @@ WORK_DTYPE = np.dtype(
 # --------------------------------------------------------------------------------- config
 
 
-def _require(cond: bool, key: str, problem: str) -> None:
-    if not cond:
-        raise ValueError(f"{key}: {problem}")
-
-
 Vec3 = tuple[float, float, float]
 Vec4 = tuple[float, float, float, float]
 
@@ -151,11 +146,11 @@ class GeometrySection:
     handle_length_m: float
 
     def __post_init__(self) -> None:
-        _require(all(v > 0 for v in self.proximal_length_m), "proximal_length_m", "must be > 0")
-        _require(all(v > 0 for v in self.distal_length_m), "distal_length_m", "must be > 0")
-        _require(all(v in (-1, 1) for v in self.elbow_sign), "elbow_sign", "entries must be ±1")
-        _require(all(v in (-1, 1) for v in self.assembly_sign), "assembly_sign", "must be ±1")
-        _require(self.handle_length_m > 0, "handle_length_m", "must be > 0")
+        require(all(v > 0 for v in self.proximal_length_m), "proximal_length_m", "must be > 0")
+        require(all(v > 0 for v in self.distal_length_m), "distal_length_m", "must be > 0")
+        require(all(v in (-1, 1) for v in self.elbow_sign), "elbow_sign", "entries must be ±1")
+        require(all(v in (-1, 1) for v in self.assembly_sign), "assembly_sign", "must be ±1")
+        require(self.handle_length_m > 0, "handle_length_m", "must be > 0")
 
 
 @dataclass(frozen=True)
@@ -178,9 +173,9 @@ class InertiaSection:
             "distal_mass_kg",
             "distal_inertia_kgm2",
         ):
-            _require(all(v >= 0 for v in getattr(self, key)), key, "must be >= 0")
-        _require(self.handle_mass_kg > 0, "handle_mass_kg", "must be > 0")
-        _require(self.handle_inertia_kgm2 > 0, "handle_inertia_kgm2", "must be > 0")
+            require(all(v >= 0 for v in getattr(self, key)), key, "must be >= 0")
+        require(self.handle_mass_kg > 0, "handle_mass_kg", "must be > 0")
+        require(self.handle_inertia_kgm2 > 0, "handle_inertia_kgm2", "must be > 0")
 
 
 @dataclass(frozen=True)
@@ -192,9 +187,9 @@ class FrictionSection:
     coulomb_smoothing_rad_per_s: float
 
     def __post_init__(self) -> None:
-        _require(all(v >= 0 for v in self.viscous_nms_per_rad), "viscous_nms_per_rad", ">= 0")
-        _require(all(v >= 0 for v in self.coulomb_nm), "coulomb_nm", "must be >= 0")
-        _require(self.coulomb_smoothing_rad_per_s > 0, "coulomb_smoothing_rad_per_s", "must be > 0")
+        require(all(v >= 0 for v in self.viscous_nms_per_rad), "viscous_nms_per_rad", ">= 0")
+        require(all(v >= 0 for v in self.coulomb_nm), "coulomb_nm", "must be >= 0")
+        require(self.coulomb_smoothing_rad_per_s > 0, "coulomb_smoothing_rad_per_s", "must be > 0")
 
 
 @dataclass(frozen=True)
@@ -206,9 +201,9 @@ class ActuatorSection:
     max_rate_hz: float
 
     def __post_init__(self) -> None:
-        _require(all(v > 0 for v in self.torque_limit_nm), "torque_limit_nm", "must be > 0")
-        _require(all(v > 0 for v in self.max_wrench), "max_wrench", "must be > 0")
-        _require(self.max_rate_hz > 0, "max_rate_hz", "must be > 0")
+        require(all(v > 0 for v in self.torque_limit_nm), "torque_limit_nm", "must be > 0")
+        require(all(v > 0 for v in self.max_wrench), "max_wrench", "must be > 0")
+        require(self.max_rate_hz > 0, "max_rate_hz", "must be > 0")
 
 
 @dataclass(frozen=True)
@@ -223,15 +218,15 @@ class WorkspaceSection:
     stop_damping: Vec3
 
     def __post_init__(self) -> None:
-        _require(
+        require(
             all(lo < hi for lo, hi in zip(self.workspace_min, self.workspace_max, strict=True)),
             "workspace_max",
             "must exceed workspace_min on every axis",
         )
-        _require(self.reach_margin_m >= 0, "reach_margin_m", "must be >= 0")
-        _require(0 <= self.min_distal_sine < 1, "min_distal_sine", "must be in [0, 1)")
-        _require(all(v >= 0 for v in self.stop_stiffness), "stop_stiffness", "must be >= 0")
-        _require(all(v >= 0 for v in self.stop_damping), "stop_damping", "must be >= 0")
+        require(self.reach_margin_m >= 0, "reach_margin_m", "must be >= 0")
+        require(0 <= self.min_distal_sine < 1, "min_distal_sine", "must be in [0, 1)")
+        require(all(v >= 0 for v in self.stop_stiffness), "stop_stiffness", "must be >= 0")
+        require(all(v >= 0 for v in self.stop_damping), "stop_damping", "must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -246,10 +241,10 @@ class SensorSection:
     noise_seed: int
 
     def __post_init__(self) -> None:
-        _require(self.encoder_counts_per_rev > 0, "encoder_counts_per_rev", "must be > 0")
-        _require(self.twist_cutoff_hz >= 0, "twist_cutoff_hz", "must be >= 0")
-        _require(self.force_noise_std_n >= 0, "force_noise_std_n", "must be >= 0")
-        _require(self.torque_noise_std_nm >= 0, "torque_noise_std_nm", "must be >= 0")
+        require(self.encoder_counts_per_rev > 0, "encoder_counts_per_rev", "must be > 0")
+        require(self.twist_cutoff_hz >= 0, "twist_cutoff_hz", "must be >= 0")
+        require(self.force_noise_std_n >= 0, "force_noise_std_n", "must be >= 0")
+        require(self.torque_noise_std_nm >= 0, "torque_noise_std_nm", "must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -259,7 +254,7 @@ class SimulationSection:
     max_substep_s: float
 
     def __post_init__(self) -> None:
-        _require(0 < self.max_substep_s <= 0.01, "max_substep_s", "must be in (0, 0.01] s")
+        require(0 < self.max_substep_s <= 0.01, "max_substep_s", "must be in (0, 0.01] s")
 
 
 @dataclass(frozen=True)
@@ -287,7 +282,7 @@ class TwinPantographConfig:
             for y in axes[1]:
                 for t in axes[2]:
                     fault = pose_faults(params, np.array([x, y, t]), measures)
-                    _require(
+                    require(
                         fault == FAULT_NONE,
                         "workspace.workspace_max",
                         f"box point ({x:.4g}, {y:.4g}, {t:.4g}) is outside the reach or "

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from shared.config import Vec3
+from shared.config import Vec3, require
 
 F8 = np.float64
 I8 = np.int64
@@ -36,11 +36,6 @@ MAP_DTYPE = np.dtype(
 )
 
 
-def _require(cond: bool, key: str, problem: str) -> None:
-    if not cond:
-        raise ValueError(f"{key}: {problem}")
-
-
 @dataclass(frozen=True)
 class WorldMapSection:
     """The `[world_map]` table of a device config: mapping and automatic rate control."""
@@ -54,14 +49,14 @@ class WorldMapSection:
     rate_gain_per_s: float = 20.0
 
     def __post_init__(self) -> None:
-        _require(all(math.isfinite(v) for v in self.offset), "offset", "must be finite")
+        require(all(math.isfinite(v) for v in self.offset), "offset", "must be finite")
         for key in ("position_scale", "angle_scale", "force_scale"):
             value = getattr(self, key)
-            _require(math.isfinite(value) and value > 0, key, "must be finite and > 0")
-        _require(
+            require(math.isfinite(value) and value > 0, key, "must be finite and > 0")
+        require(
             0 < self.rate_threshold_fraction < 1, "rate_threshold_fraction", "must be in (0, 1)"
         )
-        _require(
+        require(
             math.isfinite(self.rate_gain_per_s) and self.rate_gain_per_s >= 0,
             "rate_gain_per_s",
             "must be finite and >= 0",

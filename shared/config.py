@@ -159,7 +159,8 @@ def resolve(kind: str, name_or_path: str) -> Path:
     return CONFIG_ROOT / kind / f"{name_or_path}.toml"
 
 
-def _require(cond: bool, key: str, problem: str) -> None:
+def require(cond: bool, key: str, problem: str) -> None:
+    """A config check in a dataclass's __post_init__: load_dataclass names the file and key."""
     if not cond:
         raise ValueError(f"{key}: {problem}")
 
@@ -183,10 +184,10 @@ class Material:
     restitution: float = 0.0
 
     def __post_init__(self) -> None:
-        _require(self.stiffness_n_per_m > 0, "stiffness_n_per_m", "must be > 0")
-        _require(self.damping_ns_per_m >= 0, "damping_ns_per_m", "must be >= 0")
-        _require(self.friction >= 0, "friction", "must be >= 0")
-        _require(0 <= self.restitution <= 1, "restitution", "must be in [0, 1]")
+        require(self.stiffness_n_per_m > 0, "stiffness_n_per_m", "must be > 0")
+        require(self.damping_ns_per_m >= 0, "damping_ns_per_m", "must be >= 0")
+        require(self.friction >= 0, "friction", "must be >= 0")
+        require(0 <= self.restitution <= 1, "restitution", "must be in [0, 1]")
 
 
 @dataclass(frozen=True)
@@ -212,14 +213,14 @@ class BodySpec:
 
     def __post_init__(self) -> None:
         if self.shape == "box":
-            _require(self.size[0] > 0 and self.size[1] > 0, "size", "box sides must be > 0")
+            require(self.size[0] > 0 and self.size[1] > 0, "size", "box sides must be > 0")
         if self.shape == "circle":
-            _require(self.radius > 0, "radius", "circle radius must be > 0")
+            require(self.radius > 0, "radius", "circle radius must be > 0")
         if self.shape == "segment":
-            _require(self.a != self.b, "b", "segment end points must differ")
-        _require(self.mass > 0, "mass", "must be > 0")
-        _require(self.oscillation_period_s >= 0, "oscillation_period_s", "must be >= 0")
-        _require(self.linear_damping_per_s >= 0, "linear_damping_per_s", "must be >= 0")
+            require(self.a != self.b, "b", "segment end points must differ")
+        require(self.mass > 0, "mass", "must be > 0")
+        require(self.oscillation_period_s >= 0, "oscillation_period_s", "must be >= 0")
+        require(self.linear_damping_per_s >= 0, "linear_damping_per_s", "must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -239,13 +240,13 @@ class LinkageSpec:
 
     def __post_init__(self) -> None:
         n = len(self.lengths)
-        _require(n >= 1, "lengths", "a linkage needs at least one link")
+        require(n >= 1, "lengths", "a linkage needs at least one link")
         for key in ("masses", "inertias", "com_offsets", "initial_angles"):
-            _require(len(getattr(self, key)) == n, key, f"needs {n} entries, one per link")
-        _require(all(v > 0 for v in self.lengths), "lengths", "must be > 0")
-        _require(all(v > 0 for v in self.masses), "masses", "must be > 0")
-        _require(all(v > 0 for v in self.inertias), "inertias", "must be > 0")
-        _require(self.radius > 0, "radius", "must be > 0")
+            require(len(getattr(self, key)) == n, key, f"needs {n} entries, one per link")
+        require(all(v > 0 for v in self.lengths), "lengths", "must be > 0")
+        require(all(v > 0 for v in self.masses), "masses", "must be > 0")
+        require(all(v > 0 for v in self.inertias), "inertias", "must be > 0")
+        require(self.radius > 0, "radius", "must be > 0")
 
 
 @dataclass(frozen=True)
@@ -262,10 +263,10 @@ class ToolSpec:
     tracking_bandwidth_hz: float = 8.0  # how hard the sim's tool follows the proxy
 
     def __post_init__(self) -> None:
-        _require(self.characteristic_length_m > 0, "characteristic_length_m", "must be > 0")
-        _require(0 < self.rank_tolerance < 1, "rank_tolerance", "must be in (0, 1)")
-        _require(self.neighbourhood_margin_m > 0, "neighbourhood_margin_m", "must be > 0")
-        _require(self.tracking_bandwidth_hz > 0, "tracking_bandwidth_hz", "must be > 0")
+        require(self.characteristic_length_m > 0, "characteristic_length_m", "must be > 0")
+        require(0 < self.rank_tolerance < 1, "rank_tolerance", "must be in (0, 1)")
+        require(self.neighbourhood_margin_m > 0, "neighbourhood_margin_m", "must be > 0")
+        require(self.tracking_bandwidth_hz > 0, "tracking_bandwidth_hz", "must be > 0")
 
 
 @dataclass(frozen=True)
@@ -294,11 +295,11 @@ class RenderingSpec:
             "coordination_stiffness", "coordination_damping", "desired_damping",
             "foh_spring_stiffness", "foh_spring_damping",
         ):  # fmt: skip
-            _require(all(v >= 0 for v in getattr(self, key)), key, "must be >= 0")
-        _require(self.penalty_stiffness >= 0, "penalty_stiffness", "must be >= 0")
-        _require(self.penalty_damping >= 0, "penalty_damping", "must be >= 0")
-        _require(self.blend_ms >= 0, "blend_ms", "must be >= 0")
-        _require(self.collision_speed_m_per_s >= 0, "collision_speed_m_per_s", "must be >= 0")
+            require(all(v >= 0 for v in getattr(self, key)), key, "must be >= 0")
+        require(self.penalty_stiffness >= 0, "penalty_stiffness", "must be >= 0")
+        require(self.penalty_damping >= 0, "penalty_damping", "must be >= 0")
+        require(self.blend_ms >= 0, "blend_ms", "must be >= 0")
+        require(self.collision_speed_m_per_s >= 0, "collision_speed_m_per_s", "must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -319,33 +320,33 @@ class SceneConfig:
     rendering: RenderingSpec = field(default_factory=RenderingSpec)
 
     def __post_init__(self) -> None:
-        _require(10.0 <= self.sim_rate_hz <= 500.0, "sim_rate_hz", "must be in [10, 500] Hz")
-        _require(self.sim_substeps >= 1, "sim_substeps", "must be >= 1")
-        _require(
+        require(10.0 <= self.sim_rate_hz <= 500.0, "sim_rate_hz", "must be in [10, 500] Hz")
+        require(self.sim_substeps >= 1, "sim_substeps", "must be >= 1")
+        require(
             100.0 <= self.haptic_rate_hz <= 5000.0, "haptic_rate_hz", "must be in [100, 5000] Hz"
         )
         names = [b.name for b in self.bodies] + [lk.name for lk in self.linkages]
-        _require(len(names) == len(set(names)), "bodies", "body and linkage names must be unique")
+        require(len(names) == len(set(names)), "bodies", "body and linkage names must be unique")
         for i, b in enumerate(self.bodies):
-            _require(
+            require(
                 b.material in self.materials,
                 f"bodies[{i}].material",
                 f"unknown material {b.material!r}",
             )
         for i, lk in enumerate(self.linkages):
-            _require(
+            require(
                 lk.material in self.materials,
                 f"linkages[{i}].material",
                 f"unknown material {lk.material!r}",
             )
         if self.tool.kind == "body":
             match = [b for b in self.bodies if b.name == self.tool.name]
-            _require(bool(match), "tool.name", f"no body named {self.tool.name!r}")
-            _require(match[0].kind == "dynamic", "tool.name", "the held body must be dynamic")
+            require(bool(match), "tool.name", f"no body named {self.tool.name!r}")
+            require(match[0].kind == "dynamic", "tool.name", "the held body must be dynamic")
         else:
             match_l = [lk for lk in self.linkages if lk.name == self.tool.name]
-            _require(bool(match_l), "tool.name", f"no linkage named {self.tool.name!r}")
-            _require(0 <= self.tool.link < len(match_l[0].lengths), "tool.link", "no such link")
+            require(bool(match_l), "tool.name", f"no linkage named {self.tool.name!r}")
+            require(0 <= self.tool.link < len(match_l[0].lengths), "tool.link", "no such link")
         if self.rendering.method == "virtual_coupling_foh" and self.tool.kind == "body":
             self._check_coupling_substeps(match[0])
 
@@ -363,7 +364,7 @@ class SceneConfig:
             self.sim_rate_hz, body.mass, moment, self.tool.point,
             r.foh_spring_stiffness, r.foh_spring_damping,
         )  # fmt: skip
-        _require(
+        require(
             self.sim_substeps >= needed,
             "sim_substeps",
             f"virtual_coupling_foh needs >= {needed} at {self.sim_rate_hz:g} Hz for the tool "
@@ -402,10 +403,10 @@ class UserConfig:
 
     def __post_init__(self) -> None:
         if self.kind == "waypoints":
-            _require(len(self.waypoints) >= 1, "waypoints", "needs at least one waypoint")
+            require(len(self.waypoints) >= 1, "waypoints", "needs at least one waypoint")
             times = [w[0] for w in self.waypoints]
-            _require(times == sorted(times), "waypoints", "times must be increasing")
-        _require(all(v > 0 for v in self.max_wrench), "max_wrench", "must be > 0")
+            require(times == sorted(times), "waypoints", "times must be increasing")
+        require(all(v > 0 for v in self.max_wrench), "max_wrench", "must be > 0")
 
 
 # --- network --------------------------------------------------------------------------------
@@ -431,7 +432,7 @@ class EndpointSpec:
     zenoh: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        _require(
+        require(
             bool(self.user) == bool(self.password_file),
             "password_file" if self.user else "user",
             "user and password_file go together",
@@ -439,21 +440,21 @@ class EndpointSpec:
         for key in ("user", "sim_users", "observer_users"):
             value = getattr(self, key)
             for name in (value,) if isinstance(value, str) else value:
-                _require(
+                require(
                     ":" not in name and name.strip() == name and (bool(name) or key == "user"),
                     key,
                     f"bad user name {name!r}",
                 )
-        _require(
+        require(
             not self.sim_users or bool(self.users_file),
             "sim_users",
             "access control by user name needs authentication: set users_file",
         )
-        _require(
+        require(
             not self.observer_users or bool(self.sim_users), "observer_users", "needs sim_users"
         )
         for path, value in self.zenoh.items():
-            _require(
+            require(
                 not any(path == m or path.startswith(m + "/") for m in ZENOH_MANAGED_KEYS),
                 f"zenoh.{path}",
                 "set by the endpoint keys above, not here",
@@ -487,16 +488,16 @@ class NetworkConfig:
     safe_ramp_ms: float = 40.0  # force ramp into (and out of) the safe state (< 50 ms, issue 8)
 
     def __post_init__(self) -> None:
-        _require(
+        require(
             bool(self.namespace) and "*" not in self.namespace, "namespace", "must be a plain key"
         )
-        _require(self.proxy_publish_hz > 0, "proxy_publish_hz", "must be > 0")
-        _require(self.watchdog_ms > 0, "watchdog_ms", "must be > 0")
-        _require(self.safe_ramp_ms > 0, "safe_ramp_ms", "must be > 0")
+        require(self.proxy_publish_hz > 0, "proxy_publish_hz", "must be > 0")
+        require(self.watchdog_ms > 0, "watchdog_ms", "must be > 0")
+        require(self.safe_ramp_ms > 0, "safe_ramp_ms", "must be > 0")
         if self.haptic.users_file and self.sim.connect:
-            _require(bool(self.sim.user), "sim.user", "the haptic server requires a user")
+            require(bool(self.sim.user), "sim.user", "the haptic server requires a user")
         if self.haptic.sim_users and self.sim.connect:
-            _require(
+            require(
                 self.sim.user in self.haptic.sim_users,
                 "sim.user",
                 f"not in haptic.sim_users {list(self.haptic.sim_users)}: it could not drive",
