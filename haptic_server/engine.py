@@ -17,8 +17,11 @@ from device_models.base import SENSOR_DTYPE, Device, DeviceRenderingSpec, Simula
 from device_models.world_map import DeviceWorldMap
 from haptic_server.kernels import (
     ORDER_EPOCH,
+    ORDER_FOLLOW,
+    ORDER_INSTALLED,
     ORDER_NEW_EPOCH,
     ORDER_SEQ,
+    ORDER_SIZE,
     accept_update,
     engine_step,
     reason_of,
@@ -43,19 +46,45 @@ from shared.wire import R_SIZE, REASONS, UpdateParser
 CONTACT_MATCH_RADIUS_M = 2.0e-3  # a contact keeps its state if its tool point moved less
 
 
+REASON_CODES = 32  # verdict codes (shared.wire, haptic_server.kernels) are below this
+
+
 @dataclass
 class EngineCounters:
-    """What the engine has installed, rejected and why (logged and summarised)."""
+    """What the engine has installed, rejected and why (logged and summarised).
 
-    installed: int = 0
-    rejected: int = 0
-    rejected_by_reason: dict[str, int] = field(default_factory=dict)
+    Installs and rejections are counted in arrays (the install count in the order record,
+    rejections by verdict code in `reject_counts`) that the server's mailbox kernel
+    increments in place: no Python per message.
+    """
+
+    order: np.ndarray = field(default_factory=lambda: _new_order())
+    reject_counts: np.ndarray = field(default_factory=lambda: np.zeros(REASON_CODES, np.int64))
     epochs: int = 0
     reinitialisations: int = 0
 
-    def reject(self, reason: str) -> None:
-        self.rejected += 1
-        self.rejected_by_reason[reason] = self.rejected_by_reason.get(reason, 0) + 1
+    @property
+    def installed(self) -> int:
+        return int(self.order[ORDER_INSTALLED])
+
+    @property
+    def rejected(self) -> int:
+        return int(self.reject_counts.sum())
+
+    @property
+    def rejected_by_reason(self) -> dict[str, int]:
+        by_reason: dict[str, int] = {}
+        for code in np.flatnonzero(self.reject_counts):
+            reason = reason_of(int(code))
+            by_reason[reason] = by_reason.get(reason, 0) + int(self.reject_counts[code])
+        return by_reason
+
+
+def _new_order() -> np.ndarray:
+    order = np.zeros(ORDER_SIZE, dtype=np.int64)
+    order[ORDER_EPOCH] = -1
+    order[ORDER_SEQ] = -1
+    return order
 
 
 def params_record(
@@ -158,12 +187,19 @@ class HapticEngine:
         self._true_twist = np.zeros(3)
         self.counters = EngineCounters()
         self.parser = UpdateParser(limits_array(DEFAULT_LIMITS))
-        self._order = np.array([-1, -1, 0, 0], dtype=np.int64)  # epoch, seq, ready, new epoch
+        self._order = self.counters.order  # epoch, seq, ready, new epoch, installs, follow-up
+        # accept_update's arguments after (buffer, nbytes): the parser's buffers, the model
+        # slots, the proxy state, the order record, the contact match radius; then latency_s
+        self.accept_args = (
+            self.parser.limits, self.parser.out, self.parser.scratch, self.slots, self.state,
+            self._order, CONTACT_MATCH_RADIUS_M,
+        )  # fmt: skip
         self.tick_index = 0
         self.time = 0.0
         self._install_ticks: deque[int] = deque(maxlen=4)  # FOH: arrival ticks of updates
         self.state[0]["safe"] = 1.0
         self.state[0]["safe_target"] = 1.0
+        self._stale = False
         self.stale = False  # the watchdog fired: the next installed update re-initialises
 
     # --- updates ------------------------------------------------------------------------
@@ -173,7 +209,7 @@ class HapticEngine:
         parser = self.parser
         n = len(raw)
         if n > parser.buffer.shape[0]:
-            self.counters.reject(REASONS[R_SIZE])
+            self.counters.reject_counts[R_SIZE] += 1
             return REASONS[R_SIZE]
         parser.buffer[:n] = np.frombuffer(raw, np.uint8)
         code = self.receive_buffer(parser.buffer, n, latency_s)
@@ -184,23 +220,26 @@ class HapticEngine:
 
         One numba call parses, validates, checks the epoch and sequence order (DESIGN §3)
         and installs: the newest model becomes slot 0 and the previous one slot 1,
-        cross-faded over blend_ms (DESIGN §4.4); contacts keep their state by key.
+        cross-faded over blend_ms (DESIGN §4.4); contacts keep their state by key. The
+        real-time server does the same from its mailbox (`haptic_server.io_process`,
+        `take_updates`) with `accept_args`, then calls `installed`.
         """
-        parser = self.parser
         if nbytes < 0 or nbytes > buf.shape[0]:  # the mailbox marks an oversize message < 0
-            self.counters.reject(REASONS[R_SIZE])
-            return R_SIZE
-        code = int(
-            accept_update(
-                buf, nbytes, parser.limits, parser.out, parser.scratch, self.slots, self.state,
-                self._order, CONTACT_MATCH_RADIUS_M, latency_s,
-            )
-        )  # fmt: skip
+            code = R_SIZE
+        else:
+            code = int(accept_update(buf, nbytes, *self.accept_args, latency_s))
         if code:
-            self.counters.reject(reason_of(code))
+            self.counters.reject_counts[code] += 1
             return code
+        self.installed()
+        return 0
+
+    def installed(self) -> None:
+        """The Python side of an install, after `accept_update` installed a model: mark the
+        engine ready, re-initialise on a new epoch or after the watchdog, advance the FOH
+        setpoint. The server's mailbox kernel calls for it only when one of those applies
+        (`ORDER_FOLLOW`, or a new epoch); for any other install it does nothing."""
         self.ready = True
-        self.counters.installed += 1
         new_epoch = bool(self._order[ORDER_NEW_EPOCH])
         if new_epoch:
             self.counters.epochs += 1
@@ -213,7 +252,17 @@ class HapticEngine:
         if self.method == METHOD_VIRTUAL_COUPLING_FOH:
             self._install_ticks.append(self.tick_index)
             self._advance_foh(self.slots[0]["tool_pose"])
-        return 0
+
+    @property
+    def stale(self) -> bool:
+        """The watchdog fired: the next installed update re-initialises the proxy."""
+        return self._stale
+
+    @stale.setter
+    def stale(self, value: bool) -> None:
+        self._stale = value
+        foh = self.method == METHOD_VIRTUAL_COUPLING_FOH
+        self._order[ORDER_FOLLOW] = 1 if (value or foh) else 0
 
     @property
     def epoch(self) -> int:

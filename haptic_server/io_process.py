@@ -21,12 +21,17 @@ import struct
 import threading
 import time
 from multiprocessing import shared_memory
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numba import njit
 
+from haptic_server.kernels import ORDER_FOLLOW, ORDER_NEW_EPOCH, ORDER_SEQ, accept_update
 from haptic_server.layout import TICK_DTYPE
+from shared.wire import R_SIZE
+
+if TYPE_CHECKING:
+    from haptic_server.engine import HapticEngine
 
 RING_TICKS = 16384  # 16 s of ticks at 1 kHz: the writer may stall this long without loss
 MAILBOX_SLOTS = 256  # updates waiting for the loop or the log writer (about 4 s at 60 Hz)
@@ -92,11 +97,92 @@ class SharedBlock:
 
 
 @njit(cache=True)
-def push_row(ring, ctl, row):
-    """Copy the row into the ring slot of the head, then publish the new head."""
+def push_row(ring, ctl, row, lateness, work, peaks):
+    """Copy the row into the ring slot of the head, then publish the new head. Also keep
+    the loop's timing windows: the row's lateness, and its work (that of the tick before,
+    the newest known when the row is made), with their peaks in peaks[0], peaks[1]."""
     head = ctl[C_TICK_HEAD]
-    ring[head % ring.shape[0]] = row[0]
+    r = row[0]
+    ring[head % ring.shape[0]] = r
     ctl[C_TICK_HEAD] = head + 1
+    lateness[head % lateness.shape[0]] = r.lateness_us
+    peaks[0] = max(peaks[0], r.lateness_us)
+    if head > 0:
+        work[(head - 1) % work.shape[0]] = r.work_us
+        peaks[1] = max(peaks[1], r.work_us)
+
+
+PUBLISH_TIME_OFFSET = 32  # the update header's publish time (int64 ns, little-endian)
+MAX_LATENCY_S = 1.0  # publish -> install is clamped to [0, this] (a clock step between hosts)
+
+
+@njit(cache=True)
+def take_updates(
+    ctl, lengths, updates, verdicts, install_ticks, latencies, tick, now_ns, budget,
+    limits, parsed, scratch, slots, state, order, match_radius, reject_counts,
+):  # fmt: skip
+    """Validate and install the updates waiting in the mailbox, oldest first, in one call.
+
+    Takes up to `budget` updates, and stops after an install that needs the engine's Python
+    side (a new epoch, or ORDER_FOLLOW: after the watchdog, or FOH setpoints). Each verdict
+    (0 installed, else the reason code, counted in reject_counts), the tick and the publish
+    -> now latency it was installed with go next to its update in the mailbox (the log
+    writer logs them, so a replay is exact); only then is the update marked read (the
+    writer and the Zenoh thread read the mark). Returns (taken, installed, follow-up
+    needed, seq of the newest install, its latency in s).
+    """
+    taken = 0
+    installed = 0
+    follow = 0
+    seq = np.int64(-1)
+    newest_latency = 0.0
+    while taken < budget:
+        read = ctl[C_UPD_READ]
+        if read >= ctl[C_UPD_HEAD]:
+            break
+        slot = read % lengths.shape[0]
+        n = lengths[slot]
+        buf = updates[slot]
+        latency = 0.0
+        if n >= PUBLISH_TIME_OFFSET + 8:
+            published = np.int64(0)
+            for b in range(8):
+                published |= np.int64(buf[PUBLISH_TIME_OFFSET + b]) << np.int64(8 * b)
+            latency = min(max((now_ns - published) / 1e9, 0.0), MAX_LATENCY_S)
+        if n < 0 or n > buf.shape[0]:  # the Zenoh thread marks an oversize message < 0
+            code = R_SIZE
+        else:
+            code = accept_update(
+                buf, n, limits, parsed, scratch, slots, state, order, match_radius, latency
+            )
+        if code != 0:
+            reject_counts[code] += 1
+        install_ticks[slot] = tick
+        latencies[slot] = latency
+        verdicts[slot] = code
+        ctl[C_UPD_READ] = read + 1
+        taken += 1
+        if code == 0:
+            installed += 1
+            seq = order[ORDER_SEQ]
+            newest_latency = latency
+            if order[ORDER_NEW_EPOCH] == 1 or order[ORDER_FOLLOW] == 1:
+                follow = 1
+                break
+    return taken, installed, follow, seq, newest_latency
+
+
+def compile_loop_kernels(engine: HapticEngine) -> None:
+    """Compile (or load from the cache) the loop's ring and mailbox kernels for `engine`'s
+    records, before the loop starts: a message too short to parse, into scratch counts."""
+    ctl = np.zeros(N_CTL, np.int64)
+    push_row(np.zeros(2, TICK_DTYPE), ctl, engine.row, np.zeros(2), np.zeros(2), np.zeros(2))
+    ctl[C_UPD_HEAD] = 1
+    one_i, one_f = np.zeros(1, np.int64), np.zeros(1, np.float64)
+    take_updates(
+        ctl, one_i.copy(), np.zeros((1, 64), np.uint8), one_i.copy(), one_i.copy(), one_f, 0, 0,
+        1, *engine.accept_args, np.zeros_like(engine.counters.reject_counts),
+    )  # fmt: skip
 
 
 class LoopIO:
@@ -122,39 +208,39 @@ class LoopIO:
                 raise RuntimeError("the haptic I/O process did not start")
             time.sleep(0.01)
 
-    def pending_update(self) -> int:
-        """Mailbox slot of the oldest unread update, or -1."""
+    def update_waiting(self) -> bool:
+        """Whether an update waits in the mailbox (two reads of shared memory)."""
         ctl = self.block.ctl
-        read = int(ctl[C_UPD_READ])
-        if read >= int(ctl[C_UPD_HEAD]):
-            return -1
-        return read % MAILBOX_SLOTS
+        return bool(ctl[C_UPD_READ] < ctl[C_UPD_HEAD])
 
-    def update_bytes(self, slot: int) -> tuple[np.ndarray, int]:
-        return self.block.updates[slot], int(self.block.update_len[slot])
-
-    def update_latency_s(self, slot: int) -> float:
-        """Publish -> now for the update in `slot`, from its header (one host clock; clamped
-        to [0, 1] s so a clock step between hosts cannot move contacts far)."""
-        if self.block.update_len[slot] < 40:
-            return 0.0
-        published = int(self.block.updates[slot, 32:40].view(np.int64)[0])
-        return min(max((time.time_ns() - published) / 1e9, 0.0), 1.0)
-
-    def verdict(self, slot: int, code: int, tick: int, latency_s: float = 0.0) -> None:
-        """The loop's verdict on the update in `slot` (0 installed, else a reason code), with
-        the tick and the latency it was installed with (logged, so a replay is exact)."""
-        self.block.update_tick[slot] = tick
-        self.block.update_latency_s[slot] = latency_s
-        self.block.update_verdict[slot] = code
-        self.block.ctl[C_UPD_READ] += 1
+    def take_updates(
+        self, engine: HapticEngine, tick: int, budget: int
+    ) -> tuple[int, int, int, float]:
+        """Validate and install up to `budget` waiting updates into `engine`, oldest first:
+        one numba call, and the engine's Python side only for an install that needs it.
+        Returns (taken, installed, seq of the newest install, its publish -> now latency
+        in s)."""
+        b = self.block
+        got = (0, 0, -1, 0.0)
+        while budget > 0:
+            taken, installed, follow, seq, latency_s = take_updates(
+                b.ctl, b.update_len, b.updates, b.update_verdict, b.update_tick,
+                b.update_latency_s, tick, time.time_ns(), budget, *engine.accept_args,
+                engine.counters.reject_counts,
+            )  # fmt: skip
+            if installed:
+                got = (got[0] + taken, got[1] + installed, seq, latency_s)
+            else:
+                got = (got[0] + taken, got[1], got[2], got[3])
+            if not follow:
+                return got
+            engine.installed()  # re-initialise, FOH: then go on with what still waits
+            budget -= taken
+        return got
 
     def lower_io_priority(self) -> None:
         """Ask the sidecar to yield the CPU to the loop (when the loop is not real-time)."""
         self.block.ctl[C_LOWER_IO] = 1
-
-    def tick(self, row: np.ndarray) -> None:
-        push_row(self.block.ticks, self.block.ctl, row)
 
     def event(self, tick: int, kind: str, detail: str) -> None:
         """A rare event (watchdog, stop): text into the event ring, dropped if full."""

@@ -636,7 +636,11 @@ def store_applied(world_map, applied, row):
     map_wrench_to_world(world_map, applied, row[0].wrench_applied)
 
 
-ORDER_EPOCH, ORDER_SEQ, ORDER_READY, ORDER_NEW_EPOCH = 0, 1, 2, 3
+# the engine's order record: the installed model's epoch and seq, whether one is installed,
+# whether the last install began a new epoch, how many were installed, and whether every
+# install needs the engine's Python side (after the watchdog fired, or for FOH setpoints)
+ORDER_EPOCH, ORDER_SEQ, ORDER_READY, ORDER_NEW_EPOCH, ORDER_INSTALLED, ORDER_FOLLOW = range(6)
+ORDER_SIZE = 6
 R_STALE_EPOCH, R_SEQUENCE, R_DOF_CHANGE = 16, 17, 18
 ORDER_REASONS = {R_STALE_EPOCH: "epoch", R_SEQUENCE: "sequence", R_DOF_CHANGE: "dof"}
 
@@ -652,8 +656,8 @@ def accept_update(
 ):
     """Parse, validate, order-check and install an update: 0, or the reason code.
 
-    order = [epoch, last seq, ready, new-epoch flag]: an older epoch or a repeated sequence
-    number is rejected (DESIGN §3); a new epoch is installed without cross-fade.
+    order (ORDER_*): an older epoch or a repeated sequence number is rejected (DESIGN §3); a
+    new epoch is installed without cross-fade.
     """
     code = parse_update(buf, nbytes, limits, parsed, scratch)
     if code != 0:
@@ -672,6 +676,7 @@ def accept_update(
     order[ORDER_SEQ] = m.seq
     order[ORDER_READY] = 1
     order[ORDER_NEW_EPOCH] = 1 if new_epoch else 0
+    order[ORDER_INSTALLED] += 1
     return 0
 
 

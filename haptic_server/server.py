@@ -22,8 +22,7 @@ import numpy as np
 
 from device_models.base import SimulatedDevice
 from haptic_server.engine import HapticEngine
-from haptic_server.io_process import N_CTL, LoopIO, push_row
-from haptic_server.layout import TICK_DTYPE
+from haptic_server.io_process import LoopIO, compile_loop_kernels, push_row
 from haptic_server.mcap_log import run_metadata
 from haptic_server.virtual import run_virtual
 from shared.config import NetworkConfig, SceneConfig, UserConfig
@@ -119,8 +118,8 @@ class HapticServer:
 
     def warm_up(self, device_factory: Any, user: UserConfig) -> None:
         """Compile (or load from cache) every kernel before the loop starts."""
-        result = run_virtual(self.scene, device_factory(), user, 0.05)
-        push_row(np.zeros(2, TICK_DTYPE), np.zeros(N_CTL, np.int64), result.ticks[:1])
+        run_virtual(self.scene, device_factory(), user, 0.05)
+        compile_loop_kernels(self.engine)
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         """The loop; returns the summary. `ready` is called once the loop is about to start."""
@@ -158,12 +157,20 @@ class HapticServer:
             # compiles first, does not eat into it); without any update it ends all the same
             # after FIRST_UPDATE_WAIT_S more
             duration_ns = int(duration_s * 1e9) if duration_s else None
-            end_ns = (
-                start_ns + duration_ns + int(FIRST_UPDATE_WAIT_S * 1e9) if duration_ns else None
+            end_ns = (  # no duration: runs until stopped
+                start_ns + duration_ns + int(FIRST_UPDATE_WAIT_S * 1e9) if duration_ns else 1 << 62
             )
+            dt_min, dt_max = DT_CLAMP[0] * dt_nominal, DT_CLAMP[1] * dt_nominal
             deadline = start_ns + period_ns
             last_start = start_ns
             work_prev_us = 0.0
+            tick = 0  # counters.ticks, as a local (the loop reads it often)
+            # the loop's work stays Python-light: a few kernel calls per tick; the tick row
+            # goes to the log ring and the timing windows in one (push_row)
+            ring, ctl = io.block.ticks, io.block.ctl
+            lateness_window, work_window = stats.lateness_us.buffer, stats.work_us.buffer
+            peaks = np.zeros(2)
+            leak_bytes = self.faults.leak_bytes_per_tick
             leak: list[bytes] = []  # only ever grows under --inject-leak
             nan_tick = (
                 round(self.faults.nan_after_s * self.scene.haptic_rate_hz)
@@ -178,54 +185,51 @@ class HapticServer:
             while True:
                 now = wait_until(deadline)
                 lateness_ns = now - deadline
-                dt_ns = now - last_start if counters.ticks else period_ns
+                dt_ns = now - last_start if tick else period_ns
                 last_start = now
                 if lateness_ns > period_ns:
                     counters.overruns += 1
                     deadline = now  # resynchronise: no burst of catch-up ticks
                 if lateness_ns > 1_000_000:
                     counters.late_over_1ms += 1
-                dt = min(max(dt_ns / 1e9, DT_CLAMP[0] * dt_nominal), DT_CLAMP[1] * dt_nominal)
+                dt = min(max(dt_ns / 1e9, dt_min), dt_max)
 
-                if not stopping and (self._stop or (end_ns is not None and now >= end_ns)):
+                if not stopping and (self._stop or now >= end_ns):
                     # a signal or the end of the run: ramp to the safe state, then stop
                     stopping = True
                     engine.set_safe(True)
                     why = "stop requested" if self._stop else "duration reached"
-                    io.event(counters.ticks, "stop", f"{why}: ramping to the safe state")
+                    io.event(tick, "stop", f"{why}: ramping to the safe state")
                 if stopping and (not engine.ready or engine.state[0]["safe"] >= 1.0):
                     break
 
-                slot = -1 if stopping else io.pending_update()
-                taken = 0
-                while slot >= 0:
-                    buf, nbytes = io.update_bytes(slot)
-                    latency_s = io.update_latency_s(slot)
+                if not stopping and io.update_waiting():
                     epochs, was_stale = engine.counters.epochs, engine.stale
-                    code = engine.receive_buffer(buf, nbytes, latency_s)
-                    io.verdict(slot, code, counters.ticks, latency_s)
-                    stats.updates_received += 1
-                    taken += 1
-                    if code == 0:
+                    # validate + install, in one numba call (the engine's Python side only
+                    # after a new epoch, the watchdog, or for FOH setpoints)
+                    taken, installed, seq, latency_s = io.take_updates(
+                        engine, tick, MAX_UPDATES_PER_TICK
+                    )
+                    stats.updates_received += taken
+                    if installed:
                         if stats.updates_installed == 0 and duration_ns is not None:
                             end_ns = now + duration_ns
-                        stats.updates_installed += 1
+                        stats.updates_installed += installed
                         last_valid_ns = now
-                        newest_seq = engine.last_seq
+                        newest_seq = seq
                         newest_age_ms = latency_s * 1e3
                         stats.update_age_ms.add(newest_age_ms)
                         if engine.counters.epochs != epochs or was_stale:
                             how = "new epoch" if engine.counters.epochs != epochs else "same epoch"
                             io.event(
-                                counters.ticks,
+                                tick,
                                 "reinitialise",
                                 f"{how} {engine.epoch} seq {newest_seq}: proxy from the sim",
                             )
                         if stale:
                             stale = False
                             engine.set_safe(False)
-                            io.event(counters.ticks, "watchdog_clear", f"update seq {newest_seq}")
-                    slot = io.pending_update() if taken < MAX_UPDATES_PER_TICK else -1
+                            io.event(tick, "watchdog_clear", f"update seq {newest_seq}")
 
                 if (
                     engine.ready
@@ -237,25 +241,28 @@ class HapticServer:
                     stats.watchdog_trips += 1
                     engine.set_stale()
                     io.event(
-                        counters.ticks,
+                        tick,
                         "watchdog",
                         f"no valid update for {(now - last_valid_ns) / 1e6:.1f} ms",
                     )
 
-                if self.faults.leak_bytes_per_tick:
-                    leak.append(bytes(self.faults.leak_bytes_per_tick))
-                if counters.ticks == nan_tick:
+                if leak_bytes:
+                    leak.append(bytes(leak_bytes))
+                if tick == nan_tick:
                     engine.user[0]["kind"] = 0  # the hand's wrench turns NaN from now on
                     engine.user[0]["wrench"] = float("nan")
                 row = engine.tick(dt, lateness_ns / 1e3, work_prev_us, newest_seq, newest_age_ms)
-                io.tick(row)
-                counters.ticks += 1
-                stats.lateness_us.add(lateness_ns / 1e3)
+                push_row(ring, ctl, row, lateness_window, work_window, peaks)
+                tick += 1
+                counters.ticks = tick
                 work_prev_us = (time.perf_counter_ns() - now) / 1e3
-                stats.work_us.add(work_prev_us)
                 deadline += period_ns
         finally:
             stats.wall_s = (time.perf_counter_ns() - start_ns) / 1e9
+            if counters.ticks:  # the last tick's work is in no row
+                work_window[(counters.ticks - 1) % work_window.shape[0]] = work_prev_us
+            stats.lateness_us.filled(counters.ticks, float(peaks[0]))
+            stats.work_us.filled(counters.ticks, max(float(peaks[1]), work_prev_us))
             stats.rejected_by_reason = dict(engine.counters.rejected_by_reason)
             stats.reinitialisations = engine.counters.reinitialisations
             engine.device.safe_stop()

@@ -57,6 +57,17 @@ class SampleWindow:
         if value > self.maximum:
             self.maximum = value
 
+    @property
+    def buffer(self) -> np.ndarray:
+        """The preallocated samples; a kernel may write them (index count % capacity), and
+        then say how many with `filled`."""
+        return self._buf
+
+    def filled(self, count: int, maximum: float) -> None:
+        """`count` samples in all have been written into `buffer`, the largest `maximum`."""
+        self.count = count
+        self.maximum = max(self.maximum, maximum)
+
     def values(self) -> np.ndarray:
         return self._buf[: min(self.count, self._buf.shape[0])]
 
