@@ -208,11 +208,6 @@ class LoopIO:
                 raise RuntimeError("the haptic I/O process did not start")
             time.sleep(0.01)
 
-    def update_waiting(self) -> bool:
-        """Whether an update waits in the mailbox (two reads of shared memory)."""
-        ctl = self.block.ctl
-        return bool(ctl[C_UPD_READ] < ctl[C_UPD_HEAD])
-
     def take_updates(
         self, engine: HapticEngine, tick: int, budget: int
     ) -> tuple[int, int, int, float]:

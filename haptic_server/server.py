@@ -13,6 +13,7 @@ or end of the run) ramps the device to the safe state before the loop ends.
 from __future__ import annotations
 
 import dataclasses
+import gc
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +23,13 @@ import numpy as np
 
 from device_models.base import SimulatedDevice
 from haptic_server.engine import HapticEngine
-from haptic_server.io_process import LoopIO, compile_loop_kernels, push_row
+from haptic_server.io_process import (
+    C_UPD_HEAD,
+    C_UPD_READ,
+    LoopIO,
+    compile_loop_kernels,
+    push_row,
+)
 from haptic_server.mcap_log import run_metadata
 from haptic_server.virtual import run_virtual
 from shared.config import NetworkConfig, SceneConfig, UserConfig
@@ -150,6 +157,10 @@ class HapticServer:
             stats.realtime_priority = try_realtime_priority()
             if not stats.realtime_priority:
                 io.lower_io_priority()
+            # everything allocated so far lives as long as the process: out of the cyclic
+            # collector's sight, so a full collection during the loop has little to traverse
+            gc.collect()
+            gc.freeze()
             if ready is not None:
                 ready()
             start_ns = time.perf_counter_ns()
@@ -203,7 +214,7 @@ class HapticServer:
                 if stopping and (not engine.ready or engine.state[0]["safe"] >= 1.0):
                     break
 
-                if not stopping and io.update_waiting():
+                if not stopping and ctl[C_UPD_READ] < ctl[C_UPD_HEAD]:  # an update waits
                     epochs, was_stale = engine.counters.epochs, engine.stale
                     # validate + install, in one numba call (the engine's Python side only
                     # after a new epoch, the watchdog, or for FOH setpoints)
