@@ -26,13 +26,12 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from benchmarks.linkage import chain_spec, drift_mm
+from benchmarks.linkage import drift_mm, reference_error_mm
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
 from haptic_server.virtual import VirtualResult, run_virtual
 from shared.config import BodySpec, SceneConfig, load_scene, load_user
 from shared.messages import encode_update
-from shared.reference import simulate
 from sim_server.world import SimWorld
 
 SIM_RATES = (30.0, 60.0, 120.0)
@@ -50,21 +49,8 @@ def configure(scene: SceneConfig, method: str, sim_hz: float, haptic_hz: float) 
 
 
 def reference_rms_mm(scene: SceneConfig, result: VirtualResult) -> float:
-    lk = scene.tool_linkage
-    spec = chain_spec(scene)
     t = result.ticks["t"]
-    push = np.array(load_user("push_04n").wrench)
-    ref = simulate(
-        spec,
-        np.array(lk.initial_angles),
-        np.zeros(len(lk.lengths)),
-        push,
-        scene.tool.link,
-        np.array(scene.tool.point),
-        float(t[-1]) + 1e-9,
-        t,
-    )
-    err = 1e3 * np.hypot(*(result.ticks["vm_pose"][:, :2] - ref.pose[:, :2]).T)
+    err = reference_error_mm(scene, result.ticks, float(t[-1]) + 1e-9)
     return float(np.sqrt(np.mean(err**2)))
 
 

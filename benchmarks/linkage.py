@@ -80,24 +80,29 @@ def chain_spec(scene: SceneConfig) -> ChainSpec:
     )  # fmt: skip
 
 
+def reference_error_mm(scene: SceneConfig, ticks: np.ndarray, t_end: float) -> np.ndarray:
+    """Distance (mm) of the VM's operational point from the independent reference's at each
+    tick: the linkage released at rest from its initial angles under USER's constant push,
+    integrated to t_end."""
+    lk = scene.tool_linkage
+    ref = simulate(
+        chain_spec(scene),
+        np.array(lk.initial_angles),
+        np.zeros(len(lk.lengths)),
+        np.array(load_user(USER).wrench),
+        scene.tool.link,
+        np.array(scene.tool.point),
+        t_end,
+        ticks["t"],
+    )
+    return 1e3 * np.hypot(*(ticks["vm_pose"][:, :2] - ref.pose[:, :2]).T)
+
+
 def reference_error(scene: SceneConfig, seconds: float, sim_hz: float) -> dict[str, float]:
     """local_model VM against the reference, the device starting on the operational point."""
     s = dataclasses.replace(scene, sim_rate_hz=sim_hz, initial_device_offset=(0.0, 0.0, 0.0))
     ticks = run(with_method(s, "local_model"), seconds)
-    lk = s.tool_linkage
-    spec = chain_spec(s)
-    push = np.array(load_user(USER).wrench)
-    ref = simulate(
-        spec,
-        np.array(lk.initial_angles),
-        np.zeros(len(lk.lengths)),
-        push,
-        s.tool.link,
-        np.array(s.tool.point),
-        seconds,
-        ticks["t"],
-    )
-    err = 1e3 * np.hypot(*(ticks["vm_pose"][:, :2] - ref.pose[:, :2]).T)
+    err = reference_error_mm(s, ticks, seconds)
     first2 = ticks["t"] <= 2.0
     return {
         "sim_hz": sim_hz,

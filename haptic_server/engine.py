@@ -224,10 +224,7 @@ class HapticEngine:
         real-time server does the same from its mailbox (`haptic_server.io_process`,
         `take_updates`) with `accept_args`, then calls `installed`.
         """
-        if nbytes < 0 or nbytes > buf.shape[0]:  # the mailbox marks an oversize message < 0
-            code = R_SIZE
-        else:
-            code = int(accept_update(buf, nbytes, *self.accept_args, latency_s))
+        code = int(accept_update(buf, nbytes, *self.accept_args, latency_s))
         if code:
             self.counters.reject_counts[code] += 1
             return code

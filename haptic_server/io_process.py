@@ -28,7 +28,7 @@ from numba import njit
 
 from haptic_server.kernels import ORDER_FOLLOW, ORDER_NEW_EPOCH, ORDER_SEQ, accept_update
 from haptic_server.layout import TICK_DTYPE
-from shared.wire import R_SIZE
+from shared.wire import PUBLISH_TIME_AT, PUBLISH_TIME_END, publish_time_ns
 
 if TYPE_CHECKING:
     from haptic_server.engine import HapticEngine
@@ -88,6 +88,27 @@ class SharedBlock:
             + EVENT_SLOTS * EVENT_BYTES
         )
 
+    def post_update(self, raw: bytes, recv_ns: int, logging: bool) -> bool:
+        """Put a received message into the next mailbox slot, as the sidecar's Zenoh thread
+        does; False (nothing written) if no slot is free: the loop has not read them, or,
+        with `logging`, the log writer has not written them. A message longer than a slot
+        is marked by a negative length (the loop rejects it as too large)."""
+        ctl = self.ctl
+        head = int(ctl[C_UPD_HEAD])
+        done = int(ctl[C_UPD_READ])
+        if logging:
+            done = min(done, int(ctl[C_UPD_LOGGED]))
+        if head - done >= MAILBOX_SLOTS:
+            return False
+        slot = head % MAILBOX_SLOTS
+        n = min(len(raw), SLOT_BYTES)
+        self.updates[slot, :n] = np.frombuffer(raw, np.uint8, n)
+        self.update_len[slot] = len(raw) if len(raw) <= SLOT_BYTES else -len(raw)
+        self.update_verdict[slot] = VERDICT_PENDING
+        self.update_recv_ns[slot] = recv_ns
+        ctl[C_UPD_HEAD] = head + 1
+        return True
+
     def release(self) -> None:
         for name in (
             "ctl", "ticks", "update_len", "update_verdict", "update_tick", "update_recv_ns",
@@ -112,7 +133,6 @@ def push_row(ring, ctl, row, lateness, work, peaks):
         peaks[1] = max(peaks[1], r.work_us)
 
 
-PUBLISH_TIME_OFFSET = 32  # the update header's publish time (int64 ns, little-endian)
 MAX_LATENCY_S = 1.0  # publish -> install is clamped to [0, this] (a clock step between hosts)
 
 
@@ -144,17 +164,11 @@ def take_updates(
         n = lengths[slot]
         buf = updates[slot]
         latency = 0.0
-        if n >= PUBLISH_TIME_OFFSET + 8:
-            published = np.int64(0)
-            for b in range(8):
-                published |= np.int64(buf[PUBLISH_TIME_OFFSET + b]) << np.int64(8 * b)
-            latency = min(max((now_ns - published) / 1e9, 0.0), MAX_LATENCY_S)
-        if n < 0 or n > buf.shape[0]:  # the Zenoh thread marks an oversize message < 0
-            code = R_SIZE
-        else:
-            code = accept_update(
-                buf, n, limits, parsed, scratch, slots, state, order, match_radius, latency
-            )
+        if n >= PUBLISH_TIME_END:
+            latency = min(max((now_ns - publish_time_ns(buf)) / 1e9, 0.0), MAX_LATENCY_S)
+        code = accept_update(
+            buf, n, limits, parsed, scratch, slots, state, order, match_radius, latency
+        )
         if code != 0:
             reject_counts[code] += 1
         install_ticks[slot] = tick
@@ -216,22 +230,23 @@ class LoopIO:
         Returns (taken, installed, seq of the newest install, its publish -> now latency
         in s)."""
         b = self.block
-        got = (0, 0, -1, 0.0)
+        taken_all = installed_all = 0
+        newest_seq, newest_latency_s = -1, 0.0
         while budget > 0:
             taken, installed, follow, seq, latency_s = take_updates(
                 b.ctl, b.update_len, b.updates, b.update_verdict, b.update_tick,
                 b.update_latency_s, tick, time.time_ns(), budget, *engine.accept_args,
                 engine.counters.reject_counts,
             )  # fmt: skip
+            taken_all += taken
+            installed_all += installed
             if installed:
-                got = (got[0] + taken, got[1] + installed, seq, latency_s)
-            else:
-                got = (got[0] + taken, got[1], got[2], got[3])
+                newest_seq, newest_latency_s = seq, latency_s
             if not follow:
-                return got
+                break
             engine.installed()  # re-initialise, FOH: then go on with what still waits
             budget -= taken
-        return got
+        return taken_all, installed_all, newest_seq, newest_latency_s
 
     def lower_io_priority(self) -> None:
         """Ask the sidecar to yield the CPU to the loop (when the loop is not real-time)."""
@@ -309,22 +324,9 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
 
     def receive(sample: Any) -> None:
         """Subscriber callback (a Zenoh thread of this process): the update into the mailbox."""
-        raw = sample.payload.to_bytes()
         ctl[C_RECEIVED] += 1
-        head = int(ctl[C_UPD_HEAD])
-        done = int(ctl[C_UPD_READ])
-        if logging:  # a slot the writer has not logged yet is not free either
-            done = min(done, int(ctl[C_UPD_LOGGED]))
-        if head - done >= MAILBOX_SLOTS:
+        if not block.post_update(sample.payload.to_bytes(), time.time_ns(), logging):
             ctl[C_UPD_LOST] += 1  # the loop (or the writer) is not reading: stopped or dead
-            return
-        slot = head % MAILBOX_SLOTS
-        n = min(len(raw), SLOT_BYTES)
-        block.updates[slot, :n] = np.frombuffer(raw, np.uint8, n)
-        block.update_len[slot] = len(raw) if len(raw) <= SLOT_BYTES else -len(raw)
-        block.update_verdict[slot] = VERDICT_PENDING
-        block.update_recv_ns[slot] = time.time_ns()
-        ctl[C_UPD_HEAD] = head + 1
 
     subscriber = session.declare_subscriber(k.update, receive)
     log = LogWriter(config["log_path"], config["metadata"]) if config.get("log_path") else None
@@ -417,4 +419,8 @@ def _lower_priority() -> None:
 
 def _publish_time_ns(raw: bytes) -> int:
     """The publish time in an update's header (0 if the message is too short to have one)."""
-    return int(struct.unpack_from("<q", raw, 32)[0]) if len(raw) >= 40 else 0
+    return (
+        int(struct.unpack_from("<q", raw, PUBLISH_TIME_AT)[0])
+        if len(raw) >= PUBLISH_TIME_END
+        else 0
+    )

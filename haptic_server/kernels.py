@@ -28,7 +28,7 @@ from haptic_server.layout import (
 )
 from shared.kinematics import link_frames, point_jacobian, point_on_link
 from shared.linalg import cholesky_inplace, cholesky_solve
-from shared.wire import REASONS, parse_update
+from shared.wire import R_SIZE, REASONS, parse_update
 
 
 @njit(cache=True)
@@ -657,8 +657,11 @@ def accept_update(
     """Parse, validate, order-check and install an update: 0, or the reason code.
 
     order (ORDER_*): an older epoch or a repeated sequence number is rejected (DESIGN §3); a
-    new epoch is installed without cross-fade.
+    new epoch is installed without cross-fade. nbytes < 0 or beyond the buffer is a message
+    too large for it (the I/O process's mailbox marks one so): rejected as R_SIZE.
     """
+    if nbytes < 0 or nbytes > buf.shape[0]:
+        return R_SIZE
     code = parse_update(buf, nbytes, limits, parsed, scratch)
     if code != 0:
         return code

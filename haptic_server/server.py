@@ -180,7 +180,7 @@ class HapticServer:
             deadline = start_ns + period_ns
             last_start = start_ns
             work_prev_us = 0.0
-            tick = 0  # counters.ticks, as a local (the loop reads it often)
+            tick = 0  # ticks run; into counters.ticks when the loop ends
             # the loop's work stays Python-light: a few kernel calls per tick; the tick row
             # goes to the log ring and the timing windows in one (push_row)
             ring, ctl = io.block.ticks, io.block.ctl
@@ -270,10 +270,10 @@ class HapticServer:
                 row = engine.tick(dt, lateness_ns / 1e3, work_prev_us, newest_seq, newest_age_ms)
                 push_row(ring, ctl, row, lateness_window, work_window, peaks)
                 tick += 1
-                counters.ticks = tick
                 work_prev_us = (time.perf_counter_ns() - now) / 1e3
                 deadline += period_ns
         finally:
+            counters.ticks = tick
             stats.wall_s = (time.perf_counter_ns() - start_ns) / 1e9
             if counters.ticks:  # the last tick's work is in no row
                 work_window[(counters.ticks - 1) % work_window.shape[0]] = work_prev_us

@@ -21,6 +21,8 @@ PROTOCOL_VERSION = 1
 MAX_CONTACTS = 64
 MAX_RESISTED = 3
 HEADER_BYTES = 64  # struct "<4sHHQQdqHHHHdd", see shared.messages
+PUBLISH_TIME_AT = 32  # byte offset of the header's publish_time_ns (int64)
+PUBLISH_TIME_END = PUBLISH_TIME_AT + 8  # a message shorter than this has no publish time
 CONTACT_FLOATS = 12
 MAGIC_UPDATE = (0x48, 0x4C, 0x4D, 0x55)  # b"HLMU"
 
@@ -116,6 +118,13 @@ def float_count(d: int, n: int, j: int, has_gravity: bool) -> int:
 @njit(cache=True)
 def _u16(buf, o):
     return np.int64(buf[o]) | (np.int64(buf[o + 1]) << 8)
+
+
+@njit(cache=True)
+def publish_time_ns(buf):
+    """The header's publish time of the update in `buf` (8-byte aligned, at least
+    PUBLISH_TIME_END bytes long)."""
+    return buf[PUBLISH_TIME_AT:PUBLISH_TIME_END].view(np.int64)[0]
 
 
 @njit(cache=True)

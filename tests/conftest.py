@@ -41,6 +41,32 @@ def network_file(tmp_path: Path) -> Path:
     return path
 
 
+def haptic_run(
+    network_file: Path,
+    log: Path,
+    summary_path: Path,
+    *,
+    scene: str,
+    device: str,
+    user: str,
+    seconds: float,
+) -> dict[str, Any]:
+    """Run `haptic-run` (both servers as processes over `network_file`) to the end; checks it
+    and both servers exited 0, and returns its summary."""
+    res = subprocess.run(
+        [
+            sys.executable, "-m", "haptic_server.run", "--scene", scene, "--device", device,
+            "--user", user, "--network", str(network_file), "--duration", str(seconds),
+            "--log", str(log), "--summary-json", str(summary_path),
+        ],
+        cwd=REPO, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr + res.stdout
+    summary: dict[str, Any] = json.loads(summary_path.read_text())
+    assert summary["exit_codes"] == {"haptic": 0, "sim": 0}
+    return summary
+
+
 class ServerProcess:
     """A server started by a test: JSON event lines read on a thread; stopped by its pid."""
 

@@ -20,15 +20,7 @@ import pytest
 
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
-from haptic_server.io_process import (
-    C_UPD_HEAD,
-    C_UPD_READ,
-    MAILBOX_SLOTS,
-    SLOT_BYTES,
-    VERDICT_PENDING,
-    LoopIO,
-    SharedBlock,
-)
+from haptic_server.io_process import C_UPD_READ, MAILBOX_SLOTS, SLOT_BYTES, LoopIO, SharedBlock
 from haptic_server.kernels import reason_of
 from haptic_server.virtual import run_virtual_named
 from shared.config import load_scene, load_user
@@ -36,21 +28,14 @@ from shared.wire import R_SIZE
 
 
 class MailboxOnly(LoopIO):
-    """The loop's side of the I/O block without the sidecar: the test plays the Zenoh thread."""
+    """The loop's side of the I/O block without the sidecar: the test posts updates the way
+    the sidecar's Zenoh thread does (`SharedBlock.post_update`)."""
 
     def __init__(self, block: SharedBlock) -> None:
         self.block = block
 
-    def put(self, raw: bytes, length: int | None = None) -> None:
-        """What the sidecar's subscriber does with a received message."""
-        b = self.block
-        head = int(b.ctl[C_UPD_HEAD])
-        slot = head % MAILBOX_SLOTS
-        n = min(len(raw), SLOT_BYTES)
-        b.updates[slot, :n] = np.frombuffer(raw, np.uint8, n)
-        b.update_len[slot] = len(raw) if length is None else length
-        b.update_verdict[slot] = VERDICT_PENDING
-        b.ctl[C_UPD_HEAD] = head + 1
+    def put(self, raw: bytes) -> None:
+        assert self.block.post_update(raw, 0, logging=False)
 
 
 @pytest.fixture
@@ -127,8 +112,8 @@ def test_mailbox_path_matches_receive(mailbox: MailboxOnly, scene: str, user: st
                 batch.append(
                     (restamp(base, epoch, seq + 1, now)[: int(rng.integers(1, len(base)))], None)
                 )
-            elif kind == 2:  # oversize, as the Zenoh thread marks it
-                batch.append((base, -(SLOT_BYTES + 1)))
+            elif kind == 2:  # oversize: the mailbox marks it with a negative length
+                batch.append((base + bytes(SLOT_BYTES + 1 - len(base)), -(SLOT_BYTES + 1)))
             elif kind == 3:  # a repeat of the installed sequence number
                 batch.append((restamp(base, epoch, seq, now), None))
             elif kind == 4 and epoch > 1:  # an older epoch
@@ -148,8 +133,8 @@ def test_mailbox_path_matches_receive(mailbox: MailboxOnly, scene: str, user: st
             for e in engines:
                 e.set_stale()
         if batch:
-            for raw, length in batch:
-                mailbox.put(raw, length)
+            for raw, _ in batch:
+                mailbox.put(raw)
             read = int(mailbox.block.ctl[C_UPD_READ])
             taken, installed, newest_seq, latency_s = mailbox.take_updates(
                 by_mailbox, tick, budget=8
@@ -161,6 +146,7 @@ def test_mailbox_path_matches_receive(mailbox: MailboxOnly, scene: str, user: st
                 slot = (read + i) % MAILBOX_SLOTS
                 latency = float(mailbox.block.update_latency_s[slot])
                 if length is not None:
+                    assert int(mailbox.block.update_len[slot]) == length
                     code = by_receive.receive_buffer(by_receive.parser.buffer, length, latency)
                     reason = reason_of(code) if code else ""
                     assert code == R_SIZE

@@ -5,14 +5,12 @@ is what limits the ripple, and one short real-time run with the maglev."""
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import haptic_run
 
 from benchmarks.foh_chatter import CLAIM_RATIO, measure
 from device_models.registry import load_device
@@ -182,17 +180,10 @@ def test_real_time_maglev_scoop(tmp_path: Path, network_file: Path) -> None:
     """The two processes over Zenoh with the maglev: seed 002's coupling end to end."""
     log = tmp_path / "run.mcap"
     summary_path = tmp_path / "summary.json"
-    res = subprocess.run(
-        [
-            sys.executable, "-m", "haptic_server.run", "--scene", SCENE, "--device", "maglev",
-            "--user", USER, "--network", str(network_file), "--duration", str(RT_RUN_S),
-            "--log", str(log), "--summary-json", str(summary_path),
-        ],
-        cwd=REPO, capture_output=True, text=True, timeout=600,
+    summary = haptic_run(
+        network_file, log, summary_path,
+        scene=SCENE, device="maglev", user=USER, seconds=RT_RUN_S,
     )  # fmt: skip
-    assert res.returncode == 0, res.stderr + res.stdout
-    summary = json.loads(summary_path.read_text())
-    assert summary["exit_codes"] == {"haptic": 0, "sim": 0}
     assert summary["sim"]["proxies_received"] > 0  # the sim couples its tool to the device
     ticks = read_ticks(log)
     assert len(ticks) >= MIN_TICK_FRACTION * RT_RUN_S * 1000

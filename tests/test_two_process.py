@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import haptic_run
 
 from haptic_server.mcap_log import (
     EVENT_TOPIC,
@@ -34,17 +32,10 @@ MIN_FREE_FLIGHT_S = 0.5  # the closed form is checked over at least this much fr
 def test_two_processes_over_zenoh(tmp_path: Path, network_file: Path) -> None:
     log = tmp_path / "run.mcap"
     summary_path = tmp_path / "summary.json"
-    res = subprocess.run(
-        [
-            sys.executable, "-m", "haptic_server.run", "--scene", "free_box", "--device", "ideal",
-            "--user", "constant_push", "--network", str(network_file), "--duration", str(RUN_S),
-            "--log", str(log), "--summary-json", str(summary_path),
-        ],
-        cwd=REPO, capture_output=True, text=True, timeout=600,
+    summary = haptic_run(
+        network_file, log, summary_path,
+        scene="free_box", device="ideal", user="constant_push", seconds=RUN_S,
     )  # fmt: skip
-    assert res.returncode == 0, res.stderr + res.stdout
-    summary = json.loads(summary_path.read_text())
-    assert summary["exit_codes"] == {"haptic": 0, "sim": 0}
 
     ticks = read_ticks(log)
     topics = [t for t, _ in iter_messages(log)]
