@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 
 # numba compiles the kernels once into its on-disk cache; later starts load it in < 1 s
 warm: $(STAMP)
-	$(PY) -m haptic_server.warmup
+	$(PY) -m haptic_server.harness.warmup
 
 demo: $(STAMP) warm
 	$(VENV)/bin/haptic-run --duration 10 --log runs/demo.mcap --summary-json runs/demo-summary.json
@@ -33,11 +33,11 @@ test: lint typecheck pytest
 
 # the CI soak (.ci/run); a longer one locally: make soak MINUTES=60
 soak-ci: $(STAMP) warm
-	$(PY) -m haptic_server.soak --minutes 3 --out runs/soak-ci
+	$(PY) -m haptic_server.harness.soak --minutes 3 --out runs/soak-ci
 
 MINUTES ?= 60
 soak: $(STAMP) warm
-	$(PY) -m haptic_server.soak --minutes $(MINUTES) --out runs/soak-$(MINUTES)min
+	$(PY) -m haptic_server.harness.soak --minutes $(MINUTES) --out runs/soak-$(MINUTES)min
 
 bench: $(STAMP) warm
 	$(PY) -m benchmarks.loop_timing

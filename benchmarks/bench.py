@@ -29,7 +29,7 @@ from tqdm import tqdm
 from benchmarks.linkage import drift_mm, reference_error_mm
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
-from haptic_server.virtual import VirtualResult, run_virtual
+from haptic_server.harness.virtual import VirtualResult, run_virtual
 from shared.config import BodySpec, SceneConfig, load_scene, load_user
 from shared.messages import encode_update
 from sim_server.world import SimWorld

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from device_models.registry import load_device
-from haptic_server.virtual import run_virtual
+from haptic_server.harness.virtual import run_virtual
 from shared.config import SceneConfig, load_scene, load_user
 
 SCENE = "wall_slide"

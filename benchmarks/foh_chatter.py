@@ -41,7 +41,7 @@ import numpy as np
 from scipy import signal
 
 from device_models.registry import load_device
-from haptic_server.virtual import run_virtual
+from haptic_server.harness.virtual import run_virtual
 from shared.config import load_scene, load_user
 
 SCENE = "maglev_scoop"

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.signal import find_peaks
 
 from device_models.registry import load_device
-from haptic_server.virtual import run_virtual
+from haptic_server.harness.virtual import run_virtual
 from shared.config import SceneConfig, load_scene, load_user
 from shared.reference import ChainSpec, simulate
 

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_server.mcap_log import read_ticks
+from haptic_server.log import read_ticks
 from shared.config import REPO_ROOT
 from shared.timing import try_realtime_priority, wait_until
 
@@ -86,7 +86,7 @@ def system(seconds: float, log: bool, network: str, scene: str, device: str) -> 
         summary = Path(tmp) / "summary.json"
         log_path = Path(tmp) / "run.mcap"
         argv = [
-            sys.executable, "-m", "haptic_server.run", "--duration", str(seconds),
+            sys.executable, "-m", "haptic_server.harness.run", "--duration", str(seconds),
             "--network", network, "--scene", scene, "--device", device,
             "--summary-json", str(summary),
         ]  # fmt: skip

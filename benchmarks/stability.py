@@ -33,7 +33,7 @@ from numba import njit
 
 from benchmarks.kernel_cost import engine_with_contacts
 from device_models.ideal import IdealDevice, IdealDeviceConfig
-from haptic_server.virtual import run_virtual
+from haptic_server.harness.virtual import run_virtual
 from shared.config import SceneConfig, UserConfig, load_scene, load_user
 from sim_server.world import SimWorld
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from haptic_server.virtual import run_virtual_named
+from haptic_server.harness.virtual import run_virtual_named
 
 SCENES = (("free_box", "waypoints"), ("wall_push", "push_2n"), ("testbed_free_tool", "push_block"))
 TARGET = 50.0

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from haptic_server.virtual import run_virtual_named
+from haptic_server.harness.virtual import run_virtual_named
 
 PUSH_N = 2.0
 WALL_K = 15000.0

@@ -27,7 +27,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         from device_models.registry import load_device
-        from haptic_server.server import HapticServer, InjectedFaults
+        from haptic_server.loop import HapticServer, InjectedFaults
 
         scene = load_scene(args.scene)
         user = load_user(args.user)

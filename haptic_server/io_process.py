@@ -296,10 +296,10 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     import zenoh
 
     from haptic_server.kernels import reason_of
-    from haptic_server.mcap_log import LogWriter, update_record
+    from haptic_server.log import LogWriter, update_record
     from shared.config import EndpointSpec
     from shared.messages import ProxyEncoder
-    from shared.transport import keys, open_session
+    from shared.net.transport import keys, open_session
 
     # the loop decides when I/O ends: a Ctrl-C to the process group is ignored; SIGTERM (the
     # loop's close() after a timeout, or anyone's kill) finishes the log and exits

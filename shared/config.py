@@ -535,7 +535,7 @@ def load_network(name_or_path: str, roles: tuple[str, ...] = ("haptic", "sim")) 
                 raise ConfigError(str(path), f"{role}.{key}", f"file not found: {file}")
         specs[role] = spec
     network = dataclasses.replace(network, haptic=specs["haptic"], sim=specs["sim"])
-    from shared.transport import session_config  # Zenoh checks its own keys (and is heavy)
+    from shared.net.transport import session_config  # Zenoh checks its own keys (and is heavy)
 
     for role in roles:
         try:

@@ -18,8 +18,8 @@ import zenoh
 from haptic_server.layout import METHOD_VIRTUAL_COUPLING_FOH
 from shared.config import NetworkConfig, SceneConfig
 from shared.messages import MessageError, ProxyState, decode_proxy, encode_update
+from shared.net.transport import keys, newest_payload, open_session
 from shared.timing import SampleWindow
-from shared.transport import keys, newest_payload, open_session
 from sim_server.world import SimWorld, ToolTarget
 
 

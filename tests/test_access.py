@@ -19,10 +19,10 @@ import pytest
 import zenoh
 from conftest import free_port
 
-from haptic_server.mcap_log import UPDATE_TOPIC, read_json_topic, read_ticks
+from haptic_server.log import UPDATE_TOPIC, read_json_topic, read_ticks
 from shared.config import CONFIG_ROOT, EndpointSpec, load_network, load_scene
 from shared.messages import encode_update
-from shared.transport import keys, open_session
+from shared.net.transport import keys, open_session
 from sim_server.world import SimWorld
 
 SCENE = "free_box"

@@ -74,7 +74,7 @@ def test_cli_exits_2_naming_file_and_key(tmp_path: Path, args: list[str], needle
     bad_device.write_text('model = "ideal"\ninertia = ["heavy", 1.0, 1.0]\n')
     argv = [a.replace("{bad}", str(bad)).replace("{bad_device}", str(bad_device)) for a in args]
     res = subprocess.run(
-        [sys.executable, "-m", "haptic_server.run", "--duration", "1", "--no-log", *argv],
+        [sys.executable, "-m", "haptic_server.harness.run", "--duration", "1", "--no-log", *argv],
         cwd=REPO, capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert res.returncode == 2, res.stderr

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from haptic_server.layout import TICK_DTYPE
-from haptic_server.mcap_log import (
+from haptic_server.log import (
     EVENT_TOPIC,
     TICK_TOPIC,
     UPDATE_JSON_SCHEMA,

@@ -28,14 +28,14 @@ import zenoh
 
 from haptic_server.engine import params_record
 from haptic_server.io_process import SLOT_BYTES
-from haptic_server.mcap_log import (
+from haptic_server.log import (
     EVENT_TOPIC,
     UPDATE_TOPIC,
     is_indexed,
     read_json_topic,
     read_ticks,
 )
-from haptic_server.server import DT_CLAMP
+from haptic_server.loop import DT_CLAMP
 from shared.config import EndpointSpec, load_network, load_scene
 from shared.messages import (
     DEFAULT_LIMITS,
@@ -45,7 +45,7 @@ from shared.messages import (
     encode_update,
     limits_array,
 )
-from shared.transport import keys, open_session
+from shared.net.transport import keys, open_session
 from shared.wire import REASONS, UpdateParser
 from sim_server.world import SimWorld
 
@@ -564,7 +564,7 @@ def test_haptic_run_killed_leaves_no_orphan(
     """SIGKILL haptic-run itself: PR_SET_PDEATHSIG stops both servers (and the haptic
     server's I/O process); the haptic log is still finalised."""
     log = tmp_path / "run.mcap"
-    run = start_server("haptic_server.run", *haptic_run_args(network_file, log))
+    run = start_server("haptic_server.harness.run", *haptic_run_args(network_file, log))
     run.wait_ready()
     ready = next(e for e in run.events if e.get("event") == "ready")
     family = descendants(run.proc.pid)
@@ -589,7 +589,7 @@ def test_haptic_run_stops_the_other_child(
     exits non-zero; nothing is left. (The haptic server's own helpers after a SIGKILL:
     test_haptic_server_killed_sim_carries_on.)"""
     log = tmp_path / "run.mcap"
-    run = start_server("haptic_server.run", *haptic_run_args(network_file, log))
+    run = start_server("haptic_server.harness.run", *haptic_run_args(network_file, log))
     run.wait_ready()
     ready = next(e for e in run.events if e.get("event") == "ready")
     family = descendants(run.proc.pid)
@@ -606,7 +606,7 @@ def test_haptic_run_sigint_stops_both_cleanly(
     """SIGINT to haptic-run (Ctrl-C): both servers stop cleanly, haptic-run exits 0."""
     log, summary_path = tmp_path / "run.mcap", tmp_path / "summary.json"
     run = start_server(
-        "haptic_server.run", *haptic_run_args(network_file, log),
+        "haptic_server.harness.run", *haptic_run_args(network_file, log),
         "--summary-json", str(summary_path),
     )  # fmt: skip
     run.wait_ready()

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from haptic_server.mcap_log import read_log
-from haptic_server.replay import replay
+from haptic_server.harness.replay import replay
+from haptic_server.log import read_log
 
 GOLDEN = Path(__file__).parent / "golden" / "logs"
 LOGS = sorted(GOLDEN.glob("*.mcap"))

@@ -27,7 +27,7 @@ from device_models.ideal import IdealDevice
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
 from haptic_server.kernels import ORDER_REASONS, reason_of
-from haptic_server.mcap_log import update_json, update_record
+from haptic_server.log import update_json, update_record
 from shared.config import load_scene, load_user
 from shared.kinematics import MAX_DOF
 from shared.messages import (

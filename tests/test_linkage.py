@@ -9,7 +9,7 @@ import pytest
 
 from benchmarks.linkage import drift_metrics, reference_error, run, with_method
 from device_models.registry import load_device
-from haptic_server.virtual import run_virtual
+from haptic_server.harness.virtual import run_virtual
 from shared.config import load_scene, load_user
 from sim_server.world import SimWorld, resisted_directions
 

@@ -20,9 +20,9 @@ import pytest
 
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
+from haptic_server.harness.virtual import run_virtual_named
 from haptic_server.io_process import C_UPD_READ, MAILBOX_SLOTS, SLOT_BYTES, LoopIO, SharedBlock
 from haptic_server.kernels import reason_of
-from haptic_server.virtual import run_virtual_named
 from shared.config import load_scene, load_user
 from shared.wire import R_SIZE
 

@@ -1,5 +1,5 @@
 """Network configs with credentials: what loads, what is refused with the key named, and the
-Zenoh config they turn into (shared/security.py)."""
+Zenoh config they turn into (shared/net/security.py)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from shared.config import CONFIG_ROOT, ConfigError, load_network
-from shared.security import zenoh_keys
-from shared.transport import session_config
+from shared.net.security import zenoh_keys
+from shared.net.transport import session_config
 
 CREDENTIALS = CONFIG_ROOT / "credentials"
 SIM_PASSWORD = (CREDENTIALS / "example_sim.password").read_text().splitlines()[0]

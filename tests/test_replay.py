@@ -14,15 +14,15 @@ import pytest
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from haptic_server.mcap_log import (
+from haptic_server.harness.replay import FORCE_FIELDS, POSE_FIELDS, main, replay
+from haptic_server.harness.virtual import run_virtual_named
+from haptic_server.log import (
     CHUNK_SIZE,
     TICK_TOPIC,
     is_indexed,
     read_log,
     read_metadata,
 )
-from haptic_server.replay import FORCE_FIELDS, POSE_FIELDS, main, replay
-from haptic_server.virtual import run_virtual_named
 
 VIRTUAL_RUNS = {  # scene: (device, user, seconds): each scene with the user it is built for
     "free_box": ("ideal", "waypoints", 3.0),

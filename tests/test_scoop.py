@@ -14,8 +14,8 @@ from conftest import haptic_run
 
 from benchmarks.foh_chatter import CLAIM_RATIO, measure
 from device_models.registry import load_device
-from haptic_server.mcap_log import EVENT_TOPIC, read_json_topic, read_ticks
-from haptic_server.virtual import run_virtual_named
+from haptic_server.harness.virtual import run_virtual_named
+from haptic_server.log import EVENT_TOPIC, read_json_topic, read_ticks
 
 REPO = Path(__file__).resolve().parent.parent
 SCENE, USER = "maglev_scoop", "scoop"

@@ -16,7 +16,7 @@ import pytest
 from conftest import free_port
 
 from shared.config import CONFIG_ROOT, EndpointSpec, load_network
-from shared.transport import keys, open_session
+from shared.net.transport import keys, open_session
 
 DOC = CONFIG_ROOT.parent / "docs/security.md"
 UPDATES = 20

@@ -28,7 +28,7 @@ from conftest import ServerProcess
 from mcap.reader import make_reader
 
 from haptic_server.layout import TICK_DTYPE
-from haptic_server.mcap_log import EVENT_TOPIC, TICK_TOPIC, UPDATE_TOPIC, read_ticks
+from haptic_server.log import EVENT_TOPIC, TICK_TOPIC, UPDATE_TOPIC, read_ticks
 from shared.config import load_network, load_scene
 
 # the shipped two-host config: the haptic server listens on 10.213.0.1, port 7447 (free: the

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import haptic_run
 
-from haptic_server.mcap_log import (
+from haptic_server.log import (
     EVENT_TOPIC,
     TICK_TOPIC,
     UPDATE_TOPIC,

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from haptic_server.mcap_log import read_ticks
-from haptic_server.virtual import run_virtual_named
+from haptic_server.harness.virtual import run_virtual_named
+from haptic_server.log import read_ticks
 
 PUSH_N = 0.2  # configs/users/constant_push.toml
 BOX_KG = 1.0  # configs/scenes/free_box.toml

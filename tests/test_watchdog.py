@@ -16,8 +16,8 @@ import pytest
 
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
+from haptic_server.harness.virtual import _target
 from haptic_server.layout import TICK_DTYPE
-from haptic_server.virtual import _target
 from shared.config import load_network, load_scene, load_user
 from shared.messages import encode_update
 from sim_server.world import SimWorld

@@ -35,8 +35,8 @@ from typing import Any
 import numpy as np
 
 from device_models.registry import load_device
-from haptic_server.mcap_log import EVENT_TOPIC, read_json_topic, read_ticks
-from haptic_server.run import Child
+from haptic_server.harness.run import Child
+from haptic_server.log import EVENT_TOPIC, read_json_topic, read_ticks
 from shared.config import load_scene
 
 # ticks starting > 1 ms late: the bare clock loop alone measured up to 0.43% on these VMs

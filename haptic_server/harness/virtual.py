@@ -19,7 +19,7 @@ from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
 from haptic_server.kernels import store_row
 from haptic_server.layout import METHOD_VIRTUAL_COUPLING_FOH, TICK_DTYPE
-from haptic_server.mcap_log import LogWriter, run_metadata, update_record
+from haptic_server.log import LogWriter, run_metadata, update_record
 from shared.config import SceneConfig, UserConfig, load_scene, load_user, resolve
 from shared.messages import encode_update
 from sim_server.world import SimWorld, ToolTarget

@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 
 from device_models.registry import DEVICE_MODELS, load_device
-from haptic_server.virtual import run_virtual_named
+from haptic_server.harness.virtual import run_virtual_named
 
 
 def main() -> None:

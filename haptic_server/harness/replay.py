@@ -24,7 +24,7 @@ import numpy as np
 from haptic_server.engine import EngineCounters, HapticEngine
 from haptic_server.kernels import reason_of, store_row
 from haptic_server.layout import TICK_DTYPE
-from haptic_server.mcap_log import LogContents, read_log, recover_log
+from haptic_server.log import LogContents, read_log, recover_log
 from shared import source_hash
 from shared.config import (
     NetworkConfig,

@@ -14,7 +14,7 @@ from typing import Any
 import zenoh
 
 from shared.config import EndpointSpec
-from shared.security import zenoh_keys
+from shared.net.security import zenoh_keys
 
 
 @dataclass(frozen=True)
@@ -31,7 +31,7 @@ def session_config(
     endpoints: EndpointSpec, extra: dict[str, Any] | None = None, namespace: str | None = None
 ) -> zenoh.Config:
     """A peer-mode config on explicit endpoints; gossip and multicast off (STACK-NOTES); the
-    endpoint's credentials and access control (rules under `namespace`, shared/security.py)."""
+    endpoint's credentials and access control (rules under `namespace`, shared/net/security.py)."""
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
     conf.insert_json5("scouting/multicast/enabled", "false")

@@ -28,6 +28,7 @@ import numpy as np
 
 from device_models.base import SimulatedDevice
 from haptic_server.engine import HapticEngine
+from haptic_server.harness.virtual import run_virtual
 from haptic_server.io_process import (
     C_UPD_HEAD,
     C_UPD_READ,
@@ -35,8 +36,7 @@ from haptic_server.io_process import (
     compile_loop_kernels,
     push_row,
 )
-from haptic_server.mcap_log import run_metadata
-from haptic_server.virtual import run_virtual
+from haptic_server.log import run_metadata
 from shared.config import NetworkConfig, SceneConfig, UserConfig
 from shared.timing import LoopCounters, SampleWindow, try_realtime_priority, wait_until
 

@@ -197,7 +197,7 @@ def _watch(haptic: Child, sim: Child, stop: threading.Event, timeout_s: float) -
 
 
 def run_virtual_clock(args: argparse.Namespace) -> dict[str, Any]:
-    from haptic_server.virtual import run_virtual_named
+    from haptic_server.harness.virtual import run_virtual_named
 
     result = run_virtual_named(args.scene, args.device, args.user, args.duration, args.log)
     ticks = result.ticks

@@ -1,0 +1,1 @@
+"""Networking: endpoints and credentials, Zenoh sessions, access control."""
