@@ -20,10 +20,10 @@ def _source_hash() -> str:
     """Hash of the modules that hold numba kernels (numba tracks each file on its own)."""
     digest = hashlib.sha1()
     for package in _PACKAGES:
-        for path in sorted((_ROOT / package).glob("*.py")):
+        for path in sorted((_ROOT / package).rglob("*.py")):
             text = path.read_bytes()
             if b"njit" in text:
-                digest.update(path.name.encode())
+                digest.update(path.relative_to(_ROOT).as_posix().encode())
                 digest.update(text)
     return digest.hexdigest()[:12]
 
