@@ -1,0 +1,83 @@
+"""Integer codes that cross a boundary: rendering methods, loop faults, update verdicts, flags.
+
+Each is an `IntEnum` (numba reads members as int64 constants, so kernels compare against
+`Method.LOCAL_MODEL` directly) with the short tag that logs, counters and configs use.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum, IntFlag
+
+
+class Method(IntEnum):
+    """The rendering method of a scene's [rendering] table (DESIGN §4)."""
+
+    LOCAL_MODEL = 0  # seed 000: the configuration-space local model
+    IMPEDANCE_ONLY = 1  # the local model without joint penalties (the seed's baseline)
+    VIRTUAL_COUPLING = 2  # a spring-damper between device and proxy
+    VIRTUAL_COUPLING_FOH = 3  # seed 002: servo to the sim's tool by first-order hold
+
+    @property
+    def tag(self) -> str:
+        return self.name.lower()
+
+    @classmethod
+    def from_tag(cls, tag: str) -> Method:
+        return cls[tag.upper()]
+
+
+class Fault(IntEnum):
+    """The haptic loop's own fault code, in the state record and the tick row."""
+
+    NONE = 0
+    NONFINITE = 1  # a NaN/Inf appeared in the command or the proxy: safe state at once
+
+
+class Reason(IntEnum):
+    """An update's verdict: 0 installed, else why it was rejected (stable: logs keep them).
+
+    1-15 come from the validating parser, 16-18 from the order check at install."""
+
+    OK = 0
+    SHORT = 1
+    MAGIC = 2
+    VERSION = 3
+    DOF = 4
+    CONTACTS = 5
+    RESISTED = 6
+    OP_LINK = 7
+    SIZE = 8
+    NONFINITE = 9
+    CHARACTERISTIC_LENGTH = 10
+    JOINT_TYPE = 11
+    CONTACT_LINK = 12
+    MAGNITUDE = 13
+    MASS_MATRIX = 14
+    CONTACT = 15
+    STALE_EPOCH = 16
+    SEQUENCE = 17
+    DOF_CHANGE = 18
+
+    @property
+    def tag(self) -> str:
+        return _REASON_TAGS.get(self, self.name.lower())
+
+
+_REASON_TAGS = {Reason.STALE_EPOCH: "epoch", Reason.SEQUENCE: "sequence", Reason.DOF_CHANGE: "dof"}
+
+
+def reason_tag(code: int) -> str:
+    """A verdict code as its tag ("" never: 0 is "ok"); an unknown code reads as "size"."""
+    try:
+        return Reason(code).tag
+    except ValueError:
+        return "size"
+
+
+class Flag(IntFlag):
+    """Sections present in a local-model update (header flags)."""
+
+    GRAVITY = 1
+    RESISTED = 2
+    TOUCHING = 4
+    VELOCITY_TORQUE = 8
