@@ -1,0 +1,147 @@
+"""Per-tick cost of this build beside an earlier one, in one run, interleaved.
+
+Checks out BASE (a git revision) into a temporary worktree and runs, alternately in the base
+tree and in this one, (1) `benchmarks.kernel_cost` (the tick kernel alone and one Python call
+per tick, 0..32 contacts) and (2) a real-time run of the two servers (`haptic-run`, default
+scene and device, with the MCAP log), from which the loop's work per tick is read. The order
+alternates between repeats so slow spells of a shared host hit both builds; every figure is
+the median over repeats.
+
+    python -m benchmarks.compare_builds [--base 2ccdfb6] [--repeat 5] [--seconds 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+CONTACTS = (0, 1, 4, 8, 16, 32)
+
+
+def checkout(rev: str) -> Path:
+    """A detached worktree of `rev` (reused if it is there already)."""
+    sha = subprocess.run(
+        ["git", "rev-parse", "--short", rev], cwd=REPO_ROOT, check=True, capture_output=True,
+        text=True,
+    ).stdout.strip()  # fmt: skip
+    tree = Path(tempfile.gettempdir()) / f"hlm-build-{sha}"
+    if not (tree / "shared").is_dir():
+        subprocess.run(
+            ["git", "worktree", "add", "--detach", "--force", str(tree), sha],
+            cwd=REPO_ROOT, check=True, capture_output=True,
+        )  # fmt: skip
+    return tree
+
+
+def _env(tree: Path) -> dict[str, str]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(tree)  # the tree's packages shadow the installed ones
+    env.pop("NUMBA_CACHE_DIR", None)  # each tree keeps its own cache
+    return env
+
+
+def _module(tree: Path, new: str, old: str) -> str:
+    return new if (tree / Path(*new.split("."))).with_suffix(".py").exists() else old
+
+
+def warm(tree: Path) -> None:
+    module = _module(tree, "haptic_server.harness.warmup", "haptic_server.warmup")
+    subprocess.run(
+        [sys.executable, "-m", module], cwd=tree, env=_env(tree), check=True,
+        capture_output=True,
+    )  # fmt: skip
+
+
+def kernel_cost(tree: Path, ticks: int) -> dict[int, dict[str, float]]:
+    """kernel_cost's table: contacts -> kernel us/tick (median of its repeats), call p50/p99."""
+    out = subprocess.run(
+        [sys.executable, "-m", "benchmarks.kernel_cost", "--ticks", str(ticks), "--repeats", "3"],
+        cwd=tree, env=_env(tree), check=True, capture_output=True, text=True,
+    ).stdout  # fmt: skip
+    table: dict[int, dict[str, float]] = {}
+    for line in out.splitlines():
+        cells = line.split()
+        if len(cells) == 6 and cells[0].isdigit():
+            kernel, _, p50, p99 = (float(c) for c in cells[2:])
+            table[int(cells[0])] = {"kernel_us": kernel, "call_p50_us": p50, "call_p99_us": p99}
+    return table
+
+
+def loop_work(tree: Path, seconds: float) -> dict[str, float]:
+    """Work per tick and lateness of a real-time run of the default scene, log on."""
+    module = _module(tree, "haptic_server.harness.run", "haptic_server.run")
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = Path(tmp) / "summary.json"
+        subprocess.run(
+            [
+                sys.executable, "-m", module, "--duration", str(seconds),
+                "--log", str(Path(tmp) / "run.mcap"), "--summary-json", str(summary),
+            ],
+            cwd=tree, env=_env(tree), check=True, stdout=subprocess.DEVNULL,
+        )  # fmt: skip
+        s: dict[str, Any] = json.loads(summary.read_text())
+    return {
+        "work_p50_us": s["work_us"]["p50"],
+        "work_p99_us": s["work_us"]["p99"],
+        "lateness_p99_us": s["lateness_us"]["p99"],
+    }
+
+
+def _median(runs: list[dict[str, float]]) -> dict[str, float]:
+    return {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--base", default="2ccdfb6", help="git revision to compare with")
+    parser.add_argument("--repeat", type=int, default=5, help="interleaved repetitions")
+    parser.add_argument("--seconds", type=float, default=10.0, help="length of each real run")
+    parser.add_argument("--ticks", type=int, default=20000, help="ticks per kernel timing")
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args(argv)
+    trees = {"base": checkout(args.base), "this": REPO_ROOT}
+    for tree in trees.values():
+        warm(tree)
+    kernels: dict[str, list[dict[int, dict[str, float]]]] = {k: [] for k in trees}
+    loops: dict[str, list[dict[str, float]]] = {k: [] for k in trees}
+    for i in range(args.repeat):
+        order = list(trees) if i % 2 == 0 else list(reversed(trees))
+        for name in order:
+            kernels[name].append(kernel_cost(trees[name], args.ticks))
+            loops[name].append(loop_work(trees[name], args.seconds))
+        print(f"repeat {i + 1}/{args.repeat} done", file=sys.stderr)
+    result: dict[str, Any] = {"base": args.base, "repeat": args.repeat, "kernel": {}, "loop": {}}
+    print(f"medians of {args.repeat} interleaved repeats; base = {args.base}")
+    print(f"{'contacts':>8} {'kernel us base':>15} {'this':>8} {'call p50 base':>14} {'this':>8}")
+    for n in CONTACTS:
+        row = {name: _median([run[n] for run in kernels[name]]) for name in trees}
+        result["kernel"][n] = row
+        print(
+            f"{n:>8} {row['base']['kernel_us']:>15.3f} {row['this']['kernel_us']:>8.3f}"
+            f" {row['base']['call_p50_us']:>14.2f} {row['this']['call_p50_us']:>8.2f}"
+        )
+    for name in trees:
+        result["loop"][name] = _median(loops[name])
+    b, t = result["loop"]["base"], result["loop"]["this"]
+    print(f"\n{'real-time run, log on':<24}{'base':>10}{'this':>10}")
+    for key in ("work_p50_us", "work_p99_us", "lateness_p99_us"):
+        print(f"{key:<24}{b[key]:>10.1f}{t[key]:>10.1f}")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
