@@ -20,7 +20,7 @@ from numba import njit
 
 from device_models.ideal import IdealDevice, IdealDeviceConfig
 from haptic_server.engine import HapticEngine
-from haptic_server.kernels import haptic_tick
+from haptic_server.stages.tick import haptic_tick
 from shared.config import UserConfig, load_scene
 from shared.kinematics import free_body_chain
 from shared.messages import ContactSet, LocalModelUpdate, encode_update
@@ -54,18 +54,17 @@ def engine_with_contacts(n: int, press_n: float = 1.0, depth_m: float = 1e-4) ->
 
 
 @njit(cache=True)
-def _run(slots, params, state, sensors, hand, dt, ws, row, n):
+def _run(model, data, n):
     for _ in range(n):
-        haptic_tick(slots, params, state, sensors, hand, dt, ws, row)
+        haptic_tick(model, data)
 
 
 def kernel_us(engine: HapticEngine, ticks: int) -> float:
     e = engine
     e.tick(1e-3)
-    args = (e.slots, e.params, e.state, e.world_sensors, e.hand_measured, 1e-3, e.scratch, e.row)
-    _run(*args, 10)
+    _run(e.model, e.data, 10)
     start = time.perf_counter_ns()
-    _run(*args, ticks)
+    _run(e.model, e.data, ticks)
     return (time.perf_counter_ns() - start) / ticks / 1e3
 
 
@@ -74,9 +73,7 @@ def python_call_us(engine: HapticEngine, ticks: int) -> np.ndarray:
     out = np.zeros(ticks)
     for i in range(ticks):
         t0 = time.perf_counter_ns()
-        haptic_tick(
-            e.slots, e.params, e.state, e.world_sensors, e.hand_measured, 1e-3, e.scratch, e.row
-        )
+        haptic_tick(e.model, e.data)
         out[i] = (time.perf_counter_ns() - t0) / 1e3
     return out
 
@@ -89,22 +86,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=7)
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
-    engine_with_contacts(1).tick(1e-3)
-    _run(
-        *(
-            lambda e: (
-                e.slots,
-                e.params,
-                e.state,
-                e.world_sensors,
-                e.hand_measured,
-                1e-3,
-                e.scratch,
-                e.row,
-            )
-        )(engine_with_contacts(1)),
-        1,
-    )
+    warm = engine_with_contacts(1)
+    warm.tick(1e-3)  # data.dt is the tick's step from here on
+    _run(warm.model, warm.data, 1)
     print(f"compile / cache load: {time.perf_counter() - t0:.2f} s")
     head = ("contacts", "active", "kernel us/tick", "max", "py call p50", "p99")
     print("".join(f"{h:>15}" for h in head) + "   (kernel: median of repeats)")

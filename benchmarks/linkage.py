@@ -27,7 +27,7 @@ from scipy.signal import find_peaks
 from device_models.registry import load_device
 from haptic_server.harness.virtual import run_virtual
 from shared.config import SceneConfig, load_scene, load_user
-from shared.reference import ChainSpec, simulate
+from shared.reference import ChainSpec, Hold, simulate
 
 METHODS = ("local_model", "impedance_only", "virtual_coupling")
 HOLDS = ("linkage_middle", "linkage_distal")
@@ -89,9 +89,7 @@ def reference_error_mm(scene: SceneConfig, ticks: np.ndarray, t_end: float) -> n
         chain_spec(scene),
         np.array(lk.initial_angles),
         np.zeros(len(lk.lengths)),
-        np.array(load_user(USER).wrench),
-        scene.tool.link,
-        np.array(scene.tool.point),
+        Hold(np.array(load_user(USER).wrench), scene.tool.link, np.array(scene.tool.point)),
         t_end,
         ticks["t"],
     )

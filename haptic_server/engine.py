@@ -8,64 +8,55 @@ same object, so a replay of a log runs exactly the code that produced it.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from device_models.base import SENSOR_DTYPE, Device, DeviceRenderingSpec, SimulatedDevice
+from device_models.base import Device, SimulatedDevice
 from device_models.world_map import DeviceWorldMap
-from haptic_server.kernels import (
-    ORDER_EPOCH,
-    ORDER_FOLLOW,
-    ORDER_INSTALLED,
-    ORDER_NEW_EPOCH,
-    ORDER_SEQ,
-    ORDER_SIZE,
-    accept_update,
-    engine_step,
-    reason_of,
-    store_applied,
+from haptic_server.model import (
+    CLOCK_DTYPE,
+    DATA_DTYPE,
+    DEVICE_IO_DTYPE,
+    INSTALL_DTYPE,
+    MODEL_DTYPE,
+    params_record,
 )
-from haptic_server.layout import (
-    FAULT_NONE,
-    METHOD_IDS,
-    METHOD_VIRTUAL_COUPLING_FOH,
-    PARAMS_DTYPE,
-    SCRATCH_DTYPE,
-    SLOT_DTYPE,
-    STATE_DTYPE,
-    TICK_DTYPE,
-)
+from haptic_server.stages.install import accept_update
+from haptic_server.stages.tick import engine_step, store_applied
 from haptic_server.users import hand_wrench, user_record
-from shared.config import ConfigError, RenderingSpec, SceneConfig, UserConfig
+from shared.config import ConfigError, SceneConfig, UserConfig
 from shared.kinematics import MAX_DOF, link_frames, point_jacobian, point_on_link
 from shared.messages import DEFAULT_LIMITS, limits_array
-from shared.wire import R_SIZE, REASONS, UpdateParser
+from shared.protocol.codes import Fault, Method, Reason, reason_tag
+from shared.wire import HEADER_BYTES, MAX_CONTACTS
 
 CONTACT_MATCH_RADIUS_M = 2.0e-3  # a contact keeps its state if its tool point moved less
-
-
-REASON_CODES = 32  # verdict codes (shared.wire, haptic_server.kernels) are below this
+#: the receive buffer: the largest valid update (12 DOF, 64 contacts) with room to spare
+RECEIVE_BUFFER_BYTES = HEADER_BYTES + 8 * (MAX_DOF + 2 * MAX_CONTACTS + 4096)
 
 
 @dataclass
 class EngineCounters:
     """What the engine has installed, rejected and why (logged and summarised).
 
-    Installs and rejections are counted in arrays (the install count in the order record,
-    rejections by verdict code in `reject_counts`) that the server's mailbox kernel
-    increments in place: no Python per message.
+    Installs and rejections are counted in the install record (`installed`, and
+    `reject_counts` by verdict code), which the server's mailbox kernel increments in place:
+    no Python per message.
     """
 
-    order: np.ndarray = field(default_factory=lambda: _new_order())
-    reject_counts: np.ndarray = field(default_factory=lambda: np.zeros(REASON_CODES, np.int64))
+    install: np.ndarray
     epochs: int = 0
     reinitialisations: int = 0
 
     @property
     def installed(self) -> int:
-        return int(self.order[ORDER_INSTALLED])
+        return int(self.install[0]["installed"])
+
+    @property
+    def reject_counts(self) -> np.ndarray:
+        return self.install[0]["reject_counts"]
 
     @property
     def rejected(self) -> int:
@@ -75,66 +66,27 @@ class EngineCounters:
     def rejected_by_reason(self) -> dict[str, int]:
         by_reason: dict[str, int] = {}
         for code in np.flatnonzero(self.reject_counts):
-            reason = reason_of(int(code))
+            reason = reason_tag(int(code))
             by_reason[reason] = by_reason.get(reason, 0) + int(self.reject_counts[code])
         return by_reason
 
 
-def _new_order() -> np.ndarray:
-    order = np.zeros(ORDER_SIZE, dtype=np.int64)
-    order[ORDER_EPOCH] = -1
-    order[ORDER_SEQ] = -1
-    return order
-
-
-def params_record(
-    rendering: RenderingSpec,
-    max_wrench: np.ndarray,
-    dt_nominal: float,
-    device_rendering: DeviceRenderingSpec | None = None,
-    safe_ramp_s: float = 0.05,
-    world_map: np.ndarray | None = None,
-) -> np.ndarray:
-    """The gains as a kernel record (DESIGN §4, §6), in the world frame.
-
-    The scene gives the rendering gains; the device (its `[rendering]` table, in its own
-    frame) gives the FOH servo gains, f_g and the safe damping, and its limits `max_wrench`.
-    Through a map of scale s and force scale f_s, device wrenches divide by f_s s and
-    stiffnesses and dampings by f_s s^2 (F_dev = f_s s F_world, x_world = s x_dev + offset).
-    """
-    dev = device_rendering or DeviceRenderingSpec()
-    scale, force_scale = np.ones(3), 1.0
-    if world_map is not None:
-        scale, force_scale = world_map[0]["scale"].copy(), float(world_map[0]["force_scale"])
-    per_wrench = 1.0 / (force_scale * scale)
-    per_gain = per_wrench / scale
-    rec = np.zeros(1, PARAMS_DTYPE)
-    p = rec[0]
-    p["method"] = METHOD_IDS[rendering.method]
-    p["coordination_stiffness"] = rendering.coordination_stiffness
-    p["coordination_damping"] = rendering.coordination_damping
-    p["penalty_stiffness"] = rendering.penalty_stiffness
-    p["penalty_damping"] = rendering.penalty_damping
-    p["desired_damping"] = rendering.desired_damping
-    p["desired_stiffness"] = rendering.desired_stiffness
-    p["impulses"] = 1 if rendering.impulses else 0
-    p["collision_speed"] = rendering.collision_speed_m_per_s
-    p["friction_stiffness_ratio"] = rendering.friction_stiffness_ratio
-    p["blend_s"] = rendering.blend_ms / 1000.0
-    p["vc_stiffness"] = rendering.virtual_coupling_stiffness
-    p["vc_damping"] = rendering.virtual_coupling_damping
-    p["foh_stiffness"] = np.array(dev.foh_stiffness) * per_gain
-    p["foh_damping"] = np.array(dev.foh_damping) * per_gain
-    p["foh_interpolate"] = 1 if dev.setpoint_hold == "first_order" else 0
-    p["foh_gravity"] = np.array(dev.gravity_feedforward) * per_wrench
-    p["safe_damping"] = np.array(dev.safe_damping) * per_gain
-    p["safe_ramp_s"] = safe_ramp_s
-    p["max_wrench"] = np.asarray(max_wrench, dtype=np.float64) * per_wrench
+def install_record() -> np.ndarray:
+    """An empty install record: nothing installed, default message limits."""
+    rec = np.zeros(1, INSTALL_DTYPE)
+    rec[0]["epoch"] = -1
+    rec[0]["seq"] = -1
+    rec[0]["match_radius_m"] = CONTACT_MATCH_RADIUS_M
+    rec[0]["limits"] = limits_array(DEFAULT_LIMITS)
     return rec
 
 
 class HapticEngine:
-    """Local model + device control around a device and a simulated user (DESIGN §4)."""
+    """Local model + device control around a device and a simulated user (DESIGN §4).
+
+    It owns the records the kernels work on (haptic_server.model): `model` (installed local
+    models and gains), `data` (proxy, contact state, scratch, the log row), `io` (the device
+    side), `clock` (what the loop measured) and `install` (order and verdict counters)."""
 
     def __init__(
         self,
@@ -162,40 +114,40 @@ class HapticEngine:
         # the device's own map (shared: rate control moves its offset), or scale 1 + offset
         own_map = getattr(device, "world_map", None)
         self.world_map = (own_map or DeviceWorldMap.identity()).record
-        self.device_limits = np.array(limits.max_wrench, dtype=np.float64)
-        self._device_command = np.zeros(3)
-        self.params = params_record(
+        self.model = np.zeros(1, MODEL_DTYPE)
+        self.data = np.zeros(1, DATA_DTYPE)
+        self.io = np.zeros(1, DEVICE_IO_DTYPE)
+        self.clock = np.zeros(1, CLOCK_DTYPE)
+        self.install = install_record()
+        self.io[0]["max_wrench"] = limits.max_wrench
+        self.model["params"] = params_record(
             scene.rendering,
-            self.device_limits,
-            self.dt_nominal,
+            self.io[0]["max_wrench"],
             getattr(device, "rendering", None),
             safe_ramp_s,
             self.world_map,
         )
-        self.method = int(self.params[0]["method"])
-        self.slots = np.zeros(2, SLOT_DTYPE)
-        self.state = np.zeros(1, STATE_DTYPE)
-        self.scratch = np.zeros(1, SCRATCH_DTYPE)
-        self.row = np.zeros(1, TICK_DTYPE)
+        # views of the records, for the Python side and tests
+        self.params = self.model["params"]
+        self.slots = self.model["slots"][0]
+        self.state = self.data["state"]
+        self.scratch = self.data["scratch"]
+        self.row = self.data["row"]
+        self.world_sensors = self.data[0]["sensors"]
+        self.hand_measured = self.data[0]["hand_measured"]
+        self.sensors = self.io[0]["sensors"]
+        self.hand = self.io[0]["hand"]
+        self.method = Method(int(self.params[0]["method"]))
         self.ready = False
-        self.sensors = np.zeros(1, SENSOR_DTYPE)
-        self.world_sensors = np.zeros(1, SENSOR_DTYPE)
         self.user = user_record(user)
-        self.hand = np.zeros(3)
-        self.hand_measured = np.zeros(3)
         self._true_pose = np.zeros(3)
         self._true_twist = np.zeros(3)
-        self.counters = EngineCounters()
-        self.parser = UpdateParser(limits_array(DEFAULT_LIMITS))
-        self._order = self.counters.order  # epoch, seq, ready, new epoch, installs, follow-up
-        # accept_update's arguments after (buffer, nbytes): the parser's buffers, the model
-        # slots, the proxy state, the order record, the contact match radius; then latency_s
-        self.accept_args = (
-            self.parser.limits, self.parser.out, self.parser.scratch, self.slots, self.state,
-            self._order, CONTACT_MATCH_RADIUS_M,
-        )  # fmt: skip
-        self.tick_index = 0
+        self.counters = EngineCounters(self.install)
+        self.buffer = np.zeros(RECEIVE_BUFFER_BYTES, np.uint8)  # 8-byte aligned
+        self.tick_index = 0  # the clock record's tick and t, kept in step on this side
         self.time = 0.0
+        self.clock[0]["update_seq"] = self._update_seq = -1
+        self._update_age_ms = 0.0
         self._install_ticks: deque[int] = deque(maxlen=4)  # FOH: arrival ticks of updates
         self.state[0]["safe"] = 1.0
         self.state[0]["safe_target"] = 1.0
@@ -206,14 +158,13 @@ class HapticEngine:
 
     def receive(self, raw: bytes, latency_s: float = 0.0) -> str:
         """Validate and install an update's bytes; returns "" or the rejection reason."""
-        parser = self.parser
         n = len(raw)
-        if n > parser.buffer.shape[0]:
-            self.counters.reject_counts[R_SIZE] += 1
-            return REASONS[R_SIZE]
-        parser.buffer[:n] = np.frombuffer(raw, np.uint8)
-        code = self.receive_buffer(parser.buffer, n, latency_s)
-        return "" if code == 0 else reason_of(code)
+        if n > self.buffer.shape[0]:
+            self.counters.reject_counts[Reason.SIZE] += 1
+            return Reason.SIZE.tag
+        self.buffer[:n] = np.frombuffer(raw, np.uint8)
+        code = self.receive_buffer(self.buffer, n, latency_s)
+        return "" if code == 0 else reason_tag(code)
 
     def receive_buffer(self, buf: np.ndarray, nbytes: int, latency_s: float = 0.0) -> int:
         """Validate and install the update in an 8-byte aligned uint8 buffer; 0 or a reason code.
@@ -222,9 +173,9 @@ class HapticEngine:
         and installs: the newest model becomes slot 0 and the previous one slot 1,
         cross-faded over blend_ms (DESIGN §4.4); contacts keep their state by key. The
         real-time server does the same from its mailbox (`haptic_server.io_process`,
-        `take_updates`) with `accept_args`, then calls `installed`.
+        `take_updates`), then calls `installed`.
         """
-        code = int(accept_update(buf, nbytes, *self.accept_args, latency_s))
+        code = int(accept_update(buf, nbytes, latency_s, self.model, self.data, self.install))
         if code:
             self.counters.reject_counts[code] += 1
             return code
@@ -235,9 +186,10 @@ class HapticEngine:
         """The Python side of an install, after `accept_update` installed a model: mark the
         engine ready, re-initialise on a new epoch or after the watchdog, advance the FOH
         setpoint. The server's mailbox kernel calls for it only when one of those applies
-        (`ORDER_FOLLOW`, or a new epoch); for any other install it does nothing."""
+        (`follow`, or a new epoch); for any other install it does nothing."""
         self.ready = True
-        new_epoch = bool(self._order[ORDER_NEW_EPOCH])
+        self.clock[0]["ready"] = 1
+        new_epoch = bool(self.install[0]["new_epoch"])
         if new_epoch:
             self.counters.epochs += 1
             self._install_ticks.clear()
@@ -246,7 +198,7 @@ class HapticEngine:
             # while the proxy went on, so start again from the sim's state
             self._reinitialise(self.slots[0], first=new_epoch and self.counters.epochs == 1)
         self.stale = False
-        if self.method == METHOD_VIRTUAL_COUPLING_FOH:
+        if self.method == Method.VIRTUAL_COUPLING_FOH:
             self._install_ticks.append(self.tick_index)
             self._advance_foh(self.slots[0]["tool_pose"])
 
@@ -258,16 +210,16 @@ class HapticEngine:
     @stale.setter
     def stale(self, value: bool) -> None:
         self._stale = value
-        foh = self.method == METHOD_VIRTUAL_COUPLING_FOH
-        self._order[ORDER_FOLLOW] = 1 if (value or foh) else 0
+        foh = self.method == Method.VIRTUAL_COUPLING_FOH
+        self.install[0]["follow"] = 1 if (value or foh) else 0
 
     @property
     def epoch(self) -> int:
-        return int(self._order[ORDER_EPOCH])
+        return int(self.install[0]["epoch"])
 
     @property
     def last_seq(self) -> int:
-        return int(self._order[ORDER_SEQ])
+        return int(self.install[0]["seq"])
 
     @property
     def offset(self) -> np.ndarray:
@@ -287,7 +239,7 @@ class HapticEngine:
         st["blend"] = 1.0
         st["q"] = m["q"]
         st["qd"] = m["qd"]
-        st["fault"] = FAULT_NONE
+        st["fault"] = Fault.NONE
         st["foh_goal"] = m["tool_pose"]
         st["foh_steps_left"] = 0
         if first and self.simulated:
@@ -388,13 +340,14 @@ class HapticEngine:
                 self.hand[:] = hand  # replay: the recorded hand
             dev.sense_hand(self.hand)
         dev.read(self.sensors)
+        if update_seq != self._update_seq or update_age_ms != self._update_age_ms:
+            clock = self.clock[0]  # only when it changes: a field write costs ~0.5 us
+            clock["update_seq"] = self._update_seq = update_seq
+            clock["update_age_ms"] = self._update_age_ms = update_age_ms
         engine_step(
-            self.sensors, self.world_map, self.hand, self.tick_index, self.time,
-            self.world_sensors, self.hand_measured, self.slots, self.params, self.state, dt,
-            self.scratch, self.row, self.ready, lateness_us, work_us, update_seq, update_age_ms,
-            self.device_limits, self._device_command,
-        )  # fmt: skip
-        store_applied(self.world_map, dev.command(self._device_command), self.row)
+            self.model, self.data, self.io, self.world_map, self.clock, dt, lateness_us, work_us
+        )
+        store_applied(self.world_map, dev.command(self.io[0]["command"]), self.data)
         if self.simulated:
             dev.advance(dt, self.hand)
         self.tick_index += 1
@@ -411,3 +364,12 @@ class HapticEngine:
         real-time server publishes to the sim (ProxyState)."""
         ws = self.world_sensors[0]
         return ws["pose"].copy(), ws["twist"].copy()
+
+
+def warm_kernels(scene: SceneConfig, device: Device | SimulatedDevice, user: UserConfig) -> None:
+    """Compile (or load from numba's cache) every kernel of a tick and of an install for
+    these configs, on a throwaway engine with an empty model: no sim, no pymunk."""
+    engine = HapticEngine(scene, device, user)
+    engine.receive(bytes(8))  # the parser and the install route (rejected: too short)
+    engine.clock[0]["ready"] = 1  # run the stages on the empty model
+    engine.tick(engine.dt_nominal)

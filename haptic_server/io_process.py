@@ -26,8 +26,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numba import njit
 
-from haptic_server.kernels import ORDER_FOLLOW, ORDER_NEW_EPOCH, ORDER_SEQ, accept_update
-from haptic_server.layout import TICK_DTYPE
+from haptic_server.model import TICK_DTYPE
+from haptic_server.stages.install import accept_update
 from shared.wire import PUBLISH_TIME_AT, PUBLISH_TIME_END, publish_time_ns
 
 if TYPE_CHECKING:
@@ -49,6 +49,18 @@ C_UPD_LOGGED = 11  # updates the log writer has written (a slot is reused only a
 C_LOWER_IO = 12  # set by the loop when it runs without real-time priority
 N_CTL = 16
 
+#: One mailbox slot: a received update's bytes and what the loop made of it.
+MAILBOX_DTYPE = np.dtype(
+    [
+        ("length", np.int64),  # bytes received; negative: too long for the slot
+        ("verdict", np.int64),  # VERDICT_PENDING, 0 installed, else the reason code
+        ("tick", np.int64),  # the tick it was taken at
+        ("recv_ns", np.int64),  # wall clock when the sidecar received it
+        ("latency_s", np.float64),  # publish -> install, as installed
+        ("raw", np.uint8, (SLOT_BYTES,)),  # 8-byte aligned: the parser reads floats in place
+    ]
+)
+
 
 class SharedBlock:
     """The layout of the shared memory (both sides map the same named segment)."""
@@ -62,18 +74,15 @@ class SharedBlock:
         self.ticks = np.ndarray((RING_TICKS,), TICK_DTYPE, buf, o)
         o += RING_TICKS * TICK_DTYPE.itemsize
         o = (o + 7) // 8 * 8
-        self.update_len = np.ndarray((MAILBOX_SLOTS,), np.int64, buf, o)
-        o += 8 * MAILBOX_SLOTS
-        self.update_verdict = np.ndarray((MAILBOX_SLOTS,), np.int64, buf, o)
-        o += 8 * MAILBOX_SLOTS
-        self.update_tick = np.ndarray((MAILBOX_SLOTS,), np.int64, buf, o)
-        o += 8 * MAILBOX_SLOTS
-        self.update_recv_ns = np.ndarray((MAILBOX_SLOTS,), np.int64, buf, o)
-        o += 8 * MAILBOX_SLOTS
-        self.update_latency_s = np.ndarray((MAILBOX_SLOTS,), np.float64, buf, o)
-        o += 8 * MAILBOX_SLOTS
-        self.updates = np.ndarray((MAILBOX_SLOTS, SLOT_BYTES), np.uint8, buf, o)
-        o += MAILBOX_SLOTS * SLOT_BYTES
+        self.mailbox = np.ndarray((MAILBOX_SLOTS,), MAILBOX_DTYPE, buf, o)
+        o += MAILBOX_SLOTS * MAILBOX_DTYPE.itemsize
+        # the mailbox's columns, for the sidecar's Python side
+        self.update_len = self.mailbox["length"]
+        self.update_verdict = self.mailbox["verdict"]
+        self.update_tick = self.mailbox["tick"]
+        self.update_recv_ns = self.mailbox["recv_ns"]
+        self.update_latency_s = self.mailbox["latency_s"]
+        self.updates = self.mailbox["raw"]
         self.events = np.ndarray((EVENT_SLOTS, EVENT_BYTES), np.uint8, buf, o)
         o += EVENT_SLOTS * EVENT_BYTES
         self.size = o
@@ -83,8 +92,7 @@ class SharedBlock:
         return (
             8 * N_CTL
             + (RING_TICKS * TICK_DTYPE.itemsize + 7) // 8 * 8
-            + 5 * 8 * MAILBOX_SLOTS
-            + MAILBOX_SLOTS * SLOT_BYTES
+            + MAILBOX_SLOTS * MAILBOX_DTYPE.itemsize
             + EVENT_SLOTS * EVENT_BYTES
         )
 
@@ -111,8 +119,8 @@ class SharedBlock:
 
     def release(self) -> None:
         for name in (
-            "ctl", "ticks", "update_len", "update_verdict", "update_tick", "update_recv_ns",
-            "update_latency_s", "updates", "events",
+            "ctl", "ticks", "mailbox", "update_len", "update_verdict", "update_tick",
+            "update_recv_ns", "update_latency_s", "updates", "events",
         ):  # fmt: skip
             setattr(self, name, None)
 
@@ -137,20 +145,18 @@ MAX_LATENCY_S = 1.0  # publish -> install is clamped to [0, this] (a clock step 
 
 
 @njit(cache=True)
-def take_updates(
-    ctl, lengths, updates, verdicts, install_ticks, latencies, tick, now_ns, budget,
-    limits, parsed, scratch, slots, state, order, match_radius, reject_counts,
-):  # fmt: skip
+def take_updates(ctl, mailbox, tick, now_ns, budget, model, data, install):
     """Validate and install the updates waiting in the mailbox, oldest first, in one call.
 
     Takes up to `budget` updates, and stops after an install that needs the engine's Python
-    side (a new epoch, or ORDER_FOLLOW: after the watchdog, or FOH setpoints). Each verdict
-    (0 installed, else the reason code, counted in reject_counts), the tick and the publish
-    -> now latency it was installed with go next to its update in the mailbox (the log
-    writer logs them, so a replay is exact); only then is the update marked read (the
+    side (a new epoch, or install.follow: after the watchdog, or FOH setpoints). Each verdict
+    (0 installed, else the reason code, counted in install.reject_counts), the tick and the
+    publish -> now latency it was installed with go next to its update in the mailbox (the
+    log writer logs them, so a replay is exact); only then is the update marked read (the
     writer and the Zenoh thread read the mark). Returns (taken, installed, follow-up
     needed, seq of the newest install, its latency in s).
     """
+    ins = install[0]
     taken = 0
     installed = 0
     follow = 0
@@ -160,27 +166,24 @@ def take_updates(
         read = ctl[C_UPD_READ]
         if read >= ctl[C_UPD_HEAD]:
             break
-        slot = read % lengths.shape[0]
-        n = lengths[slot]
-        buf = updates[slot]
+        slot = mailbox[read % mailbox.shape[0]]
+        n = slot.length
         latency = 0.0
         if n >= PUBLISH_TIME_END:
-            latency = min(max((now_ns - publish_time_ns(buf)) / 1e9, 0.0), MAX_LATENCY_S)
-        code = accept_update(
-            buf, n, limits, parsed, scratch, slots, state, order, match_radius, latency
-        )
+            latency = min(max((now_ns - publish_time_ns(slot.raw)) / 1e9, 0.0), MAX_LATENCY_S)
+        code = accept_update(slot.raw, n, latency, model, data, install)
         if code != 0:
-            reject_counts[code] += 1
-        install_ticks[slot] = tick
-        latencies[slot] = latency
-        verdicts[slot] = code
+            ins.reject_counts[code] += 1
+        slot.tick = tick
+        slot.latency_s = latency
+        slot.verdict = code
         ctl[C_UPD_READ] = read + 1
         taken += 1
         if code == 0:
             installed += 1
-            seq = order[ORDER_SEQ]
+            seq = ins.seq
             newest_latency = latency
-            if order[ORDER_NEW_EPOCH] == 1 or order[ORDER_FOLLOW] == 1:
+            if ins.new_epoch == 1 or ins.follow == 1:
                 follow = 1
                 break
     return taken, installed, follow, seq, newest_latency
@@ -192,11 +195,10 @@ def compile_loop_kernels(engine: HapticEngine) -> None:
     ctl = np.zeros(N_CTL, np.int64)
     push_row(np.zeros(2, TICK_DTYPE), ctl, engine.row, np.zeros(2), np.zeros(2), np.zeros(2))
     ctl[C_UPD_HEAD] = 1
-    one_i, one_f = np.zeros(1, np.int64), np.zeros(1, np.float64)
-    take_updates(
-        ctl, one_i.copy(), np.zeros((1, 64), np.uint8), one_i.copy(), one_i.copy(), one_f, 0, 0,
-        1, *engine.accept_args, np.zeros_like(engine.counters.reject_counts),
-    )  # fmt: skip
+    mailbox = np.zeros(1, MAILBOX_DTYPE)
+    mailbox[0]["length"] = 8
+    install = engine.install.copy()
+    take_updates(ctl, mailbox, 0, 0, 1, engine.model.copy(), engine.data.copy(), install)
 
 
 class LoopIO:
@@ -234,9 +236,8 @@ class LoopIO:
         newest_seq, newest_latency_s = -1, 0.0
         while budget > 0:
             taken, installed, follow, seq, latency_s = take_updates(
-                b.ctl, b.update_len, b.updates, b.update_verdict, b.update_tick,
-                b.update_latency_s, tick, time.time_ns(), budget, *engine.accept_args,
-                engine.counters.reject_counts,
+                b.ctl, b.mailbox, tick, time.time_ns(), budget, engine.model, engine.data,
+                engine.install,
             )  # fmt: skip
             taken_all += taken
             installed_all += installed
@@ -295,11 +296,11 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
 
     import zenoh
 
-    from haptic_server.kernels import reason_of
     from haptic_server.log import LogWriter, update_record
-    from shared.config import EndpointSpec
     from shared.messages import ProxyEncoder
+    from shared.net.config import EndpointSpec
     from shared.net.transport import keys, open_session
+    from shared.protocol.codes import reason_tag as reason_of
 
     # the loop decides when I/O ends: a Ctrl-C to the process group is ignored; SIGTERM (the
     # loop's close() after a timeout, or anyone's kill) finishes the log and exits

@@ -28,7 +28,7 @@ from mcap.records import Channel, McapRecord, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from haptic_server.layout import TICK_DTYPE
+from haptic_server.model import TICK_DTYPE
 from shared.messages import LocalModelUpdate, MessageError, decode_update
 
 TICK_TOPIC = "/haptic/tick"

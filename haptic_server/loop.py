@@ -27,8 +27,7 @@ from typing import Any
 import numpy as np
 
 from device_models.base import SimulatedDevice
-from haptic_server.engine import HapticEngine
-from haptic_server.harness.virtual import run_virtual
+from haptic_server.engine import HapticEngine, warm_kernels
 from haptic_server.io_process import (
     C_UPD_HEAD,
     C_UPD_READ,
@@ -37,7 +36,9 @@ from haptic_server.io_process import (
     push_row,
 )
 from haptic_server.log import run_metadata
-from shared.config import NetworkConfig, SceneConfig, UserConfig
+from haptic_server.supervisor import Event, TickEvents, WatchdogClock, supervise
+from shared.config import SceneConfig, UserConfig
+from shared.net.config import NetworkConfig
 from shared.timing import LoopCounters, SampleWindow, try_realtime_priority, wait_until
 
 DT_CLAMP = (0.25, 2.0)  # measured dt is clamped to these multiples of the nominal period
@@ -124,14 +125,62 @@ class HapticServer:
         self.stats = HapticRunStats()
         self.faults = faults or InjectedFaults()
         self._stop = False
+        # the running loop's parts, set by run() (read by the supervisor's install step)
+        self._io: LoopIO
+        self._supervisor: WatchdogClock
+        self._tick = 0
+        self._duration_ns: int | None = None
+        self._newest_seq = -1
+        self._newest_age_ms = float("nan")
 
     def request_stop(self, *_: object) -> None:
         self._stop = True
 
     def warm_up(self, device_factory: Any, user: UserConfig) -> None:
         """Compile (or load from cache) every kernel before the loop starts."""
-        run_virtual(self.scene, device_factory(), user, 0.05)
+        warm_kernels(self.scene, device_factory(), user)
         compile_loop_kernels(self.engine)
+
+    def _take_updates(self) -> int:
+        """The supervisor's install step: validate and install what waits in the mailbox (one
+        numba call; the engine's Python side only after a new epoch, the watchdog, or for FOH
+        setpoints); the first install starts the run's duration."""
+        stats = self.stats
+        taken, installed, seq, latency_s = self._io.take_updates(
+            self.engine, self._tick, MAX_UPDATES_PER_TICK
+        )
+        stats.updates_received += taken
+        if installed:
+            if stats.updates_installed == 0 and self._duration_ns is not None:
+                sup = self._supervisor  # the duration counts from the first install
+                sup.end_ns = sup.now_ns + self._duration_ns
+            stats.updates_installed += installed
+            self._newest_seq = seq
+            self._newest_age_ms = latency_s * 1e3
+            stats.update_age_ms.add(self._newest_age_ms)
+        return installed
+
+    def _log_events(
+        self, io: LoopIO, tick: int, events: TickEvents, supervisor: WatchdogClock
+    ) -> None:
+        """The tick's supervisor events into the event ring (and the watchdog counter)."""
+        engine = self.engine
+        if events.stop:
+            why = supervisor.stop_reason
+            io.event(tick, Event.STOP, f"{why}: ramping to the safe state")
+        if events.reinitialised:
+            how = "new epoch" if events.new_epoch else "same epoch"
+            io.event(
+                tick,
+                Event.REINITIALISE,
+                f"{how} {engine.epoch} seq {self._newest_seq}: proxy from the sim",
+            )
+        if events.watchdog_clear:
+            io.event(tick, Event.WATCHDOG_CLEAR, f"update seq {self._newest_seq}")
+        if events.watchdog:
+            self.stats.watchdog_trips += 1
+            silent_ms = (supervisor.now_ns - supervisor.last_valid_ns) / 1e6
+            io.event(tick, Event.WATCHDOG, f"no valid update for {silent_ms:.1f} ms")
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         """The loop; returns the summary. `ready` is called once the loop is about to start."""
@@ -155,10 +204,10 @@ class HapticServer:
             period_ns = round(1e9 / self.scene.haptic_rate_hz)
             dt_nominal = period_ns / 1e9
             watchdog_ns = int(self.network.watchdog_ms * 1e6)
-            newest_seq = -1
-            newest_age_ms = float("nan")
-            last_valid_ns = 0
-            stale = False
+            self._newest_seq = -1
+            self._newest_age_ms = float("nan")
+            self._io = io
+            self._tick = 0
             stats.realtime_priority = try_realtime_priority()
             if not stats.realtime_priority:
                 io.lower_io_priority()
@@ -172,10 +221,11 @@ class HapticServer:
             # the duration counts from the first installed update (a sim that starts later, or
             # compiles first, does not eat into it); without any update it ends all the same
             # after FIRST_UPDATE_WAIT_S more
-            duration_ns = int(duration_s * 1e9) if duration_s else None
-            end_ns = (  # no duration: runs until stopped
-                start_ns + duration_ns + int(FIRST_UPDATE_WAIT_S * 1e9) if duration_ns else 1 << 62
-            )
+            self._duration_ns = int(duration_s * 1e9) if duration_s else None
+            supervisor = WatchdogClock(engine, watchdog_ns, self._take_updates)
+            self._supervisor = supervisor
+            if self._duration_ns:  # no duration: runs until stopped
+                supervisor.end_ns = start_ns + self._duration_ns + int(FIRST_UPDATE_WAIT_S * 1e9)
             dt_min, dt_max = DT_CLAMP[0] * dt_nominal, DT_CLAMP[1] * dt_nominal
             deadline = start_ns + period_ns
             last_start = start_ns
@@ -193,7 +243,6 @@ class HapticServer:
                 if self.faults.nan_after_s is not None
                 else -1
             )
-            stopping = False  # ramping to the safe state before the loop ends
         except BaseException:
             io.close()
             raise
@@ -210,64 +259,29 @@ class HapticServer:
                     counters.late_over_1ms += 1
                 dt = min(max(dt_ns / 1e9, dt_min), dt_max)
 
-                if not stopping and (self._stop or now >= end_ns):
-                    # a signal or the end of the run: ramp to the safe state, then stop
-                    stopping = True
-                    engine.set_safe(True)
-                    why = "stop requested" if self._stop else "duration reached"
-                    io.event(tick, "stop", f"{why}: ramping to the safe state")
-                if stopping and (not engine.ready or engine.state[0]["safe"] >= 1.0):
-                    break
-
-                if not stopping and ctl[C_UPD_READ] < ctl[C_UPD_HEAD]:  # an update waits
-                    epochs, was_stale = engine.counters.epochs, engine.stale
-                    # validate + install, in one numba call (the engine's Python side only
-                    # after a new epoch, the watchdog, or for FOH setpoints)
-                    taken, installed, seq, latency_s = io.take_updates(
-                        engine, tick, MAX_UPDATES_PER_TICK
-                    )
-                    stats.updates_received += taken
-                    if installed:
-                        if stats.updates_installed == 0 and duration_ns is not None:
-                            end_ns = now + duration_ns
-                        stats.updates_installed += installed
-                        last_valid_ns = now
-                        newest_seq = seq
-                        newest_age_ms = latency_s * 1e3
-                        stats.update_age_ms.add(newest_age_ms)
-                        if engine.counters.epochs != epochs or was_stale:
-                            how = "new epoch" if engine.counters.epochs != epochs else "same epoch"
-                            io.event(
-                                tick,
-                                "reinitialise",
-                                f"{how} {engine.epoch} seq {newest_seq}: proxy from the sim",
-                            )
-                        if stale:
-                            stale = False
-                            engine.set_safe(False)
-                            io.event(tick, "watchdog_clear", f"update seq {newest_seq}")
-
-                if (
-                    engine.ready
-                    and not stale
-                    and not stopping
-                    and now - last_valid_ns > watchdog_ns
+                if (  # anything for the supervisor? (cheap checks first: most ticks skip it)
+                    self._stop
+                    or now >= supervisor.end_ns
+                    or ctl[C_UPD_READ] < ctl[C_UPD_HEAD]
+                    or now - supervisor.last_valid_ns > watchdog_ns
                 ):
-                    stale = True
-                    stats.watchdog_trips += 1
-                    engine.set_stale()
-                    io.event(
-                        tick,
-                        "watchdog",
-                        f"no valid update for {(now - last_valid_ns) / 1e6:.1f} ms",
-                    )
+                    supervisor.now_ns = now
+                    supervisor.stop_requested = self._stop
+                    self._tick = tick
+                    events = supervise(engine, supervisor)
+                    if events.installed or events.stop or events.watchdog:
+                        self._log_events(io, tick, events, supervisor)
+                if supervisor.stopping and (not engine.ready or engine.state[0]["safe"] >= 1.0):
+                    break
 
                 if leak_bytes:
                     leak.append(bytes(leak_bytes))
                 if tick == nan_tick:
                     engine.user[0]["kind"] = 0  # the hand's wrench turns NaN from now on
                     engine.user[0]["wrench"] = float("nan")
-                row = engine.tick(dt, lateness_ns / 1e3, work_prev_us, newest_seq, newest_age_ms)
+                row = engine.tick(
+                    dt, lateness_ns / 1e3, work_prev_us, self._newest_seq, self._newest_age_ms
+                )
                 push_row(ring, ctl, row, lateness_window, work_window, peaks)
                 tick += 1
                 work_prev_us = (time.perf_counter_ns() - now) / 1e3

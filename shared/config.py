@@ -8,7 +8,6 @@ wrong; the command-line entry points turn it into exit code 2. CLI flags only ch
 from __future__ import annotations
 
 import dataclasses
-import json
 import tomllib
 import types
 import typing
@@ -409,101 +408,6 @@ class UserConfig:
         require(all(v > 0 for v in self.max_wrench), "max_wrench", "must be > 0")
 
 
-# --- network --------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class EndpointSpec:
-    """Zenoh endpoints of one process (peer mode, no multicast scouting) and, optionally, its
-    credentials and who may talk to it (docs/security.md). Files are relative to the config."""
-
-    listen: tuple[str, ...] = ()
-    connect: tuple[str, ...] = ()
-    # usrpwd authentication when connecting: the user presented, its password in a file
-    user: str = ""
-    password_file: str = ""
-    # the listening side: `user:password` lines of the peers it accepts (others are refused)
-    users_file: str = ""
-    # access control on the listener, default deny (on when sim_users is set): who may drive
-    # (publish local models, follow the proxy) and who may only follow the proxy
-    sim_users: tuple[str, ...] = ()
-    observer_users: tuple[str, ...] = ()
-    # further Zenoh config keys, path -> JSON value, e.g. "transport/link/tx/lease" = "3000"
-    zenoh: dict[str, str] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        require(
-            bool(self.user) == bool(self.password_file),
-            "password_file" if self.user else "user",
-            "user and password_file go together",
-        )
-        for key in ("user", "sim_users", "observer_users"):
-            value = getattr(self, key)
-            for name in (value,) if isinstance(value, str) else value:
-                require(
-                    ":" not in name and name.strip() == name and (bool(name) or key == "user"),
-                    key,
-                    f"bad user name {name!r}",
-                )
-        require(
-            not self.sim_users or bool(self.users_file),
-            "sim_users",
-            "access control by user name needs authentication: set users_file",
-        )
-        require(
-            not self.observer_users or bool(self.sim_users), "observer_users", "needs sim_users"
-        )
-        for path, value in self.zenoh.items():
-            require(
-                not any(path == m or path.startswith(m + "/") for m in ZENOH_MANAGED_KEYS),
-                f"zenoh.{path}",
-                "set by the endpoint keys above, not here",
-            )
-            try:
-                json.loads(value)
-            except json.JSONDecodeError as exc:
-                raise ValueError(f"zenoh.{path}: not a JSON value ({exc})") from None
-
-    def files(self) -> dict[str, str]:
-        """The files this endpoint reads, by key."""
-        names = ("password_file", "users_file")
-        return {k: getattr(self, k) for k in names if getattr(self, k)}
-
-
-# Zenoh config paths the endpoint keys set; the `zenoh` table may not override them
-ZENOH_MANAGED_KEYS = (
-    "mode", "listen/endpoints", "connect/endpoints", "transport/auth/usrpwd", "access_control",
-)  # fmt: skip
-
-
-@dataclass(frozen=True)
-class NetworkConfig:
-    """Key-expression namespace and the endpoints of both processes."""
-
-    namespace: str = "haptic/default"
-    haptic: EndpointSpec = field(default_factory=EndpointSpec)
-    sim: EndpointSpec = field(default_factory=EndpointSpec)
-    proxy_publish_hz: float = 250.0  # haptic -> sim proxy state rate
-    watchdog_ms: float = 100.0  # no valid update for this long: device to safe state
-    safe_ramp_ms: float = 40.0  # force ramp into (and out of) the safe state (< 50 ms, issue 8)
-
-    def __post_init__(self) -> None:
-        require(
-            bool(self.namespace) and "*" not in self.namespace, "namespace", "must be a plain key"
-        )
-        require(self.proxy_publish_hz > 0, "proxy_publish_hz", "must be > 0")
-        require(self.watchdog_ms > 0, "watchdog_ms", "must be > 0")
-        require(self.safe_ramp_ms > 0, "safe_ramp_ms", "must be > 0")
-        if self.haptic.users_file and self.sim.connect:
-            require(bool(self.sim.user), "sim.user", "the haptic server requires a user")
-        if self.haptic.sim_users and self.sim.connect:
-            require(
-                self.sim.user in self.haptic.sim_users,
-                "sim.user",
-                f"not in haptic.sim_users {list(self.haptic.sim_users)}: it could not drive",
-            )
-
-
 # --- loading entry points -------------------------------------------------------------------
 
 
@@ -515,72 +419,6 @@ def load_scene(name_or_path: str) -> SceneConfig:
 def load_user(name_or_path: str) -> UserConfig:
     path = resolve("users", name_or_path)
     return load_dataclass(UserConfig, read_toml(path), str(path))
-
-
-def load_network(name_or_path: str, roles: tuple[str, ...] = ("haptic", "sim")) -> NetworkConfig:
-    """Load a network config; credential files are made absolute (relative to the config's
-    folder) and those of `roles` must exist, so a host needs only its own secrets."""
-    path = resolve("network", name_or_path)
-    network: NetworkConfig = load_dataclass(NetworkConfig, read_toml(path), str(path))
-    specs = {}
-    for role in ("haptic", "sim"):
-        spec: EndpointSpec = getattr(network, role)
-        spec = dataclasses.replace(
-            spec,
-            password_file=_absolute(path.parent, spec.password_file),
-            users_file=_absolute(path.parent, spec.users_file),
-        )
-        for key, file in spec.files().items():
-            if role in roles and not Path(file).is_file():
-                raise ConfigError(str(path), f"{role}.{key}", f"file not found: {file}")
-        specs[role] = spec
-    network = dataclasses.replace(network, haptic=specs["haptic"], sim=specs["sim"])
-    from shared.net.transport import session_config  # Zenoh checks its own keys (and is heavy)
-
-    for role in roles:
-        try:
-            session_config(getattr(network, role), None, network.namespace)
-        except ValueError as exc:
-            key, _, problem = str(exc).partition(": ")
-            raise ConfigError(str(path), f"{role}.{key}", problem) from None
-    if "haptic" in roles and network.haptic.users_file:
-        users = _read_users(network.haptic.users_file, str(path))
-        if "sim" in roles and network.sim.user:
-            # a refused peer is not told (STACK-NOTES): catch a mismatch here instead
-            password = Path(network.sim.password_file).read_text().splitlines()[:1]
-            _require_config(
-                users.get(network.sim.user) == (password or [""])[0],
-                str(path),
-                "sim.password_file",
-                f"user {network.sim.user!r} and this password are not in haptic.users_file",
-            )
-    return network
-
-
-def _absolute(folder: Path, file: str) -> str:
-    return str((folder / file).resolve()) if file else ""
-
-
-def _read_users(users_file: str, source: str) -> dict[str, str]:
-    """The `user:password` lines of a Zenoh usrpwd dictionary (blank lines allowed)."""
-    users: dict[str, str] = {}
-    for n, line in enumerate(Path(users_file).read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        user, sep, password = line.partition(":")
-        _require_config(
-            bool(sep and user and password),
-            source,
-            "haptic.users_file",
-            f"{users_file} line {n}: expected user:password",
-        )
-        users[user] = password
-    return users
-
-
-def _require_config(cond: bool, source: str, key: str, problem: str) -> None:
-    if not cond:
-        raise ConfigError(source, key, problem)
 
 
 def load_model_config(cls: Any, data: dict[str, Any], source: str, model: str) -> Any:

@@ -208,27 +208,42 @@ class ReferenceSolution:
         return poses[0] if times.ndim == 0 else poses.reshape(*times.shape, 3)
 
 
+@dataclass(frozen=True)
+class Hold:
+    """Where and how the hand holds the chain: a wrench (fx, fy, tau) at `point` (in the
+    frame of `link`): a constant 3-vector, or a callable f(t, q, qd) returning one."""
+
+    wrench: ArrayLike | WrenchFunction
+    link: int
+    point: ArrayLike
+
+
+@dataclass(frozen=True)
+class Integrator:
+    """solve_ivp's method and tolerances (tight: this is the reference)."""
+
+    method: str = "DOP853"
+    rtol: float = 1e-10
+    atol: float = 1e-12
+
+
 def simulate(
     spec: ChainSpec,
     q0: ArrayLike,
     qd0: ArrayLike,
-    hand_wrench: ArrayLike | WrenchFunction,
-    link: int,
-    r: ArrayLike,
+    hold: Hold,
     t_end: float,
     t_eval: ArrayLike | None,
-    rtol: float = 1e-10,
-    atol: float = 1e-12,
-    method: str = "DOP853",
     *,
+    integrator: Integrator = Integrator(),
     damping: ArrayLike | None = None,
 ) -> ReferenceSolution:
-    """Integrate the chain from t = 0 to t_end under a hand wrench (fx, fy, tau) at point r.
+    """Integrate the chain from t = 0 to t_end under the hand's wrench at its hold.
 
     The wrench maps to joints through J_h(q)^T; optional viscous joint damping adds -b * qd.
-    `hand_wrench` is a constant 3-vector or a callable f(t, q, qd) returning one.
     """
     n = spec.n
+    hand_wrench, link, r = hold.wrench, hold.link, hold.point
     _check_link(spec, link)
     r_vec = _as_vector(r, 2, "r")
     state0 = np.concatenate((_as_vector(q0, n, "q0"), _as_vector(qd0, n, "qd0")))
@@ -252,11 +267,11 @@ def simulate(
         rhs,
         (0.0, float(t_end)),
         state0,
-        method=method,
+        method=integrator.method,
         t_eval=None if t_eval is None else np.asarray(t_eval, dtype=float),
         dense_output=True,
-        rtol=rtol,
-        atol=atol,
+        rtol=integrator.rtol,
+        atol=integrator.atol,
     )
     if not result.success:
         raise RuntimeError(f"reference integration failed: {result.message}")

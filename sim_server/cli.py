@@ -9,7 +9,8 @@ import sys
 from pathlib import Path
 
 from shared.cli import add_config_args, emit, run_main
-from shared.config import load_network, load_scene
+from shared.config import load_scene
+from shared.net.config import load_network
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,10 +15,11 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from haptic_server.layout import METHOD_VIRTUAL_COUPLING_FOH
-from shared.config import NetworkConfig, SceneConfig
+from shared.config import SceneConfig
 from shared.messages import MessageError, ProxyState, decode_proxy, encode_update
+from shared.net.config import NetworkConfig
 from shared.net.transport import keys, newest_payload, open_session
+from shared.protocol.codes import Method
 from shared.timing import SampleWindow
 from sim_server.world import SimWorld, ToolTarget
 
@@ -60,7 +61,7 @@ class SimServer:
         fresh = now_ns - self._proxy_wall_ns < self.network.watchdog_ms * 1e6 and not p.safe_state
         return ToolTarget(
             q=p.q, qd=p.qd, device_pose=p.device_pose, device_twist=p.device_twist,
-            coupled_to_device=p.method == METHOD_VIRTUAL_COUPLING_FOH, fresh=fresh,
+            coupled_to_device=p.method == Method.VIRTUAL_COUPLING_FOH, fresh=fresh,
         )  # fmt: skip
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:

@@ -20,8 +20,9 @@ import zenoh
 from conftest import free_port
 
 from haptic_server.log import UPDATE_TOPIC, read_json_topic, read_ticks
-from shared.config import CONFIG_ROOT, EndpointSpec, load_network, load_scene
+from shared.config import CONFIG_ROOT, load_scene
 from shared.messages import encode_update
+from shared.net.config import EndpointSpec, load_network
 from shared.net.transport import keys, open_session
 from sim_server.world import SimWorld
 

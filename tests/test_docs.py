@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from haptic_server.layout import TICK_DTYPE
 from haptic_server.log import (
     EVENT_TOPIC,
     TICK_TOPIC,
@@ -12,6 +11,7 @@ from haptic_server.log import (
     UPDATE_TOPIC,
     run_metadata,
 )
+from haptic_server.model import TICK_DTYPE
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 

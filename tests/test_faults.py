@@ -26,7 +26,6 @@ import numpy as np
 import pytest
 import zenoh
 
-from haptic_server.engine import params_record
 from haptic_server.io_process import SLOT_BYTES
 from haptic_server.log import (
     EVENT_TOPIC,
@@ -36,7 +35,8 @@ from haptic_server.log import (
     read_ticks,
 )
 from haptic_server.loop import DT_CLAMP
-from shared.config import EndpointSpec, load_network, load_scene
+from haptic_server.model import params_record
+from shared.config import load_scene
 from shared.messages import (
     DEFAULT_LIMITS,
     MessageError,
@@ -45,6 +45,7 @@ from shared.messages import (
     encode_update,
     limits_array,
 )
+from shared.net.config import EndpointSpec, load_network
 from shared.net.transport import keys, open_session
 from shared.wire import REASONS, UpdateParser
 from sim_server.world import SimWorld
@@ -378,7 +379,7 @@ def test_sim_garbage_stall_kill_and_restart(
     # the watchdog: at least the stall and the kill (a loaded machine can stall the sim past
     # 100 ms by itself: that trips it too, and must behave the same), each within 50 ms to
     # the safe state, damping only until the updates return, and ended by re-initialising
-    safe_damping = params_record(load_scene(SCENE).rendering, np.full(3, MAX_WRENCH_N), 1e-3)[0][
+    safe_damping = params_record(load_scene(SCENE).rendering, np.full(3, MAX_WRENCH_N))[0][
         "safe_damping"
     ]
     trips, clears = log.event_ticks("watchdog"), log.event_ticks("watchdog_clear")

@@ -26,7 +26,6 @@ from hypothesis import strategies as st
 from device_models.ideal import IdealDevice
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
-from haptic_server.kernels import ORDER_REASONS, reason_of
 from haptic_server.log import update_json, update_record
 from shared.config import load_scene, load_user
 from shared.kinematics import MAX_DOF
@@ -40,6 +39,8 @@ from shared.messages import (
     encode_update,
     limits_array,
 )
+from shared.protocol.codes import Reason
+from shared.protocol.codes import reason_tag as reason_of
 from shared.wire import MAX_CONTACTS, REASONS, UpdateParser
 
 EXAMPLES = {
@@ -66,7 +67,7 @@ def cases(name: str) -> Any:
 LIM = DEFAULT_LIMITS
 HEADER = struct.Struct("<4sHHQQdqHHHHdd")  # docs/protocol.md, LocalModelUpdate header
 PROXY_HEADER = struct.Struct("<4sHHQQQdqHH")
-KNOWN_REASONS = set(REASONS[1:]) | set(ORDER_REASONS.values())
+KNOWN_REASONS = set(REASONS[1:]) | {r.tag for r in Reason if r >= Reason.STALE_EPOCH}
 UNIT_TOL = 1e-6  # docs/protocol.md: unit normals and directions
 PARSER = UpdateParser(limits_array(LIM))
 
@@ -512,7 +513,7 @@ class EngineHarness:
         e = self.engine
         before = (e.slots.tobytes(), e.state.tobytes(), e.epoch, e.last_seq)
         if isinstance(raw, int):
-            reason = reason_of(e.receive_buffer(e.parser.buffer, raw))
+            reason = reason_of(e.receive_buffer(e.buffer, raw))
         else:
             reason = e.receive(raw)
         assert reason in KNOWN_REASONS
@@ -606,7 +607,7 @@ def test_live_engine_under_interleaved_garbage(
         elif kind == "new_epoch":  # a restarted sim: re-initialise
             h.send_valid(h.update(action[1], epoch=h.epoch + 1, seq=0), h.epoch + 1, 0)
         elif kind == "oversize":
-            size = h.engine.parser.buffer.shape[0] + action[1]
+            size = h.engine.buffer.shape[0] + action[1]
             h.send_bad(b"\0" * size if action[1] % 2 else -size)
         elif kind == "stale":
             h.engine.set_stale()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from benchmarks.loop_timing import median_of, work_split
-from haptic_server.layout import TICK_DTYPE
+from haptic_server.model import TICK_DTYPE
 
 
 def test_work_split_attributes_each_row_to_the_tick_before() -> None:

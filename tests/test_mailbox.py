@@ -22,8 +22,8 @@ from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
 from haptic_server.harness.virtual import run_virtual_named
 from haptic_server.io_process import C_UPD_READ, MAILBOX_SLOTS, SLOT_BYTES, LoopIO, SharedBlock
-from haptic_server.kernels import reason_of
 from shared.config import load_scene, load_user
+from shared.protocol.codes import reason_tag as reason_of
 from shared.wire import R_SIZE
 
 
@@ -147,7 +147,7 @@ def test_mailbox_path_matches_receive(mailbox: MailboxOnly, scene: str, user: st
                 latency = float(mailbox.block.update_latency_s[slot])
                 if length is not None:
                     assert int(mailbox.block.update_len[slot]) == length
-                    code = by_receive.receive_buffer(by_receive.parser.buffer, length, latency)
+                    code = by_receive.receive_buffer(by_receive.buffer, length, latency)
                     reason = reason_of(code) if code else ""
                     assert code == R_SIZE
                 else:

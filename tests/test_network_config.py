@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from shared.config import CONFIG_ROOT, ConfigError, load_network
+from shared.config import CONFIG_ROOT, ConfigError
+from shared.net.config import load_network
 from shared.net.security import zenoh_keys
 from shared.net.transport import session_config
 

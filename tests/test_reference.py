@@ -9,6 +9,7 @@ from scipy.optimize import brentq
 
 from shared.reference import (
     ChainSpec,
+    Hold,
     bias_forces,
     forward_dynamics,
     inverse_dynamics,
@@ -189,7 +190,9 @@ def test_forward_dynamics_inverts_rnea() -> None:
 def test_kinetic_energy_conserved_without_gravity(make_spec) -> None:
     spec = make_spec()
     t = np.linspace(0.0, 2.0, 201)
-    sol = simulate(spec, [0.3, -0.5, 0.8], [2.0, -3.0, 5.0], np.zeros(3), 2, [0.02, 0.0], 2.0, t)
+    sol = simulate(
+        spec, [0.3, -0.5, 0.8], [2.0, -3.0, 5.0], Hold(np.zeros(3), 2, [0.02, 0.0]), 2.0, t
+    )
     energy = np.array([kinetic_energy(spec, q, qd) for q, qd in zip(sol.q, sol.qd, strict=True)])
     np.testing.assert_allclose(energy, energy[0], rtol=ENERGY_RTOL, atol=0.0)
 
@@ -198,7 +201,9 @@ def test_kinetic_energy_conserved_without_gravity(make_spec) -> None:
 def test_total_energy_conserved_with_gravity(make_spec) -> None:
     spec = make_spec(GRAVITY)
     t = np.linspace(0.0, 2.0, 201)
-    sol = simulate(spec, [0.3, -0.5, 0.8], [1.0, -2.0, 3.0], np.zeros(3), 2, [0.02, 0.0], 2.0, t)
+    sol = simulate(
+        spec, [0.3, -0.5, 0.8], [1.0, -2.0, 3.0], Hold(np.zeros(3), 2, [0.02, 0.0]), 2.0, t
+    )
     kinetic = np.array([kinetic_energy(spec, q, qd) for q, qd in zip(sol.q, sol.qd, strict=True)])
     total = kinetic + np.array([potential_energy(spec, q) for q in sol.q])
     # Relative to the kinetic energy scale: the potential's zero is arbitrary.
@@ -211,7 +216,7 @@ def test_kinetic_energy_change_equals_hand_work() -> None:
     wrench = np.array([1.5, -0.7, 0.02])
     link, r = 2, np.array([0.03, 0.005])
     t = np.linspace(0.0, 0.5, 4001)
-    sol = simulate(spec, [0.3, -0.5, 0.8], [1.0, 0.0, -1.0], wrench, link, r, 0.5, t)
+    sol = simulate(spec, [0.3, -0.5, 0.8], [1.0, 0.0, -1.0], Hold(wrench, link, r), 0.5, t)
 
     power = np.array(
         [
@@ -266,7 +271,7 @@ def test_pendulum_small_angle_period() -> None:
     expected_period = 2 * np.pi * np.sqrt(pivot_inertia(spec) / (spec.masses[0] * g * 0.021))
     t_end = 5.2 * expected_period
     t = np.linspace(0.0, t_end, 2001)
-    sol = simulate(spec, [PENDULUM_AMPLITUDE], [0.0], np.zeros(3), 0, [0.0, 0.0], t_end, t)
+    sol = simulate(spec, [PENDULUM_AMPLITUDE], [0.0], Hold(np.zeros(3), 0, [0.0, 0.0]), t_end, t)
 
     def swing(time: float) -> float:
         return float(sol.pose_at(time)[2] + np.pi / 2)
@@ -283,7 +288,7 @@ def test_pure_hand_torque_spins_link_quadratically() -> None:
     spec = single_link()
     torque = 0.01
     t = np.linspace(0.0, 0.5, 51)
-    sol = simulate(spec, [0.0], [0.0], [0.0, 0.0, torque], 0, [0.03, 0.01], 0.5, t)
+    sol = simulate(spec, [0.0], [0.0], Hold([0.0, 0.0, torque], 0, [0.03, 0.01]), 0.5, t)
     expected = torque * t**2 / (2 * pivot_inertia(spec))
     np.testing.assert_allclose(sol.q[:, 0], expected, rtol=TRAJECTORY_RTOL, atol=1e-14)
     np.testing.assert_allclose(sol.pose[:, 2], expected, rtol=TRAJECTORY_RTOL, atol=1e-14)
@@ -297,7 +302,7 @@ def test_joint_damping_decays_spin_exponentially() -> None:
     spec = single_link()
     b, omega0 = 0.004, 3.0
     t = np.linspace(0.0, 2.0, 41)
-    sol = simulate(spec, [0.0], [omega0], np.zeros(3), 0, [0.0, 0.0], 2.0, t, damping=[b])
+    sol = simulate(spec, [0.0], [omega0], Hold(np.zeros(3), 0, [0.0, 0.0]), 2.0, t, damping=[b])
     expected = omega0 * np.exp(-b * t / pivot_inertia(spec))
     np.testing.assert_allclose(sol.qd[:, 0], expected, rtol=TRAJECTORY_RTOL)
 
@@ -312,7 +317,7 @@ def test_callable_wrench_and_pose_at_shapes() -> None:
         return np.array([-50.0 * tip[0], -50.0 * tip[1], 0.0])
 
     t = np.linspace(0.0, 0.3, 7)
-    sol = simulate(spec, [0.3, -0.5, 0.8], [0.0, 0.0, 0.0], spring, 2, [0.03, 0.0], 0.3, t)
+    sol = simulate(spec, [0.3, -0.5, 0.8], [0.0, 0.0, 0.0], Hold(spring, 2, [0.03, 0.0]), 0.3, t)
     assert calls, "callable wrench was never evaluated"
     assert sol.q.shape == sol.qd.shape == (7, 3) and sol.pose.shape == (7, 3)
     assert sol.pose_at(0.1).shape == (3,)

@@ -15,7 +15,8 @@ from typing import Any
 import pytest
 from conftest import free_port
 
-from shared.config import CONFIG_ROOT, EndpointSpec, load_network
+from shared.config import CONFIG_ROOT
+from shared.net.config import EndpointSpec, load_network
 from shared.net.transport import keys, open_session
 
 DOC = CONFIG_ROOT.parent / "docs/security.md"

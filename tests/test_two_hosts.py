@@ -27,9 +27,10 @@ import pytest
 from conftest import ServerProcess
 from mcap.reader import make_reader
 
-from haptic_server.layout import TICK_DTYPE
 from haptic_server.log import EVENT_TOPIC, TICK_TOPIC, UPDATE_TOPIC, read_ticks
-from shared.config import load_network, load_scene
+from haptic_server.model import TICK_DTYPE
+from shared.config import load_scene
+from shared.net.config import load_network
 
 # the shipped two-host config: the haptic server listens on 10.213.0.1, port 7447 (free: the
 # namespaces are new), with the example credentials, a 1 s lease and 250 ms reconnects

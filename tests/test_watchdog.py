@@ -17,9 +17,10 @@ import pytest
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
 from haptic_server.harness.virtual import _target
-from haptic_server.layout import TICK_DTYPE
-from shared.config import load_network, load_scene, load_user
+from haptic_server.model import TICK_DTYPE
+from shared.config import load_scene, load_user
 from shared.messages import encode_update
+from shared.net.config import load_network
 from sim_server.world import SimWorld
 
 NETWORK = load_network("loopback")

@@ -16,22 +16,21 @@ import json
 import sys
 from collections import defaultdict
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from haptic_server.engine import EngineCounters, HapticEngine
-from haptic_server.kernels import reason_of, store_row
-from haptic_server.layout import TICK_DTYPE
 from haptic_server.log import LogContents, read_log, recover_log
+from haptic_server.model import TICK_DTYPE
+from haptic_server.stages.tick import store_row
+from haptic_server.supervisor import Event, LoggedEvents, supervise
 from shared import source_hash
-from shared.config import (
-    NetworkConfig,
-    SceneConfig,
-    UserConfig,
-    load_config_text,
-)
+from shared.config import SceneConfig, UserConfig, load_config_text
+from shared.net.config import NetworkConfig
+from shared.protocol.codes import reason_tag as reason_of
 from shared.wire import R_SIZE
 
 PROGRESS_MIN_TICKS = 20_000  # show a progress bar on replays longer than 20 s at 1 kHz
@@ -122,12 +121,10 @@ def replay(
     updates_at: dict[int, list[dict[str, Any]]] = defaultdict(list)
     for rec in log.updates:
         updates_at[int(rec["tick"])].append(rec)
-    # the loop's safe-state switches, in its order within a tick: a stop (before any update;
-    # none is taken while stopping), the updates, the watchdog clearing (with the update that
-    # clears it), then the watchdog tripping (which makes the next update re-initialise)
+    # the events that switched the safe state, applied in the loop's order by the supervisor
     events_at: dict[int, set[str]] = defaultdict(set)
     for ev in log.events:
-        if ev["kind"] in ("stop", "watchdog_clear", "watchdog"):
+        if ev["kind"] in (Event.STOP, Event.WATCHDOG_CLEAR, Event.WATCHDOG):
             events_at[int(ev["tick"])].add(ev["kind"])
 
     out = np.zeros(n, TICK_DTYPE)
@@ -143,18 +140,12 @@ def replay(
     k = -1
     try:
         for k in range(n):
-            kinds = events_at.get(k, set())
-            if "stop" in kinds:
-                engine.set_safe(True)
-            for rec in updates_at.get(k, ()):
-                reason = _install(engine, rec)
-                replayed += 1
-                if reason != rec["reason"]:
-                    mismatches.append({"tick": k, "logged": rec["reason"], "replayed": reason})
-            if "watchdog_clear" in kinds:
-                engine.set_safe(False)
-            if "watchdog" in kinds:
-                engine.set_stale()
+            records = updates_at.get(k, ())
+            replayed += len(records)
+            source = LoggedEvents(
+                events_at.get(k, set()), partial(_install_all, engine, records, k, mismatches)
+            )
+            supervise(engine, source)
             row = engine.tick(dt[k], lateness[k], work[k], seq[k], age[k], hand[k])
             store_row(out, k, row)
             if bar is not None and k % PROGRESS_EVERY == PROGRESS_EVERY - 1:
@@ -165,6 +156,23 @@ def replay(
             bar.close()
     diffs = max_abs_differences(out, logged[:n])
     return ReplayResult(out, diffs, replayed, mismatches, engine.counters, note)
+
+
+def _install_all(
+    engine: HapticEngine,
+    records: tuple[dict[str, Any], ...] | list[dict[str, Any]],
+    tick: int,
+    mismatches: list[dict[str, Any]],
+) -> int:
+    """Install a tick's logged updates as the loop did; verdicts that differ from the log's go
+    into `mismatches`. Returns how many were installed."""
+    installed = 0
+    for rec in records:
+        reason = _install(engine, rec)
+        installed += reason == ""
+        if reason != rec["reason"]:
+            mismatches.append({"tick": tick, "logged": rec["reason"], "replayed": reason})
+    return installed
 
 
 def _install(engine: HapticEngine, rec: dict[str, Any]) -> str:

@@ -23,7 +23,8 @@ from pathlib import Path
 from typing import IO, Any
 
 from shared.cli import add_config_args, emit, run_main
-from shared.config import REPO_ROOT, load_network, load_scene, load_user, resolve
+from shared.config import REPO_ROOT, load_scene, load_user, resolve
+from shared.net.config import load_network
 
 READY_TIMEOUT_S = 300.0  # a cold numba cache compiles for a minute or two on 2 cores
 STOP_TIMEOUT_S = 30.0

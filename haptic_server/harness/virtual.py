@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -17,11 +18,13 @@ import numpy as np
 from device_models.base import SimulatedDevice
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
-from haptic_server.kernels import store_row
-from haptic_server.layout import METHOD_VIRTUAL_COUPLING_FOH, TICK_DTYPE
 from haptic_server.log import LogWriter, run_metadata, update_record
+from haptic_server.model import TICK_DTYPE
+from haptic_server.stages.tick import store_row
+from haptic_server.supervisor import InstallOnly, supervise
 from shared.config import SceneConfig, UserConfig, load_scene, load_user, resolve
 from shared.messages import encode_update
+from shared.protocol.codes import Method
 from sim_server.world import SimWorld, ToolTarget
 
 VIRTUAL_EPOCH = 1
@@ -66,7 +69,7 @@ def run_virtual(
     sim_period = 1.0 / scene.sim_rate_hz
     next_sim_t = 0.0
     seq = 0
-    coupled = engine.method == METHOD_VIRTUAL_COUPLING_FOH
+    coupled = engine.method == Method.VIRTUAL_COUPLING_FOH
     stage = dict.fromkeys(("sim_step", "local_model", "encode", "install", "tick"), 0)
     sizes: list[int] = []
     svd_steps = 0
@@ -87,17 +90,15 @@ def run_virtual(
                 t2 = clock()
                 raw = encode_update(update)
                 t3 = clock()
-                reason = engine.receive(raw)
+                supervise(engine, InstallOnly(partial(_install_own, engine, raw)))
                 t4 = clock()
                 stage["sim_step"] += t1 - t0
                 stage["local_model"] += t2 - t1
                 stage["encode"] += t3 - t2
                 stage["install"] += t4 - t3
                 sizes.append(len(raw))
-                if reason:
-                    raise RuntimeError(f"the sim's own update was rejected: {reason}")
                 if log is not None:
-                    log.update(update_record(k, raw, reason, 0.0), int(t * 1e9))
+                    log.update(update_record(k, raw, "", 0.0), int(t * 1e9))
                 seq += 1
                 next_sim_t += sim_period
             t5 = clock()
@@ -114,6 +115,14 @@ def run_virtual(
         rows, seq, world, stage, sizes, svd_steps, wall, n_ticks * dt,
         Path(log_path) if log_path else None,
     )  # fmt: skip
+
+
+def _install_own(engine: HapticEngine, raw: bytes) -> int:
+    """Install the sim's own update: it is never rejected (that would be a bug, so raise)."""
+    reason = engine.receive(raw)
+    if reason:
+        raise RuntimeError(f"the sim's own update was rejected: {reason}")
+    return 1
 
 
 def _target(engine: HapticEngine, coupled: bool) -> ToolTarget:

@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from shared.config import EndpointSpec
+if TYPE_CHECKING:  # annotations only: the config module imports this one
+    from shared.net.config import EndpointSpec
 
 
 def read_password(path: str) -> str:

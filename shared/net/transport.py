@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from shared.config import EndpointSpec
 from shared.net.security import zenoh_keys
+
+if TYPE_CHECKING:  # annotations only: the config module imports this one
+    from shared.net.config import EndpointSpec
 
 
 @dataclass(frozen=True)

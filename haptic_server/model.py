@@ -1,0 +1,303 @@
+"""The haptic side's records: the static model of a tick, its mutable data, the device I/O,
+the clock, the install state, and the packer that turns configs into them.
+
+MJX-style (`mjx/_src/types.py`): `MODEL_DTYPE` holds what a tick only reads (the installed
+local models and the gains), `DATA_DTYPE` what it reads and writes (proxy state, per-contact
+state, scratch, the log row). The loop holds one preallocated 1-element array of each and the
+stage kernels (`haptic_server.stages`) work on their fields in place; sizes are fixed by
+MAX_DOF and MAX_CONTACTS, so nothing is allocated per tick. `params_record` is the one place
+where configs become kernel records.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from device_models.base import AUX_SIZE, SENSOR_DTYPE, DeviceRenderingSpec
+from shared.config import RenderingSpec
+from shared.kinematics import MAX_DOF
+from shared.protocol.codes import Method
+from shared.wire import LIMIT_FIELDS, LOCAL_MODEL_DTYPE, MAX_CONTACTS
+
+F8 = np.float64
+I8 = np.int64
+REASON_CODES = 32  # verdict codes (shared.protocol.codes.Reason) are below this
+
+#: One installed local model: the wire fields as parsed (the per-contact state the haptic
+#: side keeps from tick to tick is CONTACT_STATE_DTYPE, beside it in DATA_DTYPE).
+SLOT_DTYPE = LOCAL_MODEL_DTYPE
+
+#: Gains and switches of the rendering (from the scene's [rendering] and the device limits).
+PARAMS_DTYPE = np.dtype(
+    [
+        ("method", I8),  # shared.protocol.codes.Method
+        ("coordination_stiffness", F8, (3,)),  # K_pc
+        ("coordination_damping", F8, (3,)),  # B_pc
+        ("coupling_stiffness", F8, (3,)),  # the device-proxy spring of the proxy step:
+        ("coupling_damping", F8, (3,)),  # K_pc, B_pc, or the virtual coupling's
+        ("integrate_proxy", I8),  # 0 for FOH: the sim's tool is the VM, no proxy dynamics
+        ("penalty_stiffness", F8),  # k_j per unit device mass
+        ("penalty_damping", F8),  # b_j
+        ("desired_damping", F8, (3,)),  # b_d
+        ("desired_stiffness", F8, (3,)),  # k_d
+        ("impulses", I8),  # 1: colliding contacts are resolved by impulses (never for FOH)
+        ("collision_speed", F8),
+        ("friction_stiffness_ratio", F8),
+        ("blend_s", F8),
+        ("vc_stiffness", F8, (3,)),
+        ("vc_damping", F8, (3,)),
+        ("foh_stiffness", F8, (3,)),  # K_p of seed 002
+        ("foh_damping", F8, (3,)),  # K_v
+        ("foh_interpolate", I8),  # 1: first-order hold, 0: zero-order hold of the setpoint
+        ("foh_gravity", F8, (3,)),  # f_g of seed 002 (world frame), added in every FOH tick
+        ("safe_damping", F8, (3,)),  # the safe state: damping only
+        ("safe_ramp_s", F8),
+        ("max_wrench", F8, (3,)),  # device limits in the world frame: never exceeded
+    ]
+)
+
+#: The proxy and everything the kernels carry from tick to tick.
+STATE_DTYPE = np.dtype(
+    [
+        ("q", F8, (MAX_DOF,)),
+        ("qd", F8, (MAX_DOF,)),
+        ("blend", F8),  # weight of the newest slot, 0 -> 1 over blend_s after an install
+        ("safe", F8),  # 0 normal ... 1 safe state (damping only)
+        ("safe_target", F8),
+        ("fault", I8),  # shared.protocol.codes.Fault
+        ("prev_device_twist", F8, (3,)),  # to predict the device's motion over a step
+        ("impulse_carry", F8, (3,)),  # impulse (N s) held back by the device limits
+        ("foh_goal", F8, (3,)),
+        ("foh_step", F8, (3,)),
+        ("foh_steps_left", I8),
+    ]
+)
+
+#: The haptic side's state of one installed model's contacts (one per slot).
+CONTACT_STATE_DTYPE = np.dtype(
+    [
+        ("age_s", F8),  # time since the model's state held (negative at install): contacts
+        # move with their environment velocity by it
+        ("in_contact", I8, (MAX_CONTACTS,)),  # in penetration last tick
+        ("stick", F8, (MAX_CONTACTS,)),  # tangential stick displacement (m)
+    ]
+)
+
+#: Scratch space so the kernels never allocate; each field has one meaning.
+SCRATCH_DTYPE = np.dtype(
+    [
+        ("alpha", F8),  # weight of the newest slot this tick (1: no cross-fade)
+        ("frame_pos", F8, (MAX_DOF, 2)),  # joint positions of the proxy
+        ("frame_angle", F8, (MAX_DOF,)),
+        ("op_point", F8, (2,)),  # the operational point (world)
+        ("jac_hand", F8, (3, MAX_DOF)),  # J_h at the proxy
+        ("x_vm", F8, (3,)),  # operational-point pose of the VM
+        ("xd_vm", F8, (3,)),  # J_h qd
+        ("contact_point", F8, (2,)),
+        ("jac_point", F8, (3, MAX_DOF)),  # J_c at a contact point
+        ("mass", F8, (MAX_DOF, MAX_DOF)),  # D^, cross-faded
+        ("mass_chol", F8, (MAX_DOF, MAX_DOF)),  # its Cholesky factor
+        ("mass_ok", I8),  # D^ is positive definite
+        ("tau_bias", F8, (MAX_DOF,)),  # -(G^ + C^ qd), cross-faded
+        ("tau_contact", F8, (MAX_DOF,)),  # sum J_c^T F of penalty + friction
+        ("contact_stiffness_q", F8, (MAX_DOF, MAX_DOF)),  # sum J^T K J of the contact springs
+        ("contact_damping_q", F8, (MAX_DOF, MAX_DOF)),  # sum J^T B J
+        ("contact_stiff_vrel", F8, (MAX_DOF,)),  # sum J^T K v_rel (the implicit correction)
+        ("contact_force", F8, (2,)),  # world force of all contacts on the proxy this tick
+        ("n_active", I8),  # contacts of the newest model in penetration
+        ("contact_ran", I8),  # the contact stage did work
+        ("n_colliding", I8),
+        ("coll_rows", F8, (MAX_CONTACTS, MAX_DOF)),  # n_i^T J_c,i
+        ("coll_target", F8, (MAX_CONTACTS,)),  # v+ - v-
+        ("coll_index", I8, (MAX_CONTACTS,)),
+        ("coll_row", F8, (MAX_DOF,)),  # one row of J_n, then D^-1 of it
+        ("coll_minv_row", F8, (MAX_DOF,)),
+        ("nnls_a", F8, (MAX_CONTACTS, MAX_CONTACTS)),  # J_n D^-1 J_n^T
+        ("nnls_lambda", F8, (MAX_CONTACTS,)),
+        ("nnls_z", F8, (MAX_CONTACTS,)),
+        ("nnls_w", F8, (MAX_CONTACTS,)),
+        ("nnls_passive", I8, (MAX_CONTACTS,)),
+        ("nnls_m", F8, (MAX_CONTACTS, MAX_CONTACTS)),
+        ("nnls_rhs", F8, (MAX_CONTACTS,)),
+        ("nnls_chol", F8, (MAX_CONTACTS, MAX_CONTACTS)),
+        ("impulse_q", F8, (MAX_DOF,)),  # P_cs = J_n^T lambda
+        ("impulse_dqd", F8, (MAX_DOF,)),  # D^-1 P_cs
+        ("jac_row", F8, (MAX_DOF,)),  # a row of J_h, then D^-1 of it
+        ("minv_jac_row", F8, (MAX_DOF,)),
+        ("minv_jt", F8, (MAX_DOF, 3)),  # D^-1 J_h^T
+        ("lambda_inv", F8, (3, 3)),  # J_h D^-1 J_h^T
+        ("a_task", F8, (3, 3)),  # M_d Lambda^-1
+        ("e", F8, (3,)),  # x_vm - x_h
+        ("ed", F8, (3,)),  # xd_vm - xd_h
+        ("f_coupling", F8, (3,)),  # K e + B ed of the device-proxy spring
+        ("pull", F8, (3,)),  # task-space force on the proxy from the hand and the coupling
+        ("n_resisted", I8),
+        ("acc_contact", F8, (3,)),  # J_h D^-1 tau_c
+        ("acc_bias", F8, (3,)),  # J_h D^-1 tau_bias
+        ("acc_impulse", F8, (3,)),  # J_h D^-1 P_cs / dt
+        ("damping_task", F8, (3,)),  # b_d xd_h + k_d x_h
+        ("penalty_task", F8, (3,)),  # sum P (k_j e + b_j ed) over the resisted directions
+        ("hand_acc", F8, (3,)),  # the device's acceleration over the last tick
+        ("proxy_system", F8, (MAX_DOF, MAX_DOF)),  # D + dt B + dt^2 K of the proxy step
+        ("proxy_chol", F8, (MAX_DOF, MAX_DOF)),
+        ("proxy_rhs", F8, (MAX_DOF,)),
+        ("proxy_dqd", F8, (MAX_DOF,)),
+    ]
+)
+
+#: One haptic tick as logged (ros1msg-compatible packed layout; docs/log-format.md).
+TICK_DTYPE = np.dtype(
+    [
+        ("tick", np.uint64),
+        ("t", F8),  # s since the loop started (virtual or wall clock)
+        ("dt", F8),  # the step used this tick, s
+        ("lateness_us", F8),
+        ("work_us", F8),  # compute time of the previous tick
+        ("update_epoch", np.int64),  # epoch of the newest installed update
+        ("update_seq", np.int64),  # seq of the newest installed update (-1: none)
+        ("dof", np.int32),  # entries of proxy_q / proxy_qd in use
+        ("update_age_ms", F8),  # publish -> install latency of the newest update
+        ("device_pose", F8, (3,)),  # measured, world frame
+        ("device_twist", F8, (3,)),
+        ("vm_pose", F8, (3,)),  # operational point on the VM (proxy)
+        ("vm_twist", F8, (3,)),
+        ("proxy_q", F8, (MAX_DOF,)),
+        ("proxy_qd", F8, (MAX_DOF,)),
+        ("hand_wrench", F8, (3,)),  # the simulated user's true wrench on the device
+        ("hand_wrench_measured", F8, (3,)),
+        ("f_user", F8, (3,)),  # (M_d L^-1 - I) F_h
+        ("f_contact", F8, (3,)),  # M_d J_h D^-1 tau_c (penalty + friction contacts)
+        ("f_impulse", F8, (3,)),  # M_d J_h D^-1 P_cs / dt
+        ("f_bias", F8, (3,)),  # -M_d J_h D^-1 (G + C qd), the frozen bias torques
+        ("f_penalty", F8, (3,)),  # joint-constraint penalties (seed 000 eq 17)
+        ("f_coordination", F8, (3,)),  # M_d L^-1 F_c, or the coupling force
+        ("f_damping", F8, (3,)),  # (C_d - M_d L^-1 b_d) xd - M_d L^-1 k_d x
+        ("wrench_command", F8, (3,)),  # u after the safe-state blend and the limits
+        ("wrench_applied", F8, (3,)),  # what the device reports it applied
+        ("contact_force_world", F8, (3,)),  # sum of contact forces on the proxy (fx, fy, 0)
+        ("n_contacts", np.int32),  # contacts in the installed model
+        ("n_active", np.int32),  # in penetration this tick
+        ("n_colliding", np.int32),  # resolved by impulse this tick
+        ("n_resisted", np.int32),  # j
+        ("contact_stage", np.uint8),  # 1 if the contact stage did work
+        ("safe", F8),  # safe-state blend 0..1
+        ("fault", np.int32),
+        ("device_fault", np.int32),
+        ("device_aux", F8, (AUX_SIZE,)),  # device-specific readings (the device's aux_names)
+        ("world_offset", F8, (3,)),  # device-to-world map offset (moves under rate control)
+    ]
+)
+
+
+#: What a tick only reads: the two installed models (0 newest, 1 fading out) and the gains.
+MODEL_DTYPE = np.dtype([("slots", SLOT_DTYPE, (2,)), ("params", PARAMS_DTYPE)])
+
+#: What a tick reads and writes.
+DATA_DTYPE = np.dtype(
+    [
+        ("dt", F8),  # the step of this tick, s
+        ("state", STATE_DTYPE),
+        ("contacts", CONTACT_STATE_DTYPE, (2,)),  # of slots 0 and 1
+        ("sensors", SENSOR_DTYPE, (1,)),  # the device reading in the world frame
+        ("hand_measured", F8, (3,)),  # the measured hand wrench, world frame
+        ("scratch", SCRATCH_DTYPE),
+        ("row", TICK_DTYPE),
+    ]
+)
+
+#: The device side of a tick, in the device's frame.
+DEVICE_IO_DTYPE = np.dtype(
+    [
+        ("sensors", SENSOR_DTYPE, (1,)),  # what the device read
+        ("hand", F8, (3,)),  # the (simulated or logged) hand's true wrench
+        ("command", F8, (3,)),  # the wrench to command
+        ("max_wrench", F8, (3,)),  # the device's own limits (the driver clips there too)
+    ]
+)
+
+#: The tick counter, the time and the newest install, as the log row reports them. The
+#: kernels advance tick and t; the install route (or a replay) sets the update fields. The
+#: loop's own measurements of a tick (dt, lateness, work) are engine_step's arguments.
+CLOCK_DTYPE = np.dtype(
+    [
+        ("tick", I8),
+        ("t", F8),  # s since the loop started
+        ("update_seq", I8),  # seq of the newest installed update (-1: none)
+        ("update_age_ms", F8),  # its publish -> install latency
+        ("ready", I8),  # a model is installed
+    ]
+)
+
+#: The install state: the order of installed updates, the verdict counters, the parser's
+#: buffers (DESIGN §3: an older epoch or a repeated sequence number is rejected).
+INSTALL_DTYPE = np.dtype(
+    [
+        ("epoch", I8),  # of the installed model (-1: none yet)
+        ("seq", I8),
+        ("ready", I8),
+        ("new_epoch", I8),  # the last install began a new epoch
+        ("installed", I8),  # installs so far
+        ("follow", I8),  # every install needs the engine's Python side (stale, FOH)
+        ("match_radius_m", F8),  # a contact keeps its state if its tool point moved less
+        ("reject_counts", I8, (REASON_CODES,)),  # rejections by verdict code
+        ("parsed", LOCAL_MODEL_DTYPE, (1,)),
+        ("limits", F8, (len(LIMIT_FIELDS),)),
+        ("parse_scratch", F8, (MAX_DOF, MAX_DOF)),
+    ]
+)
+
+
+def params_record(
+    rendering: RenderingSpec,
+    max_wrench: np.ndarray,
+    device_rendering: DeviceRenderingSpec | None = None,
+    safe_ramp_s: float = 0.05,
+    world_map: np.ndarray | None = None,
+) -> np.ndarray:
+    """The gains as a kernel record (DESIGN §4, §6), in the world frame.
+
+    The scene gives the rendering gains; the device (its `[rendering]` table, in its own
+    frame) gives the FOH servo gains, f_g and the safe damping, and its limits `max_wrench`.
+    Through a map of scale s and force scale f_s, device wrenches divide by f_s s and
+    stiffnesses and dampings by f_s s^2 (F_dev = f_s s F_world, x_world = s x_dev + offset).
+    The method's choices are made here, once: which spring couples the proxy to the device,
+    whether the proxy is integrated, whether collisions are resolved by impulses.
+    """
+    dev = device_rendering or DeviceRenderingSpec()
+    scale, force_scale = np.ones(3), 1.0
+    if world_map is not None:
+        scale, force_scale = world_map[0]["scale"].copy(), float(world_map[0]["force_scale"])
+    per_wrench = 1.0 / (force_scale * scale)
+    per_gain = per_wrench / scale
+    method = Method.from_tag(rendering.method)
+    rec = np.zeros(1, PARAMS_DTYPE)
+    p = rec[0]
+    p["method"] = method
+    p["coordination_stiffness"] = rendering.coordination_stiffness
+    p["coordination_damping"] = rendering.coordination_damping
+    coupled = method == Method.VIRTUAL_COUPLING
+    p["coupling_stiffness"] = (
+        rendering.virtual_coupling_stiffness if coupled else rendering.coordination_stiffness
+    )
+    p["coupling_damping"] = (
+        rendering.virtual_coupling_damping if coupled else rendering.coordination_damping
+    )
+    p["integrate_proxy"] = 0 if method == Method.VIRTUAL_COUPLING_FOH else 1
+    p["penalty_stiffness"] = rendering.penalty_stiffness
+    p["penalty_damping"] = rendering.penalty_damping
+    p["desired_damping"] = rendering.desired_damping
+    p["desired_stiffness"] = rendering.desired_stiffness
+    p["impulses"] = 1 if rendering.impulses and method != Method.VIRTUAL_COUPLING_FOH else 0
+    p["collision_speed"] = rendering.collision_speed_m_per_s
+    p["friction_stiffness_ratio"] = rendering.friction_stiffness_ratio
+    p["blend_s"] = rendering.blend_ms / 1000.0
+    p["vc_stiffness"] = rendering.virtual_coupling_stiffness
+    p["vc_damping"] = rendering.virtual_coupling_damping
+    p["foh_stiffness"] = np.array(dev.foh_stiffness) * per_gain
+    p["foh_damping"] = np.array(dev.foh_damping) * per_gain
+    p["foh_interpolate"] = 1 if dev.setpoint_hold == "first_order" else 0
+    p["foh_gravity"] = np.array(dev.gravity_feedforward) * per_wrench
+    p["safe_damping"] = np.array(dev.safe_damping) * per_gain
+    p["safe_ramp_s"] = safe_ramp_s
+    p["max_wrench"] = np.asarray(max_wrench, dtype=np.float64) * per_wrench
+    return rec

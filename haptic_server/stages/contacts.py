@@ -1,0 +1,251 @@
+"""Contacts of the installed models (seed 001 §3.2): penalty and friction of continuous
+contacts, detection of colliding ones, and their simultaneous resolution by impulses."""
+
+from __future__ import annotations
+
+from numba import njit
+
+from shared.kinematics import point_jacobian, point_on_link
+from shared.linalg import cholesky_inplace, cholesky_solve
+
+
+@njit(cache=True)
+def nnls(ws, m):
+    """Lawson-Hanson non-negative least squares: min |A lam - b|, lam >= 0 (m x m, m small),
+    with A = ws.nnls_a, b = ws.coll_target, lam = ws.nnls_lambda; the rest is its workspace.
+
+    The inner least-squares problems are solved through the normal equations with a ridge
+    of 1e-12 trace(A^T A) so rank-deficient contact sets (more contacts than DOFs) behave.
+    """
+    a = ws.nnls_a
+    b = ws.coll_target
+    lam = ws.nnls_lambda
+    passive = ws.nnls_passive
+    z = ws.nnls_z
+    w = ws.nnls_w
+    sys_m = ws.nnls_m
+    rhs = ws.nnls_rhs
+    chol = ws.nnls_chol
+    for i in range(m):
+        lam[i] = 0.0
+        passive[i] = 0
+    ridge = 0.0
+    for i in range(m):
+        for k in range(m):
+            ridge += a[k, i] * a[k, i]
+    ridge = 1e-12 * ridge + 1e-300
+    for _outer in range(3 * m + 3):
+        # gradient w = A^T (b - A lam)
+        for i in range(m):
+            r = 0.0
+            for k in range(m):
+                res = b[k]
+                for j in range(m):
+                    res -= a[k, j] * lam[j]
+                r += a[k, i] * res
+            w[i] = r
+        best = -1
+        best_w = 1e-14
+        for i in range(m):
+            if passive[i] == 0 and w[i] > best_w:
+                best_w = w[i]
+                best = i
+        if best < 0:
+            return
+        passive[best] = 1
+        for _inner in range(3 * m + 3):
+            # z = argmin over the passive set (others zero)
+            for i in range(m):
+                for j in range(m):
+                    v = 0.0
+                    if passive[i] == 1 and passive[j] == 1:
+                        for k in range(m):
+                            v += a[k, i] * a[k, j]
+                    sys_m[i, j] = v
+                sys_m[i, i] += ridge if passive[i] == 1 else 1.0
+                v = 0.0
+                if passive[i] == 1:
+                    for k in range(m):
+                        v += a[k, i] * b[k]
+                rhs[i] = v
+            cholesky_inplace(sys_m, m, chol)
+            cholesky_solve(chol, m, rhs, z)
+            ok = True
+            for i in range(m):
+                if passive[i] == 1 and z[i] <= 0.0:
+                    ok = False
+            if ok:
+                for i in range(m):
+                    lam[i] = z[i] if passive[i] == 1 else 0.0
+                break
+            alpha = 1.0
+            for i in range(m):
+                if passive[i] == 1 and z[i] <= 0.0:
+                    denom = lam[i] - z[i]
+                    if denom > 0.0:
+                        alpha = min(alpha, lam[i] / denom)
+            for i in range(m):
+                lam[i] = lam[i] + alpha * (z[i] - lam[i]) if passive[i] == 1 else 0.0
+                if passive[i] == 1 and lam[i] <= 1e-15:
+                    passive[i] = 0
+                    lam[i] = 0.0
+
+
+@njit(cache=True)
+def contact_stage(m, d, k, weight):
+    """Penalty + friction of slot k's continuous contacts (seed 001 eq 8) and collision
+    detection, weighted by its cross-fade weight.
+
+    Accumulates weight * J_c^T F into tau_contact and the contact stiffness and damping into
+    contact_stiffness_q / contact_damping_q (for the implicit proxy step). Colliding contacts
+    of the newest slot (k == 0) are queued in coll_* for the impulse stage. Returns the
+    number in penetration.
+    """
+    slot = m.slots[k]
+    cs = d.contacts[k]
+    params = m.params
+    state = d.state
+    ws = d.scratch
+    dt = d.dt
+    n = slot.dof
+    active = 0
+    for i in range(slot.n_contacts):
+        link = slot.c_link[i]
+        point_on_link(ws.frame_pos, ws.frame_angle, link, slot.c_tool[i], ws.contact_point)
+        px = ws.contact_point[0]
+        py = ws.contact_point[1]
+        point_jacobian(slot.joint_types, ws.frame_pos, n, link, px, py, ws.jac_point)
+        nx = slot.c_normal[i, 0]
+        ny = slot.c_normal[i, 1]
+        tx = -ny
+        ty = nx
+        ex = slot.c_env[i, 0] + slot.c_env_velocity[i, 0] * cs.age_s
+        ey = slot.c_env[i, 1] + slot.c_env_velocity[i, 1] * cs.age_s
+        gap = nx * (px - ex) + ny * (py - ey)
+        vx = -slot.c_env_velocity[i, 0]
+        vy = -slot.c_env_velocity[i, 1]
+        for j in range(n):
+            vx += ws.jac_point[0, j] * state.qd[j]
+            vy += ws.jac_point[1, j] * state.qd[j]
+        vn = nx * vx + ny * vy
+        vt = tx * vx + ty * vy
+        if gap > 0.0:
+            cs.in_contact[i] = 0
+            cs.stick[i] = 0.0
+            continue
+        active += 1
+        k_n = slot.c_stiffness[i]
+        b_n = slot.c_damping[i]
+        if (
+            k == 0
+            and cs.in_contact[i] == 0
+            and params.impulses == 1
+            and vn < -params.collision_speed
+            and ws.n_colliding < ws.coll_target.shape[0]
+        ):
+            c = ws.n_colliding
+            for j in range(n):
+                ws.coll_rows[c, j] = nx * ws.jac_point[0, j] + ny * ws.jac_point[1, j]
+            ws.coll_target[c] = -(1.0 + slot.c_restitution[i]) * vn
+            ws.coll_index[c] = i
+            ws.n_colliding = c + 1
+        if cs.in_contact[i] == 0:
+            cs.stick[i] = 0.0
+        cs.in_contact[i] = 1
+        f_n = k_n * (-gap) - b_n * vn
+        if f_n < 0.0:
+            f_n = 0.0
+        k_t = params.friction_stiffness_ratio * k_n
+        cs.stick[i] += vt * dt
+        f_t = -k_t * cs.stick[i] - b_n * vt
+        limit = slot.c_friction[i] * f_n
+        sticking = True
+        if abs(f_t) > limit:
+            f_t = limit if f_t > 0.0 else -limit
+            cs.stick[i] = -f_t / k_t if k_t > 0.0 else 0.0
+            sticking = False
+        fx = f_n * nx + f_t * tx
+        fy = f_n * ny + f_t * ty
+        ws.contact_force[0] += weight * fx
+        ws.contact_force[1] += weight * fy
+        kt_eff = k_t if sticking else 0.0
+        for a in range(n):
+            ja_n = nx * ws.jac_point[0, a] + ny * ws.jac_point[1, a]
+            ja_t = tx * ws.jac_point[0, a] + ty * ws.jac_point[1, a]
+            ws.tau_contact[a] += weight * (ws.jac_point[0, a] * fx + ws.jac_point[1, a] * fy)
+            if f_n > 0.0:
+                # stiffness times the relative velocity: the implicit step's correction
+                ws.contact_stiff_vrel[a] += weight * (k_n * ja_n * vn + kt_eff * ja_t * vt)
+                for b in range(n):
+                    jb_n = nx * ws.jac_point[0, b] + ny * ws.jac_point[1, b]
+                    jb_t = tx * ws.jac_point[0, b] + ty * ws.jac_point[1, b]
+                    ws.contact_stiffness_q[a, b] += weight * (
+                        k_n * ja_n * jb_n + kt_eff * ja_t * jb_t
+                    )
+                    ws.contact_damping_q[a, b] += weight * b_n * (ja_n * jb_n + ja_t * jb_t)
+    return active
+
+
+@njit(cache=True)
+def contacts(m, d):
+    """The contact stage over both slots: the newest at weight alpha, the fading one at
+    1 - alpha (its contacts are not counted, nor queued for impulses); then both models'
+    contact states age by dt."""
+    w = d.scratch
+    n = m.slots[0].dof
+    for a in range(n):
+        w.tau_contact[a] = 0.0
+        w.contact_stiff_vrel[a] = 0.0
+        for b in range(n):
+            w.contact_stiffness_q[a, b] = 0.0
+            w.contact_damping_q[a, b] = 0.0
+    w.n_colliding = 0
+    w.contact_force[0] = 0.0
+    w.contact_force[1] = 0.0
+    w.n_active = 0
+    w.contact_ran = 0
+    old = m.slots[1]
+    if m.slots[0].n_contacts > 0:
+        w.n_active += contact_stage(m, d, 0, w.alpha)
+        w.contact_ran = 1
+    if old.valid == 1 and w.alpha < 1.0 and old.n_contacts > 0 and old.dof == n:
+        contact_stage(m, d, 1, 1.0 - w.alpha)
+        w.contact_ran = 1
+    d.contacts[0].age_s += d.dt
+    d.contacts[1].age_s += d.dt
+
+
+@njit(cache=True)
+def impulses(m, d):
+    """All colliding contacts of a tick resolved together (DESIGN §4.1; seed 001 eq 5-6).
+
+    lambda >= 0 is the least-squares solution of (J_n D^-1 J_n^T) lambda = v+ - v-;
+    the proxy gets dqd = D^-1 J_n^T lambda at once and impulse_q = J_n^T lambda = P_cs.
+    """
+    ws = d.scratch
+    state = d.state
+    n = m.slots[0].dof
+    k = ws.n_colliding
+    for a in range(n):
+        ws.impulse_q[a] = 0.0
+    if k == 0:
+        return
+    # rows of D^-1 J_n^T, one per colliding contact, via the Cholesky factor of D
+    for c in range(k):
+        for a in range(n):
+            ws.coll_row[a] = ws.coll_rows[c, a]
+        cholesky_solve(ws.mass_chol, n, ws.coll_row, ws.coll_minv_row)
+        for r in range(k):
+            v = 0.0
+            for a in range(n):
+                v += ws.coll_rows[r, a] * ws.coll_minv_row[a]
+            ws.nnls_a[r, c] = v
+    nnls(ws, k)
+    for a in range(n):
+        v = 0.0
+        for c in range(k):
+            v += ws.coll_rows[c, a] * ws.nnls_lambda[c]
+        ws.impulse_q[a] = v
+    cholesky_solve(ws.mass_chol, n, ws.impulse_q, ws.impulse_dqd)
+    for a in range(n):
+        state.qd[a] += ws.impulse_dqd[a]

@@ -1,0 +1,87 @@
+"""Installing an update (DESIGN §3): validate, order-check, make it the newest slot.
+
+`accept_update` is the one route: the real-time loop's mailbox kernel, `HapticEngine.receive`
+(virtual clock, replay) and the tests all go through it. Verdicts are
+`shared.protocol.codes.Reason` codes.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+from shared.protocol.codes import Reason
+from shared.wire import parse_update
+
+
+@njit(cache=True)
+def accept_update(buf, nbytes, latency_s, model, data, install):
+    """Parse, validate, order-check and install the update in buf[:nbytes]: 0 or the reason.
+
+    An older epoch or a repeated sequence number is rejected; a new epoch is installed
+    without cross-fade. nbytes < 0 or beyond the buffer is a message too large for it (the
+    mailbox marks one so): rejected as SIZE. latency_s is how long it travelled since its
+    publication: its moving contacts have moved on by that much.
+    """
+    ins = install[0]
+    if nbytes < 0 or nbytes > buf.shape[0]:
+        return Reason.SIZE
+    code = parse_update(buf, nbytes, ins.limits, ins.parsed, ins.parse_scratch)
+    if code != 0:
+        return code
+    u = ins.parsed[0]
+    if u.epoch < ins.epoch:
+        return Reason.STALE_EPOCH
+    new_epoch = u.epoch != ins.epoch
+    if not new_epoch and u.seq <= ins.seq:
+        return Reason.SEQUENCE
+    if not new_epoch and ins.ready == 1 and u.dof != model[0].slots[0].dof:
+        return Reason.DOF_CHANGE
+    install_update(model[0], data[0], ins, new_epoch, latency_s)
+    ins.epoch = u.epoch
+    ins.seq = u.seq
+    ins.ready = 1
+    ins.new_epoch = 1 if new_epoch else 0
+    ins.installed += 1
+    return 0
+
+
+@njit(cache=True)
+def install_update(m, d, ins, new_epoch, latency_s):
+    """Make the parsed model the newest slot; the previous one fades out over blend_s (a new
+    epoch drops it). The new model's contacts inherit their state by key."""
+    if new_epoch:
+        m.slots[1].valid = 0
+    else:
+        m.slots[1] = m.slots[0]
+        d.contacts[1] = d.contacts[0]
+    m.slots[0] = ins.parsed[0]
+    cs = d.contacts[0]
+    cs.age_s = -m.slots[0].state_lead_s  # contacts move from the time the state holds
+    cs.age_s += latency_s
+    inherit_contact_state(m.slots[0], cs, m.slots[1], d.contacts[1], ins.match_radius_m)
+    d.state.blend = 1.0 if m.slots[1].valid == 0 else 0.0
+
+
+@njit(cache=True)
+def inherit_contact_state(new, new_state, old, old_state, match_radius):
+    """Carry contact state (in contact, stick displacement) from the previous model to the
+    new one for contacts with the same key whose tool points lie within match_radius."""
+    for i in range(new.n_contacts):
+        new_state.in_contact[i] = 0
+        new_state.stick[i] = 0.0
+        if old.valid != 1:
+            continue
+        best = -1
+        best_d = match_radius * match_radius
+        for k in range(old.n_contacts):
+            if old.c_key[k] != new.c_key[i] or old.c_link[k] != new.c_link[i]:
+                continue
+            dx = old.c_tool[k, 0] - new.c_tool[i, 0]
+            dy = old.c_tool[k, 1] - new.c_tool[i, 1]
+            dd = dx * dx + dy * dy
+            if dd <= best_d:
+                best_d = dd
+                best = k
+        if best >= 0:
+            new_state.in_contact[i] = old_state.in_contact[best]
+            new_state.stick[i] = old_state.stick[best]

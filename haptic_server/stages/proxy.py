@@ -1,0 +1,56 @@
+"""The proxy step (seed 000 eq 21), linearly implicit in the contact springs and the
+device coupling."""
+
+from __future__ import annotations
+
+from numba import njit
+
+from shared.linalg import cholesky_inplace, cholesky_solve
+
+
+@njit(cache=True)
+def proxy_step(m, d):
+    """D^ qdd = tau_c - G^ - C^ qd + J_h^T pull, integrated over dt.
+
+    Linearly implicit in the contact springs (which move with the environment) and in the
+    coupling to the device (which moves with the device): K, B are their configuration-space
+    stiffness and damping. The device's velocity over the step is predicted from its last
+    acceleration, so a proxy and a device accelerating together take identical steps (no lag
+    between them), while stiff couplings on light tools stay stable:
+    (D + dt B + dt^2 K) dqd = dt (f - dt K v_rel + J^T (B_c + dt K_c) dt a_h).
+    """
+    p = m.params
+    st = d.state
+    w = d.scratch
+    vh = d.sensors[0].twist
+    dt = d.dt
+    for c in range(3):
+        w.hand_acc[c] = (vh[c] - st.prev_device_twist[c]) / dt
+        st.prev_device_twist[c] = vh[c]
+    if p.integrate_proxy == 0 or w.mass_ok == 0:
+        return
+    n = m.slots[0].dof
+    kc = p.coupling_stiffness
+    bc = p.coupling_damping
+    g0 = (bc[0] + dt * kc[0]) * dt * w.hand_acc[0] - dt * kc[0] * w.ed[0]
+    g1 = (bc[1] + dt * kc[1]) * dt * w.hand_acc[1] - dt * kc[1] * w.ed[1]
+    g2 = (bc[2] + dt * kc[2]) * dt * w.hand_acc[2] - dt * kc[2] * w.ed[2]
+    jh = w.jac_hand
+    for a in range(n):
+        v = w.tau_contact[a] + w.tau_bias[a] - dt * w.contact_stiff_vrel[a]
+        v += jh[0, a] * (w.pull[0] + g0) + jh[1, a] * (w.pull[1] + g1) + jh[2, a] * (w.pull[2] + g2)
+        w.proxy_rhs[a] = dt * v
+        for b in range(n):
+            kq = 0.0
+            for c in range(3):
+                kq += jh[c, a] * (bc[c] + dt * kc[c]) * jh[c, b]
+            w.proxy_system[a, b] = (
+                w.mass[a, b]
+                + dt * (w.contact_damping_q[a, b] + kq)
+                + dt * dt * w.contact_stiffness_q[a, b]
+            )
+    if cholesky_inplace(w.proxy_system, n, w.proxy_chol):
+        cholesky_solve(w.proxy_chol, n, w.proxy_rhs, w.proxy_dqd)
+        for a in range(n):
+            st.qd[a] += w.proxy_dqd[a]
+            st.q[a] += dt * st.qd[a]

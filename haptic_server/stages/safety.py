@@ -1,0 +1,94 @@
+"""The last stages: the command's sum, the safe-state blend, the device limits, the
+impulse carry, the NaN guard; then the log row."""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from shared.protocol.codes import Fault
+
+
+@njit(cache=True)
+def safe_wrench(m, d, c):
+    """The safe state's command on axis c: damping only, on the handle's own motion."""
+    sen = d.sensors[0]
+    u_safe = -m.params.safe_damping[c] * (sen.twist[c] - sen.frame_twist[c])
+    return u_safe if math.isfinite(u_safe) else 0.0
+
+
+@njit(cache=True)
+def safety_and_limits(m, d):
+    """u = (1 - s) u_law + s u_safe, clipped at the device limits (world frame); an impulse
+    clipped at the limit is carried to the next ticks (seed 001 eq 7). A non-finite command,
+    proxy or D^ sends the device to the safe state at once (Fault.NONFINITE)."""
+    p = m.params
+    st = d.state
+    r = d.row
+    step = d.dt / p.safe_ramp_s
+    if st.safe < st.safe_target:
+        st.safe = min(st.safe_target, st.safe + step)
+    elif st.safe > st.safe_target:
+        st.safe = max(st.safe_target, st.safe - step)
+    finite = d.scratch.mass_ok == 1
+    for c in range(3):
+        u = (
+            r.f_user[c] + r.f_contact[c] + r.f_impulse[c] + r.f_bias[c] + r.f_penalty[c]
+            + r.f_coordination[c] + r.f_damping[c]
+        )  # fmt: skip
+        if not math.isfinite(u):
+            finite = False
+        v = (1.0 - st.safe) * u + st.safe * safe_wrench(m, d, c)
+        lim = p.max_wrench[c]
+        clipped = min(lim, max(-lim, v))
+        # an impulse clipped at the device limit is not lost: the rest is carried to the next
+        # ticks, so the device still receives the momentum change (seed 001 eq 7)
+        f_imp = r.f_impulse[c]
+        excess = v - clipped
+        if st.safe == 0.0 and f_imp != 0.0 and excess * f_imp > 0.0:
+            st.impulse_carry[c] = math.copysign(min(abs(excess), abs(f_imp)), f_imp) * d.dt
+        r.wrench_command[c] = clipped
+    for a in range(m.slots[0].dof):
+        if not (math.isfinite(st.q[a]) and math.isfinite(st.qd[a])):
+            finite = False
+    if not finite:
+        st.fault = Fault.NONFINITE
+        st.safe = 1.0
+        st.safe_target = 1.0
+        for c in range(3):
+            lim = p.max_wrench[c]
+            r.wrench_command[c] = min(lim, max(-lim, safe_wrench(m, d, c)))
+
+
+@njit(cache=True)
+def fill_row(m, d):
+    """The tick's state into the log row (FOH: the VM is the sim's tool, seen through the
+    setpoint; its twist was written by the FOH law)."""
+    st = d.state
+    w = d.scratch
+    sen = d.sensors[0]
+    r = d.row
+    if m.params.integrate_proxy == 0:
+        for c in range(3):
+            r.vm_pose[c] = st.foh_goal[c]
+    else:
+        for c in range(3):
+            r.vm_pose[c] = w.x_vm[c]
+            r.vm_twist[c] = w.xd_vm[c]
+    for c in range(3):
+        r.device_pose[c] = sen.pose[c]
+        r.device_twist[c] = sen.twist[c]
+        r.hand_wrench_measured[c] = d.hand_measured[c]
+    for a in range(m.slots[0].dof):
+        r.proxy_q[a] = st.q[a]
+        r.proxy_qd[a] = st.qd[a]
+    r.contact_force_world[0] = w.contact_force[0]
+    r.contact_force_world[1] = w.contact_force[1]
+    r.n_contacts = m.slots[0].n_contacts
+    r.n_active = w.n_active
+    r.n_colliding = w.n_colliding
+    r.contact_stage = w.contact_ran
+    r.safe = st.safe
+    r.fault = st.fault
+    r.dt = d.dt
