@@ -31,7 +31,7 @@ from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
 from haptic_server.harness.virtual import VirtualResult, run_virtual
 from shared.config import BodySpec, SceneConfig, load_scene, load_user
-from shared.messages import encode_update
+from shared.protocol.update import encode_update
 from sim_server.world import SimWorld
 
 SIM_RATES = (30.0, 60.0, 120.0)

@@ -23,7 +23,7 @@ from haptic_server.engine import HapticEngine
 from haptic_server.stages.tick import haptic_tick
 from shared.config import UserConfig, load_scene
 from shared.kinematics import free_body_chain
-from shared.messages import ContactSet, LocalModelUpdate, encode_update
+from shared.protocol.update import ContactSet, LocalModelUpdate, contact_rows, encode_update
 
 TARGET_US = 5.0  # issue 3: the local-model kernel with 16 contacts
 
@@ -40,14 +40,18 @@ def engine_with_contacts(n: int, press_n: float = 1.0, depth_m: float = 1e-4) ->
     jt, lengths = free_body_chain()
     xs = np.linspace(-0.03, 0.03, n)
     floor = -0.02 + depth_m
-    rows = [[x, -0.02, x, floor, 0.0, 1.0, 0.0, 0.0, 0.3, 0.0, 15000.0 / n, 20.0 / n] for x in xs]
+    rows, floats = contact_rows(n)
+    for i, x in enumerate(xs):
+        rows[i]["tool"], rows[i]["env"], rows[i]["normal"] = (x, -0.02), (x, floor), (0.0, 1.0)
+        rows[i]["friction"], rows[i]["stiffness"], rows[i]["damping"] = 0.3, 15000.0 / n, 20.0 / n
+        rows[i]["tangential_stiffness"] = 15000.0 / n
     update = LocalModelUpdate(
         epoch=1, seq=0, sim_time=0.0, publish_time_ns=0, joint_types=jt, lengths=lengths,
         base=np.zeros(2), base_angle=0.0, op_link=2, op_point=np.zeros(2), q=np.zeros(3),
         qd=np.zeros(3), mass_matrix=np.diag([1.0, 1.0, 4.3e-4]), lambda_inv=np.eye(3),
         tool_pose=np.zeros(3), gravity=None, velocity_torque=None, resisted=None,
         characteristic_length=0.05,
-        contacts=ContactSet(np.full(n, 2), np.arange(n), np.array(rows)), tool_touching=True,
+        contacts=ContactSet(np.full(n, 2), np.arange(n), floats), tool_touching=True,
     )  # fmt: skip
     assert engine.receive(encode_update(update)) == ""
     return engine

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -83,6 +83,7 @@ class DeviceRenderingSpec:
         )
 
 
+@runtime_checkable
 class Device(Protocol):
     """What a hardware driver must provide to the haptic loop.
 
@@ -106,6 +107,7 @@ class Device(Protocol):
         """Put the device into its safe state (no commanded force)."""
 
 
+@runtime_checkable
 class SimulatedDevice(Device, Protocol):
     """A device whose physics this process simulates."""
 

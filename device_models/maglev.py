@@ -32,7 +32,7 @@ from device_models.base import (
     DeviceRenderingSpec,
 )
 from device_models.world_map import DeviceWorldMap, WorldMapSection
-from shared.config import load_model_config, read_toml, require
+from shared.config import Vec3, load_model_config, read_toml, require
 
 #: Device-specific fault bit (base.py defines bits 0-2): the command held NaN or Inf.
 FAULT_INVALID_COMMAND = 8
@@ -84,9 +84,6 @@ STATE_DTYPE = np.dtype(
 )
 
 # --------------------------------------------------------------------------------- config
-
-
-Vec3 = tuple[float, float, float]
 
 
 @dataclass(frozen=True)
@@ -157,16 +154,53 @@ class RangeSection:
 
 @dataclass(frozen=True)
 class ActuatorSection:
-    """Amplifier limits and the highest control rate (seed 002 §2)."""
+    """Amplifier limits and the highest control rate (seed 002 §2).
 
-    peak_force_n: float
-    peak_torque_nm: float
+    `max_wrench` is every device's spelling of its limit (N, N, N m): here the peak force of
+    the x and y amplifiers (z has the same ones) and the peak torque about yaw (roll and
+    pitch have the same). `peak_force_n` / `peak_torque_nm` are the previous release's
+    spelling, still read from the device configs stored in its logs."""
+
     max_rate_hz: float
+    max_wrench: Vec3 | None = None
+    peak_force_n: float | None = None  # previous spelling
+    peak_torque_nm: float | None = None  # previous spelling
 
     def __post_init__(self) -> None:
-        require(self.peak_force_n > 0, "peak_force_n", "must be > 0")
-        require(self.peak_torque_nm > 0, "peak_torque_nm", "must be > 0")
+        if self.max_wrench is None:
+            require(
+                self.peak_force_n is not None and self.peak_torque_nm is not None,
+                "max_wrench",
+                "missing (N, N, N m)",
+            )
+            assert self.peak_force_n is not None and self.peak_torque_nm is not None
+            limit = (self.peak_force_n, self.peak_force_n, self.peak_torque_nm)
+            object.__setattr__(self, "max_wrench", limit)
+        else:
+            require(
+                self.peak_force_n is None and self.peak_torque_nm is None,
+                "peak_force_n",
+                "the old spelling of max_wrench: give one of them",
+            )
+        fx, fy, tz = self.wrench_limit
+        require(fx > 0 and fy > 0 and tz > 0, "max_wrench", "must be > 0")
+        require(fx == fy, "max_wrench", "the x and y amplifiers are alike: give fx == fy")
         require(self.max_rate_hz > 0, "max_rate_hz", "must be > 0")
+
+    @property
+    def wrench_limit(self) -> tuple[float, float, float]:
+        assert self.max_wrench is not None  # set in __post_init__
+        return self.max_wrench
+
+    @property
+    def peak_force(self) -> float:
+        """Per force axis (x, y and z), N."""
+        return self.wrench_limit[0]
+
+    @property
+    def peak_torque(self) -> float:
+        """Per torque axis (yaw, roll and pitch), N m."""
+        return self.wrench_limit[2]
 
 
 @dataclass(frozen=True)
@@ -211,8 +245,8 @@ class MaglevConfig:
     def __post_init__(self) -> None:
         weight = self.flotor.mass_kg * self.flotor.gravity_m_per_s2
         require(
-            weight < self.actuators.peak_force_n,
-            "actuators.peak_force_n",
+            weight < self.actuators.peak_force,
+            "actuators.max_wrench",
             f"cannot levitate the flotor's weight {weight:.2f} N",
         )
 
@@ -254,8 +288,8 @@ def pack_parameters(config: MaglevConfig) -> np.ndarray:
     p["stop_stiffness"][3:] = r.rotational_stop_stiffness_nm_per_rad
     p["stop_damping"][:3] = r.translational_stop_damping_ns_per_m
     p["stop_damping"][3:] = r.rotational_stop_damping_nms_per_rad
-    p["peak_force"] = config.actuators.peak_force_n
-    p["peak_torque"] = config.actuators.peak_torque_nm
+    p["peak_force"] = config.actuators.peak_force
+    p["peak_torque"] = config.actuators.peak_torque
     p["position_noise_std"] = config.sensors.position_noise_std_m
     p["angle_noise_std"] = config.sensors.angle_noise_std_rad
     p["twist_cutoff_hz"] = config.sensors.twist_cutoff_hz
@@ -522,9 +556,9 @@ class Maglev:
         self._zero_wrench = np.zeros(3)
         self._limits = DeviceLimits(
             max_wrench=(
-                config.actuators.peak_force_n,
-                config.actuators.peak_force_n,
-                config.actuators.peak_torque_nm,
+                config.actuators.peak_force,
+                config.actuators.peak_force,
+                config.actuators.peak_torque,
             ),
             workspace_min=(-planar_range[0], -planar_range[1], -planar_range[2]),
             workspace_max=planar_range,

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -28,9 +27,8 @@ from haptic_server.stages.tick import engine_step, store_applied
 from haptic_server.users import hand_wrench, user_record
 from shared.config import ConfigError, SceneConfig, UserConfig
 from shared.kinematics import MAX_DOF, link_frames, point_jacobian, point_on_link
-from shared.messages import DEFAULT_LIMITS, limits_array
 from shared.protocol.codes import Fault, Method, Reason, reason_tag
-from shared.wire import HEADER_BYTES, MAX_CONTACTS
+from shared.protocol.layout import DEFAULT_LIMITS, HEADER_BYTES, MAX_CONTACTS, limits_record
 
 CONTACT_MATCH_RADIUS_M = 2.0e-3  # a contact keeps its state if its tool point moved less
 #: the receive buffer: the largest valid update (12 DOF, 64 contacts) with room to spare
@@ -77,7 +75,7 @@ def install_record() -> np.ndarray:
     rec[0]["epoch"] = -1
     rec[0]["seq"] = -1
     rec[0]["match_radius_m"] = CONTACT_MATCH_RADIUS_M
-    rec[0]["limits"] = limits_array(DEFAULT_LIMITS)
+    rec[0]["limits"] = limits_record(DEFAULT_LIMITS)
     return rec
 
 
@@ -96,11 +94,10 @@ class HapticEngine:
         safe_ramp_s: float = 0.05,
     ) -> None:
         self.scene = scene
-        self.device: Any = device
+        self.device = device
         # a hardware driver has a real hand on it: no simulated user, no physics to advance
-        self.simulated = all(
-            hasattr(device, m) for m in ("reset", "true_state", "sense_hand", "advance")
-        )
+        self.sim_device = device if isinstance(device, SimulatedDevice) else None
+        self.simulated = self.sim_device is not None
         self.user_start_s = 0.0  # the simulated user's script starts at the first update
         self.dt_nominal = 1.0 / scene.haptic_rate_hz
         limits = device.limits()
@@ -123,7 +120,7 @@ class HapticEngine:
         self.model["params"] = params_record(
             scene.rendering,
             self.io[0]["max_wrench"],
-            getattr(device, "rendering", None),
+            device.rendering,
             safe_ramp_s,
             self.world_map,
         )
@@ -242,9 +239,9 @@ class HapticEngine:
         st["fault"] = Fault.NONE
         st["foh_goal"] = m["tool_pose"]
         st["foh_steps_left"] = 0
-        if first and self.simulated:
+        if first and self.sim_device is not None:
             # a simulated device starts at its home pose, offset from the VM as the scene says
-            self.device.reset(np.zeros(3))
+            self.sim_device.reset(np.zeros(3))
             target = m["tool_pose"] + np.array(self.scene.initial_device_offset)
         else:
             target = m["tool_pose"].copy()  # the device stays where it is: map it onto the tool
@@ -262,8 +259,8 @@ class HapticEngine:
         if first:
             # the simulated hand's waypoints are relative to where the device starts; a later
             # re-initialisation moves the world, not the hand
-            if self.simulated:
-                self.device.true_state(self._true_pose, self._true_twist)
+            if self.sim_device is not None:
+                self.sim_device.true_state(self._true_pose, self._true_twist)
                 self.user[0]["start_pose"] = self._true_pose
             self.user_start_s = self.time
             st["safe"] = 0.0  # everything starts at rest: no force to fade in
@@ -331,14 +328,15 @@ class HapticEngine:
         (a replay feeds the logged one).
         """
         dev = self.device
-        if self.simulated:  # the simulated hand holds the simulated device
-            dev.true_state(self._true_pose, self._true_twist)
+        sim = self.sim_device
+        if sim is not None:  # the simulated hand holds the simulated device
+            sim.true_state(self._true_pose, self._true_twist)
             if hand is None:
                 t_user = self.time - self.user_start_s
                 hand_wrench(self.user, t_user, self._true_pose, self._true_twist, self.hand)
             else:
                 self.hand[:] = hand  # replay: the recorded hand
-            dev.sense_hand(self.hand)
+            sim.sense_hand(self.hand)
         dev.read(self.sensors)
         if update_seq != self._update_seq or update_age_ms != self._update_age_ms:
             clock = self.clock[0]  # only when it changes: a field write costs ~0.5 us
@@ -348,8 +346,8 @@ class HapticEngine:
             self.model, self.data, self.io, self.world_map, self.clock, dt, lateness_us, work_us
         )
         store_applied(self.world_map, dev.command(self.io[0]["command"]), self.data)
-        if self.simulated:
-            dev.advance(dt, self.hand)
+        if sim is not None:
+            sim.advance(dt, self.hand)
         self.tick_index += 1
         self.time += dt
         return self.row

@@ -28,7 +28,8 @@ from numba import njit
 
 from haptic_server.model import TICK_DTYPE
 from haptic_server.stages.install import accept_update
-from shared.wire import PUBLISH_TIME_AT, PUBLISH_TIME_END, publish_time_ns
+from shared.protocol.layout import PUBLISH_TIME_AT, PUBLISH_TIME_END
+from shared.protocol.update import publish_time_ns
 
 if TYPE_CHECKING:
     from haptic_server.engine import HapticEngine
@@ -297,10 +298,10 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     import zenoh
 
     from haptic_server.log import LogWriter, update_record
-    from shared.messages import ProxyEncoder
     from shared.net.config import EndpointSpec
     from shared.net.transport import keys, open_session
     from shared.protocol.codes import reason_tag as reason_of
+    from shared.protocol.proxy import encode_proxy
 
     # the loop decides when I/O ends: a Ctrl-C to the process group is ignored; SIGTERM (the
     # loop's close() after a timeout, or anyone's kill) finishes the log and exits
@@ -332,7 +333,6 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     subscriber = session.declare_subscriber(k.update, receive)
     log = LogWriter(config["log_path"], config["metadata"]) if config.get("log_path") else None
     wall_start_ns = int(config["wall_start_ns"])
-    encoder = ProxyEncoder()
     publish_period = 1.0 / float(config["proxy_publish_hz"])
     method = int(config["method"])
     tick_tail = 0
@@ -357,7 +357,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
                     int(newest["tick"][0]) != last_published_tick
                     and int(newest["update_seq"][0]) >= 0
                 ):
-                    publisher.put(encoder.encode_row(newest, method))
+                    publisher.put(encode_proxy(newest, method))
                     ctl[C_PUBLISHED] += 1
                     last_published_tick = int(newest["tick"][0])
                 next_publish = now + publish_period

@@ -29,7 +29,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from haptic_server.model import TICK_DTYPE
-from shared.messages import LocalModelUpdate, MessageError, decode_update
+from shared.protocol.update import LocalModelUpdate, MessageError, decode_update
 
 TICK_TOPIC = "/haptic/tick"
 UPDATE_TOPIC = "/haptic/update"

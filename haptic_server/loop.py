@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from device_models.base import SimulatedDevice
+from device_models.base import Device
 from haptic_server.engine import HapticEngine, warm_kernels
 from haptic_server.io_process import (
     C_UPD_HEAD,
@@ -108,7 +108,7 @@ class HapticServer:
     def __init__(
         self,
         scene: SceneConfig,
-        device: SimulatedDevice,
+        device: Device,
         user: UserConfig,
         network: NetworkConfig,
         log_path: Path | None,

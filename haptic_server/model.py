@@ -17,7 +17,7 @@ from device_models.base import AUX_SIZE, SENSOR_DTYPE, DeviceRenderingSpec
 from shared.config import RenderingSpec
 from shared.kinematics import MAX_DOF
 from shared.protocol.codes import Method
-from shared.wire import LIMIT_FIELDS, LOCAL_MODEL_DTYPE, MAX_CONTACTS
+from shared.protocol.layout import LIMITS_DTYPE, LOCAL_MODEL_DTYPE, MAX_CONTACTS
 
 F8 = np.float64
 I8 = np.int64
@@ -42,7 +42,6 @@ PARAMS_DTYPE = np.dtype(
         ("desired_stiffness", F8, (3,)),  # k_d
         ("impulses", I8),  # 1: colliding contacts are resolved by impulses (never for FOH)
         ("collision_speed", F8),
-        ("friction_stiffness_ratio", F8),
         ("blend_s", F8),
         ("vc_stiffness", F8, (3,)),
         ("vc_damping", F8, (3,)),
@@ -241,7 +240,7 @@ INSTALL_DTYPE = np.dtype(
         ("match_radius_m", F8),  # a contact keeps its state if its tool point moved less
         ("reject_counts", I8, (REASON_CODES,)),  # rejections by verdict code
         ("parsed", LOCAL_MODEL_DTYPE, (1,)),
-        ("limits", F8, (len(LIMIT_FIELDS),)),
+        ("limits", LIMITS_DTYPE, (1,)),
         ("parse_scratch", F8, (MAX_DOF, MAX_DOF)),
     ]
 )
@@ -289,7 +288,6 @@ def params_record(
     p["desired_stiffness"] = rendering.desired_stiffness
     p["impulses"] = 1 if rendering.impulses and method != Method.VIRTUAL_COUPLING_FOH else 0
     p["collision_speed"] = rendering.collision_speed_m_per_s
-    p["friction_stiffness_ratio"] = rendering.friction_stiffness_ratio
     p["blend_s"] = rendering.blend_ms / 1000.0
     p["vc_stiffness"] = rendering.virtual_coupling_stiffness
     p["vc_damping"] = rendering.virtual_coupling_damping

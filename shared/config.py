@@ -181,9 +181,21 @@ class Material:
     damping_ns_per_m: float
     friction: float = 0.0
     restitution: float = 0.0
+    # stick stiffness of Coulomb friction (seed 001 §3.2); unset: the normal stiffness
+    tangential_stiffness_n_per_m: float | None = None
+
+    @property
+    def tangential_stiffness(self) -> float:
+        t = self.tangential_stiffness_n_per_m
+        return self.stiffness_n_per_m if t is None else t
 
     def __post_init__(self) -> None:
         require(self.stiffness_n_per_m > 0, "stiffness_n_per_m", "must be > 0")
+        require(
+            self.tangential_stiffness_n_per_m is None or self.tangential_stiffness_n_per_m >= 0,
+            "tangential_stiffness_n_per_m",
+            "must be >= 0",
+        )
         require(self.damping_ns_per_m >= 0, "damping_ns_per_m", "must be >= 0")
         require(self.friction >= 0, "friction", "must be >= 0")
         require(0 <= self.restitution <= 1, "restitution", "must be in [0, 1]")
@@ -281,7 +293,6 @@ class RenderingSpec:
     desired_stiffness: Vec3 = (0.0, 0.0, 0.0)  # k_d
     impulses: bool = True  # colliding contacts resolved by impulses (seed 001 §3.2)
     collision_speed_m_per_s: float = 0.01  # approach speed above which a new contact collides
-    friction_stiffness_ratio: float = 1.0  # tangential stick stiffness / normal stiffness
     blend_ms: float = 8.0  # cross-fade of old and new geometry after an update
     virtual_coupling_stiffness: Vec3 = (50.0, 50.0, 0.2)  # seed 000 §VIII baseline
     virtual_coupling_damping: Vec3 = (3.0, 3.0, 0.005)

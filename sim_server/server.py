@@ -16,10 +16,11 @@ import numpy as np
 import zenoh
 
 from shared.config import SceneConfig
-from shared.messages import MessageError, ProxyState, decode_proxy, encode_update
 from shared.net.config import NetworkConfig
 from shared.net.transport import keys, newest_payload, open_session
 from shared.protocol.codes import Method
+from shared.protocol.proxy import ProxyState, decode_proxy
+from shared.protocol.update import MessageError, encode_update
 from shared.timing import SampleWindow
 from sim_server.world import SimWorld, ToolTarget
 

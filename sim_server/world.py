@@ -26,8 +26,8 @@ from shared.kinematics import (
     point_on_link,
     velocity_product_torque,
 )
-from shared.messages import ContactSet, LocalModelUpdate
-from shared.wire import MAX_CONTACTS
+from shared.protocol.layout import MAX_CONTACTS
+from shared.protocol.update import ContactSet, LocalModelUpdate, contact_rows
 
 TOOL_GROUP = 1  # pymunk shape-filter group: tool shapes never collide with each other
 VELOCITY_TORQUE_STEP = 1.0e-6  # rad, central differences of D(q) for C(q, qd) qd
@@ -454,7 +454,7 @@ class SimWorld:
         point, the outward normal and the world point's velocity are read (DESIGN §3).
         """
         margin = self.scene.tool.neighbourhood_margin_m
-        rows: list[tuple[float, int, int, list[float]]] = []
+        rows: list[tuple[float, int, int, dict[str, Any]]] = []
         tool_set = {s for s, _ in self.tool_shapes}
         if self._queries is None:  # inflated copies ride on the tool's own bodies: make once
             self._queries = [_inflated(shape, margin) for shape, _ in self.tool_shapes]
@@ -491,12 +491,14 @@ class SimWorld:
                             gap,
                             link,
                             self._shape_key[env] * 1024 + index,
-                            [
-                                local_pt[0], local_pt[1], env_world[0], env_world[1],
-                                normal_out[0], normal_out[1], vel[0], vel[1],
-                                mat.friction, mat.restitution, share * mat.stiffness_n_per_m,
-                                share * mat.damping_ns_per_m,
-                            ],
+                            {  # contact columns by name (shared.protocol.layout)
+                                "tool": local_pt, "env": env_world, "normal": normal_out,
+                                "env_velocity": vel, "friction": mat.friction,
+                                "restitution": mat.restitution,
+                                "stiffness": share * mat.stiffness_n_per_m,
+                                "damping": share * mat.damping_ns_per_m,
+                                "tangential_stiffness": share * mat.tangential_stiffness,
+                            },
                         )
                     )  # fmt: skip
         rows.sort(key=lambda r: r[0])
@@ -504,11 +506,15 @@ class SimWorld:
         touching = bool(rows) and rows[0][0] <= TOUCH_TOLERANCE_M
         if not rows:
             return ContactSet.empty(), False
+        table, floats = contact_rows(len(rows))
+        for i, (_, _, _, columns) in enumerate(rows):
+            for name, value in columns.items():
+                table[name][i] = value
         return (
             ContactSet(
                 link=np.array([r[1] for r in rows], dtype=np.int64),
                 key=np.array([r[2] for r in rows], dtype=np.int64),
-                floats=np.array([r[3] for r in rows], dtype=np.float64),
+                floats=floats,
             ),
             touching,
         )

@@ -21,9 +21,9 @@ from conftest import free_port
 
 from haptic_server.log import UPDATE_TOPIC, read_json_topic, read_ticks
 from shared.config import CONFIG_ROOT, load_scene
-from shared.messages import encode_update
 from shared.net.config import EndpointSpec, load_network
 from shared.net.transport import keys, open_session
+from shared.protocol.update import encode_update
 from sim_server.world import SimWorld
 
 SCENE = "free_box"

@@ -11,7 +11,8 @@ from device_models.ideal import IdealDevice, IdealDeviceConfig
 from haptic_server.engine import HapticEngine
 from shared.config import UserConfig, load_scene
 from shared.kinematics import free_body_chain
-from shared.messages import ContactSet, LocalModelUpdate, encode_update
+from shared.protocol.layout import CONTACT_FLOATS
+from shared.protocol.update import ContactSet, LocalModelUpdate, encode_update
 
 MASS, INERTIA = 2.0, 0.01  # a free body (kg, kg m^2)
 K_TINY = 1e-9  # contact stiffness small enough that the penalty adds nothing in one tick
@@ -21,7 +22,12 @@ EXACT = 1e-12  # impulses are solved exactly when the contacts are independent
 def contact_row(
     tool_point, env_point, normal, restitution, friction=0.0, stiffness=K_TINY, damping=0.0
 ):
-    return [*tool_point, *env_point, *normal, 0.0, 0.0, friction, restitution, stiffness, damping]
+    """A contact row in wire order (shared.protocol.layout.CONTACT_COLUMNS); the stick
+    stiffness of friction equals the normal stiffness."""
+    return [
+        *tool_point, *env_point, *normal, 0.0, 0.0, friction, restitution, stiffness, damping,
+        stiffness,
+    ]  # fmt: skip
 
 
 def engine_with(q, qd, rows, impulses=True) -> HapticEngine:
@@ -42,7 +48,7 @@ def engine_with(q, qd, rows, impulses=True) -> HapticEngine:
         qd=np.array(qd, float), mass_matrix=np.diag([MASS, MASS, INERTIA]),
         lambda_inv=np.diag([1 / MASS, 1 / MASS, 1 / INERTIA]), tool_pose=np.array(q, float),
         gravity=None, velocity_torque=None, resisted=None, characteristic_length=0.05,
-        contacts=ContactSet(np.full(n, 2), np.arange(n), np.array(rows, float).reshape(n, 12)),
+        contacts=ContactSet(np.full(n, 2), np.arange(n), np.reshape(rows, (n, CONTACT_FLOATS))),
         tool_touching=True,
     )  # fmt: skip
     assert engine.receive(encode_update(update)) == ""

@@ -19,7 +19,7 @@ from device_models.world_map import (
 from haptic_server.engine import HapticEngine
 from shared.config import ConfigError, UserConfig, load_scene
 from shared.kinematics import free_body_chain
-from shared.messages import ContactSet, LocalModelUpdate, encode_update
+from shared.protocol.update import ContactSet, LocalModelUpdate, encode_update
 
 DT = 1e-3
 EXACT = 1e-12  # relative: a few roundings of the same closed form

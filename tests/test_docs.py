@@ -57,3 +57,37 @@ def test_devices_doc_covers_every_model_its_aux_and_the_rendering_table() -> Non
         "roll_rad",
         "pitch_rad",
     )
+
+
+def test_protocol_doc_is_the_table_and_matches_the_golden_bytes() -> None:
+    """docs/protocol.md embeds the generated tables; the golden update has exactly the size
+    and header values the table gives, and re-encodes to the same bytes."""
+    import struct
+
+    from shared.protocol.layout import (
+        HEADER,
+        HEADER_AT,
+        HEADER_BYTES,
+        HEADER_STRUCT,
+        PROTOCOL_VERSION,
+        markdown_tables,
+        update_size,
+    )
+    from shared.protocol.update import decode_update, encode_update
+
+    text = (DOCS / "protocol.md").read_text()
+    embedded = text.split("<!-- protocol-tables:begin -->\n")[1].split("<!-- protocol-tables:end")[
+        0
+    ]
+    assert embedded == markdown_tables(), "docs/protocol.md: regenerate the protocol tables"
+    golden = (Path(__file__).parent / "golden" / "update_v2_linkage.bin").read_bytes()
+    names = [f.name for f in HEADER]
+    header = dict(zip(names, HEADER_STRUCT.unpack_from(golden, 0), strict=True))
+    assert f"Header ({HEADER_BYTES} bytes" in text
+    assert header["magic"] == b"HLMU" and header["version"] == PROTOCOL_VERSION
+    d, j, n, flags = header["dof"], header["n_resisted"], header["n_contacts"], header["flags"]
+    assert len(golden) == update_size(d, j, n, flags)
+    at = HEADER_AT["publish_time_ns"]
+    assert struct.unpack_from("<q", golden, at)[0] == decode_update(golden).publish_time_ns
+    assert f"| {at} | `publish_time_ns` |" in text
+    assert encode_update(decode_update(golden)) == golden

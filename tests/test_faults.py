@@ -37,17 +37,12 @@ from haptic_server.log import (
 from haptic_server.loop import DT_CLAMP
 from haptic_server.model import params_record
 from shared.config import load_scene
-from shared.messages import (
-    DEFAULT_LIMITS,
-    MessageError,
-    ProxyState,
-    decode_proxy,
-    encode_update,
-    limits_array,
-)
 from shared.net.config import EndpointSpec, load_network
 from shared.net.transport import keys, open_session
-from shared.wire import REASONS, UpdateParser
+from shared.protocol.codes import Reason
+from shared.protocol.layout import DEFAULT_LIMITS
+from shared.protocol.proxy import ProxyState, decode_proxy
+from shared.protocol.update import MessageError, UpdateParser, encode_update
 from sim_server.world import SimWorld
 
 SCENE, DEVICE, USER = "free_box", "ideal", "constant_push"
@@ -164,7 +159,7 @@ def garbage(epoch: int, count: int) -> tuple[list[bytes], Counter[str]]:
     random bytes, an oversize and an empty payload, broken fields of a real update of the
     scene, a replay (sequence) and an older epoch."""
     rng = np.random.default_rng(81)
-    parser = UpdateParser(limits_array(DEFAULT_LIMITS))
+    parser = UpdateParser(DEFAULT_LIMITS)
     valid = bytearray(encode_update(SimWorld(load_scene(SCENE)).local_model(epoch, 0, 0)))
     d, n = struct.unpack_from("<HH", valid, 40)
     floats = 64 + 8 * (d + 2 * n)  # lengths, base, base angle, op point, q, ...
@@ -181,7 +176,7 @@ def garbage(epoch: int, count: int) -> tuple[list[bytes], Counter[str]]:
         "empty": lambda: (b"", "short"),
         "nan": lambda: (edit("<d", q_at, math.nan), ""),
         "magic": lambda: (edit("<4s", 0, b"HLMX"), ""),
-        "version": lambda: (edit("<H", 4, 2), ""),
+        "version": lambda: (edit("<H", 4, 99), ""),
         "truncated": lambda: (bytes(valid[: int(rng.integers(0, len(valid)))]), ""),
         "padded": lambda: (bytes(valid) + rng.bytes(int(rng.integers(1, 64))), ""),
         "not_spd": lambda: (edit("<d", mass_at, -1.0), ""),
@@ -198,7 +193,7 @@ def garbage(epoch: int, count: int) -> tuple[list[bytes], Counter[str]]:
         if not reason:
             code = parser.parse(raw)
             assert code != 0, kinds[i % len(kinds)]
-            reason = REASONS[code]
+            reason = Reason(code).tag
         messages.append(raw)
         reasons[reason] += 1
     return messages, reasons

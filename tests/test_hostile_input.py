@@ -27,21 +27,14 @@ from device_models.ideal import IdealDevice
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
 from haptic_server.log import update_json, update_record
+from haptic_server.model import TICK_DTYPE
 from shared.config import load_scene, load_user
 from shared.kinematics import MAX_DOF
-from shared.messages import (
-    DEFAULT_LIMITS,
-    MessageError,
-    ProxyState,
-    decode_proxy,
-    decode_update,
-    encode_proxy,
-    encode_update,
-    limits_array,
-)
 from shared.protocol.codes import Reason
 from shared.protocol.codes import reason_tag as reason_of
-from shared.wire import MAX_CONTACTS, REASONS, UpdateParser
+from shared.protocol.layout import DEFAULT_LIMITS, MAX_CONTACTS
+from shared.protocol.proxy import decode_proxy, encode_proxy
+from shared.protocol.update import MessageError, UpdateParser, decode_update, encode_update
 
 EXAMPLES = {
     "random_bytes": 3000,
@@ -67,15 +60,22 @@ def cases(name: str) -> Any:
 LIM = DEFAULT_LIMITS
 HEADER = struct.Struct("<4sHHQQdqHHHHdd")  # docs/protocol.md, LocalModelUpdate header
 PROXY_HEADER = struct.Struct("<4sHHQQQdqHH")
-KNOWN_REASONS = set(REASONS[1:]) | {r.tag for r in Reason if r >= Reason.STALE_EPOCH}
+KNOWN_REASONS = {r.tag for r in Reason if r != Reason.OK}
 UNIT_TOL = 1e-6  # docs/protocol.md: unit normals and directions
-PARSER = UpdateParser(limits_array(LIM))
+PARSER = UpdateParser(LIM)
 
 
 # --- an independent reference validator (docs/protocol.md) --------------------------------
 
 
-def float_groups(d: int, n: int, j: int, flags: int) -> list[tuple[str, int]]:
+#: floats of a contact row by protocol version (version 2 added the tangential stiffness)
+CONTACT_WIDTH = {1: 12, 2: 13}
+VERSION = 2
+
+
+def float_groups(
+    d: int, n: int, j: int, flags: int, version: int = VERSION
+) -> list[tuple[str, int]]:
     """The float section in wire order: (name, count)."""
     groups = [("lengths", d), ("base", 2), ("base_angle", 1), ("op_point", 2), ("q", d)]
     groups += [("qd", d), ("mass", d * d), ("lambda_inv", 9), ("tool_pose", 3)]
@@ -83,16 +83,16 @@ def float_groups(d: int, n: int, j: int, flags: int) -> list[tuple[str, int]]:
         groups.append(("gravity", d))
     if flags & 8:
         groups.append(("velocity_torque", d))
-    return [*groups, ("resisted", 3 * j), ("contacts", 12 * n)]
+    return [*groups, ("resisted", 3 * j), ("contacts", CONTACT_WIDTH[version] * n)]
 
 
 def layout(raw: bytes) -> tuple[int, int, int, int, dict[str, tuple[int, int]]]:
     """d, n, j, flags and the byte offset and count of every float group of an update."""
-    flags = struct.unpack_from("<H", raw, 6)[0]
+    version, flags = struct.unpack_from("<HH", raw, 4)
     d, n, j = struct.unpack_from("<HHH", raw, 40)
     offset = HEADER.size + 8 * (d + 2 * n)
     groups = {}
-    for name, count in float_groups(d, n, j, flags):
+    for name, count in float_groups(d, n, j, flags, version):
         groups[name] = (offset, count)
         offset += 8 * count
     return d, n, j, flags, groups
@@ -105,11 +105,11 @@ def reference_accepts(raw: bytes) -> bool:
     magic, version, flags, _, _, sim_time, _, d, n, j, op_link, char_len, lead = HEADER.unpack_from(
         raw
     )
-    if magic != b"HLMU" or version != 1 or not 1 <= d <= MAX_DOF or n > MAX_CONTACTS:
+    if magic != b"HLMU" or version not in CONTACT_WIDTH or not 1 <= d <= MAX_DOF:
         return False
-    if j > 3 or (j > 0) != bool(flags & 2) or op_link >= d:
+    if n > MAX_CONTACTS or j > 3 or (j > 0) != bool(flags & 2) or op_link >= d:
         return False
-    groups = float_groups(d, n, j, flags)
+    groups = float_groups(d, n, j, flags, version)
     n_int = d + 2 * n
     n_float = sum(c for _, c in groups)
     if len(raw) != HEADER.size + 8 * (n_int + n_float):
@@ -155,9 +155,11 @@ def reference_accepts(raw: bytes) -> bool:
     resisted = g["resisted"].reshape(j, 3)
     if (np.abs(np.linalg.norm(resisted, axis=1) - 1.0) > UNIT_TOL).any():
         return False
-    c = g["contacts"].reshape(n, 12)
+    c = g["contacts"].reshape(n, CONTACT_WIDTH[version])
+    k_t = c[:, 12] if version >= 2 else c[:, 10]  # version 1: K_t = K_c
     return not (
-        (np.abs(c[:, 0:4]) > pos).any()
+        ((k_t < 0) | (k_t > LIM.max_stiffness_n_per_m)).any()
+        or (np.abs(c[:, 0:4]) > pos).any()
         or (np.abs(np.hypot(c[:, 4], c[:, 5]) - 1.0) > UNIT_TOL).any()
         or (np.abs(c[:, 6:8]) > vel).any()
         or ((c[:, 8] < 0) | (c[:, 8] > LIM.max_friction)).any()
@@ -178,7 +180,7 @@ VALID_RANGES = {
 }  # fmt: skip
 CONTACT_RANGES = np.array(
     [(-0.1, 0.1)] * 2 + [(-0.3, 0.3)] * 2 + [(0, 0)] * 2 + [(-0.5, 0.5)] * 2
-    + [(0.0, 1.0), (0.0, 1.0), (100.0, 1e5), (0.0, 300.0)]
+    + [(0.0, 1.0), (0.0, 1.0), (100.0, 1e5), (0.0, 300.0), (0.0, 1e5)]
 )  # fmt: skip
 
 
@@ -196,12 +198,12 @@ def random_update(
     g["tool_pose"] = np.array([*rng.uniform(-0.2, 0.2, 2), rng.uniform(-np.pi, np.pi)])
     dirs = rng.normal(size=(j, 3))
     g["resisted"] = (dirs / np.linalg.norm(dirs, axis=1, keepdims=True)).ravel()
-    c = rng.uniform(CONTACT_RANGES[:, 0], CONTACT_RANGES[:, 1], (n, 12))
+    c = rng.uniform(CONTACT_RANGES[:, 0], CONTACT_RANGES[:, 1], (n, CONTACT_WIDTH[VERSION]))
     angles = rng.uniform(-np.pi, np.pi, n)
     c[:, 4], c[:, 5] = np.cos(angles), np.sin(angles)
     g["contacts"] = c.ravel()
     header = HEADER.pack(
-        b"HLMU", 1, flags, epoch, seq, rng.uniform(0, 100), int(rng.integers(0, 2**62)), d, n,
+        b"HLMU", VERSION, flags, epoch, seq, rng.uniform(0, 100), int(rng.integers(0, 2**62)), d, n,
         j, int(rng.integers(0, d)), rng.uniform(0.01, 0.2), rng.uniform(-0.02, 0.02),
     )  # fmt: skip
     ints = np.concatenate(
@@ -244,6 +246,7 @@ MAGNITUDE_BOUNDS = {
 CONTACT_BREAKS = {
     0: 2 * LIM.max_abs_position_m, 2: -2 * LIM.max_abs_position_m,
     4: 0.9, 6: 2 * LIM.max_abs_velocity, 8: -0.1, 9: 1.5, 10: 0.0, 11: -1.0,
+    12: -1.0,
 }  # fmt: skip
 BREAKS = [
     "nonfinite", "magic", "version", "truncate", "pad", "count", "flag", "magnitude",
@@ -277,7 +280,9 @@ def break_update(raw: bytes, kind: str, draw: Any) -> bytes | None:
         k = draw(st.integers(0, 3))
         out[k] ^= draw(st.integers(1, 255))
     elif kind == "version":
-        struct.pack_into("<H", out, 4, draw(st.integers(0, 65535).filter(lambda v: v != 1)))
+        struct.pack_into(
+            "<H", out, 4, draw(st.integers(0, 65535).filter(lambda v: v not in CONTACT_WIDTH))
+        )
     elif kind == "truncate":
         return raw[: draw(st.integers(0, len(raw) - 1))]
     elif kind == "pad":
@@ -315,7 +320,7 @@ def break_update(raw: bytes, kind: str, draw: Any) -> bytes | None:
         offset, _ = groups["contacts"]
         i = draw(st.integers(0, n - 1))
         col = draw(st.sampled_from(sorted(CONTACT_BREAKS)))
-        set_float(out, offset + 8 * (12 * i + col), CONTACT_BREAKS[col])
+        set_float(out, offset + 8 * (CONTACT_WIDTH[VERSION] * i + col), CONTACT_BREAKS[col])
     elif kind == "resisted_norm":
         if j == 0:
             return None
@@ -340,7 +345,7 @@ def break_update(raw: bytes, kind: str, draw: Any) -> bytes | None:
 
 def reason_of_parse(raw: bytes) -> str:
     code = PARSER.parse(raw)
-    return "" if code == 0 else REASONS[code]
+    return "" if code == 0 else Reason(code).tag
 
 
 def assert_logged_as_rejected(raw: bytes, reason: str) -> None:
@@ -411,16 +416,17 @@ def test_bit_flips_agree_with_the_reference(valid: bytes, flips: list[tuple[int,
 
 
 def proxy_bytes(rng: np.random.Generator, d: int) -> bytes:
-    return encode_proxy(
-        ProxyState(
-            epoch=int(rng.integers(1, 2**40)), update_seq=int(rng.integers(0, 2**40)),
-            tick=int(rng.integers(0, 2**40)), haptic_time=float(rng.uniform(0, 100)),
-            publish_time_ns=int(rng.integers(0, 2**62)), method=int(rng.integers(0, 4)),
-            safe_state=bool(rng.integers(0, 2)), valid=True, q=rng.uniform(-1, 1, d),
-            qd=rng.uniform(-1, 1, d), device_pose=rng.uniform(-1, 1, 3),
-            device_twist=rng.uniform(-1, 1, 3),
-        )
-    )  # fmt: skip
+    """A valid proxy state from a random tick row, through the one encoder."""
+    row = np.zeros(1, TICK_DTYPE)
+    r = row[0]
+    r["update_epoch"], r["update_seq"] = int(rng.integers(1, 2**40)), int(rng.integers(0, 2**40))
+    r["tick"], r["t"] = int(rng.integers(0, 2**40)), float(rng.uniform(0, 100))
+    r["dof"], r["safe"] = d, float(rng.integers(0, 2))
+    r["proxy_q"][:d] = rng.uniform(-1, 1, d)
+    r["proxy_qd"][:d] = rng.uniform(-1, 1, d)
+    r["device_pose"] = rng.uniform(-1, 1, 3)
+    r["device_twist"] = rng.uniform(-1, 1, 3)
+    return encode_proxy(row, int(rng.integers(0, 4)), int(rng.integers(0, 2**62)))
 
 
 @cases("proxy")
@@ -561,11 +567,12 @@ def extreme_update(rng: np.random.Generator) -> bytes:
         offset, count = groups[name]
         raw[offset : offset + 8 * count] = np.ravel(value).astype("<f8").tobytes()
     offset, _ = groups["contacts"]
-    c = np.frombuffer(bytes(raw), "<f8", 12 * n, offset).reshape(n, 12).copy()
+    width = CONTACT_WIDTH[VERSION]
+    c = np.frombuffer(bytes(raw), "<f8", width * n, offset).reshape(n, width).copy()
     c[:, 10] = LIM.max_stiffness_n_per_m * EDGE
     c[:, 11] = LIM.max_damping_ns_per_m * EDGE
     c[:, 2:4] = c[:, 0:2] + 0.05 * c[:, 4:6]  # the tool point 5 cm inside the surface
-    raw[offset : offset + 96 * n] = c.astype("<f8").tobytes()
+    raw[offset : offset + 8 * width * n] = c.astype("<f8").tobytes()
     assert reference_accepts(bytes(raw))
     return bytes(raw)
 

@@ -60,6 +60,15 @@ def test_config_loads_and_limits_match_the_seed(config: MaglevConfig) -> None:
     assert limits.workspace_max[2] == pytest.approx(math.radians(8.0), rel=1e-3)
 
 
+def test_the_previous_spelling_of_the_limit_still_loads() -> None:
+    """Logs of the previous release store peak_force_n / peak_torque_nm: they replay."""
+    data = tomllib.loads(CONFIG_PATH.read_text())
+    del data["actuators"]["max_wrench"]
+    data["actuators"].update(peak_force_n=50.0, peak_torque_nm=6.0)
+    old = MaglevConfig.from_toml_dict(data, "devices/maglev_old.toml")
+    assert old.actuators.wrench_limit == (50.0, 50.0, 6.0)
+
+
 @pytest.mark.parametrize(
     ("mutate", "key", "problem"),
     [
@@ -68,7 +77,9 @@ def test_config_loads_and_limits_match_the_seed(config: MaglevConfig) -> None:
         (lambda d: d["flotor"].update(mass_kg=[0.6]), "flotor.mass_kg", "expected"),
         (lambda d: d["world_map"].update(rate_control="yes"), "rate_control", "bool"),
         (lambda d: d["world_map"].update(rate_threshold_fraction=1.5), "rate_threshold", "(0, 1)"),
-        (lambda d: d["actuators"].update(peak_force_n=5.0), "peak_force_n", "levitate"),
+        (lambda d: d["actuators"].update(max_wrench=[5.0, 5.0, 6.0]), "max_wrench", "levitate"),
+        (lambda d: d["actuators"].update(peak_force_n=5.0), "peak_force_n", "old spelling"),
+        (lambda d: d["actuators"].update(max_wrench=[50.0, 40.0, 6.0]), "max_wrench", "alike"),
         (lambda d: d.update(model="twin_pantograph"), "model", "maglev"),
     ],
 )
@@ -144,8 +155,8 @@ def test_levitation_saturates_at_the_peak_force(config: MaglevConfig) -> None:
     device.read(sensors)
     assert sensors["fault"][0] & FAULT_SATURATED
     effort = device.state[0]["levitation_effort"]
-    assert abs(effort[0]) <= config.actuators.peak_force_n
-    assert np.all(np.abs(effort[1:]) <= config.actuators.peak_torque_nm)
+    assert abs(effort[0]) <= config.actuators.peak_force
+    assert np.all(np.abs(effort[1:]) <= config.actuators.peak_torque)
 
 
 # ------------------------------------------------------------------------------ stops

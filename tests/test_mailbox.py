@@ -23,8 +23,10 @@ from haptic_server.engine import HapticEngine
 from haptic_server.harness.virtual import run_virtual_named
 from haptic_server.io_process import C_UPD_READ, MAILBOX_SLOTS, SLOT_BYTES, LoopIO, SharedBlock
 from shared.config import load_scene, load_user
+from shared.protocol.codes import Reason
 from shared.protocol.codes import reason_tag as reason_of
-from shared.wire import R_SIZE
+
+R_SIZE = Reason.SIZE
 
 
 class MailboxOnly(LoopIO):

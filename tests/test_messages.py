@@ -8,27 +8,30 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shared.messages import (
+from shared.protocol.proxy import decode_proxy, encode_proxy
+from shared.protocol.update import (
     ContactSet,
     LocalModelUpdate,
     MessageError,
-    ProxyState,
-    decode_proxy,
+    contact_rows,
     decode_update,
-    encode_proxy,
     encode_update,
 )
 
-GOLDEN = Path(__file__).parent / "golden" / "update_v1_linkage.bin"
+GOLDEN = Path(__file__).parent / "golden" / "update_v2_linkage.bin"
+GOLDEN_V1 = Path(__file__).parent / "golden" / "update_v1_linkage.bin"  # the last release's
 
 
 def sample_update(n_contacts: int = 2, resisted: bool = True) -> LocalModelUpdate:
     """A 3-link update with gravity, resisted directions and contacts."""
     rng = np.random.default_rng(7)
     a = rng.normal(size=(3, 3))
-    floats = np.zeros((n_contacts, 12))
+    rows, floats = contact_rows(n_contacts)
     for i in range(n_contacts):
-        floats[i] = [0.01 * i, 0.002, 0.1, -0.05 * i, 0.0, 1.0, 0.01, 0.0, 0.3, 0.1, 15000.0, 20.0]
+        r = rows[i]
+        r["tool"], r["env"], r["normal"] = (0.01 * i, 0.002), (0.1, -0.05 * i), (0.0, 1.0)
+        r["env_velocity"], r["friction"], r["restitution"] = (0.01, 0.0), 0.3, 0.1
+        r["stiffness"], r["damping"], r["tangential_stiffness"] = 15000.0, 20.0, 15000.0
     return LocalModelUpdate(
         epoch=1234567890123, seq=42, sim_time=1.25, publish_time_ns=987654321,
         joint_types=np.zeros(3, np.int64), lengths=np.array([0.042, 0.042, 0.03]),
@@ -97,6 +100,13 @@ def test_golden_file_pins_the_wire_format() -> None:
     assert_same(decode_update(GOLDEN.read_bytes()), sample_update())
 
 
+def test_version_1_still_parses_with_the_stick_stiffness_of_its_day() -> None:
+    """Logs of the last release carry version-1 updates (no tangential stiffness column): they
+    decode, with K_t = K_c, to the same model as today's encoding of it."""
+    assert struct.unpack_from("<H", GOLDEN_V1.read_bytes(), 4)[0] == 1
+    assert_same(decode_update(GOLDEN_V1.read_bytes()), sample_update())
+
+
 def _corrupt_float(raw: bytes, value: float, index_from_end: int) -> bytes:
     b = bytearray(raw)
     struct.pack_into("<d", b, len(b) - 8 * index_from_end, value)
@@ -135,42 +145,41 @@ def test_mass_matrix_must_be_spd_and_symmetric() -> None:
 
 
 def test_proxy_round_trip_and_rejection() -> None:
-    p = ProxyState(
-        epoch=5, update_seq=9, tick=1000, haptic_time=1.0, publish_time_ns=11, method=0,
-        safe_state=True, valid=True, q=np.array([0.1, 0.2, 0.3]), qd=np.zeros(3),
-        device_pose=np.array([0.0, 1.0, 2.0]), device_twist=np.ones(3),
-    )  # fmt: skip
-    back = decode_proxy(encode_proxy(p))
-    assert back.safe_state and back.valid and back.tick == 1000
-    np.testing.assert_array_equal(back.q, p.q)
-    np.testing.assert_array_equal(back.device_twist, p.device_twist)
+    """The one encoder (from a tick row) and the decoder agree; a NaN is rejected."""
+    from haptic_server.model import TICK_DTYPE
+
+    row = np.zeros(1, TICK_DTYPE)
+    r = row[0]
+    r["dof"], r["update_epoch"], r["update_seq"], r["tick"], r["t"] = 3, 5, 9, 1000, 1.0
+    r["safe"] = 0.5
+    r["proxy_q"][:3] = [0.1, 0.2, 0.3]
+    r["device_pose"] = [0.0, 1.0, 2.0]
+    r["device_twist"] = np.ones(3)
+    raw = encode_proxy(row, 2, publish_time_ns=11)
+    back = decode_proxy(raw)
+    assert back.safe_state and back.valid and back.tick == 1000 and back.method == 2
+    assert (back.epoch, back.update_seq, back.publish_time_ns) == (5, 9, 11)
+    np.testing.assert_array_equal(back.q, [0.1, 0.2, 0.3])
+    np.testing.assert_array_equal(back.device_twist, np.ones(3))
     with pytest.raises(MessageError, match="nonfinite"):
-        decode_proxy(_corrupt_float(encode_proxy(p), float("nan"), 1))
+        decode_proxy(_corrupt_float(raw, float("nan"), 1))
 
 
-def test_proxy_encoder_of_the_loop_matches_the_reference_codec() -> None:
-    """The loop's in-place encoder writes what encode_proxy would, for the engine's state."""
+def test_proxy_of_an_engine_tick_carries_its_state() -> None:
+    """What the sidecar publishes from the loop's newest row is the engine's proxy and device."""
     from device_models.registry import load_device
     from haptic_server.engine import HapticEngine
     from shared.config import load_scene, load_user
-    from shared.messages import ProxyEncoder
     from sim_server.world import SimWorld
 
     scene = load_scene("free_box")
     engine = HapticEngine(scene, load_device("ideal"), load_user("constant_push"))
     assert engine.receive(encode_update(SimWorld(scene).local_model(7, 0, 0))) == ""
     for _ in range(5):
-        engine.tick(1e-3)
-    raw = ProxyEncoder().encode(engine, safe=True)
-    back = decode_proxy(raw)
-    assert (back.epoch, back.update_seq, back.tick, back.method) == (7, 0, 5, 0)
-    assert back.safe_state and back.valid and back.haptic_time == engine.time
+        row = engine.tick(1e-3, update_seq=0)
+    back = decode_proxy(encode_proxy(row, engine.method))
+    assert (back.epoch, back.update_seq, back.tick, back.method) == (7, 0, 4, 0)
+    assert back.valid and back.haptic_time == row[0]["t"]
     np.testing.assert_array_equal(back.q, engine.state[0]["q"][:3])
     np.testing.assert_array_equal(back.qd, engine.state[0]["qd"][:3])
     np.testing.assert_array_equal(back.device_pose, engine.world_sensors[0]["pose"])
-    reference = ProxyState(
-        epoch=7, update_seq=0, tick=5, haptic_time=engine.time,
-        publish_time_ns=back.publish_time_ns, method=0, safe_state=True, valid=True,
-        q=back.q, qd=back.qd, device_pose=back.device_pose, device_twist=back.device_twist,
-    )  # fmt: skip
-    assert encode_proxy(reference) == raw

@@ -58,7 +58,7 @@ def test_guard_a_nan_never_reaches_the_device() -> None:
     device = IdealDevice(IdealDeviceConfig())
     from haptic_server.engine import HapticEngine
     from shared.config import UserConfig
-    from shared.messages import encode_update
+    from shared.protocol.update import encode_update
     from sim_server.world import SimWorld
 
     engine = HapticEngine(

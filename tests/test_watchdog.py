@@ -19,8 +19,8 @@ from haptic_server.engine import HapticEngine
 from haptic_server.harness.virtual import _target
 from haptic_server.model import TICK_DTYPE
 from shared.config import load_scene, load_user
-from shared.messages import encode_update
 from shared.net.config import load_network
+from shared.protocol.update import encode_update
 from sim_server.world import SimWorld
 
 NETWORK = load_network("loopback")

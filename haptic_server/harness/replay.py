@@ -30,8 +30,8 @@ from haptic_server.supervisor import Event, LoggedEvents, supervise
 from shared import source_hash
 from shared.config import SceneConfig, UserConfig, load_config_text
 from shared.net.config import NetworkConfig
+from shared.protocol.codes import Reason
 from shared.protocol.codes import reason_tag as reason_of
-from shared.wire import R_SIZE
 
 PROGRESS_MIN_TICKS = 20_000  # show a progress bar on replays longer than 20 s at 1 kHz
 PROGRESS_EVERY = 1000  # ticks between progress bar updates (keeps its cost negligible)
@@ -179,7 +179,7 @@ def _install(engine: HapticEngine, rec: dict[str, Any]) -> str:
     """Install a logged update as the loop did; returns the verdict ("" or a reason)."""
     raw = base64.b64decode(rec["raw_b64"])
     if int(rec["size_bytes"]) > len(raw):
-        return reason_of(R_SIZE)  # too big for the mailbox: the loop never parsed it
+        return reason_of(Reason.SIZE)  # too big for the mailbox: the loop never parsed it
     return engine.receive(raw, float(rec.get("latency_s", 0.0)))
 
 

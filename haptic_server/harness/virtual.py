@@ -16,15 +16,15 @@ from pathlib import Path
 import numpy as np
 
 from device_models.base import SimulatedDevice
-from device_models.registry import load_device
+from device_models.registry import load_simulated_device
 from haptic_server.engine import HapticEngine
 from haptic_server.log import LogWriter, run_metadata, update_record
 from haptic_server.model import TICK_DTYPE
 from haptic_server.stages.tick import store_row
 from haptic_server.supervisor import InstallOnly, supervise
 from shared.config import SceneConfig, UserConfig, load_scene, load_user, resolve
-from shared.messages import encode_update
 from shared.protocol.codes import Method
+from shared.protocol.update import encode_update
 from sim_server.world import SimWorld, ToolTarget
 
 VIRTUAL_EPOCH = 1
@@ -144,5 +144,10 @@ def run_virtual_named(
     }
     configs = {k: p.read_text() for k, p in paths.items()}
     return run_virtual(
-        load_scene(scene), load_device(device), load_user(user), duration_s, log_path, configs
+        load_scene(scene),
+        load_simulated_device(device),
+        load_user(user),
+        duration_s,
+        log_path,
+        configs,
     )

@@ -155,7 +155,7 @@ def contact_stage(m, d, k, weight):
         f_n = k_n * (-gap) - b_n * vn
         if f_n < 0.0:
             f_n = 0.0
-        k_t = params.friction_stiffness_ratio * k_n
+        k_t = slot.c_tangential_stiffness[i]
         cs.stick[i] += vt * dt
         f_t = -k_t * cs.stick[i] - b_n * vt
         limit = slot.c_friction[i] * f_n

@@ -10,7 +10,7 @@ from __future__ import annotations
 from numba import njit
 
 from shared.protocol.codes import Reason
-from shared.wire import parse_update
+from shared.protocol.update import parse_update
 
 
 @njit(cache=True)

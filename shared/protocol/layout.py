@@ -1,0 +1,315 @@
+"""THE wire table of the local-model update (sim -> haptic), declared once.
+
+Everything else is derived from the tables below: the header's struct and byte offsets, the
+body's section order and sizes, the contact columns' offsets (module constants such as
+`C_STIFFNESS`, which numba freezes into the parser), the parsed record `LOCAL_MODEL_DTYPE`,
+the limits record, and the tables of docs/protocol.md (`markdown_tables`). To add a contact
+column: one `Column` line below, then fill it in the sim (by name) and read it in the haptic
+contact stage (`slot.c_<name>`).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from shared.kinematics import MAX_DOF
+from shared.protocol.codes import Flag
+
+PROTOCOL_VERSION = 2  # what this build sends
+SUPPORTED_VERSIONS = (1, 2)  # what it parses (logs of the previous release replay)
+UPDATE_MAGIC = b"HLMU"
+MAX_CONTACTS = 64
+MAX_RESISTED = 3
+
+
+@dataclass(frozen=True)
+class HeaderField:
+    name: str
+    code: str  # struct format code (little-endian)
+    unit: str
+    doc: str
+
+
+#: The fixed header, in wire order.
+HEADER = (
+    HeaderField("magic", "4s", "", 'b"HLMU"'),
+    HeaderField("version", "H", "", f"protocol version ({PROTOCOL_VERSION})"),
+    HeaderField(
+        "flags",
+        "H",
+        "",
+        "sections present (Flag: 1 gravity, 2 resisted, 4 tool touching, 8 velocity torque)",
+    ),
+    HeaderField("epoch", "Q", "", "changes when the sim restarts or reloads"),
+    HeaderField("seq", "Q", "", "update number within the epoch"),
+    HeaderField("sim_time", "d", "s", "the sim's time of the state"),
+    HeaderField("publish_time_ns", "q", "ns", "wall clock (Unix) at publication"),
+    HeaderField("dof", "H", "", "d, tool degrees of freedom (1..12)"),
+    HeaderField("n_contacts", "H", "", "n, contacts in the neighbourhood (0..64)"),
+    HeaderField("n_resisted", "H", "", "j, directions resisted by the joints (0..3)"),
+    HeaderField("op_link", "H", "", "link of the operational point (< d)"),
+    HeaderField("characteristic_length", "d", "m", "scales the angular row of J_h"),
+    HeaderField("state_lead_s", "d", "s", "the state holds this long after publication"),
+)
+HEADER_STRUCT = struct.Struct("<" + "".join(f.code for f in HEADER))
+HEADER_BYTES = HEADER_STRUCT.size
+HEADER_AT = {}  # byte offset of each header field
+_offset = 0
+for _f in HEADER:
+    HEADER_AT[_f.name] = _offset
+    _offset += struct.calcsize("<" + _f.code)
+PUBLISH_TIME_AT = HEADER_AT["publish_time_ns"]
+PUBLISH_TIME_END = PUBLISH_TIME_AT + 8  # a message shorter than this has no publish time
+
+
+@dataclass(frozen=True)
+class Section:
+    """A run of the body: `size` = (constant, per d, per d^2, per j, per n) values."""
+
+    name: str
+    size: tuple[int, int, int, int, int]
+    unit: str
+    doc: str
+    flag: int = 0  # present only when this header flag is set
+
+    def count(self, d: int, j: int, n: int) -> int:
+        c, per_d, per_dd, per_j, per_n = self.size
+        return c + per_d * d + per_dd * d * d + per_j * j + per_n * n
+
+
+#: int64 block, then float64 block, each in this order.
+INT_SECTIONS = (
+    Section("joint_types", (0, 1, 0, 0, 0), "", "0 revolute, 1 prismatic x, 2 prismatic y"),
+    Section("contact_link", (0, 0, 0, 0, 1), "", "tool link of each contact"),
+    Section("contact_key", (0, 0, 0, 0, 1), "", "feature-pair identity, stable across updates"),
+)
+
+
+@dataclass(frozen=True)
+class Column:
+    """One column of a contact row: its name (record field `c_<name>`), width, unit, and
+    the bound the parser checks (a MessageLimits field, or a fixed range in words)."""
+
+    name: str
+    width: int
+    unit: str
+    bound: str
+    doc: str
+    since: int = 1  # the protocol version that added it (older messages lack it)
+
+
+#: A contact row, in wire order; a column added later goes at the end, with its version.
+CONTACT_COLUMNS = (
+    Column("tool", 2, "m", "|x| <= max_abs_position_m", "contact point in the tool link's frame"),
+    Column("env", 2, "m", "|x| <= max_abs_position_m", "environment point (world)"),
+    Column("normal", 2, "", "unit length (1e-6)", "outward environment normal (world)"),
+    Column("env_velocity", 2, "m/s", "|v| <= max_abs_velocity", "environment point velocity"),
+    Column("friction", 1, "", "0 <= mu <= max_friction", "Coulomb coefficient mu"),
+    Column("restitution", 1, "", "0 <= e <= 1", "Poisson restitution e"),
+    Column("stiffness", 1, "N/m", "0 < K <= max_stiffness_n_per_m", "contact stiffness K_c"),
+    Column("damping", 1, "N s/m", "0 <= B <= max_damping_ns_per_m", "contact damping B_c"),
+    Column(
+        "tangential_stiffness",
+        1,
+        "N/m",
+        "0 <= K_t <= max_stiffness_n_per_m",
+        "stick stiffness of Coulomb friction (version 1: K_t = K_c)",
+        since=2,
+    ),
+)
+CONTACT_AT = {}  # float offset of each column within a contact row
+_offset = 0
+for _c in CONTACT_COLUMNS:
+    CONTACT_AT[_c.name] = _offset
+    _offset += _c.width
+CONTACT_FLOATS = _offset
+
+
+def contact_floats(version: int) -> int:
+    """Floats of a contact row in messages of `version`."""
+    return sum(c.width for c in CONTACT_COLUMNS if c.since <= version)
+
+
+CONTACT_FLOATS_V1 = contact_floats(1)
+C_TOOL = CONTACT_AT["tool"]
+C_ENV = CONTACT_AT["env"]
+C_NORMAL = CONTACT_AT["normal"]
+C_ENV_VELOCITY = CONTACT_AT["env_velocity"]
+C_FRICTION = CONTACT_AT["friction"]
+C_RESTITUTION = CONTACT_AT["restitution"]
+C_STIFFNESS = CONTACT_AT["stiffness"]
+C_DAMPING = CONTACT_AT["damping"]
+C_TANGENTIAL_STIFFNESS = CONTACT_AT["tangential_stiffness"]
+
+#: One contact row as a structured dtype (same bytes as CONTACT_FLOATS float64): the sim
+#: fills rows by column name.
+CONTACT_ROW_DTYPE = np.dtype(
+    [(c.name, "<f8", (c.width,)) if c.width > 1 else (c.name, "<f8") for c in CONTACT_COLUMNS]
+)
+
+FLOAT_SECTIONS = (
+    Section("lengths", (0, 1, 0, 0, 0), "m", "link lengths"),
+    Section("base", (2, 0, 0, 0, 0), "m", "base position (world)"),
+    Section("base_angle", (1, 0, 0, 0, 0), "rad", "base orientation"),
+    Section("op_point", (2, 0, 0, 0, 0), "m", "operational point in the frame of op_link"),
+    Section("q", (0, 1, 0, 0, 0), "rad or m", "the sim's tool configuration"),
+    Section("qd", (0, 1, 0, 0, 0), "rad/s or m/s", "its velocity"),
+    Section("mass", (0, 0, 1, 0, 0), "kg, kg m, kg m^2", "D(q), row-major"),
+    Section("lambda_inv", (9, 0, 0, 0, 0), "1/kg ...", "J_h D^-1 J_h^T, row-major"),
+    Section("tool_pose", (3, 0, 0, 0, 0), "m, rad", "operational point pose at the sim"),
+    Section("gravity", (0, 1, 0, 0, 0), "N or N m", "G(q)", Flag.GRAVITY),
+    Section("velocity_torque", (0, 1, 0, 0, 0), "N or N m", "C(q, qd) qd", Flag.VELOCITY_TORQUE),
+    Section("resisted", (0, 0, 0, 3, 0), "", "unit directions in the scaled space", Flag.RESISTED),
+    Section("contacts", (0, 0, 0, 0, CONTACT_FLOATS), "", "one row per contact (below)"),
+)
+
+
+def body_counts(
+    d: int, j: int, n: int, flags: int, version: int = PROTOCOL_VERSION
+) -> tuple[int, int]:
+    """(int64 values, float64 values) of an update's body."""
+    present = [s for s in INT_SECTIONS + FLOAT_SECTIONS if not s.flag or flags & s.flag]
+    n_int = sum(s.count(d, j, n) for s in present if s in INT_SECTIONS)
+    n_float = sum(s.count(d, j, n) for s in present if s in FLOAT_SECTIONS)
+    return n_int, n_float - (CONTACT_FLOATS - contact_floats(version)) * n
+
+
+def update_size(d: int, j: int, n: int, flags: int, version: int = PROTOCOL_VERSION) -> int:
+    """Bytes of an update with these counts and flags."""
+    n_int, n_float = body_counts(d, j, n, flags, version)
+    return HEADER_BYTES + 8 * (n_int + n_float)
+
+
+# --- limits ----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class MessageLimits:
+    """Bounds on what a sane update may contain; anything beyond is rejected."""
+
+    max_abs_position_m: float = 100.0
+    max_abs_angle_rad: float = 1.0e4
+    max_abs_velocity: float = 100.0
+    max_mass_entry: float = 1.0e6
+    min_mass_eigenvalue: float = 1.0e-12
+    max_stiffness_n_per_m: float = 1.0e8
+    max_damping_ns_per_m: float = 1.0e6
+    max_friction: float = 10.0
+    symmetry_tolerance: float = 1.0e-9  # relative
+    max_abs_generalized_force: float = 1.0e4  # N or N m: gravity and velocity-product torques
+    max_inverse_mass: float = 1.0e9  # entries of Lambda^-1 (1/kg, 1/(kg m), 1/(kg m^2))
+
+
+DEFAULT_LIMITS = MessageLimits()
+LIMITS_DTYPE = np.dtype([(f.name, np.float64) for f in fields(MessageLimits)])
+
+
+def limits_record(limits: MessageLimits = DEFAULT_LIMITS) -> np.ndarray:
+    """The limits as the record the parser reads (LIMITS_DTYPE[1])."""
+    rec = np.zeros(1, LIMITS_DTYPE)
+    for f in fields(MessageLimits):
+        rec[0][f.name] = getattr(limits, f.name)
+    return rec
+
+
+# --- the parsed record -----------------------------------------------------------------------
+
+F8 = np.float64
+I8 = np.int64
+
+#: One local model as the haptic kernels read it: the wire fields, plus what the parser
+#: derives (valid, has_*, the penalty projection).
+LOCAL_MODEL_DTYPE = np.dtype(
+    [
+        ("valid", I8),
+        ("epoch", I8),
+        ("seq", I8),
+        ("sim_time", F8),
+        ("publish_time_ns", I8),
+        ("dof", I8),
+        ("joint_types", I8, (MAX_DOF,)),
+        ("lengths", F8, (MAX_DOF,)),
+        ("base", F8, (2,)),
+        ("base_angle", F8),
+        ("op_link", I8),
+        ("op_point", F8, (2,)),
+        ("q", F8, (MAX_DOF,)),  # the sim's tool state (re-initialisation)
+        ("qd", F8, (MAX_DOF,)),
+        ("mass", F8, (MAX_DOF, MAX_DOF)),  # D^ (frozen)
+        ("lambda_inv", F8, (3, 3)),
+        ("has_gravity", I8),
+        ("gravity", F8, (MAX_DOF,)),  # G^ (frozen)
+        ("has_velocity_torque", I8),
+        ("velocity_torque", F8, (MAX_DOF,)),  # C(q, qd) qd at the sim's state (frozen)
+        ("n_resisted", I8),
+        ("characteristic_length", F8),
+        ("resisted", F8, (MAX_RESISTED, 3)),  # unit directions in the scaled space
+        ("penalty_projection", F8, (3, 3)),  # sum (S n)(S n)^T, S = diag(1, 1, L)
+        ("tool_pose", F8, (3,)),  # the sim's operational point pose
+        ("tool_touching", I8),
+        ("state_lead_s", F8),  # the state holds this long after its publication
+        ("n_contacts", I8),
+        ("c_link", I8, (MAX_CONTACTS,)),
+        ("c_key", I8, (MAX_CONTACTS,)),
+        *[
+            (f"c_{c.name}", F8, (MAX_CONTACTS, c.width) if c.width > 1 else (MAX_CONTACTS,))
+            for c in CONTACT_COLUMNS
+        ],
+    ]
+)
+
+
+# --- docs ------------------------------------------------------------------------------------
+
+
+def markdown_tables() -> str:
+    """The header, body and contact-row tables of docs/protocol.md."""
+    lines = [
+        f"Header ({HEADER_BYTES} bytes, little-endian, struct `{HEADER_STRUCT.format}`):",
+        "",
+        "| offset | field | type | unit | meaning |",
+        "|---|---|---|---|---|",
+    ]
+    for f in HEADER:
+        unit = f.unit or "-"
+        lines.append(f"| {HEADER_AT[f.name]} | `{f.name}` | `{f.code}` | {unit} | {f.doc} |")
+    lines += [
+        "",
+        "Body: the int64 sections, then the float64 sections, in this order (d = dof,",
+        "j = n_resisted, n = n_contacts; a section with a flag is present only when it is set):",
+        "",
+        "| block | section | values | flag | unit | meaning |",
+        "|---|---|---|---|---|---|",
+    ]
+    for block, sections in (("int64", INT_SECTIONS), ("float64", FLOAT_SECTIONS)):
+        for s in sections:
+            lines.append(
+                f"| {block} | `{s.name}` | {_count_text(s.size)} | {s.flag or '-'} |"
+                f" {s.unit or '-'} | {s.doc} |"
+            )
+    lines += [
+        "",
+        f"Contact row ({CONTACT_FLOATS} float64 values; a version-1 message has the"
+        f" {CONTACT_FLOATS_V1} columns of version 1):",
+        "",
+        "| offset | column | width | unit | bound | since | meaning |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for c in CONTACT_COLUMNS:
+        lines.append(
+            f"| {CONTACT_AT[c.name]} | `{c.name}` | {c.width} | {c.unit or '-'} | {c.bound} |"
+            f" {c.since} | {c.doc} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _count_text(size: tuple[int, int, int, int, int]) -> str:
+    names = ("", "d", "d^2", "j", "n")
+    terms = []
+    for value, name in zip(size, names, strict=True):
+        if value:
+            terms.append(f"{value}" if not name else (name if value == 1 else f"{value} {name}"))
+    return " + ".join(terms) or "0"

@@ -1,0 +1,575 @@
+"""The local-model update: its dataclass view, the encoder, and the validating parser.
+
+`parse_update` is the one boundary that turns an update's bytes into the record the haptic
+kernels trust (a numba kernel: a few microseconds where the same checks in numpy cost
+hundreds). It validates sizes, finite values, D symmetric positive definite, unit normals
+and magnitudes within the limits record, and returns 0 or a `Reason` code; `decode_update`
+wraps it for tools and raises `MessageError`. Layout: `shared.protocol.layout`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from shared.kinematics import PRISMATIC_Y, REVOLUTE
+from shared.linalg import cholesky_inplace
+from shared.protocol.codes import Flag, Reason
+from shared.protocol.layout import (
+    C_DAMPING,
+    C_ENV_VELOCITY,
+    C_FRICTION,
+    C_NORMAL,
+    C_RESTITUTION,
+    C_STIFFNESS,
+    C_TANGENTIAL_STIFFNESS,
+    CONTACT_AT,
+    CONTACT_COLUMNS,
+    CONTACT_FLOATS,
+    CONTACT_FLOATS_V1,
+    CONTACT_ROW_DTYPE,
+    DEFAULT_LIMITS,
+    FLOAT_SECTIONS,
+    HEADER_AT,
+    HEADER_BYTES,
+    HEADER_STRUCT,
+    INT_SECTIONS,
+    LOCAL_MODEL_DTYPE,
+    MAX_CONTACTS,
+    MAX_DOF,
+    MAX_RESISTED,
+    PROTOCOL_VERSION,
+    PUBLISH_TIME_AT,
+    PUBLISH_TIME_END,
+    UPDATE_MAGIC,
+    MessageLimits,
+    body_counts,
+    limits_record,
+)
+
+MAGIC = tuple(UPDATE_MAGIC)
+# numba reads IntEnum members but not IntFlag ones: the flags as plain ints for the kernels
+FLAG_GRAVITY = int(Flag.GRAVITY)
+FLAG_RESISTED = int(Flag.RESISTED)
+FLAG_TOUCHING = int(Flag.TOUCHING)
+FLAG_VELOCITY_TORQUE = int(Flag.VELOCITY_TORQUE)
+AT_VERSION = HEADER_AT["version"]
+AT_FLAGS = HEADER_AT["flags"]
+AT_EPOCH = HEADER_AT["epoch"]
+AT_SEQ = HEADER_AT["seq"]
+AT_SIM_TIME = HEADER_AT["sim_time"]
+AT_DOF = HEADER_AT["dof"]
+AT_N_CONTACTS = HEADER_AT["n_contacts"]
+AT_N_RESISTED = HEADER_AT["n_resisted"]
+AT_OP_LINK = HEADER_AT["op_link"]
+AT_CHAR_LENGTH = HEADER_AT["characteristic_length"]
+AT_LEAD = HEADER_AT["state_lead_s"]
+#: float values of the body before the flagged sections: lengths, base (2), base angle,
+#: op point (2), q, qd, D, Lambda^-1 (9), tool pose (3)
+_FIXED_FLOATS = (5 + 9 + 3, 3, 1)  # constant, per d, per d^2
+
+
+class MessageError(ValueError):
+    """A received message is malformed or out of bounds; `reason` is a short stable tag."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        self.reason = reason
+        super().__init__(f"{reason}: {detail}")
+
+
+@dataclass(frozen=True, eq=False)
+class ContactSet:
+    """Local contact geometry (DESIGN §3): one row per contact of a tool link with the world."""
+
+    link: np.ndarray  # (n,) int64 tool link index
+    key: np.ndarray  # (n,) int64 identity that persists across updates for the same feature pair
+    floats: np.ndarray  # (n, CONTACT_FLOATS) float64, columns as in layout.CONTACT_COLUMNS
+
+    @property
+    def count(self) -> int:
+        return int(self.link.shape[0])
+
+    @property
+    def rows(self) -> np.ndarray:
+        """The rows as CONTACT_ROW_DTYPE (a view): columns by name."""
+        return np.ascontiguousarray(self.floats).view(CONTACT_ROW_DTYPE).reshape(self.count)
+
+    @staticmethod
+    def empty() -> ContactSet:
+        return ContactSet(np.zeros(0, np.int64), np.zeros(0, np.int64), contact_rows(0)[1])
+
+
+def contact_rows(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """n zeroed contact rows: (CONTACT_ROW_DTYPE view by column name, (n, CONTACT_FLOATS)
+    float view of the same memory)."""
+    floats = np.zeros((n, CONTACT_FLOATS))
+    return floats.view(CONTACT_ROW_DTYPE).reshape(n), floats
+
+
+@dataclass(frozen=True, eq=False)
+class LocalModelUpdate:
+    """What the sim publishes each step about its tool (DESIGN §3)."""
+
+    epoch: int
+    seq: int
+    sim_time: float
+    publish_time_ns: int
+    joint_types: np.ndarray  # (d,) int64
+    lengths: np.ndarray  # (d,)
+    base: np.ndarray  # (2,)
+    base_angle: float
+    op_link: int
+    op_point: np.ndarray  # (2,) in the frame of op_link
+    q: np.ndarray  # (d,) tool configuration at the sim
+    qd: np.ndarray  # (d,)
+    mass_matrix: np.ndarray  # (d, d) D(q)
+    lambda_inv: np.ndarray  # (3, 3) J_h D^-1 J_h^T
+    tool_pose: np.ndarray  # (3,) operational point pose at the sim
+    gravity: np.ndarray | None  # (d,) G(q), None when g = 0
+    velocity_torque: np.ndarray | None  # (d,) C(q, qd) qd, None for a free body (D constant)
+    resisted: np.ndarray | None  # (j, 3) unit directions in the scaled space, None when j = 0
+    characteristic_length: float
+    contacts: ContactSet
+    tool_touching: bool
+    # how far ahead of its publication the state holds (s): the sim steps its world over the
+    # coming period, so moving contacts are extrapolated back by this much at install
+    state_lead_s: float = 0.0
+
+    @property
+    def dof(self) -> int:
+        return int(self.q.shape[0])
+
+    @property
+    def flags(self) -> int:
+        flags = 0
+        if self.gravity is not None:
+            flags |= Flag.GRAVITY
+        if self.resisted is not None and len(self.resisted) > 0:
+            flags |= Flag.RESISTED
+        if self.tool_touching:
+            flags |= Flag.TOUCHING
+        if self.velocity_torque is not None:
+            flags |= Flag.VELOCITY_TORQUE
+        return int(flags)
+
+
+def encode_update(u: LocalModelUpdate) -> bytes:
+    """The update's bytes: the header, then the sections of layout.INT_SECTIONS and
+    layout.FLOAT_SECTIONS in order (the flagged ones when present)."""
+    d = u.dof
+    n = u.contacts.count
+    j = 0 if u.resisted is None else len(u.resisted)
+    header = HEADER_STRUCT.pack(
+        UPDATE_MAGIC, PROTOCOL_VERSION, u.flags, u.epoch, u.seq, u.sim_time, u.publish_time_ns,
+        d, n, j, u.op_link, u.characteristic_length, u.state_lead_s,
+    )  # fmt: skip
+    sections = {
+        "joint_types": u.joint_types, "contact_link": u.contacts.link,
+        "contact_key": u.contacts.key, "lengths": u.lengths, "base": u.base,
+        "base_angle": [u.base_angle], "op_point": u.op_point, "q": u.q, "qd": u.qd,
+        "mass": u.mass_matrix, "lambda_inv": u.lambda_inv, "tool_pose": u.tool_pose,
+        "gravity": u.gravity, "velocity_torque": u.velocity_torque,
+        "resisted": u.resisted if j else None, "contacts": u.contacts.floats,
+    }  # fmt: skip
+    ints = [np.asarray(sections[s.name]).ravel() for s in INT_SECTIONS]
+    floats = [
+        np.asarray(sections[s.name], dtype=np.float64).ravel()
+        for s in FLOAT_SECTIONS
+        if sections[s.name] is not None
+    ]
+    return (
+        header
+        + np.concatenate(ints).astype("<i8").tobytes()
+        + np.concatenate(floats).astype("<f8").tobytes()
+    )
+
+
+# --- the parser ------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _u16(buf, o):
+    return np.int64(buf[o]) | (np.int64(buf[o + 1]) << 8)
+
+
+@njit(cache=True)
+def _f64(buf, o):
+    return buf[o : o + 8].view(np.float64)[0]
+
+
+@njit(cache=True)
+def _i64(buf, o):
+    return buf[o : o + 8].view(np.int64)[0]
+
+
+@njit(cache=True)
+def publish_time_ns(buf):
+    """The header's publish time of the update in `buf` (8-byte aligned, at least
+    PUBLISH_TIME_END bytes long)."""
+    return _i64(buf, PUBLISH_TIME_AT)
+
+
+@njit(cache=True)
+def _check_header(buf, nbytes):
+    """Magic, version, counts and total size: (Reason or 0, d, n, j, flags, contact row
+    floats)."""
+    if nbytes < HEADER_BYTES:
+        return Reason.SHORT, 0, 0, 0, 0, 0
+    for i in range(4):
+        if buf[i] != MAGIC[i]:
+            return Reason.MAGIC, 0, 0, 0, 0, 0
+    version = _u16(buf, AT_VERSION)
+    if version != PROTOCOL_VERSION and version != 1:  # version 1: logs of the last release
+        return Reason.VERSION, 0, 0, 0, 0, 0
+    n_cf = CONTACT_FLOATS if version == PROTOCOL_VERSION else CONTACT_FLOATS_V1
+    flags = _u16(buf, AT_FLAGS)
+    d = _u16(buf, AT_DOF)
+    n = _u16(buf, AT_N_CONTACTS)
+    j = _u16(buf, AT_N_RESISTED)
+    if d < 1 or d > MAX_DOF:
+        return Reason.DOF, d, n, j, flags, n_cf
+    if n > MAX_CONTACTS:
+        return Reason.CONTACTS, d, n, j, flags, n_cf
+    if j > MAX_RESISTED or (j > 0) != ((flags & FLAG_RESISTED) != 0):
+        return Reason.RESISTED, d, n, j, flags, n_cf
+    if _u16(buf, AT_OP_LINK) >= d:
+        return Reason.OP_LINK, d, n, j, flags, n_cf
+    n_int = d + 2 * n
+    if nbytes != HEADER_BYTES + 8 * (n_int + _float_count(d, j, n, flags, n_cf)):
+        return Reason.SIZE, d, n, j, flags, n_cf
+    return 0, d, n, j, flags, n_cf
+
+
+@njit(cache=True)
+def _float_count(d, j, n, flags, n_cf):
+    c, per_d, per_dd = _FIXED_FLOATS
+    count = c + per_d * d + per_dd * d * d + 3 * j + n_cf * n
+    if (flags & FLAG_GRAVITY) != 0:
+        count += d
+    if (flags & FLAG_VELOCITY_TORQUE) != 0:
+        count += d
+    return count
+
+
+@njit(cache=True)
+def _read_body(m, ints, fl, flags):
+    """The sections into the record; returns the float offset of the contact rows."""
+    d = m.dof
+    o = 0
+    for k in range(d):
+        m.lengths[k] = fl[o + k]
+    o += d
+    m.base[0] = fl[o]
+    m.base[1] = fl[o + 1]
+    m.base_angle = fl[o + 2]
+    m.op_point[0] = fl[o + 3]
+    m.op_point[1] = fl[o + 4]
+    o += 5
+    for k in range(d):
+        m.q[k] = fl[o + k]
+        m.qd[k] = fl[o + d + k]
+    o += 2 * d
+    for a in range(d):
+        for b in range(d):
+            m.mass[a, b] = fl[o + a * d + b]
+    o += d * d
+    for a in range(3):
+        for b in range(3):
+            m.lambda_inv[a, b] = fl[o + a * 3 + b]
+    o += 9
+    for c in range(3):
+        m.tool_pose[c] = fl[o + c]
+    o += 3
+    if (flags & FLAG_GRAVITY) != 0:
+        for k in range(d):
+            m.gravity[k] = fl[o + k]
+        o += d
+    if (flags & FLAG_VELOCITY_TORQUE) != 0:
+        for k in range(d):
+            m.velocity_torque[k] = fl[o + k]
+        o += d
+    for r in range(m.n_resisted):
+        for c in range(3):
+            m.resisted[r, c] = fl[o + 3 * r + c]
+    o += 3 * m.n_resisted
+    for k in range(d):
+        m.joint_types[k] = ints[k]
+    return o
+
+
+@njit(cache=True)
+def _check_magnitudes(m, lim):
+    """Everything the kernels read is within the limits (finite but absurd values too)."""
+    d = m.dof
+    max_pos = lim.max_abs_position_m
+    max_ang = lim.max_abs_angle_rad
+    for k in range(d):
+        if abs(m.lengths[k]) > max_pos:
+            return Reason.MAGNITUDE
+        if abs(m.q[k]) > max(max_pos, max_ang) or abs(m.qd[k]) > lim.max_abs_velocity:
+            return Reason.MAGNITUDE
+    if abs(m.base[0]) > max_pos or abs(m.base[1]) > max_pos:
+        return Reason.MAGNITUDE
+    if abs(m.tool_pose[0]) > max_pos or abs(m.tool_pose[1]) > max_pos:
+        return Reason.MAGNITUDE
+    if (
+        abs(m.tool_pose[2]) > max_ang
+        or abs(m.base_angle) > max_ang
+        or m.characteristic_length > max_pos
+    ):
+        return Reason.MAGNITUDE
+    if abs(m.op_point[0]) > max_pos or abs(m.op_point[1]) > max_pos:
+        return Reason.MAGNITUDE
+    max_force = lim.max_abs_generalized_force
+    for k in range(d):
+        if (m.has_gravity == 1 and abs(m.gravity[k]) > max_force) or (
+            m.has_velocity_torque == 1 and abs(m.velocity_torque[k]) > max_force
+        ):
+            return Reason.MAGNITUDE
+    for a in range(3):
+        for b in range(3):
+            if abs(m.lambda_inv[a, b]) > lim.max_inverse_mass:
+                return Reason.MAGNITUDE
+    return 0
+
+
+@njit(cache=True)
+def _check_mass(m, lim, scratch):
+    """D symmetric positive definite and bounded."""
+    d = m.dof
+    scale = 0.0
+    for a in range(d):
+        for b in range(d):
+            scale = max(scale, abs(m.mass[a, b]))
+    if scale > lim.max_mass_entry:
+        return Reason.MASS_MATRIX
+    for a in range(d):
+        for b in range(a + 1, d):
+            if abs(m.mass[a, b] - m.mass[b, a]) > lim.symmetry_tolerance * max(scale, 1e-300):
+                return Reason.MASS_MATRIX
+    if not cholesky_inplace(m.mass, d, scratch):
+        return Reason.MASS_MATRIX
+    for a in range(d):
+        if scratch[a, a] * scratch[a, a] < lim.min_mass_eigenvalue:
+            return Reason.MASS_MATRIX
+    return 0
+
+
+@njit(cache=True)
+def _penalty_projection(m):
+    """Resisted directions must be unit vectors; their penalty projection in natural units,
+    sum (S n)(S n)^T with S = diag(1, 1, L)."""
+    for a in range(3):
+        for b in range(3):
+            m.penalty_projection[a, b] = 0.0
+    for r in range(m.n_resisted):
+        norm = math.sqrt(m.resisted[r, 0] ** 2 + m.resisted[r, 1] ** 2 + m.resisted[r, 2] ** 2)
+        if abs(norm - 1.0) > 1e-6:
+            return Reason.RESISTED
+        s0 = m.resisted[r, 0]
+        s1 = m.resisted[r, 1]
+        s2 = m.resisted[r, 2] * m.characteristic_length
+        m.penalty_projection[0, 0] += s0 * s0
+        m.penalty_projection[0, 1] += s0 * s1
+        m.penalty_projection[0, 2] += s0 * s2
+        m.penalty_projection[1, 0] += s1 * s0
+        m.penalty_projection[1, 1] += s1 * s1
+        m.penalty_projection[1, 2] += s1 * s2
+        m.penalty_projection[2, 0] += s2 * s0
+        m.penalty_projection[2, 1] += s2 * s1
+        m.penalty_projection[2, 2] += s2 * s2
+    return 0
+
+
+@njit(cache=True)
+def _read_contacts(m, ints, fl, o, n_cf, lim):
+    """The contact rows (n_cf floats each) from float offset o, each column checked against
+    its bound; a version-1 row has no tangential stiffness: K_t = K_c."""
+    d = m.dof
+    n = m.n_contacts
+    max_pos = lim.max_abs_position_m
+    max_vel = lim.max_abs_velocity
+    for i in range(n):
+        row = fl[o + n_cf * i : o + n_cf * (i + 1)]
+        for k in range(4):  # tool and environment points
+            if abs(row[k]) > max_pos:
+                return Reason.CONTACT
+        if abs(math.hypot(row[C_NORMAL], row[C_NORMAL + 1]) - 1.0) > 1e-6:
+            return Reason.CONTACT
+        if abs(row[C_ENV_VELOCITY]) > max_vel or abs(row[C_ENV_VELOCITY + 1]) > max_vel:
+            return Reason.CONTACT
+        mu = row[C_FRICTION]
+        e = row[C_RESTITUTION]
+        kk = row[C_STIFFNESS]
+        bb = row[C_DAMPING]
+        if mu < 0.0 or mu > lim.max_friction or e < 0.0 or e > 1.0:
+            return Reason.CONTACT
+        if not (kk > 0.0 and kk <= lim.max_stiffness_n_per_m):
+            return Reason.CONTACT
+        if bb < 0.0 or bb > lim.max_damping_ns_per_m:
+            return Reason.CONTACT
+        kt = row[C_TANGENTIAL_STIFFNESS] if n_cf > C_TANGENTIAL_STIFFNESS else kk
+        if not (kt >= 0.0 and kt <= lim.max_stiffness_n_per_m):
+            return Reason.CONTACT
+        m.c_link[i] = ints[d + i]
+        m.c_key[i] = ints[d + n + i]
+        for c in range(2):
+            m.c_tool[i, c] = row[C_TOOL_AT + c]
+            m.c_env[i, c] = row[C_ENV_AT + c]
+            m.c_normal[i, c] = row[C_NORMAL + c]
+            m.c_env_velocity[i, c] = row[C_ENV_VELOCITY + c]
+        m.c_friction[i] = mu
+        m.c_restitution[i] = e
+        m.c_stiffness[i] = kk
+        m.c_damping[i] = bb
+        m.c_tangential_stiffness[i] = kt
+    return 0
+
+
+C_TOOL_AT = CONTACT_AT["tool"]
+C_ENV_AT = CONTACT_AT["env"]
+
+
+@njit(cache=True)
+def parse_update(buf, nbytes, limits, out, scratch):
+    """Validate the update in buf[:nbytes] and fill `out` (LOCAL_MODEL_DTYPE[1]); 0 or a Reason.
+
+    `buf` must be an 8-byte aligned uint8 array; `limits` a LIMITS_DTYPE[1] record;
+    `scratch` a (MAX_DOF, MAX_DOF) float array. The checks run in a fixed order, so a
+    message that breaks several is always rejected for the same reason.
+    """
+    m = out[0]
+    m.valid = 0
+    code, d, n, j, flags, n_cf = _check_header(buf, nbytes)
+    if code != 0:
+        return code
+    lim = limits[0]
+    n_int = d + 2 * n
+    ints = buf[HEADER_BYTES : HEADER_BYTES + 8 * n_int].view(np.int64)
+    fl = buf[HEADER_BYTES + 8 * n_int : nbytes].view(np.float64)
+    sim_time = _f64(buf, AT_SIM_TIME)
+    char_len = _f64(buf, AT_CHAR_LENGTH)
+    lead = _f64(buf, AT_LEAD)
+    if not (math.isfinite(sim_time) and math.isfinite(char_len) and math.isfinite(lead)):
+        return Reason.NONFINITE
+    if abs(lead) > 1.0:
+        return Reason.MAGNITUDE
+    for k in range(fl.shape[0]):
+        if not math.isfinite(fl[k]):
+            return Reason.NONFINITE
+    if not char_len > 0.0:
+        return Reason.CHARACTERISTIC_LENGTH
+    for k in range(d):
+        if ints[k] < REVOLUTE or ints[k] > PRISMATIC_Y:
+            return Reason.JOINT_TYPE
+    for k in range(n):
+        if ints[d + k] < 0 or ints[d + k] >= d:
+            return Reason.CONTACT_LINK
+    m.dof = d
+    m.n_resisted = j
+    m.n_contacts = n
+    m.characteristic_length = char_len
+    m.has_gravity = 1 if (flags & FLAG_GRAVITY) != 0 else 0
+    m.has_velocity_torque = 1 if (flags & FLAG_VELOCITY_TORQUE) != 0 else 0
+    contacts_at = _read_body(m, ints, fl, flags)
+    code = _check_magnitudes(m, lim)
+    if code == 0:
+        code = _check_mass(m, lim, scratch)
+    if code == 0:
+        code = _penalty_projection(m)
+    if code == 0:
+        code = _read_contacts(m, ints, fl, contacts_at, n_cf, lim)
+    if code != 0:
+        return code
+    m.epoch = _i64(buf, AT_EPOCH)
+    m.seq = _i64(buf, AT_SEQ)
+    m.sim_time = sim_time
+    m.publish_time_ns = _i64(buf, PUBLISH_TIME_AT)
+    m.op_link = _u16(buf, AT_OP_LINK)
+    m.tool_touching = 1 if (flags & FLAG_TOUCHING) != 0 else 0
+    m.state_lead_s = lead
+    m.valid = 1
+    return Reason.OK
+
+
+class UpdateParser:
+    """Preallocated buffers around parse_update: one per receiver (tools, tests)."""
+
+    def __init__(self, limits: MessageLimits = DEFAULT_LIMITS) -> None:
+        self.limits = limits_record(limits)
+        self.buffer = np.zeros(HEADER_BYTES + 8 * (MAX_DOF + 2 * MAX_CONTACTS + 4096), np.uint8)
+        self.out = np.zeros(1, LOCAL_MODEL_DTYPE)
+        self.scratch = np.zeros((MAX_DOF, MAX_DOF))
+
+    def parse(self, raw: bytes) -> int:
+        """Parse into self.out; returns the reason code (0 = valid)."""
+        n = len(raw)
+        if n > self.buffer.shape[0]:
+            self.out[0]["valid"] = 0
+            return int(Reason.SIZE)
+        self.buffer[:n] = np.frombuffer(raw, np.uint8)
+        return int(parse_update(self.buffer, n, self.limits, self.out, self.scratch))
+
+
+_DEFAULT_PARSER: UpdateParser | None = None
+
+
+def decode_update(data: bytes, limits: MessageLimits = DEFAULT_LIMITS) -> LocalModelUpdate:
+    """Parse and validate an update; raises MessageError naming what is wrong.
+
+    The checks are those of `parse_update`, the decoder the haptic loop uses.
+    """
+    global _DEFAULT_PARSER
+    if limits is DEFAULT_LIMITS:
+        if _DEFAULT_PARSER is None:
+            _DEFAULT_PARSER = UpdateParser()
+        parser = _DEFAULT_PARSER
+    else:
+        parser = UpdateParser(limits)
+    code = parser.parse(data)
+    if code != 0:
+        raise MessageError(Reason(code).tag, f"rejected update of {len(data)} bytes")
+    return update_from_record(parser.out[0])
+
+
+def update_from_record(m: np.void) -> LocalModelUpdate:
+    """The dataclass view of a parsed LOCAL_MODEL_DTYPE record (copies)."""
+    d = int(m["dof"])
+    n = int(m["n_contacts"])
+    j = int(m["n_resisted"])
+    rows, floats = contact_rows(n)
+    for c in CONTACT_COLUMNS:
+        rows[c.name] = m[f"c_{c.name}"][:n]
+    return LocalModelUpdate(
+        epoch=int(m["epoch"]), seq=int(m["seq"]), sim_time=float(m["sim_time"]),
+        publish_time_ns=int(m["publish_time_ns"]), joint_types=m["joint_types"][:d].copy(),
+        lengths=m["lengths"][:d].copy(), base=m["base"].copy(), base_angle=float(m["base_angle"]),
+        op_link=int(m["op_link"]), op_point=m["op_point"].copy(), q=m["q"][:d].copy(),
+        qd=m["qd"][:d].copy(), mass_matrix=m["mass"][:d, :d].copy(),
+        lambda_inv=m["lambda_inv"].copy(), tool_pose=m["tool_pose"].copy(),
+        gravity=m["gravity"][:d].copy() if m["has_gravity"] else None,
+        velocity_torque=m["velocity_torque"][:d].copy() if m["has_velocity_torque"] else None,
+        resisted=m["resisted"][:j].copy() if j else None,
+        characteristic_length=float(m["characteristic_length"]),
+        contacts=ContactSet(m["c_link"][:n].copy(), m["c_key"][:n].copy(), floats),
+        tool_touching=bool(m["tool_touching"]),
+        state_lead_s=float(m["state_lead_s"]),
+    )  # fmt: skip
+
+
+__all__ = [
+    "PUBLISH_TIME_END",
+    "ContactSet",
+    "LocalModelUpdate",
+    "MessageError",
+    "UpdateParser",
+    "body_counts",
+    "decode_update",
+    "encode_update",
+    "parse_update",
+    "publish_time_ns",
+    "update_from_record",
+]
