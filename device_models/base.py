@@ -122,3 +122,7 @@ class SimulatedDevice(Device, Protocol):
 
     def true_state(self, pose: np.ndarray, twist: np.ndarray) -> None:
         """Write the true (noise-free) pose and twist: what the simulated hand holds."""
+
+    def servo_plant(self) -> tuple[np.ndarray, float]:
+        """What a servo on this device acts against at home: the passive damping per axis
+        (N s/m, N s/m, N m s/rad) and the cutoff of its twist estimate (Hz; 0: exact)."""

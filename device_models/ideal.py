@@ -14,7 +14,7 @@ from numba import njit
 
 from device_models.base import FAULT_NONE, FAULT_SATURATED, DeviceLimits, DeviceRenderingSpec
 from device_models.world_map import DeviceWorldMap, WorldMapSection
-from shared.config import Vec3, load_dataclass
+from shared.config import Vec3, load_dataclass, require
 
 
 @dataclass(frozen=True)
@@ -29,10 +29,8 @@ class IdealDeviceConfig:
     world_map: WorldMapSection | None = None  # None: scale 1, the engine sets the offset
 
     def __post_init__(self) -> None:
-        if min(self.inertia) <= 0:
-            raise ValueError("inertia: must be > 0")
-        if min(self.max_wrench) <= 0:
-            raise ValueError("max_wrench: must be > 0")
+        require(all(v > 0 for v in self.inertia), "inertia", "must be > 0")
+        require(all(v > 0 for v in self.max_wrench), "max_wrench", "must be > 0")
 
     @classmethod
     def from_toml_dict(cls, data: dict[str, Any], source: str) -> IdealDeviceConfig:
@@ -110,6 +108,9 @@ class IdealDevice:
             workspace_max=h,
             max_rate_hz=self.config.max_rate_hz,
         )
+
+    def servo_plant(self) -> tuple[np.ndarray, float]:
+        return np.zeros(3), 0.0  # no damping, exact twist
 
     def reset(self, pose: np.ndarray) -> None:
         self._pose[:] = pose

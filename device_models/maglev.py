@@ -581,6 +581,11 @@ class Maglev:
         """No planar force; the flotor stays levitated by its own PD loop."""
         command_kernel(self.params, self.state, self._zero_wrench)
 
+    def servo_plant(self) -> tuple[np.ndarray, float]:
+        d = self.config.damping  # passive eddy-current damping of the planar axes
+        damping = np.array([*d.translational_ns_per_m[:2], d.rotational_nms_per_rad[2]])
+        return damping, self.config.sensors.twist_cutoff_hz
+
     def reset(self, pose: np.ndarray) -> None:
         planar_pose = np.array(pose, dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(planar_pose)):

@@ -1012,6 +1012,9 @@ class TwinPantograph:
         """Zero motor torque (the motors then only add their friction)."""
         command_kernel(self.params, self.state, self._zero_wrench)
 
+    def servo_plant(self) -> tuple[np.ndarray, float]:
+        return np.zeros(3), self.config.sensors.twist_cutoff_hz  # friction left out
+
     def reset(self, pose: np.ndarray) -> None:
         handle_pose = np.array(pose, dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(handle_pose)):

@@ -11,11 +11,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from device_models.base import SENSOR_DTYPE, DeviceRenderingSpec
-from device_models.registry import DEVICE_MODELS, load_device
+from device_models.base import SENSOR_DTYPE, DeviceRenderingSpec, SimulatedDevice
+from device_models.registry import DEVICE_MODELS, load_device, load_simulated_device
 from shared.config import ConfigError
 
 DEVICES = Path(__file__).resolve().parent.parent / "configs" / "devices"
+#: every shipped device config: a new device's file is picked up here, its model from the
+#: registry (test_every_registered_model_ships_a_config)
+DEVICE_CONFIGS = sorted(p.stem for p in DEVICES.glob("*.toml"))
 DT = 1e-3
 #: Seed 002's table (N/mm, N m/rad, N/mm/s, N m/rad/s) in SI: the maglev's defaults.
 SEED_K_P = (4.0e3, 4.0e3, 25.0)
@@ -39,7 +42,7 @@ def test_maglev_defaults_are_seed_002s_table_in_si() -> None:
     assert maglev.rendering.setpoint_hold == "first_order"
 
 
-@pytest.mark.parametrize("name", ["ideal", "ideal_identity", "twin_pantograph", "maglev"])
+@pytest.mark.parametrize("name", DEVICE_CONFIGS)
 def test_every_device_config_has_a_rendering_table(name: str) -> None:
     raw = tomllib.loads((DEVICES / f"{name}.toml").read_text())
     assert "rendering" in raw
@@ -115,18 +118,12 @@ def servo_spectral_radius(
 
 def plant_of(name: str) -> tuple[np.ndarray, np.ndarray, float]:
     """Diagonal task-space inertia at home, passive damping per axis, twist filter cutoff."""
-    device = load_device(name)
+    device = load_simulated_device(name)
     sensors = np.zeros(1, SENSOR_DTYPE)
     device.read(sensors)
     inertia = np.diag(sensors["inertia"][0])
-    config = device.config
-    if name == "maglev":
-        d = config.damping
-        damping = np.array([*d.translational_ns_per_m[:2], d.rotational_nms_per_rad[2]])
-        return inertia, damping, config.sensors.twist_cutoff_hz
-    if name == "twin_pantograph":
-        return inertia, np.zeros(3), config.sensors.twist_cutoff_hz  # friction ignored
-    return inertia, np.zeros(3), 0.0  # ideal: exact twist
+    damping, cutoff = device.servo_plant()
+    return inertia, damping, cutoff
 
 
 def test_servo_model_finds_the_closed_form_damping_limit() -> None:
@@ -140,7 +137,7 @@ def test_servo_model_finds_the_closed_form_damping_limit() -> None:
     assert servo_spectral_radius(1.0, 1e-3, 1.02 * limit / DT, 0.0, 0.0) > 1.0
 
 
-@pytest.mark.parametrize("name", ["ideal", "ideal_identity", "twin_pantograph", "maglev"])
+@pytest.mark.parametrize("name", DEVICE_CONFIGS)
 def test_every_devices_foh_servo_is_stable_at_1_khz(name: str) -> None:
     device = load_device(name)
     inertia, damping, cutoff = plant_of(name)
@@ -150,3 +147,26 @@ def test_every_devices_foh_servo_is_stable_at_1_khz(name: str) -> None:
             inertia[axis], r.foh_stiffness[axis], r.foh_damping[axis], damping[axis], cutoff
         )
         assert rho < MAX_SPECTRAL_RADIUS, f"{name} axis {axis}: spectral radius {rho:.5f}"
+
+
+def test_every_registered_model_ships_a_config() -> None:
+    """Adding a device is its module, its config file and one registry entry: the entry
+    names the config, the config builds that model, and the generic checks above run on it."""
+    for model, entry in DEVICE_MODELS.items():
+        assert entry.config in DEVICE_CONFIGS, f"{model}: no configs/devices/{entry.config}.toml"
+        assert tomllib.loads((DEVICES / f"{entry.config}.toml").read_text())["model"] == model
+        assert entry.description
+        assert isinstance(load_device(entry.config), SimulatedDevice)
+
+
+def test_a_new_model_in_the_registry_is_warmed_and_loaded(monkeypatch: Any) -> None:
+    """One registry entry is all the warm-up and the loader need to know of a new device."""
+    from device_models import registry
+    from device_models.ideal import IdealDevice, IdealDeviceConfig
+    from haptic_server.harness.warmup import warm_runs
+
+    entry = registry.DeviceModel(IdealDeviceConfig, IdealDevice, "ideal_identity", "a test model")
+    monkeypatch.setitem(registry.DEVICE_MODELS, "test_model", entry)
+    assert ("maglev_scoop", "ideal_identity", "scoop", 0.3) in warm_runs()
+    device = registry.device_from_text('model = "test_model"\n', "test.toml")
+    assert isinstance(device, IdealDevice)
