@@ -109,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=10.0, help="length of each real run")
     parser.add_argument("--ticks", type=int, default=20000, help="ticks per kernel timing")
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--loop-only", action="store_true", help="skip kernel_cost")
     args = parser.parse_args(argv)
     trees = {"base": checkout(args.base), "this": REPO_ROOT}
     for tree in trees.values():
@@ -118,13 +119,17 @@ def main(argv: list[str] | None = None) -> int:
     for i in range(args.repeat):
         order = list(trees) if i % 2 == 0 else list(reversed(trees))
         for name in order:
-            kernels[name].append(kernel_cost(trees[name], args.ticks))
+            if not args.loop_only:
+                kernels[name].append(kernel_cost(trees[name], args.ticks))
             loops[name].append(loop_work(trees[name], args.seconds))
+            print(f"  {name}: {loops[name][-1]}", file=sys.stderr)
         print(f"repeat {i + 1}/{args.repeat} done", file=sys.stderr)
-    result: dict[str, Any] = {"base": args.base, "repeat": args.repeat, "kernel": {}, "loop": {}}
+    result: dict[str, Any] = {
+        "base": args.base, "repeat": args.repeat, "kernel": {}, "loop": {}, "loop_runs": loops,
+    }  # fmt: skip
     print(f"medians of {args.repeat} interleaved repeats; base = {args.base}")
     print(f"{'contacts':>8} {'kernel us base':>15} {'this':>8} {'call p50 base':>14} {'this':>8}")
-    for n in CONTACTS:
+    for n in CONTACTS if not args.loop_only else ():
         row = {name: _median([run[n] for run in kernels[name]]) for name in trees}
         result["kernel"][n] = row
         print(

@@ -134,6 +134,7 @@ class HapticEngine:
         self.hand_measured = self.data[0]["hand_measured"]
         self.sensors = self.io[0]["sensors"]
         self.hand = self.io[0]["hand"]
+        self._command = self.io[0]["command"]
         self.method = Method(int(self.params[0]["method"]))
         self.ready = False
         self.user = user_record(user)
@@ -345,7 +346,7 @@ class HapticEngine:
         engine_step(
             self.model, self.data, self.io, self.world_map, self.clock, dt, lateness_us, work_us
         )
-        store_applied(self.world_map, dev.command(self.io[0]["command"]), self.data)
+        store_applied(self.world_map, dev.command(self._command), self.data)
         if sim is not None:
             sim.advance(dt, self.hand)
         self.tick_index += 1
