@@ -19,6 +19,47 @@ PRISMATIC_Y = 2
 
 MAX_DOF = 12
 
+#: One tool chain as a record (MJX's jnt_* / body_* columns of one tool): the kernels take
+#: it whole, so a new column is a field here, not a new argument at every call site.
+CHAIN_DTYPE = np.dtype(
+    [
+        ("dof", np.int64),
+        ("joint_types", np.int64, (MAX_DOF,)),
+        ("lengths", np.float64, (MAX_DOF,)),  # m
+        ("base", np.float64, (2,)),  # m, world
+        ("base_angle", np.float64),  # rad
+        ("masses", np.float64, (MAX_DOF,)),  # kg
+        ("inertias", np.float64, (MAX_DOF,)),  # kg m^2 about the link's COM
+        ("com_offsets", np.float64, (MAX_DOF, 2)),  # m, in the link's frame
+    ]
+)
+
+
+def chain_record(
+    joint_types: np.ndarray,
+    lengths: np.ndarray,
+    base: np.ndarray,
+    base_angle: float,
+    masses: np.ndarray,
+    inertias: np.ndarray,
+    com_offsets: np.ndarray,
+) -> np.ndarray:
+    """A CHAIN_DTYPE[1] record of a chain of len(joint_types) joints."""
+    d = len(joint_types)
+    if d > MAX_DOF:
+        raise ValueError(f"tool has {d} DOF; at most {MAX_DOF} supported")
+    rec = np.zeros(1, CHAIN_DTYPE)
+    c = rec[0]
+    c["dof"] = d
+    c["joint_types"][:d] = joint_types
+    c["lengths"][:d] = lengths
+    c["base"] = base
+    c["base_angle"] = base_angle
+    c["masses"][:d] = masses
+    c["inertias"][:d] = inertias
+    c["com_offsets"][:d] = com_offsets
+    return rec
+
 
 @njit(cache=True)
 def link_frames(joint_types, lengths, base, base_angle, q, dof, frame_pos, frame_angle):
@@ -73,25 +114,18 @@ def point_jacobian(joint_types, frame_pos, dof, link, px, py, jac):
 
 
 @njit(cache=True)
-def mass_matrix_and_gravity(
-    joint_types,
-    lengths,
-    base,
-    base_angle,
-    masses,
-    inertias,
-    com_offsets,
-    gravity,
-    q,
-    dof,
-    frame_pos,
-    frame_angle,
-    jac,
-    mass_out,
-    gravity_out,
-):
-    """D(q) = sum m J_v^T J_v + I J_w^T J_w and G(q) = -sum m J_v^T g (DESIGN §2)."""
-    link_frames(joint_types, lengths, base, base_angle, q, dof, frame_pos, frame_angle)
+def mass_matrix_and_gravity(chain, gravity, q, work, mass_out, gravity_out):
+    """D(q) = sum m J_v^T J_v + I J_w^T J_w and G(q) = -sum m J_v^T g (DESIGN §2).
+
+    chain: CHAIN_DTYPE[1]; work: (frame_pos (d, 2), frame_angle (d,), jac (3, d)) scratch."""
+    c = chain[0]
+    dof = c.dof
+    joint_types = c.joint_types
+    masses = c.masses
+    inertias = c.inertias
+    com_offsets = c.com_offsets
+    frame_pos, frame_angle, jac = work
+    link_frames(joint_types, c.lengths, c.base, c.base_angle, q, dof, frame_pos, frame_angle)
     com = np.empty(2)
     for a in range(dof):
         gravity_out[a] = 0.0
@@ -118,14 +152,13 @@ def free_body_chain() -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True)
-def velocity_product_torque(
-    joint_types, lengths, base, base_angle, masses, inertias, com_offsets, q, qd, dof, step, out,
-):  # fmt: skip
+def velocity_product_torque(chain, q, qd, step, out):
     """C(q, qd) qd = Ddot qd - 1/2 grad_q(qd^T D qd): Coriolis and centripetal torques.
 
     dD/dq_k by central differences of `mass_matrix_and_gravity` (step ~1e-6 rad gives
     ~1e-12 relative error); the sim sends the result with each update.
     """
+    dof = chain[0].dof
     frame_pos = np.zeros((dof, 2))
     frame_angle = np.zeros(dof)
     jac = np.zeros((3, dof))
@@ -138,15 +171,9 @@ def velocity_product_torque(
         out[i] = 0.0
     for k in range(dof):
         qq[k] = q[k] + step
-        mass_matrix_and_gravity(
-            joint_types, lengths, base, base_angle, masses, inertias, com_offsets, zero_g, qq,
-            dof, frame_pos, frame_angle, jac, d_plus, grav,
-        )  # fmt: skip
+        mass_matrix_and_gravity(chain, zero_g, qq, (frame_pos, frame_angle, jac), d_plus, grav)
         qq[k] = q[k] - step
-        mass_matrix_and_gravity(
-            joint_types, lengths, base, base_angle, masses, inertias, com_offsets, zero_g, qq,
-            dof, frame_pos, frame_angle, jac, d_minus, grav,
-        )  # fmt: skip
+        mass_matrix_and_gravity(chain, zero_g, qq, (frame_pos, frame_angle, jac), d_minus, grav)
         qq[k] = q[k]
         # dD/dq_k contributes (dD/dq_k qd_k) qd to Ddot qd and -1/2 qd^T dD/dq_k qd to row k
         quad = 0.0

@@ -19,6 +19,7 @@ import pymunk
 from shared.config import BodySpec, Material, SceneConfig
 from shared.kinematics import (
     MAX_DOF,
+    chain_record,
     free_body_chain,
     link_frames,
     mass_matrix_and_gravity,
@@ -190,6 +191,10 @@ class SimWorld:
         self._frame_angle = np.zeros(self.dof)
         self._jac = np.zeros((3, self.dof))
         self._point = np.zeros(2)
+        self.chain = chain_record(
+            self.joint_types, self.lengths, self.base, self.base_angle, self.masses,
+            self.inertias, self.com_offsets,
+        )  # fmt: skip
 
     # --- tool state ---------------------------------------------------------------------
 
@@ -261,11 +266,8 @@ class SimWorld:
         mass = np.zeros((d, d))
         grav = np.zeros(d)
         jac = np.zeros((3, d))
-        mass_matrix_and_gravity(
-            self.joint_types, self.lengths, self.base, self.base_angle, self.masses, self.inertias,
-            self.com_offsets, self.gravity, q, d, self._frame_pos, self._frame_angle, jac, mass,
-            grav,
-        )  # fmt: skip
+        work = (self._frame_pos, self._frame_angle, jac)
+        mass_matrix_and_gravity(self.chain, self.gravity, q, work, mass, grav)
         link_frames(
             self.joint_types,
             self.lengths,
@@ -428,11 +430,7 @@ class SimWorld:
         velocity_torque = None
         if tool.kind == "linkage":  # a free body's D is constant: no velocity-product terms
             velocity_torque = np.zeros(self.dof)
-            velocity_product_torque(
-                self.joint_types, self.lengths, self.base, self.base_angle, self.masses,
-                self.inertias, self.com_offsets, q, qd, self.dof, VELOCITY_TORQUE_STEP,
-                velocity_torque,
-            )  # fmt: skip
+            velocity_product_torque(self.chain, q, qd, VELOCITY_TORQUE_STEP, velocity_torque)
         contacts, touching = self.neighbourhood_contacts()
         self.stats.contacts_sent = contacts.count
         return LocalModelUpdate(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from shared.kinematics import (
+    chain_record,
     free_body_chain,
     link_frames,
     mass_matrix_and_gravity,
@@ -55,11 +56,12 @@ def test_mass_matrix_and_gravity_match_rnea_reference() -> None:
     for _ in range(20):
         q = rng.uniform(-np.pi, np.pi, 3)
         d, g = np.zeros((3, 3)), np.zeros(3)
-        mass_matrix_and_gravity(
-            np.zeros(3, np.int64), np.array(SPEC.lengths), np.zeros(2), 0.0, np.array(SPEC.masses),
-            np.array(SPEC.inertias), np.array(SPEC.com_offsets), np.array(SPEC.gravity), q, 3,
-            np.zeros((3, 2)), np.zeros(3), np.zeros((3, 3)), d, g,
+        chain = chain_record(
+            np.zeros(3, np.int64), np.array(SPEC.lengths), np.zeros(2), 0.0,
+            np.array(SPEC.masses), np.array(SPEC.inertias), np.array(SPEC.com_offsets),
         )  # fmt: skip
+        work = (np.zeros((3, 2)), np.zeros(3), np.zeros((3, 3)))
+        mass_matrix_and_gravity(chain, np.array(SPEC.gravity), q, work, d, g)
         np.testing.assert_allclose(d, mass_matrix(SPEC, q), rtol=1e-12, atol=1e-15)
         np.testing.assert_allclose(g, bias_forces(SPEC, q, np.zeros(3)), rtol=1e-12, atol=1e-12)
         assert np.all(np.linalg.eigvalsh(d) > 0)
@@ -68,10 +70,11 @@ def test_mass_matrix_and_gravity_match_rnea_reference() -> None:
 def test_free_body_chain_is_a_rigid_body() -> None:
     jt, lengths = free_body_chain()
     d, g = np.zeros((3, 3)), np.zeros(3)
-    mass_matrix_and_gravity(
+    chain = chain_record(
         jt, lengths, np.zeros(2), 0.0, np.array([0.0, 0.0, 2.0]), np.array([0.0, 0.0, 0.3]),
-        np.zeros((3, 2)), np.array([0.0, -9.81]), np.array([0.3, -0.2, 1.0]), 3,
-        np.zeros((3, 2)), np.zeros(3), np.zeros((3, 3)), d, g,
+        np.zeros((3, 2)),
     )  # fmt: skip
+    work = (np.zeros((3, 2)), np.zeros(3), np.zeros((3, 3)))
+    mass_matrix_and_gravity(chain, np.array([0.0, -9.81]), np.array([0.3, -0.2, 1.0]), work, d, g)
     np.testing.assert_allclose(d, np.diag([2.0, 2.0, 0.3]))
     np.testing.assert_allclose(g, [0.0, 2.0 * 9.81, 0.0])
