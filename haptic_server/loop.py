@@ -263,13 +263,18 @@ class HapticServer:
                     self._stop
                     or now >= supervisor.end_ns
                     or ctl[C_UPD_READ] < ctl[C_UPD_HEAD]
-                    or now - supervisor.last_valid_ns > watchdog_ns
+                    or now > supervisor.trip_at_ns
                 ):
                     supervisor.now_ns = now
                     supervisor.stop_requested = self._stop
                     self._tick = tick
                     events = supervise(engine, supervisor)
-                    if events.installed or events.stop or events.watchdog:
+                    if (
+                        events.stop
+                        or events.reinitialised
+                        or events.watchdog_clear
+                        or events.watchdog
+                    ):
                         self._log_events(io, tick, events, supervisor)
                 if supervisor.stopping and (not engine.ready or engine.state[0]["safe"] >= 1.0):
                     break

@@ -16,6 +16,8 @@ from typing import Protocol
 
 from haptic_server.engine import HapticEngine
 
+NEVER_NS = 1 << 62
+
 
 class Event(StrEnum):
     """What a tick can do to the safe state, as logged (event kinds of the MCAP log)."""
@@ -46,7 +48,7 @@ class InstallFn(Protocol):
     def __call__(self) -> int: ...
 
 
-@dataclass
+@dataclass(slots=True)
 class TickEvents:
     """What `supervise` did at one tick."""
 
@@ -94,12 +96,16 @@ class WatchdogClock:
         self.now_ns = 0
         self.last_valid_ns = 0
         self.stop_reason = ""
+        # the earliest time the watchdog can trip (armed by an install, disarmed by a trip or
+        # the stop): the loop skips the supervisor on ticks before it with nothing waiting
+        self.trip_at_ns = NEVER_NS
 
     def stop(self) -> bool:
         if self.stopping or not (self.stop_requested or self.now_ns >= self.end_ns):
             return False
         self.stopping = True
         self.stop_reason = "stop requested" if self.stop_requested else "duration reached"
+        self.trip_at_ns = NEVER_NS
         return True
 
     def install(self) -> int:
@@ -108,6 +114,7 @@ class WatchdogClock:
         installed = self._install()
         if installed:
             self.last_valid_ns = self.now_ns
+            self.trip_at_ns = self.now_ns + self.watchdog_ns
         return installed
 
     def watchdog_clear(self, installed: int, was_stale: bool) -> bool:
@@ -115,12 +122,15 @@ class WatchdogClock:
 
     def watchdog_trip(self) -> bool:
         engine = self.engine
-        return (
+        trip = (
             engine.ready
             and not engine.stale
             and not self.stopping
             and self.now_ns - self.last_valid_ns > self.watchdog_ns
         )
+        if trip:
+            self.trip_at_ns = NEVER_NS  # until the next install
+        return trip
 
 
 class InstallOnly:
