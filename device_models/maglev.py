@@ -19,11 +19,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numba import njit
 
+from device_models import common
 from device_models.base import (
     FAULT_NONE,
     FAULT_SATURATED,
@@ -31,11 +32,9 @@ from device_models.base import (
     DeviceLimits,
     DeviceRenderingSpec,
 )
+from device_models.common import FAULT_INVALID_COMMAND, KernelDevice, NoiseBuffer
 from device_models.world_map import DeviceWorldMap, WorldMapSection
 from shared.config import Vec3, load_model_config, read_toml, require
-
-#: Device-specific fault bit (base.py defines bits 0-2): the command held NaN or Inf.
-FAULT_INVALID_COMMAND = 8
 
 #: Indices of the flotor coordinates in q and v.
 X, Y, Z, ROLL, PITCH, YAW = 0, 1, 2, 3, 4, 5
@@ -219,13 +218,10 @@ class SensorSection:
 
 
 @dataclass(frozen=True)
-class SimulationSection:
-    """Integration of the true dynamics."""
+class SimulationSection(common.SimulationSection):
+    """Integration of the true dynamics: the levitation loop is stiff, substeps <= 1 ms."""
 
-    max_substep_s: float
-
-    def __post_init__(self) -> None:
-        require(0 < self.max_substep_s <= 0.001, "max_substep_s", "must be in (0, 0.001] s")
+    MAX_SUBSTEP_S: ClassVar[float] = 0.001
 
 
 @dataclass(frozen=True)
@@ -529,7 +525,7 @@ AUX_NAMES = (
 )
 
 
-class Maglev:
+class Maglev(KernelDevice):
     """Simulated maglev device implementing `SimulatedDevice` (device frame, SI units).
 
     `world_map` is the engine's device-to-world map (it steps rate control each tick on the
@@ -538,48 +534,30 @@ class Maglev:
 
     aux_names = AUX_NAMES
 
+    name = "maglev"
+    read_kernel = staticmethod(read_kernel)
+    command_kernel = staticmethod(command_kernel)
+    true_state_kernel = staticmethod(_copy_true_state)
+    applied_field = "held_wrench"  # the saturated planar wrench; the flotor stays levitated
+
     def __init__(self, config: MaglevConfig) -> None:
-        self.name: str = "maglev"
         self.config = config
-        self.rendering = config.rendering
-        self.params = pack_parameters(config)
-        self.state = np.zeros(1, STATE_DTYPE)
         r = config.range
         planar_range = (r.translation_m[0], r.translation_m[1], r.rotation_rad[2])
-        self.world_map = DeviceWorldMap.from_config(config.world_map, planar_range)
-        self._held = self.state["held_wrench"][0]
-        self._rng = np.random.default_rng(config.sensors.noise_seed)
-        self._normals = np.empty(_NOISE_BLOCK)
-        self._rng.standard_normal(out=self._normals)
-        self._noise_index = 0
-        self._zero_noise = np.zeros(6)
-        self._zero_wrench = np.zeros(3)
-        self._limits = DeviceLimits(
-            max_wrench=(
-                config.actuators.peak_force,
-                config.actuators.peak_force,
-                config.actuators.peak_torque,
-            ),
+        limits = DeviceLimits(
+            max_wrench=config.actuators.wrench_limit,
             workspace_min=(-planar_range[0], -planar_range[1], -planar_range[2]),
             workspace_max=planar_range,
             max_rate_hz=config.actuators.max_rate_hz,
         )
+        world_map = DeviceWorldMap.from_config(config.world_map, planar_range)
+        super().__init__(
+            pack_parameters(config), np.zeros(1, STATE_DTYPE), limits, config.rendering, world_map
+        )
+        self.world_map: DeviceWorldMap = world_map  # always one: rate control
+        self._noise = NoiseBuffer(config.sensors.noise_seed, _NOISE_BLOCK)
+        self._zero_noise = np.zeros(6)
         self.reset(np.zeros(3))
-
-    def limits(self) -> DeviceLimits:
-        return self._limits
-
-    def read(self, sensors: np.ndarray) -> None:
-        read_kernel(self.params, self.state, sensors)
-
-    def command(self, wrench: np.ndarray) -> np.ndarray:
-        """Hold the saturated planar wrench; returns a view the next command overwrites."""
-        command_kernel(self.params, self.state, wrench)
-        return self._held
-
-    def safe_stop(self) -> None:
-        """No planar force; the flotor stays levitated by its own PD loop."""
-        command_kernel(self.params, self.state, self._zero_wrench)
 
     def servo_plant(self) -> tuple[np.ndarray, float]:
         d = self.config.damping  # passive eddy-current damping of the planar axes
@@ -596,20 +574,8 @@ class Maglev:
 
     def advance(self, dt: float, hand_wrench: np.ndarray) -> None:
         needed = 3 * max(1, math.ceil(dt / self.config.simulation.max_substep_s)) + 6
-        if self._noise_index + needed > _NOISE_BLOCK:
-            if needed > _NOISE_BLOCK:
-                raise ValueError(f"dt = {dt} s needs more substeps than the noise buffer holds")
-            self._rng.standard_normal(out=self._normals)
-            self._noise_index = 0
-        advance_kernel(self.params, self.state, dt, hand_wrench, self._normals, self._noise_index)
-        self._noise_index += needed
-
-    def true_state(self, pose: np.ndarray, twist: np.ndarray) -> None:
-        _copy_true_state(self.state, pose, twist)
-
-    def sense_hand(self, hand_wrench: np.ndarray) -> None:
-        """The hand's wrench this tick, as the handle (or the force sensor, if any) feels it."""
-        self.state[0]["hand_wrench"] = hand_wrench
+        start = self._noise.reserve(needed)
+        advance_kernel(self.params, self.state, dt, hand_wrench, self._noise.normals, start)
 
     def out_of_plane(self, out: np.ndarray | None = None) -> np.ndarray:
         """True (z, roll, pitch, z error, roll error, pitch error): m and rad, errors from

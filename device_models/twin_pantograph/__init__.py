@@ -21,8 +21,8 @@ Modules: config (constants, records, config sections, pack_parameters), kinemati
 dynamics, torques (redundancy resolution), device (tick kernels and the device class).
 """
 
+from device_models.common import FAULT_INVALID_COMMAND
 from device_models.twin_pantograph.config import (
-    FAULT_INVALID_COMMAND,
     PARAMS_DTYPE,
     STATE_DTYPE,
     WORK_DTYPE,

@@ -14,12 +14,10 @@ from device_models.base import (
     FAULT_NONE,
     DeviceRenderingSpec,
 )
+from device_models.common import SimulationSection
 from device_models.twin_pantograph.kinematics import pose_faults
 from device_models.world_map import WorldMapSection
 from shared.config import load_model_config, read_toml, require
-
-#: Device-specific fault bit (base.py defines bits 0-2): the command held NaN or Inf.
-FAULT_INVALID_COMMAND = 8
 
 #: Central-difference step for dM/dx, m and rad: truncation (~(h/0.1 m)^2) and round-off
 #: (~1e-16/h) errors are both ~1e-10 relative at the device's 0.1 m link scale.
@@ -222,16 +220,6 @@ class SensorSection:
         require(self.twist_cutoff_hz >= 0, "twist_cutoff_hz", "must be >= 0")
         require(self.force_noise_std_n >= 0, "force_noise_std_n", "must be >= 0")
         require(self.torque_noise_std_nm >= 0, "torque_noise_std_nm", "must be >= 0")
-
-
-@dataclass(frozen=True)
-class SimulationSection:
-    """Integration of the true dynamics."""
-
-    max_substep_s: float
-
-    def __post_init__(self) -> None:
-        require(0 < self.max_substep_s <= 0.01, "max_substep_s", "must be in (0, 0.01] s")
 
 
 @dataclass(frozen=True)

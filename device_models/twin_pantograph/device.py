@@ -13,8 +13,8 @@ from device_models.base import (
     FAULT_WORKSPACE,
     DeviceLimits,
 )
+from device_models.common import FAULT_INVALID_COMMAND, KernelDevice, NoiseBuffer
 from device_models.twin_pantograph.config import (
-    FAULT_INVALID_COMMAND,
     STATE_DTYPE,
     WORK_DTYPE,
     TwinPantographConfig,
@@ -270,7 +270,7 @@ AUX_NAMES = (
 )
 
 
-class TwinPantograph:
+class TwinPantograph(KernelDevice):
     """Simulated twin pantograph implementing `SimulatedDevice` (device frame, SI units).
 
     `command` returns a view of an internal buffer that the next command overwrites.
@@ -279,50 +279,34 @@ class TwinPantograph:
 
     aux_names = AUX_NAMES
 
+    name = "twin_pantograph"
+    read_kernel = staticmethod(read_kernel)
+    command_kernel = staticmethod(command_kernel)
+    true_state_kernel = staticmethod(_copy_true_state)
+    applied_field = "applied_wrench"  # what the saturated motor torques produce
+
     def __init__(self, config: TwinPantographConfig) -> None:
-        self.name: str = "twin_pantograph"
         self.config = config
-        self.rendering = config.rendering
-        self.world_map: DeviceWorldMap | None = None
+        world_map: DeviceWorldMap | None = None
         if config.world_map is not None:
             w = config.workspace
             half = tuple(
                 min(-lo, hi) for lo, hi in zip(w.workspace_min, w.workspace_max, strict=True)
             )
-            self.world_map = DeviceWorldMap.from_config(
-                config.world_map, (half[0], half[1], half[2])
-            )
-        self.params = pack_parameters(config)
-        self.state = np.zeros(1, STATE_DTYPE)
-        self.work = np.zeros(1, WORK_DTYPE)
-        self._applied = self.state["applied_wrench"][0]
-        self._rng = np.random.default_rng(config.sensors.noise_seed)
-        self._normals = np.empty(_NOISE_BLOCK)
-        self._rng.standard_normal(out=self._normals)
-        self._noise_index = 0
-        self._zero_wrench = np.zeros(3)
+            world_map = DeviceWorldMap.from_config(config.world_map, (half[0], half[1], half[2]))
         a, w = config.actuators, config.workspace
-        self._limits = DeviceLimits(
+        limits = DeviceLimits(
             max_wrench=a.max_wrench,
             workspace_min=w.workspace_min,
             workspace_max=w.workspace_max,
             max_rate_hz=a.max_rate_hz,
         )
+        super().__init__(
+            pack_parameters(config), np.zeros(1, STATE_DTYPE), limits, config.rendering, world_map
+        )
+        self.work = np.zeros(1, WORK_DTYPE)
+        self._noise = NoiseBuffer(config.sensors.noise_seed, _NOISE_BLOCK)
         self.reset(np.zeros(3))
-
-    def limits(self) -> DeviceLimits:
-        return self._limits
-
-    def read(self, sensors: np.ndarray) -> None:
-        read_kernel(self.params, self.state, sensors)
-
-    def command(self, wrench: np.ndarray) -> np.ndarray:
-        command_kernel(self.params, self.state, wrench)
-        return self._applied
-
-    def safe_stop(self) -> None:
-        """Zero motor torque (the motors then only add their friction)."""
-        command_kernel(self.params, self.state, self._zero_wrench)
 
     def servo_plant(self) -> tuple[np.ndarray, float]:
         return np.zeros(3), self.config.sensors.twist_cutoff_hz  # friction left out
@@ -336,20 +320,10 @@ class TwinPantograph:
         _place_at_rest(self.params, self.state, self.work, handle_pose)
 
     def advance(self, dt: float, hand_wrench: np.ndarray) -> None:
-        if self._noise_index + 3 > _NOISE_BLOCK:
-            self._rng.standard_normal(out=self._normals)
-            self._noise_index = 0
+        start = self._noise.reserve(3)  # the force sensor's three normals
         advance_kernel(
-            self.params, self.state, self.work, dt, hand_wrench, self._normals, self._noise_index
+            self.params, self.state, self.work, dt, hand_wrench, self._noise.normals, start
         )
-        self._noise_index += 3
-
-    def true_state(self, pose: np.ndarray, twist: np.ndarray) -> None:
-        _copy_true_state(self.state, pose, twist)
-
-    def sense_hand(self, hand_wrench: np.ndarray) -> None:
-        """The hand's wrench this tick, as the handle (or the force sensor, if any) feels it."""
-        self.state[0]["hand_wrench"] = hand_wrench
 
     def held_torques(self) -> np.ndarray:
         """The zero-order-held motor torques (N m), a copy."""
