@@ -11,13 +11,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from pathlib import Path
+from typing import Any, ClassVar, Self
 
 import numpy as np
 
 from device_models.base import DeviceLimits, DeviceRenderingSpec
 from device_models.world_map import DeviceWorldMap
-from shared.config import require
+from shared.config import load_model_config, read_toml, require
 
 #: Device-specific fault bit (base.py defines bits 0-2): the command held NaN or Inf.
 FAULT_INVALID_COMMAND = 8
@@ -33,6 +34,24 @@ class SimulationSection:
     def __post_init__(self) -> None:
         bound = self.MAX_SUBSTEP_S
         require(0 < self.max_substep_s <= bound, "max_substep_s", f"must be in (0, {bound:g}] s")
+
+
+class ModelConfig:
+    """A device model's config (a frozen dataclass, one section per TOML table) loads from
+    its file's table; the file's `model` key, if present, must name MODEL."""
+
+    MODEL: ClassVar[str]
+
+    @classmethod
+    def from_toml_dict(cls, d: dict[str, Any], source: str) -> Self:
+        """Build from a parsed TOML table; a ConfigError names `source`, the key and the problem."""
+        config: Self = load_model_config(cls, d, source, cls.MODEL)
+        return config
+
+    @classmethod
+    def from_toml_file(cls, path: str | Path) -> Self:
+        """Read and validate a device TOML file."""
+        return cls.from_toml_dict(read_toml(path), str(path))
 
 
 class NoiseBuffer:

@@ -18,8 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 from numba import njit
@@ -32,9 +31,9 @@ from device_models.base import (
     DeviceLimits,
     DeviceRenderingSpec,
 )
-from device_models.common import FAULT_INVALID_COMMAND, KernelDevice, NoiseBuffer
+from device_models.common import FAULT_INVALID_COMMAND, KernelDevice, ModelConfig, NoiseBuffer
 from device_models.world_map import DeviceWorldMap, WorldMapSection
-from shared.config import Vec3, load_model_config, read_toml, require
+from shared.config import Vec3, require
 
 #: Indices of the flotor coordinates in q and v.
 X, Y, Z, ROLL, PITCH, YAW = 0, 1, 2, 3, 4, 5
@@ -225,8 +224,10 @@ class SimulationSection(common.SimulationSection):
 
 
 @dataclass(frozen=True)
-class MaglevConfig:
+class MaglevConfig(ModelConfig):
     """The maglev device, one frozen section per TOML table."""
+
+    MODEL: ClassVar[str] = "maglev"
 
     flotor: FlotorSection
     levitation: LevitationSection
@@ -245,17 +246,6 @@ class MaglevConfig:
             "actuators.max_wrench",
             f"cannot levitate the flotor's weight {weight:.2f} N",
         )
-
-    @classmethod
-    def from_toml_dict(cls, d: dict[str, Any], source: str) -> MaglevConfig:
-        """Build from a parsed TOML table; a ConfigError names `source`, the key and the problem."""
-        config: MaglevConfig = load_model_config(cls, d, source, "maglev")
-        return config
-
-    @classmethod
-    def from_toml_file(cls, path: str | Path) -> MaglevConfig:
-        """Read and validate a device TOML file."""
-        return cls.from_toml_dict(read_toml(path), str(path))
 
 
 def pack_parameters(config: MaglevConfig) -> np.ndarray:

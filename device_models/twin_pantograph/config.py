@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
+from typing import ClassVar
 
 import numpy as np
 
@@ -14,10 +13,10 @@ from device_models.base import (
     FAULT_NONE,
     DeviceRenderingSpec,
 )
-from device_models.common import SimulationSection
+from device_models.common import ModelConfig, SimulationSection
 from device_models.twin_pantograph.kinematics import pose_faults
 from device_models.world_map import WorldMapSection
-from shared.config import load_model_config, read_toml, require
+from shared.config import require
 
 #: Central-difference step for dM/dx, m and rad: truncation (~(h/0.1 m)^2) and round-off
 #: (~1e-16/h) errors are both ~1e-10 relative at the device's 0.1 m link scale.
@@ -223,8 +222,10 @@ class SensorSection:
 
 
 @dataclass(frozen=True)
-class TwinPantographConfig:
+class TwinPantographConfig(ModelConfig):
     """The twin-pantograph device, one frozen section per TOML table."""
+
+    MODEL: ClassVar[str] = "twin_pantograph"
 
     geometry: GeometrySection
     inertia: InertiaSection
@@ -253,17 +254,6 @@ class TwinPantographConfig:
                         f"box point ({x:.4g}, {y:.4g}, {t:.4g}) is outside the reach or "
                         f"singularity limits (fault {fault})",
                     )
-
-    @classmethod
-    def from_toml_dict(cls, d: dict[str, Any], source: str) -> TwinPantographConfig:
-        """Build from a parsed TOML table; a ConfigError names `source`, the key and the problem."""
-        config: TwinPantographConfig = load_model_config(cls, d, source, "twin_pantograph")
-        return config
-
-    @classmethod
-    def from_toml_file(cls, path: str | Path) -> TwinPantographConfig:
-        """Read and validate a device TOML file."""
-        return cls.from_toml_dict(read_toml(path), str(path))
 
 
 def pack_parameters(config: TwinPantographConfig) -> np.ndarray:
