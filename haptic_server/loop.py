@@ -187,19 +187,7 @@ class HapticServer:
         engine = self.engine
         stats = self.stats
         counters = stats.counters
-        wall_start_ns = time.time_ns()
-        io = LoopIO(
-            {
-                "namespace": self.network.namespace,
-                "endpoints": dataclasses.asdict(self.network.haptic),  # with credentials
-                "zenoh_extra": self.zenoh_extra,
-                "log_path": str(self.log_path) if self.log_path else None,
-                "metadata": run_metadata(self.configs, {"clock": "real-time"}),
-                "wall_start_ns": wall_start_ns,
-                "proxy_publish_hz": self.network.proxy_publish_hz,
-                "method": engine.method,
-            }
-        )
+        io = self._open_io()
         try:  # from here on every exit path closes the I/O process (its log, its session)
             period_ns = round(1e9 / self.scene.haptic_rate_hz)
             dt_nominal = period_ns / 1e9
@@ -298,12 +286,32 @@ class HapticServer:
                 work_window[(counters.ticks - 1) % work_window.shape[0]] = work_prev_us
             stats.lateness_us.filled(counters.ticks, float(peaks[0]))
             stats.work_us.filled(counters.ticks, max(float(peaks[1]), work_prev_us))
-            stats.rejected_by_reason = dict(engine.counters.rejected_by_reason)
-            stats.reinitialisations = engine.counters.reinitialisations
-            engine.device.safe_stop()
-            io.event(counters.ticks, "stopped", "loop ended; device in its safe state")
-            io_counters = io.close()
-            stats.lost_log_ticks = io_counters["lost_log_ticks"]
-            stats.proxy_published = io_counters["proxy_published"]
-            stats.updates_lost = io_counters["lost_updates"]
+            self._finish(io)
         return stats.summary(self.log_path)
+
+    def _open_io(self) -> LoopIO:
+        """Start the I/O sidecar (Zenoh session, MCAP writer) and map its shared memory."""
+        return LoopIO(
+            {
+                "namespace": self.network.namespace,
+                "endpoints": dataclasses.asdict(self.network.haptic),  # with credentials
+                "zenoh_extra": self.zenoh_extra,
+                "log_path": str(self.log_path) if self.log_path else None,
+                "metadata": run_metadata(self.configs, {"clock": "real-time"}),
+                "wall_start_ns": time.time_ns(),
+                "proxy_publish_hz": self.network.proxy_publish_hz,
+                "method": self.engine.method,
+            }
+        )
+
+    def _finish(self, io: LoopIO) -> None:
+        """The loop has ended: device safe, the counters into the stats, the sidecar closed."""
+        stats, engine = self.stats, self.engine
+        stats.rejected_by_reason = dict(engine.counters.rejected_by_reason)
+        stats.reinitialisations = engine.counters.reinitialisations
+        engine.device.safe_stop()
+        io.event(stats.counters.ticks, "stopped", "loop ended; device in its safe state")
+        io_counters = io.close()
+        stats.lost_log_ticks = io_counters["lost_log_ticks"]
+        stats.proxy_published = io_counters["proxy_published"]
+        stats.updates_lost = io_counters["lost_updates"]
