@@ -170,7 +170,7 @@ class HapticEngine:
         One numba call parses, validates, checks the epoch and sequence order (DESIGN §3)
         and installs: the newest model becomes slot 0 and the previous one slot 1,
         cross-faded over blend_ms (DESIGN §4.4); contacts keep their state by key. The
-        real-time server does the same from its mailbox (`haptic_server.io_process`,
+        real-time server does the same from its mailbox (`haptic_server.mailbox`,
         `take_updates`), then calls `installed`.
         """
         code = int(accept_update(buf, nbytes, latency_s, self.model, self.data, self.install))

@@ -28,14 +28,9 @@ import numpy as np
 
 from device_models.base import Device
 from haptic_server.engine import HapticEngine, warm_kernels
-from haptic_server.io_process import (
-    C_UPD_HEAD,
-    C_UPD_READ,
-    LoopIO,
-    compile_loop_kernels,
-    push_row,
-)
 from haptic_server.log import run_metadata
+from haptic_server.mailbox import C_UPD_HEAD, C_UPD_READ, compile_loop_kernels, push_row
+from haptic_server.sidecar import LoopIO
 from haptic_server.supervisor import Event, TickEvents, WatchdogClock, supervise
 from shared.config import SceneConfig, UserConfig
 from shared.net.config import NetworkConfig

@@ -26,7 +26,6 @@ import numpy as np
 import pytest
 import zenoh
 
-from haptic_server.io_process import SLOT_BYTES
 from haptic_server.log import (
     EVENT_TOPIC,
     UPDATE_TOPIC,
@@ -35,6 +34,7 @@ from haptic_server.log import (
     read_ticks,
 )
 from haptic_server.loop import DT_CLAMP
+from haptic_server.mailbox import SLOT_BYTES
 from haptic_server.model import params_record
 from shared.config import load_scene
 from shared.net.config import EndpointSpec, load_network

@@ -1,7 +1,7 @@
 """The real-time server's mailbox path installs exactly what `HapticEngine.receive` installs.
 
 The 1 kHz loop takes updates from the shared-memory mailbox with one numba call
-(`io_process.take_updates`: validate, order-check, install, verdict, counts) and runs the
+(`mailbox.take_updates`: validate, order-check, install, verdict, counts) and runs the
 engine's Python side only for installs that need it (a new epoch, after the watchdog, FOH
 setpoints). Replay and the virtual clock go through `HapticEngine.receive` instead. Here
 both paths get the same stream (the sim's own updates with garbage, truncated, oversize,
@@ -21,7 +21,8 @@ import pytest
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
 from haptic_server.harness.virtual import run_virtual_named
-from haptic_server.io_process import C_UPD_READ, MAILBOX_SLOTS, SLOT_BYTES, LoopIO, SharedBlock
+from haptic_server.mailbox import C_UPD_READ, MAILBOX_SLOTS, SLOT_BYTES, SharedBlock
+from haptic_server.sidecar import LoopIO
 from shared.config import load_scene, load_user
 from shared.protocol.codes import Reason
 from shared.protocol.codes import reason_tag as reason_of

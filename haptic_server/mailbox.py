@@ -1,0 +1,191 @@
+"""The block of shared memory between the real-time loop and its I/O sidecar, and the loop's
+kernels on it.
+
+- the **update mailbox** (MAILBOX_DTYPE slots): the sidecar's Zenoh thread copies each
+  received LocalModelUpdate into the next slot; the loop validates and installs it in place
+  (`take_updates`, one numba call for every waiting update) and writes its verdict next to it;
+- the **tick ring**: the loop copies each tick record in (`push_row`);
+- the **event ring**: watchdog trips and other events, as short text;
+- the control words `C_*` (heads, read marks, counters).
+"""
+
+from __future__ import annotations
+
+from multiprocessing import shared_memory
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numba import njit
+
+from haptic_server.model import TICK_DTYPE
+from haptic_server.stages.install import accept_update
+from shared.protocol.layout import PUBLISH_TIME_END
+from shared.protocol.update import publish_time_ns
+
+if TYPE_CHECKING:
+    from haptic_server.engine import HapticEngine
+
+RING_TICKS = 16384  # 16 s of ticks at 1 kHz: the writer may stall this long without loss
+MAILBOX_SLOTS = 256  # updates waiting for the loop or the log writer (about 4 s at 60 Hz)
+SLOT_BYTES = 16384  # >= the largest valid update (12 DOF, 64 contacts: about 9 KB)
+EVENT_SLOTS = 256
+EVENT_BYTES = 256
+VERDICT_PENDING = -1
+
+# control words
+C_READY, C_CLOSED, C_TICK_HEAD, C_TICK_LOST, C_UPD_HEAD, C_UPD_READ = 0, 1, 2, 3, 4, 5
+C_UPD_LOST, C_EVT_HEAD, C_EVT_LOST, C_PUBLISHED, C_RECEIVED = 6, 7, 8, 9, 10
+C_UPD_LOGGED = 11  # updates the log writer has written (a slot is reused only after that)
+C_LOWER_IO = 12  # set by the loop when it runs without real-time priority
+N_CTL = 16
+
+#: One mailbox slot: a received update's bytes and what the loop made of it.
+MAILBOX_DTYPE = np.dtype(
+    [
+        ("length", np.int64),  # bytes received; negative: too long for the slot
+        ("verdict", np.int64),  # VERDICT_PENDING, 0 installed, else the reason code
+        ("tick", np.int64),  # the tick it was taken at
+        ("recv_ns", np.int64),  # wall clock when the sidecar received it
+        ("latency_s", np.float64),  # publish -> install, as installed
+        ("raw", np.uint8, (SLOT_BYTES,)),  # 8-byte aligned: the parser reads floats in place
+    ]
+)
+
+
+class SharedBlock:
+    """The layout of the shared memory (both sides map the same named segment)."""
+
+    def __init__(self, shm: shared_memory.SharedMemory) -> None:
+        self.shm = shm
+        buf = shm.buf
+        o = 0
+        self.ctl = np.ndarray((N_CTL,), np.int64, buf, o)
+        o += 8 * N_CTL
+        self.ticks = np.ndarray((RING_TICKS,), TICK_DTYPE, buf, o)
+        o += RING_TICKS * TICK_DTYPE.itemsize
+        o = (o + 7) // 8 * 8
+        self.mailbox = np.ndarray((MAILBOX_SLOTS,), MAILBOX_DTYPE, buf, o)
+        o += MAILBOX_SLOTS * MAILBOX_DTYPE.itemsize
+        # the mailbox's columns, for the sidecar's Python side
+        self.update_len = self.mailbox["length"]
+        self.update_verdict = self.mailbox["verdict"]
+        self.update_tick = self.mailbox["tick"]
+        self.update_recv_ns = self.mailbox["recv_ns"]
+        self.update_latency_s = self.mailbox["latency_s"]
+        self.updates = self.mailbox["raw"]
+        self.events = np.ndarray((EVENT_SLOTS, EVENT_BYTES), np.uint8, buf, o)
+        o += EVENT_SLOTS * EVENT_BYTES
+        self.size = o
+
+    @staticmethod
+    def nbytes() -> int:
+        return (
+            8 * N_CTL
+            + (RING_TICKS * TICK_DTYPE.itemsize + 7) // 8 * 8
+            + MAILBOX_SLOTS * MAILBOX_DTYPE.itemsize
+            + EVENT_SLOTS * EVENT_BYTES
+        )
+
+    def post_update(self, raw: bytes, recv_ns: int, logging: bool) -> bool:
+        """Put a received message into the next mailbox slot, as the sidecar's Zenoh thread
+        does; False (nothing written) if no slot is free: the loop has not read them, or,
+        with `logging`, the log writer has not written them. A message longer than a slot
+        is marked by a negative length (the loop rejects it as too large)."""
+        ctl = self.ctl
+        head = int(ctl[C_UPD_HEAD])
+        done = int(ctl[C_UPD_READ])
+        if logging:
+            done = min(done, int(ctl[C_UPD_LOGGED]))
+        if head - done >= MAILBOX_SLOTS:
+            return False
+        slot = head % MAILBOX_SLOTS
+        n = min(len(raw), SLOT_BYTES)
+        self.updates[slot, :n] = np.frombuffer(raw, np.uint8, n)
+        self.update_len[slot] = len(raw) if len(raw) <= SLOT_BYTES else -len(raw)
+        self.update_verdict[slot] = VERDICT_PENDING
+        self.update_recv_ns[slot] = recv_ns
+        ctl[C_UPD_HEAD] = head + 1
+        return True
+
+    def release(self) -> None:
+        for name in (
+            "ctl", "ticks", "mailbox", "update_len", "update_verdict", "update_tick",
+            "update_recv_ns", "update_latency_s", "updates", "events",
+        ):  # fmt: skip
+            setattr(self, name, None)
+
+
+@njit(cache=True)
+def push_row(ring, ctl, row, lateness, work, peaks):
+    """Copy the row into the ring slot of the head, then publish the new head. Also keep
+    the loop's timing windows: the row's lateness, and its work (that of the tick before,
+    the newest known when the row is made), with their peaks in peaks[0], peaks[1]."""
+    head = ctl[C_TICK_HEAD]
+    r = row[0]
+    ring[head % ring.shape[0]] = r
+    ctl[C_TICK_HEAD] = head + 1
+    lateness[head % lateness.shape[0]] = r.lateness_us
+    peaks[0] = max(peaks[0], r.lateness_us)
+    if head > 0:
+        work[(head - 1) % work.shape[0]] = r.work_us
+        peaks[1] = max(peaks[1], r.work_us)
+
+
+MAX_LATENCY_S = 1.0  # publish -> install is clamped to [0, this] (a clock step between hosts)
+
+
+@njit(cache=True)
+def take_updates(ctl, mailbox, tick, now_ns, budget, model, data, install):
+    """Validate and install the updates waiting in the mailbox, oldest first, in one call.
+
+    Takes up to `budget` updates, and stops after an install that needs the engine's Python
+    side (a new epoch, or install.follow: after the watchdog, or FOH setpoints). Each verdict
+    (0 installed, else the reason code, counted in install.reject_counts), the tick and the
+    publish -> now latency it was installed with go next to its update in the mailbox (the
+    log writer logs them, so a replay is exact); only then is the update marked read (the
+    writer and the Zenoh thread read the mark). Returns (taken, installed, follow-up
+    needed, seq of the newest install, its latency in s).
+    """
+    ins = install[0]
+    taken = 0
+    installed = 0
+    follow = 0
+    seq = np.int64(-1)
+    newest_latency = 0.0
+    while taken < budget:
+        read = ctl[C_UPD_READ]
+        if read >= ctl[C_UPD_HEAD]:
+            break
+        slot = mailbox[read % mailbox.shape[0]]
+        n = slot.length
+        latency = 0.0
+        if n >= PUBLISH_TIME_END:
+            latency = min(max((now_ns - publish_time_ns(slot.raw)) / 1e9, 0.0), MAX_LATENCY_S)
+        code = accept_update(slot.raw, n, latency, model, data, install)
+        if code != 0:
+            ins.reject_counts[code] += 1
+        slot.tick = tick
+        slot.latency_s = latency
+        slot.verdict = code
+        ctl[C_UPD_READ] = read + 1
+        taken += 1
+        if code == 0:
+            installed += 1
+            seq = ins.seq
+            newest_latency = latency
+            if ins.new_epoch == 1 or ins.follow == 1:
+                follow = 1
+                break
+    return taken, installed, follow, seq, newest_latency
+
+
+def compile_loop_kernels(engine: HapticEngine) -> None:
+    """Compile (or load from the cache) the loop's ring and mailbox kernels for `engine`'s
+    records, before the loop starts: a message too short to parse, into scratch counts."""
+    ctl = np.zeros(N_CTL, np.int64)
+    push_row(np.zeros(2, TICK_DTYPE), ctl, engine.row, np.zeros(2), np.zeros(2), np.zeros(2))
+    ctl[C_UPD_HEAD] = 1
+    mailbox = np.zeros(1, MAILBOX_DTYPE)
+    mailbox[0]["length"] = 8
+    install = engine.install.copy()
+    take_updates(ctl, mailbox, 0, 0, 1, engine.model.copy(), engine.data.copy(), install)
