@@ -190,17 +190,17 @@ def encode_update(u: LocalModelUpdate) -> bytes:
 # --- the parser ------------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _u16(buf, o):
     return np.int64(buf[o]) | (np.int64(buf[o + 1]) << 8)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _f64(buf, o):
     return buf[o : o + 8].view(np.float64)[0]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _i64(buf, o):
     return buf[o : o + 8].view(np.int64)[0]
 
@@ -212,7 +212,7 @@ def publish_time_ns(buf):
     return _i64(buf, PUBLISH_TIME_AT)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _check_header(buf, nbytes):
     """Magic, version, counts and total size: (Reason or 0, d, n, j, flags, contact row
     floats)."""
@@ -243,7 +243,7 @@ def _check_header(buf, nbytes):
     return 0, d, n, j, flags, n_cf
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _float_count(d, j, n, flags, n_cf):
     c, per_d, per_dd = _FIXED_FLOATS
     count = c + per_d * d + per_dd * d * d + 3 * j + n_cf * n
@@ -254,7 +254,7 @@ def _float_count(d, j, n, flags, n_cf):
     return count
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _read_body(m, ints, fl, flags):
     """The sections into the record; returns the float offset of the contact rows."""
     d = m.dof
@@ -300,7 +300,7 @@ def _read_body(m, ints, fl, flags):
     return o
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _check_magnitudes(m, lim):
     """Everything the kernels read is within the limits (finite but absurd values too)."""
     d = m.dof
@@ -336,7 +336,7 @@ def _check_magnitudes(m, lim):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _check_mass(m, lim, scratch):
     """D symmetric positive definite and bounded."""
     d = m.dof
@@ -358,7 +358,7 @@ def _check_mass(m, lim, scratch):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _penalty_projection(m):
     """Resisted directions must be unit vectors; their penalty projection in natural units,
     sum (S n)(S n)^T with S = diag(1, 1, L)."""
@@ -384,7 +384,7 @@ def _penalty_projection(m):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _read_contacts(m, ints, fl, o, n_cf, lim):
     """The contact rows (n_cf floats each) from float offset o, each column checked against
     its bound; a version-1 row has no tangential stiffness: K_t = K_c."""
