@@ -25,14 +25,14 @@ from shared.kinematics import (
     mass_matrix_and_gravity,
     point_jacobian,
     point_on_link,
-    velocity_product_torque,
 )
-from shared.protocol.layout import MAX_CONTACTS
-from shared.protocol.update import ContactSet, LocalModelUpdate, contact_rows
-
-TOOL_GROUP = 1  # pymunk shape-filter group: tool shapes never collide with each other
-VELOCITY_TORQUE_STEP = 1.0e-6  # rad, central differences of D(q) for C(q, qd) qd
-TOUCH_TOLERANCE_M = 1.0e-4  # gap below which the tool counts as touching (FOH force gate)
+from shared.protocol.update import ContactSet, LocalModelUpdate
+from sim_server.local_model import (
+    TOOL_GROUP,
+    StageStats,
+    build_local_model,
+    neighbourhood_contacts,
+)
 
 
 @dataclass
@@ -45,16 +45,6 @@ class ToolTarget:
     device_twist: np.ndarray
     coupled_to_device: bool  # virtual_coupling_foh: spring to the device instead of the proxy
     fresh: bool  # False: the haptic side is silent; hold the tool
-
-
-@dataclass
-class StageStats:
-    """Which optional stages the last local-model computation ran (leave out what is not needed)."""
-
-    svd: bool = False
-    gravity: bool = False
-    contacts_sent: int = 0
-    shapes_queried: int = 0
 
 
 class SimWorld:
@@ -406,144 +396,17 @@ class SimWorld:
             if i > 0:
                 self.tool_bodies[i - 1].torque -= float(tau[i])
 
-    # --- local model --------------------------------------------------------------------
+    # --- local model (sim_server/local_model.py) ---------------------------------------
 
     def local_model(
         self, epoch: int, seq: int, publish_time_ns: int, state_lead_s: float = 0.0
     ) -> LocalModelUpdate:
-        """The local model of DESIGN §3 at the tool's current configuration.
-
-        state_lead_s: how long after publication the state holds (the step just computed
-        covers the coming period, driven by the extrapolated proxy).
-        """
-        q, qd = self.tool_state()
-        mass, grav, jac = self.dynamics_terms(q)
-        has_gravity = bool(np.any(self.gravity != 0.0))
-        mass_inv_jt = np.linalg.solve(mass, jac.T)
-        lambda_inv = jac @ mass_inv_jt
-        tool = self.scene.tool
-        resisted = None
-        self.stats = StageStats(gravity=has_gravity)
-        if tool.kind == "linkage":  # a free body's J_h is always full rank: no SVD needed
-            self.stats.svd = True
-            resisted = resisted_directions(jac, tool.characteristic_length_m, tool.rank_tolerance)
-        velocity_torque = None
-        if tool.kind == "linkage":  # a free body's D is constant: no velocity-product terms
-            velocity_torque = np.zeros(self.dof)
-            velocity_product_torque(self.chain, q, qd, VELOCITY_TORQUE_STEP, velocity_torque)
-        contacts, touching = self.neighbourhood_contacts()
-        self.stats.contacts_sent = contacts.count
-        return LocalModelUpdate(
-            epoch=epoch, seq=seq, sim_time=self.time, publish_time_ns=publish_time_ns,
-            joint_types=self.joint_types, lengths=self.lengths, base=self.base,
-            base_angle=self.base_angle, op_link=self.op_link, op_point=self.op_point, q=q, qd=qd,
-            mass_matrix=mass, lambda_inv=lambda_inv, tool_pose=self.operational_pose(q),
-            gravity=grav if has_gravity else None, velocity_torque=velocity_torque,
-            resisted=resisted if resisted is not None and len(resisted) else None,
-            characteristic_length=tool.characteristic_length_m, contacts=contacts,
-            tool_touching=touching, state_lead_s=state_lead_s,
-        )  # fmt: skip
+        """The local model of DESIGN §3 at the tool's current configuration."""
+        return build_local_model(self, epoch, seq, publish_time_ns, state_lead_s)
 
     def neighbourhood_contacts(self) -> tuple[ContactSet, bool]:
-        """Contacts of every tool shape with world shapes within the neighbourhood margin.
-
-        Each tool shape is inflated by the margin and passed to `space.shape_query`; pymunk
-        returns the closest features, from which the tool point (link frame), the world
-        point, the outward normal and the world point's velocity are read (DESIGN §3).
-        """
-        margin = self.scene.tool.neighbourhood_margin_m
-        rows: list[tuple[float, int, int, dict[str, Any]]] = []
-        tool_set = {s for s, _ in self.tool_shapes}
-        if self._queries is None:  # inflated copies ride on the tool's own bodies: make once
-            self._queries = [_inflated(shape, margin) for shape, _ in self.tool_shapes]
-        for index, (shape, link) in enumerate(self.tool_shapes):
-            query = self._queries[index]
-            self.stats.shapes_queried += 1
-            for info in self.space.shape_query(query):
-                env = info.shape
-                if env is None or env in tool_set:
-                    continue
-                cps = info.contact_point_set
-                normal_out = -np.array([cps.normal.x, cps.normal.y])  # from the world to the tool
-                n_norm = float(np.hypot(*normal_out))
-                if n_norm < 0.5:
-                    continue
-                normal_out /= n_norm
-                mat = self._shape_material[env]
-                # a material's stiffness and damping belong to the shape pair: the points of
-                # one contact manifold share them, so a face on a wall is as stiff as a corner
-                share = 1.0 / max(1, len(cps.points))
-                for pt in cps.points:
-                    tool_world = np.array([pt.point_a.x, pt.point_a.y]) + margin * normal_out
-                    env_world = np.array([pt.point_b.x, pt.point_b.y])
-                    gap = float(normal_out @ (tool_world - env_world))
-                    if gap > margin:
-                        continue
-                    assert shape.body is not None and env.body is not None
-                    local_pt = shape.body.world_to_local(tuple(tool_world))
-                    vel = (0.0, 0.0)
-                    if env.body.body_type != pymunk.Body.STATIC:
-                        vel = env.body.velocity_at_world_point(tuple(env_world))
-                    rows.append(
-                        (
-                            gap,
-                            link,
-                            self._shape_key[env] * 1024 + index,
-                            {  # contact columns by name (shared.protocol.layout)
-                                "tool": local_pt, "env": env_world, "normal": normal_out,
-                                "env_velocity": vel, "friction": mat.friction,
-                                "restitution": mat.restitution,
-                                "stiffness": share * mat.stiffness_n_per_m,
-                                "damping": share * mat.damping_ns_per_m,
-                                "tangential_stiffness": share * mat.tangential_stiffness,
-                            },
-                        )
-                    )  # fmt: skip
-        rows.sort(key=lambda r: r[0])
-        rows = rows[:MAX_CONTACTS]
-        touching = bool(rows) and rows[0][0] <= TOUCH_TOLERANCE_M
-        if not rows:
-            return ContactSet.empty(), False
-        table, floats = contact_rows(len(rows))
-        for i, (_, _, _, columns) in enumerate(rows):
-            for name, value in columns.items():
-                table[name][i] = value
-        return (
-            ContactSet(
-                link=np.array([r[1] for r in rows], dtype=np.int64),
-                key=np.array([r[2] for r in rows], dtype=np.int64),
-                floats=floats,
-            ),
-            touching,
-        )
-
-
-def resisted_directions(jac: np.ndarray, length: float, tolerance: float) -> np.ndarray:
-    """Unit directions (scaled space) spanning N(J_h^T): columns of U whose singular value of
-    diag(1, 1, length) J_h is below tolerance * the largest (DESIGN §3; seed 000 eq 14, 22)."""
-    scaled = jac.copy()
-    scaled[2, :] *= length
-    u, sigma, _ = np.linalg.svd(scaled, full_matrices=True)
-    s_full = np.zeros(3)
-    s_full[: len(sigma)] = sigma
-    top = s_full.max()
-    if top <= 0.0:
-        return np.eye(3)
-    return u[:, s_full < tolerance * top].T.copy()
-
-
-def _inflated(shape: pymunk.Shape, margin: float) -> pymunk.Shape:
-    """A copy of a tool shape grown by `margin`, on the same body, for neighbourhood queries."""
-    q: pymunk.Shape
-    if isinstance(shape, pymunk.Poly):
-        q = pymunk.Poly(shape.body, shape.get_vertices(), radius=shape.radius + margin)
-    elif isinstance(shape, pymunk.Segment):
-        q = pymunk.Segment(shape.body, shape.a, shape.b, shape.radius + margin)
-    else:
-        assert isinstance(shape, pymunk.Circle)
-        q = pymunk.Circle(shape.body, shape.radius + margin, shape.offset)
-    q.filter = pymunk.ShapeFilter(group=TOOL_GROUP)
-    return q
+        """Contacts of every tool shape with world shapes within the neighbourhood margin."""
+        return neighbourhood_contacts(self)
 
 
 def _table_drag(rate_per_s: float) -> Any:
