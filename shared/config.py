@@ -8,6 +8,7 @@ wrong; the command-line entry points turn it into exit code 2. CLI flags only ch
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 import types
 import typing
@@ -72,6 +73,8 @@ def _convert(value: Any, tp: Any, source: str, key: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise bad
+        if not math.isfinite(value):  # TOML has nan and inf: no limit, gain or rate may be
+            raise ConfigError(source, key, f"must be a finite number, got {value!r}")
         return float(value)
     if tp is str:
         if not isinstance(value, str):

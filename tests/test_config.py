@@ -61,6 +61,35 @@ def test_missing_key_and_bad_value(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(
+    ("table", "line"),
+    [
+        ("devices/ideal.toml", "max_wrench = [nan, 50.0, 5.0]"),
+        ("devices/ideal.toml", "max_wrench = [inf, 50.0, 5.0]"),
+        ("devices/maglev.toml", "max_wrench = [50.0, 50.0, -inf]"),
+        ("scenes/free_box.toml", "haptic_rate_hz = nan"),
+    ],
+)
+def test_nan_and_inf_are_rejected_with_file_and_key(tmp_path: Path, table: str, line: str) -> None:
+    """TOML can spell nan and inf; no limit, gain or rate may be either (a NaN force limit
+    would pass every `min()` check and command NaN)."""
+    from device_models.registry import load_device
+
+    key = line.split(" = ")[0]
+    text = (REPO / "configs" / table).read_text()
+    lines = [
+        line if raw.split(" = ")[0] == key else raw for raw in text.splitlines()
+    ]  # the first table with the key is the one that holds it in these files
+    path = tmp_path / Path(table).name
+    path.write_text("\n".join(lines) + "\n")
+    assert line in path.read_text()
+    loader = load_device if table.startswith("devices") else load_scene
+    with pytest.raises(ConfigError) as err:
+        loader(str(path))
+    assert key in err.value.key, err.value  # e.g. actuators.max_wrench[2]
+    assert "finite" in err.value.problem and str(path) in str(err.value)
+
+
+@pytest.mark.parametrize(
     ("args", "needle"),
     [
         (["--scene", "does_not_exist"], "does_not_exist.toml: file: file not found"),
