@@ -58,7 +58,7 @@ def test_every_device_config_has_a_rendering_table(name: str) -> None:
         ("foh_damping", [100.0, 100.0], "expected 3 values"),
         ("setpoint_hold", "linear", "must be one of"),
         ("gravity_feedforward", [0.0, math.inf, 0.0], "finite"),
-        ("safe_damping", [5.0, 5.0, math.nan], ">= 0"),
+        ("safe_damping", [5.0, 5.0, math.nan], "finite"),  # the loader refuses nan
         ("stiffness", [1.0, 1.0, 1.0], "unknown key"),
     ],
 )
