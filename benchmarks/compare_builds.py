@@ -23,6 +23,9 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.loop_timing import work_split
+from haptic_server.log import read_ticks
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 CONTACTS = (0, 1, 4, 8, 16, 32)
 
@@ -77,7 +80,8 @@ def kernel_cost(tree: Path, ticks: int) -> dict[int, dict[str, float]]:
 
 
 def loop_work(tree: Path, seconds: float) -> dict[str, float]:
-    """Work per tick and lateness of a real-time run of the default scene, log on."""
+    """Work per tick and lateness of a real-time run of the default scene, log on; work also
+    split into ticks that installed an update and the others (from the run's log)."""
     module = _module(tree, "haptic_server.harness.run", "haptic_server.run")
     with tempfile.TemporaryDirectory() as tmp:
         summary = Path(tmp) / "summary.json"
@@ -89,10 +93,15 @@ def loop_work(tree: Path, seconds: float) -> dict[str, float]:
             cwd=tree, env=_env(tree), check=True, stdout=subprocess.DEVNULL,
         )  # fmt: skip
         s: dict[str, Any] = json.loads(summary.read_text())
+        split = work_split(read_ticks(Path(tmp) / "run.mcap"))
     return {
         "work_p50_us": s["work_us"]["p50"],
         "work_p99_us": s["work_us"]["p99"],
         "lateness_p99_us": s["lateness_us"]["p99"],
+        "update_ticks_p50_us": split["update_ticks"]["p50"],
+        "update_ticks_p99_us": split["update_ticks"]["p99"],
+        "other_ticks_p50_us": split["other_ticks"]["p50"],
+        "other_ticks_p99_us": split["other_ticks"]["p99"],
     }
 
 
@@ -140,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
         result["loop"][name] = _median(loops[name])
     b, t = result["loop"]["base"], result["loop"]["this"]
     print(f"\n{'real-time run, log on':<24}{'base':>10}{'this':>10}")
-    for key in ("work_p50_us", "work_p99_us", "lateness_p99_us"):
+    for key in b:
         print(f"{key:<24}{b[key]:>10.1f}{t[key]:>10.1f}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
