@@ -121,6 +121,8 @@ class WatchdogClock:
         return installed > 0 and was_stale
 
     def watchdog_trip(self) -> bool:
+        if self.now_ns <= self.trip_at_ns:  # armed by an install since, or disarmed: no trip
+            return False
         engine = self.engine
         trip = (
             engine.ready
