@@ -183,3 +183,25 @@ def test_proxy_of_an_engine_tick_carries_its_state() -> None:
     np.testing.assert_array_equal(back.q, engine.state[0]["q"][:3])
     np.testing.assert_array_equal(back.qd, engine.state[0]["qd"][:3])
     np.testing.assert_array_equal(back.device_pose, engine.world_sensors[0]["pose"])
+
+
+def test_derived_offsets_follow_the_table() -> None:
+    """Everything derived from shared/protocol/layout.py agrees with it: contact columns are
+    contiguous in table order, the row dtype has their widths, the header offsets add up to
+    the struct, and the encoder's output has exactly update_size() bytes."""
+    from shared.protocol import layout
+
+    at = 0
+    for column in layout.CONTACT_COLUMNS:
+        assert layout.CONTACT_AT[column.name] == at
+        assert layout.CONTACT_ROW_DTYPE.fields[column.name][1] == 8 * at
+        at += column.width
+    assert at == layout.CONTACT_FLOATS == layout.CONTACT_ROW_DTYPE.itemsize // 8
+    assert layout.contact_floats(1) == layout.CONTACT_FLOATS_V1 < layout.CONTACT_FLOATS
+    offsets = [layout.HEADER_AT[f.name] for f in layout.HEADER]
+    assert offsets == sorted(offsets) and offsets[0] == 0
+    assert layout.HEADER_STRUCT.size == layout.HEADER_BYTES
+    for n_contacts, resisted in ((0, False), (2, True), (5, True)):
+        u = sample_update(n_contacts, resisted)
+        j = 0 if u.resisted is None else len(u.resisted)
+        assert len(encode_update(u)) == layout.update_size(u.dof, j, n_contacts, u.flags)
