@@ -1,4 +1,4 @@
-"""`haptic-soak`: the two servers as real processes, in real time, for minutes (issue 9).
+"""`haptic-soak`: the two servers as real processes, in real time, for minutes.
 
 Cycles through segments (scene, device, scripted user), each a fresh sim + haptic server
 pair over Zenoh on loopback, while sampling every process's resident memory. After each
@@ -43,8 +43,8 @@ from shared.config import load_scene
 # (benchmarks/loop_timing.py); soak segments measured 0.03-1.2% on a quiet VM and up to 2.1%
 # with other work on the 2 cores (docs/soak.md). CI machines are shared: 3%.
 LATE_FRACTION_MAX = 0.03
-UPDATE_FRACTION_MIN = 0.95  # issue 9
-MEMORY_GROWTH_MAX_MB = 10.0  # issue 9, per process, after warm-up
+UPDATE_FRACTION_MIN = 0.95  # of the updates the sim published, each segment
+MEMORY_GROWTH_MAX_MB = 10.0  # per process, after warm-up
 WARM_UP_FRACTION = 0.25  # memory is compared from the end of the first quarter of a segment
 MEMORY_SAMPLE_S = 0.5
 APPLIED_SLACK = 1e-9  # relative: the applied wrench is clipped exactly at the limit
