@@ -43,7 +43,7 @@ from shared.config import load_scene
 # (benchmarks/loop_timing.py); soak segments measured 0.03-1.2% on a quiet VM and up to 2.1%
 # with other work on the 2 cores (docs/soak.md). CI machines are shared: 3%.
 LATE_FRACTION_MAX = 0.03
-UPDATE_FRACTION_MIN = 0.95  # of the updates the sim published, each segment
+UPDATE_FRACTION_MIN = 0.95  # of the sim rate times the time it was up, per segment
 MEMORY_GROWTH_MAX_MB = 10.0  # per process, after warm-up
 WARM_UP_FRACTION = 0.25  # memory is compared from the end of the first quarter of a segment
 MEMORY_SAMPLE_S = 0.5
