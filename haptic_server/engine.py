@@ -97,7 +97,6 @@ class HapticEngine:
         self.device = device
         # a hardware driver has a real hand on it: no simulated user, no physics to advance
         self.sim_device = device if isinstance(device, SimulatedDevice) else None
-        self.simulated = self.sim_device is not None
         self.user_start_s = 0.0  # the simulated user's script starts at the first update
         self.dt_nominal = 1.0 / scene.haptic_rate_hz
         limits = device.limits()
@@ -206,6 +205,11 @@ class HapticEngine:
         if self.method == Method.VIRTUAL_COUPLING_FOH:
             self._install_ticks.append(self.tick_index)
             self._advance_foh(self.slots[0]["tool_pose"])
+
+    @property
+    def simulated(self) -> bool:
+        """The device's physics runs here, held by a simulated hand (not a hardware driver)."""
+        return self.sim_device is not None
 
     @property
     def stale(self) -> bool:

@@ -31,10 +31,8 @@ SLOT_DTYPE = LOCAL_MODEL_DTYPE
 PARAMS_DTYPE = np.dtype(
     [
         ("method", I8),  # shared.protocol.codes.Method
-        ("coordination_stiffness", F8, (3,)),  # K_pc
-        ("coordination_damping", F8, (3,)),  # B_pc
-        ("coupling_stiffness", F8, (3,)),  # the device-proxy spring of the proxy step:
-        ("coupling_damping", F8, (3,)),  # K_pc, B_pc, or the virtual coupling's
+        ("coupling_stiffness", F8, (3,)),  # the device-proxy spring: K_pc, B_pc of the
+        ("coupling_damping", F8, (3,)),  # four-channel coupling, or the virtual coupling's
         ("integrate_proxy", I8),  # 0 for FOH: the sim's tool is the VM, no proxy dynamics
         ("penalty_stiffness", F8),  # k_j per unit device mass
         ("penalty_damping", F8),  # b_j
@@ -43,8 +41,6 @@ PARAMS_DTYPE = np.dtype(
         ("impulses", I8),  # 1: colliding contacts are resolved by impulses (never for FOH)
         ("collision_speed", F8),
         ("blend_s", F8),
-        ("vc_stiffness", F8, (3,)),
-        ("vc_damping", F8, (3,)),
         ("foh_stiffness", F8, (3,)),  # K_p of seed 002
         ("foh_damping", F8, (3,)),  # K_v
         ("foh_interpolate", I8),  # 1: first-order hold, 0: zero-order hold of the setpoint
@@ -272,8 +268,6 @@ def params_record(
     rec = np.zeros(1, PARAMS_DTYPE)
     p = rec[0]
     p["method"] = method
-    p["coordination_stiffness"] = rendering.coordination_stiffness
-    p["coordination_damping"] = rendering.coordination_damping
     coupled = method == Method.VIRTUAL_COUPLING
     p["coupling_stiffness"] = (
         rendering.virtual_coupling_stiffness if coupled else rendering.coordination_stiffness
@@ -289,8 +283,6 @@ def params_record(
     p["impulses"] = 1 if rendering.impulses and method != Method.VIRTUAL_COUPLING_FOH else 0
     p["collision_speed"] = rendering.collision_speed_m_per_s
     p["blend_s"] = rendering.blend_ms / 1000.0
-    p["vc_stiffness"] = rendering.virtual_coupling_stiffness
-    p["vc_damping"] = rendering.virtual_coupling_damping
     p["foh_stiffness"] = np.array(dev.foh_stiffness) * per_gain
     p["foh_damping"] = np.array(dev.foh_damping) * per_gain
     p["foh_interpolate"] = 1 if dev.setpoint_hold == "first_order" else 0

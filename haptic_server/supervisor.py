@@ -10,6 +10,7 @@ watchdog flag is the engine's own `stale`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Protocol
@@ -42,10 +43,6 @@ class EventSource(Protocol):
 
     def watchdog_trip(self) -> bool:
         """Has the watchdog run out at this tick? (asked last)"""
-
-
-class InstallFn(Protocol):
-    def __call__(self) -> int: ...
 
 
 @dataclass(slots=True)
@@ -86,7 +83,7 @@ class WatchdogClock:
     watchdog with an install after a trip, trip it when no valid update came for
     watchdog_ms. `install` is the loop's mailbox call; `now_ns` is set by the loop."""
 
-    def __init__(self, engine: HapticEngine, watchdog_ns: int, install: InstallFn) -> None:
+    def __init__(self, engine: HapticEngine, watchdog_ns: int, install: Callable[[], int]) -> None:
         self.engine = engine
         self.watchdog_ns = watchdog_ns
         self._install = install
@@ -138,7 +135,7 @@ class WatchdogClock:
 class InstallOnly:
     """The virtual clock's source: the sim's update of this tick, nothing else."""
 
-    def __init__(self, install: InstallFn) -> None:
+    def __init__(self, install: Callable[[], int]) -> None:
         self._install = install
 
     def stop(self) -> bool:
@@ -158,7 +155,7 @@ class LoggedEvents:
     """A replay's source: the events the run logged at this tick (`kinds`), and its
     updates' bytes installed by `install`."""
 
-    def __init__(self, kinds: set[str], install: InstallFn) -> None:
+    def __init__(self, kinds: set[str], install: Callable[[], int]) -> None:
         self.kinds = kinds
         self._install = install
 

@@ -167,6 +167,13 @@ FLOAT_SECTIONS = (
 )
 
 
+#: float values of the body present in every update (unflagged, not per contact), as
+#: (constant, per d, per d^2): the parser's size check adds the flagged sections and rows
+FIXED_FLOATS = tuple(
+    sum(s.size[k] for s in FLOAT_SECTIONS if not s.flag and s.name != "contacts") for k in range(3)
+)
+
+
 def body_counts(
     d: int, j: int, n: int, flags: int, version: int = PROTOCOL_VERSION
 ) -> tuple[int, int]:

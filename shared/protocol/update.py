@@ -20,18 +20,20 @@ from shared.linalg import cholesky_inplace
 from shared.protocol.codes import Flag, Reason
 from shared.protocol.layout import (
     C_DAMPING,
+    C_ENV,
     C_ENV_VELOCITY,
     C_FRICTION,
     C_NORMAL,
     C_RESTITUTION,
     C_STIFFNESS,
     C_TANGENTIAL_STIFFNESS,
-    CONTACT_AT,
+    C_TOOL,
     CONTACT_COLUMNS,
     CONTACT_FLOATS,
     CONTACT_FLOATS_V1,
     CONTACT_ROW_DTYPE,
     DEFAULT_LIMITS,
+    FIXED_FLOATS,
     FLOAT_SECTIONS,
     HEADER_AT,
     HEADER_BYTES,
@@ -67,9 +69,6 @@ AT_N_RESISTED = HEADER_AT["n_resisted"]
 AT_OP_LINK = HEADER_AT["op_link"]
 AT_CHAR_LENGTH = HEADER_AT["characteristic_length"]
 AT_LEAD = HEADER_AT["state_lead_s"]
-#: float values of the body before the flagged sections: lengths, base (2), base angle,
-#: op point (2), q, qd, D, Lambda^-1 (9), tool pose (3)
-_FIXED_FLOATS = (5 + 9 + 3, 3, 1)  # constant, per d, per d^2
 
 
 class MessageError(ValueError):
@@ -245,7 +244,7 @@ def _check_header(buf, nbytes):
 
 @njit(cache=True, inline="always")
 def _float_count(d, j, n, flags, n_cf):
-    c, per_d, per_dd = _FIXED_FLOATS
+    c, per_d, per_dd = FIXED_FLOATS
     count = c + per_d * d + per_dd * d * d + 3 * j + n_cf * n
     if (flags & FLAG_GRAVITY) != 0:
         count += d
@@ -417,8 +416,8 @@ def _read_contacts(m, ints, fl, o, n_cf, lim):
         m.c_link[i] = ints[d + i]
         m.c_key[i] = ints[d + n + i]
         for c in range(2):
-            m.c_tool[i, c] = row[C_TOOL_AT + c]
-            m.c_env[i, c] = row[C_ENV_AT + c]
+            m.c_tool[i, c] = row[C_TOOL + c]
+            m.c_env[i, c] = row[C_ENV + c]
             m.c_normal[i, c] = row[C_NORMAL + c]
             m.c_env_velocity[i, c] = row[C_ENV_VELOCITY + c]
         m.c_friction[i] = mu
@@ -427,10 +426,6 @@ def _read_contacts(m, ints, fl, o, n_cf, lim):
         m.c_damping[i] = bb
         m.c_tangential_stiffness[i] = kt
     return 0
-
-
-C_TOOL_AT = CONTACT_AT["tool"]
-C_ENV_AT = CONTACT_AT["env"]
 
 
 @njit(cache=True)
