@@ -27,6 +27,7 @@ from haptic_server.stages.tick import engine_step, store_applied
 from haptic_server.users import hand_wrench, user_record
 from shared.config import ConfigError, SceneConfig, UserConfig
 from shared.kinematics import MAX_DOF, link_frames, point_jacobian, point_on_link
+from shared.linalg import min_norm_least_squares
 from shared.protocol.codes import Fault, Method, Reason, reason_tag
 from shared.protocol.layout import DEFAULT_LIMITS, HEADER_BYTES, MAX_CONTACTS, limits_record
 
@@ -279,8 +280,9 @@ class HapticEngine:
 
     @staticmethod
     def _joint_velocity(m: np.void, twist: np.ndarray) -> np.ndarray:
-        """The q velocity whose operational-point twist is closest to `twist` (least squares
-        through J_h at the model's q; only on re-initialisation, so numpy is fine here)."""
+        """The q velocity whose operational-point twist is closest to `twist` (the minimum
+        norm least squares solution through J_h at the model's q, in a fixed-order kernel:
+        a replay of a re-initialisation gives the same bits on any CPU, which LAPACK does not)."""
         d = int(m["dof"])
         frame_pos = np.zeros((MAX_DOF, 2))
         frame_angle = np.zeros(MAX_DOF)
@@ -294,7 +296,7 @@ class HapticEngine:
         point_on_link(frame_pos, frame_angle, link, m["op_point"], point)
         point_jacobian(m["joint_types"], frame_pos, d, link, point[0], point[1], jac)
         qd = np.zeros(MAX_DOF)
-        qd[:d] = np.linalg.lstsq(jac[:, :d], twist, rcond=None)[0]
+        min_norm_least_squares(jac, 3, d, twist, qd)
         return qd
 
     def _advance_foh(self, target: np.ndarray) -> None:

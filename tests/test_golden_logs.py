@@ -23,15 +23,49 @@ def test_the_golden_logs_are_there() -> None:
     assert len(LOGS) >= 12, f"expected the 12 golden logs in {GOLDEN}"
 
 
+#: After a same-epoch re-initialisation the proxy's joint velocity is a least-squares solve.
+#: Build 2ccdfb6 solved it with LAPACK, whose last bits depend on the CPU (OpenBLAS picks its
+#: kernels per machine: this log replays exactly on some CPUs and not on others); today's
+#: build solves it in a fixed-order kernel, the same on every CPU. So a log of that build is
+#: compared exactly up to its first such re-initialisation, and within REINIT_BOUND after it
+#: (the difference starts at one ulp and grows with the run; 1e-11 seen after 2.4 s).
+REINIT_BOUND = 1e-9
+
+
+def _first_same_epoch_reinit(log_events: list[dict[str, object]]) -> int | None:
+    ticks = [
+        int(str(ev["tick"]))
+        for ev in log_events
+        if ev["kind"] == "reinitialise" and "same epoch" in str(ev.get("detail", ""))
+    ]
+    return min(ticks) if ticks else None
+
+
 @pytest.mark.parametrize("path", LOGS, ids=[p.stem for p in LOGS])
 def test_golden_log_replays_exactly(path: Path) -> None:
+    from haptic_server.harness.replay import max_abs_differences
+
     log = read_log(path)
     result = replay(log)
     assert len(result.ticks) == len(log.ticks), result.note
     assert result.updates_replayed == len(log.updates)
     assert not result.verdict_mismatches, result.verdict_mismatches[:5]
-    assert not result.differing, f"{path.name}: {result.differing}"
+    reinit = _first_same_epoch_reinit(log.events)
+    if reinit is None:
+        assert not result.differing, f"{path.name}: {result.differing}"
+        return
+    before = max_abs_differences(result.ticks[:reinit], log.ticks[:reinit])
+    assert not {k: v for k, v in before.items() if v != 0.0}, f"{path.name} before {reinit}"
+    after = {k: v for k, v in result.differing.items() if v > REINIT_BOUND}
+    assert not after, f"{path.name} after the re-initialisation at tick {reinit}: {after}"
 
+
+#: The sim's SVD of J_h (numpy.linalg.svd: LAPACK through OpenBLAS, whose kernels and so
+#: whose last bits depend on the CPU) makes a rerun on another CPU family differ from the
+#: recording by ulps that the linkage's dynamics grow (1e-10 seen over 2 s on an AMD EPYC
+#: for logs recorded on the CI's CPU, where they rerun bit for bit). The replay of the same
+#: logs (no sim) is exact everywhere, above.
+RERUN_BOUND = 1e-8
 
 VIRTUAL_LOGS = sorted(GOLDEN.glob("vc_*.mcap"))
 
@@ -40,7 +74,8 @@ VIRTUAL_LOGS = sorted(GOLDEN.glob("vc_*.mcap"))
 def test_virtual_clock_reruns_the_golden_runs_exactly(path: Path) -> None:
     """The virtual clock is deterministic: today's sim, protocol (version 2 on the wire) and
     haptic side, run again on the configs a golden virtual-clock log stores, give every one
-    of its tick rows bit for bit. This covers what a replay does not: the sim and encoder."""
+    of its tick rows (bit for bit on the recording's CPU, within RERUN_BOUND on others).
+    This covers what a replay does not: the sim and encoder."""
     from device_models.registry import device_from_text
     from haptic_server.harness.replay import max_abs_differences
     from haptic_server.harness.virtual import run_virtual
@@ -55,4 +90,4 @@ def test_virtual_clock_reruns_the_golden_runs_exactly(path: Path) -> None:
     result = run_virtual(scene, device, user, n / scene.haptic_rate_hz)
     assert len(result.ticks) == n
     diffs = max_abs_differences(result.ticks, log.ticks)
-    assert not {k: v for k, v in diffs.items() if v != 0.0}
+    assert not {k: v for k, v in diffs.items() if v > RERUN_BOUND}
