@@ -9,14 +9,15 @@ A model module keeps its physics (its records, `pack_parameters` and kernels) an
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, Self
 
 import numpy as np
+from numba import njit
 
 from device_models.base import DeviceLimits, DeviceRenderingSpec
+from device_models.kernels import DeviceRecords, ModelKernels, advance_device, noise_ready
 from device_models.world_map import DeviceWorldMap
 from shared.config import load_model_config, read_toml, require
 
@@ -56,81 +57,103 @@ class ModelConfig:
 
 class NoiseBuffer:
     """Standard normals drawn in blocks from a seeded generator, so a tick draws none: the
-    kernels read `normals` from the index `reserve` returns."""
+    kernels read `normals` from `index[0]` and advance it (a 1-element array, so a compiled
+    tick and the Python side share it); when a tick would run past the block, the Python side
+    refills the whole block first (`reserve`, or `refill` after a compiled burst stopped)."""
 
     def __init__(self, seed: int, block: int) -> None:
         self._rng = np.random.default_rng(seed)
         self.normals = np.empty(block)
         self._rng.standard_normal(out=self.normals)
-        self._index = 0
+        self.index = np.zeros(1, np.int64)
+
+    def refill(self) -> None:
+        """A fresh block of normals, read from its start."""
+        self._rng.standard_normal(out=self.normals)
+        self.index[0] = 0
 
     def reserve(self, needed: int) -> int:
         """The start of `needed` fresh normals (refilling the block when it runs out)."""
         block = self.normals.shape[0]
-        if self._index + needed > block:
+        if self.index[0] + needed > block:
             if needed > block:
                 raise ValueError(f"{needed} normals per tick exceed the noise buffer ({block})")
-            self._rng.standard_normal(out=self.normals)
-            self._index = 0
-        start = self._index
-        self._index += needed
+            self.refill()
+        start = int(self.index[0])
+        self.index[0] += needed
         return start
 
 
-Kernel = Callable[..., Any]
-
-
 class KernelDevice:
-    """A simulated device whose calls are its model's numba kernels over `params` and
-    `state` records (implements `device_models.base.SimulatedDevice` but `reset`, `advance`
-    and `servo_plant`, which a model writes itself).
+    """A simulated device whose calls are its model's numba kernels over its records
+    (implements `device_models.base.SimulatedDevice` but `reset` and `servo_plant`, which a
+    model writes itself).
 
-    A subclass names its kernels: `read_kernel(params, state, sensors)`,
-    `command_kernel(params, state, wrench)`, `true_state_kernel(state, pose, twist)`, and
-    `applied_field`, the state field that holds what the device applies."""
+    A subclass names its kernels (`KERNELS`, registered for its params dtype with
+    `device_models.kernels.register_model`) and passes its records: `params`, `state`, a
+    scratch `work` record and its sensor-noise buffer. `records` is what the compiled tick
+    takes (device_models.kernels.DeviceRecords); the Python calls below run the same kernels."""
 
     name: str
     aux_names: tuple[str, ...] = ()
-    read_kernel: ClassVar[Kernel]
-    command_kernel: ClassVar[Kernel]
-    true_state_kernel: ClassVar[Kernel]
-    applied_field: ClassVar[str]
+    KERNELS: ClassVar[ModelKernels]
 
     def __init__(
         self,
-        params: np.ndarray,
-        state: np.ndarray,
+        records: tuple[np.ndarray, np.ndarray, np.ndarray, NoiseBuffer],
         limits: DeviceLimits,
         rendering: DeviceRenderingSpec,
         world_map: DeviceWorldMap | None,
     ) -> None:
-        self.params = params
-        self.state = state
+        self.params, self.state, self.work, self.noise = records
         self.rendering = rendering
         self.world_map = world_map
         self._limits = limits
-        self._applied = state[self.applied_field][0]
         self._zero_wrench = np.zeros(3)
+        self.records: DeviceRecords = (
+            self.params, self.state, self.work, self.noise.normals, self.noise.index
+        )  # fmt: skip
 
     def limits(self) -> DeviceLimits:
         return self._limits
 
     def read(self, sensors: np.ndarray) -> None:
-        type(self).read_kernel(self.params, self.state, sensors)
+        self.KERNELS.read(self.params, self.state, sensors)
 
     def command(self, wrench: np.ndarray) -> np.ndarray:
         """Hold the wrench (the model saturates it); returns what the device applies, a view
         the next command overwrites."""
-        type(self).command_kernel(self.params, self.state, wrench)
-        return self._applied
+        self.KERNELS.command(self.params, self.state, wrench)
+        applied: np.ndarray = self.KERNELS.applied(self.state)
+        return applied
 
     def safe_stop(self) -> None:
         """No commanded force."""
-        type(self).command_kernel(self.params, self.state, self._zero_wrench)
+        self.KERNELS.command(self.params, self.state, self._zero_wrench)
 
     def true_state(self, pose: np.ndarray, twist: np.ndarray) -> None:
-        type(self).true_state_kernel(self.state, pose, twist)
+        self.KERNELS.true_state(self.state, pose, twist)
 
     def sense_hand(self, hand_wrench: np.ndarray) -> None:
         """The hand's wrench this tick, as the handle (or the force sensor, if any) feels it."""
-        self.state[0]["hand_wrench"] = hand_wrench
+        self.KERNELS.sense_hand(self.state, hand_wrench)
+
+    def advance(self, dt: float, hand_wrench: np.ndarray) -> None:
+        """The physics over dt under the held command and the hand's true wrench."""
+        refill_noise(self.noise, self.records, dt)
+        advance_device(self.records, dt, hand_wrench)
+
+
+@njit(cache=True)
+def sense_hand_wrench(state, hand_wrench):
+    """A model whose state holds `hand_wrench`: the hand's true wrench this tick."""
+    for c in range(3):
+        state[0].hand_wrench[c] = hand_wrench[c]
+
+
+def refill_noise(noise: NoiseBuffer, records: DeviceRecords, dt: float) -> None:
+    """Refill the noise block if this dt's advance would run past it."""
+    if not noise_ready(records, dt):
+        noise.refill()
+        if not noise_ready(records, dt):
+            raise ValueError(f"a tick of {dt:g} s needs more normals than the noise buffer holds")

@@ -13,6 +13,8 @@ import numpy as np
 from numba import njit
 
 from device_models.base import FAULT_NONE, FAULT_SATURATED, DeviceLimits, DeviceRenderingSpec
+from device_models.common import KernelDevice, NoiseBuffer, sense_hand_wrench
+from device_models.kernels import ModelKernels, register_model
 from device_models.world_map import DeviceWorldMap, WorldMapSection
 from shared.config import Vec3, load_dataclass, require
 
@@ -37,9 +39,24 @@ class IdealDeviceConfig:
         return load_dataclass(cls, data, source)
 
 
+#: The ideal device's parameters and state, as kernel records.
+PARAMS_DTYPE = np.dtype([("inertia", np.float64, (3,)), ("max_wrench", np.float64, (3,))])
+STATE_DTYPE = np.dtype(
+    [
+        ("pose", np.float64, (3,)),
+        ("twist", np.float64, (3,)),
+        ("held", np.float64, (3,)),  # the held (clipped) command
+        ("hand_wrench", np.float64, (3,)),
+        ("fault", np.int64),
+    ]
+)
+
+
 @njit(cache=True)
-def _clip_command(wrench, max_wrench, held):
-    """Hold the command (zero-order hold) clipped at the limits; NaN -> zero. Returns fault."""
+def _command(params, state, wrench):
+    """Hold the command (zero-order hold) clipped at the limits; NaN -> zero."""
+    st = state[0]
+    max_wrench = params[0].max_wrench
     fault = FAULT_NONE
     for c in range(3):
         v = wrench[c]
@@ -52,88 +69,96 @@ def _clip_command(wrench, max_wrench, held):
         elif v < -max_wrench[c]:
             v = -max_wrench[c]
             fault = FAULT_SATURATED
-        held[c] = v
-    return fault
+        st.held[c] = v
+    st.fault = fault
 
 
 @njit(cache=True)
-def _advance_point_mass(pose, twist, inertia, held, hand, dt):
+def _advance(params, state, work, dt, hand, normals, noise_index):
     """Semi-implicit Euler of M xdd = F_h + u over dt."""
+    st = state[0]
+    inertia = params[0].inertia
     for c in range(3):
-        twist[c] += dt * (hand[c] + held[c]) / inertia[c]
-        pose[c] += dt * twist[c]
+        st.twist[c] += dt * (hand[c] + st.held[c]) / inertia[c]
+        st.pose[c] += dt * st.twist[c]
 
 
 @njit(cache=True)
-def _read_ideal(pose, twist, inertia, hand, fault, sensors):
+def _read(params, state, sensors):
+    st = state[0]
+    inertia = params[0].inertia
     s = sensors[0]
     for c in range(3):
-        s.pose[c] = pose[c]
-        s.twist[c] = twist[c]
-        s.hand_wrench[c] = hand[c]
+        s.pose[c] = st.pose[c]
+        s.twist[c] = st.twist[c]
+        s.hand_wrench[c] = st.hand_wrench[c]
         for k in range(3):
             s.inertia[c, k] = inertia[c] if c == k else 0.0
             s.coriolis[c, k] = 0.0
     s.has_force_sensor = 1
-    s.fault = fault
+    s.fault = st.fault
 
 
-class IdealDevice:
+@njit(cache=True)
+def _noise_needed(params, dt):
+    return 0  # perfect sensing
+
+
+@njit(cache=True)
+def _applied(state):
+    return state[0].held
+
+
+@njit(cache=True)
+def _true_state(state, pose, twist):
+    st = state[0]
+    for c in range(3):
+        pose[c] = st.pose[c]
+        twist[c] = st.twist[c]
+
+
+KERNELS = ModelKernels(
+    read=_read,
+    command=_command,
+    applied=_applied,
+    advance=_advance,
+    noise_needed=_noise_needed,
+    true_state=_true_state,
+    sense_hand=sense_hand_wrench,
+)
+register_model(PARAMS_DTYPE, KERNELS)
+
+
+class IdealDevice(KernelDevice):
     """Seed 000's transparent device; implements device_models.base.SimulatedDevice."""
 
     name = "ideal"
     aux_names: tuple[str, ...] = ()
+    KERNELS = KERNELS
 
     def __init__(self, config: IdealDeviceConfig) -> None:
         self.config = config
-        self.rendering = config.rendering
-        self.world_map: DeviceWorldMap | None = None
+        world_map: DeviceWorldMap | None = None
         if config.world_map is not None:
-            self.world_map = DeviceWorldMap.from_config(
-                config.world_map, config.workspace_half_extent
-            )
-        self._inertia = np.array(config.inertia, dtype=np.float64)
-        self._max_wrench = np.array(config.max_wrench, dtype=np.float64)
-        self._pose = np.zeros(3)
-        self._twist = np.zeros(3)
-        self._held = np.zeros(3)
-        self._hand = np.zeros(3)
-        self._fault = FAULT_NONE
-
-    def limits(self) -> DeviceLimits:
-        h = self.config.workspace_half_extent
-        return DeviceLimits(
-            max_wrench=self.config.max_wrench,
+            world_map = DeviceWorldMap.from_config(config.world_map, config.workspace_half_extent)
+        params = np.zeros(1, PARAMS_DTYPE)
+        params[0]["inertia"] = config.inertia
+        params[0]["max_wrench"] = config.max_wrench
+        h = config.workspace_half_extent
+        limits = DeviceLimits(
+            max_wrench=config.max_wrench,
             workspace_min=(-h[0], -h[1], -h[2]),
             workspace_max=h,
-            max_rate_hz=self.config.max_rate_hz,
+            max_rate_hz=config.max_rate_hz,
         )
+        records = (params, np.zeros(1, STATE_DTYPE), np.zeros(1), NoiseBuffer(0, 0))
+        super().__init__(records, limits, config.rendering, world_map)
 
     def servo_plant(self) -> tuple[np.ndarray, float]:
         return np.zeros(3), 0.0  # no damping, exact twist
 
     def reset(self, pose: np.ndarray) -> None:
-        self._pose[:] = pose
-        self._twist[:] = 0.0
-        self._held[:] = 0.0
-
-    def sense_hand(self, hand_wrench: np.ndarray) -> None:
-        """The simulated hand's wrench this tick (what a perfect force sensor reads)."""
-        self._hand[:] = hand_wrench
-
-    def read(self, sensors: np.ndarray) -> None:
-        _read_ideal(self._pose, self._twist, self._inertia, self._hand, self._fault, sensors)
-
-    def command(self, wrench: np.ndarray) -> np.ndarray:
-        self._fault = _clip_command(wrench, self._max_wrench, self._held)
-        return self._held
-
-    def safe_stop(self) -> None:
-        self._held[:] = 0.0
-
-    def advance(self, dt: float, hand_wrench: np.ndarray) -> None:
-        _advance_point_mass(self._pose, self._twist, self._inertia, self._held, hand_wrench, dt)
-
-    def true_state(self, pose: np.ndarray, twist: np.ndarray) -> None:
-        pose[:] = self._pose
-        twist[:] = self._twist
+        st = self.state[0]
+        st["pose"] = pose
+        st["twist"] = 0.0
+        st["held"] = 0.0

@@ -31,7 +31,14 @@ from device_models.base import (
     DeviceLimits,
     DeviceRenderingSpec,
 )
-from device_models.common import FAULT_INVALID_COMMAND, KernelDevice, ModelConfig, NoiseBuffer
+from device_models.common import (
+    FAULT_INVALID_COMMAND,
+    KernelDevice,
+    ModelConfig,
+    NoiseBuffer,
+    sense_hand_wrench,
+)
+from device_models.kernels import ModelKernels, register_model
 from device_models.world_map import DeviceWorldMap, WorldMapSection
 from shared.config import Vec3, require
 
@@ -501,6 +508,35 @@ def _copy_out_of_plane(params, state, out):
 
 # ---------------------------------------------------------------------------- the device
 
+
+@njit(cache=True)
+def _advance(params, state, work, dt, hand_wrench, normals, noise_index):
+    advance_kernel(params, state, dt, hand_wrench, normals, noise_index)
+
+
+@njit(cache=True)
+def _noise_needed(params, dt):
+    """Three normals per substep (levitation sensing) and six for the sample."""
+    return 3 * max(1, math.ceil(dt / params[0].max_substep)) + 6
+
+
+@njit(cache=True)
+def _applied(state):
+    """The saturated planar wrench (the flotor stays levitated)."""
+    return state[0].held_wrench
+
+
+KERNELS = ModelKernels(
+    read=read_kernel,
+    command=command_kernel,
+    applied=_applied,
+    advance=_advance,
+    noise_needed=_noise_needed,
+    true_state=_copy_true_state,
+    sense_hand=sense_hand_wrench,
+)
+register_model(PARAMS_DTYPE, KERNELS)
+
 _NOISE_BLOCK = 3 * 8192  # standard normals per refill of the sensor-noise buffer
 
 #: What SENSOR_DTYPE.aux holds (the engine logs it as device_aux): the measured out-of-plane
@@ -525,10 +561,7 @@ class Maglev(KernelDevice):
     aux_names = AUX_NAMES
 
     name = "maglev"
-    read_kernel = staticmethod(read_kernel)
-    command_kernel = staticmethod(command_kernel)
-    true_state_kernel = staticmethod(_copy_true_state)
-    applied_field = "held_wrench"  # the saturated planar wrench; the flotor stays levitated
+    KERNELS = KERNELS
 
     def __init__(self, config: MaglevConfig) -> None:
         self.config = config
@@ -541,11 +574,14 @@ class Maglev(KernelDevice):
             max_rate_hz=config.actuators.max_rate_hz,
         )
         world_map = DeviceWorldMap.from_config(config.world_map, planar_range)
-        super().__init__(
-            pack_parameters(config), np.zeros(1, STATE_DTYPE), limits, config.rendering, world_map
+        records = (
+            pack_parameters(config),
+            np.zeros(1, STATE_DTYPE),
+            np.zeros(1),  # no scratch record
+            NoiseBuffer(config.sensors.noise_seed, _NOISE_BLOCK),
         )
+        super().__init__(records, limits, config.rendering, world_map)
         self.world_map: DeviceWorldMap = world_map  # always one: rate control
-        self._noise = NoiseBuffer(config.sensors.noise_seed, _NOISE_BLOCK)
         self._zero_noise = np.zeros(6)
         self.reset(np.zeros(3))
 
@@ -561,11 +597,6 @@ class Maglev(KernelDevice):
         if np.any(np.abs(planar_pose) > np.asarray(self._limits.workspace_max)):
             raise ValueError(f"reset pose {planar_pose} is outside the motion range")
         _place_at_rest(self.params, self.state, planar_pose, self._zero_noise)
-
-    def advance(self, dt: float, hand_wrench: np.ndarray) -> None:
-        needed = 3 * max(1, math.ceil(dt / self.config.simulation.max_substep_s)) + 6
-        start = self._noise.reserve(needed)
-        advance_kernel(self.params, self.state, dt, hand_wrench, self._noise.normals, start)
 
     def out_of_plane(self, out: np.ndarray | None = None) -> np.ndarray:
         """True (z, roll, pitch, z error, roll error, pitch error): m and rad, errors from

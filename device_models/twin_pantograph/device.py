@@ -13,8 +13,15 @@ from device_models.base import (
     FAULT_WORKSPACE,
     DeviceLimits,
 )
-from device_models.common import FAULT_INVALID_COMMAND, KernelDevice, NoiseBuffer
+from device_models.common import (
+    FAULT_INVALID_COMMAND,
+    KernelDevice,
+    NoiseBuffer,
+    sense_hand_wrench,
+)
+from device_models.kernels import ModelKernels, register_model
 from device_models.twin_pantograph.config import (
+    PARAMS_DTYPE,
     STATE_DTYPE,
     WORK_DTYPE,
     TwinPantographConfig,
@@ -252,6 +259,29 @@ def _place_at_rest(params, state, work, handle_pose):
     _sample_sensors(params, state, work, 0.0, work[0].probe_pose, -1)  # -1: noise-free
 
 
+@njit(cache=True)
+def _noise_needed(params, dt):
+    """The force sensor's three normals."""
+    return 3
+
+
+@njit(cache=True)
+def _applied(state):
+    """What the saturated motor torques produce."""
+    return state[0].applied_wrench
+
+
+KERNELS = ModelKernels(
+    read=read_kernel,
+    command=command_kernel,
+    applied=_applied,
+    advance=advance_kernel,
+    noise_needed=_noise_needed,
+    true_state=_copy_true_state,
+    sense_hand=sense_hand_wrench,
+)
+register_model(PARAMS_DTYPE, KERNELS)
+
 # ---------------------------------------------------------------------------- the device
 
 _NOISE_BLOCK = 3 * 4096  # standard normals drawn per refill of the force-sensor noise buffer
@@ -280,10 +310,7 @@ class TwinPantograph(KernelDevice):
     aux_names = AUX_NAMES
 
     name = "twin_pantograph"
-    read_kernel = staticmethod(read_kernel)
-    command_kernel = staticmethod(command_kernel)
-    true_state_kernel = staticmethod(_copy_true_state)
-    applied_field = "applied_wrench"  # what the saturated motor torques produce
+    KERNELS = KERNELS
 
     def __init__(self, config: TwinPantographConfig) -> None:
         self.config = config
@@ -301,11 +328,13 @@ class TwinPantograph(KernelDevice):
             workspace_max=w.workspace_max,
             max_rate_hz=a.max_rate_hz,
         )
-        super().__init__(
-            pack_parameters(config), np.zeros(1, STATE_DTYPE), limits, config.rendering, world_map
+        records = (
+            pack_parameters(config),
+            np.zeros(1, STATE_DTYPE),
+            np.zeros(1, WORK_DTYPE),
+            NoiseBuffer(config.sensors.noise_seed, _NOISE_BLOCK),
         )
-        self.work = np.zeros(1, WORK_DTYPE)
-        self._noise = NoiseBuffer(config.sensors.noise_seed, _NOISE_BLOCK)
+        super().__init__(records, limits, config.rendering, world_map)
         self.reset(np.zeros(3))
 
     def servo_plant(self) -> tuple[np.ndarray, float]:
@@ -318,12 +347,6 @@ class TwinPantograph(KernelDevice):
         if not inverse_kinematics(self.params, handle_pose, np.empty(4)):
             raise ValueError(f"reset pose {handle_pose} is out of the mechanism's reach")
         _place_at_rest(self.params, self.state, self.work, handle_pose)
-
-    def advance(self, dt: float, hand_wrench: np.ndarray) -> None:
-        start = self._noise.reserve(3)  # the force sensor's three normals
-        advance_kernel(
-            self.params, self.state, self.work, dt, hand_wrench, self._noise.normals, start
-        )
 
     def held_torques(self) -> np.ndarray:
         """The zero-order-held motor torques (N m), a copy."""
