@@ -14,11 +14,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
 from shared.config import Vec3, require
+
+if TYPE_CHECKING:
+    from device_models.common import NoiseBuffer
+    from device_models.kernels import DeviceRecords
 
 #: Entries of SENSOR_DTYPE.aux: device-specific readings the engine logs as `device_aux`.
 AUX_SIZE = 8
@@ -109,7 +113,14 @@ class Device(Protocol):
 
 @runtime_checkable
 class SimulatedDevice(Device, Protocol):
-    """A device whose physics this process simulates."""
+    """A device whose physics this process simulates.
+
+    `records` is what the compiled tick runs the model's kernels on (its params, state, work,
+    noise normals and noise index: device_models.kernels); `noise` is the buffer behind the
+    normals, which the Python side refills when a compiled tick reports it spent."""
+
+    records: DeviceRecords
+    noise: NoiseBuffer
 
     def reset(self, pose: np.ndarray) -> None:
         """Place the device at rest at `pose` (device frame)."""

@@ -22,9 +22,10 @@ from haptic_server.model import (
     MODEL_DTYPE,
     params_record,
 )
+from haptic_server.simulated import run_ticks, simulated_tick
 from haptic_server.stages.install import accept_update
 from haptic_server.stages.tick import engine_step, store_applied
-from haptic_server.users import hand_wrench, user_record
+from haptic_server.users import USER_GIVEN, user_record
 from shared.config import ConfigError, SceneConfig, UserConfig
 from shared.kinematics import MAX_DOF, link_frames, point_jacobian, point_on_link
 from shared.linalg import min_norm_least_squares
@@ -98,7 +99,6 @@ class HapticEngine:
         self.device = device
         # a hardware driver has a real hand on it: no simulated user, no physics to advance
         self.sim_device = device if isinstance(device, SimulatedDevice) else None
-        self.user_start_s = 0.0  # the simulated user's script starts at the first update
         self.dt_nominal = 1.0 / scene.haptic_rate_hz
         limits = device.limits()
         if scene.haptic_rate_hz > limits.max_rate_hz:
@@ -137,13 +137,14 @@ class HapticEngine:
         self._command = self.io[0]["command"]
         self.method = Method(int(self.params[0]["method"]))
         self.ready = False
-        self.user = user_record(user)
+        self.user = user_record(user)  # its script starts (start_s) at the first update
+        self._given_user = user_record(user)  # a replay's hand: set in io.hand each tick
+        self._given_user[0]["kind"] = USER_GIVEN
+        self.recs = (self.model, self.data, self.io, self.world_map, self.clock)
         self._true_pose = np.zeros(3)
         self._true_twist = np.zeros(3)
         self.counters = EngineCounters(self.install)
         self.buffer = np.zeros(RECEIVE_BUFFER_BYTES, np.uint8)  # 8-byte aligned
-        self.tick_index = 0  # the clock record's tick and t, kept in step on this side
-        self.time = 0.0
         # one-element views of the fields the Python side writes on install ticks: an
         # ndarray item costs ~0.1 us where a field of a record scalar costs ~0.5 us
         self._clock_seq = self.clock["update_seq"]
@@ -206,6 +207,16 @@ class HapticEngine:
         if self.method == Method.VIRTUAL_COUPLING_FOH:
             self._install_ticks.append(self.tick_index)
             self._advance_foh(self.slots[0]["tool_pose"])
+
+    @property
+    def tick_index(self) -> int:
+        """Ticks run so far (the clock record's count)."""
+        return int(self.clock[0]["tick"])
+
+    @property
+    def time(self) -> float:
+        """The clock record's time: the sum of the ticks' dt (s)."""
+        return float(self.clock[0]["t"])
 
     @property
     def simulated(self) -> bool:
@@ -275,7 +286,7 @@ class HapticEngine:
             if self.sim_device is not None:
                 self.sim_device.true_state(self._true_pose, self._true_twist)
                 self.user[0]["start_pose"] = self._true_pose
-            self.user_start_s = self.time
+            self.user[0]["start_s"] = self.time
             st["safe"] = 0.0  # everything starts at rest: no force to fade in
 
     @staticmethod
@@ -339,31 +350,48 @@ class HapticEngine:
 
         The timing arguments only go into the log row (the real-time server measures them).
         `hand`, if given, is the hand's wrench this tick instead of the simulated user's
-        (a replay feeds the logged one).
+        (a replay feeds the logged one). A simulated device runs the whole tick in one
+        compiled call (haptic_server.simulated); a hardware driver is read and commanded
+        around the engine step.
         """
-        dev = self.device
-        sim = self.sim_device
-        if sim is not None:  # the simulated hand holds the simulated device
-            sim.true_state(self._true_pose, self._true_twist)
-            if hand is None:
-                t_user = self.time - self.user_start_s
-                hand_wrench(self.user, t_user, self._true_pose, self._true_twist, self.hand)
-            else:
-                self.hand[:] = hand  # replay: the recorded hand
-            sim.sense_hand(self.hand)
-        dev.read(self.sensors)
         if update_seq != self._update_seq or update_age_ms != self._update_age_ms:
-            self._clock_seq[0] = self._update_seq = update_seq
-            self._clock_age[0] = self._update_age_ms = update_age_ms
-        engine_step(
-            self.model, self.data, self.io, self.world_map, self.clock, dt, lateness_us, work_us
-        )
-        store_applied(self.world_map, dev.command(self._command), self.data)
-        if sim is not None:
-            sim.advance(dt, self.hand)
-        self.tick_index += 1
-        self.time += dt
+            self.set_update(update_seq, update_age_ms)
+        sim = self.sim_device
+        if sim is None:
+            dev = self.device
+            dev.read(self.sensors)
+            engine_step(*self.recs, dt, lateness_us, work_us)
+            store_applied(self.world_map, dev.command(self._command), self.data)
+            return self.row
+        user = self.user
+        if hand is not None:
+            self.hand[:] = hand  # replay: the recorded hand
+            user = self._given_user
+        if not simulated_tick(self.recs, sim.records, user, dt, lateness_us, work_us):
+            sim.noise.refill()
+            if not simulated_tick(self.recs, sim.records, user, dt, lateness_us, work_us):
+                raise ValueError(f"a tick of {dt:g} s needs more normals than the device's buffer")
         return self.row
+
+    def set_update(self, seq: int, age_ms: float) -> None:
+        """The newest installed update's seq and age, for the rows of the ticks that follow."""
+        self._clock_seq[0] = self._update_seq = seq
+        self._clock_age[0] = self._update_age_ms = age_ms
+
+    def run_ticks(self, dt: float, rows: np.ndarray, start: int, stop: int) -> None:
+        """Ticks start..stop-1 of a simulated device at a fixed dt with the simulated user, in
+        compiled bursts (one per refill of the device's noise block), row k into rows[k]."""
+        sim = self.sim_device
+        if sim is None:
+            raise TypeError(f"run_ticks needs a simulated device, not {self.device.name!r}")
+        k, refilled_at = start, -1
+        while k < stop:
+            k = run_ticks(self.recs, sim.records, self.user, dt, rows, k, stop)
+            if k < stop:
+                if k == refilled_at:
+                    raise ValueError(f"a tick of {dt:g} s needs more normals than the buffer")
+                sim.noise.refill()
+                refilled_at = k
 
     def proxy_pose(self) -> tuple[np.ndarray, np.ndarray]:
         d = int(self.slots[0]["dof"])

@@ -11,6 +11,7 @@ from shared.config import UserConfig
 MAX_WAYPOINTS = 64
 USER_CONSTANT = 0
 USER_WAYPOINTS = 1
+USER_GIVEN = 2  # the hand's wrench is set from outside each tick (a replay's logged hand)
 
 USER_DTYPE = np.dtype(
     [
@@ -22,6 +23,9 @@ USER_DTYPE = np.dtype(
         ("n_waypoints", np.int64),
         ("waypoints", np.float64, (MAX_WAYPOINTS, 4)),  # t, dx, dy, dtheta
         ("start_pose", np.float64, (3,)),
+        ("start_s", np.float64),  # the clock's time when the script starts
+        ("device_pose", np.float64, (3,)),  # what the hand holds: the device's true pose
+        ("device_twist", np.float64, (3,)),  # and twist, this tick
     ]
 )
 
@@ -47,6 +51,8 @@ def user_record(config: UserConfig) -> np.ndarray:
 def hand_wrench(user, t, pose, twist, out):
     """The hand's wrench on the device at time t for the device's true pose and twist."""
     u = user[0]
+    if u.kind == USER_GIVEN:
+        return
     if u.kind == USER_CONSTANT:
         for c in range(3):
             out[c] = u.wrench[c]

@@ -8,6 +8,7 @@ wall clock: two runs give identical logs, faster than real time (DESIGN §1).
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from functools import partial
@@ -20,7 +21,6 @@ from device_models.registry import load_simulated_device
 from haptic_server.engine import HapticEngine
 from haptic_server.log import LogWriter, run_metadata, update_record
 from haptic_server.model import TICK_DTYPE
-from haptic_server.stages.tick import store_row
 from haptic_server.supervisor import InstallOnly, supervise
 from shared.config import SceneConfig, UserConfig, load_scene, load_user, resolve
 from shared.protocol.codes import Method
@@ -76,7 +76,8 @@ def run_virtual(
     clock = time.perf_counter_ns
     started = time.perf_counter()
     try:
-        for k in range(n_ticks):
+        k = 0
+        while k < n_ticks:
             t = k * dt
             if t >= next_sim_t - 1e-12:
                 lead = 0.0
@@ -99,14 +100,18 @@ def run_virtual(
                 sizes.append(len(raw))
                 if log is not None:
                     log.update(update_record(k, raw, "", 0.0), int(t * 1e9))
+                engine.set_update(seq, 0.0)
                 seq += 1
                 next_sim_t += sim_period
+            # the ticks up to the next sim step, in one compiled burst
+            stop = min(n_ticks, _next_step_tick(k + 1, dt, next_sim_t))
             t5 = clock()
-            row = engine.tick(dt, 0.0, 0.0, seq - 1, 0.0)
+            engine.run_ticks(dt, rows, k, stop)
             stage["tick"] += clock() - t5
-            store_row(rows, k, row)
             if log is not None:
-                log.tick(row.tobytes(), int(t * 1e9))
+                for j in range(k, stop):
+                    log.tick(rows[j].tobytes(), int(j * dt * 1e9))
+            k = stop
     finally:
         if log is not None:
             log.close()
@@ -115,6 +120,16 @@ def run_virtual(
         rows, seq, world, stage, sizes, svd_steps, wall, n_ticks * dt,
         Path(log_path) if log_path else None,
     )  # fmt: skip
+
+
+def _next_step_tick(k: int, dt: float, next_sim_t: float) -> int:
+    """The first tick from k at which the sim steps (k * dt reaches next_sim_t, as above)."""
+    guess = max(k, math.ceil((next_sim_t - 1e-12) / dt) - 1)
+    while guess * dt < next_sim_t - 1e-12:
+        guess += 1
+    while guess > k and (guess - 1) * dt >= next_sim_t - 1e-12:
+        guess -= 1
+    return guess
 
 
 def _install_own(engine: HapticEngine, raw: bytes) -> int:
