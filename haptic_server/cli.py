@@ -9,13 +9,13 @@ import sys
 from pathlib import Path
 
 from shared.cli import add_config_args, emit, run_main
-from shared.config import load_scene, load_user, resolve
+from shared.config import load_scene, load_user, resolve, scene_text
 from shared.net.config import load_network
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="haptic-server", description=__doc__)
-    add_config_args(parser)
+    add_config_args(parser, rate=True)
     parser.add_argument("--log", type=Path, default=None, help="MCAP log path (default: no log)")
     parser.add_argument(
         "--duration", type=float, default=None,
@@ -30,12 +30,12 @@ def main(argv: list[str] | None = None) -> int:
         from device_models.registry import load_device
         from haptic_server.loop import HapticServer, InjectedFaults
 
-        scene = load_scene(args.scene)
+        scene = load_scene(args.scene, args.haptic_rate)
         user = load_user(args.user)
         network = load_network(args.network, roles=("haptic",))
         device = load_device(args.device)
         configs = {
-            "scene": resolve("scenes", args.scene).read_text(),
+            "scene": scene_text(resolve("scenes", args.scene), args.haptic_rate),
             "device": resolve("devices", args.device).read_text(),
             "user": resolve("users", args.user).read_text(),
             "network": resolve("network", args.network).read_text(),

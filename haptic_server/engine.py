@@ -412,3 +412,4 @@ def warm_kernels(scene: SceneConfig, device: Device | SimulatedDevice, user: Use
     engine.receive(bytes(8))  # the parser and the install route (rejected: too short)
     engine.clock[0]["ready"] = 1  # run the stages on the empty model
     engine.tick(engine.dt_nominal)
+    min_norm_least_squares(np.eye(3, MAX_DOF), 3, 3, np.zeros(3), np.zeros(MAX_DOF))

@@ -30,11 +30,24 @@ from device_models.base import Device
 from haptic_server.engine import HapticEngine, warm_kernels
 from haptic_server.log import run_metadata
 from haptic_server.mailbox import C_UPD_HEAD, C_UPD_READ, compile_loop_kernels, push_row
+from haptic_server.realtime import (
+    RETURNED_NOISE,
+    RETURNED_TO_PYTHON,
+    compile_realtime_kernels,
+    loop_record,
+    open_tick,
+    realtime_ticks,
+)
 from haptic_server.sidecar import LoopIO
 from haptic_server.supervisor import Event, TickEvents, WatchdogClock, supervise
 from shared.config import SceneConfig, UserConfig
 from shared.net.config import NetworkConfig
-from shared.timing import LoopCounters, SampleWindow, try_realtime_priority, wait_until
+from shared.timing import (
+    LoopCounters,
+    SampleWindow,
+    try_realtime_priority,
+    wait_until,
+)
 
 DT_CLAMP = (0.25, 2.0)  # measured dt is clamped to these multiples of the nominal period
 FIRST_UPDATE_WAIT_S = 60.0  # --duration starts at the first update, or gives up after this
@@ -42,6 +55,7 @@ FIRST_UPDATE_WAIT_S = 60.0  # --duration starts at the first update, or gives up
 # at most this many validations (~10 us each) per tick; the rest wait in the mailbox
 MAX_UPDATES_PER_TICK = 8
 WINDOW_TICKS = 600_000  # percentiles over the newest 10 min at 1 kHz
+RETURN_EVERY_NS = 10_000_000  # the compiled burst hands back to Python this often (signals)
 
 
 @dataclass
@@ -127,6 +141,7 @@ class HapticServer:
         self._duration_ns: int | None = None
         self._newest_seq = -1
         self._newest_age_ms = float("nan")
+        self._peaks = np.zeros(2)  # the largest lateness and work of the run (us)
 
     def request_stop(self, *_: object) -> None:
         self._stop = True
@@ -135,6 +150,7 @@ class HapticServer:
         """Compile (or load from cache) every kernel before the loop starts."""
         warm_kernels(self.scene, device_factory(), user)
         compile_loop_kernels(self.engine)
+        compile_realtime_kernels(self.engine)
 
     def _take_updates(self) -> int:
         """The supervisor's install step: validate and install what waits in the mailbox (one
@@ -181,11 +197,9 @@ class HapticServer:
         """The loop; returns the summary. `ready` is called once the loop is about to start."""
         engine = self.engine
         stats = self.stats
-        counters = stats.counters
         io = self._open_io()
         try:  # from here on every exit path closes the I/O process (its log, its session)
             period_ns = round(1e9 / self.scene.haptic_rate_hz)
-            dt_nominal = period_ns / 1e9
             watchdog_ns = int(self.network.watchdog_ms * 1e6)
             self._newest_seq = -1
             self._newest_age_ms = float("nan")
@@ -194,6 +208,8 @@ class HapticServer:
             stats.realtime_priority = try_realtime_priority()
             if not stats.realtime_priority:
                 io.lower_io_priority()
+            loop = loop_record(period_ns, DT_CLAMP, watchdog_ns)
+            loop[0]["budget"] = MAX_UPDATES_PER_TICK
             # everything allocated so far lives as long as the process: out of the cyclic
             # collector's sight, so a full collection during the loop has little to traverse
             gc.collect()
@@ -209,80 +225,122 @@ class HapticServer:
             self._supervisor = supervisor
             if self._duration_ns:  # no duration: runs until stopped
                 supervisor.end_ns = start_ns + self._duration_ns + int(FIRST_UPDATE_WAIT_S * 1e9)
-            dt_min, dt_max = DT_CLAMP[0] * dt_nominal, DT_CLAMP[1] * dt_nominal
-            deadline = start_ns + period_ns
-            last_start = start_ns
-            work_prev_us = 0.0
-            tick = 0  # ticks run; into counters.ticks when the loop ends
-            # the loop's work stays Python-light: a few kernel calls per tick; the tick row
-            # goes to the log ring and the timing windows in one (push_row)
-            ring, ctl = io.block.ticks, io.block.ctl
-            lateness_window, work_window = stats.lateness_us.buffer, stats.work_us.buffer
-            peaks = np.zeros(2)
-            leak_bytes = self.faults.leak_bytes_per_tick
-            leak: list[bytes] = []  # only ever grows under --inject-leak
-            nan_tick = (
-                round(self.faults.nan_after_s * self.scene.haptic_rate_hz)
-                if self.faults.nan_after_s is not None
-                else -1
-            )
+            loop[0]["deadline_ns"] = start_ns + period_ns
+            loop[0]["last_start_ns"] = start_ns
         except BaseException:
             io.close()
             raise
         try:
-            while True:
-                now = wait_until(deadline)
-                lateness_ns = now - deadline
-                dt_ns = now - last_start if tick else period_ns
-                last_start = now
-                if lateness_ns > period_ns:
-                    counters.overruns += 1
-                    deadline = now  # resynchronise: no burst of catch-up ticks
-                if lateness_ns > 1_000_000:
-                    counters.late_over_1ms += 1
-                dt = min(max(dt_ns / 1e9, dt_min), dt_max)
-
-                if (  # anything for the supervisor? (cheap checks first: most ticks skip it)
-                    self._stop
-                    or now >= supervisor.end_ns
-                    or ctl[C_UPD_READ] < ctl[C_UPD_HEAD]
-                    or now > supervisor.trip_at_ns
-                ):
-                    supervisor.now_ns = now
-                    supervisor.stop_requested = self._stop
-                    self._tick = tick
-                    events = supervise(engine, supervisor)
-                    if (
-                        events.stop
-                        or events.reinitialised
-                        or events.watchdog_clear
-                        or events.watchdog
-                    ):
-                        self._log_events(io, tick, events, supervisor)
-                if supervisor.stopping and (not engine.ready or engine.state[0]["safe"] >= 1.0):
-                    break
-
-                if leak_bytes:
-                    leak.append(bytes(leak_bytes))
-                if tick == nan_tick:
-                    engine.user[0]["kind"] = 0  # the hand's wrench turns NaN from now on
-                    engine.user[0]["wrench"] = float("nan")
-                row = engine.tick(
-                    dt, lateness_ns / 1e3, work_prev_us, self._newest_seq, self._newest_age_ms
-                )
-                push_row(ring, ctl, row, lateness_window, work_window, peaks)
-                tick += 1
-                work_prev_us = (time.perf_counter_ns() - now) / 1e3
-                deadline += period_ns
+            self._ticks(io, supervisor, loop)
         finally:
-            counters.ticks = tick
+            lp = loop[0]
+            ticks = int(lp["tick"])
+            counters = stats.counters
+            counters.ticks, counters.overruns = ticks, int(lp["overruns"])
+            counters.late_over_1ms = int(lp["late_over_1ms"])
             stats.wall_s = (time.perf_counter_ns() - start_ns) / 1e9
-            if counters.ticks:  # the last tick's work is in no row
-                work_window[(counters.ticks - 1) % work_window.shape[0]] = work_prev_us
-            stats.lateness_us.filled(counters.ticks, float(peaks[0]))
-            stats.work_us.filled(counters.ticks, max(float(peaks[1]), work_prev_us))
+            work_prev_us = float(lp["work_prev_us"])
+            work_window = stats.work_us.buffer
+            if ticks:  # the last tick's work is in no row
+                work_window[(ticks - 1) % work_window.shape[0]] = work_prev_us
+            stats.lateness_us.filled(ticks, float(self._peaks[0]))
+            stats.work_us.filled(ticks, max(float(self._peaks[1]), work_prev_us))
             self._finish(io)
         return stats.summary(self.log_path)
+
+    def _ticks(self, io: LoopIO, supervisor: WatchdogClock, loop: np.ndarray) -> None:
+        """Tick until the stop ramp has ended. Quiet ticks of a simulated device run in the
+        compiled burst (haptic_server.realtime); a tick that needs the supervisor, every
+        tick of a hardware driver, and every tick under an injected fault run here."""
+        engine, stats = self.engine, self.stats
+        period_ns = int(loop[0]["period_ns"])
+        spin_ns = int(loop[0]["spin_ns"])
+        # one-element views of the loop record's fields this side reads and writes per tick
+        deadline, tick_count = loop["deadline_ns"], loop["tick"]
+        now_v, lateness_v, dt_v = loop["now_ns"], loop["lateness_ns"], loop["dt"]
+        work_v = loop["work_prev_us"]
+        ring, ctl = io.block.ticks, io.block.ctl
+        lateness_window, work_window = stats.lateness_us.buffer, stats.work_us.buffer
+        self._peaks = peaks = np.zeros(2)
+        ring_io = (
+            ring, ctl, io.block.mailbox, lateness_window, work_window,
+            stats.update_age_ms.buffer, peaks, engine.row,
+        )  # fmt: skip
+        ts = np.zeros(2, np.int64)
+        leak_bytes = self.faults.leak_bytes_per_tick
+        leak: list[bytes] = []  # only ever grows under --inject-leak
+        nan_tick = (
+            round(self.faults.nan_after_s * self.scene.haptic_rate_hz)
+            if self.faults.nan_after_s is not None
+            else -1
+        )
+        sim = engine.sim_device
+        compiled = sim is not None and not leak_bytes and nan_tick < 0
+        while True:
+            if compiled and not (self._stop or supervisor.stopping):
+                if self._burst(supervisor, loop, ring_io, ts) == RETURNED_TO_PYTHON:
+                    continue  # between two ticks: signals, then the next burst
+            else:
+                open_tick(loop, wait_until(int(deadline[0]), spin_ns))
+            now, lateness_ns, dt = int(now_v[0]), int(lateness_v[0]), float(dt_v[0])
+            tick = int(tick_count[0])
+            if (  # anything for the supervisor? (cheap checks first: most ticks skip it)
+                self._stop
+                or now >= supervisor.end_ns
+                or ctl[C_UPD_READ] < ctl[C_UPD_HEAD]
+                or now > supervisor.trip_at_ns
+            ):
+                supervisor.now_ns = now
+                supervisor.stop_requested = self._stop
+                self._tick = tick
+                events = supervise(engine, supervisor)
+                if events.stop or events.reinitialised or events.watchdog_clear or events.watchdog:
+                    self._log_events(io, tick, events, supervisor)
+            if supervisor.stopping and (not engine.ready or engine.state[0]["safe"] >= 1.0):
+                break
+
+            if leak_bytes:
+                leak.append(bytes(leak_bytes))
+            if tick == nan_tick:
+                engine.user[0]["kind"] = 0  # the hand's wrench turns NaN from now on
+                engine.user[0]["wrench"] = float("nan")
+            row = engine.tick(
+                dt, lateness_ns / 1e3, float(work_v[0]), self._newest_seq, self._newest_age_ms
+            )
+            push_row(ring, ctl, row, lateness_window, work_window, peaks)
+            tick_count[0] = tick + 1
+            work_v[0] = (time.perf_counter_ns() - now) / 1e3
+            deadline[0] += period_ns
+
+    def _burst(
+        self, supervisor: WatchdogClock, loop: np.ndarray, ring_io: tuple[Any, ...], ts: np.ndarray
+    ) -> int:
+        """Run quiet ticks compiled until one needs this side (that tick is left opened) or
+        until it is time to look at signals (between two ticks); returns the status."""
+        engine, stats = self.engine, self.stats
+        sim = engine.sim_device
+        assert sim is not None
+        lp = loop[0]
+        lp["end_ns"], lp["trip_at_ns"] = supervisor.end_ns, supervisor.trip_at_ns
+        lp["last_valid_ns"] = supervisor.last_valid_ns
+        lp["return_at_ns"] = lp["deadline_ns"] + RETURN_EVERY_NS
+        lp["newest_seq"], lp["newest_age_ms"] = self._newest_seq, self._newest_age_ms
+        lp["age_count"], lp["received"], lp["installed"] = stats.update_age_ms.count, 0, 0
+        recs = (*engine.recs, engine.install)
+        status = realtime_ticks(recs, sim.records, engine.user, ring_io, loop, ts)
+        lp = loop[0]
+        supervisor.trip_at_ns, supervisor.last_valid_ns = (
+            int(lp["trip_at_ns"]),
+            int(lp["last_valid_ns"]),
+        )
+        self._newest_seq, self._newest_age_ms = int(lp["newest_seq"]), float(lp["newest_age_ms"])
+        stats.updates_received += int(lp["received"])
+        stats.updates_installed += int(lp["installed"])
+        stats.update_age_ms.filled(int(lp["age_count"]), float(lp["age_max"]))
+        engine.set_update(self._newest_seq, self._newest_age_ms)
+        if status == RETURNED_NOISE:
+            sim.noise.refill()
+        return int(status)
 
     def _open_io(self) -> LoopIO:
         """Start the I/O sidecar (Zenoh session, MCAP writer) and map its shared memory."""

@@ -19,6 +19,7 @@ from numba import njit
 
 from haptic_server.model import TICK_DTYPE
 from haptic_server.stages.install import accept_update
+from shared.atomics import load_acquire, store_release
 from shared.protocol.layout import PUBLISH_TIME_END
 from shared.protocol.update import publish_time_ns
 
@@ -120,10 +121,10 @@ def push_row(ring, ctl, row, lateness, work, peaks):
     """Copy the row into the ring slot of the head, then publish the new head. Also keep
     the loop's timing windows: the row's lateness, and its work (that of the tick before,
     the newest known when the row is made), with their peaks in peaks[0], peaks[1]."""
-    head = ctl[C_TICK_HEAD]
+    head = load_acquire(ctl, C_TICK_HEAD)
     r = row[0]
     ring[head % ring.shape[0]] = r
-    ctl[C_TICK_HEAD] = head + 1
+    store_release(ctl, C_TICK_HEAD, head + 1)  # the row is in before the sidecar sees it
     lateness[head % lateness.shape[0]] = r.lateness_us
     peaks[0] = max(peaks[0], r.lateness_us)
     if head > 0:
@@ -153,8 +154,8 @@ def take_updates(ctl, mailbox, tick, now_ns, budget, model, data, install):
     seq = np.int64(-1)
     newest_latency = 0.0
     while taken < budget:
-        read = ctl[C_UPD_READ]
-        if read >= ctl[C_UPD_HEAD]:
+        read = load_acquire(ctl, C_UPD_READ)
+        if read >= load_acquire(ctl, C_UPD_HEAD):  # afresh: the sidecar writes it
             break
         slot = mailbox[read % mailbox.shape[0]]
         n = slot.length
@@ -167,7 +168,7 @@ def take_updates(ctl, mailbox, tick, now_ns, budget, model, data, install):
         slot.tick = tick
         slot.latency_s = latency
         slot.verdict = code
-        ctl[C_UPD_READ] = read + 1
+        store_release(ctl, C_UPD_READ, read + 1)  # after the verdict: the writer reads both
         taken += 1
         if code == 0:
             installed += 1

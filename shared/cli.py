@@ -15,7 +15,7 @@ EXIT_CONFIG = 2
 
 
 def add_config_args(
-    parser: argparse.ArgumentParser, device: bool = True, user: bool = True
+    parser: argparse.ArgumentParser, device: bool = True, user: bool = True, rate: bool = False
 ) -> None:
     parser.add_argument("--scene", default="testbed", help="scene name in configs/scenes or a path")
     if device:
@@ -27,6 +27,15 @@ def add_config_args(
     parser.add_argument(
         "--network", default="loopback", help="network name in configs/network or a path"
     )
+    if rate:
+        parser.add_argument(
+            "--haptic-rate",
+            type=float,
+            default=None,
+            metavar="HZ",
+            help="the haptic loop's rate, instead of the scene's haptic_rate_hz (100-10000 Hz, "
+            "at most the device's max_rate_hz)",
+        )
 
 
 def run_main(body: Callable[[], int]) -> int:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import tomllib
 import types
 import typing
@@ -315,6 +316,9 @@ class RenderingSpec:
         require(self.collision_speed_m_per_s >= 0, "collision_speed_m_per_s", "must be >= 0")
 
 
+MAX_HAPTIC_RATE_HZ = 10000.0
+
+
 @dataclass(frozen=True)
 class SceneConfig:
     """A scene: the world the sim builds and the gains the haptic side renders it with."""
@@ -336,7 +340,9 @@ class SceneConfig:
         require(10.0 <= self.sim_rate_hz <= 500.0, "sim_rate_hz", "must be in [10, 500] Hz")
         require(self.sim_substeps >= 1, "sim_substeps", "must be >= 1")
         require(
-            100.0 <= self.haptic_rate_hz <= 5000.0, "haptic_rate_hz", "must be in [100, 5000] Hz"
+            100.0 <= self.haptic_rate_hz <= MAX_HAPTIC_RATE_HZ,
+            "haptic_rate_hz",
+            f"must be in [100, {MAX_HAPTIC_RATE_HZ:g}] Hz",
         )
         names = [b.name for b in self.bodies] + [lk.name for lk in self.linkages]
         require(len(names) == len(set(names)), "bodies", "body and linkage names must be unique")
@@ -425,9 +431,28 @@ class UserConfig:
 # --- loading entry points -------------------------------------------------------------------
 
 
-def load_scene(name_or_path: str) -> SceneConfig:
+def load_scene(name_or_path: str, haptic_rate_hz: float | None = None) -> SceneConfig:
+    """A scene by name or path; `haptic_rate_hz` overrides the file's (haptic-run
+    --haptic-rate), checked like the file's own value."""
     path = resolve("scenes", name_or_path)
-    return load_dataclass(SceneConfig, read_toml(path), str(path))
+    if haptic_rate_hz is None:
+        return load_dataclass(SceneConfig, read_toml(path), str(path))
+    return load_config_text(
+        SceneConfig, scene_text(path, haptic_rate_hz), f"{path} (--haptic-rate)"
+    )
+
+
+def scene_text(path: Path, haptic_rate_hz: float | None = None) -> str:
+    """The scene file's text, with `haptic_rate_hz` set to the override if one is given: what
+    a run logs, so that a replay builds the engine the run had."""
+    text = path.read_text()
+    if haptic_rate_hz is None:
+        return text
+    line = f"haptic_rate_hz = {float(haptic_rate_hz)!r}  # --haptic-rate"
+    pattern = re.compile(r"^haptic_rate_hz\s*=.*$", re.MULTILINE)
+    if pattern.search(text):
+        return pattern.sub(line, text, count=1)
+    return f"{line}\n{text}"  # a top-level key goes before any table
 
 
 def load_user(name_or_path: str) -> UserConfig:

@@ -114,7 +114,7 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
     went wrong (a child exited early or failed), `failure`.
     """
     # validate every file here so a bad config fails fast with exit 2
-    load_scene(args.scene)
+    load_scene(args.scene, args.haptic_rate)
     load_user(args.user)
     load_network(args.network)
     resolve("devices", args.device)
@@ -138,6 +138,8 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
     ]
     if args.log:
         haptic_extra += ["--log", str(args.log)]
+    if args.haptic_rate is not None:
+        haptic_extra += ["--haptic-rate", repr(float(args.haptic_rate))]
     stop = threading.Event()
     previous = {
         sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)
@@ -200,7 +202,9 @@ def _watch(haptic: Child, sim: Child, stop: threading.Event, timeout_s: float) -
 def run_virtual_clock(args: argparse.Namespace) -> dict[str, Any]:
     from haptic_server.harness.virtual import run_virtual_named
 
-    result = run_virtual_named(args.scene, args.device, args.user, args.duration, args.log)
+    result = run_virtual_named(
+        args.scene, args.device, args.user, args.duration, args.log, args.haptic_rate
+    )
     ticks = result.ticks
     return {
         "clock": "virtual",
@@ -245,7 +249,7 @@ def print_summary(s: dict[str, Any]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="haptic-run", description=__doc__)
-    add_config_args(parser)
+    add_config_args(parser, rate=True)
     parser.add_argument("--duration", type=float, default=10.0, help="seconds to run (default 10)")
     parser.add_argument("--clock", choices=["real", "virtual"], default="real")
     parser.add_argument(

@@ -22,7 +22,7 @@ from haptic_server.engine import HapticEngine
 from haptic_server.log import LogWriter, run_metadata, update_record
 from haptic_server.model import TICK_DTYPE
 from haptic_server.supervisor import InstallOnly, supervise
-from shared.config import SceneConfig, UserConfig, load_scene, load_user, resolve
+from shared.config import SceneConfig, UserConfig, load_scene, load_user, resolve, scene_text
 from shared.protocol.codes import Method
 from shared.protocol.update import encode_update
 from sim_server.world import SimWorld, ToolTarget
@@ -149,17 +149,22 @@ def _target(engine: HapticEngine, coupled: bool) -> ToolTarget:
 
 
 def run_virtual_named(
-    scene: str, device: str, user: str, duration_s: float, log_path: Path | str | None = None
+    scene: str,
+    device: str,
+    user: str,
+    duration_s: float,
+    log_path: Path | str | None = None,
+    haptic_rate_hz: float | None = None,
 ) -> VirtualResult:
-    """Load configs by name or path and run the virtual clock."""
-    paths = {
-        "scene": resolve("scenes", scene),
-        "device": resolve("devices", device),
-        "user": resolve("users", user),
+    """Load configs by name or path and run the virtual clock (at `haptic_rate_hz` instead
+    of the scene's, if given)."""
+    configs = {
+        "scene": scene_text(resolve("scenes", scene), haptic_rate_hz),
+        "device": resolve("devices", device).read_text(),
+        "user": resolve("users", user).read_text(),
     }
-    configs = {k: p.read_text() for k, p in paths.items()}
     return run_virtual(
-        load_scene(scene),
+        load_scene(scene, haptic_rate_hz),
         load_simulated_device(device),
         load_user(user),
         duration_s,

@@ -211,6 +211,14 @@ def publish_time_ns(buf):
     return _i64(buf, PUBLISH_TIME_AT)
 
 
+@njit(cache=True)
+def epoch_of(buf, nbytes):
+    """The header's epoch of the update in `buf`, or -1 if it is too short to have one."""
+    if nbytes < AT_EPOCH + 8:
+        return np.int64(-1)
+    return _i64(buf, AT_EPOCH)
+
+
 @njit(cache=True, inline="always")
 def _check_header(buf, nbytes):
     """Magic, version, counts and total size: (Reason or 0, d, n, j, flags, contact row

@@ -1,0 +1,196 @@
+"""The real-time loop's quiet ticks in one compiled call: wait, take updates, tick, log row.
+
+`realtime_ticks` runs tick after tick of a simulated device without returning to Python:
+it waits for each deadline (sleep, then spin, on the monotonic clock), validates and
+installs what waits in the mailbox (haptic_server.mailbox.take_updates), re-arms the
+watchdog on an install, runs the tick (haptic_server.simulated) and pushes its row and
+timing into the sidecar's ring. It returns — with the tick it has opened (its start,
+lateness and dt in the LOOP_DTYPE record) but not run — as soon as that tick needs the
+supervisor's Python side: the run's end, a watchdog that may trip, an update that may start
+a new epoch or needs the engine's follow-up (after a trip, FOH setpoints), the device's
+noise block spent. It also returns, between two ticks, once `return_at_ns` has passed, so
+the Python side sees stop requests and signals every few milliseconds. The loop
+(haptic_server.loop) runs an opened tick as before.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from haptic_server.mailbox import (
+    C_UPD_HEAD,
+    C_UPD_READ,
+    MAILBOX_DTYPE,
+    N_CTL,
+    push_row,
+    take_updates,
+)
+from haptic_server.model import TICK_DTYPE
+from haptic_server.simulated import simulated_tick
+from shared.atomics import load_acquire
+from shared.clock import monotonic_ns, realtime_ns, wait_until_ns
+from shared.protocol.update import epoch_of
+from shared.timing import spin_for
+
+I8, F8 = np.int64, np.float64
+
+#: Why realtime_ticks returned (LOOP_DTYPE.status).
+RETURNED_TO_PYTHON = 0  # return_at_ns passed, between two ticks: signals, stop requests
+RETURNED_SUPERVISE = 1  # the opened tick needs the supervisor (end, watchdog, epoch, follow)
+RETURNED_NOISE = 2  # the device's noise block is spent: refill, then run the tick
+
+#: The loop's timing state, shared by its Python side and realtime_ticks.
+LOOP_DTYPE = np.dtype(
+    [
+        ("period_ns", I8),
+        ("spin_ns", I8),  # the wait spins this long before a deadline (shared.timing.spin_for)
+        ("deadline_ns", I8),  # of the next tick
+        ("last_start_ns", I8),  # start of the last tick opened
+        ("dt_min", F8),  # measured dt is clamped to [dt_min, dt_max] s
+        ("dt_max", F8),
+        ("tick", I8),  # ticks run
+        ("overruns", I8),
+        ("late_over_1ms", I8),
+        ("work_prev_us", F8),  # work of the last tick run (into the next row)
+        ("return_at_ns", I8),  # hand the loop back to Python at the first tick from here
+        ("end_ns", I8),  # the supervisor's: the run ends
+        ("trip_at_ns", I8),  # the supervisor's: the watchdog may trip after this
+        ("watchdog_ns", I8),
+        ("last_valid_ns", I8),  # the newest install (monotonic)
+        ("budget", I8),  # updates taken per tick at most
+        ("received", I8),  # updates taken from the mailbox by the kernel
+        ("installed", I8),  # of which installed
+        ("newest_seq", I8),
+        ("newest_age_ms", F8),
+        ("age_count", I8),  # samples written into the update-age window
+        ("age_max", F8),
+        ("now_ns", I8),  # the opened tick: its start, lateness and dt
+        ("lateness_ns", I8),
+        ("dt", F8),
+        ("status", I8),
+    ]
+)
+
+
+def loop_record(period_ns: int, dt_clamp: tuple[float, float], watchdog_ns: int) -> np.ndarray:
+    rec = np.zeros(1, LOOP_DTYPE)
+    lp = rec[0]
+    lp["period_ns"] = period_ns
+    lp["spin_ns"] = spin_for(period_ns)
+    lp["dt_min"] = dt_clamp[0] * period_ns / 1e9
+    lp["dt_max"] = dt_clamp[1] * period_ns / 1e9
+    lp["watchdog_ns"] = watchdog_ns
+    lp["newest_seq"] = -1
+    lp["newest_age_ms"] = np.nan
+    return rec
+
+
+@njit(cache=True)
+def open_tick(loop, now):
+    """_open_tick, callable from Python (the loop's ticks that run there)."""
+    _open_tick(loop[0], now)
+
+
+@njit(cache=True)
+def _open_tick(lp, now):
+    """The tick starting at `now`: lateness, dt (measured, clamped), overrun resync."""
+    lateness = now - lp.deadline_ns
+    dt_ns = now - lp.last_start_ns if lp.tick > 0 else lp.period_ns
+    lp.last_start_ns = now
+    if lateness > lp.period_ns:
+        lp.overruns += 1
+        lp.deadline_ns = now  # resynchronise: no burst of catch-up ticks
+    if lateness > 1_000_000:
+        lp.late_over_1ms += 1
+    lp.now_ns = now
+    lp.lateness_ns = lateness
+    lp.dt = min(max(dt_ns / 1e9, lp.dt_min), lp.dt_max)
+
+
+@njit(cache=True)
+def _quiet_installs(lp, ring_io, recs, ts):
+    """Take the waiting updates that need no Python; False if the tick needs the supervisor
+    (the next one may start a new epoch, or the engine awaits a follow-up)."""
+    ctl, mailbox, age_window = ring_io[1], ring_io[2], ring_io[5]
+    model, data, clock, install = recs[0], recs[1], recs[4], recs[5]
+    ins = install[0]
+    taken = 0
+    while taken < lp.budget:
+        read = load_acquire(ctl, C_UPD_READ)
+        if read >= load_acquire(ctl, C_UPD_HEAD):  # afresh: the sidecar writes it
+            break
+        slot = mailbox[read % mailbox.shape[0]]
+        if clock[0].ready == 0 or ins.follow == 1 or epoch_of(slot.raw, slot.length) != ins.epoch:
+            return False
+        n, installed, follow, seq, latency = take_updates(
+            ctl, mailbox, lp.tick, realtime_ns(ts), 1, model, data, install
+        )
+        taken += n
+        lp.received += n
+        if installed:
+            lp.installed += installed
+            lp.last_valid_ns = lp.now_ns
+            lp.trip_at_ns = lp.now_ns + lp.watchdog_ns
+            lp.newest_seq = seq
+            lp.newest_age_ms = latency * 1e3
+            age_window[lp.age_count % age_window.shape[0]] = lp.newest_age_ms
+            lp.age_count += 1
+            lp.age_max = max(lp.age_max, lp.newest_age_ms)
+            clock[0].update_seq = seq
+            clock[0].update_age_ms = lp.newest_age_ms
+        if follow:  # cannot happen after the checks above; the supervisor sorts it out
+            return False
+    return True
+
+
+@njit(cache=True)
+def realtime_ticks(recs, dev, user, ring_io, loop, ts):
+    """Run ticks until one needs Python (see the module docstring); returns the status.
+
+    recs: the engine's (model, data, io, world_map, clock, install); dev: the device's
+    DeviceRecords; user: USER_DTYPE[1]; ring_io: (ring, ctl, mailbox, lateness window,
+    work window, update-age window, peaks, the engine's row view); loop: LOOP_DTYPE[1];
+    ts: int64[2] scratch."""
+    lp = loop[0]
+    ring, ctl, lateness_w, work_w = ring_io[0], ring_io[1], ring_io[3], ring_io[4]
+    peaks, row = ring_io[6], ring_io[7]
+    tick_recs = (recs[0], recs[1], recs[2], recs[3], recs[4])
+    while True:
+        _open_tick(lp, wait_until_ns(ts, lp.deadline_ns, lp.spin_ns))
+        now = lp.now_ns
+        if now >= lp.end_ns or now > lp.trip_at_ns or not _quiet_installs(lp, ring_io, recs, ts):
+            lp.status = RETURNED_SUPERVISE
+            return lp.status
+        lateness_us = lp.lateness_ns / 1e3
+        if not simulated_tick(tick_recs, dev, user, lp.dt, lateness_us, lp.work_prev_us):
+            lp.status = RETURNED_NOISE
+            return lp.status
+        push_row(ring, ctl, row, lateness_w, work_w, peaks)
+        lp.tick += 1
+        end = monotonic_ns(ts)
+        lp.work_prev_us = (end - now) / 1e3
+        lp.deadline_ns += lp.period_ns
+        if end >= lp.return_at_ns:  # between two ticks: no tick is left opened
+            lp.status = RETURNED_TO_PYTHON
+            return lp.status
+
+
+def compile_realtime_kernels(engine: Any) -> None:
+    """Compile (or load from the cache) realtime_ticks for `engine`'s records and device,
+    before the loop starts: on copies, with the run's end already reached (it returns at
+    the first tick, without waiting)."""
+    sim = engine.sim_device
+    loop = loop_record(1000, (0.25, 2.0), 1)
+    open_tick(loop, 0)
+    if sim is None:
+        return
+    copies = tuple(r.copy() for r in (*engine.recs, engine.install))
+    dev = tuple(r.copy() for r in sim.records)
+    ring_io = (
+        np.zeros(2, TICK_DTYPE), np.zeros(N_CTL, np.int64), np.zeros(1, MAILBOX_DTYPE),
+        np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2), copies[1]["row"],
+    )  # fmt: skip
+    realtime_ticks(copies, dev, engine.user.copy(), ring_io, loop, np.zeros(2, np.int64))
