@@ -412,4 +412,11 @@ def warm_kernels(scene: SceneConfig, device: Device | SimulatedDevice, user: Use
     engine.receive(bytes(8))  # the parser and the install route (rejected: too short)
     engine.clock[0]["ready"] = 1  # run the stages on the empty model
     engine.tick(engine.dt_nominal)
+    # what a re-initialisation calls from Python (the first install's among them: loading a
+    # kernel from the cache on its first call costs milliseconds, in the loop otherwise)
+    engine.device.read(engine.sensors)
+    if engine.sim_device is not None:
+        engine.sim_device.true_state(np.zeros(3), np.zeros(3))
+        engine.sim_device.reset(np.zeros(3))
+    engine._joint_velocity(engine.slots[0], np.zeros(3))
     min_norm_least_squares(np.eye(3, MAX_DOF), 3, 3, np.zeros(3), np.zeros(MAX_DOF))
