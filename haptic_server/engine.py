@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from device_models.base import Device, SimulatedDevice
+from device_models.common import refill_noise
 from device_models.world_map import DeviceWorldMap
 from haptic_server.model import (
     CLOCK_DTYPE,
@@ -368,9 +369,8 @@ class HapticEngine:
             self.hand[:] = hand  # replay: the recorded hand
             user = self._given_user
         if not simulated_tick(self.recs, sim.records, user, dt, lateness_us, work_us):
-            sim.noise.refill()
-            if not simulated_tick(self.recs, sim.records, user, dt, lateness_us, work_us):
-                raise ValueError(f"a tick of {dt:g} s needs more normals than the device's buffer")
+            refill_noise(sim.noise, sim.records, dt)  # raises if a block cannot cover dt
+            simulated_tick(self.recs, sim.records, user, dt, lateness_us, work_us)
         return self.row
 
     def set_update(self, seq: int, age_ms: float) -> None:
@@ -384,14 +384,11 @@ class HapticEngine:
         sim = self.sim_device
         if sim is None:
             raise TypeError(f"run_ticks needs a simulated device, not {self.device.name!r}")
-        k, refilled_at = start, -1
+        k = start
         while k < stop:
             k = run_ticks(self.recs, sim.records, self.user, dt, rows, k, stop)
             if k < stop:
-                if k == refilled_at:
-                    raise ValueError(f"a tick of {dt:g} s needs more normals than the buffer")
-                sim.noise.refill()
-                refilled_at = k
+                refill_noise(sim.noise, sim.records, dt)  # raises if a block cannot cover dt
 
     def proxy_pose(self) -> tuple[np.ndarray, np.ndarray]:
         d = int(self.slots[0]["dof"])

@@ -31,7 +31,6 @@ from haptic_server.engine import HapticEngine, warm_kernels
 from haptic_server.log import run_metadata
 from haptic_server.mailbox import C_UPD_HEAD, C_UPD_READ, compile_loop_kernels, push_row
 from haptic_server.realtime import (
-    RETURNED_NOISE,
     RETURNED_TO_PYTHON,
     compile_realtime_kernels,
     loop_record,
@@ -42,12 +41,7 @@ from haptic_server.sidecar import LoopIO
 from haptic_server.supervisor import Event, TickEvents, WatchdogClock, supervise
 from shared.config import SceneConfig, UserConfig
 from shared.net.config import NetworkConfig
-from shared.timing import (
-    LoopCounters,
-    SampleWindow,
-    try_realtime_priority,
-    wait_until,
-)
+from shared.timing import LoopCounters, SampleWindow, try_realtime_priority, wait_until
 
 DT_CLAMP = (0.25, 2.0)  # measured dt is clamped to these multiples of the nominal period
 FIRST_UPDATE_WAIT_S = 60.0  # --duration starts at the first update, or gives up after this
@@ -338,9 +332,7 @@ class HapticServer:
         stats.updates_installed += int(lp["installed"])
         stats.update_age_ms.filled(int(lp["age_count"]), float(lp["age_max"]))
         engine.set_update(self._newest_seq, self._newest_age_ms)
-        if status == RETURNED_NOISE:
-            sim.noise.refill()
-        return int(status)
+        return int(status)  # RETURNED_NOISE: engine.tick refills the block for the opened tick
 
     def _open_io(self) -> LoopIO:
         """Start the I/O sidecar (Zenoh session, MCAP writer) and map its shared memory."""
