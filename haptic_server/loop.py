@@ -41,7 +41,14 @@ from haptic_server.sidecar import LoopIO
 from haptic_server.supervisor import Event, TickEvents, WatchdogClock, supervise
 from shared.config import SceneConfig, UserConfig
 from shared.net.config import NetworkConfig
-from shared.timing import LoopCounters, SampleWindow, try_realtime_priority, wait_until
+from shared.timing import (
+    LoopCounters,
+    SampleWindow,
+    keep_to_cpu,
+    loop_cpu,
+    try_realtime_priority,
+    wait_until,
+)
 
 DT_CLAMP = (0.25, 2.0)  # measured dt is clamped to these multiples of the nominal period
 FIRST_UPDATE_WAIT_S = 60.0  # --duration starts at the first update, or gives up after this
@@ -70,6 +77,7 @@ class HapticRunStats:
     proxy_published: int = 0
     updates_lost: int = 0
     realtime_priority: bool = False
+    loop_cpu: int | None = None  # the CPU the loop kept to itself (None: not pinned)
 
     def summary(self, log_path: Path | None) -> dict[str, Any]:
         c = self.counters
@@ -90,6 +98,7 @@ class HapticRunStats:
             "update_age_ms": self.update_age_ms.percentiles(50, 99),
             "watchdog_trips": self.watchdog_trips,
             "realtime_priority": self.realtime_priority,
+            "loop_cpu": self.loop_cpu,
             "lost_log_ticks": self.lost_log_ticks,
             "updates_lost": self.updates_lost,
             "proxy_published": self.proxy_published,
@@ -191,9 +200,10 @@ class HapticServer:
         """The loop; returns the summary. `ready` is called once the loop is about to start."""
         engine = self.engine
         stats = self.stats
-        io = self._open_io()
+        cpu = loop_cpu()
+        period_ns = round(1e9 / self.scene.haptic_rate_hz)
+        io = self._open_io(cpu, period_ns)
         try:  # from here on every exit path closes the I/O process (its log, its session)
-            period_ns = round(1e9 / self.scene.haptic_rate_hz)
             watchdog_ns = int(self.network.watchdog_ms * 1e6)
             self._newest_seq = -1
             self._newest_age_ms = float("nan")
@@ -202,6 +212,8 @@ class HapticServer:
             stats.realtime_priority = try_realtime_priority()
             if not stats.realtime_priority:
                 io.lower_io_priority()
+            elif keep_to_cpu(cpu):  # the sidecar keeps off it (it was told `cpu`)
+                stats.loop_cpu = cpu
             loop = loop_record(period_ns, DT_CLAMP, watchdog_ns)
             loop[0]["budget"] = MAX_UPDATES_PER_TICK
             # everything allocated so far lives as long as the process: out of the cyclic
@@ -334,10 +346,13 @@ class HapticServer:
         engine.set_update(self._newest_seq, self._newest_age_ms)
         return int(status)  # RETURNED_NOISE: engine.tick refills the block for the opened tick
 
-    def _open_io(self) -> LoopIO:
-        """Start the I/O sidecar (Zenoh session, MCAP writer) and map its shared memory."""
+    def _open_io(self, cpu: int | None, period_ns: int) -> LoopIO:
+        """Start the I/O sidecar (Zenoh session, MCAP writer) and map its shared memory; it
+        keeps off `cpu`, which the loop will keep to itself."""
         return LoopIO(
             {
+                "loop_cpu": cpu,
+                "tick_period_ns": period_ns,
                 "namespace": self.network.namespace,
                 "endpoints": dataclasses.asdict(self.network.haptic),  # with credentials
                 "zenoh_extra": self.zenoh_extra,

@@ -47,6 +47,7 @@ MAILBOX_DTYPE = np.dtype(
         ("verdict", np.int64),  # VERDICT_PENDING, 0 installed, else the reason code
         ("tick", np.int64),  # the tick it was taken at
         ("recv_ns", np.int64),  # wall clock when the sidecar received it
+        ("install_ns", np.int64),  # wall clock when the loop took it (its tick's start)
         ("latency_s", np.float64),  # publish -> install, as installed
         ("raw", np.uint8, (SLOT_BYTES,)),  # 8-byte aligned: the parser reads floats in place
     ]
@@ -166,6 +167,7 @@ def take_updates(ctl, mailbox, tick, now_ns, budget, model, data, install):
         if code != 0:
             ins.reject_counts[code] += 1
         slot.tick = tick
+        slot.install_ns = now_ns
         slot.latency_s = latency
         slot.verdict = code
         store_release(ctl, C_UPD_READ, read + 1)  # after the verdict: the writer reads both

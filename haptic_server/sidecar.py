@@ -17,9 +17,11 @@ loop dies, even by SIGKILL, the sidecar notices, drains what is there and closes
 from __future__ import annotations
 
 import contextlib
+import gc
 import multiprocessing as mp
 import os
 import struct
+import sys
 import threading
 import time
 from multiprocessing import shared_memory
@@ -48,13 +50,22 @@ from haptic_server.mailbox import (
     SharedBlock,
     take_updates,
 )
-from shared.protocol.layout import PUBLISH_TIME_AT, PUBLISH_TIME_END
+from shared.protocol.layout import HEADER_AT, PUBLISH_TIME_AT, PUBLISH_TIME_END
+from shared.protocol.proxy import MAX_WAIT_NS, NO_WAIT, UpdateWait
+from shared.timing import avoid_cpu
 
 if TYPE_CHECKING:
     from haptic_server.engine import HapticEngine
+    from haptic_server.log import LogWriter
+
+SEQ_AT = HEADER_AT["seq"]
+SEQ_END = SEQ_AT + 8
 
 IO_POLL_S = 0.004  # the sidecar wakes at least this often (and for each proxy publish)
 IO_NICENESS = 10  # only when the loop could not get real-time priority (see _lower_priority)
+# CPython hands the GIL to a waiting thread after this long (default 5 ms): the Zenoh thread
+# that receives an update must not wait behind the log writer's Python for that long
+GIL_SWITCH_INTERVAL_S = 1e-4
 
 
 class LoopIO:
@@ -152,10 +163,9 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
 
     import zenoh
 
-    from haptic_server.log import LogWriter, update_record
+    from haptic_server.log import LogWriter
     from shared.net.config import EndpointSpec
     from shared.net.transport import keys, open_session
-    from shared.protocol.codes import reason_tag as reason_of
     from shared.protocol.proxy import encode_proxy
 
     # the loop decides when I/O ends: a Ctrl-C to the process group is ignored; SIGTERM (the
@@ -163,6 +173,8 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     terminated = threading.Event()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, lambda *_: terminated.set())
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+    avoid_cpu(config.get("loop_cpu"))  # before Zenoh starts its threads: they inherit it
     shm = shared_memory.SharedMemory(name=shm_name)
     block = SharedBlock(shm)
     ctl = block.ctl
@@ -187,16 +199,19 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
 
     subscriber = session.declare_subscriber(k.update, receive)
     log = LogWriter(config["log_path"], config["metadata"]) if config.get("log_path") else None
-    wall_start_ns = int(config["wall_start_ns"])
+    drain = _LogDrain(block, log, int(config["wall_start_ns"])) if log is not None else None
     publish_period = 1.0 / float(config["proxy_publish_hz"])
     method = int(config["method"])
-    tick_tail = 0
-    upd_logged = 0
-    evt_tail = 0
+    tick_period_ns = int(config["tick_period_ns"])
+    waits_scanned, wait = 0, NO_WAIT
     last_published_tick = -1
     next_publish = time.monotonic()
-    last_flush = time.monotonic()
     lowered = False
+    # a full collection of everything imported so far holds the GIL for up to ~50 ms, and
+    # the Zenoh thread that receives an update waits for it (measured: update age max 52 ms
+    # -> 5 ms): keep it out of the collector's sight
+    gc.collect()
+    gc.freeze()
     ctl[C_READY] = 1
     try:
         while True:
@@ -212,47 +227,14 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
                     int(newest["tick"][0]) != last_published_tick
                     and int(newest["update_seq"][0]) >= 0
                 ):
-                    publisher.put(encode_proxy(newest, method))
+                    waits_scanned, wait = newest_wait(block, waits_scanned, wait, tick_period_ns)
+                    publisher.put(encode_proxy(newest, method, wait=wait))
                     ctl[C_PUBLISHED] += 1
                     last_published_tick = int(newest["tick"][0])
                 next_publish = now + publish_period
-            if log is not None:
-                # `head` was read first: every update and event of a tick below it is already
-                # in the mailbox / ring, and is written before that tick's row, so a file cut
-                # anywhere holds all the updates of every complete tick it holds (replay).
-                read = int(ctl[C_UPD_READ])
-                evt_head = int(ctl[C_EVT_HEAD])
-                while upd_logged < read:
-                    slot = upd_logged % MAILBOX_SLOTS
-                    n = int(block.update_len[slot])
-                    code = int(block.update_verdict[slot])
-                    raw = block.updates[slot, : min(abs(n), SLOT_BYTES)].tobytes()
-                    recv_ns = int(block.update_recv_ns[slot])
-                    age_ms = (recv_ns - _publish_time_ns(raw)) / 1e6
-                    reason = "" if code == 0 else reason_of(code)
-                    rec = update_record(
-                        int(block.update_tick[slot]), raw, reason, age_ms,
-                        float(block.update_latency_s[slot]), abs(n),
-                    )  # fmt: skip
-                    log.update(rec, recv_ns)
-                    upd_logged += 1
-                    ctl[C_UPD_LOGGED] = upd_logged
-                while evt_tail < evt_head:
-                    text = bytes(block.events[evt_tail % EVENT_SLOTS]).split(b"\0", 1)[0].decode()
-                    tick_s, kind, detail = [*text.split("\t", 2), "", ""][:3]
-                    log.event(int(tick_s or 0), kind, detail, time.time_ns())
-                    evt_tail += 1
-                if head - tick_tail > RING_TICKS:
-                    ctl[C_TICK_LOST] += head - tick_tail - RING_TICKS
-                    tick_tail = head - RING_TICKS
-                while tick_tail < head:
-                    row = block.ticks[tick_tail % RING_TICKS : tick_tail % RING_TICKS + 1]
-                    log.tick(row.tobytes(), wall_start_ns + int(float(row["t"][0]) * 1e9))
-                    tick_tail += 1
-                if now - last_flush > 0.2:
-                    log.flush()
-                    last_flush = now
-            if (closing and int(ctl[C_TICK_HEAD]) == tick_tail) or (closing and log is None):
+            if drain is not None:
+                drain.drain(head, now)
+            if closing and (drain is None or int(ctl[C_TICK_HEAD]) == drain.tick_tail):
                 break
             time.sleep(max(0.0005, min(next_publish - time.monotonic(), IO_POLL_S)))
     finally:
@@ -264,6 +246,61 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         shm.close()
 
 
+class _LogDrain:
+    """What the sidecar has written to the MCAP log so far, and the writing of the rest."""
+
+    def __init__(self, block: SharedBlock, log: LogWriter, wall_start_ns: int) -> None:
+        from haptic_server.log import update_record  # the sidecar's imports, not the loop's
+        from shared.protocol.codes import reason_tag
+
+        self.block, self.log, self.wall_start_ns = block, log, wall_start_ns
+        self._record, self._reason = update_record, reason_tag
+        self.tick_tail = 0
+        self.upd_logged = 0
+        self.evt_tail = 0
+        self.last_flush = time.monotonic()
+
+    def drain(self, head: int, now: float) -> None:
+        """Write the updates, events and tick rows the loop has produced (ticks below
+        `head`, read before everything else): every update and event of a tick below it is
+        already in the mailbox / ring and is written before that tick's row, so a file cut
+        anywhere holds all the updates of every complete tick it holds (replay)."""
+        block, log, ctl = self.block, self.log, self.block.ctl
+        read = int(ctl[C_UPD_READ])
+        evt_head = int(ctl[C_EVT_HEAD])
+        while self.upd_logged < read:
+            slot = self.upd_logged % MAILBOX_SLOTS
+            n = int(block.update_len[slot])
+            code = int(block.update_verdict[slot])
+            raw = block.updates[slot, : min(abs(n), SLOT_BYTES)].tobytes()
+            recv_ns = int(block.update_recv_ns[slot])
+            age_ms = (recv_ns - _publish_time_ns(raw)) / 1e6
+            reason = "" if code == 0 else self._reason(code)
+            rec = self._record(
+                int(block.update_tick[slot]), raw, reason, age_ms,
+                float(block.update_latency_s[slot]), abs(n),
+            )  # fmt: skip
+            log.update(rec, recv_ns)
+            self.upd_logged += 1
+            ctl[C_UPD_LOGGED] = self.upd_logged
+        while self.evt_tail < evt_head:
+            text = bytes(block.events[self.evt_tail % EVENT_SLOTS]).split(b"\0", 1)[0].decode()
+            tick_s, kind, detail = [*text.split("\t", 2), "", ""][:3]
+            log.event(int(tick_s or 0), kind, detail, time.time_ns())
+            self.evt_tail += 1
+        if head - self.tick_tail > RING_TICKS:
+            ctl[C_TICK_LOST] += head - self.tick_tail - RING_TICKS
+            self.tick_tail = head - RING_TICKS
+        while self.tick_tail < head:
+            at = self.tick_tail % RING_TICKS
+            row = block.ticks[at : at + 1]
+            log.tick(row.tobytes(), self.wall_start_ns + int(float(row["t"][0]) * 1e9))
+            self.tick_tail += 1
+        if now - self.last_flush > 0.2:
+            log.flush()
+            self.last_flush = now
+
+
 def _lower_priority() -> None:
     """Nice every thread of this process (Linux nice is per thread): a loop without real-time
     priority then gets the CPU first. A SCHED_FIFO loop preempts us anyway, and a niced
@@ -271,6 +308,26 @@ def _lower_priority() -> None:
     for tid in os.listdir("/proc/self/task"):
         with contextlib.suppress(OSError):  # the thread ended meanwhile
             os.setpriority(os.PRIO_PROCESS, int(tid), IO_NICENESS)
+
+
+def newest_wait(
+    block: SharedBlock, scanned: int, wait: UpdateWait, tick_period_ns: int
+) -> tuple[int, UpdateWait]:
+    """The receipt -> install wait of the newest update the loop installed, from the mailbox
+    slots it has read since `scanned` (the sim times its steps by it: sim_server/pacing.py).
+    Returns the new scan mark and the wait (`wait` if none was installed since)."""
+    read = int(block.ctl[C_UPD_READ])
+    for i in range(max(scanned, read - MAILBOX_SLOTS), read):
+        slot = i % MAILBOX_SLOTS
+        if int(block.update_verdict[slot]) != 0:
+            continue
+        raw = block.updates[slot, :SEQ_END].tobytes()
+        wait_ns = int(block.mailbox["install_ns"][slot]) - int(block.update_recv_ns[slot])
+        seq = int(struct.unpack_from("<Q", raw, SEQ_AT)[0])
+        if seq >= 2**63:  # valid on the wire, but beyond the proxy's signed field
+            continue
+        wait = UpdateWait(seq, min(max(wait_ns, 0), MAX_WAIT_NS), tick_period_ns)
+    return read, wait
 
 
 def _publish_time_ns(raw: bytes) -> int:

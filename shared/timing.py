@@ -6,6 +6,7 @@ perf_counter_ns gives p50 lateness < 1 us on these VMs, where a plain sleep give
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from dataclasses import dataclass
@@ -48,6 +49,36 @@ def try_realtime_priority() -> bool:
         return True
     except (OSError, AttributeError):
         return False
+
+
+def loop_cpu() -> int | None:
+    """The CPU a real-time loop keeps to itself: the last one this process may run on, when
+    there are at least two (None on one CPU: nothing to keep apart)."""
+    cpus = sorted(os.sched_getaffinity(0))
+    return cpus[-1] if len(cpus) > 1 else None
+
+
+def keep_to_cpu(cpu: int | None) -> bool:
+    """Run the calling thread on `cpu` only (best effort; False where not permitted). A
+    SCHED_FIFO loop that spins before each deadline holds its CPU for that time, and any
+    ordinary thread the kernel queued on it waits until the loop sleeps (measured: updates
+    received in the spin waited for the next tick, receive -> install p50 0.82 ms at 1 kHz)."""
+    if cpu is None:
+        return False
+    try:
+        os.sched_setaffinity(0, {cpu})
+        return True
+    except OSError:
+        return False
+
+
+def avoid_cpu(cpu: int | None) -> None:
+    """Keep the calling thread, and the threads it starts from now on, off `cpu` (the loop's):
+    for the loop's I/O process, before it opens its Zenoh session."""
+    allowed = os.sched_getaffinity(0) - {cpu}
+    if cpu is not None and allowed:
+        with contextlib.suppress(OSError):
+            os.sched_setaffinity(0, allowed)
 
 
 class SampleWindow:

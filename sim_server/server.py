@@ -1,13 +1,16 @@
 """The real-time sim server: steps the pymunk world at the scene's rate and publishes the
 local model over Zenoh; follows the newest proxy state from the haptic server.
 
-The step is wall-clock paced (sleep to the next period; resynchronise after an overrun).
+The step is wall-clock paced (sleep to the next period; resynchronise after an overrun), each
+start shifted within one haptic period so that its update reaches the haptic loop shortly
+before one of its ticks (the phase lock of sim_server/pacing.py).
 Each step's update carries a sequence number, the sim time and an epoch that is new for
 every start, so a haptic server can tell a restarted sim from a late message.
 """
 
 from __future__ import annotations
 
+import gc
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -20,8 +23,9 @@ from shared.net.config import NetworkConfig
 from shared.net.transport import keys, newest_payload, open_session
 from shared.protocol.codes import Method
 from shared.protocol.proxy import ProxyState, decode_proxy
-from shared.protocol.update import MessageError, encode_update
+from shared.protocol.update import MessageError, encode_update, stamp_publication
 from shared.timing import SampleWindow
+from sim_server.pacing import PhaseLock
 from sim_server.world import SimWorld, ToolTarget
 
 
@@ -50,9 +54,24 @@ class SimServer:
         self._stop = False
         self._proxy: ProxyState | None = None
         self._proxy_wall_ns = 0
+        self.phase = PhaseLock()
 
     def request_stop(self, *_: object) -> None:
         self._stop = True
+
+    def _read_proxies(self, sub: Any, now_ns: int) -> None:
+        """Take the proxy states waiting: the newest is the drive target, and its report of
+        how long our updates waited in the haptic server times our next step."""
+        for raw in newest_payload(sub):
+            self.stats.proxies_received += 1
+            try:
+                self._proxy = decode_proxy(raw)
+                self._proxy_wall_ns = now_ns
+            except MessageError:
+                self.stats.proxies_rejected += 1
+                continue
+            if self._proxy.epoch == self.epoch:
+                self.phase.report(self._proxy.wait)
 
     def target(self, now_ns: int) -> ToolTarget | None:
         """The newest proxy as a drive target; not fresh once the haptic side is silent."""
@@ -68,12 +87,17 @@ class SimServer:
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         k = keys(self.network.namespace)
         session = open_session(self.network.sim, self.zenoh_extra, self.network.namespace)
-        pub = session.declare_publisher(k.update, congestion_control=zenoh.CongestionControl.DROP)
+        # express: sent at once, not held back to batch with other messages (STACK-NOTES)
+        pub = session.declare_publisher(
+            k.update, congestion_control=zenoh.CongestionControl.DROP, express=True
+        )
         sub = session.declare_subscriber(k.proxy, zenoh.handlers.RingChannel(4))
         period_ns = round(1e9 / self.scene.sim_rate_hz)
         # the first local model loads the kernels (about a second on a busy machine): do it
         # before saying ready, so a ready sim publishes within one period
         self.world.local_model(self.epoch, 0, time.time_ns())
+        gc.collect()  # what lives as long as the process: out of the collector's sight, so a
+        gc.freeze()  # full collection does not stall a step for tens of ms
         if ready is not None:
             ready()
         start = time.perf_counter_ns()
@@ -89,22 +113,20 @@ class SimServer:
                 if now - deadline > period_ns:
                     self.stats.overruns += 1
                     deadline = now
-                for raw in newest_payload(sub):
-                    self.stats.proxies_received += 1
-                    try:
-                        self._proxy = decode_proxy(raw)
-                        self._proxy_wall_ns = now
-                    except MessageError:
-                        self.stats.proxies_rejected += 1
+                self._read_proxies(sub, now)
+                step_start = deadline + self.phase.shift_ns(deadline)  # within one haptic period
+                _sleep_until(step_start)
                 t0 = time.perf_counter_ns()
-                lead_s = 0.0
                 if seq > 0:
-                    self.world.step(self.target(now))
-                    # the step covered [deadline, deadline + period]: the state holds then
-                    lead_s = (deadline + period_ns - time.perf_counter_ns()) / 1e9
-                update = self.world.local_model(self.epoch, seq, time.time_ns(), lead_s)
-                raw_update = encode_update(update)
-                pub.put(raw_update)
+                    self.world.step(self.target(t0))
+                raw_update = bytearray(encode_update(self.world.local_model(self.epoch, seq, 0)))
+                # stamped at the put: the step covered [step_start, step_start + period], so
+                # the state holds one period after its start, lead_s from now
+                put_ns = time.perf_counter_ns()
+                lead_s = (step_start + period_ns - put_ns) / 1e9 if seq > 0 else 0.0
+                stamp_publication(raw_update, time.time_ns(), lead_s)
+                pub.put(bytes(raw_update))
+                self.phase.published(seq, step_start, put_ns)
                 self.step_ms.add((time.perf_counter_ns() - t0) / 1e6)
                 self.stats.update_bytes = len(raw_update)
                 self.stats.steps += 1
@@ -125,3 +147,10 @@ class SimServer:
             "tool_q": np.asarray(q).tolist(),
             "epoch": self.epoch,
         }
+
+
+def _sleep_until(deadline_ns: int) -> None:
+    """Sleep until perf_counter_ns() reaches `deadline_ns` (at once if it has)."""
+    remaining = deadline_ns - time.perf_counter_ns()
+    if remaining > 0:
+        time.sleep(remaining / 1e9)

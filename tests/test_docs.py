@@ -91,3 +91,12 @@ def test_protocol_doc_is_the_table_and_matches_the_golden_bytes() -> None:
     assert struct.unpack_from("<q", golden, at)[0] == decode_update(golden).publish_time_ns
     assert f"| {at} | `publish_time_ns` |" in text
     assert encode_update(decode_update(golden)) == golden
+
+
+def test_protocol_doc_gives_the_proxy_header() -> None:
+    """docs/protocol.md states the ProxyState header's struct, size and version as coded."""
+    from shared.protocol.proxy import PROXY_HEADER, PROXY_VERSION
+
+    text = (DOCS / "protocol.md").read_text()
+    assert f"struct `{PROXY_HEADER.format}`, {PROXY_HEADER.size} bytes" in text
+    assert f"version (`PROXY_VERSION`, {PROXY_VERSION})" in text

@@ -33,7 +33,7 @@ from shared.kinematics import MAX_DOF
 from shared.protocol.codes import Reason
 from shared.protocol.codes import reason_tag as reason_of
 from shared.protocol.layout import DEFAULT_LIMITS, MAX_CONTACTS
-from shared.protocol.proxy import decode_proxy, encode_proxy
+from shared.protocol.proxy import MAX_WAIT_NS, NO_WAIT, UpdateWait, decode_proxy, encode_proxy
 from shared.protocol.update import MessageError, UpdateParser, decode_update, encode_update
 
 EXAMPLES = {
@@ -59,7 +59,7 @@ def cases(name: str) -> Any:
 
 LIM = DEFAULT_LIMITS
 HEADER = struct.Struct("<4sHHQQdqHHHHdd")  # docs/protocol.md, LocalModelUpdate header
-PROXY_HEADER = struct.Struct("<4sHHQQQdqHH")
+PROXY_HEADER = struct.Struct("<4sHHQQQdqHHqqq")  # docs/protocol.md, ProxyState header
 KNOWN_REASONS = {r.tag for r in Reason if r != Reason.OK}
 UNIT_TOL = 1e-6  # docs/protocol.md: unit normals and directions
 PARSER = UpdateParser(LIM)
@@ -426,7 +426,10 @@ def proxy_bytes(rng: np.random.Generator, d: int) -> bytes:
     r["proxy_qd"][:d] = rng.uniform(-1, 1, d)
     r["device_pose"] = rng.uniform(-1, 1, 3)
     r["device_twist"] = rng.uniform(-1, 1, 3)
-    return encode_proxy(row, int(rng.integers(0, 4)), int(rng.integers(0, 2**62)))
+    wait = UpdateWait(
+        int(rng.integers(0, 2**40)), int(rng.integers(0, MAX_WAIT_NS)), int(rng.integers(1, 10**7))
+    )
+    return encode_proxy(row, int(rng.integers(0, 4)), int(rng.integers(0, 2**62)), wait)
 
 
 @cases("proxy")
@@ -462,6 +465,10 @@ def test_proxy_decoder_rejects_or_returns_sane_state(
         values = np.concatenate([p.q, p.qd, p.device_pose, p.device_twist])
         assert np.isfinite(values).all() and math.isfinite(p.haptic_time)
         assert np.abs(values).max(initial=0.0) <= LIM.max_abs_angle_rad
+        w = p.wait  # what the sim's phase lock reads: none, or a wait within its bounds
+        assert w == NO_WAIT or (
+            w.seq >= 0 and 0 <= w.wait_ns <= MAX_WAIT_NS and w.tick_period_ns > 0
+        )
 
 
 # --- a live engine ------------------------------------------------------------------------

@@ -12,14 +12,34 @@ from dataclasses import dataclass
 import numpy as np
 
 from shared.kinematics import MAX_DOF
-from shared.protocol.layout import DEFAULT_LIMITS, PROTOCOL_VERSION, MessageLimits
+from shared.protocol.layout import DEFAULT_LIMITS, MessageLimits
 from shared.protocol.update import MessageError
 
 PROXY_MAGIC = b"HPXY"
-# magic, version, flags, epoch, update_seq, tick, haptic_time, publish_time_ns, dof, method
-PROXY_HEADER = struct.Struct("<4sHHQQQdqHH")
+#: The proxy state's own version. Up to 2 it was the update's PROTOCOL_VERSION; 3 added the
+#: receipt -> install wait of an update, which the sim locks its phase to (sim_server/pacing.py).
+PROXY_VERSION = 3
+# magic, version, flags, epoch, update_seq, tick, haptic_time, publish_time_ns, dof, method,
+# wait_seq, update_wait_ns, tick_period_ns
+PROXY_HEADER = struct.Struct("<4sHHQQQdqHHqqq")
+MAX_TICK_PERIOD_NS = 10_000_000  # a haptic loop at >= 100 Hz
+MAX_WAIT_NS = 1_000_000_000  # an update waits longer only in a stalled loop
 PROXY_SAFE_STATE = 1
 PROXY_VALID = 2  # the haptic side has installed a model of this epoch
+
+
+@dataclass(frozen=True)
+class UpdateWait:
+    """How long update `seq` waited in the haptic server between its receipt and the tick that
+    installed it (both on the haptic host's clock), and the haptic tick period: what the sim
+    needs to time its next update to arrive just before a tick. seq < 0: none known yet."""
+
+    seq: int
+    wait_ns: int
+    tick_period_ns: int
+
+
+NO_WAIT = UpdateWait(-1, -1, 0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,18 +58,26 @@ class ProxyState:
     qd: np.ndarray
     device_pose: np.ndarray
     device_twist: np.ndarray
+    wait: UpdateWait = NO_WAIT
 
 
-def encode_proxy(row: np.ndarray, method: int, publish_time_ns: int | None = None) -> bytes:
+def encode_proxy(
+    row: np.ndarray,
+    method: int,
+    publish_time_ns: int | None = None,
+    wait: UpdateWait = NO_WAIT,
+) -> bytes:
     """The ProxyState of a tick row (TICK_DTYPE[1] or one record): proxy q, qd, the measured
-    device pose and twist; stamped now unless `publish_time_ns` is given."""
+    device pose and twist, and the newest known update wait; stamped now unless
+    `publish_time_ns` is given."""
     r = row[0] if row.ndim else row
     d = int(r["dof"])
     flags = (PROXY_SAFE_STATE if r["safe"] > 0.0 else 0) | PROXY_VALID  # a row is a tick run
     stamp = time.time_ns() if publish_time_ns is None else publish_time_ns
     header = PROXY_HEADER.pack(
-        PROXY_MAGIC, PROTOCOL_VERSION, flags, int(r["update_epoch"]), int(r["update_seq"]),
-        int(r["tick"]), float(r["t"]), stamp, d, int(method),
+        PROXY_MAGIC, PROXY_VERSION, flags, int(r["update_epoch"]), int(r["update_seq"]),
+        int(r["tick"]), float(r["t"]), stamp, d, int(method), wait.seq, wait.wait_ns,
+        wait.tick_period_ns,
     )  # fmt: skip
     body = np.concatenate(
         (r["proxy_q"][:d], r["proxy_qd"][:d], r["device_pose"], r["device_twist"])
@@ -61,15 +89,19 @@ def decode_proxy(data: bytes, limits: MessageLimits = DEFAULT_LIMITS) -> ProxySt
     """Parse and validate a proxy state; raises MessageError naming what is wrong."""
     if len(data) < PROXY_HEADER.size:
         raise MessageError("short", f"{len(data)} bytes is shorter than the header")
-    magic, version, flags, epoch, useq, tick, htime, pub_ns, d, method = PROXY_HEADER.unpack_from(
-        data, 0
+    magic, version, flags, epoch, useq, tick, htime, pub_ns, d, method, wseq, wait_ns, period_ns = (
+        PROXY_HEADER.unpack_from(data, 0)
     )
     if magic != PROXY_MAGIC:
         raise MessageError("magic", f"expected {PROXY_MAGIC!r}, got {magic!r}")
-    if version != PROTOCOL_VERSION:
-        raise MessageError("version", f"protocol {version}, this build speaks {PROTOCOL_VERSION}")
+    if version != PROXY_VERSION:
+        raise MessageError("version", f"proxy version {version}, this build speaks {PROXY_VERSION}")
     if not 0 <= d <= MAX_DOF:
         raise MessageError("dof", f"dof {d} outside [0, {MAX_DOF}]")
+    if wseq >= 0 and not (0 < period_ns <= MAX_TICK_PERIOD_NS and 0 <= wait_ns <= MAX_WAIT_NS):
+        raise MessageError(
+            "timing", f"update wait {wait_ns} ns / tick period {period_ns} ns out of range"
+        )
     expected = PROXY_HEADER.size + 8 * (2 * d + 6)
     if len(data) != expected:
         raise MessageError("size", f"{len(data)} bytes, expected {expected}")
@@ -82,4 +114,5 @@ def decode_proxy(data: bytes, limits: MessageLimits = DEFAULT_LIMITS) -> ProxySt
         epoch=epoch, update_seq=useq, tick=tick, haptic_time=htime, publish_time_ns=pub_ns,
         method=method, safe_state=bool(flags & PROXY_SAFE_STATE), valid=bool(flags & PROXY_VALID),
         q=v[:d], qd=v[d : 2 * d], device_pose=v[2 * d : 2 * d + 3], device_twist=v[2 * d + 3 :],
+        wait=UpdateWait(wseq, wait_ns, period_ns) if wseq >= 0 else NO_WAIT,
     )  # fmt: skip

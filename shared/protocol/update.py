@@ -10,6 +10,7 @@ wraps it for tools and raises `MessageError`. Layout: `shared.protocol.layout`.
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 
 import numpy as np
@@ -184,6 +185,14 @@ def encode_update(u: LocalModelUpdate) -> bytes:
         + np.concatenate(ints).astype("<i8").tobytes()
         + np.concatenate(floats).astype("<f8").tobytes()
     )
+
+
+def stamp_publication(raw: bytearray, publish_time_ns: int, state_lead_s: float) -> None:
+    """Write the publish time and the state lead into an encoded update's header, in place:
+    the sim stamps them at `put`, after building and encoding the update, so the age a
+    haptic server measures is the message's transit and wait, not the sim's own work."""
+    struct.pack_into("<q", raw, PUBLISH_TIME_AT, publish_time_ns)
+    struct.pack_into("<d", raw, AT_LEAD, state_lead_s)
 
 
 # --- the parser ------------------------------------------------------------------------------
