@@ -1,7 +1,11 @@
-"""The ideal device: a task-space point mass with no friction and perfect sensing.
+"""The ideal device: a task-space point mass with perfect sensing.
 
 Seed 000's simulations assume this device (M_d = identity): M_d xdd = F_h + u. Commands are
-clipped at `max_wrench`; the pose and the hand wrench are sensed exactly.
+clipped at `max_wrench` and held (zero-order hold); the pose and the hand wrench are sensed
+exactly. Optionally (`viscous_damping`, `substeps`) the mass has physical viscous damping b,
+M_d xdd = F_h + u - b xd, integrated in `substeps` steps per tick: the continuous, damped
+plant of Colgate and Schenkel's passivity condition b > K T / 2 + |B| (benchmarks/stability.py).
+The defaults (no damping, one step per tick) are seed 000's device, bit for bit.
 """
 
 from __future__ import annotations
@@ -27,12 +31,16 @@ class IdealDeviceConfig:
     max_wrench: Vec3 = (50.0, 50.0, 5.0)  # N, N, N m
     workspace_half_extent: Vec3 = (1.0, 1.0, 10.0)  # m, m, rad around the home pose
     max_rate_hz: float = 10000.0
+    viscous_damping: Vec3 = (0.0, 0.0, 0.0)  # b: N s/m, N s/m, N m s/rad (physical friction)
+    substeps: int = 1  # semi-implicit Euler steps per advance (per tick)
     rendering: DeviceRenderingSpec = field(default_factory=DeviceRenderingSpec)
     world_map: WorldMapSection | None = None  # None: scale 1, the engine sets the offset
 
     def __post_init__(self) -> None:
         require(all(v > 0 for v in self.inertia), "inertia", "must be > 0")
         require(all(v > 0 for v in self.max_wrench), "max_wrench", "must be > 0")
+        require(all(v >= 0 for v in self.viscous_damping), "viscous_damping", "must be >= 0")
+        require(self.substeps >= 1, "substeps", "must be >= 1")
 
     @classmethod
     def from_toml_dict(cls, data: dict[str, Any], source: str) -> IdealDeviceConfig:
@@ -40,7 +48,14 @@ class IdealDeviceConfig:
 
 
 #: The ideal device's parameters and state, as kernel records.
-PARAMS_DTYPE = np.dtype([("inertia", np.float64, (3,)), ("max_wrench", np.float64, (3,))])
+PARAMS_DTYPE = np.dtype(
+    [
+        ("inertia", np.float64, (3,)),
+        ("max_wrench", np.float64, (3,)),
+        ("viscous_damping", np.float64, (3,)),
+        ("substeps", np.int64),
+    ]
+)
 STATE_DTYPE = np.dtype(
     [
         ("pose", np.float64, (3,)),
@@ -75,12 +90,21 @@ def _command(params, state, wrench):
 
 @njit(cache=True)
 def _advance(params, state, work, dt, hand, normals, noise_index):
-    """Semi-implicit Euler of M xdd = F_h + u over dt."""
+    """Semi-implicit Euler of M xdd = F_h + u - b xd over dt in `substeps` equal steps, the
+    hand's wrench and the command u held (zero-order hold). Without damping and with one
+    step this is the original single step, term for term."""
     st = state[0]
     inertia = params[0].inertia
-    for c in range(3):
-        st.twist[c] += dt * (hand[c] + st.held[c]) / inertia[c]
-        st.pose[c] += dt * st.twist[c]
+    damping = params[0].viscous_damping
+    n = params[0].substeps
+    h = dt / n if n > 1 else dt
+    for _ in range(n):
+        for c in range(3):
+            force = hand[c] + st.held[c]
+            if damping[c] != 0.0:
+                force -= damping[c] * st.twist[c]
+            st.twist[c] += h * force / inertia[c]
+            st.pose[c] += h * st.twist[c]
 
 
 @njit(cache=True)
@@ -144,6 +168,8 @@ class IdealDevice(KernelDevice):
         params = np.zeros(1, PARAMS_DTYPE)
         params[0]["inertia"] = config.inertia
         params[0]["max_wrench"] = config.max_wrench
+        params[0]["viscous_damping"] = config.viscous_damping
+        params[0]["substeps"] = config.substeps
         h = config.workspace_half_extent
         limits = DeviceLimits(
             max_wrench=config.max_wrench,
@@ -155,7 +181,7 @@ class IdealDevice(KernelDevice):
         super().__init__(records, limits, config.rendering, world_map)
 
     def servo_plant(self) -> tuple[np.ndarray, float]:
-        return np.zeros(3), 0.0  # no damping, exact twist
+        return np.array(self.config.viscous_damping, dtype=np.float64), 0.0  # exact twist
 
     def reset(self, pose: np.ndarray) -> None:
         st = self.state[0]

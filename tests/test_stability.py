@@ -8,20 +8,33 @@ import numpy as np
 import pytest
 
 from benchmarks.stability import (
+    COUPLED,
+    LOCAL_MODEL,
     _push,
     _run,
     _wall_scene,
     classify,
     colgate_bound,
+    engine_wall_boundary,
     many_contacts_case,
     proxy_kinetic,
     sampled_wall_boundary,
+    wall_generates,
 )
 from device_models.ideal import IdealDevice, IdealDeviceConfig
 from shared.config import load_scene
 
 BOUND_TOL = 0.20  # issue 7: the measured boundary within 20% of the passivity bound
 PERIOD_S = 1.06e-3  # 1 kHz plus the measured p99.9 lateness
+#: The engine's wall (docs/stability/report.md, "This engine's wall vs haptic rate"): the
+#: issue's acceptance band, +-25% of the bound, and for the growth from 1 to 4 kHz. Measured
+#: 0.94 and 0.98 of the bound at b = 5 N s/m: the engine's wall starts one tick late (the
+#: contact is detected on the proxy a tick after it crossed), which costs O(omega T).
+ENGINE_BOUND_TOL = 0.25
+RATE_RATIO_TOL = 0.25
+ENGINE_B = 5.0  # N s/m, the device's damping in the engine tests
+#: semi-implicit Euler with explicit damping: relative error ~ t b^2 h / (2 m^2) = 1e-4 here
+DAMPED_DEVICE_TOL = 1e-3
 
 
 @pytest.mark.parametrize("b_device", [1.0, 5.0, 20.0])
@@ -81,3 +94,45 @@ def test_user_force_beyond_what_the_device_can_resist_is_clipped_not_amplified()
     limits = np.array(IdealDeviceConfig().max_wrench)
     assert (np.abs(ticks["wrench_applied"]) <= limits + 1e-12).all()
     assert np.isfinite(ticks["wrench_command"]).all()
+
+
+def _engine_boundary(rate_hz: float) -> tuple[float, float]:
+    bound = colgate_bound(ENGINE_B, 0.0, 1.0 / rate_hz)
+    return engine_wall_boundary(COUPLED, rate_hz, ENGINE_B, 0.0, (bound / 8, bound * 8)), bound
+
+
+def test_engine_wall_boundary_follows_colgate_at_1_and_4_khz() -> None:
+    """The real engine's sampled wall (virtual coupling to a pinned tool, the ideal device
+    with damping b): its passivity boundary is Colgate's 2 b / T and grows with the rate."""
+    k1, bound1 = _engine_boundary(1000.0)
+    k4, bound4 = _engine_boundary(4000.0)
+    assert abs(k1 / bound1 - 1.0) < ENGINE_BOUND_TOL, (k1, bound1)
+    assert abs(k4 / bound4 - 1.0) < ENGINE_BOUND_TOL, (k4, bound4)
+    assert abs((k4 / k1) / 4.0 - 1.0) < RATE_RATIO_TOL, k4 / k1
+
+
+def test_local_model_wall_is_not_a_sampled_wall_on_the_device() -> None:
+    """With no device damping Colgate's bound allows no stiffness for a wall sampled at the
+    device; the local model renders the contact on its implicit proxy and stays passive at
+    ten times the bound of a 5 N s/m device (its limit scales with m / T^2, the report)."""
+    stiffness = 10.0 * colgate_bound(ENGINE_B, 0.0, 1e-3)
+    assert not wall_generates(LOCAL_MODEL, 1000.0, stiffness, 0.0, 0.0)
+    assert wall_generates(COUPLED, 1000.0, stiffness, 0.0, 0.0)
+
+
+def test_ideal_device_viscous_damping_decays_as_the_closed_form() -> None:
+    """The ideal device's optional damping and substeps: m vd = -b v from v0 gives
+    v = v0 exp(-b t / m) and x = v0 m / b (1 - exp(-b t / m)) (no command, no hand)."""
+    mass, b, v0, dt, ticks = 0.5, ENGINE_B, 0.05, 1e-3, 100
+    device = IdealDevice(
+        IdealDeviceConfig(inertia=(mass, mass, 1e-3), viscous_damping=(b, b, 0.0), substeps=64)
+    )
+    device.state[0]["twist"][0] = v0
+    for _ in range(ticks):
+        device.advance(dt, np.zeros(3))
+    decay = np.exp(-b * ticks * dt / mass)
+    assert device.state[0]["twist"][0] == pytest.approx(v0 * decay, rel=DAMPED_DEVICE_TOL)
+    x = v0 * mass / b * (1.0 - decay)
+    assert device.state[0]["pose"][0] == pytest.approx(x, rel=DAMPED_DEVICE_TOL)
+    assert IdealDeviceConfig().viscous_damping == (0.0, 0.0, 0.0)  # the default: undamped
+    assert IdealDeviceConfig().substeps == 1  # and one step per tick, as before
