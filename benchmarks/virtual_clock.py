@@ -4,7 +4,7 @@ Every scene in configs/scenes (the default `testbed` and the heaviest, `maglev_s
 included) runs `--seconds` of simulated time `--repeats` times, without a log and with the
 MCAP log written, interleaved; prints the median speed-up (simulated s / wall s), its
 spread, and where the time goes (ms of wall time per simulated second: the sim's step, its
-local model, the encoder, the install, the haptic ticks). The first run of each scene loads
+local model with its encoding, the install, the haptic ticks). The first run of each scene loads
 the numba cache and is not counted. Targets: >= 200x without a log, >= 100x with it.
 
     python -m benchmarks.virtual_clock [--seconds 10] [--repeats 5]
@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     scenes = sorted(p.stem for p in (CONFIG_ROOT / "scenes").glob("*.toml"))
     head = f"{'no log: median':>16}{'min':>8}{'max':>8}{'MCAP log: median':>18}{'min':>8}{'max':>8}"
-    print(f"{'scene':<20}{head}   ms per simulated s: sim/local model/encode/install/ticks")
+    print(f"{'scene':<20}{head}   ms per simulated s: sim/local model/install/ticks")
     with tempfile.TemporaryDirectory() as tmp:
         for scene in scenes:
             user = USERS.get(scene, "swing")

@@ -239,6 +239,84 @@ class BodySpec:
 
 
 @dataclass(frozen=True)
+class CrowdSpec:
+    """Many like dynamic bodies on a jittered grid filling a rectangle: `count` bodies named
+    `<name>_0` ... (a scene of a thousand without a thousand tables)."""
+
+    name: str
+    count: int
+    shape: Literal["circle", "box"]
+    material: str
+    region: tuple[Vec2, Vec2]  # lower-left and upper-right corners, m
+    spacing_m: float  # grid pitch
+    radius: float = 0.0  # circle radius, m
+    size: Vec2 = (0.0, 0.0)  # box sides, m
+    mass: float = 0.01  # kg
+    jitter_m: float = 0.0  # each position moved by up to this much (uniform), seeded
+    seed: int = 0
+    linear_damping_per_s: float = 0.0  # drag of the table they slide on
+
+    def __post_init__(self) -> None:
+        require(self.count >= 1, "count", "must be >= 1")
+        require(self.spacing_m > 0, "spacing_m", "must be > 0")
+        require(self.mass > 0, "mass", "must be > 0")
+        require(self.jitter_m >= 0, "jitter_m", "must be >= 0")
+        require(self.linear_damping_per_s >= 0, "linear_damping_per_s", "must be >= 0")
+        extent = 2 * self.radius if self.shape == "circle" else max(self.size)
+        require(extent > 0, "radius" if self.shape == "circle" else "size", "must be > 0")
+        require(
+            extent + 2 * self.jitter_m < self.spacing_m,
+            "spacing_m",
+            f"must exceed the body's extent plus twice the jitter ({extent + 2 * self.jitter_m:g}"
+            " m): neighbours would start overlapping",
+        )
+        (x0, y0), (x1, y1) = self.region
+        require(x1 > x0 and y1 > y0, "region", "needs [[x_min, y_min], [x_max, y_max]]")
+        fits = (int((x1 - x0) / self.spacing_m) + 1) * (int((y1 - y0) / self.spacing_m) + 1)
+        require(
+            fits >= self.count, "count", f"{self.count} bodies do not fit the region ({fits} do)"
+        )
+
+    def bodies(self) -> tuple[BodySpec, ...]:
+        """The bodies, row by row from the lower-left corner (the same for the same spec)."""
+        import numpy as np  # config loading stays light where no scene has a crowd
+
+        (x0, _), (x1, _) = self.region
+        columns = int((x1 - x0) / self.spacing_m) + 1
+        rng = np.random.default_rng(self.seed)
+        jitter = rng.uniform(-self.jitter_m, self.jitter_m, (self.count, 2))
+        return tuple(self._body(i, columns, jitter[i]) for i in range(self.count))
+
+    def _body(self, i: int, columns: int, jitter: Any) -> BodySpec:
+        (x0, y0), _ = self.region
+        position = (
+            x0 + (i % columns) * self.spacing_m + float(jitter[0]),
+            y0 + (i // columns) * self.spacing_m + float(jitter[1]),
+        )
+        return BodySpec(
+            name=f"{self.name}_{i}", kind="dynamic", shape=self.shape, material=self.material,
+            radius=self.radius, size=self.size, mass=self.mass, position=position,
+            linear_damping_per_s=self.linear_damping_per_s,
+        )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class SpaceSpec:
+    """pymunk's broad phase and sleeping, for scenes of many bodies (defaults: pymunk's)."""
+
+    spatial_hash_cell_m: float = 0.0  # > 0: a spatial hash of this cell size (else a BB tree)
+    spatial_hash_count: int = 1000  # its table size: about the number of shapes
+    sleep_time_s: float = 0.0  # > 0: bodies idle this long fall asleep until touched
+    idle_speed_m_per_s: float = 0.0  # below this a body counts as idle (0: pymunk's guess)
+
+    def __post_init__(self) -> None:
+        require(self.spatial_hash_cell_m >= 0, "spatial_hash_cell_m", "must be >= 0")
+        require(self.spatial_hash_count >= 1, "spatial_hash_count", "must be >= 1")
+        require(self.sleep_time_s >= 0, "sleep_time_s", "must be >= 0")
+        require(self.idle_speed_m_per_s >= 0, "idle_speed_m_per_s", "must be >= 0")
+
+
+@dataclass(frozen=True)
 class LinkageSpec:
     """A grounded planar serial linkage with revolute joints (DESIGN §2)."""
 
@@ -333,8 +411,10 @@ class SceneConfig:
     haptic_rate_hz: float = 1000.0
     initial_device_offset: Vec3 = (0.0, 0.0, 0.0)  # device start pose minus the VM's, m, rad
     bodies: tuple[BodySpec, ...] = ()
+    crowds: tuple[CrowdSpec, ...] = ()
     linkages: tuple[LinkageSpec, ...] = ()
     rendering: RenderingSpec = field(default_factory=RenderingSpec)
+    space: SpaceSpec = field(default_factory=SpaceSpec)
 
     def __post_init__(self) -> None:
         require(10.0 <= self.sim_rate_hz <= 500.0, "sim_rate_hz", "must be in [10, 500] Hz")
@@ -345,7 +425,16 @@ class SceneConfig:
             f"must be in [100, {MAX_HAPTIC_RATE_HZ:g}] Hz",
         )
         names = [b.name for b in self.bodies] + [lk.name for lk in self.linkages]
-        require(len(names) == len(set(names)), "bodies", "body and linkage names must be unique")
+        names += [f"{c.name}_{i}" for c in self.crowds for i in range(c.count)]
+        require(
+            len(names) == len(set(names)), "bodies", "body, crowd and linkage names must be unique"
+        )
+        for i, c in enumerate(self.crowds):
+            require(
+                c.material in self.materials,
+                f"crowds[{i}].material",
+                f"unknown material {c.material!r}",
+            )
         for i, b in enumerate(self.bodies):
             require(
                 b.material in self.materials,
@@ -391,6 +480,11 @@ class SceneConfig:
             f"semi-implicit Euler step limit is {1e3 * h_max:.3f} ms, and substeps must be "
             f"at most half of it (shared/coupling.py)",
         )
+
+    @property
+    def all_bodies(self) -> tuple[BodySpec, ...]:
+        """The bodies and every crowd's bodies, in that order (what the sim builds)."""
+        return self.bodies + tuple(b for c in self.crowds for b in c.bodies())
 
     @property
     def tool_body(self) -> BodySpec:

@@ -95,3 +95,60 @@ def min_norm_least_squares(a, m, n, b, x):
                 s += a[r, c] * rhs[r]
             x[c] = s
     return True
+
+
+JACOBI_SWEEPS = 64  # cyclic sweeps at most; 3 x 3 matrices converge in 4-6
+
+
+@njit(cache=True)
+def symmetric_eigen(a, n, values, vectors):
+    """Eigenvalues (descending) and unit eigenvectors (the columns of `vectors`) of the
+    symmetric n x n block of `a`, by cyclic Jacobi rotations in a fixed order: no LAPACK, so
+    the same bits on every CPU (Golub & Van Loan §8.5). `a` is left as it was."""
+    w = np.empty((n, n))
+    scale = 0.0
+    for i in range(n):
+        for j in range(n):
+            w[i, j] = a[i, j]
+            vectors[i, j] = 1.0 if i == j else 0.0
+            scale += a[i, j] * a[i, j]
+    for _ in range(JACOBI_SWEEPS):
+        off = 0.0
+        for p in range(n):
+            for q in range(p + 1, n):
+                off += w[p, q] * w[p, q]
+        if off <= 1e-32 * scale:
+            break
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                if w[p, q] == 0.0:
+                    continue
+                theta = (w[q, q] - w[p, p]) / (2.0 * w[p, q])
+                t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                if theta < 0.0:
+                    t = -t
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                s = t * c
+                for k in range(n):  # w <- w J, then J^T w; vectors <- vectors J
+                    wkp, wkq = w[k, p], w[k, q]
+                    w[k, p] = c * wkp - s * wkq
+                    w[k, q] = s * wkp + c * wkq
+                for k in range(n):
+                    wpk, wqk = w[p, k], w[q, k]
+                    w[p, k] = c * wpk - s * wqk
+                    w[q, k] = s * wpk + c * wqk
+                for k in range(n):
+                    vkp, vkq = vectors[k, p], vectors[k, q]
+                    vectors[k, p] = c * vkp - s * vkq
+                    vectors[k, q] = s * vkp + c * vkq
+    for i in range(n):
+        values[i] = w[i, i]
+    for i in range(n):  # selection sort, descending, the vectors along
+        best = i
+        for j in range(i + 1, n):
+            if values[j] > values[best]:
+                best = j
+        if best != i:
+            values[i], values[best] = values[best], values[i]
+            for k in range(n):
+                vectors[k, i], vectors[k, best] = vectors[k, best], vectors[k, i]

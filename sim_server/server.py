@@ -23,10 +23,10 @@ from shared.net.config import NetworkConfig
 from shared.net.transport import keys, newest_payload, open_session
 from shared.protocol.codes import Method
 from shared.protocol.proxy import ProxyState, decode_proxy
-from shared.protocol.update import MessageError, encode_update, stamp_publication
+from shared.protocol.update import MessageError, stamp_publication
 from shared.timing import SampleWindow
 from sim_server.pacing import PhaseLock
-from sim_server.world import SimWorld, ToolTarget
+from sim_server.world import SimWorld, ToolTarget, warm_kernels
 
 
 @dataclass
@@ -50,7 +50,8 @@ class SimServer:
         self.epoch = time.time_ns()
         self.zenoh_extra = zenoh_extra
         self.stats = SimStats()
-        self.step_ms = SampleWindow(100_000)
+        self.step_ms = SampleWindow(100_000)  # a step's work: step, local model, put
+        self.interval_ms = SampleWindow(100_000)  # from one step's start to the next's
         self._stop = False
         self._proxy: ProxyState | None = None
         self._proxy_wall_ns = 0
@@ -93,9 +94,9 @@ class SimServer:
         )
         sub = session.declare_subscriber(k.proxy, zenoh.handlers.RingChannel(4))
         period_ns = round(1e9 / self.scene.sim_rate_hz)
-        # the first local model loads the kernels (about a second on a busy machine): do it
-        # before saying ready, so a ready sim publishes within one period
-        self.world.local_model(self.epoch, 0, time.time_ns())
+        # the first step and local model load the kernels (about a second on a busy machine):
+        # do it before saying ready, so a ready sim publishes within one period
+        warm_kernels(self.scene)
         gc.collect()  # what lives as long as the process: out of the collector's sight, so a
         gc.freeze()  # full collection does not stall a step for tens of ms
         if ready is not None:
@@ -104,6 +105,7 @@ class SimServer:
         end = start + int(duration_s * 1e9) if duration_s else None
         deadline = start
         seq = 0
+        last_start = start
         try:
             while not self._stop:
                 now = time.perf_counter_ns()
@@ -118,8 +120,10 @@ class SimServer:
                 _sleep_until(step_start)
                 t0 = time.perf_counter_ns()
                 if seq > 0:
+                    self.interval_ms.add((t0 - last_start) / 1e6)
                     self.world.step(self.target(t0))
-                raw_update = bytearray(encode_update(self.world.local_model(self.epoch, seq, 0)))
+                last_start = t0
+                raw_update = bytearray(self.world.local_model_bytes(self.epoch, seq, 0))
                 # stamped at the put: the step covered [step_start, step_start + period], so
                 # the state holds one period after its start, lead_s from now
                 put_ns = time.perf_counter_ns()
@@ -143,6 +147,11 @@ class SimServer:
             "proxies_received": self.stats.proxies_received,
             "proxies_rejected": self.stats.proxies_rejected,
             "step_ms": self.step_ms.percentiles(50, 99),
+            "interval_ms": self.interval_ms.percentiles(50, 99),
+            # the rate the steps came at: from the median interval (a stall does not hide)
+            "step_rate_hz": 1e3 / self.interval_ms.percentiles(50)["p50"]
+            if self.interval_ms.count
+            else 0.0,
             "update_bytes": self.stats.update_bytes,
             "tool_q": np.asarray(q).tolist(),
             "epoch": self.epoch,

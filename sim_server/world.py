@@ -2,9 +2,11 @@
 
 `SimWorld.step(target)` advances the world by one sim period (with substeps), driving the
 tool toward the haptic proxy (or, for virtual_coupling_foh, coupling it to the device), and
-`SimWorld.local_model(...)` computes what DESIGN §3 says the sim publishes: D, G (only when
-g != 0), J_h, Lambda^-1, the resisted directions by SVD (only for a linkage) and the
-neighbourhood contacts of every tool shape.
+`SimWorld.local_model_bytes(...)` encodes what DESIGN §3 says the sim publishes: D, G (only
+when g != 0), J_h, Lambda^-1, the resisted directions (only for a linkage) and the
+neighbourhood contacts of every tool shape. Both are one compiled call each, over pymunk's
+C core (sim_server/drive.py, sim_server/local_model.py); this class builds the world and the
+records they read.
 """
 
 from __future__ import annotations
@@ -26,13 +28,29 @@ from shared.kinematics import (
     point_jacobian,
     point_on_link,
 )
-from shared.protocol.update import ContactSet, LocalModelUpdate
+from shared.protocol.layout import MAX_CONTACTS, MAX_RESISTED, update_size
+from shared.protocol.update import LocalModelUpdate, encode_record, update_from_record
+from sim_server.chipmunk import body_ptr, set_velocity_function, space_ptr
+from sim_server.drive import (
+    DRIVE_DEVICE,
+    DRIVE_PROXY,
+    DRIVE_REST,
+    KINEMATIC_DTYPE,
+    TARGET_DTYPE,
+    drive_work,
+    step_world,
+    table_drag,
+)
 from sim_server.local_model import (
     TOOL_GROUP,
+    LocalModelKernel,
     StageStats,
     build_local_model,
-    neighbourhood_contacts,
 )
+from sim_server.tool import TOOL_BODY, TOOL_DTYPE, TOOL_LINKAGE
+
+#: The largest update (all sections, every contact): the encoder's buffer
+MAX_UPDATE_BYTES = update_size(MAX_DOF, MAX_RESISTED, MAX_CONTACTS, 0xF)
 
 
 @dataclass
@@ -58,24 +76,32 @@ class SimWorld:
         self.time = 0.0
         self.period = 1.0 / scene.sim_rate_hz
         self.substeps = scene.sim_substeps
-        self._shape_material: dict[pymunk.Shape, Material] = {}
-        self._shape_key: dict[pymunk.Shape, int] = {}
+        self.shape_materials: dict[pymunk.Shape, Material] = {}
+        self.shape_keys: dict[pymunk.Shape, int] = {}  # in the order registered
         self._kinematic: list[tuple[pymunk.Body, BodySpec]] = []
+        self._velocity_functions: list[Any] = []  # compiled velocity updates in use (alive)
         self.tool_bodies: list[pymunk.Body] = []
         self.tool_shapes: list[tuple[pymunk.Shape, int]] = []  # (shape, link index)
-        for spec in scene.bodies:
+        _configure_space(self.space, scene)
+        for spec in scene.all_bodies:
             self._add_body(spec)
         for lk in scene.linkages:
             self._add_linkage(lk.name)
         self._setup_tool_chain()
-        self._queries: list[pymunk.Shape] | None = None
         self.stats = StageStats()
+        self.space.step(0.0)  # pymunk's checks of the bodies added (a zero step moves nothing)
+        self.tool = self._tool_record()
+        self._target = np.zeros(1, TARGET_DTYPE)
+        self._kinematic_rec = _kinematic_records(self._kinematic)
+        self._drive_work = drive_work()
+        self._local = LocalModelKernel(self)
+        self._encoded = np.zeros(MAX_UPDATE_BYTES, np.uint8)
 
     # --- construction -------------------------------------------------------------------
 
     def _register(self, shape: pymunk.Shape, material: str) -> None:
-        self._shape_material[shape] = self.scene.materials[material]
-        self._shape_key[shape] = len(self._shape_key)
+        self.shape_materials[shape] = self.scene.materials[material]
+        self.shape_keys[shape] = len(self.shape_keys)
 
     def _add_body(self, spec: BodySpec) -> None:
         is_tool = self.scene.tool.kind == "body" and self.scene.tool.name == spec.name
@@ -91,7 +117,9 @@ class SimWorld:
         else:
             body = pymunk.Body(spec.mass, _moment(spec))
             if spec.linear_damping_per_s > 0.0 and not is_tool:
-                body.velocity_func = _table_drag(spec.linear_damping_per_s)
+                drag = table_drag(spec.linear_damping_per_s)
+                set_velocity_function(body, drag.address)
+                self._velocity_functions.append(drag)
         body.position = spec.position
         body.angle = spec.angle
         if spec.kind != "static":
@@ -136,7 +164,7 @@ class SimWorld:
             shape.friction = mat.friction
             shape.elasticity = mat.restitution
             shape.filter = pymunk.ShapeFilter(
-                group=TOOL_GROUP if is_tool else 100 + len(self._shape_key)
+                group=TOOL_GROUP if is_tool else 100 + len(self.shape_keys)
             )
             joint = pymunk.PivotJoint(prev, body, tuple(pos))
             joint.collide_bodies = False
@@ -274,148 +302,111 @@ class SimWorld:
         )
         return mass, grav, jac
 
-    # --- stepping -----------------------------------------------------------------------
+    # --- stepping (sim_server/drive.py) ------------------------------------------------
+
+    def _tool_record(self) -> np.ndarray:
+        """The tool as the compiled step and local model read it (sim_server/tool.py)."""
+        tool, rendering = self.scene.tool, self.scene.rendering
+        rec = np.zeros(1, TOOL_DTYPE)
+        t = rec[0]
+        t["space"] = space_ptr(self.space)
+        t["kind"] = TOOL_BODY if tool.kind == "body" else TOOL_LINKAGE
+        t["dof"] = self.dof
+        t["bodies"][: len(self.tool_bodies)] = [body_ptr(b) for b in self.tool_bodies]
+        t["gravity"] = self.gravity
+        t["base_angle"] = self.base_angle
+        t["op_link"] = self.op_link
+        t["op_point"] = self.op_point
+        t["bandwidth_hz"] = tool.tracking_bandwidth_hz
+        t["foh_stiffness"] = rendering.foh_spring_stiffness
+        t["foh_damping"] = rendering.foh_spring_damping
+        t["characteristic_length"] = tool.characteristic_length_m
+        t["rank_tolerance"] = tool.rank_tolerance
+        t["margin"] = tool.neighbourhood_margin_m
+        return rec
 
     def step(self, target: ToolTarget | None) -> None:
-        """Advance one sim period: drive the tool, move kinematic bodies, substep pymunk."""
-        h = self.period / self.substeps
-        q, _ = self.tool_state()
-        self._drive_mass, self._drive_gravity, _ = self.dynamics_terms(q)  # frozen for the period
-        for k in range(self.substeps):
-            t = self.time + k * h
-            for body, spec in self._kinematic:
-                self._move_kinematic(body, spec, t + h)
-            self._drive_tool(target, k * h)
-            self.space.step(h)
+        """Advance one sim period: drive the tool, move kinematic bodies, substep pymunk (one
+        compiled call)."""
+        tg = self._target[0]
+        if target is None or not target.fresh:
+            tg["mode"] = DRIVE_REST
+        else:
+            tg["mode"] = DRIVE_DEVICE if target.coupled_to_device else DRIVE_PROXY
+            tg["q"][: self.dof] = target.q
+            tg["qd"][: self.dof] = target.qd
+            tg["device_pose"] = target.device_pose
+            tg["device_twist"] = target.device_twist
+        step_world(
+            self.tool, self._target, self.chain, self._kinematic_rec, self.time, self.period,
+            self.substeps, self._drive_work,
+        )  # fmt: skip
         self.time += self.period
 
-    def _move_kinematic(self, body: pymunk.Body, spec: BodySpec, t: float) -> None:
-        if spec.oscillation_period_s > 0.0:
-            w = 2.0 * math.pi / spec.oscillation_period_s
-            body.velocity = (
-                spec.velocity[0] + spec.oscillation_amplitude[0] * w * math.cos(w * t),
-                spec.velocity[1] + spec.oscillation_amplitude[1] * w * math.cos(w * t),
-            )
+    # --- the local model (sim_server/local_model.py) ------------------------------------
 
-    def _drive_tool(self, target: ToolTarget | None, t_ahead: float) -> None:
-        """Computed-torque tracking of the proxy (seed 001 Fig. 1): the tool follows it with
-        bandwidth tracking_bandwidth_hz and pushes the world with the forces pymunk resolves."""
-        coupled = target is not None and target.fresh and target.coupled_to_device
-        if self.scene.tool.kind == "body":
-            if coupled:
-                assert target is not None
-                self._couple_body(target, t_ahead)
-            else:
-                self._drive_body(target, t_ahead)
-            return
-        q, qd = self.tool_state()
-        mass, grav = self._drive_mass, self._drive_gravity
-        w = 2.0 * math.pi * self.scene.tool.tracking_bandwidth_hz
-        if target is None or not target.fresh:
-            acc = -2.0 * w * qd  # nobody drives it: damp the tool to rest
-            tau = mass @ acc
-        elif target.coupled_to_device:
-            tau = self._device_coupling(target, q, qd, t_ahead)
-        else:
-            q_goal = target.q + target.qd * t_ahead
-            acc = w * w * (q_goal - q) + 2.0 * w * (target.qd - qd)
-            tau = mass @ acc
-        # pymunk applies gravity itself (-G in generalized form): add G so the drive has no
-        # steady error.
-        self._apply_generalized(tau + grav)
+    def local_model_bytes(
+        self, epoch: int, seq: int, publish_time_ns: int, state_lead_s: float = 0.0
+    ) -> bytes:
+        """The encoded local model of DESIGN §3 at the tool's current state.
 
-    def _drive_body(self, target: ToolTarget | None, t_ahead: float) -> None:
-        """_drive_tool for a free body (D = diag(m, m, I), no gravity term), in plain floats:
-        this runs every substep, and numpy on three numbers costs more than the physics."""
-        b = self.tool_bodies[0]
-        w = 2.0 * math.pi * self.scene.tool.tracking_bandwidth_hz
-        px, py = b.position
-        vx, vy = b.velocity
-        th, om = b.angle, b.angular_velocity
-        if target is None or not target.fresh:
-            ax, ay, al = -2.0 * w * vx, -2.0 * w * vy, -2.0 * w * om
-        else:
-            gq, gv = target.q, target.qd
-            ax = w * w * (gq[0] + gv[0] * t_ahead - px) + 2.0 * w * (gv[0] - vx)
-            ay = w * w * (gq[1] + gv[1] * t_ahead - py) + 2.0 * w * (gv[1] - vy)
-            al = w * w * (gq[2] + gv[2] * t_ahead - th) + 2.0 * w * (gv[2] - om)
-        m = b.mass
-        fx, fy = m * ax - m * self.scene.gravity[0], m * ay - m * self.scene.gravity[1]
-        b.apply_force_at_world_point((fx, fy), b.local_to_world(b.center_of_gravity))
-        b.torque += b.moment * al
-
-    def _device_coupling(
-        self, target: ToolTarget, q: np.ndarray, qd: np.ndarray, t_ahead: float
-    ) -> np.ndarray:
-        """virtual_coupling_foh (seed 002 §4): K_spring (x_dev - x_tool) - K_damp v_tool, the
-        device pose extrapolated by its twist over the period (as the proxy is)."""
-        r = self.scene.rendering
-        _, _, jac = self.dynamics_terms(q)
-        x_tool = self.operational_pose(q)
-        v_tool = jac @ qd
-        x_dev = target.device_pose + target.device_twist * t_ahead
-        stiffness = np.array(r.foh_spring_stiffness)
-        f = stiffness * (x_dev - x_tool) - np.array(r.foh_spring_damping) * v_tool
-        return jac.T @ f
-
-    def _couple_body(self, target: ToolTarget, t_ahead: float) -> None:
-        """_device_coupling for a free body, in plain floats (it runs every substep, and the
-        stiff coupling needs many: shared/coupling.py). The spring acts at the operational
-        point r (body frame; the body's centre of mass is its origin); pymunk's gravity on the
-        tool is cancelled, as the proxy drive does."""
-        b = self.tool_bodies[0]
-        r = self.scene.rendering
-        k = r.foh_spring_stiffness
-        c = r.foh_spring_damping
-        dp, dv = target.device_pose, target.device_twist
-        x, y = b.position
-        vx, vy = b.velocity
-        th, om = b.angle, b.angular_velocity
-        cos_t, sin_t = math.cos(th), math.sin(th)
-        rx = cos_t * self.op_point[0] - sin_t * self.op_point[1]
-        ry = sin_t * self.op_point[0] + cos_t * self.op_point[1]
-        fx = k[0] * (dp[0] + dv[0] * t_ahead - x - rx) - c[0] * (vx - om * ry)
-        fy = k[1] * (dp[1] + dv[1] * t_ahead - y - ry) - c[1] * (vy + om * rx)
-        tau = k[2] * (dp[2] + dv[2] * t_ahead - th) - c[2] * om
-        g = self.scene.gravity
-        m = b.mass
-        b.apply_force_at_world_point((fx - m * g[0], fy - m * g[1]), (x, y))
-        b.torque += tau + rx * fy - ry * fx
-
-    def _apply_generalized(self, tau: np.ndarray) -> None:
-        """Apply configuration-space forces to the pymunk tool bodies."""
-        if self.scene.tool.kind == "body":
-            b = self.tool_bodies[0]
-            b.apply_force_at_world_point(
-                (float(tau[0]), float(tau[1])), b.local_to_world(b.center_of_gravity)
-            )
-            b.torque += float(tau[2])
-            return
-        for i, b in enumerate(self.tool_bodies):  # joint torque: +tau on link i, -tau on link i-1
-            b.torque += float(tau[i])
-            if i > 0:
-                self.tool_bodies[i - 1].torque -= float(tau[i])
-
-    # --- local model (sim_server/local_model.py) ---------------------------------------
+        state_lead_s: how long after publication the state holds (the step just computed
+        covers the coming period, driven by the extrapolated proxy)."""
+        lm = self._local
+        build_local_model(self.tool, self.chain, lm.query, lm.work, lm.record)
+        m = lm.record[0]
+        m["epoch"], m["seq"], m["sim_time"] = epoch, seq, self.time
+        m["publish_time_ns"], m["state_lead_s"] = publish_time_ns, state_lead_s
+        self.stats = StageStats(
+            svd=self.scene.tool.kind == "linkage",
+            gravity=bool(m["has_gravity"]),
+            contacts_sent=int(m["n_contacts"]),
+            shapes_queried=int(lm.counts[0]),
+            hits_dropped=int(lm.counts[1]),
+        )
+        return self._encoded[: encode_record(lm.record, self._encoded)].tobytes()
 
     def local_model(
         self, epoch: int, seq: int, publish_time_ns: int, state_lead_s: float = 0.0
     ) -> LocalModelUpdate:
-        """The local model of DESIGN §3 at the tool's current configuration."""
-        return build_local_model(self, epoch, seq, publish_time_ns, state_lead_s)
-
-    def neighbourhood_contacts(self) -> tuple[ContactSet, bool]:
-        """Contacts of every tool shape with world shapes within the neighbourhood margin."""
-        return neighbourhood_contacts(self)
+        """local_model_bytes as the dataclass (tools and tests)."""
+        self.local_model_bytes(epoch, seq, publish_time_ns, state_lead_s)
+        return update_from_record(self._local.record[0])
 
 
-def _table_drag(rate_per_s: float) -> Any:
-    """A pymunk velocity function adding exponential drag: a block sliding on a table."""
+def _configure_space(space: pymunk.Space, scene: SceneConfig) -> None:
+    """The scene's broad phase and sleeping ([space]): a spatial hash and sleeping bodies let
+    a crowd of a thousand cost what its awake part costs."""
+    spec = scene.space
+    if spec.spatial_hash_cell_m > 0.0:
+        space.use_spatial_hash(spec.spatial_hash_cell_m, spec.spatial_hash_count)
+    if spec.sleep_time_s > 0.0:
+        space.sleep_time_threshold = spec.sleep_time_s
+        if spec.idle_speed_m_per_s > 0.0:
+            space.idle_speed_threshold = spec.idle_speed_m_per_s
 
-    def update(body: pymunk.Body, gravity: Any, damping: float, dt: float) -> None:
-        pymunk.Body.update_velocity(body, gravity, damping * math.exp(-rate_per_s * dt), dt)
 
-    return update
+def warm_kernels(scene: SceneConfig) -> None:
+    """Load the compiled step and local model (from numba's cache, or compile them) before a
+    run starts: on a spare world, one step and one local model."""
+    spare = SimWorld(scene)
+    spare.step(None)
+    spare.local_model_bytes(0, 0, 0)
+
+
+def _kinematic_records(kinematic: list[tuple[pymunk.Body, BodySpec]]) -> np.ndarray:
+    """The oscillating kinematic bodies, for the compiled step (the others keep the velocity
+    they were given)."""
+    moving = [(b, spec) for b, spec in kinematic if spec.oscillation_period_s > 0.0]
+    rec = np.zeros(len(moving), KINEMATIC_DTYPE)
+    for i, (body, spec) in enumerate(moving):
+        rec[i] = (
+            body_ptr(body),
+            spec.velocity,
+            spec.oscillation_amplitude,
+            spec.oscillation_period_s,
+        )
+    return rec
 
 
 def _moment(spec: BodySpec) -> float:

@@ -134,3 +134,28 @@ def test_leave_out_what_the_scene_does_not_need() -> None:
     ).ticks
     nothing_near = ticks["n_contacts"] == 0
     assert nothing_near.any() and (ticks["contact_stage"][nothing_near] == 0).all()
+
+
+def test_resisted_directions_span_what_numpys_svd_finds() -> None:
+    """The sim's directions (Jacobi eigenvectors of the scaled J_h J_h^T, no LAPACK) span the
+    same subspace as numpy's SVD (LAPACK) on random 3 x d Jacobians, near-singular ones
+    included, at three tolerances."""
+    rng = np.random.default_rng(11)
+    for trial in range(300):
+        d = int(rng.integers(1, 6))
+        jac = rng.normal(size=(3, d)) * 0.05
+        if trial % 3 == 0 and d >= 2:  # make it nearly rank deficient
+            jac[:, -1] = jac[:, 0] * 0.7 + rng.normal(size=3) * 1e-4
+        for tol in (0.01, 0.05, 0.2):
+            ours = resisted_directions(jac, LENGTH, tol)
+            scaled = jac.copy()
+            scaled[2] *= LENGTH
+            u, s, _ = np.linalg.svd(scaled, full_matrices=True)
+            s_full = np.zeros(3)
+            s_full[: len(s)] = s
+            ref = u[:, s_full < tol * s_full.max()].T
+            if abs(s_full.max() * tol - np.sort(s_full)).min() < 1e-9:
+                continue  # a singular value at the tolerance: either answer is right
+            assert ours.shape == ref.shape
+            np.testing.assert_allclose(ours @ ours.T, np.eye(len(ours)), atol=1e-12)
+            np.testing.assert_allclose(ours.T @ ours, ref.T @ ref, atol=1e-9)  # same projector

@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from device_models.registry import load_device
+from device_models.registry import load_device, load_simulated_device
 from haptic_server.engine import HapticEngine
-from haptic_server.harness.virtual import run_virtual_named
+from haptic_server.harness.virtual import run_virtual
 from haptic_server.mailbox import C_UPD_READ, MAILBOX_SLOTS, SLOT_BYTES, SharedBlock
 from haptic_server.sidecar import LoopIO
 from shared.config import load_scene, load_user
@@ -65,7 +65,7 @@ def sim_updates(scene: str, user: str, seconds: float) -> list[bytes]:
 
     HapticEngine.receive = capture  # type: ignore[method-assign]
     try:
-        run_virtual_named(scene, "ideal", user, seconds)
+        run_virtual(load_scene(scene), load_simulated_device("ideal"), load_user(user), seconds)
     finally:
         HapticEngine.receive = receive  # type: ignore[method-assign]
     return captured

@@ -205,3 +205,41 @@ def test_derived_offsets_follow_the_table() -> None:
         u = sample_update(n_contacts, resisted)
         j = 0 if u.resisted is None else len(u.resisted)
         assert len(encode_update(u)) == layout.update_size(u.dof, j, n_contacts, u.flags)
+
+
+def _encoded_from_record(raw: bytes) -> bytes:
+    """The sim's compiled encoder run on the record the parser fills from `raw`."""
+    from shared.protocol.update import UpdateParser, encode_record
+
+    parser = UpdateParser()
+    assert parser.parse(raw) == 0
+    buf = np.zeros(len(raw) + 64, np.uint8)
+    return buf[: encode_record(parser.out, buf)].tobytes()
+
+
+@pytest.mark.parametrize(("n_contacts", "optional"), [(0, False), (2, True), (64, True)])
+def test_compiled_encoder_writes_the_bytes_of_the_reference_encoder(
+    n_contacts: int, optional: bool
+) -> None:
+    """encode_record (the sim's, compiled) gives encode_update's bytes: the golden update,
+    and updates with and without the flagged sections."""
+    assert _encoded_from_record(GOLDEN.read_bytes()) == GOLDEN.read_bytes()
+    u = sample_update(n_contacts=n_contacts, resisted=optional)
+    if not optional:
+        u = LocalModelUpdate(**{**u.__dict__, "gravity": None, "velocity_torque": None})
+    raw = encode_update(u)
+    assert _encoded_from_record(raw) == raw
+
+
+def test_the_sims_bytes_are_its_dataclass_encoded() -> None:
+    """SimWorld.local_model_bytes and encode_update of SimWorld.local_model agree, in a scene
+    with contacts, gravity and resisted directions."""
+    from shared.config import load_scene
+    from sim_server.world import SimWorld
+
+    for scene in ("wall_slide", "linkage_middle", "testbed_free_tool"):
+        world = SimWorld(load_scene(scene))
+        for seq in range(3):
+            world.step(None)
+            raw = world.local_model_bytes(3, seq, 123, 0.01)
+            assert raw == encode_update(world.local_model(3, seq, 123, 0.01)), scene

@@ -195,6 +195,121 @@ def stamp_publication(raw: bytearray, publish_time_ns: int, state_lead_s: float)
     struct.pack_into("<d", raw, AT_LEAD, state_lead_s)
 
 
+# --- the compiled encoder (the sim's) -------------------------------------------------------
+
+
+@njit(cache=True, inline="always")
+def _put_u16(buf, o, v):
+    buf[o] = v & 0xFF
+    buf[o + 1] = (v >> 8) & 0xFF
+
+
+@njit(cache=True, inline="always")
+def _put_i64(buf, o, v):
+    buf[o : o + 8].view(np.int64)[0] = v
+
+
+@njit(cache=True, inline="always")
+def _put_f64(buf, o, v):
+    buf[o : o + 8].view(np.float64)[0] = v
+
+
+@njit(cache=True)
+def encode_record(out, buf):
+    """The update of the local model in `out` (LOCAL_MODEL_DTYPE[1], as the sim fills it)
+    into `buf` (uint8, 8-byte aligned, long enough); returns its size in bytes. The same
+    bytes as `encode_update` of its dataclass view, written in `parse_update`'s order."""
+    m = out[0]
+    d, n, j = m.dof, m.n_contacts, m.n_resisted
+    flags = 0
+    if m.has_gravity == 1:
+        flags |= FLAG_GRAVITY
+    if j > 0:
+        flags |= FLAG_RESISTED
+    if m.tool_touching == 1:
+        flags |= FLAG_TOUCHING
+    if m.has_velocity_torque == 1:
+        flags |= FLAG_VELOCITY_TORQUE
+    n_int = d + 2 * n
+    nbytes = HEADER_BYTES + 8 * (n_int + _float_count(d, j, n, flags, CONTACT_FLOATS))
+    for i in range(4):
+        buf[i] = MAGIC[i]
+    _put_u16(buf, AT_VERSION, PROTOCOL_VERSION)
+    _put_u16(buf, AT_FLAGS, flags)
+    _put_i64(buf, AT_EPOCH, m.epoch)
+    _put_i64(buf, AT_SEQ, m.seq)
+    _put_f64(buf, AT_SIM_TIME, m.sim_time)
+    _put_i64(buf, PUBLISH_TIME_AT, m.publish_time_ns)
+    _put_u16(buf, AT_DOF, d)
+    _put_u16(buf, AT_N_CONTACTS, n)
+    _put_u16(buf, AT_N_RESISTED, j)
+    _put_u16(buf, AT_OP_LINK, m.op_link)
+    _put_f64(buf, AT_CHAR_LENGTH, m.characteristic_length)
+    _put_f64(buf, AT_LEAD, m.state_lead_s)
+    ints = buf[HEADER_BYTES : HEADER_BYTES + 8 * n_int].view(np.int64)
+    for k in range(d):
+        ints[k] = m.joint_types[k]
+    for i in range(n):
+        ints[d + i] = m.c_link[i]
+        ints[d + n + i] = m.c_key[i]
+    fl = buf[HEADER_BYTES + 8 * n_int : nbytes].view(np.float64)
+    o = _write_body(m, fl, flags)
+    for i in range(n):
+        row = fl[o + CONTACT_FLOATS * i : o + CONTACT_FLOATS * (i + 1)]
+        for c in range(2):
+            row[C_TOOL + c] = m.c_tool[i, c]
+            row[C_ENV + c] = m.c_env[i, c]
+            row[C_NORMAL + c] = m.c_normal[i, c]
+            row[C_ENV_VELOCITY + c] = m.c_env_velocity[i, c]
+        row[C_FRICTION] = m.c_friction[i]
+        row[C_RESTITUTION] = m.c_restitution[i]
+        row[C_STIFFNESS] = m.c_stiffness[i]
+        row[C_DAMPING] = m.c_damping[i]
+        row[C_TANGENTIAL_STIFFNESS] = m.c_tangential_stiffness[i]
+    return nbytes
+
+
+@njit(cache=True, inline="always")
+def _write_body(m, fl, flags):
+    """`_read_body` the other way: the float sections; returns the contact rows' offset."""
+    d = m.dof
+    o = 0
+    for k in range(d):
+        fl[o + k] = m.lengths[k]
+    o += d
+    fl[o], fl[o + 1], fl[o + 2] = m.base[0], m.base[1], m.base_angle
+    fl[o + 3], fl[o + 4] = m.op_point[0], m.op_point[1]
+    o += 5
+    for k in range(d):
+        fl[o + k] = m.q[k]
+        fl[o + d + k] = m.qd[k]
+    o += 2 * d
+    for a in range(d):
+        for b in range(d):
+            fl[o + a * d + b] = m.mass[a, b]
+    o += d * d
+    for a in range(3):
+        for b in range(3):
+            fl[o + a * 3 + b] = m.lambda_inv[a, b]
+    o += 9
+    for c in range(3):
+        fl[o + c] = m.tool_pose[c]
+    o += 3
+    if (flags & FLAG_GRAVITY) != 0:
+        for k in range(d):
+            fl[o + k] = m.gravity[k]
+        o += d
+    if (flags & FLAG_VELOCITY_TORQUE) != 0:
+        for k in range(d):
+            fl[o + k] = m.velocity_torque[k]
+        o += d
+    for r in range(m.n_resisted):
+        for c in range(3):
+            fl[o + 3 * r + c] = m.resisted[r, c]
+    o += 3 * m.n_resisted
+    return o
+
+
 # --- the parser ------------------------------------------------------------------------------
 
 
@@ -580,6 +695,7 @@ __all__ = [
     "UpdateParser",
     "body_counts",
     "decode_update",
+    "encode_record",
     "encode_update",
     "parse_update",
     "publish_time_ns",

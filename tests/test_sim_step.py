@@ -1,0 +1,110 @@
+"""The compiled sim step (sim_server/drive.py) against pymunk driven through its Python API.
+
+The reference below is the drive the sim had before it was compiled, written with pymunk's
+own Python calls (forces, torques, its Python velocity callback for the table drag, its
+`Space.step`): an independent route to the same C library. A free tool must match it bit for
+bit; a linkage's computed torque sums D(q) acc in another order than numpy's BLAS, so it
+matches within a few ulps that the contacts of a 2 s run do not grow past REL_TOL.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pymunk
+import pytest
+
+from shared.config import load_scene
+from sim_server.world import SimWorld, ToolTarget
+
+STEPS = 120  # 2 s at 60 Hz
+REL_TOL = 1e-9  # linkage: ulps of the torque sum's order, grown over the run
+
+
+def _reference_step(world: SimWorld, target: ToolTarget | None) -> None:
+    """One sim period the way pymunk's Python API does it."""
+    scene = world.scene
+    h = world.period / world.substeps
+    q, _ = world.tool_state()
+    mass, grav, _ = world.dynamics_terms(q)
+    w = 2.0 * math.pi * scene.tool.tracking_bandwidth_hz
+    for k in range(world.substeps):
+        t = world.time + k * h
+        for body, spec in world._kinematic:  # the oscillating obstacles
+            if spec.oscillation_period_s > 0.0:
+                om = 2.0 * math.pi / spec.oscillation_period_s
+                body.velocity = (
+                    spec.velocity[0] + spec.oscillation_amplitude[0] * om * math.cos(om * (t + h)),
+                    spec.velocity[1] + spec.oscillation_amplitude[1] * om * math.cos(om * (t + h)),
+                )
+        t_ahead = k * h
+        if scene.tool.kind == "body":
+            b = world.tool_bodies[0]
+            (px, py), (vx, vy) = b.position, b.velocity
+            th, om_b = b.angle, b.angular_velocity
+            if target is None:
+                ax, ay, al = -2.0 * w * vx, -2.0 * w * vy, -2.0 * w * om_b
+            else:
+                gq, gv = target.q, target.qd
+                ax = w * w * (gq[0] + gv[0] * t_ahead - px) + 2.0 * w * (gv[0] - vx)
+                ay = w * w * (gq[1] + gv[1] * t_ahead - py) + 2.0 * w * (gv[1] - vy)
+                al = w * w * (gq[2] + gv[2] * t_ahead - th) + 2.0 * w * (gv[2] - om_b)
+            m = b.mass
+            f = (m * ax - m * scene.gravity[0], m * ay - m * scene.gravity[1])
+            b.apply_force_at_world_point(f, b.local_to_world(b.center_of_gravity))
+            b.torque += b.moment * al
+        else:
+            q, qd = world.tool_state()
+            if target is None:
+                acc = -2.0 * w * qd
+            else:
+                acc = w * w * (target.q + target.qd * t_ahead - q) + 2.0 * w * (target.qd - qd)
+            tau = mass @ acc + grav
+            for i, b in enumerate(world.tool_bodies):
+                b.torque += float(tau[i])
+                if i > 0:
+                    world.tool_bodies[i - 1].torque -= float(tau[i])
+        world.space.step(h)
+    world.time += world.period
+
+
+def _python_drag(rate_per_s: float):  # type: ignore[no-untyped-def]
+    def update(body: pymunk.Body, gravity: object, damping: float, dt: float) -> None:
+        pymunk.Body.update_velocity(body, gravity, damping * math.exp(-rate_per_s * dt), dt)
+
+    return update
+
+
+def _state(world: SimWorld) -> np.ndarray:
+    return np.array(
+        [[*b.position, b.angle, *b.velocity, b.angular_velocity] for b in world.space.bodies]
+    )
+
+
+@pytest.mark.parametrize(
+    ("scene", "exact"), [("testbed_free_tool", True), ("wall_slide", True), ("testbed", False)]
+)
+def test_compiled_step_is_pymunks_python_step(scene: str, exact: bool) -> None:
+    config = load_scene(scene)
+    compiled, reference = SimWorld(config), SimWorld(config)
+    for body, spec in zip(reference.space.bodies, config.bodies, strict=False):
+        if spec.kind == "dynamic" and spec.linear_damping_per_s > 0.0:
+            body.velocity_func = _python_drag(spec.linear_damping_per_s)  # pymunk's callback
+    rng = np.random.default_rng(5)
+    q0, _ = compiled.tool_state()
+    for k in range(STEPS):
+        target = None
+        if k % 40 < 30:  # follow a wandering proxy, then rest
+            q = q0 + 0.02 * np.sin(0.05 * k + np.arange(len(q0)))
+            target = ToolTarget(
+                q, rng.normal(0, 0.05, len(q0)), np.zeros(3), np.zeros(3), False, True
+            )
+        compiled.step(target)
+        _reference_step(reference, target)
+    a, b = _state(compiled), _state(reference)
+    if exact:
+        np.testing.assert_array_equal(a, b)
+    else:
+        np.testing.assert_allclose(a, b, rtol=REL_TOL, atol=REL_TOL)
+    assert np.abs(a[:, :2]).max() < 0.2  # positions (m): the run stayed in the enclosure
