@@ -1,5 +1,5 @@
-"""The block of shared memory between the real-time loop and its I/O sidecar, and the loop's
-kernels on it.
+"""The block of shared memory between the real-time loop, its I/O sidecar and its log writer,
+and the loop's kernels on it.
 
 - the **update mailbox** (MAILBOX_DTYPE slots): the sidecar's Zenoh thread copies each
   received LocalModelUpdate into the next slot; the loop validates and installs it in place
@@ -38,7 +38,9 @@ C_READY, C_CLOSED, C_TICK_HEAD, C_TICK_LOST, C_UPD_HEAD, C_UPD_READ = 0, 1, 2, 3
 C_UPD_LOST, C_EVT_HEAD, C_EVT_LOST, C_PUBLISHED, C_RECEIVED = 6, 7, 8, 9, 10
 C_UPD_LOGGED = 11  # updates the log writer has written (a slot is reused only after that)
 C_LOWER_IO = 12  # set by the loop when it runs without real-time priority
-N_CTL = 16
+C_TICK_LOGGED = 13  # tick rows the log writer has written (the virtual clock waits on it)
+C_LOG_READY, C_LOG_FAILED = 14, 15  # the log writer has opened its file / has failed
+N_CTL = 24
 
 #: One mailbox slot: a received update's bytes and what the loop made of it.
 MAILBOX_DTYPE = np.dtype(

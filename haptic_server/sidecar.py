@@ -1,17 +1,18 @@
-"""All of the haptic server's I/O in a sidecar process, so the 1 kHz loop does none.
+"""All of the haptic server's I/O in processes beside the loop, so the loop does none.
 
-The shared memory is `haptic_server.mailbox`.
-
-The loop and the sidecar share one block of memory:
+The loop and its helpers share one block of memory (`haptic_server.mailbox`):
 - the **update mailbox**: the sidecar's Zenoh subscriber thread copies each received
   LocalModelUpdate into the next slot; the loop validates and installs it in place (one
   numba call) and writes its verdict next to it;
 - the **tick ring**: the loop copies each tick record in (one numba call);
 - the **event ring**: watchdog trips and other events, as short text.
-The sidecar publishes the proxy state (read from the newest tick record) at
-`proxy_publish_hz`, and writes ticks, updates (with their verdicts) and events to MCAP. It
-runs no Python code in the loop's process, so it never competes for the loop's GIL; if the
-loop dies, even by SIGKILL, the sidecar notices, drains what is there and closes the log.
+The sidecar (this module) owns the Zenoh session: it receives updates and publishes the
+proxy state (read from the newest tick record) at `proxy_publish_hz`. It runs with real-time
+priority below the loop's where permitted, off the loop's CPU, so a received update reaches
+the mailbox within microseconds of its arrival. The MCAP log is written by a third process
+(`haptic_server.logger`). Neither runs Python in the loop's process, so neither competes for
+the loop's GIL; if the loop dies, even by SIGKILL, both notice, and the writer drains what
+is there and closes the log.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from haptic_server.logger import LogProcess
 from haptic_server.mailbox import (
     C_CLOSED,
     C_EVT_HEAD,
@@ -38,33 +40,31 @@ from haptic_server.mailbox import (
     C_RECEIVED,
     C_TICK_HEAD,
     C_TICK_LOST,
-    C_UPD_LOGGED,
     C_UPD_LOST,
     C_UPD_READ,
     EVENT_BYTES,
     EVENT_SLOTS,
     MAILBOX_SLOTS,
     RING_TICKS,
-    SLOT_BYTES,
     VERDICT_PENDING,
     SharedBlock,
     take_updates,
 )
-from shared.protocol.layout import HEADER_AT, PUBLISH_TIME_AT, PUBLISH_TIME_END
+from shared.protocol.layout import HEADER_AT
 from shared.protocol.proxy import MAX_WAIT_NS, NO_WAIT, UpdateWait
-from shared.timing import avoid_cpu
+from shared.timing import REALTIME_PRIORITY, avoid_cpu, try_realtime_priority
 
 if TYPE_CHECKING:
     from haptic_server.engine import HapticEngine
-    from haptic_server.log import LogWriter
 
 SEQ_AT = HEADER_AT["seq"]
 SEQ_END = SEQ_AT + 8
 
 IO_POLL_S = 0.004  # the sidecar wakes at least this often (and for each proxy publish)
 IO_NICENESS = 10  # only when the loop could not get real-time priority (see _lower_priority)
+IO_PRIORITY = REALTIME_PRIORITY // 2  # SCHED_FIFO below the loop's
 # CPython hands the GIL to a waiting thread after this long (default 5 ms): the Zenoh thread
-# that receives an update must not wait behind the log writer's Python for that long
+# that receives an update must not wait behind the main thread's Python for that long
 GIL_SWITCH_INTERVAL_S = 1e-4
 
 
@@ -78,6 +78,14 @@ class LoopIO:
         np.ndarray((self._shm.size,), np.uint8, self._shm.buf)[:] = 0
         self.block.ctl[:] = 0
         self.block.update_verdict[:] = VERDICT_PENDING
+        self._logger: LogProcess | None = None
+        if config.get("log_path"):
+            try:
+                log_config = {k: config[k] for k in ("log_path", "metadata", "wall_start_ns")}
+                self._logger = LogProcess(self._shm.name, self.block, log_config)
+            except BaseException:
+                self._release()
+                raise
         ctx = mp.get_context("spawn")
         self._proc = ctx.Process(
             target=_sidecar_main, args=(self._shm.name, config, os.getpid()),
@@ -141,40 +149,47 @@ class LoopIO:
         }
 
     def close(self, timeout_s: float = 30.0) -> dict[str, int]:
-        """Stop the sidecar (it finishes the log); returns its counters."""
+        """Stop the sidecar and the log writer (it writes what remains); returns the
+        counters."""
         self.block.ctl[C_CLOSED] = 1
         self._proc.join(timeout_s)
         if self._proc.is_alive():
             self._proc.terminate()
             self._proc.join(5.0)
+        if self._logger is not None:
+            self._logger.join(timeout_s)
         counters = self.counters
+        self._release()
+        return counters
+
+    def _release(self) -> None:
         self.block.release()
         self._shm.close()
         self._shm.unlink()
-        return counters
 
 
 # --- the sidecar process ----------------------------------------------------------------
 
 
 def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None:
-    """Zenoh in and out, MCAP out, until the loop closes the block or dies."""
+    """Zenoh in and out until the loop closes the block or dies."""
     import signal
 
     import zenoh
 
-    from haptic_server.log import LogWriter
     from shared.net.config import EndpointSpec
     from shared.net.transport import keys, open_session
     from shared.protocol.proxy import encode_proxy
 
     # the loop decides when I/O ends: a Ctrl-C to the process group is ignored; SIGTERM (the
-    # loop's close() after a timeout, or anyone's kill) finishes the log and exits
+    # loop's close() after a timeout, or anyone's kill) closes the session and exits
     terminated = threading.Event()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, lambda *_: terminated.set())
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
-    avoid_cpu(config.get("loop_cpu"))  # before Zenoh starts its threads: they inherit it
+    # before Zenoh starts its threads: they inherit both
+    avoid_cpu(config.get("loop_cpu"))
+    realtime = try_realtime_priority(IO_PRIORITY)
     shm = shared_memory.SharedMemory(name=shm_name)
     block = SharedBlock(shm)
     ctl = block.ctl
@@ -189,7 +204,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         k.proxy, congestion_control=zenoh.CongestionControl.DROP, express=True
     )
 
-    logging = bool(config.get("log_path"))
+    logging = bool(config.get("log_path"))  # a slot is reused only once the writer has it
 
     def receive(sample: Any) -> None:
         """Subscriber callback (a Zenoh thread of this process): the update into the mailbox."""
@@ -198,8 +213,6 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
             ctl[C_UPD_LOST] += 1  # the loop (or the writer) is not reading: stopped or dead
 
     subscriber = session.declare_subscriber(k.update, receive)
-    log = LogWriter(config["log_path"], config["metadata"]) if config.get("log_path") else None
-    drain = _LogDrain(block, log, int(config["wall_start_ns"])) if log is not None else None
     publish_period = 1.0 / float(config["proxy_publish_hz"])
     method = int(config["method"])
     tick_period_ns = int(config["tick_period_ns"])
@@ -216,7 +229,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     try:
         while True:
             closing = ctl[C_CLOSED] == 1 or os.getppid() != parent_pid or terminated.is_set()
-            if ctl[C_LOWER_IO] == 1 and not lowered:
+            if ctl[C_LOWER_IO] == 1 and not lowered and not realtime:
                 _lower_priority()
                 lowered = True
             head = int(ctl[C_TICK_HEAD])
@@ -232,73 +245,14 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
                     ctl[C_PUBLISHED] += 1
                     last_published_tick = int(newest["tick"][0])
                 next_publish = now + publish_period
-            if drain is not None:
-                drain.drain(head, now)
-            if closing and (drain is None or int(ctl[C_TICK_HEAD]) == drain.tick_tail):
+            if closing:
                 break
             time.sleep(max(0.0005, min(next_publish - time.monotonic(), IO_POLL_S)))
     finally:
         subscriber.undeclare()
-        if log is not None:
-            log.close()
         session.close()
         block.release()
         shm.close()
-
-
-class _LogDrain:
-    """What the sidecar has written to the MCAP log so far, and the writing of the rest."""
-
-    def __init__(self, block: SharedBlock, log: LogWriter, wall_start_ns: int) -> None:
-        from haptic_server.log import update_record  # the sidecar's imports, not the loop's
-        from shared.protocol.codes import reason_tag
-
-        self.block, self.log, self.wall_start_ns = block, log, wall_start_ns
-        self._record, self._reason = update_record, reason_tag
-        self.tick_tail = 0
-        self.upd_logged = 0
-        self.evt_tail = 0
-        self.last_flush = time.monotonic()
-
-    def drain(self, head: int, now: float) -> None:
-        """Write the updates, events and tick rows the loop has produced (ticks below
-        `head`, read before everything else): every update and event of a tick below it is
-        already in the mailbox / ring and is written before that tick's row, so a file cut
-        anywhere holds all the updates of every complete tick it holds (replay)."""
-        block, log, ctl = self.block, self.log, self.block.ctl
-        read = int(ctl[C_UPD_READ])
-        evt_head = int(ctl[C_EVT_HEAD])
-        while self.upd_logged < read:
-            slot = self.upd_logged % MAILBOX_SLOTS
-            n = int(block.update_len[slot])
-            code = int(block.update_verdict[slot])
-            raw = block.updates[slot, : min(abs(n), SLOT_BYTES)].tobytes()
-            recv_ns = int(block.update_recv_ns[slot])
-            age_ms = (recv_ns - _publish_time_ns(raw)) / 1e6
-            reason = "" if code == 0 else self._reason(code)
-            rec = self._record(
-                int(block.update_tick[slot]), raw, reason, age_ms,
-                float(block.update_latency_s[slot]), abs(n),
-            )  # fmt: skip
-            log.update(rec, recv_ns)
-            self.upd_logged += 1
-            ctl[C_UPD_LOGGED] = self.upd_logged
-        while self.evt_tail < evt_head:
-            text = bytes(block.events[self.evt_tail % EVENT_SLOTS]).split(b"\0", 1)[0].decode()
-            tick_s, kind, detail = [*text.split("\t", 2), "", ""][:3]
-            log.event(int(tick_s or 0), kind, detail, time.time_ns())
-            self.evt_tail += 1
-        if head - self.tick_tail > RING_TICKS:
-            ctl[C_TICK_LOST] += head - self.tick_tail - RING_TICKS
-            self.tick_tail = head - RING_TICKS
-        while self.tick_tail < head:
-            at = self.tick_tail % RING_TICKS
-            row = block.ticks[at : at + 1]
-            log.tick(row.tobytes(), self.wall_start_ns + int(float(row["t"][0]) * 1e9))
-            self.tick_tail += 1
-        if now - self.last_flush > 0.2:
-            log.flush()
-            self.last_flush = now
 
 
 def _lower_priority() -> None:
@@ -328,12 +282,3 @@ def newest_wait(
             continue
         wait = UpdateWait(seq, min(max(wait_ns, 0), MAX_WAIT_NS), tick_period_ns)
     return read, wait
-
-
-def _publish_time_ns(raw: bytes) -> int:
-    """The publish time in an update's header (0 if the message is too short to have one)."""
-    return (
-        int(struct.unpack_from("<q", raw, PUBLISH_TIME_AT)[0])
-        if len(raw) >= PUBLISH_TIME_END
-        else 0
-    )

@@ -50,7 +50,9 @@ MAX_WRENCH_N = 50.0  # configs/devices/ideal.toml
 EVENT_TIMEOUT_S = 30.0  # a reconnecting Zenoh peer takes ~2.5 s; a busy 2-core VM more
 SAFE_WITHIN_S = 0.050  # issue 8: the safe state within 50 ms of the watchdog
 OUTAGE_S = 0.3  # how long the sim stays stopped (> watchdog 100 ms + ramp 40 ms)
-CLEAN_S, GARBAGE_S, GARBAGE_HZ = 2.0, 2.0, 200.0
+# the clean window compared with the garbage one is as long as it and ends 0.1 s before it:
+# CLEAN_S leaves room for the garbage taking longer than GARBAGE_S to send on a busy machine
+CLEAN_S, GARBAGE_S, GARBAGE_HZ = 2.6, 2.0, 200.0
 MIN_TICK_RATE_HZ = 950.0  # the loop keeps its rate through every fault (1 kHz nominal)
 # Late ticks (> 1 ms) with garbage against the clean window just before it, same processes:
 # an idle VM stalls about once per 10 s (STACK-NOTES) and a shared 2-core one more often, so

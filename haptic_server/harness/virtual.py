@@ -20,7 +20,8 @@ import numpy as np
 from device_models.base import SimulatedDevice
 from device_models.registry import load_simulated_device
 from haptic_server.engine import HapticEngine
-from haptic_server.log import LogWriter, run_metadata, update_record
+from haptic_server.log import run_metadata
+from haptic_server.logger import LogFeed
 from haptic_server.model import TICK_DTYPE
 from haptic_server.supervisor import InstallOnly, supervise
 from shared.config import SceneConfig, UserConfig, load_scene, load_user, resolve, scene_text
@@ -65,9 +66,7 @@ def run_virtual(
     dt = engine.dt_nominal
     n_ticks = round(duration_s / dt)
     rows = np.zeros(n_ticks, TICK_DTYPE)
-    log = (
-        LogWriter(log_path, run_metadata(configs or {}, {"clock": "virtual"})) if log_path else None
-    )
+    log = LogFeed(log_path, run_metadata(configs or {}, {"clock": "virtual"})) if log_path else None
     sim_period = 1.0 / scene.sim_rate_hz
     next_sim_t = 0.0
     seq = 0
@@ -99,7 +98,7 @@ def run_virtual(
                 stage["install"] += t3 - t2
                 sizes.append(len(raw))
                 if log is not None:
-                    log.update(update_record(k, raw, "", 0.0), t_ns)
+                    log.update(k, raw, t_ns)
                 engine.set_update(seq, 0.0)
                 seq += 1
                 next_sim_t += sim_period
@@ -109,8 +108,7 @@ def run_virtual(
             engine.run_ticks(dt, rows, k, stop)
             stage["tick"] += clock() - t5
             if log is not None:
-                for j in range(k, stop):
-                    log.tick(rows[j].tobytes(), int(j * dt * 1e9))
+                log.ticks(rows[k:stop])
             k = stop
     finally:
         if log is not None:
