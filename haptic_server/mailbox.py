@@ -40,6 +40,7 @@ C_UPD_LOGGED = 11  # updates the log writer has written (a slot is reused only a
 C_LOWER_IO = 12  # set by the loop when it runs without real-time priority
 C_TICK_LOGGED = 13  # tick rows the log writer has written (the virtual clock waits on it)
 C_LOG_READY, C_LOG_FAILED = 14, 15  # the log writer has opened its file / has failed
+C_LOG_DONE = 16  # the log writer has closed its file
 N_CTL = 24
 
 #: One mailbox slot: a received update's bytes and what the loop made of it.
