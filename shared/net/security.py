@@ -64,8 +64,8 @@ def access_control(namespace: str, sim_users: tuple[str, ...], observers: tuple[
 
 
 def zenoh_keys(endpoints: EndpointSpec, namespace: str | None) -> dict[str, str]:
-    """Zenoh config path -> JSON5 value for the endpoint's credentials, access control and
-    extra `zenoh` keys (empty for a plain endpoint)."""
+    """Zenoh config path -> JSON5 value for the endpoint's credentials, access control, its
+    transport and extra `zenoh` keys."""
     out: dict[str, str] = {}
     if endpoints.user:
         out["transport/auth/usrpwd/user"] = json.dumps(endpoints.user)
@@ -77,5 +77,8 @@ def zenoh_keys(endpoints: EndpointSpec, namespace: str | None) -> dict[str, str]
             raise ValueError("access control needs the key-expression namespace")
         acl = access_control(namespace, endpoints.sim_users, endpoints.observer_users)
         out["access_control"] = json.dumps(acl)
+    if endpoints.low_latency:  # Zenoh refuses lowlatency with QoS on
+        out["transport/unicast/lowlatency"] = "true"
+        out["transport/unicast/qos/enabled"] = "false"
     out.update(endpoints.zenoh)
     return out
