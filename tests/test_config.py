@@ -108,3 +108,48 @@ def test_cli_exits_2_naming_file_and_key(tmp_path: Path, args: list[str], needle
     )  # fmt: skip
     assert res.returncode == 2, res.stderr
     assert needle.replace("{bad}", str(bad)) in res.stderr
+
+
+CROWD = """
+[[crowds]]
+name = "pebble"
+count = {count}
+shape = "circle"
+radius = 0.004
+material = "wall"
+region = [[-0.05, -0.05], [0.05, 0.05]]
+spacing_m = {spacing}
+jitter_m = 0.001
+"""
+
+
+@pytest.mark.parametrize(
+    ("count", "spacing", "key", "problem"),
+    [
+        (500, 0.011, "crowds[0].count", "do not fit the region"),
+        (10, 0.009, "crowds[0].spacing_m", "overlapping"),
+    ],
+)
+def test_a_crowd_that_cannot_be_built_is_named(
+    tmp_path: Path, count: int, spacing: float, key: str, problem: str
+) -> None:
+    path = _write(tmp_path, GOOD_SCENE + CROWD.format(count=count, spacing=spacing))
+    with pytest.raises(ConfigError) as err:
+        load_scene(str(path))
+    assert err.value.key == key and problem in err.value.problem, err.value
+
+
+def test_a_crowd_is_a_grid_of_separate_bodies_the_same_every_time(tmp_path: Path) -> None:
+    path = _write(tmp_path, GOOD_SCENE + CROWD.format(count=80, spacing=0.011))
+    scene = load_scene(str(path))
+    bodies = [b for b in scene.all_bodies if b.name.startswith("pebble_")]
+    assert len(bodies) == 80 and bodies == [
+        b for b in load_scene(str(path)).all_bodies if b.name.startswith("pebble_")
+    ]
+    xy = [b.position for b in bodies]
+    gaps = [
+        ((xa - xb) ** 2 + (ya - yb) ** 2) ** 0.5 for i, (xa, ya) in enumerate(xy)
+        for xb, yb in xy[i + 1 :]
+    ]  # fmt: skip
+    assert min(gaps) > 2 * 0.004  # no two overlap
+    assert all(-0.051 <= x <= 0.051 and -0.051 <= y <= 0.051 for x, y in xy)

@@ -108,3 +108,34 @@ def test_compiled_step_is_pymunks_python_step(scene: str, exact: bool) -> None:
     else:
         np.testing.assert_allclose(a, b, rtol=REL_TOL, atol=REL_TOL)
     assert np.abs(a[:, :2]).max() < 0.2  # positions (m): the run stayed in the enclosure
+
+
+def test_a_crowd_sleeps_and_only_the_neighbourhood_is_published() -> None:
+    """The crowd scene: resting pebbles fall asleep, the local model carries only contacts
+    within the margin of the tool (however many bodies the world has), and none of the
+    query's overlaps are dropped."""
+    from shared.protocol.update import decode_update
+
+    world = SimWorld(load_scene("crowd"))
+    margin = world.scene.tool.neighbourhood_margin_m
+    for _ in range(60):  # 1 s: past the 0.3 s sleep time
+        world.step(None)
+    asleep = sum(b.is_sleeping for b in world.space.bodies)
+    assert asleep >= 0.95 * len(world.space.bodies)
+    q, _ = world.tool_state()
+    target = ToolTarget(
+        q + np.array([0.0, -0.03, 0.0]), np.zeros(3), np.zeros(3), np.zeros(3), False, True
+    )
+    for _ in range(30):  # push the plough into the pebbles
+        world.step(target)
+    update = decode_update(world.local_model_bytes(1, 1, 0))
+    assert update.contacts.count > 0 and world.stats.hits_dropped == 0
+    rows = update.contacts.rows
+    assert (update.contacts.floats[:, 0:2] ** 2).sum(axis=1).max() < 0.03**2  # on the plough
+    gaps = ((rows["env"] - _tool_points_world(world, rows["tool"])) * rows["normal"]).sum(axis=1)
+    assert (gaps <= margin + 1e-9).all()
+
+
+def _tool_points_world(world: SimWorld, local: np.ndarray) -> np.ndarray:
+    body = world.tool_bodies[0]
+    return np.array([list(body.local_to_world(tuple(p))) for p in local])
