@@ -109,6 +109,20 @@ def _rss_mb(pid: int) -> float | None:
     return None
 
 
+def _helper_name(pid: int) -> str | None:
+    """Which of the haptic server's helpers `pid` is, by its command line (the
+    multiprocessing resource tracker is none of them)."""
+    try:
+        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")
+    except OSError:
+        return None
+    if b"haptic_server.logger" in cmdline:
+        return "haptic_log"
+    if b"spawn_main" in cmdline:
+        return "haptic_io"
+    return None
+
+
 def _children(pid: int) -> list[int]:
     try:
         return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
@@ -117,7 +131,8 @@ def _children(pid: int) -> list[int]:
 
 
 class MemorySampler:
-    """Samples the RSS of named processes (and the haptic server's I/O child) on a thread."""
+    """Samples the RSS of named processes (and the haptic server's helper processes: its Zenoh
+    sidecar and its log writer) on a thread."""
 
     def __init__(self, pids: dict[str, int]) -> None:
         self.pids = dict(pids)
@@ -129,11 +144,12 @@ class MemorySampler:
 
     def _run(self) -> None:
         while not self._stop.wait(MEMORY_SAMPLE_S):
-            if "haptic_io" not in self.pids and "haptic" in self.pids:
-                kids = _children(self.pids["haptic"])
-                if kids:
-                    self.pids["haptic_io"] = kids[0]
-                    self.traces["haptic_io"] = MemoryTrace("haptic_io")
+            if "haptic" in self.pids and not {"haptic_io", "haptic_log"} <= set(self.pids):
+                for kid in _children(self.pids["haptic"]):
+                    name = _helper_name(kid)
+                    if name and name not in self.pids:
+                        self.pids[name] = kid
+                        self.traces[name] = MemoryTrace(name)
             now = time.monotonic() - self._start
             for name, pid in self.pids.items():
                 rss = _rss_mb(pid)
