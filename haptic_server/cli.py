@@ -45,7 +45,10 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, server.request_stop)
         signal.signal(signal.SIGINT, server.request_stop)
         server.warm_up(lambda: load_device(args.device), user)
-        summary = server.run(args.duration, ready=lambda: emit("ready", process="haptic"))
+        summary = server.run(
+            args.duration,
+            ready=lambda: emit("ready", process="haptic", loop_cpu=server.stats.loop_cpu),
+        )
         if args.summary_json:
             args.summary_json.write_text(json.dumps(summary, indent=2))
         emit("stopped", process="haptic", **summary)

@@ -54,6 +54,7 @@ from haptic_server.mailbox import (
 )
 from haptic_server.model import TICK_DTYPE
 from shared.protocol.layout import PUBLISH_TIME_AT, PUBLISH_TIME_END
+from shared.timing import avoid_cpu
 
 if TYPE_CHECKING:
     from haptic_server.log import LogWriter
@@ -132,6 +133,7 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
     signal.signal(signal.SIGTERM, lambda *_: terminated.set())
     with contextlib.suppress(OSError):
         os.nice(LOG_NICENESS)
+    avoid_cpu(config.get("loop_cpu"))  # the real-time loop's CPU is its own
     shm = shared_memory.SharedMemory(name=shm_name)
     # not ours to remove: this process's resource tracker would unlink the segment when the
     # process exits (Python < 3.13 registers every attach; the feeder unlinks it)

@@ -81,7 +81,8 @@ class LoopIO:
         self._logger: LogProcess | None = None
         if config.get("log_path"):
             try:
-                log_config = {k: config[k] for k in ("log_path", "metadata", "wall_start_ns")}
+                keys = ("log_path", "metadata", "wall_start_ns", "loop_cpu")
+                log_config = {k: config[k] for k in keys}
                 self._logger = LogProcess(self._shm.name, self.block, log_config)
             except BaseException:
                 self._release()

@@ -37,8 +37,9 @@ except OSError:
     _LIBC = None
 
 
-def _die_with_parent(parent_pid: int) -> Callable[[], None]:
-    """Child side of Popen: SIGTERM us if haptic-run dies (Linux prctl PR_SET_PDEATHSIG).
+def _die_with_parent(parent_pid: int, avoid_cpu: int | None = None) -> Callable[[], None]:
+    """Child side of Popen: SIGTERM us if haptic-run dies (Linux prctl PR_SET_PDEATHSIG), and
+    keep off `avoid_cpu` (the haptic loop's: every thread the child starts inherits it).
 
     Runs between fork and exec, so it only calls what was loaded before the fork. If
     haptic-run died before the prctl took effect, the child exits at once.
@@ -49,6 +50,10 @@ def _die_with_parent(parent_pid: int) -> Callable[[], None]:
             _LIBC.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
         if os.getppid() != parent_pid:
             os._exit(1)
+        if avoid_cpu is not None:
+            allowed = os.sched_getaffinity(0) - {avoid_cpu}
+            if allowed:
+                os.sched_setaffinity(0, allowed)
 
     return preexec
 
@@ -56,11 +61,11 @@ def _die_with_parent(parent_pid: int) -> Callable[[], None]:
 class Child:
     """A server process whose JSON event lines are read on a thread."""
 
-    def __init__(self, name: str, argv: list[str]) -> None:
+    def __init__(self, name: str, argv: list[str], avoid_cpu: int | None = None) -> None:
         self.name = name
         self.proc = subprocess.Popen(
             argv, stdout=subprocess.PIPE, stderr=None, text=True, cwd=REPO_ROOT,
-            preexec_fn=_die_with_parent(os.getpid()),
+            preexec_fn=_die_with_parent(os.getpid(), avoid_cpu),
         )  # fmt: skip
         self.events: list[dict[str, Any]] = []
         self._ready = threading.Event()
@@ -152,8 +157,14 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
             if not stop.is_set():
                 failure = f"haptic server did not become ready (exit {haptic.proc.poll()})"
         else:
+            # the sim keeps off the CPU the haptic loop keeps to itself (if it could)
+            loop_cpu = next(
+                (e.get("loop_cpu") for e in haptic.events if e.get("event") == "ready"), None
+            )
             sim = Child(
-                "sim", _server_argv("sim_server.cli", args, ["--summary-json", str(sim_json)])
+                "sim",
+                _server_argv("sim_server.cli", args, ["--summary-json", str(sim_json)]),
+                avoid_cpu=loop_cpu,
             )
             if not sim.wait_ready(READY_TIMEOUT_S, stop):
                 if not stop.is_set():
