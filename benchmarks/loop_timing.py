@@ -26,6 +26,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -52,16 +53,21 @@ def _bare_ticks(n, period_ns, spin_ns, lateness_us):
 
 
 def bare_loop(seconds: float, period_ns: int = 1_000_000) -> dict[str, Any]:
-    """Only wait for deadlines; lateness is all there is."""
+    """Only wait for deadlines; lateness is all there is. Its tick rate is the ticks over the
+    wall time they took: a late tick resynchronises (as the system's loop does), so a
+    machine that stalls the bare loop delivers fewer ticks than nominal too."""
     n = int(seconds * 1e9 / period_ns)
     lateness = np.zeros(n)
+    _bare_ticks(1, period_ns, spin_for(period_ns), lateness)  # loaded (numba's cache) first
+    started = time.perf_counter_ns()
     _bare_ticks(n, period_ns, spin_for(period_ns), lateness)
+    elapsed_ns = time.perf_counter_ns() - started
     return {
         "ticks": n,
         "lateness_us": _pct(lateness),
         "late_ticks_over_1ms": int((lateness > 1000).sum()),
         "overruns": int((lateness > period_ns / 1e3).sum()),
-        "tick_rate_hz": 1e9 / period_ns,
+        "tick_rate_hz": n * 1e9 / elapsed_ns,
     }
 
 
@@ -208,7 +214,11 @@ def _print_targets(medians: dict[str, Any], rate: float) -> None:
     bare, on = medians["bare_loop_with_sim"], medians["system_log_on"]
     delivered = on["tick_rate_hz"] / rate
     budget_us = 0.25 * 1e6 / rate
-    print(f"ticks delivered (log on): {100 * delivered:.2f}% of {rate:g} Hz (target >= 99.9%)")
+    bare_delivered = bare["tick_rate_hz"] / rate
+    print(
+        f"ticks delivered (log on): {100 * delivered:.2f}% of {rate:g} Hz (target >= 99.9%);"
+        f" the bare loop beside the sim: {100 * bare_delivered:.2f}%"
+    )
     print(
         f"late ticks (> one period): log on {on['overruns']:g}, bare loop {bare['overruns']:g}"
         f" (target <= 2x the bare loop's)"

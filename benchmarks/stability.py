@@ -35,7 +35,7 @@ import dataclasses
 import functools
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -107,6 +107,12 @@ def sampled_wall_boundary(
         gained = sampled_wall_energy(k, b_wall, b_device, DEVICE_MASS, period, 0.05, 200000, 20)
         return gained > ENERGY_TOL_J
 
+    return bisect_log(generates, lo, hi, steps)
+
+
+def bisect_log(generates: Callable[[float], bool], lo: float, hi: float, steps: int) -> float:
+    """The boundary between stiffnesses that do not generate energy (lo) and do (hi), by
+    `steps` bisections of log K; the geometric middle of the last bracket."""
     for _ in range(steps):
         mid = math.sqrt(lo * hi)
         if generates(mid):
@@ -309,13 +315,7 @@ def engine_wall_boundary(
         if generates(hi):
             break
         lo = hi
-    for _ in range(BISECTIONS):
-        mid = math.sqrt(lo * hi)
-        if generates(mid):
-            hi = mid
-        else:
-            lo = mid
-    return felt_stiffness(method, math.sqrt(lo * hi))
+    return felt_stiffness(method, bisect_log(generates, lo, hi, BISECTIONS))
 
 
 def engine_wall_table(rates: Sequence[float], quick: bool) -> list[EngineWall]:

@@ -114,38 +114,33 @@ class LogWriter:
         self._writer = foxglove.open_mcap(
             self.path, allow_overwrite=True, context=self._context, writer_options=options
         )
-        schema = foxglove.Schema
-        self._tick_ch = foxglove.Channel(
-            TICK_TOPIC,
-            message_encoding="ros1",
-            schema=schema(
-                name=TICK_SCHEMA_NAME, encoding="ros1msg", data=ros1msg_schema(TICK_DTYPE).encode()
-            ),
-            context=self._context,
+        self._tick_ch = self._channel(
+            TICK_TOPIC, "ros1", TICK_SCHEMA_NAME, "ros1msg", ros1msg_schema(TICK_DTYPE)
         )
-        self._update_ch = foxglove.Channel(
-            UPDATE_TOPIC,
-            message_encoding="json",
-            schema=schema(
-                name="haptic_server/LocalModelUpdate",
-                encoding="jsonschema",
-                data=json.dumps(UPDATE_JSON_SCHEMA).encode(),
-            ),
-            context=self._context,
-        )
-        self._event_ch = foxglove.Channel(
-            EVENT_TOPIC,
-            message_encoding="json",
-            schema=schema(
-                name="haptic_server/Event",
-                encoding="jsonschema",
-                data=json.dumps(EVENT_JSON_SCHEMA).encode(),
-            ),
-            context=self._context,
+        self._update_ch = self._channel(
+            UPDATE_TOPIC, "json", "haptic_server/LocalModelUpdate", "jsonschema",
+            json.dumps(UPDATE_JSON_SCHEMA),
+        )  # fmt: skip
+        self._event_ch = self._channel(
+            EVENT_TOPIC, "json", "haptic_server/Event", "jsonschema", json.dumps(EVENT_JSON_SCHEMA)
         )
         for name, data in (metadata or {}).items():
             self._writer.write_metadata(name, data)
         self.closed = False
+
+    def _channel(
+        self, topic: str, encoding: str, schema_name: str, schema_encoding: str, schema: str
+    ) -> Any:
+        import foxglove
+
+        return foxglove.Channel(
+            topic,
+            message_encoding=encoding,
+            schema=foxglove.Schema(
+                name=schema_name, encoding=schema_encoding, data=schema.encode()
+            ),
+            context=self._context,
+        )
 
     def tick(self, row_bytes: bytes, log_time_ns: int) -> None:
         self._tick_ch.log(row_bytes, log_time=log_time_ns)

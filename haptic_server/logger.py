@@ -59,8 +59,11 @@ from shared.timing import avoid_cpu
 if TYPE_CHECKING:
     from haptic_server.log import LogWriter
 
-LOG_POLL_S = 0.005  # an idle writer looks for new rows this often
-BUSY_POLL_S = 0.0005  # and a busy one (it found rows last time: a virtual clock feeds it)
+#: how often the writer looks for rows: for a real-time loop (its ring holds 16 s; each wake
+#: costs the machine, and at 10 kHz a writer that never idles would wake 2000 times a
+#: second), and for a virtual clock, which waits on it when the ring is full
+REALTIME_POLL_S = 0.005
+FEED_POLL_S = 0.0005
 FLUSH_EVERY_S = 0.2  # and flushes the file this often: a crash loses at most that much
 LOG_NICENESS = 5  # the writer yields the CPU to the sim and the I/O sidecar
 
@@ -146,6 +149,7 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
         ctl[C_LOG_FAILED] = 1
         raise
     drain = LogDrain(block, log, int(config["wall_start_ns"]))
+    poll_s = float(config.get("poll_s", REALTIME_POLL_S))
     _load_decoder()
     gc.collect()
     gc.freeze()
@@ -154,12 +158,11 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
         while True:
             closing = ctl[C_CLOSED] == 1 or os.getppid() != parent_pid or terminated.is_set()
             head = int(ctl[C_TICK_HEAD])  # first: see LogDrain.drain
-            busy = head > drain.tick_tail
             drain.drain(head, time.monotonic())
             if closing and int(ctl[C_TICK_HEAD]) == drain.tick_tail and drain.drained_updates():
                 break
             if not closing:
-                time.sleep(BUSY_POLL_S if busy else LOG_POLL_S)
+                time.sleep(poll_s)
     except BaseException:
         ctl[C_LOG_FAILED] = 1
         raise
@@ -266,7 +269,12 @@ class LogFeed:
         self.block = SharedBlock(self._shm)
         self.block.ctl[:] = 0
         self.block.update_verdict[:] = VERDICT_PENDING
-        config = {"log_path": str(path), "metadata": metadata, "wall_start_ns": 0}
+        config = {
+            "log_path": str(path),
+            "metadata": metadata,
+            "wall_start_ns": 0,
+            "poll_s": FEED_POLL_S,
+        }
         try:
             self._writer = LogProcess(self._shm.name, self.block, config)
         except BaseException:

@@ -41,6 +41,8 @@ def test_median_of_repeated_runs() -> None:
 def test_the_bare_loop_counts_every_deadline_at_a_high_rate() -> None:
     out = bare_loop(0.02, 100_000)  # 10 kHz for 20 ms, the loop's own compiled wait
     assert out["ticks"] == 200
-    assert out["tick_rate_hz"] == 10_000.0
+    # measured over the wall time (a stall and its resynchronisation lose ticks); never
+    # above nominal: the first deadline is a period after the start
+    assert 0.0 < out["tick_rate_hz"] <= 10_000.0
     assert 0 <= out["overruns"] <= out["ticks"]
     assert out["lateness_us"]["p50"] >= 0.0  # never early: the wait returns at the deadline
