@@ -59,6 +59,20 @@ def drive_work() -> tuple[np.ndarray, ...]:
 
 
 @njit(cache=True)
+def set_target(target, mode, q, qd, device_pose, device_twist):
+    """The haptic side's target for the next step into its record (one call, not four
+    field writes from Python)."""
+    tg = target[0]
+    tg.mode = mode
+    for i in range(q.shape[0]):
+        tg.q[i] = q[i]
+        tg.qd[i] = qd[i]
+    for c in range(3):
+        tg.device_pose[c] = device_pose[c]
+        tg.device_twist[c] = device_twist[c]
+
+
+@njit(cache=True)
 def step_world(tool, target, chain, kinematic, sim_time, period, substeps, work):
     """One sim period of `substeps` Chipmunk steps (see the module docstring).
 

@@ -32,6 +32,7 @@ from shared.kinematics import (
 )
 from shared.linalg import cholesky_inplace, cholesky_solve, symmetric_eigen
 from shared.protocol.layout import LOCAL_MODEL_DTYPE, MAX_CONTACTS
+from shared.protocol.update import encode_record
 from sim_server import chipmunk as cp
 from sim_server.tool import TOOL_LINKAGE, tool_state
 
@@ -339,6 +340,16 @@ def _keep_nearest(found, gaps, n, env, m):
         m.c_stiffness[i] = r.share * e.stiffness
         m.c_damping[i] = r.share * e.damping
         m.c_tangential_stiffness[i] = r.share * e.tangential_stiffness
+
+
+@njit(cache=True)
+def encode_stamped(out, buf, epoch, seq, sim_time, publish_time_ns, state_lead_s):
+    """The record's header fields the caller knows (epoch, seq, its times), then its bytes
+    into `buf` (encode_record); returns their count."""
+    m = out[0]
+    m.epoch, m.seq, m.sim_time = epoch, seq, sim_time
+    m.publish_time_ns, m.state_lead_s = publish_time_ns, state_lead_s
+    return encode_record(out, buf)
 
 
 def resisted_directions(jac: np.ndarray, length: float, tolerance: float) -> np.ndarray:

@@ -29,7 +29,7 @@ from shared.kinematics import (
     point_on_link,
 )
 from shared.protocol.layout import MAX_CONTACTS, MAX_RESISTED, update_size
-from shared.protocol.update import LocalModelUpdate, encode_record, update_from_record
+from shared.protocol.update import LocalModelUpdate, update_from_record
 from sim_server.chipmunk import body_ptr, set_velocity_function, space_ptr
 from sim_server.drive import (
     DRIVE_DEVICE,
@@ -38,6 +38,7 @@ from sim_server.drive import (
     KINEMATIC_DTYPE,
     TARGET_DTYPE,
     drive_work,
+    set_target,
     step_world,
     table_drag,
 )
@@ -46,6 +47,7 @@ from sim_server.local_model import (
     LocalModelKernel,
     StageStats,
     build_local_model,
+    encode_stamped,
 )
 from sim_server.tool import TOOL_BODY, TOOL_DTYPE, TOOL_LINKAGE
 
@@ -88,7 +90,6 @@ class SimWorld:
         for lk in scene.linkages:
             self._add_linkage(lk.name)
         self._setup_tool_chain()
-        self.stats = StageStats()
         self.space.step(0.0)  # pymunk's checks of the bodies added (a zero step moves nothing)
         self.tool = self._tool_record()
         self._target = np.zeros(1, TARGET_DTYPE)
@@ -328,15 +329,13 @@ class SimWorld:
     def step(self, target: ToolTarget | None) -> None:
         """Advance one sim period: drive the tool, move kinematic bodies, substep pymunk (one
         compiled call)."""
-        tg = self._target[0]
         if target is None or not target.fresh:
-            tg["mode"] = DRIVE_REST
+            self._target[0]["mode"] = DRIVE_REST
         else:
-            tg["mode"] = DRIVE_DEVICE if target.coupled_to_device else DRIVE_PROXY
-            tg["q"][: self.dof] = target.q
-            tg["qd"][: self.dof] = target.qd
-            tg["device_pose"] = target.device_pose
-            tg["device_twist"] = target.device_twist
+            mode = DRIVE_DEVICE if target.coupled_to_device else DRIVE_PROXY
+            set_target(
+                self._target, mode, target.q, target.qd, target.device_pose, target.device_twist
+            )
         step_world(
             self.tool, self._target, self.chain, self._kinematic_rec, self.time, self.period,
             self.substeps, self._drive_work,
@@ -348,23 +347,29 @@ class SimWorld:
     def local_model_bytes(
         self, epoch: int, seq: int, publish_time_ns: int, state_lead_s: float = 0.0
     ) -> bytes:
-        """The encoded local model of DESIGN §3 at the tool's current state.
+        """The encoded local model of DESIGN §3 at the tool's current state (two compiled
+        calls: the model, then its stamp and encoding).
 
         state_lead_s: how long after publication the state holds (the step just computed
         covers the coming period, driven by the extrapolated proxy)."""
         lm = self._local
         build_local_model(self.tool, self.chain, lm.query, lm.work, lm.record)
-        m = lm.record[0]
-        m["epoch"], m["seq"], m["sim_time"] = epoch, seq, self.time
-        m["publish_time_ns"], m["state_lead_s"] = publish_time_ns, state_lead_s
-        self.stats = StageStats(
+        n = encode_stamped(
+            lm.record, self._encoded, epoch, seq, self.time, publish_time_ns, state_lead_s
+        )
+        return self._encoded[:n].tobytes()
+
+    @property
+    def stats(self) -> StageStats:
+        """Which optional stages the last local model ran, and what its query found."""
+        m, counts = self._local.record[0], self._local.counts
+        return StageStats(
             svd=self.scene.tool.kind == "linkage",
             gravity=bool(m["has_gravity"]),
             contacts_sent=int(m["n_contacts"]),
-            shapes_queried=int(lm.counts[0]),
-            hits_dropped=int(lm.counts[1]),
+            shapes_queried=int(counts[0]),
+            hits_dropped=int(counts[1]),
         )
-        return self._encoded[: encode_record(lm.record, self._encoded)].tobytes()
 
     def local_model(
         self, epoch: int, seq: int, publish_time_ns: int, state_lead_s: float = 0.0

@@ -74,6 +74,7 @@ def run_virtual(
     stage = dict.fromkeys(("sim_step", "local_model", "install", "tick"), 0)
     sizes: list[int] = []
     svd_steps = 0
+    runs_svd = world.stats.svd  # a linkage's local model has resisted directions to find
     clock = time.perf_counter_ns
     started = time.perf_counter()
     try:
@@ -89,7 +90,7 @@ def run_virtual(
                 t1 = clock()
                 t_ns = round(t * 1e9)  # published (and received) at the virtual time
                 raw = world.local_model_bytes(VIRTUAL_EPOCH, seq, t_ns, lead)  # built, encoded
-                svd_steps += world.stats.svd
+                svd_steps += runs_svd
                 t2 = clock()
                 supervise(engine, InstallOnly(partial(_install_own, engine, raw)))
                 t3 = clock()
