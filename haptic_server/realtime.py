@@ -9,7 +9,7 @@ lateness and dt in the LOOP_DTYPE record) but not run — as soon as that tick n
 supervisor's Python side: the run's end, a watchdog that may trip, an update that may start
 a new epoch or needs the engine's follow-up (after a trip, FOH setpoints), the device's
 noise block spent. It also returns, between two ticks, once `return_at_ns` has passed, so
-the Python side sees stop requests and signals every few milliseconds. The loop
+the Python side sees stop requests and signals every RETURN_EVERY_NS (50 ms). The loop
 (haptic_server.loop) runs an opened tick as before.
 """
 
