@@ -7,6 +7,7 @@ same object, so a replay of a log runs exactly the code that produced it.
 
 from __future__ import annotations
 
+import itertools
 from collections import deque
 from dataclasses import dataclass
 
@@ -321,8 +322,9 @@ class HapticEngine:
             st["foh_goal"] = target
             st["foh_steps_left"] = 0
             return
-        intervals = np.diff(np.array(ticks, dtype=np.float64))[-3:]
-        steps = max(1, round(float(np.mean(intervals))))
+        last = list(ticks)[-4:]  # ticks are integers: the mean is exact (as numpy's was)
+        intervals = [b - a for a, b in itertools.pairwise(last)]
+        steps = max(1, round(sum(intervals) / len(intervals)))
         st["foh_step"] = (target - st["foh_goal"]) / steps
         st["foh_steps_left"] = steps
 

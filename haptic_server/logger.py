@@ -49,7 +49,6 @@ from haptic_server.mailbox import (
     MAILBOX_SLOTS,
     RING_TICKS,
     SLOT_BYTES,
-    VERDICT_PENDING,
     SharedBlock,
 )
 from haptic_server.model import TICK_DTYPE
@@ -265,10 +264,8 @@ class LogFeed:
     row), waiting for room when the writer is behind, so nothing is lost."""
 
     def __init__(self, path: Path | str, metadata: dict[str, dict[str, str]]) -> None:
-        self._shm = shared_memory.SharedMemory(create=True, size=SharedBlock.nbytes())
-        self.block = SharedBlock(self._shm)
-        self.block.ctl[:] = 0
-        self.block.update_verdict[:] = VERDICT_PENDING
+        self.block = SharedBlock.create()
+        self._shm = self.block.shm
         config = {
             "log_path": str(path),
             "metadata": metadata,

@@ -82,6 +82,16 @@ class SharedBlock:
         o += EVENT_SLOTS * EVENT_BYTES
         self.size = o
 
+    @classmethod
+    def create(cls) -> SharedBlock:
+        """A new named segment, empty, with every page touched now (not one by one as the
+        ring first fills: a page fault is a few microseconds in the loop or the feed)."""
+        shm = shared_memory.SharedMemory(create=True, size=cls.nbytes())
+        np.ndarray((shm.size,), np.uint8, shm.buf).fill(0)
+        block = cls(shm)
+        block.update_verdict[:] = VERDICT_PENDING
+        return block
+
     @staticmethod
     def nbytes() -> int:
         return (

@@ -46,7 +46,6 @@ from haptic_server.mailbox import (
     EVENT_SLOTS,
     MAILBOX_SLOTS,
     RING_TICKS,
-    VERDICT_PENDING,
     SharedBlock,
     take_updates,
 )
@@ -72,12 +71,8 @@ class LoopIO:
     """The loop's side: take updates, give verdicts, push ticks and events. No syscalls."""
 
     def __init__(self, config: dict[str, Any], ready_timeout_s: float = 120.0) -> None:
-        self._shm = shared_memory.SharedMemory(create=True, size=SharedBlock.nbytes())
-        self.block = SharedBlock(self._shm)
-        # touch every page now, so the loop's memory stays flat while the ring fills
-        np.ndarray((self._shm.size,), np.uint8, self._shm.buf)[:] = 0
-        self.block.ctl[:] = 0
-        self.block.update_verdict[:] = VERDICT_PENDING
+        self.block = SharedBlock.create()  # its pages touched: the loop's memory stays flat
+        self._shm = self.block.shm
         self._logger: LogProcess | None = None
         if config.get("log_path"):
             try:
