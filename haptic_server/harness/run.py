@@ -224,6 +224,7 @@ def run_virtual_clock(args: argparse.Namespace) -> dict[str, Any]:
         "wall_s": result.wall_s,
         "speedup": result.speedup,
         "kernels_load_s": result.load_s,
+        "setup_s": result.setup_s,
         "updates_received": result.updates,
         "log": str(args.log) if args.log else None,
     }
@@ -234,7 +235,8 @@ def print_summary(s: dict[str, Any]) -> None:
         print(
             f"virtual clock: {s['ticks']} ticks, {s['simulated_s']:.2f} s simulated in "
             f"{s['wall_s']:.2f} s ({s['speedup']:.0f}x real time), {s['updates_received']} updates"
-            f" (kernels loaded in {s['kernels_load_s']:.2f} s before)"
+            f" (before it: kernels loaded in {s['kernels_load_s']:.2f} s, world, engine and log"
+            f" writer made in {s['setup_s']:.2f} s)"
         )
     else:
         lat, work, age = s["lateness_us"], s["work_us"], s["update_age_ms"]
