@@ -44,4 +44,5 @@ bench: $(STAMP) warm
 	$(PY) -m benchmarks.loop_timing
 
 clean:
-	rm -rf $(VENV) runs .numba_cache .pytest_cache .mypy_cache .ruff_cache
+	-test -x $(PY) && $(PY) -c "import shutil, shared; shutil.rmtree(shared.cache_dir(), True)"
+	rm -rf $(VENV) runs .pytest_cache .mypy_cache .ruff_cache

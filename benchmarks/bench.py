@@ -1,6 +1,6 @@
 """`haptic-bench`: error against run time, scaling with the world, what each scene leaves out.
 
-In the virtual clock (issue 7):
+In the virtual clock:
 1. the seed scenes across rendering methods and rates (sim 30/60/120 Hz, haptic 500/1000/
    2000 Hz): drift |x_h - x_VM|, the VM's error against the independent RNEA reference and
    the wall's penetration against F/K; run time as cost per simulated second, split by
@@ -9,9 +9,10 @@ In the virtual clock (issue 7):
    model, against stepping the whole pymunk world inside the 1 kHz loop;
 3. per scene: which optional stages ran (SVD, gravity and velocity terms, penalties, the
    contact stage), the contacts sent and the update sizes.
-Writes docs/bench/report.md with PNG plots; `--quick` runs a subset.
+Writes report.md with PNG plots into --out (./runs/bench by default; the project's committed
+report is docs/bench: `haptic-bench --out docs/bench`); `--quick` runs a subset.
 
-    haptic-bench [--quick] [--out docs/bench]
+    haptic-bench [--quick] [--out DIR]
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from benchmarks.linkage import drift_mm, reference_error_mm
 from device_models.registry import load_device
 from haptic_server.engine import HapticEngine
 from haptic_server.harness.virtual import VirtualResult, run_virtual
+from shared.cli import add_version
 from shared.config import BodySpec, SceneConfig, load_scene, load_user
 from shared.protocol.update import encode_update
 from sim_server.world import SimWorld
@@ -366,9 +368,13 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    add_version(parser)
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--seconds", type=float, default=5.0)
-    parser.add_argument("--out", type=Path, default=Path("docs/bench"))
+    parser.add_argument(
+        "--out", type=Path, default=Path("runs/bench"),
+        help="report directory (default ./runs/bench; the project's own: docs/bench)",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()

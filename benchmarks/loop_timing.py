@@ -35,7 +35,6 @@ from numba import njit
 
 from haptic_server.log import read_ticks
 from shared.clock import monotonic_ns, wait_until_ns
-from shared.config import REPO_ROOT
 from shared.timing import spin_for, try_realtime_priority
 
 
@@ -85,16 +84,14 @@ def with_sim_beside(seconds: float, network: str, rate_hz: float = 1000.0) -> di
     runs as another process: the same load and privileges as the system."""
     sim = subprocess.Popen(
         [sys.executable, "-m", "sim_server.cli", "--network", network],
-        cwd=REPO_ROOT, stdout=subprocess.PIPE, text=True,
+        stdout=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
         assert sim.stdout is not None
         sim.stdout.readline()  # the "ready" line
         argv = ["-m", "benchmarks.loop_timing", "--bare-only", "--seconds", str(seconds)]
         argv += ["--rate", str(rate_hz)]
-        out = subprocess.run(
-            [sys.executable, *argv], cwd=REPO_ROOT, check=True, capture_output=True, text=True
-        )
+        out = subprocess.run([sys.executable, *argv], check=True, capture_output=True, text=True)
         return json.loads(out.stdout)  # type: ignore[no-any-return]
     finally:
         os.kill(sim.pid, signal.SIGTERM)
@@ -113,7 +110,7 @@ def system(
             "--summary-json", str(summary), "--haptic-rate", str(rate_hz),
         ]  # fmt: skip
         argv += ["--log", str(log_path)] if log else ["--no-log"]
-        subprocess.run(argv, cwd=REPO_ROOT, check=True, stdout=subprocess.DEVNULL)
+        subprocess.run(argv, check=True, stdout=subprocess.DEVNULL)
         result: dict[str, Any] = json.loads(summary.read_text())
         if log:
             result["work_split_us"] = work_split(read_ticks(log_path))

@@ -1,6 +1,7 @@
-"""`haptic-stability`: numerical stability on stiff and extreme cases (issue 7).
+"""`haptic-stability`: numerical stability on stiff and extreme cases.
 
-Three parts, written to docs/stability/ as markdown + PNG:
+Three parts, written to --out as markdown + PNG (./runs/stability by default; the committed
+report: docs/stability):
 
 1. The sampled virtual wall against Colgate's passivity bound b > K T / 2 + |B|: a device
    (mass m, physical damping b) hits a wall F = -K x - B v rendered with a zero-order hold
@@ -46,6 +47,7 @@ from benchmarks.kernel_cost import engine_with_contacts
 from device_models.ideal import IdealDevice, IdealDeviceConfig
 from haptic_server.engine import HapticEngine
 from haptic_server.harness.virtual import run_virtual
+from shared.cli import add_version
 from shared.config import SceneConfig, UserConfig, load_scene, load_user
 from shared.kinematics import free_body_chain
 from shared.protocol.layout import DEFAULT_LIMITS
@@ -639,8 +641,12 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    add_version(parser)
     parser.add_argument("--quick", action="store_true", help="a fast subset of every axis")
-    parser.add_argument("--out", type=Path, default=Path("docs/stability"))
+    parser.add_argument(
+        "--out", type=Path, default=Path("runs/stability"),
+        help="report directory (default ./runs/stability; the project's own: docs/stability)",
+    )  # fmt: skip
     parser.add_argument(
         "--period-s", type=float, default=WORST_PERIOD_S, help="worst-case haptic period"
     )

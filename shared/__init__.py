@@ -1,9 +1,10 @@
 """Code shared by the sim and the haptic server: config, messages, kinematics, timing.
 
 Importing this package (every package of the project does, first) points numba's on-disk
-cache at a directory named by a hash of the project's sources: numba does not notice that a
-kernel's callee in another module changed, so without this a stale compiled kernel could
-outlive a code change.
+cache at a directory named by a hash of the project's sources, in the user's cache directory
+(`~/.cache/haptic-local-model/numba/<hash>` on Linux; NUMBA_CACHE_DIR overrides it): numba
+does not notice that a kernel's callee in another module changed, so without this a stale
+compiled kernel could outlive a code change. An install never writes into its own tree.
 """
 
 import hashlib
@@ -34,6 +35,13 @@ def source_hash() -> str:
     return _source_hash()
 
 
+def cache_dir() -> Path:
+    """The project's directory in the user's cache (platformdirs)."""
+    from platformdirs import user_cache_path
+
+    return user_cache_path("haptic-local-model", appauthor=False)
+
+
 if "NUMBA_CACHE_DIR" not in os.environ:
-    os.environ["NUMBA_CACHE_DIR"] = str(_ROOT / ".numba_cache" / _source_hash())
+    os.environ["NUMBA_CACHE_DIR"] = str(cache_dir() / "numba" / _source_hash())
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # 3x3 algebra: no BLAS thread pools

@@ -9,7 +9,8 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
-from shared.config import ConfigError
+from shared import __version__
+from shared.config import CONFIG_KINDS, ConfigError, shipped
 
 EXIT_CONFIG = 2
 
@@ -17,6 +18,7 @@ EXIT_CONFIG = 2
 def add_config_args(
     parser: argparse.ArgumentParser, device: bool = True, user: bool = True, rate: bool = False
 ) -> None:
+    add_version(parser)
     parser.add_argument("--scene", default="testbed", help="scene name in configs/scenes or a path")
     if device:
         parser.add_argument(
@@ -36,6 +38,27 @@ def add_config_args(
             help="the haptic loop's rate, instead of the scene's haptic_rate_hz (100-10000 Hz, "
             "at most the device's max_rate_hz)",
         )
+
+
+def add_version(parser: argparse.ArgumentParser) -> None:
+    """`--version`: the installed distribution's version."""
+    parser.add_argument(
+        "--version", action="version", version=f"%(prog)s {__version__} (haptic-local-model)"
+    )
+
+
+def print_shipped() -> None:
+    """The shipped scenes, devices, users and networks, a line each (`haptic-run --list`)."""
+    lines = []
+    for kind in CONFIG_KINDS:
+        configs = shipped(kind)
+        lines.append(f"{kind} (--{kind.rstrip('s')} NAME, or a path to a .toml file):")
+        width = max(map(len, configs), default=0)
+        lines += [f"  {name:<{width}}  {text}" for name, text in configs.items()]
+    try:
+        print("\n".join(lines), flush=True)
+    except BrokenPipeError:  # `haptic-run --list | head`
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
 def run_main(body: Callable[[], int]) -> int:

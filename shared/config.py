@@ -20,8 +20,12 @@ from typing import Any, Literal
 
 from shared import coupling
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-CONFIG_ROOT = REPO_ROOT / "configs"
+REPO_ROOT = Path(__file__).resolve().parent.parent  # a source tree's (a checkout, -e)
+_SHIPPED = Path(__file__).resolve().parent / "configs"  # package data, in an installed wheel
+#: The shipped scenes, devices, users and networks: inside the package when installed from a
+#: wheel, the source tree's configs/ otherwise (a checkout or an editable install).
+CONFIG_ROOT = _SHIPPED if _SHIPPED.is_dir() else REPO_ROOT / "configs"
+CONFIG_KINDS = ("scenes", "devices", "users", "network")
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -154,12 +158,45 @@ def load_config_text(cls: Any, text: str, source: str) -> Any:
     return load_dataclass(cls, parse_toml_text(text, source), source)
 
 
-def resolve(kind: str, name_or_path: str) -> Path:
-    """A bare name `free_box` means configs/<kind>/free_box.toml; anything else is a path."""
+def is_config_path(name_or_path: str) -> bool:
+    """A path (`my.toml`, `dir/x`), not the bare name of a shipped config (`free_box`)."""
     p = Path(name_or_path)
-    if p.suffix == ".toml" or p.parent != Path("."):
-        return p
+    return p.suffix == ".toml" or p.parent != Path(".")
+
+
+def resolve(kind: str, name_or_path: str) -> Path:
+    """A bare name `free_box` means the shipped <kind>/free_box.toml; anything else is a path
+    (relative to the working directory)."""
+    if is_config_path(name_or_path):
+        return Path(name_or_path)
     return CONFIG_ROOT / kind / f"{name_or_path}.toml"
+
+
+def absolute_ref(name_or_path: str) -> str:
+    """A config reference another process can use from any directory: a bare name as it is,
+    a path made absolute (against this process's working directory)."""
+    return str(Path(name_or_path).resolve()) if is_config_path(name_or_path) else name_or_path
+
+
+def shipped(kind: str) -> dict[str, str]:
+    """The shipped configs of a kind: name -> one-line description (the file's `description`
+    key, else the first sentence of its opening comment)."""
+    out = {}
+    for path in sorted((CONFIG_ROOT / kind).glob("*.toml")):
+        text = path.read_text()
+        try:
+            described = tomllib.loads(text).get("description")
+        except tomllib.TOMLDecodeError:
+            described = None
+        if not isinstance(described, str):
+            lines = []
+            for line in text.splitlines():
+                if not line.startswith("#"):
+                    break
+                lines.append(line.lstrip("# ").strip())
+            described = " ".join(lines).split(". ")[0].rstrip(".")
+        out[path.stem] = described
+    return out
 
 
 def require(cond: bool, key: str, problem: str) -> None:

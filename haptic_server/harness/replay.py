@@ -30,6 +30,7 @@ from haptic_server.model import TICK_DTYPE
 from haptic_server.stages.tick import store_row
 from haptic_server.supervisor import Event, LoggedEvents, supervise
 from shared import source_hash
+from shared.cli import add_version
 from shared.config import SceneConfig, UserConfig, load_config_text
 from shared.net.config import NetworkConfig
 from shared.protocol.codes import Reason
@@ -268,6 +269,7 @@ def main_replay(
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="haptic-replay", description=__doc__)
+    add_version(parser)
     parser.add_argument("log", type=Path, help="MCAP log of a haptic run")
     parser.add_argument("--plot", type=Path, default=None, metavar="OUT.png")
     parser.add_argument("--summary", action="store_true", help="print the run's figures")

@@ -22,8 +22,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
-from shared.cli import add_config_args, emit, run_main
-from shared.config import REPO_ROOT, load_scene, load_user, resolve
+from shared.cli import add_config_args, emit, print_shipped, run_main
+from shared.config import absolute_ref, load_scene, load_user, resolve
 from shared.net.config import load_network
 
 READY_TIMEOUT_S = 300.0  # a cold numba cache compiles for a minute or two on 2 cores
@@ -64,7 +64,7 @@ class Child:
     def __init__(self, name: str, argv: list[str], avoid_cpu: int | None = None) -> None:
         self.name = name
         self.proc = subprocess.Popen(
-            argv, stdout=subprocess.PIPE, stderr=None, text=True, cwd=REPO_ROOT,
+            argv, stdout=subprocess.PIPE, stderr=None, text=True,
             preexec_fn=_die_with_parent(os.getpid(), avoid_cpu),
         )  # fmt: skip
         self.events: list[dict[str, Any]] = []
@@ -108,8 +108,8 @@ class Child:
 
 
 def _server_argv(module: str, args: argparse.Namespace, extra: list[str]) -> list[str]:
-    argv = [sys.executable, "-m", module, "--scene", args.scene, "--network", args.network]
-    return argv + extra
+    argv = [sys.executable, "-m", module, "--scene", absolute_ref(args.scene)]
+    return [*argv, "--network", absolute_ref(args.network), *extra]
 
 
 def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
@@ -126,23 +126,23 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
     from device_models.registry import load_device
 
     load_device(args.device)
-    summary_dir = Path(args.log).parent if args.log else REPO_ROOT / "runs"
+    summary_dir = Path(args.log).resolve().parent if args.log else Path.cwd() / "runs"
     summary_dir.mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     haptic_json = summary_dir / f"haptic-summary-{stamp}-{os.getpid()}.json"
     sim_json = summary_dir / f"sim-summary-{stamp}-{os.getpid()}.json"
     haptic_extra = [
         "--device",
-        args.device,
+        absolute_ref(args.device),
         "--user",
-        args.user,
+        absolute_ref(args.user),
         "--duration",
         str(args.duration),
         "--summary-json",
         str(haptic_json),
     ]
     if args.log:
-        haptic_extra += ["--log", str(args.log)]
+        haptic_extra += ["--log", str(Path(args.log).resolve())]
     if args.haptic_rate is not None:
         haptic_extra += ["--haptic-rate", repr(float(args.haptic_rate))]
     stop = threading.Event()
@@ -213,6 +213,7 @@ def _watch(haptic: Child, sim: Child, stop: threading.Event, timeout_s: float) -
 def run_virtual_clock(args: argparse.Namespace) -> dict[str, Any]:
     from haptic_server.harness.virtual import run_virtual_named
 
+    load_network(args.network)  # not used on a virtual clock, but a bad file is still an error
     result = run_virtual_named(
         args.scene, args.device, args.user, args.duration, args.log, args.haptic_rate
     )
@@ -268,13 +269,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=10.0, help="seconds to run (default 10)")
     parser.add_argument("--clock", choices=["real", "virtual"], default="real")
     parser.add_argument(
-        "--log", type=Path, default=None, help="MCAP log (default runs/<time>.mcap)"
+        "--log", type=Path, default=None, help="MCAP log (default ./runs/<time>-<scene>.mcap)"
     )
     parser.add_argument("--no-log", action="store_true", help="run without a log")
     parser.add_argument("--summary-json", type=Path, default=None)
+    parser.add_argument(
+        "--list", action="store_true", help="list the shipped scenes, devices, users, networks"
+    )
     args = parser.parse_args(argv)
+    if args.list:
+        print_shipped()
+        return 0
     if args.log is None and not args.no_log:
-        args.log = REPO_ROOT / "runs" / f"{time.strftime('%Y%m%d-%H%M%S')}-{args.scene}.mcap"
+        stem = f"{time.strftime('%Y%m%d-%H%M%S')}-{Path(args.scene).stem}"
+        args.log = Path.cwd() / "runs" / f"{stem}.mcap"
     if args.no_log:
         args.log = None
 

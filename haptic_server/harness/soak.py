@@ -37,6 +37,7 @@ import numpy as np
 from device_models.registry import load_device
 from haptic_server.harness.run import Child
 from haptic_server.log import EVENT_TOPIC, read_json_topic, read_ticks
+from shared.cli import add_version
 from shared.config import load_scene
 
 # ticks starting > 1 ms late: the bare clock loop alone measured up to 0.43% on these VMs
@@ -387,6 +388,7 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    add_version(parser)
     parser.add_argument(
         "--minutes", type=float, default=3.0, help="total soak time (default 3, sized for CI)"
     )

@@ -1,0 +1,143 @@
+"""The project as a user installs it: `pip install .` (a wheel, not the source tree), used from
+a directory that has nothing to do with the project, with relative paths for every input and
+output."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import sysconfig
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from shared import __version__
+
+REPO = Path(__file__).resolve().parent.parent
+CODE_ROOTS = ("shared", "sim_server", "haptic_server", "device_models", "benchmarks")
+
+
+def test_the_package_list_is_the_tree() -> None:
+    """pyproject.toml lists the packages by hand (configs/ is mapped into `shared`): a package
+    added to the tree and not to the list would be missing from every install."""
+    setuptools = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    code = {
+        ".".join(p.parent.relative_to(REPO).parts)
+        for root in CODE_ROOTS
+        for p in (REPO / root).rglob("__init__.py")
+    }
+    data = {"shared.configs"} | {
+        f"shared.configs.{d.name}" for d in (REPO / "configs").iterdir() if d.is_dir()
+    }
+    assert set(setuptools["packages"]) == code | data
+    assert setuptools["package-dir"] == {"shared.configs": "configs"}
+
+
+def test_the_version_is_the_distribution_s() -> None:
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    assert __version__ == project["version"]
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A fresh virtual environment with the project's wheel installed (not editable). Its
+    dependencies come from this environment's site-packages as a plain path (a .pth line):
+    that adds numpy, numba, ... but not this environment's editable install of the project,
+    whose finder only a site directory's own .pth files would load."""
+    root = tmp_path_factory.mktemp("install")
+    wheels = root / "wheels"
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(wheels), str(REPO)],
+        check=True, timeout=600,
+    )  # fmt: skip
+    (wheel,) = wheels.glob("haptic_local_model-*.whl")
+    venv = root / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    py = venv / "bin" / "python"
+    subprocess.run(
+        [str(py), "-m", "pip", "install", "--quiet", "--no-deps", str(wheel)],
+        check=True, timeout=600,
+    )  # fmt: skip
+    site = subprocess.run(
+        [str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        check=True, capture_output=True, text=True,
+    ).stdout.strip()  # fmt: skip
+    (Path(site) / "project_dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    return venv
+
+
+def _run(venv: Path, cwd: Path, *argv: str, timeout: float = 900) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    env["PATH"] = f"{venv / 'bin'}{os.pathsep}{env.get('PATH', '')}"
+    exe = venv / "bin" / argv[0]
+    return subprocess.run(
+        [str(exe), *argv[1:]], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout
+    )
+
+
+@pytest.mark.slow
+@pytest.mark.processes
+def test_the_wheel_runs_from_any_directory(
+    installed: Path, tmp_path: Path, network_file: Path
+) -> None:
+    """`haptic-run` in real time and on the virtual clock, `haptic-replay`, `haptic-bench
+    --quick`: from an unrelated directory, with a scene, log and summary given by relative
+    paths; each exits 0 and writes where it was asked, nothing into the install."""
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    where = _run(installed, work, "python", "-c", "import shared; print(shared.__file__)")
+    assert where.returncode == 0, where.stderr
+    assert str(installed) in where.stdout, where.stdout  # the wheel's code, not the tree's
+    site = Path(where.stdout.strip()).parent.parent
+    before = _files(site)
+    (work / "my_scene.toml").write_text((REPO / "configs/scenes/wall_push.toml").read_text())
+    (work / "net.toml").write_text(network_file.read_text())  # loopback, a free port
+
+    listed = _run(installed, work, "haptic-run", "--list")
+    assert listed.returncode == 0, listed.stderr
+    assert "testbed" in listed.stdout and "twin_pantograph" in listed.stdout
+    version = _run(installed, work, "haptic-replay", "--version")
+    assert version.stdout.strip().endswith(f"{__version__} (haptic-local-model)")
+
+    # the virtual clock first: it loads (or compiles) most kernels in one process
+    common = ["--scene", "my_scene.toml", "--user", "push_2n", "--network", "net.toml"]
+    virtual = _run(
+        installed, work, "haptic-run", "--clock", "virtual", *common, "--duration", "2",
+        "--log", "out/virtual.mcap", "--summary-json", "out/virtual.json",
+    )  # fmt: skip
+    assert virtual.returncode == 0, virtual.stderr + virtual.stdout
+    assert json.loads((work / "out/virtual.json").read_text())["ticks"] == 2000
+
+    real = _run(
+        installed, work, "haptic-run", *common, "--duration", "3",
+        "--log", "out/real.mcap", "--summary-json", "out/real.json",
+    )  # fmt: skip
+    assert real.returncode == 0, real.stderr + real.stdout
+    summary = json.loads((work / "out/real.json").read_text())
+    assert summary["exit_codes"] == {"haptic": 0, "sim": 0}
+    assert summary["updates_received"] > 60  # the sim's updates arrived over 3 s at 60 Hz
+    assert (work / "out/real.mcap").stat().st_size > 0
+
+    replay = _run(installed, work, "haptic-replay", "out/virtual.mcap", "--no-progress")
+    assert replay.returncode == 0, replay.stderr + replay.stdout
+    assert "identical" in replay.stdout
+
+    bench = _run(installed, work, "haptic-bench", "--quick", "--out", "out/bench")
+    assert bench.returncode == 0, bench.stderr + bench.stdout
+    assert (work / "out/bench/report.md").is_file()
+
+    # nothing was written into the installed packages (logs, caches, reports)
+    assert _files(site) - before == set()
+
+
+def _files(site: Path) -> set[Path]:
+    """The installed project's files, bytecode aside."""
+    return {
+        p
+        for root in CODE_ROOTS
+        for p in (site / root).rglob("*")
+        if p.is_file() and "__pycache__" not in p.parts
+    }
