@@ -161,12 +161,14 @@ def run_virtual_named(
     """Load configs by name or path and run the virtual clock (at `haptic_rate_hz` instead
     of the scene's, if given). Every kernel is loaded from numba's cache (or compiled) first,
     on spare copies, so the run's speed is its own; the time that took is `load_s`."""
+    # loaded (and checked: a ConfigError names the file and key) before their texts are read
+    scene_config, user_config = load_scene(scene, haptic_rate_hz), load_user(user)
+    load_simulated_device(device)
     configs = {
         "scene": scene_text(resolve("scenes", scene), haptic_rate_hz),
         "device": resolve("devices", device).read_text(),
         "user": resolve("users", user).read_text(),
     }
-    scene_config, user_config = load_scene(scene, haptic_rate_hz), load_user(user)
     started = time.perf_counter()
     warm_virtual(scene_config, load_simulated_device(device), user_config)
     load_s = time.perf_counter() - started

@@ -1,0 +1,87 @@
+"""One error path: every console script that reads config files turns a missing file, an
+unknown key or a value of the wrong type into one line on stderr naming the file and the key,
+exit code 2, no traceback — run as a user runs it, from a directory of their own."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+BIN = Path(sys.executable).parent
+
+#: option -> (a valid shipped file to start from, (key, line) of an unknown key, (key, line) of
+#: a value of the wrong type)
+FAULTS = {
+    "--scene": ("scenes/wall_push.toml", "bogus_key", ("sim_rate_hz", 'sim_rate_hz = "fast"')),
+    "--device": ("devices/ideal.toml", "bogus_key", ("model", "model = 3")),
+    "--user": ("users/push_2n.toml", "bogus_key", ("wrench", 'wrench = "x"')),
+    "--network": ("network/loopback.toml", "bogus_key", ("namespace", "namespace = 5")),
+}
+SCRIPTS = {
+    "haptic-run": ("--scene", "--device", "--user", "--network"),
+    "haptic-run --clock virtual": ("--scene", "--device", "--user", "--network"),
+    "haptic-server": ("--scene", "--device", "--user", "--network"),
+    "sim-server": ("--scene", "--network"),
+}
+CASES = [
+    (script, option, fault)
+    for script, options in SCRIPTS.items()
+    for option in options
+    for fault in ("missing", "unknown_key", "wrong_type")
+]
+
+
+def _write_fault(tmp_path: Path, option: str, fault: str) -> tuple[str, str]:
+    """The file to pass (relative to tmp_path) and the key the error must name."""
+    shipped, unknown, (key, line) = FAULTS[option]
+    text = (REPO / "configs" / shipped).read_text()
+    name = f"{fault}.toml"
+    if fault == "missing":
+        return name, ""
+    if fault == "unknown_key":
+        # a top-level key: before the first table, where every file's own keys are
+        head, sep, tail = text.partition("\n[")
+        (tmp_path / name).write_text(f"{head}\n{unknown} = 1\n{sep}{tail}")
+        return name, unknown
+    lines = [line if ln.split("=")[0].strip() == key else ln for ln in text.splitlines()]
+    assert line in lines, f"{shipped} has no top-level {key}"
+    (tmp_path / name).write_text("\n".join(lines) + "\n")
+    return name, key
+
+
+@pytest.mark.parametrize(("script", "option", "fault"), CASES)
+def test_a_bad_config_is_one_line_and_exit_2(
+    tmp_path: Path, script: str, option: str, fault: str
+) -> None:
+    name, key = _write_fault(tmp_path, option, fault)
+    exe, *flags = script.split()
+    res = subprocess.run(
+        [str(BIN / exe), *flags, option, name, "--duration", "1"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert res.returncode == 2, res.stderr + res.stdout
+    assert "Traceback" not in res.stderr + res.stdout
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1, res.stderr
+    assert name in lines[0]
+    if key:
+        assert f"'{key}'" in lines[0]
+    else:
+        assert "not found" in lines[0]
+
+
+def test_replay_of_a_missing_or_foreign_file_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    (tmp_path / "notes.mcap").write_text("not a log\n")
+    for name in ("absent.mcap", "notes.mcap"):
+        res = subprocess.run(
+            [str(BIN / "haptic-replay"), name, "--no-progress"],
+            cwd=tmp_path, capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert res.returncode == 2, res.stderr + res.stdout
+        assert "Traceback" not in res.stderr + res.stdout
+        lines = res.stderr.strip().splitlines()
+        assert len(lines) == 1 and "haptic-replay" in lines[0], res.stderr
