@@ -70,7 +70,10 @@ UPDATE_JSON_SCHEMA = {
         "epoch": {"type": "integer"},
         "seq": {"type": "integer"},
         "sim_time": {"type": "number"},
-        "age_ms": {"type": "number"},
+        "age_ms": {
+            "type": "number",
+            "description": "transit: publish -> received by the haptic server (ms)",
+        },
         "latency_s": {
             "type": "number",
             "description": "latency added to the contacts' extrapolation age at install (s)",

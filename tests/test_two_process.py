@@ -8,12 +8,14 @@ import numpy as np
 import pytest
 from conftest import haptic_run
 
+from haptic_server.harness.summary import summarise
 from haptic_server.log import (
     EVENT_TOPIC,
     TICK_TOPIC,
     UPDATE_TOPIC,
     iter_messages,
     read_json_topic,
+    read_log,
     read_ticks,
 )
 
@@ -44,6 +46,12 @@ def test_two_processes_over_zenoh(tmp_path: Path, network_file: Path) -> None:
     updates = topics.count(UPDATE_TOPIC)
     assert updates / RUN_S >= MIN_UPDATE_RATE_HZ
     assert summary["updates_installed"] == summary["updates_received"] == updates
+    # one name per figure: the log's summary gives the run's update age (publish -> installed)
+    # to the microsecond, and its transit (publish -> received) is part of it
+    from_log = summarise(read_log(log))
+    for p in ("p50", "p99", "max"):
+        assert from_log["update_age_ms"][p] == pytest.approx(summary["update_age_ms"][p], abs=1e-3)
+    assert from_log["update_transit_ms"]["p50"] <= from_log["update_age_ms"]["p50"]
 
     # the proxy under a constant push: x = F t^2 / 2m from the first installed update on, up
     # to contact, or to a watchdog trip if the machine stalled the sim for 100 ms (then the

@@ -252,7 +252,7 @@ def print_summary(s: dict[str, Any]) -> None:
         print(f"work (us):     p50 {work['p50']:.1f}  p99 {work['p99']:.1f}  max {work['max']:.1f}")
         print(
             f"updates:       {s['updates_received']} ({s['update_rate_hz']:.1f} Hz), "
-            f"age p50 {age['p50']:.2f} ms  p99 {age['p99']:.2f} ms"
+            f"age (publish -> installed) p50 {age['p50']:.2f} ms  p99 {age['p99']:.2f} ms"
         )
         print(f"rejected:      {s['updates_rejected']} {s['rejected_by_reason'] or ''}")
         print(

@@ -43,7 +43,10 @@ def summarise(log: LogContents) -> dict[str, Any]:
         events[ev["kind"]] += 1
     ready = ticks[ticks["update_seq"] >= 0] if n else ticks
     drift_mm = np.hypot(*(ready["device_pose"][:, :2] - ready["vm_pose"][:, :2]).T) * 1e3
-    ages = np.array([u["age_ms"] for u in log.updates if "age_ms" in u], dtype=np.float64)
+    # one name per figure, as in haptic-run's summary: the age is publish -> installed (the
+    # latency each update was installed with), the transit publish -> received
+    ages = np.array([u.get("latency_s", np.nan) * 1e3 for u in installed], dtype=np.float64)
+    transits = np.array([u.get("age_ms", np.nan) for u in log.updates], dtype=np.float64)
     return {
         "clock": run.get("clock", "?"),
         "host": run.get("host", "?"),
@@ -65,6 +68,7 @@ def summarise(log: LogContents) -> dict[str, Any]:
         "updates_rejected": dict(rejected),
         "update_rate_hz": len(log.updates) / duration if duration > 0 else 0.0,
         "update_age_ms": _pct(ages[np.isfinite(ages)], 50, 99),
+        "update_transit_ms": _pct(transits[np.isfinite(transits)], 50, 99),
         "watchdog_trips": events.get("watchdog", 0),
         "events": dict(events),
         "drift_mm": _pct(drift_mm, 50, 99),
@@ -86,6 +90,7 @@ def config_name(text: str | None, key: str = "name") -> str:
 
 def print_summary(s: dict[str, Any]) -> None:
     lat, work, age, drift = s["lateness_us"], s["work_us"], s["update_age_ms"], s["drift_mm"]
+    transit = s["update_transit_ms"]
     complete = "closed properly" if s["complete"] else "cut short (read by streaming)"
     print(f"run:           {s['scene']} / {s['device']} / {s['user']}, {s['clock']} clock")
     print(
@@ -105,7 +110,8 @@ def print_summary(s: dict[str, Any]) -> None:
     print(
         f"updates:       {s['updates_received']} received ({s['update_rate_hz']:.1f} Hz), "
         f"{s['updates_installed']} installed, rejected {s['updates_rejected'] or 0}; "
-        f"age p50 {age['p50']:.2f} ms  p99 {age['p99']:.2f} ms"
+        f"age (publish -> installed) p50 {age['p50']:.2f} ms  p99 {age['p99']:.2f} ms, "
+        f"transit (publish -> received) p50 {transit['p50']:.2f} ms  p99 {transit['p99']:.2f} ms"
     )
     print(f"watchdog:      {s['watchdog_trips']} trips; events {s['events'] or {}}")
     print(
