@@ -147,7 +147,9 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
     except Exception:
         ctl[C_LOG_FAILED] = 1
         raise
-    drain = LogDrain(block, log, int(config["wall_start_ns"]))
+    drain = LogDrain(
+        block, log, int(config["wall_start_ns"]), int(config.get("update_time_offset_ns", 0))
+    )
     poll_s = float(config.get("poll_s", REALTIME_POLL_S))
     _load_decoder()
     gc.collect()
@@ -184,11 +186,17 @@ def _load_decoder() -> None:
 class LogDrain:
     """What has been written to the MCAP log so far, and the writing of the rest."""
 
-    def __init__(self, block: SharedBlock, log: LogWriter, wall_start_ns: int) -> None:
+    def __init__(
+        self, block: SharedBlock, log: LogWriter, wall_start_ns: int, update_offset_ns: int = 0
+    ) -> None:
+        """Ticks are logged at wall_start_ns + their time t; updates at their receive time
+        plus `update_offset_ns` (a virtual clock's: its updates are received at virtual
+        times from 0, its log starts at the run's wall-clock start)."""
         from haptic_server.log import update_record  # the writer's imports, not the loop's
         from shared.protocol.codes import reason_tag
 
         self.block, self.log, self.wall_start_ns = block, log, wall_start_ns
+        self.update_offset_ns = update_offset_ns
         self._record, self._reason = update_record, reason_tag
         self.tick_tail = 0
         self.upd_logged = 0
@@ -219,7 +227,7 @@ class LogDrain:
                 int(block.update_tick[slot]), raw, reason, age_ms,
                 float(block.update_latency_s[slot]), abs(n),
             )  # fmt: skip
-            log.update(rec, recv_ns)
+            log.update(rec, recv_ns + self.update_offset_ns)
             self.upd_logged += 1
             ctl[C_UPD_LOGGED] = self.upd_logged
         while self.evt_tail < evt_head:
@@ -264,12 +272,14 @@ class LogFeed:
     row), waiting for room when the writer is behind, so nothing is lost."""
 
     def __init__(self, path: Path | str, metadata: dict[str, dict[str, str]]) -> None:
+        start_ns = time.time_ns()
         self.block = SharedBlock.create()
         self._shm = self.block.shm
         config = {
             "log_path": str(path),
             "metadata": metadata,
-            "wall_start_ns": 0,
+            "wall_start_ns": start_ns,  # log times from the run's wall-clock start
+            "update_time_offset_ns": start_ns,
             "poll_s": FEED_POLL_S,
         }
         try:

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
+from mcap.reader import make_reader
 
 from haptic_server.harness.virtual import run_virtual_named
-from haptic_server.log import read_ticks
+from haptic_server.log import TICK_TOPIC, UPDATE_TOPIC, read_ticks
 
 PUSH_N = 0.2  # configs/users/constant_push.toml
 BOX_KG = 1.0  # configs/scenes/free_box.toml
@@ -43,3 +45,24 @@ def test_two_runs_log_identical_forces(tmp_path: Path) -> None:
         np.testing.assert_array_equal(ta[field], tb[field], err_msg=field)
     np.testing.assert_array_equal(ta, a.ticks)  # the log holds exactly what was computed
     assert a.updates == b.updates == 180
+
+
+def test_a_virtual_log_starts_at_the_run_s_wall_clock_time(tmp_path: Path) -> None:
+    """A viewer places a virtual-clock log at the time it was run (not at 1970): every
+    message's log time is the run's wall-clock start plus its virtual time."""
+    before = time.time_ns()
+    run_virtual_named("free_box", "ideal", "waypoints", 1.0, tmp_path / "v.mcap")
+    after = time.time_ns()
+    ticks = read_ticks(tmp_path / "v.mcap")
+    with (tmp_path / "v.mcap").open("rb") as fh:
+        times = {}
+        for _s, channel, message in make_reader(fh).iter_messages(log_time_order=False):
+            times.setdefault(channel.topic, []).append(message.log_time)
+    start = times[TICK_TOPIC][0] - round(ticks["t"][0] * 1e9)
+    assert before <= start <= after
+    np.testing.assert_array_equal(
+        np.array(times[TICK_TOPIC]) - start, (ticks["t"] * 1e9).astype(np.int64)
+    )
+    updates = np.array(times[UPDATE_TOPIC]) - start  # received at the sim's steps, 60 Hz
+    assert len(updates) == 60
+    np.testing.assert_allclose(np.diff(updates), 1e9 / 60, atol=1e6)
