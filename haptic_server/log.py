@@ -129,6 +129,15 @@ class LogWriter:
         )
         for name, data in (metadata or {}).items():
             self._writer.write_metadata(name, data)
+        # Foxglove's well-known channels, for its 3D and Log panels (haptic_server.foxglove_view)
+        from foxglove.channels import FrameTransformsChannel, LogChannel, SceneUpdateChannel
+
+        from haptic_server.foxglove_view import LOG_TOPIC, SCENE_TOPIC, TRANSFORMS_TOPIC
+
+        self._scene_ch = SceneUpdateChannel(SCENE_TOPIC, context=self._context)
+        self._transforms_ch = FrameTransformsChannel(TRANSFORMS_TOPIC, context=self._context)
+        self._log_ch = LogChannel(LOG_TOPIC, context=self._context)
+        self.scene_text = (metadata or {}).get("configs", {}).get("scene")
         self.closed = False
 
     def _channel(
@@ -155,6 +164,16 @@ class LogWriter:
     def event(self, tick: int, kind: str, detail: str, log_time_ns: int) -> None:
         msg = json.dumps({"tick": tick, "kind": kind, "detail": detail}).encode()
         self._event_ch.log(msg, log_time=log_time_ns)
+
+    def view_scene(self, scene: Any, log_time_ns: int) -> None:
+        """A foxglove.SceneUpdate (haptic_server.foxglove_view)."""
+        self._scene_ch.log(scene, log_time=log_time_ns)
+
+    def view_transforms(self, transforms: Any, log_time_ns: int) -> None:
+        self._transforms_ch.log(transforms, log_time=log_time_ns)
+
+    def view_log(self, message: Any, log_time_ns: int) -> None:
+        self._log_ch.log(message, log_time=log_time_ns)
 
     def flush(self) -> None:
         self._writer.flush()

@@ -192,12 +192,17 @@ class LogDrain:
         """Ticks are logged at wall_start_ns + their time t; updates at their receive time
         plus `update_offset_ns` (a virtual clock's: its updates are received at virtual
         times from 0, its log starts at the run's wall-clock start)."""
+        from haptic_server.foxglove_view import ViewFrames, log_message, static_scene
         from haptic_server.log import update_record  # the writer's imports, not the loop's
         from shared.protocol.codes import reason_tag
 
         self.block, self.log, self.wall_start_ns = block, log, wall_start_ns
         self.update_offset_ns = update_offset_ns
         self._record, self._reason = update_record, reason_tag
+        self.view = ViewFrames()  # Foxglove's channels, at VIEW_HZ of log time
+        self._log_message, self._static_scene = log_message, static_scene
+        self._static_written = False
+        self.view_failed = ""  # why the Foxglove channels stopped (they never stop the log)
         self.tick_tail = 0
         self.upd_logged = 0
         self.evt_tail = 0
@@ -228,12 +233,15 @@ class LogDrain:
                 float(block.update_latency_s[slot]), abs(n),
             )  # fmt: skip
             log.update(rec, recv_ns + self.update_offset_ns)
+            self._view(self.view.set_update, raw, code == 0 and n > 0)
             self.upd_logged += 1
             ctl[C_UPD_LOGGED] = self.upd_logged
         while self.evt_tail < evt_head:
             text = bytes(block.events[self.evt_tail % EVENT_SLOTS]).split(b"\0", 1)[0].decode()
             tick_s, kind, detail = [*text.split("\t", 2), "", ""][:3]
-            log.event(int(tick_s or 0), kind, detail, time.time_ns())
+            now_ns = time.time_ns()
+            log.event(int(tick_s or 0), kind, detail, now_ns)
+            self._view(self._view_log, int(tick_s or 0), kind, detail, now_ns)
             self.evt_tail += 1
         if head - self.tick_tail > RING_TICKS:
             ctl[C_TICK_LOST] += head - self.tick_tail - RING_TICKS
@@ -245,13 +253,42 @@ class LogDrain:
             data = rows.tobytes()
             times = (self.wall_start_ns + (rows["t"] * 1e9).astype(np.int64)).tolist()
             size = rows.dtype.itemsize
+            view = self.view
             for i, log_ns in enumerate(times):
                 log.tick(data[i * size : (i + 1) * size], log_ns)
+                if view.due(log_ns):
+                    self._view(self._view_frame, rows[i], log_ns)
             self.tick_tail += n
             ctl[C_TICK_LOGGED] = self.tick_tail
         if now - self.last_flush > FLUSH_EVERY_S:
             log.flush()
             self.last_flush = now
+
+    def _view(self, call: Any, *args: Any) -> None:
+        """Run a Foxglove-channel step; if it fails, say why once and write no more of them:
+        the project's own channels, which replay needs, go on."""
+        if self.view_failed:
+            return
+        try:
+            call(*args)
+        except Exception as exc:
+            self.view_failed = f"{type(exc).__name__}: {exc}"
+            print(f"log writer: Foxglove channels stopped: {self.view_failed}", file=sys.stderr)
+
+    def _view_log(self, tick: int, kind: str, detail: str, now_ns: int) -> None:
+        self.log.view_log(self._log_message(tick, kind, detail, now_ns), now_ns)
+
+    def _view_frame(self, row: np.void, log_ns: int) -> None:
+        """Foxglove's transforms and scene for one tick (the static bodies first, once)."""
+        log = self.log
+        if not self._static_written:
+            self._static_written = True
+            scene = self._static_scene(log.scene_text, log_ns)
+            if scene is not None:
+                log.view_scene(scene, log_ns)
+        transforms, scene = self.view.frame(row, log_ns)
+        log.view_transforms(transforms, log_ns)
+        log.view_scene(scene, log_ns)
 
 
 def _publish_time_ns(raw: bytes) -> int:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from conftest import haptic_run
 
+from haptic_server.foxglove_view import LOG_TOPIC
 from haptic_server.harness.summary import summarise
 from haptic_server.log import (
     EVENT_TOPIC,
@@ -52,6 +53,9 @@ def test_two_processes_over_zenoh(tmp_path: Path, network_file: Path) -> None:
     for p in ("p50", "p99", "max"):
         assert from_log["update_age_ms"][p] == pytest.approx(summary["update_age_ms"][p], abs=1e-3)
     assert from_log["update_transit_ms"]["p50"] <= from_log["update_age_ms"]["p50"]
+    # every event of the run is also a foxglove.Log, for Foxglove's Log panel
+    assert topics.count(EVENT_TOPIC) >= 2  # at least the re-initialisation and the stop
+    assert topics.count(LOG_TOPIC) == topics.count(EVENT_TOPIC)
 
     # the proxy under a constant push: x = F t^2 / 2m from the first installed update on, up
     # to contact, or to a watchdog trip if the machine stalled the sim for 100 ms (then the
