@@ -235,7 +235,7 @@ def print_summary(s: dict[str, Any]) -> None:
     if s.get("clock") == "virtual":
         print(
             f"virtual clock: {s['ticks']} ticks, {s['simulated_s']:.2f} s simulated in "
-            f"{s['wall_s']:.2f} s ({s['speedup']:.0f}x real time), {s['updates_received']} updates"
+            f"{s['wall_s']:.2f} s ({s['speedup']:.3g}x real time), {s['updates_received']} updates"
             f" (before it: kernels loaded in {s['kernels_load_s']:.2f} s, world, engine and log"
             f" writer made in {s['setup_s']:.2f} s)"
         )
