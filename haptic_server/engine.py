@@ -404,9 +404,12 @@ class HapticEngine:
         return ws["pose"].copy(), ws["twist"].copy()
 
 
-def warm_kernels(scene: SceneConfig, device: Device | SimulatedDevice, user: UserConfig) -> None:
+def warm_kernels(
+    scene: SceneConfig, device: Device | SimulatedDevice, user: UserConfig
+) -> HapticEngine:
     """Compile (or load from numba's cache) every kernel of a tick and of an install for
-    these configs, on a throwaway engine with an empty model: no sim, no pymunk."""
+    these configs, on a throwaway engine with an empty model: no sim, no pymunk. Returns
+    that engine (ready), for callers with kernels of their own to load on it."""
     engine = HapticEngine(scene, device, user)
     engine.receive(bytes(8))  # the parser and the install route (rejected: too short)
     engine.clock[0]["ready"] = 1  # run the stages on the empty model
@@ -419,3 +422,4 @@ def warm_kernels(scene: SceneConfig, device: Device | SimulatedDevice, user: Use
         engine.sim_device.reset(np.zeros(3))
     engine._joint_velocity(engine.slots[0], np.zeros(3))
     min_norm_least_squares(np.eye(3, MAX_DOF), 3, 3, np.zeros(3), np.zeros(MAX_DOF))
+    return engine

@@ -99,7 +99,7 @@ def _body_primitives(body: BodySpec) -> dict[str, list[Any]]:
     return {"lines": [line]}
 
 
-def static_scene(scene_text: str | None, log_ns: int) -> Any | None:
+def _static_entity(scene_text: str | None, stamp: Any) -> Any | None:
     """The scene's static bodies (walls, floors) as one entity; None if the log's scene
     text is missing or does not load."""
     if not scene_text:
@@ -113,20 +113,20 @@ def static_scene(scene_text: str | None, log_ns: int) -> Any | None:
         if body.kind == "static":
             for kind, prims in _body_primitives(body).items():
                 parts[kind] += prims
-    m = _messages()
-    entity = m.SceneEntity(
-        timestamp=_timestamp(log_ns), frame_id=WORLD, id="static", frame_locked=False, **parts
+    return _messages().SceneEntity(
+        timestamp=stamp, frame_id=WORLD, id="static", frame_locked=False, **parts
     )
-    return m.SceneUpdate(entities=[entity])
 
 
 class ViewFrames:
-    """The per-frame messages. The device and the proxy are drawn once, as entities locked to
-    their own frames, so a frame only moves the frames (FrameTransforms) and redraws the
-    force arrows; the contacts are redrawn when an installed update changed them. `due` says
+    """The per-frame messages. The static bodies (from the scene config's text), the device
+    and the proxy are drawn once, in the first frame, the last two as entities locked to their
+    own frames, so a frame only moves the frames (FrameTransforms) and redraws the force
+    arrows; the contacts are redrawn when an installed update changed them. `due` says
     whether a tick at `log_ns` starts a frame."""
 
-    def __init__(self) -> None:
+    def __init__(self, scene_text: str | None = None) -> None:
+        self._scene_text = scene_text
         self._parser = UpdateParser()
         self._contacts: list[tuple[float, float, float, float]] = []  # env x, y, normal x, y
         self._contacts_dirty = True
@@ -186,6 +186,8 @@ class ViewFrames:
         ]
         if not self._markers_sent:
             self._markers_sent = True
+            static = _static_entity(self._scene_text, stamp)
+            entities += [] if static is None else [static]
             entities += [_marker("device", _DEVICE, stamp), _marker("proxy", _PROXY, stamp)]
         if self._contacts_dirty:
             self._contacts_dirty = False

@@ -192,16 +192,15 @@ class LogDrain:
         """Ticks are logged at wall_start_ns + their time t; updates at their receive time
         plus `update_offset_ns` (a virtual clock's: its updates are received at virtual
         times from 0, its log starts at the run's wall-clock start)."""
-        from haptic_server.foxglove_view import ViewFrames, log_message, static_scene
+        from haptic_server.foxglove_view import ViewFrames, log_message
         from haptic_server.log import update_record  # the writer's imports, not the loop's
         from shared.protocol.codes import reason_tag
 
         self.block, self.log, self.wall_start_ns = block, log, wall_start_ns
         self.update_offset_ns = update_offset_ns
         self._record, self._reason = update_record, reason_tag
-        self.view = ViewFrames()  # Foxglove's channels, at VIEW_HZ of log time
-        self._log_message, self._static_scene = log_message, static_scene
-        self._static_written = False
+        self.view = ViewFrames(log.scene_text)  # Foxglove's channels, at VIEW_HZ of log time
+        self._log_message = log_message
         self.view_failed = ""  # why the Foxglove channels stopped (they never stop the log)
         self.tick_tail = 0
         self.upd_logged = 0
@@ -279,16 +278,10 @@ class LogDrain:
         self.log.view_log(self._log_message(tick, kind, detail, now_ns), now_ns)
 
     def _view_frame(self, row: np.void, log_ns: int) -> None:
-        """Foxglove's transforms and scene for one tick (the static bodies first, once)."""
-        log = self.log
-        if not self._static_written:
-            self._static_written = True
-            scene = self._static_scene(log.scene_text, log_ns)
-            if scene is not None:
-                log.view_scene(scene, log_ns)
+        """Foxglove's transforms and scene for one tick."""
         transforms, scene = self.view.frame(row, log_ns)
-        log.view_transforms(transforms, log_ns)
-        log.view_scene(scene, log_ns)
+        self.log.view_transforms(transforms, log_ns)
+        self.log.view_scene(scene, log_ns)
 
 
 def _publish_time_ns(raw: bytes) -> int:
@@ -331,10 +324,10 @@ class LogFeed:
         while not block.post_update(raw, time_ns, logging=True):
             self._wait()
         slot = int(block.ctl[C_UPD_READ]) % MAILBOX_SLOTS
-        block.mailbox[slot]["verdict"] = 0
-        block.mailbox[slot]["tick"] = tick
-        block.mailbox[slot]["install_ns"] = time_ns
-        block.mailbox[slot]["latency_s"] = 0.0
+        block.update_verdict[slot] = 0
+        block.update_tick[slot] = tick
+        block.update_install_ns[slot] = time_ns
+        block.update_latency_s[slot] = 0.0
         block.ctl[C_UPD_READ] += 1
 
     def ticks(self, rows: np.ndarray) -> None:

@@ -76,6 +76,7 @@ class SharedBlock:
         self.update_verdict = self.mailbox["verdict"]
         self.update_tick = self.mailbox["tick"]
         self.update_recv_ns = self.mailbox["recv_ns"]
+        self.update_install_ns = self.mailbox["install_ns"]
         self.update_latency_s = self.mailbox["latency_s"]
         self.updates = self.mailbox["raw"]
         self.events = np.ndarray((EVENT_SLOTS, EVENT_BYTES), np.uint8, buf, o)
@@ -125,7 +126,7 @@ class SharedBlock:
     def release(self) -> None:
         for name in (
             "ctl", "ticks", "mailbox", "update_len", "update_verdict", "update_tick",
-            "update_recv_ns", "update_latency_s", "updates", "events",
+            "update_recv_ns", "update_install_ns", "update_latency_s", "updates", "events",
         ):  # fmt: skip
             setattr(self, name, None)
 

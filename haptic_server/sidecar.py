@@ -49,15 +49,12 @@ from haptic_server.mailbox import (
     SharedBlock,
     take_updates,
 )
-from shared.protocol.layout import HEADER_AT
 from shared.protocol.proxy import MAX_WAIT_NS, NO_WAIT, UpdateWait
+from shared.protocol.update import AT_SEQ
 from shared.timing import REALTIME_PRIORITY, avoid_cpu, try_realtime_priority
 
 if TYPE_CHECKING:
     from haptic_server.engine import HapticEngine
-
-SEQ_AT = HEADER_AT["seq"]
-SEQ_END = SEQ_AT + 8
 
 IO_POLL_S = 0.004  # the sidecar wakes at least this often (and for each proxy publish)
 IO_NICENESS = 10  # only when the loop could not get real-time priority (see _lower_priority)
@@ -271,9 +268,9 @@ def newest_wait(
         slot = i % MAILBOX_SLOTS
         if int(block.update_verdict[slot]) != 0:
             continue
-        raw = block.updates[slot, :SEQ_END].tobytes()
-        wait_ns = int(block.mailbox["install_ns"][slot]) - int(block.update_recv_ns[slot])
-        seq = int(struct.unpack_from("<Q", raw, SEQ_AT)[0])
+        raw = block.updates[slot, : AT_SEQ + 8].tobytes()
+        wait_ns = int(block.update_install_ns[slot]) - int(block.update_recv_ns[slot])
+        seq = int(struct.unpack_from("<Q", raw, AT_SEQ)[0])
         if seq >= 2**63:  # valid on the wire, but beyond the proxy's signed field
             continue
         wait = UpdateWait(seq, min(max(wait_ns, 0), MAX_WAIT_NS), tick_period_ns)

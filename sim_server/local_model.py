@@ -24,7 +24,6 @@ from numba import carray, cfunc, from_dtype, njit, types
 
 from shared.kinematics import (
     MAX_DOF,
-    link_frames,
     mass_matrix_and_gravity,
     point_jacobian,
     point_on_link,
@@ -186,8 +185,8 @@ def build_local_model(tool, chain, query, work, out):
         m.base[i] = c.base[i]
         m.op_point[i] = t.op_point[i]
     tool_state(tool, m.q, m.qd)
+    # it leaves the link frames of q in frame_pos / frame_angle: J_h is taken from them
     mass_matrix_and_gravity(chain, t.gravity, m.q, (frame_pos, frame_angle, jac), m.mass, m.gravity)
-    link_frames(c.joint_types, c.lengths, c.base, c.base_angle, m.q, d, frame_pos, frame_angle)
     point_on_link(frame_pos, frame_angle, t.op_link, t.op_point, sigma)
     m.tool_pose[0], m.tool_pose[1] = sigma[0], sigma[1]
     m.tool_pose[2] = frame_angle[t.op_link]

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import pymunk
@@ -49,7 +48,7 @@ from sim_server.local_model import (
     build_local_model,
     encode_stamped,
 )
-from sim_server.tool import TOOL_BODY, TOOL_DTYPE, TOOL_LINKAGE
+from sim_server.tool import TOOL_BODY, TOOL_DTYPE, TOOL_LINKAGE, tool_state
 
 #: The largest update (all sections, every contact): the encoder's buffer
 MAX_UPDATE_BYTES = update_size(MAX_DOF, MAX_RESISTED, MAX_CONTACTS, 0xF)
@@ -81,7 +80,6 @@ class SimWorld:
         self.shape_materials: dict[pymunk.Shape, Material] = {}
         self.shape_keys: dict[pymunk.Shape, int] = {}  # in the order registered
         self._kinematic: list[tuple[pymunk.Body, BodySpec]] = []
-        self._velocity_functions: list[Any] = []  # compiled velocity updates in use (alive)
         self.tool_bodies: list[pymunk.Body] = []
         self.tool_shapes: list[tuple[pymunk.Shape, int]] = []  # (shape, link index)
         _configure_space(self.space, scene)
@@ -118,9 +116,8 @@ class SimWorld:
         else:
             body = pymunk.Body(spec.mass, _moment(spec))
             if spec.linear_damping_per_s > 0.0 and not is_tool:
-                drag = table_drag(spec.linear_damping_per_s)
-                set_velocity_function(body, drag.address)
-                self._velocity_functions.append(drag)
+                # table_drag's cache keeps the cfunc alive as long as the process
+                set_velocity_function(body, table_drag(spec.linear_damping_per_s).address)
         body.position = spec.position
         body.angle = spec.angle
         if spec.kind != "static":
@@ -218,16 +215,10 @@ class SimWorld:
     # --- tool state ---------------------------------------------------------------------
 
     def tool_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """The tool's configuration q and velocity qd read back from pymunk."""
-        if self.scene.tool.kind == "body":
-            b = self.tool_bodies[0]
-            q = np.array([b.position.x, b.position.y, b.angle])
-            qd = np.array([b.velocity.x, b.velocity.y, b.angular_velocity])
-            return q, qd
-        angles = np.array([b.angle for b in self.tool_bodies])
-        rates = np.array([b.angular_velocity for b in self.tool_bodies])
-        q = np.diff(np.concatenate([[self.base_angle], angles]))
-        qd = np.diff(np.concatenate([[0.0], rates]))
+        """The tool's configuration q and velocity qd read back from pymunk (the kernels'
+        reader, sim_server/tool.py)."""
+        q, qd = np.zeros(self.dof), np.zeros(self.dof)
+        tool_state(self.tool, q, qd)
         return q, qd
 
     def set_tool_state(self, q: np.ndarray, qd: np.ndarray) -> None:
@@ -265,20 +256,6 @@ class SimWorld:
         for b in self.tool_bodies:
             self.space.reindex_shapes_for_body(b)
 
-    def operational_pose(self, q: np.ndarray) -> np.ndarray:
-        link_frames(
-            self.joint_types,
-            self.lengths,
-            self.base,
-            self.base_angle,
-            q,
-            self.dof,
-            self._frame_pos,
-            self._frame_angle,
-        )
-        point_on_link(self._frame_pos, self._frame_angle, self.op_link, self.op_point, self._point)
-        return np.array([self._point[0], self._point[1], self._frame_angle[self.op_link]])
-
     def dynamics_terms(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """D(q), G(q) and J_h(q) at the operational point."""
         d = self.dof
@@ -286,17 +263,8 @@ class SimWorld:
         grav = np.zeros(d)
         jac = np.zeros((3, d))
         work = (self._frame_pos, self._frame_angle, jac)
+        # it leaves the link frames of q in its scratch: J_h is taken from them
         mass_matrix_and_gravity(self.chain, self.gravity, q, work, mass, grav)
-        link_frames(
-            self.joint_types,
-            self.lengths,
-            self.base,
-            self.base_angle,
-            q,
-            d,
-            self._frame_pos,
-            self._frame_angle,
-        )
         point_on_link(self._frame_pos, self._frame_angle, self.op_link, self.op_point, self._point)
         point_jacobian(
             self.joint_types, self._frame_pos, d, self.op_link, self._point[0], self._point[1], jac

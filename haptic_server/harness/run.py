@@ -25,6 +25,7 @@ from typing import IO, Any
 from shared.cli import add_config_args, emit, print_shipped, run_main
 from shared.config import absolute_ref, load_scene, load_user, resolve
 from shared.net.config import load_network
+from shared.timing import avoid_cpu as keep_off_cpu
 
 READY_TIMEOUT_S = 300.0  # a cold numba cache compiles for a minute or two on 2 cores
 STOP_TIMEOUT_S = 30.0
@@ -50,10 +51,7 @@ def _die_with_parent(parent_pid: int, avoid_cpu: int | None = None) -> Callable[
             _LIBC.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
         if os.getppid() != parent_pid:
             os._exit(1)
-        if avoid_cpu is not None:
-            allowed = os.sched_getaffinity(0) - {avoid_cpu}
-            if allowed:
-                os.sched_setaffinity(0, allowed)
+        keep_off_cpu(avoid_cpu)
 
     return preexec
 

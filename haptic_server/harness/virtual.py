@@ -20,6 +20,7 @@ import numpy as np
 from device_models.base import SimulatedDevice
 from device_models.registry import load_simulated_device
 from haptic_server.engine import HapticEngine
+from haptic_server.engine import warm_kernels as warm_engine_kernels
 from haptic_server.log import run_metadata
 from haptic_server.logger import LogFeed
 from haptic_server.model import TICK_DTYPE
@@ -181,7 +182,5 @@ def run_virtual_named(
 def warm_virtual(scene: SceneConfig, device: SimulatedDevice, user: UserConfig) -> None:
     """Load every kernel a virtual-clock run calls, on a spare world, engine and `device`."""
     warm_sim_kernels(scene)
-    engine = HapticEngine(scene, device, user)
-    engine.receive(bytes(8))  # the parser and the install route (rejected: too short)
-    engine.clock[0]["ready"] = 1  # run the stages on the empty model
-    engine.run_ticks(engine.dt_nominal, np.zeros(1, TICK_DTYPE), 0, 1)
+    engine = warm_engine_kernels(scene, device, user)  # a tick's and an install's
+    engine.run_ticks(engine.dt_nominal, np.zeros(1, TICK_DTYPE), 0, 1)  # the burst's
