@@ -60,6 +60,40 @@ def ros1msg_schema(dtype: np.dtype) -> str:
     return "\n".join(lines) + "\n"
 
 
+def ros1msg_dtype(schema: str) -> np.dtype:
+    """The packed record a ros1msg definition of `ros1msg_schema`'s form describes (arrays
+    flat: the text does not keep their shape)."""
+    types = {v: k for k, v in _ROS1_TYPES.items()}
+    fields: list[tuple[Any, ...]] = []
+    for line in schema.splitlines():
+        if not line.strip():
+            continue
+        kind, name = line.split()
+        if "[" in kind:
+            base, count = kind[:-1].split("[")
+            fields.append((name, types[base], (int(count),)))
+        else:
+            fields.append((name, types[kind]))
+    return np.dtype(fields)
+
+
+def ticks_from_rows(data: bytes, schema: str | None) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Tick rows written under `schema` (the log's own) as TICK_DTYPE rows, and the fields
+    TICK_DTYPE has that the log's rows lack (zero in the result): a log of an earlier
+    release reads with today's code."""
+    if schema is None or schema == ros1msg_schema(TICK_DTYPE):
+        return np.frombuffer(data, TICK_DTYPE), ()
+    logged = np.frombuffer(data, ros1msg_dtype(schema))
+    out = np.zeros(len(logged), TICK_DTYPE)
+    absent = []
+    for name in TICK_DTYPE.names or ():
+        if name in (logged.dtype.names or ()):
+            out[name] = logged[name].reshape(out[name].shape)
+        else:
+            absent.append(name)
+    return out, tuple(absent)
+
+
 UPDATE_JSON_SCHEMA = {
     "type": "object",
     "title": "haptic_server/LocalModelUpdate",
@@ -258,26 +292,41 @@ def run_metadata(
 
 def read_ticks(path: Path | str) -> np.ndarray:
     """All tick records of a log as a TICK_DTYPE array (indexed reader, else streaming)."""
-    rows = [data for topic, data in iter_messages(path) if topic == TICK_TOPIC]
+    rows: list[bytes] = []
+    schema: str | None = None
+    for topic, data, tick_schema in _iter_messages(path):
+        if topic == TICK_TOPIC:
+            rows.append(data)
+            schema = tick_schema
     if not rows:
         return np.zeros(0, TICK_DTYPE)
-    return np.frombuffer(b"".join(rows), TICK_DTYPE)
+    return ticks_from_rows(b"".join(rows), schema)[0]
 
 
 def iter_messages(path: Path | str) -> Iterator[tuple[str, bytes]]:
     """(topic, payload) of every message in file order; tolerates a missing footer."""
+    for topic, data, _schema in _iter_messages(path):
+        yield topic, data
+
+
+def _iter_messages(path: Path | str) -> Iterator[tuple[str, bytes, str | None]]:
+    """(topic, payload, schema text) of every message in file order."""
     if is_indexed(path):
         with Path(path).open("rb") as fh:
-            for _schema, channel, message in make_reader(fh).iter_messages(log_time_order=False):
-                yield channel.topic, message.data
+            for schema, channel, message in make_reader(fh).iter_messages(log_time_order=False):
+                yield channel.topic, message.data, _tick_schema(channel.topic, schema)
             return
     with Path(path).open("rb") as fh:
         stream = NonSeekingReader(fh)
         try:
-            for _schema, channel, message in stream.iter_messages(log_time_order=False):
-                yield channel.topic, message.data
+            for schema, channel, message in stream.iter_messages(log_time_order=False):
+                yield channel.topic, message.data, _tick_schema(channel.topic, schema)
         except Exception:
             return
+
+
+def _tick_schema(topic: str, schema: Schema | None) -> str | None:
+    return schema.data.decode() if topic == TICK_TOPIC and schema is not None else None
 
 
 def is_indexed(path: Path | str) -> bool:
@@ -302,7 +351,7 @@ def read_metadata(path: Path | str) -> dict[str, dict[str, str]]:
 
 def stream_records(path: Path | str) -> Iterator[McapRecord]:
     """Every complete record in file order, chunks opened; stops quietly where the file was
-    cut (a writer killed mid-chunk): the streaming path of issue 6 / STACK-NOTES."""
+    cut (a writer killed mid-chunk): read record by record."""
     with Path(path).open("rb") as fh:
         reader = StreamReader(fh, record_size_limit=RECORD_SIZE_LIMIT)
         try:
@@ -320,6 +369,7 @@ class LogContents:
     events: list[dict[str, Any]]
     metadata: dict[str, dict[str, str]]
     indexed: bool  # closed properly (footer and summary readable by make_reader)
+    absent_tick_fields: tuple[str, ...] = ()  # today's tick fields the log's rows lack
 
 
 def read_log(path: Path | str) -> LogContents:
@@ -329,6 +379,8 @@ def read_log(path: Path | str) -> LogContents:
     updates: list[dict[str, Any]] = []
     events: list[dict[str, Any]] = []
     metadata: dict[str, dict[str, str]] = {}
+    schemas: dict[int, bytes] = {}
+    tick_schema: str | None = None
     for rec in stream_records(path):
         if isinstance(rec, Message):
             topic = topics.get(rec.channel_id)
@@ -340,10 +392,14 @@ def read_log(path: Path | str) -> LogContents:
                 events.append(json.loads(rec.data))
         elif isinstance(rec, Channel):
             topics[rec.id] = rec.topic
+            if rec.topic == TICK_TOPIC:
+                tick_schema = schemas.get(rec.schema_id, b"").decode() or None
+        elif isinstance(rec, Schema):
+            schemas[rec.id] = rec.data  # text for ours, protobuf for Foxglove's
         elif isinstance(rec, Metadata):
             metadata[rec.name] = dict(rec.metadata)
-    ticks = np.frombuffer(b"".join(rows), TICK_DTYPE) if rows else np.zeros(0, TICK_DTYPE)
-    return LogContents(ticks, updates, events, metadata, is_indexed(path))
+    ticks, absent = ticks_from_rows(b"".join(rows), tick_schema)
+    return LogContents(ticks, updates, events, metadata, is_indexed(path), absent)
 
 
 def recover_log(src: Path | str, dst: Path | str) -> dict[str, int]:

@@ -100,6 +100,7 @@ SCRATCH_DTYPE = np.dtype(
         ("contact_stiff_vrel", F8, (MAX_DOF,)),  # sum J^T K v_rel (the implicit correction)
         ("contact_force", F8, (2,)),  # world force of all contacts on the proxy this tick
         ("n_active", I8),  # contacts of the newest model in penetration
+        ("penetration", F8),  # the deepest of them (m, >= 0)
         ("contact_ran", I8),  # the contact stage did work
         ("n_colliding", I8),
         ("coll_rows", F8, (MAX_CONTACTS, MAX_DOF)),  # n_i^T J_c,i
@@ -172,6 +173,7 @@ TICK_DTYPE = np.dtype(
         ("contact_force_world", F8, (3,)),  # sum of contact forces on the proxy (fx, fy, 0)
         ("n_contacts", np.int32),  # contacts in the installed model
         ("n_active", np.int32),  # in penetration this tick
+        ("penetration", F8),  # the deepest penetration of the newest model this tick (m)
         ("n_colliding", np.int32),  # resolved by impulse this tick
         ("n_resisted", np.int32),  # j
         ("contact_stage", np.uint8),  # 1 if the contact stage did work

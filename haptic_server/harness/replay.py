@@ -147,7 +147,11 @@ def replay(
         if bar is not None:
             bar.update(len(out) - bar.n if k == n - 1 else 0)
             bar.close()
-    diffs = max_abs_differences(out, logged[:n])
+    diffs = max_abs_differences(out, logged[:n], skip=log.absent_tick_fields)
+    if log.absent_tick_fields:
+        absent = ", ".join(log.absent_tick_fields)
+        note = f"{note}; " if note else ""
+        note += f"not compared (the log's rows do not have them): {absent}"
     return ReplayResult(out, diffs, replayed, mismatches, engine.counters, note)
 
 
@@ -184,10 +188,15 @@ def _progress_bar(total: int, enabled: bool) -> Any:
     return tqdm(total=total, unit="tick", unit_scale=True, desc="replay", file=sys.stderr)
 
 
-def max_abs_differences(a: np.ndarray, b: np.ndarray) -> dict[str, float]:
-    """Per field, the largest |a - b| over all rows; NaN in both counts as equal."""
+def max_abs_differences(
+    a: np.ndarray, b: np.ndarray, skip: tuple[str, ...] = ()
+) -> dict[str, float]:
+    """Per field (but those in `skip`), the largest |a - b| over all rows; NaN in both
+    counts as equal."""
     diffs: dict[str, float] = {}
     for name in TICK_DTYPE.names or ():
+        if name in skip:
+            continue
         x = a[name].astype(np.float64)
         y = b[name].astype(np.float64)
         d = np.abs(x - y)

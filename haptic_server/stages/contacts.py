@@ -134,6 +134,8 @@ def contact_stage(m, d, k, weight):
             cs.stick[i] = 0.0
             continue
         active += 1
+        if k == 0 and -gap > ws.penetration:
+            ws.penetration = -gap
         k_n = slot.c_stiffness[i]
         b_n = slot.c_damping[i]
         if (
@@ -203,6 +205,7 @@ def contacts(m, d):
     w.contact_force[0] = 0.0
     w.contact_force[1] = 0.0
     w.n_active = 0
+    w.penetration = 0.0
     w.contact_ran = 0
     old = m.slots[1]
     if m.slots[0].n_contacts > 0:

@@ -87,6 +87,7 @@ def fill_row(m, d):
     r.contact_force_world[1] = w.contact_force[1]
     r.n_contacts = m.slots[0].n_contacts
     r.n_active = w.n_active
+    r.penetration = w.penetration
     r.n_colliding = w.n_colliding
     r.contact_stage = w.contact_ran
     r.safe = st.safe
