@@ -1,8 +1,9 @@
-"""The figure of a logged run (`haptic-replay --plot`): hand and VM paths, forces by source,
-drift and timing."""
+"""The figure of a logged run (`haptic-replay --plot`): hand and VM paths among the scene's
+static bodies, forces by source, drift and timing."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -10,16 +11,33 @@ import numpy as np
 
 from haptic_server.harness.summary import LATE_TICK_US, ReplayError, config_name
 from haptic_server.log import LogContents
+from shared.config import BodySpec, ConfigError, SceneConfig, load_config_text
 
 FORCE_SOURCES = (
     "f_user", "f_contact", "f_impulse", "f_bias", "f_penalty", "f_coordination", "f_damping",
 )  # fmt: skip
 TIMING_WINDOW_TICKS = 100  # the timing panel shows max and median per 100 ticks
 PLOT_BULK_PERCENTILE = 99.5  # force axes show this much of every curve; spikes go beyond
+STATIC_COLOR = "0.6"  # static bodies: grey, as in the Foxglove view
+CAP_POINTS = 12  # points on each round end of a segment's outline
+VIEW_MARGIN_MM = 100.0  # the path panel shows the bodies this far around the path at least
 
 
 def plot_run(log: LogContents, out: Path | str, title: str = "") -> Path:
-    """One figure of the run: trajectories (hand vs VM), forces by source, drift, timing."""
+    """One figure of the run (run_figure), saved to `out`."""
+    fig = run_figure(log, title)
+    import matplotlib.pyplot as plt  # after run_figure chose the backend
+
+    out_path = Path(out)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_path, dpi=110)
+    plt.close(fig)
+    return out_path
+
+
+def run_figure(log: LogContents, title: str = "") -> Any:
+    """One figure of the run: trajectories (hand vs VM) among the scene's static bodies,
+    forces by source, drift, timing. The caller saves and closes it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -39,13 +57,16 @@ def plot_run(log: LogContents, out: Path | str, title: str = "") -> Path:
     fig.suptitle(title)
 
     ax = axes[0, 0]
+    draw_static_bodies(ax, log.metadata.get("configs", {}).get("scene"))
     ax.plot(hand[:, 0] * 1e3, hand[:, 1] * 1e3, lw=1.2, label="hand (device)")
     ax.plot(vm[:, 0] * 1e3, vm[:, 1] * 1e3, lw=1.0, ls="--", label="VM operational point")
     ax.plot(*(hand[0, :2] * 1e3), "ko", ms=4, label="start")
     ax.plot(*(hand[-1, :2] * 1e3), "ks", ms=4, label="end")
     ax.set(xlabel="x (mm)", ylabel="y (mm)", title="trajectories in the plane")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.legend(fontsize=8)
+    _frame_path(ax, np.concatenate([hand[:, :2], vm[:, :2]]) * 1e3)
+    ax.set_aspect("equal", adjustable="datalim")  # 1 mm is 1 mm along both axes
+    # beside the panel: inside, it would hide the path where it meets a wall
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
 
     ax = axes[0, 1]
     for c, name in enumerate(("x", "y")):
@@ -100,11 +121,75 @@ def plot_run(log: LogContents, out: Path | str, title: str = "") -> Path:
     span = (float(ticks["t"][0]), float(ticks["t"][-1] + ticks["dt"][-1]))
     for ax in (axes[0, 1], axes[1, 0], axes[1, 1], axes[2, 0], axes[2, 1]):
         ax.set_xlim(*span)  # the same run time everywhere: no update yet shows as a gap
-    out_path = Path(out)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_path, dpi=110)
-    plt.close(fig)
-    return out_path
+    return fig
+
+
+def draw_static_bodies(ax: Any, scene_text: str | None, scale: float = 1e3) -> list[Any]:
+    """The scene's static bodies (walls, floors) as patches on `ax`, one per body, in units
+    of m / `scale` (mm by default); none if the log's scene text is missing or does not load.
+    Moving and dynamic bodies are the sim's and are not in the log."""
+    if not scene_text:
+        return []
+    try:
+        scene = load_config_text(SceneConfig, scene_text, "the log's scene")
+    except (ConfigError, ValueError):
+        return []
+    patches: list[Any] = []
+    for body in scene.bodies:
+        if body.kind != "static":
+            continue
+        patch = _body_patch(body, scale)
+        patch.set(facecolor=STATIC_COLOR, edgecolor=STATIC_COLOR, lw=0.5, gid=body.name,
+                  label="_nolegend_" if patches else "static bodies")  # fmt: skip
+        ax.add_patch(patch)
+        patches.append(patch)
+    return patches
+
+
+def _frame_path(ax: Any, points: np.ndarray) -> None:
+    """Autoscale to the path and the bodies around it: everything drawn, but no further from
+    the path than its own extent or VIEW_MARGIN_MM (a floor 0.8 m long would shrink a path of
+    a few mm to a dot). The equal aspect then widens one of the two ranges to fit the panel."""
+    drawn = ax.dataLim.get_points()
+    finite = points[np.isfinite(points).all(axis=1)]
+    if finite.size == 0:
+        return
+    low, high = finite.min(axis=0), finite.max(axis=0)
+    pad = max(VIEW_MARGIN_MM, float((high - low).max()))
+    ax.dataLim.set_points(
+        np.array([np.maximum(drawn[0], low - pad), np.minimum(drawn[1], high + pad)])
+    )
+    ax.autoscale_view()
+
+
+def _body_patch(body: BodySpec, scale: float) -> Any:
+    """A static body's shape (BodySpec: a box or circle about its position, or a segment of
+    half-thickness `radius` between its end points), placed and turned as the sim does."""
+    from matplotlib.patches import Circle, Polygon, Rectangle
+
+    x, y, a = body.position[0] * scale, body.position[1] * scale, body.angle
+    if body.shape == "box":
+        w, h = body.size[0] * scale, body.size[1] * scale
+        return Rectangle(
+            (x - w / 2, y - h / 2), w, h, angle=math.degrees(a), rotation_point="center"
+        )
+    if body.shape == "circle":
+        return Circle((x, y), body.radius * scale)
+    c, s = math.cos(a), math.sin(a)
+    p, q = (
+        (x + (c * px - s * py) * scale, y + (s * px + c * py) * scale)
+        for px, py in (body.a, body.b)
+    )
+    return Polygon(_capsule(p, q, body.radius * scale), closed=True)
+
+
+def _capsule(p: tuple[float, float], q: tuple[float, float], r: float) -> np.ndarray:
+    """The outline of the points within `r` of the segment p-q: a round end about q, then
+    one about p."""
+    heading = math.atan2(q[1] - p[1], q[0] - p[0])
+    arc = heading + np.linspace(-math.pi / 2, math.pi / 2, CAP_POINTS)
+    ends = [(q, arc), (p, arc + math.pi)]
+    return np.vstack([np.c_[e[0] + r * np.cos(t), e[1] + r * np.sin(t)] for e, t in ends])
 
 
 def _robust_top(curves: list[np.ndarray]) -> float:

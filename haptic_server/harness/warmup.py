@@ -1,8 +1,23 @@
-"""Compile every numba kernel into the on-disk cache (`make warm`), so servers start fast."""
+"""Compile every numba kernel into the on-disk cache (`make warm`), so servers start fast.
+
+    python -m haptic_server.harness.warmup [--quiet]
+
+Progress goes to stderr: a line per group of kernels (what, how long, compiled or loaded
+from the cache) and the total; `--quiet` prints nothing. `warm_all()` prints only if given
+a stream.
+"""
 
 from __future__ import annotations
 
+import argparse
+import contextlib
+import os
+import sys
 import time
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import TextIO
 
 from device_models.registry import DEVICE_MODELS, load_device
 from haptic_server.engine import HapticEngine
@@ -24,16 +39,84 @@ def warm_runs() -> list[tuple[str, str, str, float]]:
     return runs
 
 
-def main() -> None:
-    started = time.perf_counter()
-    for scene, device, user, seconds in warm_runs():
+def _run_virtual(runs: list[tuple[str, str, str, float]]) -> None:
+    for scene, device, user, seconds in runs:
         run_virtual_named(scene, device, user, seconds)
-    for model in DEVICE_MODELS.values():  # the real-time loop's kernels, per device model
+
+
+def _loop_kernels() -> None:
+    """The real-time loop's kernels, per device model."""
+    for model in DEVICE_MODELS.values():
         engine = HapticEngine(load_scene("testbed"), load_device(model.config), load_user("swing"))
         compile_loop_kernels(engine)
         compile_realtime_kernels(engine)
-    print(f"numba kernels ready in {time.perf_counter() - started:.1f} s")
+
+
+def warm_groups() -> list[tuple[str, Callable[[], None]]]:
+    """What warm_all compiles, in groups: (a description, the call that compiles it). The
+    first scene compiles most of the sim and the rendering stages, the others what they add."""
+    runs = warm_runs()
+    scenes, devices = runs[: len(SCENE_RUNS)], runs[len(SCENE_RUNS) :]
+    groups: list[tuple[str, Callable[[], None]]] = [
+        (f"sim + rendering kernels, {run[0]} scene", partial(_run_virtual, [run])) for run in scenes
+    ]
+    groups.append(
+        (
+            f"device kernels: {', '.join(r[1] for r in devices)} ({devices[0][0]} scene)",
+            partial(_run_virtual, devices),
+        )
+    )
+    groups.append((f"real-time loop kernels: {len(DEVICE_MODELS)} device models", _loop_kernels))
+    return groups
+
+
+def _cached_kernels(cache: Path | None) -> dict[Path, int]:
+    """The compiled kernels (numba's .nbc files) in `cache`, with their mtimes."""
+    if cache is None or not cache.is_dir():
+        return {}
+    files = {}
+    for f in cache.rglob("*.nbc"):
+        with contextlib.suppress(OSError):  # another process replaced it meanwhile
+            files[f] = f.stat().st_mtime_ns
+    return files
+
+
+def warm_all(out: TextIO | None = None) -> float:
+    """Compile (or load) every kernel; returns the seconds it took. With `out`, a line per
+    group (what, how long, compiled or loaded) and the total are written to it."""
+    cache_env = os.environ.get("NUMBA_CACHE_DIR")
+    cache = Path(cache_env) if cache_env else None
+
+    def say(text: str, end: str = "\n") -> None:
+        if out is not None:
+            out.write(text + end)
+            out.flush()
+
+    say(f"warming numba kernels (cache: {cache or 'numba default'})")
+    started = time.perf_counter()
+    for what, warm in warm_groups():
+        say(f"  {what} ...", end="")
+        t0, before = time.perf_counter(), _cached_kernels(cache)
+        warm()
+        written = sum(before.get(f) != m for f, m in _cached_kernels(cache).items())
+        how = f"compiled, {written} cached" if written else "loaded from the cache"
+        say(f" {time.perf_counter() - t0:.1f} s ({how})")
+    total = time.perf_counter() - started
+    say(f"numba kernels ready in {total:.1f} s")
+    return total
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m haptic_server.harness.warmup",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--quiet", "-q", action="store_true", help="print nothing")
+    args = parser.parse_args(argv)
+    warm_all(None if args.quiet else sys.stderr)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

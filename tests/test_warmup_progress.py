@@ -1,0 +1,64 @@
+"""`make warm` (python -m haptic_server.harness.warmup) says what it compiles: a line per group
+of kernels on stderr (what, how long, compiled or loaded from the cache) and the total, at most
+ten lines; `--quiet` and library calls print nothing. The groups are faked here (the real
+ones compile for a minute on a cold cache); that they cover every warm run is checked."""
+
+from __future__ import annotations
+
+from functools import partial
+from pathlib import Path
+
+import pytest
+
+from haptic_server.harness import warmup
+
+
+@pytest.fixture
+def fake_groups(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """Two groups: the first 'compiles' (writes a kernel into the cache), the second loads."""
+    cache = tmp_path / "numba"
+    cache.mkdir()
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(cache))
+
+    def compile_one() -> None:
+        (cache / "kernel-12.py311.1.nbc").write_bytes(b"x")
+
+    groups = [("scene kernels", compile_one), ("device kernels", lambda: None)]
+    monkeypatch.setattr(warmup, "warm_groups", lambda: groups)
+    return cache
+
+
+def test_a_line_per_group_and_the_total_on_stderr(
+    fake_groups: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert warmup.main([]) == 0
+    out, err = capsys.readouterr()
+    assert out == ""
+    lines = err.splitlines()
+    assert len(lines) == 4, err
+    assert str(fake_groups) in lines[0]
+    assert lines[1].startswith("  scene kernels ...") and "(compiled, 1 cached)" in lines[1]
+    assert lines[2].startswith("  device kernels ...") and "(loaded from the cache)" in lines[2]
+    assert lines[1].split("...")[1].strip().split()[1] == "s"  # "<seconds> s (...)"
+    assert lines[3].startswith("numba kernels ready in ")
+
+
+def test_quiet_and_library_calls_print_nothing(
+    fake_groups: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert warmup.main(["--quiet"]) == 0
+    assert warmup.warm_all() >= 0.0
+    assert capsys.readouterr() == ("", "")
+
+
+def test_the_groups_cover_every_warm_run_in_at_most_ten_lines() -> None:
+    groups = warmup.warm_groups()
+    assert len(groups) + 2 <= 10  # the groups, a first line and the total
+    covered = [
+        run
+        for _, call in groups
+        if isinstance(call, partial) and call.func is warmup._run_virtual
+        for run in call.args[0]
+    ]
+    assert sorted(covered) == sorted(warmup.warm_runs())
+    assert any(call is warmup._loop_kernels for _, call in groups)
