@@ -1,7 +1,7 @@
 """`haptic-bench`: error against run time, scaling with the world, what each scene leaves out.
 
 In the virtual clock:
-1. the seed scenes across rendering methods and rates (sim 30/60/120 Hz, haptic 500/1000/
+1. the papers' scenes (docs/papers.md) across rendering methods and rates (sim 30/60/120 Hz, haptic 500/1000/
    2000 Hz): drift |x_h - x_VM|, the VM's error against the independent RNEA reference and
    the wall's penetration against F/K; run time as cost per simulated second, split by
    stage (sim step, local model, encode, install, haptic tick), and per tick p50/p99;

@@ -1,5 +1,4 @@
-"""Force jumps at local-model updates while sliding along a wall, with and without blending
-(issue 3, "Done when" item 3).
+"""Force jumps at local-model updates while sliding along a wall, with and without blending.
 
 A box pressed into a floor with about 1 N is dragged 20 cm along it (`wall_slide` scene,
 `slide` hand) in the virtual clock, so it slides across dozens of geometry updates. Each

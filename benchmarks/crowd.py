@@ -4,7 +4,7 @@ Runs `haptic-run` on the crowd (user `plough`, which ploughs the tool through th
 and on the testbed (user `swing`), interleaved, `--repeat` times each, and reports from each
 run's summary and log: the sim's step rate (steps started in each second: median and
 least) and its work per step, the haptic loop's work per tick, the contacts the local model carried and the largest
-update. Targets (issue 15): the crowd's sim at >= 59 Hz (median), its haptic work per tick
+update. Targets: the crowd's sim at >= 59 Hz (median), its haptic work per tick
 within +-20% of the testbed's (p50 and p99, medians over the runs), and its update under the
 size bound the wire allows a free tool (64 contacts), printed below.
 

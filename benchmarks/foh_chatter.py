@@ -1,6 +1,6 @@
 """Force chatter while sliding, first-order hold vs zero-order hold of the sim's setpoints
-(seed 002 §4: "interpolation ... eliminates the jittering or chattering feel ... during
-sliding contacts"; issue 5, "Done when" item 4).
+(Berkelman, Hollis and Baraff, seed 002 §4: "interpolation ... eliminates the jittering or
+chattering feel ... during sliding contacts").
 
 The `maglev_scoop` scene (30 Hz sim, virtual_coupling_foh) with the `scoop` hand: the scoop
 is pressed onto the floor and slid 16 mm at 4 mm/s. Each device runs twice in the virtual

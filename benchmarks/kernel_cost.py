@@ -1,4 +1,4 @@
-"""Cost of the local-model kernel per tick against the number of contacts (issue 3).
+"""Cost of the local-model kernel per tick against the number of contacts.
 
 A free body resting on 1..32 penetrating contacts (continuous contact: penalty, damping and
 friction every tick), timed two ways: the kernel alone, run N times inside one compiled
@@ -25,7 +25,7 @@ from shared.config import UserConfig, load_scene
 from shared.kinematics import free_body_chain
 from shared.protocol.update import ContactSet, LocalModelUpdate, contact_rows, encode_update
 
-TARGET_US = 5.0  # issue 3: the local-model kernel with 16 contacts
+TARGET_US = 5.0  # the target for the local-model kernel with 16 contacts
 
 
 def engine_with_contacts(n: int, press_n: float = 1.0, depth_m: float = 1e-4) -> HapticEngine:

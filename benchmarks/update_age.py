@@ -11,7 +11,7 @@ other stamping its arrival. From each run's log, every installed update's age is
   (sim_server/pacing.py) aims each update at 0.2 ms before a tick.
 
 The floor is one hop plus the wait for the next tick: the hop alone, measured here, plus
-the wait a phase-locked update cannot avoid (the lock's margin). Targets (issue 15): p50
+the wait a phase-locked update cannot avoid (the lock's margin). Targets: p50
 <= 0.6 ms, p99 <= 1.5 ms; the figures are medians over the runs.
 
     python -m benchmarks.update_age [--seconds 10] [--repeat 3] [--network loopback]

@@ -1,4 +1,4 @@
-"""Seed 001 §5's first experiment, both contact models, measured and plotted (issue 3).
+"""Seed 001 §5's first experiment, both contact models, measured and plotted.
 
 A rectangle driven into a wall (K = 15000 N/m, B = 20 N s/m) by a constant 2 N, in the
 virtual clock: penalty forces alone (`wall_push_penalty`, seed 001 Fig. 4) against penalty

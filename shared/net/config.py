@@ -91,7 +91,7 @@ class NetworkConfig:
     sim: EndpointSpec = field(default_factory=EndpointSpec)
     proxy_publish_hz: float = 250.0  # haptic -> sim proxy state rate
     watchdog_ms: float = 100.0  # no valid update for this long: device to safe state
-    safe_ramp_ms: float = 40.0  # force ramp into (and out of) the safe state (< 50 ms, issue 8)
+    safe_ramp_ms: float = 40.0  # force ramp into (and out of) the safe state (< 50 ms)
 
     def __post_init__(self) -> None:
         require(
