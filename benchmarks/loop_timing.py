@@ -99,8 +99,18 @@ def with_sim_beside(seconds: float, network: str, rate_hz: float = 1000.0) -> di
 
 
 def system(
-    seconds: float, log: bool, network: str, scene: str, device: str, rate_hz: float
+    seconds: float,
+    log: bool,
+    network: str,
+    scene: str,
+    device: str,
+    rate_hz: float,
+    view: bool = False,
 ) -> dict[str, Any]:
+    """One haptic-run; with `view`, its live view open in a headless browser throughout (if
+    there is one: `benchmarks.browser`), and the view's own cost in `view`."""
+    if view:
+        return _with_view(seconds, log, network, scene, device, rate_hz)
     with tempfile.TemporaryDirectory() as tmp:
         summary = Path(tmp) / "summary.json"
         log_path = Path(tmp) / "run.mcap"
@@ -117,6 +127,72 @@ def system(
         return result
 
 
+def _with_view(
+    seconds: float, log: bool, network: str, scene: str, device: str, rate_hz: float
+) -> dict[str, Any]:
+    import threading
+
+    from benchmarks.browser import chromium, open_page
+
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = Path(tmp) / "summary.json"
+        argv = [
+            sys.executable, "-m", "haptic_server.harness.run", "--duration", str(seconds),
+            "--network", network, "--scene", scene, "--device", device,
+            "--summary-json", str(summary), "--haptic-rate", str(rate_hz), "--view",
+            "--view-port", str(VIEW_PORTS[0]), "--view-grpc-port", str(VIEW_PORTS[1]),
+        ]  # fmt: skip
+        argv += ["--log", str(Path(tmp) / "run.mcap")] if log else ["--no-log"]
+        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        browser = chromium()
+        watched = threading.Event()
+        lines: list[str] = []
+        watchers: list[threading.Thread] = []
+
+        def watch(url: str) -> None:
+            assert browser is not None
+            with open_page(url, browser):
+                watched.set()
+                proc.wait()
+
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            lines.append(line)
+            if line.startswith("live view: http") and browser is not None:
+                url = line.split("live view: ", 1)[1].strip()
+                watcher = threading.Thread(target=watch, args=(url,), daemon=True)
+                watcher.start()
+                watchers.append(watcher)
+        code = proc.wait()
+        for watcher in watchers:  # its browser closed before the next run starts
+            watcher.join(60)
+        if code != 0:
+            raise RuntimeError(f"haptic-run --view failed: {''.join(lines[-5:])}")
+        result: dict[str, Any] = json.loads(summary.read_text())
+        result["view"] = {"browser": watched.is_set(), "report": _view_report(lines)}
+        return result
+
+
+VIEW_PORTS = (19090, 19876)  # the view's web and data ports in this benchmark
+
+
+def _view_report(lines: list[str]) -> dict[str, float]:
+    """The view's own figures from its last line: frames, seconds, CPU ms per frame in the
+    view process and in the Rerun server."""
+    import re
+
+    for line in reversed(lines):
+        m = re.search(
+            r"live view: (\d+) frames in ([\d.]+) s; CPU per frame ([\d.]+) ms here, "
+            r"([\d.]+) ms in the Rerun server", line,
+        )  # fmt: skip
+        if m:
+            frames, secs, here, server = (float(g) for g in m.groups())
+            return {"frames": frames, "seconds": secs, "cpu_ms_per_frame_view": here,
+                    "cpu_ms_per_frame_rerun_server": server}  # fmt: skip
+    return {}
+
+
 def work_split(ticks: np.ndarray) -> dict[str, dict[str, float]]:
     """Work per tick on the ticks that installed an update and on the others (a row holds
     the work of the tick before it, and the seq of the newest installed update)."""
@@ -131,6 +207,7 @@ def work_split(ticks: np.ndarray) -> dict[str, dict[str, float]]:
 
 
 CONFIGS = ("bare_loop_with_sim", "system_log_on", "system_log_off")
+VIEW_CONFIG = "system_log_on_view"
 
 
 def median_of(runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -160,7 +237,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=3, help="interleaved repetitions")
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--bare-only", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--view", action="store_true",
+        help="also the system with its live view open in a headless browser (interleaved)",
+    )  # fmt: skip
     args = parser.parse_args(argv)
+    configs = (*CONFIGS, VIEW_CONFIG) if args.view else CONFIGS
     if args.bare_only:
         realtime = try_realtime_priority()
         period_ns = round(1e9 / args.rate[0])
@@ -168,17 +250,23 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     results: dict[str, Any] = {}
     for rate in args.rate:
-        runs: dict[str, list[dict[str, Any]]] = {name: [] for name in CONFIGS}
+        runs: dict[str, list[dict[str, Any]]] = {name: [] for name in configs}
         for _ in range(args.repeat):  # interleaved: slow spells of the host hit every config
             runs["bare_loop_with_sim"].append(with_sim_beside(args.seconds, args.network, rate))
             for name, log in (("system_log_on", True), ("system_log_off", False)):
                 runs[name].append(
                     system(args.seconds, log, args.network, args.scene, args.device, rate)
                 )
+            if args.view:
+                runs[VIEW_CONFIG].append(
+                    system(args.seconds, True, args.network, args.scene, args.device, rate, True)
+                )
         medians = {name: median_of(rs) for name, rs in runs.items()}
         print(f"\n=== {rate:g} Hz: {args.scene}, {args.device}, {args.repeat} x {args.seconds:g} s")
         _print_table(runs, medians)
         _print_targets(medians, rate)
+        if args.view:
+            _print_view(runs, medians)
         results[f"{rate:g}"] = {"runs": runs, "medians": medians}
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
@@ -190,7 +278,7 @@ def _print_table(runs: dict[str, list[dict[str, Any]]], medians: dict[str, Any])
     columns = ("Hz", "lat p50", "p99", "p99.9", "max", ">period", "work p50", "p99", "max")
     print(f"{'run':<24}" + "".join(f"{c:>9}" for c in columns) + "  realtime")
     nan = float("nan")
-    for name in CONFIGS:
+    for name in runs:
         rows = [(f"{name} #{i + 1}", r) for i, r in enumerate(runs[name])]
         for label, r in [*rows, (f"{name} median", medians[name])]:
             lat = r["lateness_us"]
@@ -204,6 +292,28 @@ def _print_table(runs: dict[str, list[dict[str, Any]]], medians: dict[str, Any])
                 + "".join(f"{v:>9.1f}" for v in values)
                 + f"  {r['realtime_priority']}"
             )
+
+
+def _print_view(runs: dict[str, list[dict[str, Any]]], medians: dict[str, Any]) -> None:
+    """Loop work and lateness with the view (and a browser) against without, and the view's
+    own cost."""
+    on, view = medians["system_log_on"], medians[VIEW_CONFIG]
+    print(
+        f"view on vs off (log on both): work p50 {view['work_us']['p50']:.1f} vs "
+        f"{on['work_us']['p50']:.1f} us, p99 {view['work_us']['p99']:.1f} vs "
+        f"{on['work_us']['p99']:.1f} us; lateness p99 {view['lateness_us']['p99']:.1f} vs "
+        f"{on['lateness_us']['p99']:.1f} us; late ticks {view['overruns']:g} vs {on['overruns']:g}"
+    )
+    reports = [r["view"]["report"] for r in runs[VIEW_CONFIG] if r["view"]["report"]]
+    if reports:
+        here = np.median([r["cpu_ms_per_frame_view"] for r in reports])
+        server = np.median([r["cpu_ms_per_frame_rerun_server"] for r in reports])
+        rate = np.median([r["frames"] / r["seconds"] for r in reports])
+        browser = all(r["view"]["browser"] for r in runs[VIEW_CONFIG])
+        print(
+            f"view cost: {rate:.1f} frames/s; CPU per frame {here:.2f} ms in the view process, "
+            f"{server:.2f} ms in the Rerun server (browser watching: {browser})"
+        )
 
 
 def _print_targets(medians: dict[str, Any], rate: float) -> None:

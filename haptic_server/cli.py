@@ -8,6 +8,7 @@ import signal
 import sys
 from pathlib import Path
 
+from haptic_server.live_view import add_view_args, view_address
 from shared.cli import add_config_args, emit, run_main
 from shared.config import load_scene, load_user, resolve, scene_text
 from shared.net.config import load_network
@@ -22,13 +23,14 @@ def main(argv: list[str] | None = None) -> int:
         help="stop this many seconds after the first update (or 60 s later without one)",
     )  # fmt: skip
     parser.add_argument("--summary-json", type=Path, default=None)
+    add_view_args(parser)
     parser.add_argument("--inject-leak", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--inject-nan-after", type=float, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
 
     def body() -> int:
         from device_models.registry import load_device
-        from haptic_server.loop import HapticServer, InjectedFaults
+        from haptic_server.loop import HapticServer, InjectedFaults, ServerExtras
 
         scene = load_scene(args.scene, args.haptic_rate)
         user = load_user(args.user)
@@ -41,7 +43,8 @@ def main(argv: list[str] | None = None) -> int:
             "network": resolve("network", args.network).read_text(),
         }
         faults = InjectedFaults(2048 if args.inject_leak else 0, args.inject_nan_after)
-        server = HapticServer(scene, device, user, network, args.log, configs, faults=faults)
+        extras = ServerExtras(view=view_address(args), faults=faults)
+        server = HapticServer(scene, device, user, network, args.log, configs, extras)
         signal.signal(signal.SIGTERM, server.request_stop)
         signal.signal(signal.SIGINT, server.request_stop)
         server.warm_up(lambda: load_device(args.device), user)

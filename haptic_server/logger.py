@@ -67,10 +67,35 @@ FLUSH_EVERY_S = 0.2  # and flushes the file this often: a crash loses at most th
 LOG_NICENESS = 5  # the writer yields the CPU to the sim and the I/O sidecar
 
 
-class LogProcess:
-    """Starts the writer (`python -m haptic_server.logger`, so a caller's script is not
-    imported again, as multiprocessing's spawn would) on a shared block, and waits until its
-    file is open."""
+class BlockChild:
+    """A helper process on a shared block: `python -m MODULE CONFIG.json` (so a caller's
+    script is not imported again, as multiprocessing's spawn would), its config (with the
+    block's name and our pid) in a temporary file removed when it is joined."""
+
+    def __init__(self, module: str, shm_name: str, config: dict[str, Any]) -> None:
+        with tempfile.NamedTemporaryFile("w", suffix=".json", delete=False) as fh:
+            json.dump({"shm_name": shm_name, "parent_pid": os.getpid(), **config}, fh)
+        self._config_path = fh.name
+        self._proc = subprocess.Popen([sys.executable, "-m", module, fh.name])
+
+    @property
+    def alive(self) -> bool:
+        return self._proc.poll() is None
+
+    def join(self, timeout_s: float) -> None:
+        """Wait for its exit (after C_CLOSED); terminate it if it does not."""
+        try:
+            self._proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            self._proc.terminate()
+            self._proc.wait(5.0)
+        finally:
+            with contextlib.suppress(OSError):
+                os.unlink(self._config_path)
+
+
+class LogProcess(BlockChild):
+    """Starts the writer on a shared block and waits until its file is open."""
 
     def __init__(
         self,
@@ -80,20 +105,13 @@ class LogProcess:
         ready_timeout_s: float = 60.0,
     ) -> None:
         self.block = block
-        with tempfile.NamedTemporaryFile("w", suffix=".json", delete=False) as fh:
-            json.dump({"shm_name": shm_name, "parent_pid": os.getpid(), **config}, fh)
-        self._config_path = fh.name
-        self._proc = subprocess.Popen([sys.executable, "-m", "haptic_server.logger", fh.name])
+        super().__init__("haptic_server.logger", shm_name, config)
         end = time.monotonic() + ready_timeout_s
         while block.ctl[C_LOG_READY] == 0:
             if self._proc.poll() is not None or time.monotonic() > end:
                 self.join(0.0)
                 raise RuntimeError(f"the log writer did not start ({config['log_path']})")
             time.sleep(0.01)
-
-    @property
-    def alive(self) -> bool:
-        return self._proc.poll() is None
 
     def wait_closed(self, timeout_s: float) -> bool:
         """Wait (after C_CLOSED) until the writer has closed its file; False if it died first
@@ -103,17 +121,6 @@ class LogProcess:
             time.sleep(0.0005)
         atexit.register(self.join, 10.0)
         return bool(self.block.ctl[C_LOG_DONE])
-
-    def join(self, timeout_s: float) -> None:
-        """Wait for the writer's exit (after C_CLOSED); terminate it if it does not."""
-        try:
-            self._proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            self._proc.terminate()
-            self._proc.wait(5.0)
-        finally:
-            with contextlib.suppress(OSError):
-                os.unlink(self._config_path)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -28,6 +28,7 @@ import numpy as np
 
 from device_models.base import Device
 from haptic_server.engine import HapticEngine, warm_kernels
+from haptic_server.live_view import ViewAddress
 from haptic_server.log import run_metadata
 from haptic_server.mailbox import C_UPD_HEAD, C_UPD_READ, compile_loop_kernels, push_row
 from haptic_server.realtime import (
@@ -117,6 +118,16 @@ class InjectedFaults:
     nan_after_s: float | None = None
 
 
+@dataclass(frozen=True)
+class ServerExtras:
+    """What a haptic server may have beside its configs: extra Zenoh settings, a live view,
+    injected faults."""
+
+    zenoh: dict[str, Any] | None = None
+    view: ViewAddress | None = None
+    faults: InjectedFaults = field(default_factory=InjectedFaults)
+
+
 class HapticServer:
     """One haptic server process: engine + Zenoh + log process + the real-time loop."""
 
@@ -128,17 +139,18 @@ class HapticServer:
         network: NetworkConfig,
         log_path: Path | None,
         configs: dict[str, str],
-        zenoh_extra: dict[str, Any] | None = None,
-        faults: InjectedFaults | None = None,
+        extras: ServerExtras | None = None,
     ) -> None:
+        extras = extras or ServerExtras()
         self.scene = scene
+        self.view = extras.view
         self.network = network
         self.engine = HapticEngine(scene, device, user, network.safe_ramp_ms / 1000.0)
         self.log_path = log_path
         self.configs = configs
-        self.zenoh_extra = zenoh_extra
+        self.zenoh_extra = extras.zenoh
         self.stats = HapticRunStats()
-        self.faults = faults or InjectedFaults()
+        self.faults = extras.faults
         self._stop = False
         # the running loop's parts, set by run() (read by the supervisor's install step)
         self._io: LoopIO
@@ -364,6 +376,12 @@ class HapticServer:
                 "wall_start_ns": time.time_ns(),
                 "proxy_publish_hz": self.network.proxy_publish_hz,
                 "method": self.engine.method,
+                "view": None
+                if self.view is None
+                else {
+                    **dataclasses.asdict(self.view),
+                    "scene_text": self.configs.get("scene"),
+                },
             }
         )
 

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from haptic_server.live_view import ViewProcess
 from haptic_server.logger import LogProcess
 from haptic_server.mailbox import (
     C_CLOSED,
@@ -62,6 +63,7 @@ IO_PRIORITY = REALTIME_PRIORITY // 2  # SCHED_FIFO below the loop's
 # CPython hands the GIL to a waiting thread after this long (default 5 ms): the Zenoh thread
 # that receives an update must not wait behind the main thread's Python for that long
 GIL_SWITCH_INTERVAL_S = 1e-4
+VIEW_CLOSE_S = 5.0  # the live view's last frame and flush
 
 
 class LoopIO:
@@ -91,6 +93,10 @@ class LoopIO:
                 self.close()
                 raise RuntimeError("the haptic I/O process did not start")
             time.sleep(0.01)
+        self._view: ViewProcess | None = None
+        if config.get("view"):  # after the sidecar: the view never delays a start
+            view_config = {**config["view"], "loop_cpu": config.get("loop_cpu")}
+            self._view = ViewProcess(self._shm.name, view_config)
 
     def take_updates(
         self, engine: HapticEngine, tick: int, budget: int
@@ -151,6 +157,8 @@ class LoopIO:
             self._proc.join(5.0)
         if self._logger is not None:
             self._logger.join(timeout_s)
+        if self._view is not None:
+            self._view.join(VIEW_CLOSE_S)
         counters = self.counters
         self._release()
         return counters

@@ -551,7 +551,7 @@ def test_haptic_server_killed_sim_carries_on(
 def haptic_run_args(network_file: Path, log: Path) -> list[str]:
     return [
         "--scene", SCENE, "--device", DEVICE, "--user", USER, "--network", str(network_file),
-        "--duration", "120", "--log", str(log),
+        "--duration", "120", "--log", str(log), "--json-events",
     ]  # fmt: skip
 
 

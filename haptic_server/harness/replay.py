@@ -25,6 +25,7 @@ import numpy as np
 from haptic_server.engine import EngineCounters, HapticEngine
 from haptic_server.harness.plot import plot_run
 from haptic_server.harness.summary import ReplayError, print_summary, summarise
+from haptic_server.live_view import ViewAddress, add_view_args, view_address, view_log
 from haptic_server.log import LogContents, read_log, recover_log
 from haptic_server.model import TICK_DTYPE
 from haptic_server.stages.tick import store_row
@@ -276,6 +277,22 @@ def main_replay(
     return code
 
 
+def serve_view(path: Path, address: ViewAddress, seconds: float | None, speed: float) -> None:
+    """`--view`: draw the log in the browser until Ctrl-C (or for `seconds`)."""
+    import signal
+    import threading
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    if seconds is not None:
+        timer = threading.Timer(seconds, stop.set)
+        timer.daemon = True  # a stop before it must not wait for it
+        timer.start()
+    frames = view_log(path, address, stop, speed)
+    print(f"view: {frames} frames drawn; stopped")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="haptic-replay", description=__doc__)
     add_version(parser)
@@ -289,6 +306,15 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     parser.add_argument("--no-replay", action="store_true", help="do not re-run and compare")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_view_args(parser, "the log (instead of replaying it)")
+    parser.add_argument(
+        "--view-seconds", type=float, default=None, metavar="S",
+        help="with --view: serve the view this long, then exit (default: until Ctrl-C)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--view-speed", type=float, default=0.0, metavar="X",
+        help="with --view: draw at X times log time (default 0: all at once, then scrub)",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     from shared.cli import run_main
 
@@ -300,10 +326,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
     def body() -> int:
-        return main_replay(
-            args.log, args.plot, args.summary, recover, not args.no_replay,
+        view = view_address(args)
+        code = main_replay(
+            args.log, args.plot, args.summary, recover, not args.no_replay and view is None,
             not args.no_progress, args.summary_json,
         )  # fmt: skip
+        if view is not None:
+            serve_view(recover or args.log, view, args.view_seconds, args.view_speed)
+        return code
 
     try:
         return run_main(body)

@@ -22,8 +22,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
-from shared.cli import add_config_args, emit, print_shipped, run_main
-from shared.config import absolute_ref, load_scene, load_user, resolve
+from haptic_server.live_view import add_view_args, view_address
+from shared.cli import EXIT_CONFIG, add_config_args, emit, print_shipped, run_main
+from shared.config import ConfigError, absolute_ref, load_scene, load_user, resolve
 from shared.net.config import load_network
 from shared.timing import avoid_cpu as keep_off_cpu
 
@@ -143,6 +144,11 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
         haptic_extra += ["--log", str(Path(args.log).resolve())]
     if args.haptic_rate is not None:
         haptic_extra += ["--haptic-rate", repr(float(args.haptic_rate))]
+    if args.view:
+        haptic_extra += [
+            "--view", "--view-port", str(args.view_port), "--view-grpc-port",
+            str(args.view_grpc_port), "--view-bind", args.view_bind,
+        ]  # fmt: skip
     stop = threading.Event()
     previous = {
         sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)
@@ -169,7 +175,14 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
                     failure = f"sim server did not become ready (exit {sim.proc.poll()})"
             else:
                 pids = {"haptic_pid": haptic.proc.pid, "sim_pid": sim.proc.pid}
-                emit("ready", process="haptic-run", **pids)
+                if args.json_events:  # for programs that follow the run (tests, soak)
+                    emit("ready", process="haptic-run", **pids)
+                else:
+                    print(
+                        f"running: haptic server pid {pids['haptic_pid']}, sim server pid "
+                        f"{pids['sim_pid']} (Ctrl-C stops both; the device ramps to safe)",
+                        flush=True,
+                    )
                 failure = _watch(haptic, sim, stop, args.duration + STOP_TIMEOUT_S + 30.0)
     finally:
         codes = {"haptic": haptic.stop()}  # the haptic side first: it ramps the device to safe
@@ -187,6 +200,9 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
     summary["stopped_by_signal"] = stop.is_set()
     if failure is not None:
         summary["failure"] = failure
+        # a server that refused its configs (exit 2) before it was ready has said why, in one
+        # line naming the file and key: haptic-run exits 2 after it, adding nothing
+        summary["config_error"] = EXIT_CONFIG in codes.values() and not summary.get("ticks")
     haptic_json.unlink(missing_ok=True)
     sim_json.unlink(missing_ok=True)
     return summary
@@ -274,6 +290,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--list", action="store_true", help="list the shipped scenes, devices, users, networks"
     )
+    add_view_args(parser)
+    parser.add_argument(
+        "--json-events", action="store_true",
+        help="say 'ready' as a JSON line on stdout (for programs that follow the run)",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     if args.list:
         print_shipped()
@@ -285,10 +306,19 @@ def main(argv: list[str] | None = None) -> int:
         args.log = None
 
     def body() -> int:
+        view = view_address(args)
+        if view is not None and args.clock == "virtual":
+            raise ConfigError(
+                "command line", "--view",
+                "needs --clock real (a virtual-clock run outpaces any view: draw its log with "
+                "haptic-replay LOG --view)",
+            )  # fmt: skip
         summary = run_virtual_clock(args) if args.clock == "virtual" else run_real_time(args)
         if args.summary_json:
             args.summary_json.parent.mkdir(parents=True, exist_ok=True)
             args.summary_json.write_text(json.dumps(summary, indent=2))
+        if summary.get("config_error"):
+            return EXIT_CONFIG
         if "failure" in summary:
             print(f"haptic-run: {summary['failure']}", file=sys.stderr)
             return 1

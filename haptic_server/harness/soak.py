@@ -4,7 +4,11 @@ Cycles through segments (scene, device, scripted user), each a fresh sim + hapti
 pair over Zenoh on loopback, while sampling every process's resident memory. After each
 segment it checks, from the summary and the MCAP log, the documented bounds below, and at the
 end writes a report: markdown, JSON and a PNG of lateness, work per tick, update age and
-memory over run time. Exit code 1 (with the failed checks named) if any bound is broken.
+memory over run time. Exit code 1 (with the failed checks named) if any bound is broken;
+exit code 2 on a config error, whether this process finds it (every segment's scene, device
+and user are loaded before a server starts) or a server does (a server that stops with exit
+code 2 before it is ready has printed its one-line reason on the stderr it shares with the
+soak): the soak stops there, with no report.
 
     haptic-soak [--minutes 3] [--out runs/soak] [--segment-s 45]
 
@@ -37,8 +41,8 @@ import numpy as np
 from device_models.registry import load_device
 from haptic_server.harness.run import Child
 from haptic_server.log import EVENT_TOPIC, read_json_topic, read_ticks
-from shared.cli import add_version
-from shared.config import load_scene
+from shared.cli import EXIT_CONFIG, add_version, run_main
+from shared.config import load_scene, load_user
 
 # ticks starting > 1 ms late: the bare clock loop alone measured up to 0.43% on these VMs
 # (benchmarks/loop_timing.py); soak segments measured 0.03-1.2% on a quiet VM and up to 2.1%
@@ -57,6 +61,27 @@ SEGMENTS = (
     ("wall_push", "ideal", "push_2n"),
     ("linkage_distal", "ideal_identity", "push_04n"),
 )
+
+
+class ChildConfigError(Exception):
+    """A server stopped on a config or usage error (exit code 2) before it was ready. Its
+    one-line reason is already on the soak's stderr (the children inherit it), so the soak
+    adds nothing to it and exits 2 too."""
+
+
+def check_configs(segments: tuple[tuple[str, str, str], ...]) -> None:
+    """Load every segment's scene, device and user as its servers will, before any starts: a
+    bad file is a ConfigError naming the file and the key (exit 2), not a failed segment."""
+    for scene, device, user in segments:
+        load_scene(scene)
+        load_device(device)
+        load_user(user)
+
+
+def _stop_on_config_error(child: Child) -> None:
+    """Raise ChildConfigError if `child` exited with a config or usage error."""
+    if child.proc.poll() == EXIT_CONFIG:
+        raise ChildConfigError(f"{child.name} server exited with {EXIT_CONFIG}")
 
 
 @dataclass
@@ -167,17 +192,19 @@ class MemorySampler:
 def run_segment(
     scene: str, device: str, user: str, seconds: float, out: Path, inject: list[str]
 ) -> tuple[SegmentResult, dict[str, Any]]:
-    """One sim + haptic pair for `seconds`; returns the checks and the data for the plots."""
+    """One sim + haptic pair for `seconds`; returns the checks and the data for the plots.
+    Raises ChildConfigError if a server stops on a config error before it is ready."""
     result = SegmentResult(scene, device, user, seconds)
     port = _free_port()
-    net = out / f"net-{scene}-{port}.toml"
+    label = Path(scene).stem  # file names: `scene` may be a path to a .toml file
+    net = out / f"net-{label}-{port}.toml"
     net.write_text(
         f'namespace = "haptic/soak{port}"\n[haptic]\nlisten = ["tcp/127.0.0.1:{port}"]\n'
         f'[sim]\nconnect = ["tcp/127.0.0.1:{port}"]\n'
     )
-    log = out / f"{scene}-{device}.mcap"
-    haptic_json = out / f"haptic-{scene}.json"
-    sim_json = out / f"sim-{scene}.json"
+    log = out / f"{label}-{Path(device).stem}.mcap"
+    haptic_json = out / f"haptic-{label}.json"
+    sim_json = out / f"sim-{label}.json"
     py = sys.executable
     common = ["--scene", scene, "--network", str(net)]
     haptic = Child(
@@ -205,10 +232,12 @@ def run_segment(
     traces: dict[str, MemoryTrace] = {}
     try:
         if not haptic.wait_ready(300.0):
+            _stop_on_config_error(haptic)
             result.failures.append(f"haptic server did not start (exit {haptic.proc.poll()})")
             return result, {}
         sim = Child("sim", [py, "-m", "sim_server.cli", *common, "--summary-json", str(sim_json)])
         if not sim.wait_ready(120.0):
+            _stop_on_config_error(sim)
             result.failures.append(f"sim server did not start (exit {sim.proc.poll()})")
             return result, {}
         sampler = MemorySampler({"haptic": haptic.proc.pid, "sim": sim.proc.pid})
@@ -409,6 +438,19 @@ def main(argv: list[str] | None = None) -> int:
         help="debug: the hand wrench turns NaN after this many seconds (the soak must fail)",
     )
     args = parser.parse_args(argv)
+
+    def body() -> int:
+        check_configs(SEGMENTS)  # a ConfigError: its one line, exit 2 (run_main)
+        try:
+            return run_soak(args)
+        except ChildConfigError:  # the server printed its reason: exit 2, nothing to add
+            return EXIT_CONFIG
+
+    return run_main(body)
+
+
+def run_soak(args: argparse.Namespace) -> int:
+    """Run the segments until the time is up, write the report; 0 if every bound held."""
     args.out.mkdir(parents=True, exist_ok=True)
     inject = (["--inject-leak"] if args.inject_leak else []) + (
         ["--inject-nan-after", str(args.inject_nan_after)]

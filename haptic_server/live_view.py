@@ -1,0 +1,532 @@
+"""The live view: the visual loop beside the haptic and physics loops, in a browser.
+
+A process of its own (`python -m haptic_server.live_view CONFIG.json`) reads the shared
+block that the loop and its I/O sidecar fill (`haptic_server.mailbox`): the newest tick row,
+the updates the loop has given a verdict on, the events. At VIEW_HZ it draws them with
+Rerun (https://rerun.io): the scene's static bodies, the held linkage, the tool's proxy and
+the device, the contacts with their normals, the force arrows, and plots of the forces and
+the penetration. The Rerun server (its gRPC proxy and its web viewer, both shipped in the
+`rerun-sdk` wheel, so the view works offline) is a child of this process, bound to loopback
+unless asked otherwise. The loop never waits on any of it: the view only reads, and it
+stops drawing (never the run) if it fails.
+
+`haptic-replay LOG --view` draws a log the same way (`ReplayFeed`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import contextlib
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from multiprocessing import resource_tracker, shared_memory
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from haptic_server.logger import BlockChild
+from haptic_server.mailbox import (
+    C_CLOSED,
+    C_EVT_HEAD,
+    C_TICK_HEAD,
+    C_UPD_READ,
+    EVENT_SLOTS,
+    MAILBOX_SLOTS,
+    RING_TICKS,
+    SharedBlock,
+)
+from shared.config import BodySpec, ConfigError, SceneConfig, load_config_text
+from shared.protocol.layout import MAX_DOF
+
+VIEW_HZ = 60.0  # frames a second (of wall time live, of log time in a replay)
+GRPC_PORT = 9876  # Rerun's defaults
+WEB_PORT = 9090
+SERVER_MEMORY = "256MiB"  # what the Rerun server keeps for a browser that connects late
+START_TIMEOUT_S = 20.0
+FORCE_M_PER_N = 0.01  # force arrows: 1 cm per newton (as in the Foxglove channels)
+NORMAL_M = 0.02  # contact normals drawn this long
+
+_STATIC = (140, 145, 153)
+_DEVICE = (51, 115, 242)
+_PROXY = (242, 89, 51)
+_LINKAGE = (90, 90, 90)
+_CONTACT = (26, 191, 77)
+
+
+@dataclass(frozen=True)
+class ViewAddress:
+    """Where the view is served: the browser opens `url`."""
+
+    bind: str = "127.0.0.1"
+    web_port: int = WEB_PORT
+    grpc_port: int = GRPC_PORT
+
+    @property
+    def host(self) -> str:
+        return "127.0.0.1" if self.bind in ("0.0.0.0", "::") else self.bind
+
+    @property
+    def grpc_url(self) -> str:
+        return f"rerun+http://{self.host}:{self.grpc_port}/proxy"
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.web_port}/?url={self.grpc_url}"
+
+
+def add_view_args(parser: argparse.ArgumentParser, what: str = "the run") -> None:
+    """--view, --view-port, --view-grpc-port, --view-bind."""
+    parser.add_argument(
+        "--view", action="store_true",
+        help=f"draw {what} live in a browser (Rerun's web viewer; the URL is printed)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--view-port", type=_port, default=WEB_PORT, metavar="PORT",
+        help=f"the view's web page port (default {WEB_PORT})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--view-grpc-port", type=_port, default=GRPC_PORT, metavar="PORT",
+        help=f"the view's data port (default {GRPC_PORT})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--view-bind", default="127.0.0.1", metavar="ADDR",
+        help="the address the view listens on (default 127.0.0.1: this machine only)",
+    )  # fmt: skip
+
+
+def view_address(args: argparse.Namespace) -> ViewAddress | None:
+    """The view asked for on the command line (None without --view)."""
+    if not args.view:
+        return None
+    if args.view_port == args.view_grpc_port:
+        raise ConfigError("command line", "--view-port", "must differ from --view-grpc-port")
+    return ViewAddress(args.view_bind, args.view_port, args.view_grpc_port)
+
+
+def _port(text: str) -> int:
+    port = int(text)
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text} is not a port (1-65535)")
+    return port
+
+
+def _rr() -> Any:
+    import rerun as rr
+
+    return rr
+
+
+class RerunServer:
+    """`rerun --serve-web`: the gRPC proxy the view logs to and the web viewer that reads it,
+    a child process (the SDK's in-process servers listen on every interface)."""
+
+    def __init__(self, address: ViewAddress) -> None:
+        self.address = address
+        for port in (address.grpc_port, address.web_port):
+            _require_free(address.bind, port)
+        import rerun_cli
+
+        binary = Path(rerun_cli.__file__).parent / "rerun"
+        self._proc = subprocess.Popen(
+            [str(binary), "--serve-web", "--bind", address.bind,
+             "--port", str(address.grpc_port), "--web-viewer-port", str(address.web_port),
+             "--server-memory-limit", SERVER_MEMORY],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        end = time.monotonic() + START_TIMEOUT_S
+        while not all(_listening(address.host, p) for p in (address.grpc_port, address.web_port)):
+            if self._proc.poll() is not None or time.monotonic() > end:
+                self.stop()
+                raise RuntimeError(
+                    f"the Rerun server did not start on {address.bind} ports "
+                    f"{address.grpc_port} and {address.web_port}"
+                )
+            time.sleep(0.05)
+
+    @property
+    def pid(self) -> int:
+        return self._proc.pid
+
+    def cpu_s(self) -> float:
+        """The server's CPU time so far (user + system), s."""
+        try:
+            fields = Path(f"/proc/{self._proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            return 0.0
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    def stop(self) -> None:
+        if self._proc.poll() is None:
+            self._proc.terminate()
+        try:
+            self._proc.wait(5.0)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait(5.0)
+
+
+def _listening(host: str, port: int) -> bool:
+    with socket.socket() as s:
+        s.settimeout(0.2)
+        return s.connect_ex((host, port)) == 0
+
+
+def _require_free(bind: str, port: int) -> None:
+    host = "127.0.0.1" if bind in ("0.0.0.0", "::") else bind
+    if _listening(host, port):
+        raise RuntimeError(f"the live view's port {port} on {bind} is in use (--view-port)")
+
+
+def blueprint() -> Any:
+    """The layout: the scene seen from above on the left; on the right the forces, the
+    penetration and the run's events."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial2DView(origin="world", name="scene (y up)"),
+            rrb.Vertical(
+                rrb.TimeSeriesView(origin="plots/force", name="forces (N)"),
+                rrb.TimeSeriesView(origin="plots/penetration", name="penetration (mm)"),
+                rrb.TextLogView(origin="events", name="events"),
+            ),
+            column_shares=[2, 1],
+        ),
+        collapse_panels=True,
+    )
+
+
+def _ring(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    return [*points, points[0]]
+
+
+def _body_shapes(body: BodySpec) -> tuple[str, list[list[tuple[float, float]]], float]:
+    """A static body as ("strip", line strips, half-width) or ("disc", [[centre]], radius),
+    in the world frame."""
+    import math
+
+    x, y, a = body.position[0], body.position[1], body.angle
+    c, s = math.cos(a), math.sin(a)
+
+    def world(px: float, py: float) -> tuple[float, float]:
+        return (x + c * px - s * py, y + s * px + c * py)
+
+    if body.shape == "box":
+        hx, hy = body.size[0] / 2, body.size[1] / 2
+        corners = [world(px, py) for px, py in ((-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy))]
+        return "strip", [_ring(corners)], 0.001
+    if body.shape == "circle":
+        return "disc", [[(x, y)]], body.radius
+    return "strip", [[world(*body.a), world(*body.b)]], max(body.radius, 0.001)
+
+
+class SceneView:
+    """What is drawn, from tick rows, installed updates and events: one Rerun recording.
+
+    The scene's y axis points up: the world entity is mirrored once (Rerun's 2D views point
+    y down, as images do), and every entity under it is in the world's own coordinates.
+    """
+
+    def __init__(self, scene_text: str | None, recording: Any) -> None:
+        rr = _rr()
+        self.rec = recording
+        self._log("world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
+        force_names = ["device command x", "device command y", "contact on proxy x",
+                       "contact on proxy y"]  # fmt: skip
+        series = (
+            ("penetration", [_PROXY], ["deepest"]),
+            ("force", [_DEVICE, (30, 60, 140), _PROXY, (140, 50, 30)], force_names),
+        )
+        for path, colors, names in series:
+            self._log(f"plots/{path}", rr.SeriesLines(colors=colors, names=names), static=True)
+        self._static(scene_text)
+        self._chain: tuple[np.ndarray, np.ndarray, np.ndarray, float, int] | None = None
+        self._frame_pos = np.zeros((MAX_DOF, 2))
+        self._frame_angle = np.zeros(MAX_DOF)
+        self._contacts: list[tuple[float, float, float, float]] | None = None
+        self._parser: Any = None
+        self.frames = 0
+
+    def _log(self, path: str, archetype: Any, static: bool = False) -> None:
+        _rr().log(path, archetype, static=static, recording=self.rec)
+
+    def _static(self, scene_text: str | None) -> None:
+        rr = _rr()
+        if not scene_text:
+            return
+        try:
+            scene = load_config_text(SceneConfig, scene_text, "the run's scene")
+        except (ConfigError, ValueError):
+            return
+        strips: list[list[tuple[float, float]]] = []
+        widths: list[float] = []
+        centres: list[tuple[float, float]] = []
+        radii: list[float] = []
+        for body in scene.bodies:
+            if body.kind != "static":
+                continue
+            kind, shapes, size = _body_shapes(body)
+            if kind == "strip":
+                strips += shapes
+                widths += [size] * len(shapes)
+            else:
+                centres.append(shapes[0][0])
+                radii.append(size)
+        if strips:
+            walls = rr.LineStrips2D(strips, radii=widths, colors=[_STATIC])
+            self._log("world/static/walls", walls, static=True)
+        if centres:
+            discs = rr.Points2D(centres, radii=radii, colors=[_STATIC])
+            self._log("world/static/discs", discs, static=True)
+
+    def set_time(self, t_s: float) -> None:
+        _rr().set_time("time", duration=t_s, recording=self.rec)
+
+    def update(self, raw: bytes) -> None:
+        """An installed update: its linkage (joint types, lengths, base) and its contacts."""
+        rr = _rr()
+        if self._parser is None:
+            from shared.protocol.update import UpdateParser
+
+            self._parser = UpdateParser()
+        if self._parser.parse(raw) != 0:
+            return
+        out = self._parser.out[0]
+        dof = int(out["dof"])
+        self._chain = (
+            out["joint_types"].copy(), out["lengths"].copy(), out["base"].copy(),
+            float(out["base_angle"]), dof,
+        )  # fmt: skip
+        n = int(out["n_contacts"])
+        contacts = [
+            (float(e[0]), float(e[1]), float(k[0]), float(k[1]))
+            for e, k in zip(out["c_env"][:n], out["c_normal"][:n], strict=True)
+        ]
+        if contacts == self._contacts:
+            return
+        self._contacts = contacts
+        points = [(x, y) for x, y, _nx, _ny in contacts]
+        normals = [(nx * NORMAL_M, ny * NORMAL_M) for _x, _y, nx, ny in contacts]
+        self._log("world/contacts", rr.Points2D(points, radii=0.003, colors=[_CONTACT]))
+        arrows = rr.Arrows2D(origins=points, vectors=normals, colors=[_CONTACT])
+        self._log("world/contacts/normals", arrows)
+
+    def frame(self, row: np.void) -> None:
+        """One frame from a tick row: the device, the proxy, the linkage, the forces, the
+        penetration."""
+        from shared.kinematics import link_frames
+
+        rr = _rr()
+        self.set_time(float(row["t"]))
+        dev, vm = row["device_pose"], row["vm_pose"]
+        dev_xy = (float(dev[0]), float(dev[1]))
+        vm_xy = (float(vm[0]), float(vm[1]))
+        command, contact = row["wrench_command"], row["contact_force_world"]
+        cx, cy, fx, fy = float(command[0]), float(command[1]), float(contact[0]), float(contact[1])
+        # one call per entity (a call costs ~0.3 ms of Python here): the proxy over the device
+        # (where they coincide, both show), the two force arrows from them
+        self._log("world/tool", rr.Points2D(
+            [dev_xy, vm_xy], radii=[0.006, 0.004], colors=[_DEVICE, _PROXY],
+            labels=["device", "proxy"], show_labels=False, draw_order=40,
+        ))  # fmt: skip
+        k = FORCE_M_PER_N
+        self._log("world/forces", rr.Arrows2D(
+            origins=[dev_xy, vm_xy], vectors=[(cx * k, cy * k), (fx * k, fy * k)],
+            colors=[_DEVICE, _PROXY],
+        ))  # fmt: skip
+        if self._chain is not None:
+            types, lengths, base, base_angle, dof = self._chain
+            if 0 < dof == int(row["dof"]):
+                link_frames(
+                    types, lengths, base, base_angle, row["proxy_q"], dof, self._frame_pos,
+                    self._frame_angle,
+                )  # fmt: skip
+                strip = [*map(tuple, self._frame_pos[:dof].tolist()), vm_xy]
+                self._log("world/linkage", rr.LineStrips2D([strip], radii=0.003, colors=[_LINKAGE]))
+        self._log("plots/force", rr.Scalars([cx, cy, fx, fy]))
+        if "penetration" in (row.dtype.names or ()):
+            self._log("plots/penetration", rr.Scalars([float(row["penetration"]) * 1e3]))
+        self.frames += 1
+
+    def event(self, tick: int, kind: str, detail: str, t_s: float | None = None) -> None:
+        rr = _rr()
+        if t_s is not None:
+            self.set_time(t_s)
+        warn = any(w in kind for w in ("watchdog", "fault", "stale", "reject", "lost"))
+        text = f"tick {tick}: {kind} {detail}".rstrip()
+        self._log("events", rr.TextLog(text, level="WARN" if warn else "INFO"))
+
+
+def open_recording(address: ViewAddress, app: str) -> Any:
+    """A recording stream connected to the Rerun server at `address`, with the layout."""
+    rr = _rr()
+    rec = rr.RecordingStream(app, make_default=False, make_thread_default=False)
+    rec.connect_grpc(address.grpc_url, default_blueprint=blueprint())
+    return rec
+
+
+# -- live: a process beside the loop ------------------------------------------------------
+
+
+class ViewProcess(BlockChild):
+    """Starts the view (`python -m haptic_server.live_view`) on the loop's shared block.
+    It does not wait for it: the view says where it is on stderr once it serves."""
+
+    def __init__(self, shm_name: str, config: dict[str, Any]) -> None:
+        super().__init__("haptic_server.live_view", shm_name, config)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m haptic_server.live_view CONFIG.json` (ViewProcess)."""
+    args = sys.argv[1:] if argv is None else argv
+    config = json.loads(Path(args[0]).read_text())
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run decides when the view ends
+    try:
+        _live(config)
+    except Exception as exc:  # the view never stops the run: say why, and go
+        print(f"live view stopped: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _live(config: dict[str, Any]) -> None:
+    from shared.timing import avoid_cpu
+
+    terminated = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: terminated.set())
+    with contextlib.suppress(OSError):
+        os.nice(10)  # below the sim and the sidecar
+    avoid_cpu(config.get("loop_cpu"))
+    address = ViewAddress(config["bind"], int(config["web_port"]), int(config["grpc_port"]))
+    shm = shared_memory.SharedMemory(name=config["shm_name"])
+    resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
+    block = SharedBlock(shm)
+    server = RerunServer(address)
+    try:
+        rec = open_recording(address, "haptic-run")
+        view = SceneView(config.get("scene_text"), rec)
+        cpu0, server_cpu0, wall0 = time.process_time(), server.cpu_s(), time.monotonic()
+        print(f"live view: {address.url}", file=sys.stderr, flush=True)
+        feed = BlockFeed(block, view)
+        parent = int(config["parent_pid"])
+        period = 1.0 / VIEW_HZ
+        next_frame = time.monotonic()
+        while block.ctl[C_CLOSED] == 0 and os.getppid() == parent and not terminated.is_set():
+            feed.poll()
+            next_frame += period
+            time.sleep(max(0.0, next_frame - time.monotonic()))
+            next_frame = max(next_frame, time.monotonic() - period)
+        feed.poll()
+        rec.flush(timeout_sec=5.0)
+        rec.disconnect()  # before its server goes
+        cpu_s, server_cpu_s = time.process_time() - cpu0, server.cpu_s() - server_cpu0
+        frames = max(view.frames, 1)
+        print(
+            f"live view: {view.frames} frames in {time.monotonic() - wall0:.1f} s; CPU per "
+            f"frame {1e3 * cpu_s / frames:.2f} ms here, {1e3 * server_cpu_s / frames:.2f} ms "
+            "in the Rerun server",
+            file=sys.stderr, flush=True,
+        )  # fmt: skip
+    finally:
+        server.stop()
+        block.release()
+        shm.close()
+
+
+class BlockFeed:
+    """The shared block's newest tick row, the loop's new verdicts and its new events, read
+    without taking anything from the log writer or the sidecar."""
+
+    def __init__(self, block: SharedBlock, view: SceneView) -> None:
+        from haptic_server.model import TICK_DTYPE
+
+        self.block, self.view = block, view
+        self.row = np.zeros(1, TICK_DTYPE)
+        self.last_tick_head = 0
+        self.upd_seen = 0
+        self.evt_seen = 0
+
+    def poll(self) -> None:
+        b, ctl, view = self.block, self.block.ctl, self.view
+        read = int(ctl[C_UPD_READ])
+        for i in range(max(self.upd_seen, read - MAILBOX_SLOTS + 1), read):
+            slot = i % MAILBOX_SLOTS
+            n = int(b.update_len[slot])
+            if int(b.update_verdict[slot]) != 0 or n <= 0:
+                continue
+            raw = b.updates[slot, :n].tobytes()
+            if int(ctl[C_UPD_READ]) - i < MAILBOX_SLOTS:  # not reused while copied
+                view.update(raw)
+        self.upd_seen = read
+        evt_head = int(ctl[C_EVT_HEAD])
+        for i in range(max(self.evt_seen, evt_head - EVENT_SLOTS + 1), evt_head):
+            text = bytes(b.events[i % EVENT_SLOTS]).split(b"\0", 1)[0].decode(errors="replace")
+            tick_s, kind, detail = [*text.split("\t", 2), "", ""][:3]
+            view.event(int(tick_s or 0), kind, detail)
+        self.evt_seen = evt_head
+        head = int(ctl[C_TICK_HEAD])
+        if head > self.last_tick_head:
+            self.row[0] = b.ticks[(head - 1) % RING_TICKS]
+            if int(ctl[C_TICK_HEAD]) - (head - 1) < RING_TICKS:  # not overwritten meanwhile
+                view.frame(self.row[0])
+            self.last_tick_head = head
+
+
+# -- replay: a log drawn the same way -----------------------------------------------------
+
+
+def view_log(path: Path, address: ViewAddress, stop: threading.Event, speed: float = 0.0) -> int:
+    """Draw a log: every update, every event and the ticks at VIEW_HZ of log time, as fast
+    as they go (speed 0) or at `speed` x log time. Returns the frames drawn. The server
+    keeps serving until `stop` is set."""
+    from haptic_server.log import read_log
+
+    log = read_log(path)
+    server = RerunServer(address)
+    try:
+        rec = open_recording(address, "haptic-replay")
+        view = SceneView(log.metadata.get("configs", {}).get("scene"), rec)
+        print(f"live view: {address.url}", file=sys.stderr, flush=True)
+        ticks = log.ticks
+        updates = sorted(log.updates, key=lambda u: int(u["tick"]))
+        events = sorted(log.events, key=lambda e: int(e["tick"]))
+        u = e = 0
+        next_t = -1.0
+        wall0 = time.monotonic()
+        for i in range(len(ticks)):
+            row = ticks[i]
+            tick, t = int(row["tick"]), float(row["t"])
+            while u < len(updates) and int(updates[u]["tick"]) <= tick:
+                if updates[u].get("installed"):
+                    view.update(base64.b64decode(str(updates[u]["raw_b64"])))
+                u += 1
+            while e < len(events) and int(events[e]["tick"]) <= tick:
+                ev = events[e]
+                view.event(int(ev["tick"]), str(ev["kind"]), str(ev.get("detail", "")), t)
+                e += 1
+            if t >= next_t:
+                view.frame(row)
+                next_t = t + 1.0 / VIEW_HZ
+                if speed > 0:
+                    time.sleep(max(0.0, wall0 + t / speed - time.monotonic()))
+            if stop.is_set():
+                break
+        rec.flush(timeout_sec=5.0)
+        rec.disconnect()  # before its server goes
+        stop.wait()
+        return view.frames
+    finally:
+        server.stop()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
