@@ -484,6 +484,10 @@ class BlockFeed:
 # -- replay: a log drawn the same way -----------------------------------------------------
 
 
+class EmptyLogError(ValueError):
+    """A log without tick rows."""
+
+
 def view_log(path: Path, address: ViewAddress, stop: threading.Event, speed: float = 0.0) -> int:
     """Draw a log: every update, every event and the ticks at VIEW_HZ of log time, as fast
     as they go (speed 0) or at `speed` x log time. Returns the frames drawn. The server
@@ -491,6 +495,8 @@ def view_log(path: Path, address: ViewAddress, stop: threading.Event, speed: flo
     from haptic_server.log import read_log
 
     log = read_log(path)
+    if len(log.ticks) == 0:
+        raise EmptyLogError(f"{path}: no tick rows to draw (not a haptic log, or an empty one)")
     server = RerunServer(address)
     try:
         rec = open_recording(address, "haptic-replay")

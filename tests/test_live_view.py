@@ -191,3 +191,17 @@ def test_view_options_are_checked() -> None:
         )  # fmt: skip
         assert out.returncode == 2, out
         assert "--view" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_a_file_without_ticks_is_refused(tmp_path: Path) -> None:
+    """haptic-replay NOT_A_LOG --view: one line naming the file, exit 2, no server left."""
+    bogus = tmp_path / "notes.mcap"
+    bogus.write_text("not a log\n")
+    web, grpc = _free_ports(2)
+    out = subprocess.run(
+        [sys.executable, "-m", "haptic_server.harness.replay", str(bogus), "--view",
+         "--view-port", str(web), "--view-grpc-port", str(grpc), "--view-seconds", "5"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert out.returncode == 2, out
+    assert str(bogus) in out.stderr and "Traceback" not in out.stderr

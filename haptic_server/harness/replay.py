@@ -25,7 +25,13 @@ import numpy as np
 from haptic_server.engine import EngineCounters, HapticEngine
 from haptic_server.harness.plot import plot_run
 from haptic_server.harness.summary import ReplayError, print_summary, summarise
-from haptic_server.live_view import ViewAddress, add_view_args, view_address, view_log
+from haptic_server.live_view import (
+    EmptyLogError,
+    ViewAddress,
+    add_view_args,
+    view_address,
+    view_log,
+)
 from haptic_server.log import LogContents, read_log, recover_log
 from haptic_server.model import TICK_DTYPE
 from haptic_server.stages.tick import store_row
@@ -289,7 +295,10 @@ def serve_view(path: Path, address: ViewAddress, seconds: float | None, speed: f
         timer = threading.Timer(seconds, stop.set)
         timer.daemon = True  # a stop before it must not wait for it
         timer.start()
-    frames = view_log(path, address, stop, speed)
+    try:
+        frames = view_log(path, address, stop, speed)
+    except EmptyLogError as exc:
+        raise ReplayError(str(exc)) from None
     print(f"view: {frames} frames drawn; stopped")
 
 
