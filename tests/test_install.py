@@ -141,3 +141,31 @@ def _files(site: Path) -> set[Path]:
         for p in (site / root).rglob("*")
         if p.is_file() and "__pycache__" not in p.parts
     }
+
+
+#: every console script with a config or usage error a user makes: a scene file that is not
+#: there, a device with an unknown key, a log that is not there, an option out of range
+BAD_CALLS = {
+    "haptic-run": ("--scene", "missing.toml", "--duration", "1"),
+    "haptic-run --clock virtual": ("--clock", "virtual", "--device", "bad.toml", "--duration", "1"),
+    "haptic-server": ("--scene", "missing.toml"),
+    "sim-server": ("--scene", "bad.toml"),
+    "haptic-replay": ("missing.mcap",),
+    "haptic-soak": ("--no-such-option",),
+    "haptic-bench": ("--out", "x", "--no-such-option"),
+    "haptic-stability": ("--rates", "fast"),
+}
+
+
+@pytest.mark.processes
+@pytest.mark.parametrize("call", sorted(BAD_CALLS))
+def test_the_installed_scripts_fail_in_one_line(installed: Path, tmp_path: Path, call: str) -> None:
+    """On the non-editable install, from a directory of the user's: exit 2, no traceback, the
+    last line names what was wrong."""
+    (tmp_path / "bad.toml").write_text('model = "ideal"\nbogus_key = 1\n')
+    out = _run(installed, tmp_path, call.split()[0], *BAD_CALLS[call], timeout=300)
+    assert out.returncode == 2, (call, out.stdout, out.stderr)
+    assert "Traceback" not in out.stderr + out.stdout, out.stderr
+    last = out.stderr.strip().splitlines()[-1]
+    named = ("missing.toml", "bad.toml", "missing.mcap", "--no-such-option", "--rates")
+    assert any(n in last for n in named), last
