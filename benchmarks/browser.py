@@ -60,6 +60,20 @@ def open_page(url: str, executable: str, viewer: bool = True) -> Iterator[Any]:
             browser.close()
 
 
+def free_ports(n: int) -> list[int]:
+    """`n` ports free on loopback now (for a view's web and data ports)."""
+    import socket
+
+    socks = [socket.socket() for _ in range(n)]
+    try:
+        for s in socks:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
 def pixels(png: bytes) -> np.ndarray:
     """A screenshot as an (h, w, 3) uint8 array."""
     import io

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from haptic_server.live_view import ViewAddress
 from haptic_server.log import read_ticks
 from shared.clock import monotonic_ns, wait_until_ns
 from shared.timing import spin_for, try_realtime_priority
@@ -109,8 +110,6 @@ def system(
 ) -> dict[str, Any]:
     """One haptic-run; with `view`, its live view open in a headless browser throughout (if
     there is one: `benchmarks.browser`), and the view's own cost in `view`."""
-    if view:
-        return _with_view(seconds, log, network, scene, device, rate_hz)
     with tempfile.TemporaryDirectory() as tmp:
         summary = Path(tmp) / "summary.json"
         log_path = Path(tmp) / "run.mcap"
@@ -120,57 +119,52 @@ def system(
             "--summary-json", str(summary), "--haptic-rate", str(rate_hz),
         ]  # fmt: skip
         argv += ["--log", str(log_path)] if log else ["--no-log"]
-        subprocess.run(argv, check=True, stdout=subprocess.DEVNULL)
+        if view:
+            argv += ViewAddress("127.0.0.1", *VIEW_PORTS).argv()
+            watched = _run_watched(argv)
+        else:
+            subprocess.run(argv, check=True, stdout=subprocess.DEVNULL)
         result: dict[str, Any] = json.loads(summary.read_text())
         if log:
             result["work_split_us"] = work_split(read_ticks(log_path))
+        if view:
+            result["view"] = watched
         return result
 
 
-def _with_view(
-    seconds: float, log: bool, network: str, scene: str, device: str, rate_hz: float
-) -> dict[str, Any]:
+def _run_watched(argv: list[str]) -> dict[str, Any]:
+    """Run haptic-run --view with a headless browser on its view while it runs; returns
+    whether a browser watched and the view's own report."""
     import threading
 
     from benchmarks.browser import chromium, open_page
 
-    with tempfile.TemporaryDirectory() as tmp:
-        summary = Path(tmp) / "summary.json"
-        argv = [
-            sys.executable, "-m", "haptic_server.harness.run", "--duration", str(seconds),
-            "--network", network, "--scene", scene, "--device", device,
-            "--summary-json", str(summary), "--haptic-rate", str(rate_hz), "--view",
-            "--view-port", str(VIEW_PORTS[0]), "--view-grpc-port", str(VIEW_PORTS[1]),
-        ]  # fmt: skip
-        argv += ["--log", str(Path(tmp) / "run.mcap")] if log else ["--no-log"]
-        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        browser = chromium()
-        watched = threading.Event()
-        lines: list[str] = []
-        watchers: list[threading.Thread] = []
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    browser = chromium()
+    watched = threading.Event()
+    lines: list[str] = []
+    watchers: list[threading.Thread] = []
 
-        def watch(url: str) -> None:
-            assert browser is not None
-            with open_page(url, browser):
-                watched.set()
-                proc.wait()
+    def watch(url: str) -> None:
+        assert browser is not None
+        with open_page(url, browser):
+            watched.set()
+            proc.wait()
 
-        assert proc.stderr is not None
-        for line in proc.stderr:
-            lines.append(line)
-            if line.startswith("live view: http") and browser is not None:
-                url = line.split("live view: ", 1)[1].strip()
-                watcher = threading.Thread(target=watch, args=(url,), daemon=True)
-                watcher.start()
-                watchers.append(watcher)
-        code = proc.wait()
-        for watcher in watchers:  # its browser closed before the next run starts
-            watcher.join(60)
-        if code != 0:
-            raise RuntimeError(f"haptic-run --view failed: {''.join(lines[-5:])}")
-        result: dict[str, Any] = json.loads(summary.read_text())
-        result["view"] = {"browser": watched.is_set(), "report": _view_report(lines)}
-        return result
+    assert proc.stderr is not None
+    for line in proc.stderr:
+        lines.append(line)
+        if line.startswith("live view: http") and browser is not None:
+            url = line.split("live view: ", 1)[1].strip()
+            watcher = threading.Thread(target=watch, args=(url,), daemon=True)
+            watcher.start()
+            watchers.append(watcher)
+    code = proc.wait()
+    for watcher in watchers:  # its browser closed before the next run starts
+        watcher.join(60)
+    if code != 0:
+        raise RuntimeError(f"haptic-run --view failed: {''.join(lines[-5:])}")
+    return {"browser": watched.is_set(), "report": _view_report(lines)}
 
 
 VIEW_PORTS = (19090, 19876)  # the view's web and data ports in this benchmark

@@ -23,13 +23,15 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from shared.config import shipped
 
-FRAME_S = 1.0 / 60.0
+if TYPE_CHECKING:
+    from haptic_server.log import LogContents
+
 FOXGLOVE_CLIENT_JS = """
 (url) => new Promise((resolve) => {
   const ws = new WebSocket(url, ["foxglove.sdk.v1"]);
@@ -52,9 +54,8 @@ FOXGLOVE_CLIENT_JS = """
 """
 
 
-def _frames(scene: str, seconds: float) -> tuple[str, np.ndarray, list[tuple[int, bytes]]]:
-    """A virtual-clock run's scene text, tick rows and installed updates (tick, bytes)."""
-    import base64
+def _run_log(scene: str, seconds: float) -> LogContents:
+    """The log of a virtual-clock run."""
     import tempfile
 
     from haptic_server.log import read_log
@@ -67,24 +68,10 @@ def _frames(scene: str, seconds: float) -> tuple[str, np.ndarray, list[tuple[int
                          "--log", str(log_path)])  # fmt: skip
         if code != 0:
             raise RuntimeError(f"the virtual-clock run of {scene} failed ({code})")
-        log = read_log(log_path)
-    updates = [
-        (int(u["tick"]), base64.b64decode(u["raw_b64"])) for u in log.updates if u["installed"]
-    ]
-    return log.metadata["configs"]["scene"], log.ticks.copy(), updates
+        return read_log(log_path)
 
 
-def _frame_rows(ticks: np.ndarray) -> list[int]:
-    rows, next_t = [], -1.0
-    for i, t in enumerate(ticks["t"].tolist()):
-        if t >= next_t:
-            rows.append(i)
-            next_t = t + FRAME_S
-    return rows
-
-
-def rerun_cost(scene_text: str, ticks: np.ndarray, updates: list[tuple[int, bytes]],
-               page: Any, ports: tuple[int, int]) -> dict[str, float]:  # fmt: skip
+def rerun_cost(log: LogContents, page: Any, ports: tuple[int, int]) -> dict[str, float]:
     """CPU s per frame of SceneView to a Rerun server watched by its web viewer in `page`."""
     from haptic_server.live_view import RerunServer, SceneView, ViewAddress, open_recording
 
@@ -94,8 +81,8 @@ def rerun_cost(scene_text: str, ticks: np.ndarray, updates: list[tuple[int, byte
         rec = open_recording(address, "view-cost")
         page.goto(address.url)
         page.locator("canvas").filter(visible=True).first.wait_for(timeout=60_000)
-        view = SceneView(scene_text, rec)
-        cpu, n = _drive(view.frame, view.update, ticks, updates, rows=_frame_rows(ticks))
+        view = SceneView(log.metadata["configs"]["scene"], rec)
+        cpu, n = _drive(view.frame, view.update, log)
         rec.flush(timeout_sec=10.0)
         rec.disconnect()  # before its server goes
         return {"cpu_ms_per_frame": 1e3 * cpu / n, "frames": n}
@@ -103,8 +90,7 @@ def rerun_cost(scene_text: str, ticks: np.ndarray, updates: list[tuple[int, byte
         server.stop()
 
 
-def foxglove_cost(scene_text: str, ticks: np.ndarray, updates: list[tuple[int, bytes]],
-                  page: Any, blank_url: str) -> dict[str, float]:  # fmt: skip
+def foxglove_cost(log: LogContents, page: Any, blank_url: str) -> dict[str, float]:
     """CPU s per frame of ViewFrames to a Foxglove WebSocket server with one subscriber."""
     import foxglove
     from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
@@ -120,7 +106,7 @@ def foxglove_cost(scene_text: str, ticks: np.ndarray, updates: list[tuple[int, b
         page.goto(blank_url)  # a page of an http origin (the server refuses about:blank's)
         page.evaluate(FOXGLOVE_CLIENT_JS, f"ws://127.0.0.1:{port}")
         time.sleep(0.5)  # advertise, subscribe
-        frames = ViewFrames(scene_text)
+        frames = ViewFrames(log.metadata["configs"]["scene"])
 
         def frame(row: np.void) -> None:
             log_ns = int(float(row["t"]) * 1e9)
@@ -131,7 +117,7 @@ def foxglove_cost(scene_text: str, ticks: np.ndarray, updates: list[tuple[int, b
         def update(raw: bytes) -> None:
             frames.set_update(raw, True)
 
-        cpu, n = _drive(frame, update, ticks, updates, rows=_frame_rows(ticks))
+        cpu, n = _drive(frame, update, log)
         time.sleep(0.5)
         received = float(page.evaluate("window.__received"))
         return {"cpu_ms_per_frame": 1e3 * cpu / n, "frames": n, "bytes_per_frame": received / n}
@@ -139,32 +125,24 @@ def foxglove_cost(scene_text: str, ticks: np.ndarray, updates: list[tuple[int, b
         server.stop()
 
 
-def _drive(frame: Any, update: Any, ticks: np.ndarray, updates: list[tuple[int, bytes]],
-           rows: list[int]) -> tuple[float, int]:  # fmt: skip
-    """Feed the frames (and the updates installed before each) at the pace of log time;
-    returns the CPU time spent in the calls and the frames sent."""
+def _drive(frame: Any, update: Any, log: LogContents) -> tuple[float, int]:
+    """Feed the log's frames (and the updates installed before each) as the live view takes
+    them (haptic_server.live_view.log_frames), at the pace of log time; returns the CPU time
+    spent in the calls and the frames sent."""
+    from haptic_server.live_view import log_frames
+
     cpu = 0.0
-    u = 0
+    n = 0
     wall0 = time.monotonic()
-    for i in rows:
-        row = ticks[i]
+    for row, updates, _events in log_frames(log):
         t0 = time.process_time()
-        while u < len(updates) and updates[u][0] <= int(row["tick"]):
-            update(updates[u][1])
-            u += 1
+        for raw in updates:
+            update(raw)
         frame(row)
         cpu += time.process_time() - t0
+        n += 1
         time.sleep(max(0.0, wall0 + float(row["t"]) - time.monotonic()))
-    return cpu, len(rows)
-
-
-def _free_ports() -> tuple[int, int]:
-    import socket
-
-    with socket.socket() as a, socket.socket() as b:
-        a.bind(("127.0.0.1", 0))
-        b.bind(("127.0.0.1", 0))
-        return a.getsockname()[1], b.getsockname()[1]
+    return cpu, n
 
 
 def _blank_page_server() -> str:
@@ -198,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
-    from benchmarks.browser import chromium, open_page
+    from benchmarks.browser import chromium, free_ports, open_page
 
     browser = chromium()
     if browser is None:
@@ -208,17 +186,16 @@ def main(argv: list[str] | None = None) -> int:
     blank = _blank_page_server()
     with open_page(blank, browser, viewer=False) as page:
         for scene in args.scenes:
-            scene_text, ticks, updates = _frames(scene, args.seconds)
+            log = _run_log(scene, args.seconds)
             runs: dict[str, list[dict[str, float]]] = {"rerun": [], "foxglove": []}
             for k in range(args.repeat):  # alternating, first one then the other
                 order = ("rerun", "foxglove") if k % 2 == 0 else ("foxglove", "rerun")
                 for sink in order:
                     if sink == "rerun":
-                        runs[sink].append(rerun_cost(scene_text, ticks, updates, page,
-                                                     _free_ports()))  # fmt: skip
+                        web, grpc = free_ports(2)
+                        runs[sink].append(rerun_cost(log, page, (web, grpc)))
                     else:
-                        runs[sink].append(foxglove_cost(scene_text, ticks, updates, page,
-                                                        blank))  # fmt: skip
+                        runs[sink].append(foxglove_cost(log, page, blank))
             results[scene] = runs
             _print(scene, runs)
     if args.json:

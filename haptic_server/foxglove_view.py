@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from shared.config import BodySpec, ConfigError, SceneConfig, load_config_text
+from shared.config import BodySpec, static_bodies
 from shared.protocol.update import UpdateParser
 
 SCENE_TOPIC = "/foxglove/scene"
@@ -33,7 +33,7 @@ _DEVICE = (0.20, 0.45, 0.95, 1.0)
 _PROXY = (0.95, 0.35, 0.20, 1.0)
 _STATIC = (0.55, 0.57, 0.60, 1.0)
 _CONTACT = (0.10, 0.75, 0.30, 1.0)
-_WARNING_EVENTS = ("watchdog", "fault", "stale", "reject", "lost")
+WARNING_EVENTS = ("watchdog", "fault", "stale", "reject", "lost")  # shown as warnings
 
 
 def _messages() -> Any:
@@ -89,8 +89,7 @@ def _body_primitives(body: BodySpec) -> dict[str, list[Any]]:
             top_scale=1.0, color=_color(_STATIC),
         )  # fmt: skip
         return {"cylinders": [disc]}
-    c, s = math.cos(a), math.sin(a)
-    ends = [(x + c * px - s * py, y + s * px + c * py) for px, py in (body.a, body.b)]
+    ends = [body.to_world(*body.a), body.to_world(*body.b)]
     line = m.LinePrimitive(
         type=m.LinePrimitiveLineType.LineStrip, pose=_pose(0.0, 0.0, 0.0),
         thickness=max(2 * body.radius, 0.002), scale_invariant=False,
@@ -102,17 +101,13 @@ def _body_primitives(body: BodySpec) -> dict[str, list[Any]]:
 def _static_entity(scene_text: str | None, stamp: Any) -> Any | None:
     """The scene's static bodies (walls, floors) as one entity; None if the log's scene
     text is missing or does not load."""
-    if not scene_text:
-        return None
-    try:
-        scene = load_config_text(SceneConfig, scene_text, "the log's scene")
-    except (ConfigError, ValueError):
+    bodies = static_bodies(scene_text)
+    if not bodies:
         return None
     parts: dict[str, list[Any]] = {"cubes": [], "cylinders": [], "lines": []}
-    for body in scene.bodies:
-        if body.kind == "static":
-            for kind, prims in _body_primitives(body).items():
-                parts[kind] += prims
+    for body in bodies:
+        for kind, prims in _body_primitives(body).items():
+            parts[kind] += prims
     return _messages().SceneEntity(
         timestamp=stamp, frame_id=WORLD, id="static", frame_locked=False, **parts
     )
@@ -236,7 +231,7 @@ def _marker(name: str, rgba: Any, stamp: Any) -> Any:
 def log_message(tick: int, kind: str, detail: str, log_ns: int) -> Any:
     """A foxglove.Log for one of the run's events (warnings for watchdog trips and faults)."""
     m = _messages()
-    warn = any(w in kind for w in _WARNING_EVENTS)
+    warn = any(w in kind for w in WARNING_EVENTS)
     return m.Log(
         timestamp=_timestamp(log_ns), level=m.LogLevel.Warning if warn else m.LogLevel.Info,
         message=f"{kind}: {detail}" if detail else kind, name="haptic_server",

@@ -10,7 +10,7 @@ the penetration. The Rerun server (its gRPC proxy and its web viewer, both shipp
 unless asked otherwise. The loop never waits on any of it: the view only reads, and it
 stops drawing (never the run) if it fails.
 
-`haptic-replay LOG --view` draws a log the same way (`ReplayFeed`).
+`haptic-replay LOG --view` draws a log the same way (`view_log`).
 """
 
 from __future__ import annotations
@@ -26,13 +26,14 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
-from multiprocessing import resource_tracker, shared_memory
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from haptic_server.foxglove_view import WARNING_EVENTS
 from haptic_server.logger import BlockChild
 from haptic_server.mailbox import (
     C_CLOSED,
@@ -44,8 +45,11 @@ from haptic_server.mailbox import (
     RING_TICKS,
     SharedBlock,
 )
-from shared.config import BodySpec, ConfigError, SceneConfig, load_config_text
+from shared.config import BodySpec, ConfigError, static_bodies
 from shared.protocol.layout import MAX_DOF
+
+if TYPE_CHECKING:
+    from haptic_server.log import LogContents
 
 VIEW_HZ = 60.0  # frames a second (of wall time live, of log time in a replay)
 GRPC_PORT = 9876  # Rerun's defaults
@@ -81,6 +85,13 @@ class ViewAddress:
     @property
     def url(self) -> str:
         return f"http://{self.host}:{self.web_port}/?url={self.grpc_url}"
+
+    def argv(self) -> list[str]:
+        """The options (add_view_args) that ask a child for this view."""
+        return [
+            "--view", "--view-port", str(self.web_port), "--view-grpc-port", str(self.grpc_port),
+            "--view-bind", self.bind,
+        ]  # fmt: skip
 
 
 def add_view_args(parser: argparse.ArgumentParser, what: str = "the run") -> None:
@@ -130,9 +141,11 @@ class RerunServer:
     a child process (the SDK's in-process servers listen on every interface)."""
 
     def __init__(self, address: ViewAddress) -> None:
-        self.address = address
         for port in (address.grpc_port, address.web_port):
-            _require_free(address.bind, port)
+            if _listening(address.host, port):
+                raise RuntimeError(
+                    f"the live view's port {port} on {address.bind} is in use (--view-port)"
+                )
         import rerun_cli
 
         binary = Path(rerun_cli.__file__).parent / "rerun"
@@ -151,10 +164,6 @@ class RerunServer:
                     f"{address.grpc_port} and {address.web_port}"
                 )
             time.sleep(0.05)
-
-    @property
-    def pid(self) -> int:
-        return self._proc.pid
 
     def cpu_s(self) -> float:
         """The server's CPU time so far (user + system), s."""
@@ -180,12 +189,6 @@ def _listening(host: str, port: int) -> bool:
         return s.connect_ex((host, port)) == 0
 
 
-def _require_free(bind: str, port: int) -> None:
-    host = "127.0.0.1" if bind in ("0.0.0.0", "::") else bind
-    if _listening(host, port):
-        raise RuntimeError(f"the live view's port {port} on {bind} is in use (--view-port)")
-
-
 def blueprint() -> Any:
     """The layout: the scene seen from above on the left; on the right the forces, the
     penetration and the run's events."""
@@ -205,28 +208,13 @@ def blueprint() -> Any:
     )
 
 
-def _ring(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
-    return [*points, points[0]]
-
-
-def _body_shapes(body: BodySpec) -> tuple[str, list[list[tuple[float, float]]], float]:
-    """A static body as ("strip", line strips, half-width) or ("disc", [[centre]], radius),
-    in the world frame."""
-    import math
-
-    x, y, a = body.position[0], body.position[1], body.angle
-    c, s = math.cos(a), math.sin(a)
-
-    def world(px: float, py: float) -> tuple[float, float]:
-        return (x + c * px - s * py, y + s * px + c * py)
-
+def _outline(body: BodySpec) -> tuple[list[tuple[float, float]], float]:
+    """A static box or segment as a line strip in the world and its half-width."""
     if body.shape == "box":
         hx, hy = body.size[0] / 2, body.size[1] / 2
-        corners = [world(px, py) for px, py in ((-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy))]
-        return "strip", [_ring(corners)], 0.001
-    if body.shape == "circle":
-        return "disc", [[(x, y)]], body.radius
-    return "strip", [[world(*body.a), world(*body.b)]], max(body.radius, 0.001)
+        corners = ((-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy), (-hx, -hy))
+        return [body.to_world(px, py) for px, py in corners], 0.001
+    return [body.to_world(*body.a), body.to_world(*body.b)], max(body.radius, 0.001)
 
 
 class SceneView:
@@ -261,26 +249,16 @@ class SceneView:
 
     def _static(self, scene_text: str | None) -> None:
         rr = _rr()
-        if not scene_text:
-            return
-        try:
-            scene = load_config_text(SceneConfig, scene_text, "the run's scene")
-        except (ConfigError, ValueError):
-            return
-        strips: list[list[tuple[float, float]]] = []
-        widths: list[float] = []
-        centres: list[tuple[float, float]] = []
-        radii: list[float] = []
-        for body in scene.bodies:
-            if body.kind != "static":
-                continue
-            kind, shapes, size = _body_shapes(body)
-            if kind == "strip":
-                strips += shapes
-                widths += [size] * len(shapes)
-            else:
-                centres.append(shapes[0][0])
-                radii.append(size)
+        bodies = static_bodies(scene_text)
+        discs = [body for body in bodies if body.shape == "circle"]
+        strips, widths = [], []
+        for body in bodies:
+            if body.shape != "circle":
+                strip, width = _outline(body)
+                strips.append(strip)
+                widths.append(width)
+        centres = [body.position for body in discs]
+        radii = [body.radius for body in discs]
         if strips:
             walls = rr.LineStrips2D(strips, radii=widths, colors=[_STATIC])
             self._log("world/static/walls", walls, static=True)
@@ -361,7 +339,7 @@ class SceneView:
         rr = _rr()
         if t_s is not None:
             self.set_time(t_s)
-        warn = any(w in kind for w in ("watchdog", "fault", "stale", "reject", "lost"))
+        warn = any(w in kind for w in WARNING_EVENTS)
         text = f"tick {tick}: {kind} {detail}".rstrip()
         self._log("events", rr.TextLog(text, level="WARN" if warn else "INFO"))
 
@@ -407,9 +385,8 @@ def _live(config: dict[str, Any]) -> None:
         os.nice(10)  # below the sim and the sidecar
     avoid_cpu(config.get("loop_cpu"))
     address = ViewAddress(config["bind"], int(config["web_port"]), int(config["grpc_port"]))
-    shm = shared_memory.SharedMemory(name=config["shm_name"])
-    resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
-    block = SharedBlock(shm)
+    block = SharedBlock.attach(config["shm_name"])
+    shm = block.shm
     server = RerunServer(address)
     try:
         rec = open_recording(address, "haptic-run")
@@ -469,9 +446,7 @@ class BlockFeed:
         self.upd_seen = read
         evt_head = int(ctl[C_EVT_HEAD])
         for i in range(max(self.evt_seen, evt_head - EVENT_SLOTS + 1), evt_head):
-            text = bytes(b.events[i % EVENT_SLOTS]).split(b"\0", 1)[0].decode(errors="replace")
-            tick_s, kind, detail = [*text.split("\t", 2), "", ""][:3]
-            view.event(int(tick_s or 0), kind, detail)
+            view.event(*b.event_at(i))
         self.evt_seen = evt_head
         head = int(ctl[C_TICK_HEAD])
         if head > self.last_tick_head:
@@ -488,6 +463,37 @@ class EmptyLogError(ValueError):
     """A log without tick rows."""
 
 
+def log_frames(
+    log: LogContents,
+) -> Iterator[tuple[np.void, list[bytes], list[tuple[int, str, str, float]]]]:
+    """A log as the view draws it: a tick row every 1 / VIEW_HZ of log time, with the
+    installed updates (bytes) and the events (tick, kind, detail, time) since the frame
+    before."""
+    updates = sorted(
+        ((int(u["tick"]), base64.b64decode(str(u["raw_b64"]))) for u in log.updates
+         if u.get("installed")),
+        key=lambda u: u[0],
+    )  # fmt: skip
+    events = sorted(log.events, key=lambda e: int(e["tick"]))
+    u = e = 0
+    next_t = -1.0
+    new_updates: list[bytes] = []
+    new_events: list[tuple[int, str, str, float]] = []
+    for row in log.ticks:
+        tick, t = int(row["tick"]), float(row["t"])
+        while u < len(updates) and updates[u][0] <= tick:
+            new_updates.append(updates[u][1])
+            u += 1
+        while e < len(events) and int(events[e]["tick"]) <= tick:
+            ev = events[e]
+            new_events.append((int(ev["tick"]), str(ev["kind"]), str(ev.get("detail", "")), t))
+            e += 1
+        if t >= next_t:
+            yield row, new_updates, new_events
+            new_updates, new_events = [], []
+            next_t = t + 1.0 / VIEW_HZ
+
+
 def view_log(path: Path, address: ViewAddress, stop: threading.Event, speed: float = 0.0) -> int:
     """Draw a log: every update, every event and the ticks at VIEW_HZ of log time, as fast
     as they go (speed 0) or at `speed` x log time. Returns the frames drawn. The server
@@ -502,28 +508,15 @@ def view_log(path: Path, address: ViewAddress, stop: threading.Event, speed: flo
         rec = open_recording(address, "haptic-replay")
         view = SceneView(log.metadata.get("configs", {}).get("scene"), rec)
         print(f"live view: {address.url}", file=sys.stderr, flush=True)
-        ticks = log.ticks
-        updates = sorted(log.updates, key=lambda u: int(u["tick"]))
-        events = sorted(log.events, key=lambda e: int(e["tick"]))
-        u = e = 0
-        next_t = -1.0
         wall0 = time.monotonic()
-        for i in range(len(ticks)):
-            row = ticks[i]
-            tick, t = int(row["tick"]), float(row["t"])
-            while u < len(updates) and int(updates[u]["tick"]) <= tick:
-                if updates[u].get("installed"):
-                    view.update(base64.b64decode(str(updates[u]["raw_b64"])))
-                u += 1
-            while e < len(events) and int(events[e]["tick"]) <= tick:
-                ev = events[e]
-                view.event(int(ev["tick"]), str(ev["kind"]), str(ev.get("detail", "")), t)
-                e += 1
-            if t >= next_t:
-                view.frame(row)
-                next_t = t + 1.0 / VIEW_HZ
-                if speed > 0:
-                    time.sleep(max(0.0, wall0 + t / speed - time.monotonic()))
+        for row, updates, events in log_frames(log):
+            for raw in updates:
+                view.update(raw)
+            for event in events:
+                view.event(*event)
+            view.frame(row)
+            if speed > 0:
+                time.sleep(max(0.0, wall0 + float(row["t"]) / speed - time.monotonic()))
             if stop.is_set():
                 break
         rec.flush(timeout_sec=5.0)

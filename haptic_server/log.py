@@ -293,14 +293,14 @@ def run_metadata(
 def read_ticks(path: Path | str) -> np.ndarray:
     """All tick records of a log as a TICK_DTYPE array (indexed reader, else streaming)."""
     rows: list[bytes] = []
-    schema: str | None = None
-    for topic, data, tick_schema in _iter_messages(path):
+    schema: Schema | None = None
+    for topic, data, message_schema in _iter_messages(path):
         if topic == TICK_TOPIC:
             rows.append(data)
-            schema = tick_schema
+            schema = message_schema
     if not rows:
         return np.zeros(0, TICK_DTYPE)
-    return ticks_from_rows(b"".join(rows), schema)[0]
+    return ticks_from_rows(b"".join(rows), schema.data.decode() if schema else None)[0]
 
 
 def iter_messages(path: Path | str) -> Iterator[tuple[str, bytes]]:
@@ -309,24 +309,20 @@ def iter_messages(path: Path | str) -> Iterator[tuple[str, bytes]]:
         yield topic, data
 
 
-def _iter_messages(path: Path | str) -> Iterator[tuple[str, bytes, str | None]]:
-    """(topic, payload, schema text) of every message in file order."""
+def _iter_messages(path: Path | str) -> Iterator[tuple[str, bytes, Schema | None]]:
+    """(topic, payload, its schema) of every message in file order."""
     if is_indexed(path):
         with Path(path).open("rb") as fh:
             for schema, channel, message in make_reader(fh).iter_messages(log_time_order=False):
-                yield channel.topic, message.data, _tick_schema(channel.topic, schema)
+                yield channel.topic, message.data, schema
             return
     with Path(path).open("rb") as fh:
         stream = NonSeekingReader(fh)
         try:
             for schema, channel, message in stream.iter_messages(log_time_order=False):
-                yield channel.topic, message.data, _tick_schema(channel.topic, schema)
+                yield channel.topic, message.data, schema
         except Exception:
             return
-
-
-def _tick_schema(topic: str, schema: Schema | None) -> str | None:
-    return schema.data.decode() if topic == TICK_TOPIC and schema is not None else None
 
 
 def is_indexed(path: Path | str) -> bool:

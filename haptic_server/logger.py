@@ -28,7 +28,6 @@ import sys
 import tempfile
 import threading
 import time
-from multiprocessing import resource_tracker, shared_memory
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -45,7 +44,6 @@ from haptic_server.mailbox import (
     C_TICK_LOST,
     C_UPD_LOGGED,
     C_UPD_READ,
-    EVENT_SLOTS,
     MAILBOX_SLOTS,
     RING_TICKS,
     SLOT_BYTES,
@@ -143,11 +141,8 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
     with contextlib.suppress(OSError):
         os.nice(LOG_NICENESS)
     avoid_cpu(config.get("loop_cpu"))  # the real-time loop's CPU is its own
-    shm = shared_memory.SharedMemory(name=shm_name)
-    # not ours to remove: this process's resource tracker would unlink the segment when the
-    # process exits (Python < 3.13 registers every attach; the feeder unlinks it)
-    resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
-    block = SharedBlock(shm)
+    block = SharedBlock.attach(shm_name)
+    shm = block.shm
     ctl = block.ctl
     try:
         log = LogWriter(config["log_path"], config["metadata"])
@@ -243,11 +238,10 @@ class LogDrain:
             self.upd_logged += 1
             ctl[C_UPD_LOGGED] = self.upd_logged
         while self.evt_tail < evt_head:
-            text = bytes(block.events[self.evt_tail % EVENT_SLOTS]).split(b"\0", 1)[0].decode()
-            tick_s, kind, detail = [*text.split("\t", 2), "", ""][:3]
+            tick, kind, detail = block.event_at(self.evt_tail)
             now_ns = time.time_ns()
-            log.event(int(tick_s or 0), kind, detail, now_ns)
-            self._view(self._view_log, int(tick_s or 0), kind, detail, now_ns)
+            log.event(tick, kind, detail, now_ns)
+            self._view(self._view_log, tick, kind, detail, now_ns)
             self.evt_tail += 1
         if head - self.tick_tail > RING_TICKS:
             ctl[C_TICK_LOST] += head - self.tick_tail - RING_TICKS

@@ -141,16 +141,13 @@ class HapticServer:
         configs: dict[str, str],
         extras: ServerExtras | None = None,
     ) -> None:
-        extras = extras or ServerExtras()
+        self.extras = extras or ServerExtras()
         self.scene = scene
-        self.view = extras.view
         self.network = network
         self.engine = HapticEngine(scene, device, user, network.safe_ramp_ms / 1000.0)
         self.log_path = log_path
         self.configs = configs
-        self.zenoh_extra = extras.zenoh
         self.stats = HapticRunStats()
-        self.faults = extras.faults
         self._stop = False
         # the running loop's parts, set by run() (read by the supervisor's install step)
         self._io: LoopIO
@@ -288,11 +285,11 @@ class HapticServer:
             stats.update_age_ms.buffer, peaks, engine.row,
         )  # fmt: skip
         ts = np.zeros(2, np.int64)
-        leak_bytes = self.faults.leak_bytes_per_tick
+        leak_bytes = self.extras.faults.leak_bytes_per_tick
         leak: list[bytes] = []  # only ever grows under --inject-leak
         nan_tick = (
-            round(self.faults.nan_after_s * self.scene.haptic_rate_hz)
-            if self.faults.nan_after_s is not None
+            round(self.extras.faults.nan_after_s * self.scene.haptic_rate_hz)
+            if self.extras.faults.nan_after_s is not None
             else -1
         )
         sim = engine.sim_device
@@ -364,26 +361,24 @@ class HapticServer:
     def _open_io(self, cpu: int | None, period_ns: int) -> LoopIO:
         """Start the I/O sidecar (Zenoh session, MCAP writer) and map its shared memory; it
         keeps off `cpu`, which the loop will keep to itself."""
+        view = self.extras.view
         return LoopIO(
             {
                 "loop_cpu": cpu,
                 "tick_period_ns": period_ns,
                 "namespace": self.network.namespace,
                 "endpoints": dataclasses.asdict(self.network.haptic),  # with credentials
-                "zenoh_extra": self.zenoh_extra,
+                "zenoh_extra": self.extras.zenoh,
                 "log_path": str(self.log_path) if self.log_path else None,
                 "metadata": run_metadata(self.configs, {"clock": "real-time"}),
                 "wall_start_ns": time.time_ns(),
                 "proxy_publish_hz": self.network.proxy_publish_hz,
                 "method": self.engine.method,
-                "view": None
-                if self.view is None
-                else {
-                    **dataclasses.asdict(self.view),
-                    "scene_text": self.configs.get("scene"),
+                "view": None if view is None else {
+                    **dataclasses.asdict(view), "scene_text": self.configs.get("scene"),
                 },
             }
-        )
+        )  # fmt: skip
 
     def _finish(self, io: LoopIO) -> None:
         """The loop has ended: device safe, the counters into the stats, the sidecar closed."""

@@ -11,7 +11,7 @@ and the loop's kernels on it.
 
 from __future__ import annotations
 
-from multiprocessing import shared_memory
+from multiprocessing import resource_tracker, shared_memory
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -92,6 +92,32 @@ class SharedBlock:
         block = cls(shm)
         block.update_verdict[:] = VERDICT_PENDING
         return block
+
+    @classmethod
+    def attach(cls, name: str) -> SharedBlock:
+        """The named segment another process created, mapped by a helper that must not remove
+        it: Python < 3.13 registers every attach with this process's resource tracker, which
+        would unlink the segment when this process exits (its creator unlinks it)."""
+        shm = shared_memory.SharedMemory(name=name)
+        resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
+        return cls(shm)
+
+    def post_event(self, tick: int, kind: str, detail: str) -> None:
+        """A rare event (watchdog, stop) as text into the event ring (the oldest overwritten
+        when its readers are behind)."""
+        head = int(self.ctl[C_EVT_HEAD])
+        data = f"{tick}\t{kind}\t{detail}".encode()[: EVENT_BYTES - 1]
+        slot = self.events[head % EVENT_SLOTS]
+        slot[: len(data)] = np.frombuffer(data, np.uint8)
+        slot[len(data)] = 0
+        self.ctl[C_EVT_HEAD] = head + 1
+
+    def event_at(self, i: int) -> tuple[int, str, str]:
+        """Event `i` of the ring: (tick, kind, detail). The text may have been cut inside a
+        character: what cannot be decoded is replaced."""
+        text = bytes(self.events[i % EVENT_SLOTS]).split(b"\0", 1)[0].decode(errors="replace")
+        tick, kind, detail = [*text.split("\t", 2), "", ""][:3]
+        return int(tick or 0), kind, detail
 
     @staticmethod
     def nbytes() -> int:

@@ -34,7 +34,6 @@ from haptic_server.live_view import ViewProcess
 from haptic_server.logger import LogProcess
 from haptic_server.mailbox import (
     C_CLOSED,
-    C_EVT_HEAD,
     C_LOWER_IO,
     C_PUBLISHED,
     C_READY,
@@ -43,8 +42,6 @@ from haptic_server.mailbox import (
     C_TICK_LOST,
     C_UPD_LOST,
     C_UPD_READ,
-    EVENT_BYTES,
-    EVENT_SLOTS,
     MAILBOX_SLOTS,
     RING_TICKS,
     SharedBlock,
@@ -128,14 +125,8 @@ class LoopIO:
         self.block.ctl[C_LOWER_IO] = 1
 
     def event(self, tick: int, kind: str, detail: str) -> None:
-        """A rare event (watchdog, stop): text into the event ring, dropped if full."""
-        ctl = self.block.ctl
-        head = int(ctl[C_EVT_HEAD])
-        data = f"{tick}\t{kind}\t{detail}".encode()[: EVENT_BYTES - 1]
-        slot = self.block.events[head % EVENT_SLOTS]
-        slot[: len(data)] = np.frombuffer(data, np.uint8)
-        slot[len(data)] = 0
-        ctl[C_EVT_HEAD] = head + 1
+        """A rare event (watchdog, stop): text into the event ring."""
+        self.block.post_event(tick, kind, detail)
 
     @property
     def counters(self) -> dict[str, int]:

@@ -274,6 +274,13 @@ class BodySpec:
         require(self.oscillation_period_s >= 0, "oscillation_period_s", "must be >= 0")
         require(self.linear_damping_per_s >= 0, "linear_damping_per_s", "must be >= 0")
 
+    def to_world(self, px: float, py: float) -> Vec2:
+        """A point of the body's frame (a segment's end, a box's corner) in the world, at the
+        body's initial position and angle."""
+        c, s = math.cos(self.angle), math.sin(self.angle)
+        x, y = self.position
+        return (x + c * px - s * py, y + s * px + c * py)
+
 
 @dataclass(frozen=True)
 class CrowdSpec:
@@ -560,6 +567,18 @@ class UserConfig:
 
 
 # --- loading entry points -------------------------------------------------------------------
+
+
+def static_bodies(scene_text: str | None) -> list[BodySpec]:
+    """The static bodies (walls, floors) of a scene given as text, e.g. the one a log or a
+    run carries; none if there is no text or it does not load (the viewers draw without)."""
+    if not scene_text:
+        return []
+    try:
+        scene = load_config_text(SceneConfig, scene_text, "the run's scene")
+    except (ConfigError, ValueError):
+        return []
+    return [body for body in scene.bodies if body.kind == "static"]
 
 
 def load_scene(name_or_path: str, haptic_rate_hz: float | None = None) -> SceneConfig:

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.browser import chromium, colour_count, open_page, pixels
+from benchmarks.browser import chromium, colour_count, free_ports, open_page, pixels
 from haptic_server.live_view import _DEVICE, _LINKAGE, _PROXY, _STATIC
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,17 +45,6 @@ def _browser() -> str:
             pytest.fail("HAPTIC_REQUIRE_BROWSER is set but Chromium or Playwright is missing")
         pytest.skip("no Chromium (apt-get install chromium) or Playwright")
     return path
-
-
-def _free_ports(n: int) -> list[int]:
-    socks = [socket.socket() for _ in range(n)]
-    try:
-        for s in socks:
-            s.bind(("127.0.0.1", 0))
-        return [s.getsockname()[1] for s in socks]
-    finally:
-        for s in socks:
-            s.close()
 
 
 class Proc:
@@ -141,7 +130,7 @@ def _changed(a: np.ndarray, b: np.ndarray) -> int:
 
 def test_live_view_of_a_real_run_and_of_its_log(tmp_path: Path, procs: list[Proc]) -> None:
     browser = _browser()
-    web, grpc = _free_ports(2)
+    web, grpc = free_ports(2)
     run = Proc(
         [sys.executable, "-m", "haptic_server.harness.run", "--duration", "30",
          "--log", "run.mcap", "--view", "--view-port", str(web), "--view-grpc-port", str(grpc)],
@@ -164,7 +153,7 @@ def test_live_view_of_a_real_run_and_of_its_log(tmp_path: Path, procs: list[Proc
         with socket.socket() as s:
             assert s.connect_ex(("127.0.0.1", port)) != 0, f"port {port} still open"
 
-    web, grpc = _free_ports(2)
+    web, grpc = free_ports(2)
     replay = Proc(
         [sys.executable, "-m", "haptic_server.harness.replay", "run.mcap", "--view",
          "--view-port", str(web), "--view-grpc-port", str(grpc), "--view-seconds", "120",
@@ -197,7 +186,7 @@ def test_a_file_without_ticks_is_refused(tmp_path: Path) -> None:
     """haptic-replay NOT_A_LOG --view: one line naming the file, exit 2, no server left."""
     bogus = tmp_path / "notes.mcap"
     bogus.write_text("not a log\n")
-    web, grpc = _free_ports(2)
+    web, grpc = free_ports(2)
     out = subprocess.run(
         [sys.executable, "-m", "haptic_server.harness.replay", str(bogus), "--view",
          "--view-port", str(web), "--view-grpc-port", str(grpc), "--view-seconds", "5"],

@@ -11,7 +11,7 @@ import numpy as np
 
 from haptic_server.harness.summary import LATE_TICK_US, ReplayError, config_name
 from haptic_server.log import LogContents
-from shared.config import BodySpec, ConfigError, SceneConfig, load_config_text
+from shared.config import BodySpec, static_bodies
 
 FORCE_SOURCES = (
     "f_user", "f_contact", "f_impulse", "f_bias", "f_penalty", "f_coordination", "f_damping",
@@ -128,16 +128,8 @@ def draw_static_bodies(ax: Any, scene_text: str | None, scale: float = 1e3) -> l
     """The scene's static bodies (walls, floors) as patches on `ax`, one per body, in units
     of m / `scale` (mm by default); none if the log's scene text is missing or does not load.
     Moving and dynamic bodies are the sim's and are not in the log."""
-    if not scene_text:
-        return []
-    try:
-        scene = load_config_text(SceneConfig, scene_text, "the log's scene")
-    except (ConfigError, ValueError):
-        return []
     patches: list[Any] = []
-    for body in scene.bodies:
-        if body.kind != "static":
-            continue
+    for body in static_bodies(scene_text):
         patch = _body_patch(body, scale)
         patch.set(facecolor=STATIC_COLOR, edgecolor=STATIC_COLOR, lw=0.5, gid=body.name,
                   label="_nolegend_" if patches else "static bodies")  # fmt: skip
@@ -175,11 +167,7 @@ def _body_patch(body: BodySpec, scale: float) -> Any:
         )
     if body.shape == "circle":
         return Circle((x, y), body.radius * scale)
-    c, s = math.cos(a), math.sin(a)
-    p, q = (
-        (x + (c * px - s * py) * scale, y + (s * px + c * py) * scale)
-        for px, py in (body.a, body.b)
-    )
+    p, q = ((wx * scale, wy * scale) for wx, wy in (body.to_world(*body.a), body.to_world(*body.b)))
     return Polygon(_capsule(p, q, body.radius * scale), closed=True)
 
 

@@ -144,11 +144,9 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
         haptic_extra += ["--log", str(Path(args.log).resolve())]
     if args.haptic_rate is not None:
         haptic_extra += ["--haptic-rate", repr(float(args.haptic_rate))]
-    if args.view:
-        haptic_extra += [
-            "--view", "--view-port", str(args.view_port), "--view-grpc-port",
-            str(args.view_grpc_port), "--view-bind", args.view_bind,
-        ]  # fmt: skip
+    view = view_address(args)
+    if view is not None:
+        haptic_extra += view.argv()
     stop = threading.Event()
     previous = {
         sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)

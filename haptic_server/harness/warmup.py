@@ -70,9 +70,9 @@ def warm_groups() -> list[tuple[str, Callable[[], None]]]:
     return groups
 
 
-def _cached_kernels(cache: Path | None) -> dict[Path, int]:
+def _cached_kernels(cache: Path) -> dict[Path, int]:
     """The compiled kernels (numba's .nbc files) in `cache`, with their mtimes."""
-    if cache is None or not cache.is_dir():
+    if not cache.is_dir():
         return {}
     files = {}
     for f in cache.rglob("*.nbc"):
@@ -84,15 +84,14 @@ def _cached_kernels(cache: Path | None) -> dict[Path, int]:
 def warm_all(out: TextIO | None = None) -> float:
     """Compile (or load) every kernel; returns the seconds it took. With `out`, a line per
     group (what, how long, compiled or loaded) and the total are written to it."""
-    cache_env = os.environ.get("NUMBA_CACHE_DIR")
-    cache = Path(cache_env) if cache_env else None
+    cache = Path(os.environ["NUMBA_CACHE_DIR"])  # set by `shared` on import, or by the user
 
     def say(text: str, end: str = "\n") -> None:
         if out is not None:
             out.write(text + end)
             out.flush()
 
-    say(f"warming numba kernels (cache: {cache or 'numba default'})")
+    say(f"warming numba kernels (cache: {cache})")
     started = time.perf_counter()
     for what, warm in warm_groups():
         say(f"  {what} ...", end="")
