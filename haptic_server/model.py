@@ -38,6 +38,7 @@ PARAMS_DTYPE = np.dtype(
         ("penalty_damping", F8),  # b_j
         ("desired_damping", F8, (3,)),  # b_d
         ("desired_stiffness", F8, (3,)),  # k_d
+        ("jdot_qd", I8),  # 1: M_d J_h_dot qd in the control law (DESIGN §4.3)
         ("impulses", I8),  # 1: colliding contacts are resolved by impulses (never for FOH)
         ("collision_speed", F8),
         ("blend_s", F8),
@@ -129,7 +130,8 @@ SCRATCH_DTYPE = np.dtype(
         ("pull", F8, (3,)),  # task-space force on the proxy from the hand and the coupling
         ("n_resisted", I8),
         ("acc_contact", F8, (3,)),  # J_h D^-1 tau_c
-        ("acc_bias", F8, (3,)),  # J_h D^-1 tau_bias
+        ("acc_bias", F8, (3,)),  # J_h D^-1 tau_bias (+ J_h_dot qd)
+        ("jdot_qd", F8, (3,)),  # J_h_dot qd at the proxy: the operational point's bias acceleration
         ("acc_impulse", F8, (3,)),  # J_h D^-1 P_cs / dt
         ("damping_task", F8, (3,)),  # b_d xd_h + k_d x_h
         ("penalty_task", F8, (3,)),  # sum P (k_j e + b_j ed) over the resisted directions
@@ -282,6 +284,7 @@ def params_record(
     p["penalty_damping"] = rendering.penalty_damping
     p["desired_damping"] = rendering.desired_damping
     p["desired_stiffness"] = rendering.desired_stiffness
+    p["jdot_qd"] = 1 if rendering.jdot_qd else 0
     p["impulses"] = 1 if rendering.impulses and method != Method.VIRTUAL_COUPLING_FOH else 0
     p["collision_speed"] = rendering.collision_speed_m_per_s
     p["blend_s"] = rendering.blend_ms / 1000.0

@@ -417,6 +417,10 @@ class RenderingSpec:
     penalty_damping: float = 50.0  # b_j, N s/m/kg
     desired_damping: Vec3 = (0.0, 0.0, 0.0)  # b_d of the VM at the hand (seed 000 eq 4)
     desired_stiffness: Vec3 = (0.0, 0.0, 0.0)  # k_d
+    # M_d J_h_dot qd in the device's command (DESIGN §4.3): the operational point's
+    # centripetal acceleration; false renders seed 000 eq 11/18 as printed (the device lags a
+    # spinning VM and the coordination spring bends the VM off its free path)
+    jdot_qd: bool = True
     impulses: bool = True  # colliding contacts resolved by impulses (seed 001 §3.2)
     collision_speed_m_per_s: float = 0.01  # approach speed above which a new contact collides
     blend_ms: float = 8.0  # cross-fade of old and new geometry after an update

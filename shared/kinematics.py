@@ -114,6 +114,49 @@ def point_jacobian(joint_types, frame_pos, dof, link, px, py, jac):
 
 
 @njit(cache=True)
+def point_bias_acceleration(joint_types, frame_pos, dof, link, px, py, qd, out):
+    """J_dot qd of world point P on `link`: its acceleration when qdd = 0 (DESIGN §4.3).
+
+    A revolute joint j moves P at qd_j e_z x (P - o_j), so its column changes at
+    qd_j e_z x (v_P - v_oj), with v_oj the velocity of joint j's own origin (which the
+    joints before it, and a prismatic joint j itself, move). Prismatic columns are constant
+    and the angular row is a sum of revolute rates: both contribute nothing.
+    """
+    vpx = 0.0
+    vpy = 0.0
+    for j in range(min(link + 1, dof)):
+        jt = joint_types[j]
+        if jt == REVOLUTE:
+            vpx -= qd[j] * (py - frame_pos[j, 1])
+            vpy += qd[j] * (px - frame_pos[j, 0])
+        elif jt == PRISMATIC_X:
+            vpx += qd[j]
+        else:
+            vpy += qd[j]
+    out[0] = 0.0
+    out[1] = 0.0
+    out[2] = 0.0
+    for j in range(min(link + 1, dof)):
+        if joint_types[j] != REVOLUTE:
+            continue
+        ox = frame_pos[j, 0]
+        oy = frame_pos[j, 1]
+        vox = 0.0
+        voy = 0.0
+        for k in range(j):
+            jt = joint_types[k]
+            if jt == REVOLUTE:
+                vox -= qd[k] * (oy - frame_pos[k, 1])
+                voy += qd[k] * (ox - frame_pos[k, 0])
+            elif jt == PRISMATIC_X:
+                vox += qd[k]
+            else:
+                voy += qd[k]
+        out[0] -= qd[j] * (vpy - voy)
+        out[1] += qd[j] * (vpx - vox)
+
+
+@njit(cache=True)
 def mass_matrix_and_gravity(chain, gravity, q, work, mass_out, gravity_out):
     """D(q) = sum m J_v^T J_v + I J_w^T J_w and G(q) = -sum m J_v^T g (DESIGN §2).
 

@@ -1,4 +1,6 @@
-"""Logs recorded before the redesign (tests/golden/logs, build 2ccdfb6) replay exactly.
+"""Golden logs replay exactly: those recorded before the redesign (tests/golden/logs, build
+2ccdfb6, version 0.1.0: seed 000's control law as printed, replayed as such) and those of
+version 0.2 (tests/golden/logs-0.2: the law with M_d J_h_dot qd, DESIGN §4.3).
 
 Each log carries its scene, device and user config texts and every update's bytes; the replay
 drives today's engine with them and compares every tick row with the logged one. Fields the
@@ -8,6 +10,7 @@ the old log has must match to the bit.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -17,6 +20,8 @@ from haptic_server.log import read_log
 
 GOLDEN = Path(__file__).parent / "golden" / "logs"
 LOGS = sorted(GOLDEN.glob("*.mcap"))
+GOLDEN_02 = Path(__file__).parent / "golden" / "logs-0.2"
+LOGS_02 = sorted(GOLDEN_02.glob("*.mcap"))
 
 
 def test_the_golden_logs_are_there() -> None:
@@ -69,23 +74,42 @@ def test_golden_log_replays_exactly(path: Path) -> None:
 #: logs (no sim) is exact everywhere, above.
 RERUN_BOUND = 1e-8
 
-VIRTUAL_LOGS = sorted(GOLDEN.glob("vc_*.mcap"))
+VIRTUAL_LOGS = sorted(GOLDEN.glob("vc_*.mcap")) + sorted(GOLDEN_02.glob("vc_*.mcap"))
 
 
-@pytest.mark.parametrize("path", VIRTUAL_LOGS, ids=[p.stem for p in VIRTUAL_LOGS])
+@pytest.mark.parametrize("path", LOGS_02, ids=[p.stem for p in LOGS_02])
+def test_version_02_log_replays_exactly(path: Path) -> None:
+    """A log of today's law: every field, every tick, to the bit (and it is today's law:
+    replayed as a 0.1 log, without J_h_dot qd, it differs)."""
+    log = read_log(path)
+    assert log.metadata["run"]["version"].startswith("0.2")
+    assert not log.absent_tick_fields
+    result = replay(log)
+    assert len(result.ticks) == len(log.ticks)
+    assert result.updates_replayed == len(log.updates)
+    assert not result.verdict_mismatches, result.verdict_mismatches[:5]
+    assert not result.differing, f"{path.name}: {result.differing}"
+    as_old = dict(log.metadata["run"], version="0.1.0")
+    old = replay(dataclasses.replace(log, metadata={**log.metadata, "run": as_old}))
+    assert "f_bias" in old.differing
+
+
+@pytest.mark.parametrize(
+    "path", VIRTUAL_LOGS, ids=[f"{p.parent.name}/{p.stem}" for p in VIRTUAL_LOGS]
+)
 def test_virtual_clock_reruns_the_golden_runs_exactly(path: Path) -> None:
     """The virtual clock is deterministic: today's sim, protocol (version 2 on the wire) and
     haptic side, run again on the configs a golden virtual-clock log stores, give every one
     of its tick rows (bit for bit on the recording's CPU, within RERUN_BOUND on others).
     This covers what a replay does not: the sim and encoder."""
     from device_models.registry import device_from_text
-    from haptic_server.harness.replay import max_abs_differences
+    from haptic_server.harness.replay import max_abs_differences, scene_of_run
     from haptic_server.harness.virtual import run_virtual
-    from shared.config import SceneConfig, UserConfig, load_config_text
+    from shared.config import UserConfig, load_config_text
 
     log = read_log(path)
     configs = log.metadata["configs"]
-    scene = load_config_text(SceneConfig, configs["scene"], f"{path.name}:scene")
+    scene = scene_of_run(configs["scene"], log.metadata["run"])
     user = load_config_text(UserConfig, configs["user"], f"{path.name}:user")
     device = device_from_text(configs["device"], f"{path.name}:device")
     n = len(log.ticks)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import base64
+import dataclasses
 import json
 import sys
 from collections import defaultdict
@@ -77,14 +78,37 @@ class ReplayResult:
 # --- rebuilding the engine ------------------------------------------------------------------
 
 
-def engine_from_configs(configs: dict[str, str]) -> HapticEngine:
-    """The engine a run used, from the config texts in its `configs` metadata record."""
+#: The first version whose control law has M_d J_h_dot qd (DESIGN §4.3); a log of an earlier
+#: build rendered seed 000's law as printed, and its scene is replayed that way.
+JDOT_QD_SINCE = (0, 2, 0)
+
+
+def _version(text: str | None) -> tuple[int, ...]:
+    try:
+        return tuple(int(part) for part in (text or "0").split(".")[:3])
+    except ValueError:
+        return (0,)
+
+
+def scene_of_run(scene_text: str, run: dict[str, str] | None) -> SceneConfig:
+    """The scene a run rendered: its config text, read with the defaults of the build that
+    recorded it (`run` is the log's run metadata: its version)."""
+    scene = load_config_text(SceneConfig, scene_text, "log:configs.scene")
+    if _version((run or {}).get("version")) < JDOT_QD_SINCE:
+        rendering = dataclasses.replace(scene.rendering, jdot_qd=False)
+        scene = dataclasses.replace(scene, rendering=rendering)
+    return scene
+
+
+def engine_from_configs(configs: dict[str, str], run: dict[str, str] | None = None) -> HapticEngine:
+    """The engine a run used, from the config texts in its `configs` metadata record and
+    the build in its `run` record (see scene_of_run)."""
     from device_models.registry import device_from_text
 
     missing = [k for k in ("scene", "device", "user") if not configs.get(k)]
     if missing:
         raise ReplayError(f"the log's configs metadata lacks {', '.join(missing)}")
-    scene = load_config_text(SceneConfig, configs["scene"], "log:configs.scene")
+    scene = scene_of_run(configs["scene"], run)
     user = load_config_text(UserConfig, configs["user"], "log:configs.user")
     device = device_from_text(configs["device"], "log:configs.device")
     if configs.get("network"):  # real-time runs: the safe-state ramp comes from the network
@@ -114,7 +138,8 @@ def replay(
     if len(logged) == 0:
         raise ReplayError("the log holds no ticks")
     engine = engine_from_configs(
-        configs if configs is not None else log.metadata.get("configs", {})
+        configs if configs is not None else log.metadata.get("configs", {}),
+        log.metadata.get("run"),
     )
     n = contiguous_ticks(logged)
     note = "" if n == len(logged) else f"ticks stop being contiguous after tick {n - 1}"

@@ -10,6 +10,7 @@ from __future__ import annotations
 from numba import njit
 
 from haptic_server.stages.kinematics import fading
+from shared.kinematics import point_bias_acceleration
 from shared.protocol.codes import Method
 
 
@@ -65,8 +66,9 @@ def control(m, d):
 @njit(cache=True)
 def control_impedance_only(m, d):
     """Seed 000 eq 11 / 18 with the four-channel coordination wrench (DESIGN §4.3):
-    u = (M_d L^-1 - I) F_h + M_d J_h D^-1 (tau + P_cs/dt) + M_d L^-1 F_c
-        + (C_d - M_d L^-1 b_d) xd_h - M_d L^-1 k_d x_h."""
+    u = (M_d L^-1 - I) F_h + M_d J_h D^-1 (tau + P_cs/dt) + M_d J_h_dot qd + M_d L^-1 F_c
+        + (C_d - M_d L^-1 b_d) xd_h - M_d L^-1 k_d x_h.
+    The M_d J_h_dot qd term (params.jdot_qd) is in f_bias with the torques' part."""
     w = d.scratch
     st = d.state
     sen = d.sensors[0]
@@ -95,6 +97,14 @@ def control_impedance_only(m, d):
             w.acc_contact[c] += w.minv_jt[a, c] * w.tau_contact[a]
             w.acc_bias[c] += w.minv_jt[a, c] * w.tau_bias[a]
             w.acc_impulse[c] += w.minv_jt[a, c] * w.impulse_q[a] / dt
+    if m.params.jdot_qd == 1:
+        slot = m.slots[0]
+        point_bias_acceleration(
+            slot.joint_types, w.frame_pos, n, slot.op_link, w.op_point[0], w.op_point[1],
+            st.qd, w.jdot_qd,
+        )  # fmt: skip
+        for c in range(3):
+            w.acc_bias[c] += w.jdot_qd[c]
     mat3_vec(M, w.acc_contact, r.f_contact, 1.0)
     mat3_vec(M, w.acc_bias, r.f_bias, 1.0)
     mat3_vec(M, w.acc_impulse, r.f_impulse, 1.0)
