@@ -169,14 +169,8 @@ def measure_case(
     runs = {hz: run_case(case_scene(scene, case, hz), case, seconds) for hz in rates}
     old = run_case(case_scene(scene, case, 60.0, jdot_qd=False), case, seconds)
     t = old["t"]
-    ref = simulate(
-        spec,
-        q0,
-        np.zeros(len(q0)),
-        Hold(np.array(case.wrench), case.link, np.array(case.point)),
-        seconds,
-        t,
-    )
+    hold = Hold(np.array(case.wrench), case.link, np.array(case.point))
+    ref = simulate(spec, q0, np.zeros(len(q0)), hold, seconds, t)
     r = scene.rendering
     gains = LoopGains(
         coordination_stiffness=r.coordination_stiffness,
@@ -186,16 +180,7 @@ def measure_case(
         rank_tolerance=scene.tool.rank_tolerance,
     )  # fmt: skip
     law = {
-        jd: simulate_loop(
-            spec,
-            q0,
-            case.wrench,
-            case.link,
-            case.point,
-            dataclasses.replace(gains, jdot_qd=jd),
-            seconds,
-            t,
-        )
+        jd: simulate_loop(spec, q0, hold, dataclasses.replace(gains, jdot_qd=jd), seconds, t)
         for jd in (True, False)
     }
     return {

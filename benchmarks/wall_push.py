@@ -6,12 +6,22 @@ plus impulses (`wall_push`, Fig. 5). Prints penetration against F/K, contact los
 the first impact, settling time and peak forces, and draws contact force and position over
 time for both.
 
-    python -m benchmarks.wall_push [--seconds 3] [--out docs/figures/wall_push.png]
+The sweep (`--sweep`): stiffnesses 5, 15 and 50 kN/m x pushes of 1, 2 and 5 N with impulses,
+on the `ideal` device at its shipped 50 N limit (the 1 kg device cannot be stopped in one
+tick: 280-660 N would be needed), today's impulse law against version 0.1's: contact losses,
+the VM's largest speed away from the wall in the 10 ticks after the impact relative to the
+impact speed (restitution is 0: no more than the spring-back of the depth at which the
+impact was detected, sqrt(K/m) (depth - F/K), may push it out), the VM's and the device's penetration over the last half second
+relative to F/K, and the energy the device put into the hand's port (the integral of
+command . twist; passive if <= 0).
+
+    python -m benchmarks.wall_push [--seconds 3] [--out docs/figures/wall_push.png] [--sweep]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from dataclasses import asdict, dataclass
@@ -19,7 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from haptic_server.harness.virtual import run_virtual_named
+from device_models.registry import load_device
+from haptic_server.harness.virtual import run_virtual, run_virtual_named
+from shared.config import UserConfig, load_scene
 
 PUSH_N = 2.0
 WALL_K = 15000.0
@@ -66,6 +78,63 @@ def measure(scene: str, seconds: float) -> tuple[WallPushMetrics, np.ndarray]:
         peak_rendered_force_n=float(np.abs(ticks["wrench_command"][:, 0]).max()),
     )
     return metrics, ticks
+
+
+SWEEP_STIFFNESS = (5000.0, 15000.0, 50000.0)
+SWEEP_PUSH = (1.0, 2.0, 5.0)
+PUSH_OUT_TICKS = 10  # the impact's own result: the VM's speed away from the wall just after
+
+
+def sweep_case(stiffness: float, push: float, law: str, seconds: float = 3.0) -> dict[str, float]:
+    """One wall push of the sweep (module docstring); `law` is [rendering] impulse_law."""
+    scene = load_scene("wall_push")
+    materials = {
+        name: dataclasses.replace(mat, stiffness_n_per_m=stiffness)
+        for name, mat in scene.materials.items()
+    }
+    rendering = dataclasses.replace(scene.rendering, impulse_law=law)  # type: ignore[arg-type]
+    scene = dataclasses.replace(scene, materials=materials, rendering=rendering)
+    user = UserConfig(name=f"push {push:g} N", kind="constant_wrench", wrench=(push, 0.0, 0.0))
+    ticks = run_virtual(scene, load_device("ideal"), user, seconds).ticks
+    t = ticks["t"]
+    touching = -ticks["contact_force_world"][:, 0] > 0.0
+    first = int(np.argmax(touching))
+    steady = t >= t[-1] - STEADY_S
+    expected = push / stiffness
+    vm = ticks["vm_pose"][steady, 0] + HALF_LENGTH - WALL_X
+    device = ticks["device_pose"][steady, 0] + HALF_LENGTH - WALL_X
+    power = (ticks["wrench_command"][:, :2] * ticks["device_twist"][:, :2]).sum(axis=1)
+    # a body stopped at depth d under a push F, on a spring K, springs back at most at
+    # sqrt(K / m) (d - F/K) (undamped, from rest): the bound on an honest push-out
+    mass = next(b.mass for b in scene.bodies if b.name == scene.tool.name)
+    depth = float(ticks["penetration"][first])
+    v_impact = float(ticks["vm_twist"][first - 1, 0])
+    spring_back = np.sqrt(stiffness / mass) * max(0.0, depth - expected) / v_impact
+    return {
+        "stiffness_n_per_m": stiffness,
+        "push_n": push,
+        "law": float(law),
+        "contact_losses": int(np.sum(touching[first:-1] & ~touching[first + 1 :])),
+        "impact_speed_m_per_s": v_impact,
+        "impact_depth_m": depth,
+        "push_out": float(
+            max(0.0, -ticks["vm_twist"][first : first + PUSH_OUT_TICKS, 0].min()) / v_impact
+        ),
+        "spring_back_bound": float(spring_back),
+        "vm_penetration_ratio": float(vm.mean() / expected),
+        "device_penetration_ratio": float(device.mean() / expected),
+        "port_energy_j": float(np.sum(power * ticks["dt"])),
+        "peak_command_n": float(np.abs(ticks["wrench_command"][:, 0]).max()),
+    }
+
+
+def sweep(seconds: float) -> list[dict[str, float]]:
+    return [
+        sweep_case(k, f, law, seconds)
+        for k in SWEEP_STIFFNESS
+        for f in SWEEP_PUSH
+        for law in ("0.1", "0.2")
+    ]
 
 
 def plot(results: list[tuple[WallPushMetrics, np.ndarray]], out: Path) -> None:
@@ -124,7 +193,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--out", type=Path, default=Path("docs/figures/wall_push.png"))
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--sweep", action="store_true", help="stiffness x push, both laws")
     args = parser.parse_args(argv)
+    if args.sweep:
+        print(f"{'K N/m':>8}{'push N':>8}{'law':>5}{'losses':>8}{'push-out':>10}{'VM/(F/K)':>10}"
+              f"{'dev/(F/K)':>11}{'port J':>9}")  # fmt: skip
+        rows = sweep(args.seconds)
+        for r in rows:
+            print(
+                f"{r['stiffness_n_per_m']:>8.0f}{r['push_n']:>8.1f}{r['law']:>5.1f}"
+                f"{r['contact_losses']:>8}{r['push_out']:>10.3f}{r['vm_penetration_ratio']:>10.4f}"
+                f"{r['device_penetration_ratio']:>11.3f}{r['port_energy_j']:>9.4f}"
+            )
+        if args.json:
+            args.json.write_text(json.dumps(rows, indent=2))
+        return 0
     results = [measure(scene, args.seconds) for scene in ("wall_push_penalty", "wall_push")]
     for m, _ in results:
         print(

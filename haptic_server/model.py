@@ -41,6 +41,7 @@ PARAMS_DTYPE = np.dtype(
         ("jdot_qd", I8),  # 1: M_d J_h_dot qd in the control law (DESIGN §4.3)
         ("impulses", I8),  # 1: colliding contacts are resolved by impulses (never for FOH)
         ("collision_speed", F8),
+        ("impulse_law", I8),  # 2: forces after impulses, device-aware carry; 1: version 0.1
         ("blend_s", F8),
         ("foh_stiffness", F8, (3,)),  # K_p of seed 002
         ("foh_damping", F8, (3,)),  # K_v
@@ -136,6 +137,9 @@ SCRATCH_DTYPE = np.dtype(
         ("damping_task", F8, (3,)),  # b_d xd_h + k_d x_h
         ("penalty_task", F8, (3,)),  # sum P (k_j e + b_j ed) over the resisted directions
         ("hand_acc", F8, (3,)),  # the device's acceleration over the last tick
+        ("device_twist_eff", F8, (3,)),  # its twist as if the carried impulse were delivered
+        ("inertia_chol", F8, (3, 3)),  # Cholesky factor of M_d (the carry's velocity)
+        ("carry_velocity", F8, (3,)),  # M_d^-1 impulse_carry
         ("proxy_system", F8, (MAX_DOF, MAX_DOF)),  # D + dt B + dt^2 K of the proxy step
         ("proxy_chol", F8, (MAX_DOF, MAX_DOF)),
         ("proxy_rhs", F8, (MAX_DOF,)),
@@ -287,6 +291,7 @@ def params_record(
     p["jdot_qd"] = 1 if rendering.jdot_qd else 0
     p["impulses"] = 1 if rendering.impulses and method != Method.VIRTUAL_COUPLING_FOH else 0
     p["collision_speed"] = rendering.collision_speed_m_per_s
+    p["impulse_law"] = 1 if rendering.impulse_law == "0.1" else 2
     p["blend_s"] = rendering.blend_ms / 1000.0
     p["foh_stiffness"] = np.array(dev.foh_stiffness) * per_gain
     p["foh_damping"] = np.array(dev.foh_damping) * per_gain

@@ -423,6 +423,11 @@ class RenderingSpec:
     jdot_qd: bool = True
     impulses: bool = True  # colliding contacts resolved by impulses (seed 001 §3.2)
     collision_speed_m_per_s: float = 0.01  # approach speed above which a new contact collides
+    # the version of the impulse handling: "0.2" computes a colliding tick's contact forces
+    # from the velocity its impulses leave, and spreads an impulse the device cannot deliver
+    # in one tick over the next ones without the coordination coupling braking the device a
+    # second time; "0.1" as version 0.1 did (kept to replay its logs)
+    impulse_law: Literal["0.1", "0.2"] = "0.2"
     blend_ms: float = 8.0  # cross-fade of old and new geometry after an update
     virtual_coupling_stiffness: Vec3 = (50.0, 50.0, 0.2)  # seed 000 §VIII baseline
     virtual_coupling_damping: Vec3 = (3.0, 3.0, 0.005)

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import solve_ivp
 
-from shared.reference import ChainSpec, Integrator
+from shared.reference import ChainSpec, Hold, Integrator
 
 FloatArray = NDArray[np.float64]
 #: The hand's world wrench (fx, fy, tau) at time t given the hand point's pose and twist.
@@ -138,16 +138,16 @@ def simulate_bodies(
     spec: ChainSpec,
     q0: ArrayLike,
     qd0: ArrayLike,
-    wrench: ArrayLike | BodyWrench,
-    link: int,
-    point: ArrayLike,
+    hold: Hold,
     t_end: float,
     t_eval: ArrayLike,
     *,
     integrator: Integrator = TIGHT,
 ) -> BodySolution:
-    """The chain released from (q0, qd0) under the hand's world wrench at `point` on `link`:
-    a constant (fx, fy, tau) or a function of (t, pose, twist) of the hold point."""
+    """The chain released from (q0, qd0) under the hand's world wrench at the hold: a
+    constant (fx, fy, tau) or a function of (t, pose, twist) of the hold point (not of the
+    joint state, which this formulation does not have)."""
+    wrench, link, point = hold.wrench, hold.link, hold.point
     bodies = PinnedBodies(spec)
     n = spec.n
     if not 0 <= link < n:
@@ -156,7 +156,7 @@ def simulate_bodies(
     gravity = np.array(spec.gravity, dtype=float)
     constant = None if callable(wrench) else np.asarray(wrench, dtype=float).reshape(3)
 
-    def hold(x: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def held(x: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         p = bodies.point(x, link, local)
         arm = p - x[3 * link : 3 * link + 2]
         pd = v[3 * link : 3 * link + 2] + v[3 * link + 2] * _perp(arm)
@@ -166,7 +166,7 @@ def simulate_bodies(
 
     def rhs(t: float, s: FloatArray) -> FloatArray:
         x, v = s[: 3 * n], s[3 * n :]
-        pose, twist, arm = hold(x, v)
+        pose, twist, arm = held(x, v)
         w = constant if constant is not None else np.asarray(wrench(t, pose, twist), float)  # type: ignore[operator]
         force = np.zeros(3 * n)
         for i in range(n):
@@ -184,7 +184,7 @@ def simulate_bodies(
     if not result.success:
         raise RuntimeError(f"pinned-body reference failed: {result.message}")
     states = result.y.T
-    pose = np.array([hold(s[: 3 * n], s[3 * n :])[0] for s in states])
+    pose = np.array([held(s[: 3 * n], s[3 * n :])[0] for s in states])
     q = np.array([bodies.joint_angles(s[: 3 * n]) for s in states])
     worst = max(float(np.abs(bodies._pins(s[: 3 * n], s[3 * n :])[0]).max()) for s in states)
     return BodySolution(t=result.t, pose=pose, q=q, constraint_error=worst)

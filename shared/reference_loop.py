@@ -26,6 +26,7 @@ from scipy.integrate import solve_ivp
 
 from shared.reference import (
     ChainSpec,
+    Hold,
     Integrator,
     bias_forces,
     mass_matrix,
@@ -88,9 +89,7 @@ def resisted_projection(jac: FloatArray, gains: LoopGains) -> FloatArray:
 def simulate_loop(
     spec: ChainSpec,
     q0: ArrayLike,
-    hand_wrench: ArrayLike,
-    link: int,
-    point: ArrayLike,
+    hold: Hold,
     gains: LoopGains,
     t_end: float,
     t_eval: ArrayLike,
@@ -99,10 +98,13 @@ def simulate_loop(
     integrator: Integrator = LOOP_INTEGRATOR,
 ) -> LoopSolution:
     """The loop from rest, the device at the hold point plus `device_offset`, under a
-    constant world hand wrench (fx, fy, tau)."""
+    constant world hand wrench (fx, fy, tau) at the hold."""
+    if callable(hold.wrench):
+        raise TypeError("simulate_loop takes a constant hand wrench")
     n = spec.n
-    r = np.asarray(point, dtype=float).reshape(2)
-    f_h = np.asarray(hand_wrench, dtype=float).reshape(3)
+    link = hold.link
+    r = np.asarray(hold.point, dtype=float).reshape(2)
+    f_h = np.asarray(hold.wrench, dtype=float).reshape(3)
     k_c = np.asarray(gains.coordination_stiffness, dtype=float)
     b_c = np.asarray(gains.coordination_damping, dtype=float)
     q_start = np.asarray(q0, dtype=float).reshape(n)

@@ -91,7 +91,7 @@ def test_version_02_log_replays_exactly(path: Path) -> None:
     assert not result.differing, f"{path.name}: {result.differing}"
     as_old = dict(log.metadata["run"], version="0.1.0")
     old = replay(dataclasses.replace(log, metadata={**log.metadata, "run": as_old}))
-    assert "f_bias" in old.differing
+    assert old.differing  # f_bias (J_h_dot qd) on a linkage, the impulses at a wall
 
 
 @pytest.mark.parametrize(

@@ -113,7 +113,7 @@ def test_jdot_qd_of_a_spinning_free_body_is_centripetal() -> None:
 def test_pinned_bodies_agree_with_newton_euler(link, point, wrench) -> None:
     t = np.linspace(0.0, 3.0, 301)
     a = simulate(SPEC, Q0, np.zeros(3), Hold(np.array(wrench), link, np.array(point)), 3.0, t)
-    b = simulate_bodies(SPEC, Q0, np.zeros(3), wrench, link, point, 3.0, t)
+    b = simulate_bodies(SPEC, Q0, np.zeros(3), Hold(wrench, link, point), 3.0, t)
     assert float(distance_mm(a.pose, a.pose[:1].repeat(len(t), 0)).max()) > 5.0  # it moved
     assert float(distance_mm(a.pose, b.pose).max()) < 1e-5
     assert float(np.abs(a.pose[:, 2] - b.pose[:, 2]).max()) < 1e-8
@@ -130,11 +130,10 @@ def test_the_continuous_law_follows_the_hand_driven_linkage_only_with_jdot_qd() 
     to solver tolerance; without, it is off by millimetres."""
     t = np.linspace(0.0, 5.0, 501)
     link, point, wrench = 2, (0.015, 0.01), (-0.28, 0.28, 0.0)
-    alone = simulate(SPEC, Q0, np.zeros(3), Hold(np.array(wrench), link, np.array(point)), 5.0, t)
-    exact = simulate_loop(SPEC, Q0, wrench, link, point, GAINS, 5.0, t)
-    printed = simulate_loop(
-        SPEC, Q0, wrench, link, point, dataclasses.replace(GAINS, jdot_qd=False), 5.0, t
-    )
+    hold = Hold(np.array(wrench), link, np.array(point))
+    alone = simulate(SPEC, Q0, np.zeros(3), hold, 5.0, t)
+    exact = simulate_loop(SPEC, Q0, hold, GAINS, 5.0, t)
+    printed = simulate_loop(SPEC, Q0, hold, dataclasses.replace(GAINS, jdot_qd=False), 5.0, t)
     assert float(distance_mm(exact.vm_pose, alone.pose).max()) < 1e-5
     assert float(distance_mm(exact.device_pose, alone.pose).max()) < 1e-5
     assert rms(distance_mm(printed.vm_pose, alone.pose)) > 1.0

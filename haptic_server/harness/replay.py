@@ -78,9 +78,10 @@ class ReplayResult:
 # --- rebuilding the engine ------------------------------------------------------------------
 
 
-#: The first version whose control law has M_d J_h_dot qd (DESIGN §4.3); a log of an earlier
-#: build rendered seed 000's law as printed, and its scene is replayed that way.
-JDOT_QD_SINCE = (0, 2, 0)
+#: The first version whose control law has M_d J_h_dot qd (DESIGN §4.3) and computes a
+#: colliding tick's contact forces after its impulses; a log of an earlier build rendered
+#: seed 000's law as printed and the forces first, and its scene is replayed that way.
+LAW_0_2 = (0, 2, 0)
 
 
 def _version(text: str | None) -> tuple[int, ...]:
@@ -94,8 +95,8 @@ def scene_of_run(scene_text: str, run: dict[str, str] | None) -> SceneConfig:
     """The scene a run rendered: its config text, read with the defaults of the build that
     recorded it (`run` is the log's run metadata: its version)."""
     scene = load_config_text(SceneConfig, scene_text, "log:configs.scene")
-    if _version((run or {}).get("version")) < JDOT_QD_SINCE:
-        rendering = dataclasses.replace(scene.rendering, jdot_qd=False)
+    if _version((run or {}).get("version")) < LAW_0_2:
+        rendering = dataclasses.replace(scene.rendering, jdot_qd=False, impulse_law="0.1")
         scene = dataclasses.replace(scene, rendering=rendering)
     return scene
 

@@ -92,43 +92,87 @@ def nnls(ws, m):
 
 
 @njit(cache=True)
-def contact_stage(m, d, k, weight):
-    """Penalty + friction of slot k's continuous contacts (seed 001 eq 8) and collision
-    detection, weighted by its cross-fade weight.
+def queue_collision(m, d, i, vn):
+    """Queue contact i of the newest slot for the impulse stage if it collides: it starts
+    penetrating this tick, approaching faster than collision_speed (DESIGN §4.1)."""
+    ws = d.scratch
+    if (
+        d.contacts[0].in_contact[i] == 0
+        and m.params.impulses == 1
+        and vn < -m.params.collision_speed
+        and ws.n_colliding < ws.coll_target.shape[0]
+    ):
+        slot = m.slots[0]
+        c = ws.n_colliding
+        for j in range(slot.dof):
+            ws.coll_rows[c, j] = (
+                slot.c_normal[i, 0] * ws.jac_point[0, j] + slot.c_normal[i, 1] * ws.jac_point[1, j]
+            )
+        ws.coll_target[c] = -(1.0 + slot.c_restitution[i]) * vn
+        ws.coll_index[c] = i
+        ws.n_colliding = c + 1
+
+
+@njit(cache=True)
+def contact_kinematics(m, d, k, i):
+    """Contact i of slot k at the proxy: the point's Jacobian into scratch.jac_point; returns
+    (gap, normal velocity, tangential velocity), the environment moved by its velocity times
+    the model's age."""
+    slot = m.slots[k]
+    cs = d.contacts[k]
+    ws = d.scratch
+    n = slot.dof
+    link = slot.c_link[i]
+    point_on_link(ws.frame_pos, ws.frame_angle, link, slot.c_tool[i], ws.contact_point)
+    px = ws.contact_point[0]
+    py = ws.contact_point[1]
+    point_jacobian(slot.joint_types, ws.frame_pos, n, link, px, py, ws.jac_point)
+    nx = slot.c_normal[i, 0]
+    ny = slot.c_normal[i, 1]
+    ex = slot.c_env[i, 0] + slot.c_env_velocity[i, 0] * cs.age_s
+    ey = slot.c_env[i, 1] + slot.c_env_velocity[i, 1] * cs.age_s
+    gap = nx * (px - ex) + ny * (py - ey)
+    vx = -slot.c_env_velocity[i, 0]
+    vy = -slot.c_env_velocity[i, 1]
+    for j in range(n):
+        vx += ws.jac_point[0, j] * d.state.qd[j]
+        vy += ws.jac_point[1, j] * d.state.qd[j]
+    return gap, nx * vx + ny * vy, -ny * vx + nx * vy
+
+
+@njit(cache=True)
+def collisions(m, d):
+    """The newest slot's colliding contacts queued for the impulse stage (the contact forces
+    come after the impulses, from the velocity they leave)."""
+    slot = m.slots[0]
+    for i in range(slot.n_contacts):
+        gap, vn, _vt = contact_kinematics(m, d, 0, i)
+        if gap <= 0.0:
+            queue_collision(m, d, i, vn)
+
+
+@njit(cache=True)
+def contact_stage(m, d, k, weight, detect):
+    """Penalty + friction of slot k's continuous contacts (seed 001 eq 8), weighted by its
+    cross-fade weight; with `detect`, the newest slot's colliding contacts are queued here
+    (version 0.1's order: forces from the velocity before the impulses).
 
     Accumulates weight * J_c^T F into tau_contact and the contact stiffness and damping into
-    contact_stiffness_q / contact_damping_q (for the implicit proxy step). Colliding contacts
-    of the newest slot (k == 0) are queued in coll_* for the impulse stage. Returns the
+    contact_stiffness_q / contact_damping_q (for the implicit proxy step). Returns the
     number in penetration.
     """
     slot = m.slots[k]
     cs = d.contacts[k]
-    params = m.params
-    state = d.state
     ws = d.scratch
     dt = d.dt
     n = slot.dof
     active = 0
     for i in range(slot.n_contacts):
-        link = slot.c_link[i]
-        point_on_link(ws.frame_pos, ws.frame_angle, link, slot.c_tool[i], ws.contact_point)
-        px = ws.contact_point[0]
-        py = ws.contact_point[1]
-        point_jacobian(slot.joint_types, ws.frame_pos, n, link, px, py, ws.jac_point)
+        gap, vn, vt = contact_kinematics(m, d, k, i)
         nx = slot.c_normal[i, 0]
         ny = slot.c_normal[i, 1]
         tx = -ny
         ty = nx
-        ex = slot.c_env[i, 0] + slot.c_env_velocity[i, 0] * cs.age_s
-        ey = slot.c_env[i, 1] + slot.c_env_velocity[i, 1] * cs.age_s
-        gap = nx * (px - ex) + ny * (py - ey)
-        vx = -slot.c_env_velocity[i, 0]
-        vy = -slot.c_env_velocity[i, 1]
-        for j in range(n):
-            vx += ws.jac_point[0, j] * state.qd[j]
-            vy += ws.jac_point[1, j] * state.qd[j]
-        vn = nx * vx + ny * vy
-        vt = tx * vx + ty * vy
         if gap > 0.0:
             cs.in_contact[i] = 0
             cs.stick[i] = 0.0
@@ -138,19 +182,8 @@ def contact_stage(m, d, k, weight):
             ws.penetration = -gap
         k_n = slot.c_stiffness[i]
         b_n = slot.c_damping[i]
-        if (
-            k == 0
-            and cs.in_contact[i] == 0
-            and params.impulses == 1
-            and vn < -params.collision_speed
-            and ws.n_colliding < ws.coll_target.shape[0]
-        ):
-            c = ws.n_colliding
-            for j in range(n):
-                ws.coll_rows[c, j] = nx * ws.jac_point[0, j] + ny * ws.jac_point[1, j]
-            ws.coll_target[c] = -(1.0 + slot.c_restitution[i]) * vn
-            ws.coll_index[c] = i
-            ws.n_colliding = c + 1
+        if k == 0 and detect:
+            queue_collision(m, d, i, vn)
         if cs.in_contact[i] == 0:
             cs.stick[i] = 0.0
         cs.in_contact[i] = 1
@@ -190,9 +223,10 @@ def contact_stage(m, d, k, weight):
 
 @njit(cache=True)
 def contacts(m, d):
-    """The contact stage over both slots: the newest at weight alpha, the fading one at
-    1 - alpha (its contacts are not counted, nor queued for impulses); then both models'
-    contact states age by dt."""
+    """Collisions, their impulses, then the contact stage over both slots: the newest at
+    weight alpha, the fading one at 1 - alpha (its contacts are not counted, nor queued for
+    impulses); then both models' contact states age by dt. With impulse_law 1
+    (version 0.1) the forces come first, from the velocity before the impulses."""
     w = d.scratch
     n = m.slots[0].dof
     for a in range(n):
@@ -208,12 +242,19 @@ def contacts(m, d):
     w.penetration = 0.0
     w.contact_ran = 0
     old = m.slots[1]
+    after = m.params.impulse_law == 2
+    if after:
+        if m.params.impulses == 1 and m.slots[0].n_contacts > 0:
+            collisions(m, d)
+        impulses(m, d)
     if m.slots[0].n_contacts > 0:
-        w.n_active += contact_stage(m, d, 0, w.alpha)
+        w.n_active += contact_stage(m, d, 0, w.alpha, not after)
         w.contact_ran = 1
     if old.valid == 1 and w.alpha < 1.0 and old.n_contacts > 0 and old.dof == n:
-        contact_stage(m, d, 1, 1.0 - w.alpha)
+        contact_stage(m, d, 1, 1.0 - w.alpha, False)
         w.contact_ran = 1
+    if not after:
+        impulses(m, d)
     d.contacts[0].age_s += d.dt
     d.contacts[1].age_s += d.dt
 

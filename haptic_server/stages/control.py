@@ -11,6 +11,7 @@ from numba import njit
 
 from haptic_server.stages.kinematics import fading
 from shared.kinematics import point_bias_acceleration
+from shared.linalg import cholesky_inplace, cholesky_solve
 from shared.protocol.codes import Method
 
 
@@ -22,16 +23,39 @@ def mat3_vec(a, v, out, scale):
 
 
 @njit(cache=True)
+def effective_device_twist(m, d):
+    """The device's twist as if the impulse it still owes were delivered:
+    xd_h + M_d^-1 impulse_carry (impulse_law 2). A device that cannot stop in one tick is
+    moving faster than the VM it follows only by that carry, which the next ticks deliver;
+    the coordination coupling sees the effective twist, so it neither brakes the device a
+    second time nor drags the VM back into the surface it was stopped at."""
+    w = d.scratch
+    sen = d.sensors[0]
+    carry = d.state.impulse_carry
+    for c in range(3):
+        w.device_twist_eff[c] = sen.twist[c]
+    if m.params.impulse_law != 2 or (carry[0] == 0.0 and carry[1] == 0.0 and carry[2] == 0.0):
+        return
+    if not cholesky_inplace(sen.inertia, 3, w.inertia_chol):
+        return
+    cholesky_solve(w.inertia_chol, 3, carry, w.carry_velocity)
+    for c in range(3):
+        w.device_twist_eff[c] += w.carry_velocity[c]
+
+
+@njit(cache=True)
 def coupling_errors(m, d):
-    """e = x_VM - x_h, ed = xd_VM - xd_h, the device-proxy coupling force K e + B ed, the
-    resisted directions in force this tick; the row's force parts start at zero."""
+    """e = x_VM - x_h, ed = xd_VM - xd_h (the device's effective twist), the device-proxy
+    coupling force K e + B ed, the resisted directions in force this tick; the row's force
+    parts start at zero."""
     p = m.params
     w = d.scratch
     sen = d.sensors[0]
     r = d.row
+    effective_device_twist(m, d)
     for c in range(3):
         w.e[c] = w.x_vm[c] - sen.pose[c]
-        w.ed[c] = w.xd_vm[c] - sen.twist[c]
+        w.ed[c] = w.xd_vm[c] - w.device_twist_eff[c]
         w.f_coupling[c] = p.coupling_stiffness[c] * w.e[c] + p.coupling_damping[c] * w.ed[c]
     n_res = m.slots[0].n_resisted
     old = m.slots[1]

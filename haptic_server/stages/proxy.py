@@ -22,11 +22,16 @@ def proxy_step(m, d):
     p = m.params
     st = d.state
     w = d.scratch
-    vh = d.sensors[0].twist
+    vh = w.device_twist_eff  # the sensors' twist plus the velocity change the carry owes
     dt = d.dt
     for c in range(3):
         w.hand_acc[c] = (vh[c] - st.prev_device_twist[c]) / dt
         st.prev_device_twist[c] = vh[c]
+    if p.impulse_law == 2:
+        # this tick's new impulse is a step, not an acceleration to extrapolate: the next
+        # tick's estimate starts from the twist it leaves (J_h D^-1 P_cs)
+        for c in range(3):
+            st.prev_device_twist[c] += w.acc_impulse[c] * dt
     if p.integrate_proxy == 0 or w.mass_ok == 0:
         return
     n = m.slots[0].dof

@@ -10,7 +10,7 @@ from device_models.world_map import (
     map_sensors_to_world,
     map_wrench_to_world,
 )
-from haptic_server.stages.contacts import contacts, impulses
+from haptic_server.stages.contacts import contacts
 from haptic_server.stages.control import control, coupling_errors
 from haptic_server.stages.kinematics import (
     blend_model,
@@ -33,7 +33,6 @@ def haptic_tick(model, data):
     proxy_kinematics(m, d)
     blend_model(m, d)
     contacts(m, d)
-    impulses(m, d)
     operational_terms(m, d)
     coupling_errors(m, d)
     control(m, d)
