@@ -114,6 +114,23 @@ def point_jacobian(joint_types, frame_pos, dof, link, px, py, jac):
 
 
 @njit(cache=True)
+def point_velocity(joint_types, frame_pos, count, px, py, qd):
+    """World velocity (vx, vy) that joints 0 .. count - 1 give point P at rates qd."""
+    vx = 0.0
+    vy = 0.0
+    for j in range(count):
+        jt = joint_types[j]
+        if jt == REVOLUTE:
+            vx -= qd[j] * (py - frame_pos[j, 1])
+            vy += qd[j] * (px - frame_pos[j, 0])
+        elif jt == PRISMATIC_X:
+            vx += qd[j]
+        else:
+            vy += qd[j]
+    return vx, vy
+
+
+@njit(cache=True)
 def point_bias_acceleration(joint_types, frame_pos, dof, link, px, py, qd, out):
     """J_dot qd of world point P on `link`: its acceleration when qdd = 0 (DESIGN §4.3).
 
@@ -122,36 +139,14 @@ def point_bias_acceleration(joint_types, frame_pos, dof, link, px, py, qd, out):
     joints before it, and a prismatic joint j itself, move). Prismatic columns are constant
     and the angular row is a sum of revolute rates: both contribute nothing.
     """
-    vpx = 0.0
-    vpy = 0.0
-    for j in range(min(link + 1, dof)):
-        jt = joint_types[j]
-        if jt == REVOLUTE:
-            vpx -= qd[j] * (py - frame_pos[j, 1])
-            vpy += qd[j] * (px - frame_pos[j, 0])
-        elif jt == PRISMATIC_X:
-            vpx += qd[j]
-        else:
-            vpy += qd[j]
+    vpx, vpy = point_velocity(joint_types, frame_pos, min(link + 1, dof), px, py, qd)
     out[0] = 0.0
     out[1] = 0.0
     out[2] = 0.0
     for j in range(min(link + 1, dof)):
         if joint_types[j] != REVOLUTE:
             continue
-        ox = frame_pos[j, 0]
-        oy = frame_pos[j, 1]
-        vox = 0.0
-        voy = 0.0
-        for k in range(j):
-            jt = joint_types[k]
-            if jt == REVOLUTE:
-                vox -= qd[k] * (oy - frame_pos[k, 1])
-                voy += qd[k] * (ox - frame_pos[k, 0])
-            elif jt == PRISMATIC_X:
-                vox += qd[k]
-            else:
-                voy += qd[k]
+        vox, voy = point_velocity(joint_types, frame_pos, j, frame_pos[j, 0], frame_pos[j, 1], qd)
         out[0] -= qd[j] * (vpy - voy)
         out[1] += qd[j] * (vpx - vox)
 

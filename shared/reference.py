@@ -226,6 +226,20 @@ class Integrator:
     rtol: float = 1e-10
     atol: float = 1e-12
 
+    def states(
+        self, rhs: Callable[[float, FloatArray], FloatArray], s0: FloatArray, t_end: float,
+        t_eval: ArrayLike, what: str,
+    ) -> tuple[FloatArray, FloatArray]:  # fmt: skip
+        """(t, states at t) of rhs integrated from s0 to t_end; RuntimeError naming `what`."""
+        times = np.asarray(t_eval, dtype=float)
+        result = solve_ivp(
+            rhs, (0.0, float(t_end)), s0, method=self.method, t_eval=times,
+            rtol=self.rtol, atol=self.atol,
+        )  # fmt: skip
+        if not result.success:
+            raise RuntimeError(f"{what} failed: {result.message}")
+        return result.t, result.y.T
+
 
 def simulate(
     spec: ChainSpec,

@@ -20,7 +20,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.integrate import solve_ivp
 
 from shared.reference import ChainSpec, Hold, Integrator
 
@@ -175,16 +174,9 @@ def simulate_bodies(
         force[3 * link + 2] += arm[0] * w[1] - arm[1] * w[0] + w[2]
         return np.concatenate((v, bodies.accelerations(x, v, force)))
 
-    times = np.asarray(t_eval, dtype=float)
     s0 = bodies.from_joints(np.asarray(q0, float), np.asarray(qd0, float))
-    result = solve_ivp(
-        rhs, (0.0, float(t_end)), s0, method=integrator.method, t_eval=times,
-        rtol=integrator.rtol, atol=integrator.atol,
-    )  # fmt: skip
-    if not result.success:
-        raise RuntimeError(f"pinned-body reference failed: {result.message}")
-    states = result.y.T
+    t, states = integrator.states(rhs, s0, t_end, t_eval, "pinned-body reference")
     pose = np.array([held(s[: 3 * n], s[3 * n :])[0] for s in states])
     q = np.array([bodies.joint_angles(s[: 3 * n]) for s in states])
     worst = max(float(np.abs(bodies._pins(s[: 3 * n], s[3 * n :])[0]).max()) for s in states)
-    return BodySolution(t=result.t, pose=pose, q=q, constraint_error=worst)
+    return BodySolution(t=t, pose=pose, q=q, constraint_error=worst)

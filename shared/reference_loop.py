@@ -22,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.integrate import solve_ivp
 
 from shared.reference import (
     ChainSpec,
@@ -131,13 +130,6 @@ def simulate_loop(
 
     x0 = point_pose(spec, q_start, link, r) + np.asarray(device_offset, dtype=float)
     s0 = np.concatenate((q_start, np.zeros(n), x0, np.zeros(3)))
-    times = np.asarray(t_eval, dtype=float)
-    result = solve_ivp(
-        rhs, (0.0, float(t_end)), s0, method=integrator.method, t_eval=times,
-        rtol=integrator.rtol, atol=integrator.atol,
-    )  # fmt: skip
-    if not result.success:
-        raise RuntimeError(f"closed-loop reference failed: {result.message}")
-    states = result.y.T
+    t, states = integrator.states(rhs, s0, t_end, t_eval, "closed-loop reference")
     vm = np.array([point_pose(spec, s[:n], link, r) for s in states])
-    return LoopSolution(t=result.t, vm_pose=vm, device_pose=states[:, 2 * n : 2 * n + 3])
+    return LoopSolution(t=t, vm_pose=vm, device_pose=states[:, 2 * n : 2 * n + 3])
