@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.linkage import chain_spec, drift_metrics
 from device_models.registry import load_device
 from haptic_server.harness.virtual import run_virtual
 from shared.config import SceneConfig, UserConfig, load_scene
@@ -55,7 +56,6 @@ OFF_AXIS_M = 0.01
 TARGET_RMS_MM = 0.5  # the goal away from singularities, at every sim rate
 MIN_TRAVEL_MM = 1.0  # a hold the push does not move (along a link at its base) grades nothing
 SINGULAR_MARGIN = 2.0  # within this factor of the rank tolerance counts as near rank loss
-STEADY_S = 1.0
 SWEEP_ANGLES_DEG = (-30.0, -15.0, 0.0, 15.0, 30.0)
 SWEEP_PUSH_N = 0.4
 SEED_OFFSET = (0.005, 0.003, 0.0)  # seed 000's initial device offset
@@ -94,14 +94,6 @@ def family(scene: SceneConfig, quick: bool = False) -> list[HoldCase]:
                     continue
                 cases.append(HoldCase(link, where, point, push, wrench))
     return cases
-
-
-def chain_spec(scene: SceneConfig) -> ChainSpec:
-    lk = scene.tool_linkage
-    return ChainSpec(
-        base=lk.base, lengths=lk.lengths, masses=lk.masses, inertias=lk.inertias,
-        com_offsets=lk.com_offsets, gravity=scene.gravity, base_angle=lk.base_angle,
-    )  # fmt: skip
 
 
 def case_scene(
@@ -201,8 +193,7 @@ def measure_case(
 
 
 def steady_drift_mm(ticks: np.ndarray) -> float:
-    drift = distance_mm(ticks["device_pose"], ticks["vm_pose"])
-    return float(drift[ticks["t"] >= ticks["t"][-1] - STEADY_S].mean())
+    return drift_metrics(ticks)["steady_drift_mm"]  # mean of the last second
 
 
 def singular_sweep(scene: SceneConfig, seconds: float) -> list[dict[str, Any]]:

@@ -76,7 +76,7 @@ def chain_spec(scene: SceneConfig) -> ChainSpec:
     lk = scene.tool_linkage
     return ChainSpec(
         base=lk.base, lengths=lk.lengths, masses=lk.masses, inertias=lk.inertias,
-        com_offsets=lk.com_offsets, base_angle=lk.base_angle,
+        com_offsets=lk.com_offsets, gravity=scene.gravity, base_angle=lk.base_angle,
     )  # fmt: skip
 
 

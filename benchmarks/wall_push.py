@@ -54,13 +54,18 @@ class WallPushMetrics:
     peak_rendered_force_n: float
 
 
+def impact(ticks: np.ndarray) -> tuple[int, int]:
+    """The first tick the wall pushes back (along -x), and how often contact is lost after."""
+    touching = -ticks["contact_force_world"][:, 0] > 0.0
+    first = int(np.argmax(touching))
+    return first, int(np.sum(touching[first:-1] & ~touching[first + 1 :]))
+
+
 def measure(scene: str, seconds: float) -> tuple[WallPushMetrics, np.ndarray]:
     ticks = run_virtual_named(scene, "ideal", "push_2n", seconds).ticks
     t = ticks["t"]
     force = -ticks["contact_force_world"][:, 0]  # the wall pushes back along -x
-    touching = force > 0.0
-    first = int(np.argmax(touching))
-    losses = int(np.sum(touching[first:-1] & ~touching[first + 1 :]))
+    first, losses = impact(ticks)
     outside = np.abs(force - PUSH_N) > SETTLE_BAND * PUSH_N
     last_out = int(np.nonzero(outside)[0][-1]) if outside.any() else first
     steady = t >= t[-1] - STEADY_S
@@ -97,8 +102,7 @@ def sweep_case(stiffness: float, push: float, law: str, seconds: float = 3.0) ->
     user = UserConfig(name=f"push {push:g} N", kind="constant_wrench", wrench=(push, 0.0, 0.0))
     ticks = run_virtual(scene, load_device("ideal"), user, seconds).ticks
     t = ticks["t"]
-    touching = -ticks["contact_force_world"][:, 0] > 0.0
-    first = int(np.argmax(touching))
+    first, losses = impact(ticks)
     steady = t >= t[-1] - STEADY_S
     expected = push / stiffness
     vm = ticks["vm_pose"][steady, 0] + HALF_LENGTH - WALL_X
@@ -114,7 +118,7 @@ def sweep_case(stiffness: float, push: float, law: str, seconds: float = 3.0) ->
         "stiffness_n_per_m": stiffness,
         "push_n": push,
         "law": float(law),
-        "contact_losses": int(np.sum(touching[first:-1] & ~touching[first + 1 :])),
+        "contact_losses": losses,
         "impact_speed_m_per_s": v_impact,
         "impact_depth_m": depth,
         "push_out": float(

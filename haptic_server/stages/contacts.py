@@ -143,9 +143,12 @@ def contact_kinematics(m, d, k, i):
 @njit(cache=True)
 def collisions(m, d):
     """The newest slot's colliding contacts queued for the impulse stage (the contact forces
-    come after the impulses, from the velocity they leave)."""
+    come after the impulses, from the velocity they leave). A contact already in contact
+    last tick cannot collide: its kinematics wait for the contact stage."""
     slot = m.slots[0]
     for i in range(slot.n_contacts):
+        if d.contacts[0].in_contact[i] == 1:
+            continue
         gap, vn, _vt = contact_kinematics(m, d, 0, i)
         if gap <= 0.0:
             queue_collision(m, d, i, vn)

@@ -46,15 +46,16 @@ def safety_and_limits(m, d):
         # ticks, so the device still receives the momentum change (seed 001 eq 7)
         f_imp = r.f_impulse[c]
         excess = v - clipped
-        if p.impulse_law == 2:
-            # the impulse has the limit first: what the clipped command does not deliver
-            # of it is carried (the coupling no longer brakes the same momentum: see
-            # effective_device_twist)
-            if st.safe == 0.0 and f_imp != 0.0 and excess * f_imp > 0.0:
+        if st.safe == 0.0 and f_imp != 0.0 and excess * f_imp > 0.0:
+            if p.impulse_law == 2:
+                # the impulse has the limit first: what the clipped command does not
+                # deliver of it is carried (the coupling no longer brakes the same
+                # momentum: see effective_device_twist)
                 delivered = min(abs(f_imp), abs(clipped)) if clipped * f_imp > 0.0 else 0.0
-                st.impulse_carry[c] = math.copysign(abs(f_imp) - delivered, f_imp) * d.dt
-        elif st.safe == 0.0 and f_imp != 0.0 and excess * f_imp > 0.0:
-            st.impulse_carry[c] = math.copysign(min(abs(excess), abs(f_imp)), f_imp) * d.dt
+                carried = abs(f_imp) - delivered
+            else:  # version 0.1: all the excess, up to the impulse
+                carried = min(abs(excess), abs(f_imp))
+            st.impulse_carry[c] = math.copysign(carried, f_imp) * d.dt
         r.wrench_command[c] = clipped
     for a in range(m.slots[0].dof):
         if not (math.isfinite(st.q[a]) and math.isfinite(st.qd[a])):
