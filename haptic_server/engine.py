@@ -25,7 +25,12 @@ from haptic_server.model import (
     params_record,
 )
 from haptic_server.simulated import run_ticks, simulated_tick
-from haptic_server.stages.install import accept_update
+from haptic_server.stages.install import (
+    DEFAULT_MAX_AGE_S,
+    DEFAULT_MAX_SKEW_S,
+    EPOCH_LAW_LIVE,
+    accept_update,
+)
 from haptic_server.stages.tick import engine_step, store_applied
 from haptic_server.users import USER_GIVEN, user_record
 from shared.config import ConfigError, SceneConfig, UserConfig
@@ -80,6 +85,9 @@ def install_record() -> np.ndarray:
     rec[0]["seq"] = -1
     rec[0]["match_radius_m"] = CONTACT_MATCH_RADIUS_M
     rec[0]["limits"] = limits_record(DEFAULT_LIMITS)
+    rec[0]["epoch_law"] = EPOCH_LAW_LIVE
+    rec[0]["max_age_s"] = DEFAULT_MAX_AGE_S
+    rec[0]["max_skew_s"] = DEFAULT_MAX_SKEW_S
     return rec
 
 
@@ -165,7 +173,8 @@ class HapticEngine:
     # --- updates ------------------------------------------------------------------------
 
     def receive(self, raw: bytes, latency_s: float = 0.0) -> str:
-        """Validate and install an update's bytes; returns "" or the rejection reason."""
+        """Validate and install an update's bytes, taken latency_s after its publication
+        (the receiver's clock minus its publish time); returns "" or the rejection reason."""
         n = len(raw)
         if n > self.buffer.shape[0]:
             self.counters.reject_counts[Reason.SIZE] += 1
@@ -210,6 +219,14 @@ class HapticEngine:
             self._install_ticks.append(self.tick_index)
             self._advance_foh(self.slots[0]["tool_pose"])
 
+    def set_admission(
+        self, max_age_s: float, max_skew_s: float, epoch_law: int = EPOCH_LAW_LIVE
+    ) -> None:
+        """How updates are admitted by time and epoch (haptic_server.stages.install): the
+        network's max_update_age_ms and clock_skew_ms, or a replayed release's law."""
+        ins = self.install[0]
+        ins["max_age_s"], ins["max_skew_s"], ins["epoch_law"] = max_age_s, max_skew_s, epoch_law
+
     @property
     def tick_index(self) -> int:
         """Ticks run so far (the clock record's count)."""
@@ -233,6 +250,7 @@ class HapticEngine:
     @stale.setter
     def stale(self, value: bool) -> None:
         self._stale = value
+        self.install[0]["stale"] = 1 if value else 0
         foh = self.method == Method.VIRTUAL_COUPLING_FOH
         self._follow[0] = 1 if (value or foh) else 0
 

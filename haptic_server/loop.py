@@ -145,6 +145,7 @@ class HapticServer:
         self.scene = scene
         self.network = network
         self.engine = HapticEngine(scene, device, user, network.safe_ramp_ms / 1000.0)
+        self.engine.set_admission(network.max_update_age_ms / 1e3, network.clock_skew_ms / 1e3)
         self.log_path = log_path
         self.configs = configs
         self.stats = HapticRunStats()

@@ -51,7 +51,7 @@ MAILBOX_DTYPE = np.dtype(
         ("tick", np.int64),  # the tick it was taken at
         ("recv_ns", np.int64),  # wall clock when the sidecar received it
         ("install_ns", np.int64),  # wall clock when the loop took it (its tick's start)
-        ("latency_s", np.float64),  # publish -> install, as installed
+        ("latency_s", np.float64),  # its age when taken: install clock - publish time (s)
         ("raw", np.uint8, (SLOT_BYTES,)),  # 8-byte aligned: the parser reads floats in place
     ]
 )
@@ -173,7 +173,20 @@ def push_row(ring, ctl, row, lateness, work, peaks):
         peaks[1] = max(peaks[1], r.work_us)
 
 
-MAX_LATENCY_S = 1.0  # publish -> install is clamped to [0, this] (a clock step between hosts)
+#: beyond this many ns between the clock and a publish time the age is only its sign (a
+#: forged time may be anywhere in int64: their difference would wrap)
+AGE_SPAN_NS = 1 << 61
+
+
+@njit(cache=True)
+def age_s(now_ns, published_ns):
+    """The receiver's clock minus a publish time, in s, without int64 wrap-around: exact
+    (the difference in ns) within AGE_SPAN_NS, else +-AGE_SPAN_NS (73 years) by sign."""
+    if published_ns < now_ns - AGE_SPAN_NS:
+        return AGE_SPAN_NS / 1e9
+    if published_ns > now_ns + AGE_SPAN_NS:
+        return -AGE_SPAN_NS / 1e9
+    return (now_ns - published_ns) / 1e9
 
 
 @njit(cache=True)
@@ -202,7 +215,7 @@ def take_updates(ctl, mailbox, tick, now_ns, budget, model, data, install):
         n = slot.length
         latency = 0.0
         if n >= PUBLISH_TIME_END:
-            latency = min(max((now_ns - publish_time_ns(slot.raw)) / 1e9, 0.0), MAX_LATENCY_S)
+            latency = age_s(now_ns, publish_time_ns(slot.raw))
         code = accept_update(slot.raw, n, latency, model, data, install)
         if code != 0:
             ins.reject_counts[code] += 1

@@ -241,6 +241,10 @@ INSTALL_DTYPE = np.dtype(
         ("new_epoch", I8),  # the last install began a new epoch
         ("installed", I8),  # installs so far
         ("follow", I8),  # every install needs the engine's Python side (stale, FOH)
+        ("stale", I8),  # the watchdog fired: the next good update may begin any epoch
+        ("epoch_law", I8),  # EPOCH_LAW_*: how epochs and times are admitted
+        ("max_age_s", F8),  # an update older than this when taken is late
+        ("max_skew_s", F8),  # a publish time (or epoch) this far ahead of the clock is forged
         ("match_radius_m", F8),  # a contact keeps its state if its tool point moved less
         ("reject_counts", I8, (REASON_CODES,)),  # rejections by verdict code
         ("parsed", LOCAL_MODEL_DTYPE, (1,)),

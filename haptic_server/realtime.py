@@ -30,6 +30,7 @@ from haptic_server.mailbox import (
 )
 from haptic_server.model import TICK_DTYPE
 from haptic_server.simulated import simulated_tick
+from haptic_server.stages.install import EPOCH_LAW_LIVE
 from shared.atomics import load_acquire
 from shared.clock import monotonic_ns, realtime_ns, wait_until_ns
 from shared.protocol.update import epoch_of
@@ -123,8 +124,10 @@ def _quiet_installs(lp, ring_io, recs, ts):
         if read >= load_acquire(ctl, C_UPD_HEAD):  # afresh: the sidecar writes it
             break
         slot = mailbox[read % mailbox.shape[0]]
-        if clock[0].ready == 0 or ins.follow == 1 or epoch_of(slot.raw, slot.length) != ins.epoch:
+        if clock[0].ready == 0 or ins.follow == 1:
             return False
+        if ins.epoch_law != EPOCH_LAW_LIVE and epoch_of(slot.raw, slot.length) != ins.epoch:
+            return False  # the update may begin an epoch (live, another is only rejected)
         n, installed, follow, seq, latency = take_updates(
             ctl, mailbox, lp.tick, realtime_ns(ts), 1, model, data, install
         )

@@ -205,6 +205,12 @@ def require(cond: bool, key: str, problem: str) -> None:
         raise ValueError(f"{key}: {problem}")
 
 
+def within(value: float, bounds: tuple[float, float], key: str, unit: str = "") -> None:
+    """A `require` that value lies in the closed range bounds (NaN never does)."""
+    low, high = bounds
+    require(low <= value <= high, key, f"must be within [{low:g}, {high:g}] {unit}, got {value!r}")
+
+
 # --- scene ----------------------------------------------------------------------------------
 
 RenderingMethod = Literal[

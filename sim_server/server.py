@@ -121,9 +121,9 @@ class SimServer:
                 # off the tick it aims at
                 self._read_proxies(sub, wait_until(step_start - PHASE_SPIN_NS, 0))
                 now = wait_until(step_start, PHASE_SPIN_NS)
-                if now - deadline > period_ns:
-                    self.stats.overruns += 1
-                    deadline = now
+                if now - deadline > period_ns:  # stalled (or stopped): start afresh from now,
+                    self.stats.overruns += 1  # or the state's lead would count the stall
+                    deadline = step_start = now  # (beyond 1 s: rejected as a magnitude)
                 t0 = now
                 if seq > 0:
                     self.interval_ms.add((t0 - last_start) / 1e6)

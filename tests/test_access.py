@@ -5,7 +5,8 @@ The haptic server and the sim run as real processes on the shipped `secure_loopb
 sim's (which the haptic server would switch to if it accepted them), on the same key: one
 without credentials, one with a wrong password, one authenticated as an observer that may not
 publish. None of their updates reaches the haptic server. A last peer presenting the sim's own
-credentials is installed: the control showing that these updates would have been accepted.
+credentials is the control: its updates reach the haptic server, which refuses them only as
+another epoch while the sim's updates flow (`test_forgery.py` follows that layer further).
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ UPDATES_PER_PEER = 60  # each peer publishes this many,
 PUBLISH_HZ = 60.0  # as fast as the sim does
 SIM_FLOW_S = 1.0  # the sim's updates are flowing for this long before the first intruder
 MIN_SIM_FRACTION = 0.5  # of the sim's updates over the run installed (noisy 2-core VM)
-# of the control's updates installed: the first may race the subscriber's declaration at the
-# new peer, and the real sim's interleaved ones are refused as an older epoch, not these
+# of the control's updates received: the first may race the subscriber's declaration at the
+# new peer
 MIN_CONTROL_FRACTION = 0.8
 CREDENTIALS = CONFIG_ROOT / "credentials"
 # A logged update that cannot be decoded: its mailbox slot was reused before the I/O process
@@ -119,7 +120,7 @@ def test_only_the_configured_sim_drives_the_haptic_server(
         proxies_seen[name] = count[0]
         session.close()
 
-    # control: the same updates with the sim's own credentials are installed
+    # control: the same updates with the sim's own credentials reach the haptic server
     control = peer(endpoint, "sim", sim_password, tmp_path)
     epochs["control (sim credentials)"] = control_epoch = time.time_ns()
     publish_updates(control, key, control_epoch)
@@ -133,7 +134,7 @@ def test_only_the_configured_sim_drives_the_haptic_server(
     # what was installed, from the tick records (every tick holds the installed epoch)
     ticks = read_ticks(log)
     installed_epochs = set(ticks["update_epoch"][ticks["update_seq"] >= 0].tolist())
-    assert installed_epochs == {sim_epoch, control_epoch}
+    assert installed_epochs == {sim_epoch}
     # what was received: the loop took no more updates than the sim and the control sent
     # (fewer: the sim's first ones go out before it has connected); the intruders' would add
     # len(intruders) * UPDATES_PER_PEER
@@ -151,8 +152,9 @@ def test_only_the_configured_sim_drives_the_haptic_server(
     assert proxies_seen["observer (may not publish)"] > 0
     assert proxies_seen["no credentials"] == proxies_seen["wrong password"] == 0
     assert proxies_seen["unknown user"] == 0
-    installed_control = [r for r in by_epoch.get(control_epoch, []) if r["installed"]]
-    assert len(installed_control) >= UPDATES_PER_PEER * MIN_CONTROL_FRACTION
+    control_verdicts = [r["reason"] for r in by_epoch.get(control_epoch, [])]
+    assert len(control_verdicts) >= UPDATES_PER_PEER * MIN_CONTROL_FRACTION
+    assert set(control_verdicts) == {"epoch"}  # another epoch while the sim's updates flow
     installed_sim = [r for r in by_epoch.get(sim_epoch, []) if r["installed"]]
     run_s = SIM_FLOW_S + len(intruders) * UPDATES_PER_PEER / PUBLISH_HZ
     assert len(installed_sim) >= MIN_SIM_FRACTION * run_s * load_scene(SCENE).sim_rate_hz

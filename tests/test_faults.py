@@ -80,10 +80,11 @@ class ProxyWatch:
     """A Zenoh peer on the haptic server's endpoint: receives its proxy states and can
     publish on the update key (garbage)."""
 
-    def __init__(self, network_file: Path) -> None:
+    def __init__(self, network_file: Path, spec: EndpointSpec | None = None) -> None:
+        """On the network's sim endpoint without credentials, or as `spec` says."""
         net = load_network(str(network_file))
         self.keys = keys(net.namespace)
-        self.session = open_session(EndpointSpec(listen=(), connect=net.sim.connect))
+        self.session = open_session(spec or EndpointSpec(listen=(), connect=net.sim.connect))
         self.publisher = self.session.declare_publisher(
             self.keys.update, congestion_control=zenoh.CongestionControl.BLOCK
         )
@@ -156,10 +157,11 @@ def watch_factory() -> Any:
 # --- garbage ------------------------------------------------------------------------------
 
 
-def garbage(epoch: int, count: int) -> tuple[list[bytes], Counter[str]]:
+def garbage(epoch: int, count: int) -> tuple[list[tuple[bytes, bool]], Counter[str]]:
     """Messages the haptic server must reject, and the reasons it must give, cycling through
     random bytes, an oversize and an empty payload, broken fields of a real update of the
-    scene, a replay (sequence) and an older epoch."""
+    scene, a replay (sequence), an older epoch and one published long ago (late). Each comes
+    with whether to stamp it as it is sent (`stamped`): the replay and the older epoch."""
     rng = np.random.default_rng(81)
     parser = UpdateParser(DEFAULT_LIMITS)
     valid = bytearray(encode_update(SimWorld(load_scene(SCENE)).local_model(epoch, 0, 0)))
@@ -186,8 +188,9 @@ def garbage(epoch: int, count: int) -> tuple[list[bytes], Counter[str]]:
         "count": lambda: (edit("<H", 42, n + 1), ""),
         "replay": lambda: (bytes(valid), "sequence"),
         "old_epoch": lambda: (edit("<Q", 8, epoch - 1), "epoch"),
+        "late": lambda: (bytes(valid), "late"),  # published at 0
     }
-    messages: list[bytes] = []
+    messages: list[tuple[bytes, bool]] = []
     reasons: Counter[str] = Counter()
     kinds = list(makers)
     for i in range(count):
@@ -196,9 +199,16 @@ def garbage(epoch: int, count: int) -> tuple[list[bytes], Counter[str]]:
             code = parser.parse(raw)
             assert code != 0, kinds[i % len(kinds)]
             reason = Reason(code).tag
-        messages.append(raw)
+        messages.append((raw, kinds[i % len(kinds)] in ("replay", "old_epoch")))
         reasons[reason] += 1
     return messages, reasons
+
+
+def stamped(raw: bytes) -> bytes:
+    """A message published now (the order check's garbage: late otherwise)."""
+    out = bytearray(raw)
+    struct.pack_into("<q", out, 32, time.time_ns())
+    return bytes(out)
 
 
 # --- reading the log ----------------------------------------------------------------------
@@ -311,8 +321,8 @@ def test_sim_garbage_stall_kill_and_restart(
     time.sleep(CLEAN_S)
     messages, expected_reasons = garbage(epoch1, round(GARBAGE_S * GARBAGE_HZ))
     next_put = time.monotonic()
-    for raw in messages:
-        watch.publisher.put(raw)
+    for raw, stamp in messages:
+        watch.publisher.put(stamped(raw) if stamp else raw)
         next_put += 1.0 / GARBAGE_HZ
         time.sleep(max(0.0, next_put - time.monotonic()))
     last = watch.rendering(epoch1)

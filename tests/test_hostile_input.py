@@ -616,10 +616,13 @@ def test_live_engine_under_interleaved_garbage(
             h.send_bad(action[1])
         elif kind == "replay":  # a valid message again, or an older one of this epoch
             h.send_bad(h.update(action[1], seq=max(0, h.seq - action[1] % 3)))
-        elif kind == "old_epoch":
-            h.send_bad(h.update(action[1], epoch=h.epoch - 1 - action[1] % 5))
-        elif kind == "new_epoch":  # a restarted sim: re-initialise
-            h.send_valid(h.update(action[1], epoch=h.epoch + 1, seq=0), h.epoch + 1, 0)
+        elif kind in ("old_epoch", "new_epoch"):  # another sim's, or a restarted one's
+            epoch = h.epoch + 1 if kind == "new_epoch" else h.epoch - 1 - action[1] % 5
+            raw = h.update(action[1], epoch=epoch, seq=0)
+            if h.engine.stale:  # after the watchdog: installed, re-initialises
+                h.send_valid(raw, epoch, 0)
+            else:  # while this epoch's updates flow: rejected, whichever is higher
+                h.send_bad(raw)
         elif kind == "oversize":
             size = h.engine.buffer.shape[0] + action[1]
             h.send_bad(b"\0" * size if action[1] % 2 else -size)

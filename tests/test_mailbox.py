@@ -12,6 +12,7 @@ and must leave bit-identical engines, verdicts and books after every tick.
 from __future__ import annotations
 
 import struct
+import time
 from multiprocessing import shared_memory
 from typing import Any
 
@@ -23,6 +24,7 @@ from haptic_server.engine import HapticEngine
 from haptic_server.harness.virtual import run_virtual
 from haptic_server.mailbox import C_UPD_READ, MAILBOX_SLOTS, SLOT_BYTES, SharedBlock
 from haptic_server.sidecar import LoopIO
+from haptic_server.stages.install import DEFAULT_MAX_AGE_S
 from shared.config import load_scene, load_user
 from shared.protocol.codes import Reason
 from shared.protocol.codes import reason_tag as reason_of
@@ -98,15 +100,20 @@ def test_mailbox_path_matches_receive(mailbox: MailboxOnly, scene: str, user: st
         HapticEngine(load_scene(scene), load_device("ideal"), load_user(user)) for _ in range(2)
     ]
     by_receive, by_mailbox = engines
-    epoch, seq, k = 1, 0, 0
-    now = 1_700_000_000_000_000_000
+    epoch, seq, k = time.time_ns() - 10**9, 0, 0  # the sim's start time, as a sim's epoch
     verdicts_seen: dict[str, int] = {}
     for tick in range(900):
+        now = time.time_ns()  # the mailbox takes them at its own clock: a few us later
         batch: list[tuple[bytes, int | None]] = []
-        if tick % 17 == 0 or rng.random() < 0.02:  # the sim's rate, and a few extra
+        if tick == 640:  # a restarted sim, as the watchdog fires (below)
+            epoch, seq = epoch + 10**9, 0
+            batch.append((restamp(pool[k % len(pool)], epoch, seq, now), None))
+        elif tick % 17 == 0 or rng.random() < 0.02:  # the sim's rate, and a few extra
             base = pool[k % len(pool)]
             k += 1
-            kind = rng.integers(0, 12)
+            kind = rng.integers(0, 14)
+            if kind in (4, 5) and (by_receive.stale or not by_receive.ready):  # any epoch would do
+                kind = 13
             if kind == 0:  # random garbage
                 batch.append(
                     (rng.integers(0, 256, int(rng.integers(1, 900)), np.uint8).tobytes(), None)
@@ -119,11 +126,14 @@ def test_mailbox_path_matches_receive(mailbox: MailboxOnly, scene: str, user: st
                 batch.append((base + bytes(SLOT_BYTES + 1 - len(base)), -(SLOT_BYTES + 1)))
             elif kind == 3:  # a repeat of the installed sequence number
                 batch.append((restamp(base, epoch, seq, now), None))
-            elif kind == 4 and epoch > 1:  # an older epoch
+            elif kind == 4:  # an older epoch
                 batch.append((restamp(base, epoch - 1, seq + 5, now), None))
-            elif kind == 5 and tick > 300:  # a restarted sim
-                epoch, seq = epoch + 1, 0
-                batch.append((restamp(base, epoch, seq, now), None))
+            elif kind == 5:  # another sim's newer epoch: installed only after a trip
+                batch.append((restamp(base, epoch + 1, 0, now), None))
+            elif kind == 7:  # delayed in the network beyond max_update_age_ms
+                batch.append((restamp(base, epoch, seq + 1, now - 500_000_000), None))
+            elif kind == 8:  # published in the future (a forged time)
+                batch.append((restamp(base, epoch, seq + 1, now + 10**12), None))
             elif kind == 6:  # a backlog: several valid ones in one tick
                 for _ in range(3):
                     seq += 1
@@ -163,7 +173,7 @@ def test_mailbox_path_matches_receive(mailbox: MailboxOnly, scene: str, user: st
                 )
                 if not reason:
                     n_ok += 1
-                    assert 0.0 <= latency <= 1.0
+                    assert 0.0 <= latency <= DEFAULT_MAX_AGE_S
                     if length is None and i == len(batch) - 1:
                         assert latency == pytest.approx(latency_s)
             assert installed == n_ok
@@ -173,7 +183,7 @@ def test_mailbox_path_matches_receive(mailbox: MailboxOnly, scene: str, user: st
         rows = [e.tick(1e-3)[0].tobytes() for e in engines]
         assert rows[0] == rows[1], f"tick {tick}"
     # the stream exercised every path it was built for
-    assert verdicts_seen["installed"] > 40
-    assert {"size", "sequence"} <= verdicts_seen.keys()
+    assert verdicts_seen["installed"] > 40, verdicts_seen
+    assert {"size", "sequence", "epoch", "late", "future"} <= verdicts_seen.keys()
     assert by_receive.counters.epochs >= 2
     assert by_receive.counters.reinitialisations >= 1

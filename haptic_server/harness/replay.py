@@ -14,6 +14,7 @@ import argparse
 import base64
 import dataclasses
 import json
+import math
 import sys
 from collections import defaultdict
 from dataclasses import dataclass
@@ -35,12 +36,13 @@ from haptic_server.live_view import (
 )
 from haptic_server.log import LogContents, read_log, recover_log
 from haptic_server.model import TICK_DTYPE
+from haptic_server.stages.install import EPOCH_LAW_HIGHER
 from haptic_server.stages.tick import store_row
 from haptic_server.supervisor import Event, LoggedEvents, supervise
 from shared import source_hash
 from shared.cli import add_version
-from shared.config import SceneConfig, UserConfig, load_config_text
-from shared.net.config import NetworkConfig
+from shared.config import ConfigError, SceneConfig, UserConfig, load_config_text, parse_toml_text
+from shared.net.config import SAFE_RAMP_MS_RANGE, NetworkConfig
 from shared.protocol.codes import Reason
 from shared.protocol.codes import reason_tag as reason_of
 
@@ -82,6 +84,10 @@ class ReplayResult:
 #: colliding tick's contact forces after its impulses; a log of an earlier build rendered
 #: seed 000's law as printed and the forces first, and its scene is replayed that way.
 LAW_0_2 = (0, 2, 0)
+#: The first version that admits an update only if it is fresh, and another epoch only when
+#: the watchdog has fired (haptic_server.stages.install, EPOCH_LAW_LIVE); before, any higher
+#: epoch switched at once and no publish time was checked.
+ADMISSION_0_3 = (0, 3, 0)
 
 
 def _version(text: str | None) -> tuple[int, ...]:
@@ -112,10 +118,27 @@ def engine_from_configs(configs: dict[str, str], run: dict[str, str] | None = No
     scene = scene_of_run(configs["scene"], run)
     user = load_config_text(UserConfig, configs["user"], "log:configs.user")
     device = device_from_text(configs["device"], "log:configs.device")
+    engine = HapticEngine(scene, device, user)
     if configs.get("network"):  # real-time runs: the safe-state ramp comes from the network
-        network = load_config_text(NetworkConfig, configs["network"], "log:configs.network")
-        return HapticEngine(scene, device, user, network.safe_ramp_ms / 1000.0)
-    return HapticEngine(scene, device, user)
+        network = _network_of_run(configs["network"], run)
+        engine = HapticEngine(scene, device, user, network.safe_ramp_ms / 1000.0)
+        engine.set_admission(network.max_update_age_ms / 1e3, network.clock_skew_ms / 1e3)
+    if _version((run or {}).get("version")) < ADMISSION_0_3:
+        engine.set_admission(math.inf, math.inf, EPOCH_LAW_HIGHER)
+    return engine
+
+
+def _network_of_run(text: str, run: dict[str, str] | None) -> NetworkConfig:
+    """A run's network config; one of a build before 0.3 may hold values that build took
+    and today's ranges refuse: its admission is replaced by the old law anyway."""
+    try:
+        return load_config_text(NetworkConfig, text, "log:configs.network")
+    except ConfigError:
+        if _version((run or {}).get("version")) >= ADMISSION_0_3:
+            raise
+        data = parse_toml_text(text, "log:configs.network")
+        ramp = float(data.get("safe_ramp_ms", NetworkConfig.safe_ramp_ms))
+        return NetworkConfig(safe_ramp_ms=min(ramp, SAFE_RAMP_MS_RANGE[1]))
 
 
 def contiguous_ticks(ticks: np.ndarray) -> int:

@@ -10,17 +10,33 @@ from __future__ import annotations
 from numba import njit
 
 from shared.protocol.codes import Reason
+from shared.protocol.layout import DEFAULT_CLOCK_SKEW_MS, DEFAULT_MAX_UPDATE_AGE_MS
 from shared.protocol.update import parse_update
+
+#: How epochs and times are admitted (install.epoch_law). Releases before 0.3 switched to
+#: any higher epoch at once, never back to a lower one, and took any publish time: a single
+#: forged epoch of 2^63 - 1 took the device over and locked the real sim out.
+EPOCH_LAW_HIGHER = 0
+#: Since 0.3: while a sim's updates flow (a model installed, the watchdog quiet) only its
+#: epoch installs; any other, higher or lower, waits for the watchdog, as a restarted sim's
+#: first update always does. An update must be fresh (age within [-max_skew_s, max_age_s]),
+#: so an update older than an outage never ends it, and its epoch (the sim's start time)
+#: cannot lie after its own publish time, so no epoch runs ahead of the receiver's clock.
+EPOCH_LAW_LIVE = 1
+#: the contacts' extrapolation age at install is the update's age, clamped to [0, this]
+MAX_LATENCY_S = 1.0
+DEFAULT_MAX_AGE_S = DEFAULT_MAX_UPDATE_AGE_MS / 1e3
+DEFAULT_MAX_SKEW_S = DEFAULT_CLOCK_SKEW_MS / 1e3
 
 
 @njit(cache=True)
-def accept_update(buf, nbytes, latency_s, model, data, install):
+def accept_update(buf, nbytes, age_s, model, data, install):
     """Parse, validate, order-check and install the update in buf[:nbytes]: 0 or the reason.
 
-    An older epoch or a repeated sequence number is rejected; a new epoch is installed
-    without cross-fade. nbytes < 0 or beyond the buffer is a message too large for it (the
-    mailbox marks one so): rejected as SIZE. latency_s is how long it travelled since its
-    publication: its moving contacts have moved on by that much.
+    age_s is the receiver's clock minus the update's publish time, as it was taken (negative
+    if the sim's clock runs ahead): its moving contacts have moved on by that much. The
+    epoch and time checks follow install.epoch_law (above). nbytes < 0 or beyond the buffer
+    is a message too large for it (the mailbox marks one so): rejected as SIZE.
     """
     ins = install[0]
     if nbytes < 0 or nbytes > buf.shape[0]:
@@ -29,19 +45,38 @@ def accept_update(buf, nbytes, latency_s, model, data, install):
     if code != 0:
         return code
     u = ins.parsed[0]
-    if u.epoch < ins.epoch:
-        return Reason.STALE_EPOCH
+    if ins.epoch_law == EPOCH_LAW_LIVE:
+        code = admit_live(u, age_s, ins)
+    elif u.epoch < ins.epoch:
+        code = Reason.STALE_EPOCH
+    if code != 0:
+        return code
     new_epoch = u.epoch != ins.epoch
     if not new_epoch and u.seq <= ins.seq:
         return Reason.SEQUENCE
     if not new_epoch and ins.ready == 1 and u.dof != model[0].slots[0].dof:
         return Reason.DOF_CHANGE
-    install_update(model[0], data[0], ins, new_epoch, latency_s)
+    install_update(model[0], data[0], ins, new_epoch, min(max(age_s, 0.0), MAX_LATENCY_S))
     ins.epoch = u.epoch
     ins.seq = u.seq
     ins.ready = 1
     ins.new_epoch = 1 if new_epoch else 0
     ins.installed += 1
+    return 0
+
+
+@njit(cache=True)
+def admit_live(u, age_s, ins):
+    """EPOCH_LAW_LIVE's checks of a parsed update: 0 or the reason it may not install."""
+    if age_s > ins.max_age_s:
+        return Reason.LATE
+    if age_s < -ins.max_skew_s:
+        return Reason.FUTURE
+    # in floating point: a forged epoch or publish time may be anywhere in int64
+    if float(u.epoch) - float(u.publish_time_ns) > ins.max_skew_s * 1e9:
+        return Reason.EPOCH_AHEAD
+    if u.epoch != ins.epoch and ins.ready == 1 and ins.stale == 0:
+        return Reason.STALE_EPOCH
     return 0
 
 

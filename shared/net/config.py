@@ -8,7 +8,8 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from shared.config import ConfigError, load_dataclass, read_toml, require, resolve
+from shared.config import ConfigError, load_dataclass, read_toml, require, resolve, within
+from shared.protocol.layout import DEFAULT_CLOCK_SKEW_MS, DEFAULT_MAX_UPDATE_AGE_MS
 
 # --- network --------------------------------------------------------------------------------
 
@@ -82,6 +83,12 @@ ZENOH_MANAGED_KEYS = (
 )  # fmt: skip
 
 
+PROXY_HZ_RANGE = (1.0, 10_000.0)
+WATCHDOG_MS_RANGE = (10.0, 1000.0)
+SAFE_RAMP_MS_RANGE = (1.0, 50.0)
+CLOCK_SKEW_MS_RANGE = (0.0, 1000.0)
+
+
 @dataclass(frozen=True)
 class NetworkConfig:
     """Key-expression namespace and the endpoints of both processes."""
@@ -92,14 +99,24 @@ class NetworkConfig:
     proxy_publish_hz: float = 250.0  # haptic -> sim proxy state rate
     watchdog_ms: float = 100.0  # no valid update for this long: device to safe state
     safe_ramp_ms: float = 40.0  # force ramp into (and out of) the safe state (< 50 ms)
+    # an update older than this when the haptic server takes it is rejected as late
+    max_update_age_ms: float = DEFAULT_MAX_UPDATE_AGE_MS
+    # how far the sim's clock may run ahead of the haptic server's (two hosts: sync them)
+    clock_skew_ms: float = DEFAULT_CLOCK_SKEW_MS
 
     def __post_init__(self) -> None:
         require(
             bool(self.namespace) and "*" not in self.namespace, "namespace", "must be a plain key"
         )
-        require(self.proxy_publish_hz > 0, "proxy_publish_hz", "must be > 0")
-        require(self.watchdog_ms > 0, "watchdog_ms", "must be > 0")
-        require(self.safe_ramp_ms > 0, "safe_ramp_ms", "must be > 0")
+        # the safety-relevant values within stated ranges (the loader rejects nan and inf):
+        # a watchdog that never fires, a ramp that never ends or a rate of zero switch the
+        # safe state off, and the device must be safe within 50 ms of the watchdog
+        within(self.proxy_publish_hz, PROXY_HZ_RANGE, "proxy_publish_hz", "Hz")
+        within(self.watchdog_ms, WATCHDOG_MS_RANGE, "watchdog_ms", "ms")
+        within(self.safe_ramp_ms, SAFE_RAMP_MS_RANGE, "safe_ramp_ms", "ms")
+        # an update older than the watchdog's period could end an outage it predates
+        within(self.max_update_age_ms, (1.0, self.watchdog_ms), "max_update_age_ms", "ms")
+        within(self.clock_skew_ms, CLOCK_SKEW_MS_RANGE, "clock_skew_ms", "ms")
         if self.haptic.users_file and self.sim.connect:
             require(bool(self.sim.user), "sim.user", "the haptic server requires a user")
         if self.haptic.sim_users and self.sim.connect:

@@ -36,7 +36,8 @@ class Fault(IntEnum):
 class Reason(IntEnum):
     """An update's verdict: 0 installed, else why it was rejected (stable: logs keep them).
 
-    1-15 come from the validating parser, 16-18 from the order check at install."""
+    1-15 come from the validating parser, 16-18 from the order check at install, 19-21 from
+    the time check at install (the receiver's clock against the update's times)."""
 
     OK = 0
     SHORT = 1
@@ -57,6 +58,9 @@ class Reason(IntEnum):
     STALE_EPOCH = 16
     SEQUENCE = 17
     DOF_CHANGE = 18
+    LATE = 19  # older than max_update_age_ms when it arrived: the world has moved on
+    FUTURE = 20  # published later than the receiver's clock allows (a forged or skewed time)
+    EPOCH_AHEAD = 21  # an epoch (the sim's start time) after the update's own publish time
 
     @property
     def tag(self) -> str:

@@ -192,6 +192,12 @@ def update_size(d: int, j: int, n: int, flags: int, version: int = PROTOCOL_VERS
 
 # --- limits ----------------------------------------------------------------------------------
 
+#: A receiver takes an update only if its age (receiver's clock - publish time) is at most
+#: this (the watchdog's default period: an update older than an outage never ends it) ...
+DEFAULT_MAX_UPDATE_AGE_MS = 100.0
+#: ... and at least minus this: how far the sim's clock may run ahead of the receiver's.
+DEFAULT_CLOCK_SKEW_MS = 50.0
+
 
 @dataclass(frozen=True)
 class MessageLimits:

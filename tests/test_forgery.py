@@ -1,0 +1,140 @@
+"""Forged epochs and times, with the sim's own credentials, against the real processes.
+
+Authentication keeps strangers out (`test_access.py`); this is the next layer, for a peer
+that holds valid credentials (a compromised or buggy sim host). The haptic server and the sim
+run on the shipped `secure_loopback` config; a peer presenting the sim's credentials follows
+the proxy states and publishes on the update key:
+
+- an epoch of 2^63 - 1 (before 0.3 it was installed, commanded the device to its limit and
+  locked the real sim out until a restart), a plausible new epoch while the sim's updates
+  flow, and updates in the sim's own epoch with publish times of 0, +1000 s and -2^63:
+  none installs, and the sim's updates keep installing;
+- the sim stopped (SIGSTOP): updates of its epoch delayed 0.5, 1 and 3 s, as a stalled link
+  flushes them, never end the outage (the device stays safe);
+- after the outage a fresh epoch of the peer's is installed (anyone holding the credentials
+  can drive a device whose sim has gone quiet), and once it goes quiet the real sim, with
+  its older epoch, is rendered again: never locked out.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from test_access import CREDENTIALS, secure_network
+from test_faults import ProxyWatch
+
+from haptic_server.log import UPDATE_TOPIC, read_json_topic, read_ticks
+from shared.config import load_scene
+from shared.net.config import EndpointSpec, load_network
+from shared.protocol.update import encode_update
+from sim_server.world import SimWorld
+
+SCENE = "free_box"
+MAX_WRENCH_N = 50.0  # configs/devices/ideal.toml
+COPIES = 5  # of each forged message, 20 ms apart
+INT64_MAX, INT64_MIN = 2**63 - 1, -(2**63)
+STALL_AGES_S = (0.5, 1.0, 3.0)
+QUIET_S = 0.5  # the safe state holds this long after the delayed updates arrive
+TAKEOVER_COPIES = 25  # 0.5 s of a forged epoch: past the 40 ms ramp out of the safe state
+
+
+def forged(world: SimWorld, epoch: int, seq: int, published_ns: int) -> bytes:
+    return encode_update(world.local_model(epoch, seq, published_ns))
+
+
+@pytest.mark.processes
+def test_forged_epochs_and_times_with_the_sims_credentials(
+    tmp_path: Path, start_server: Any
+) -> None:
+    net_path = secure_network(tmp_path)
+    network = load_network(str(net_path))
+    log = tmp_path / "run.mcap"
+    haptic = start_server(
+        "haptic_server.cli", "--scene", SCENE, "--device", "ideal", "--user", "constant_push",
+        "--network", str(net_path), "--log", str(log),
+    )  # fmt: skip
+    haptic.wait_ready()
+    sim = start_server("sim_server.cli", "--scene", SCENE, "--network", str(net_path))
+    sim.wait_ready()
+    sim_epoch = int(next(e for e in sim.events if e.get("event") == "ready")["epoch"])
+    password = tmp_path / "sim.password"
+    password.write_text((CREDENTIALS / "example_sim.password").read_text())
+    spec = EndpointSpec(connect=network.sim.connect, user="sim", password_file=str(password))
+    watch = ProxyWatch(net_path, spec)
+    world = SimWorld(load_scene(SCENE))
+    try:
+        last = watch.rendering(sim_epoch)
+
+        def put(make: Any, copies: int = COPIES) -> None:
+            """Publish make(i) for i < copies, 20 ms apart (i: the forged seq's offset)."""
+            for i in range(copies):
+                watch.publisher.put(make(i))
+                time.sleep(0.02)
+
+        # while the sim's updates flow: nothing forged installs
+        far = 10**12  # a sequence number far ahead of the sim's: it would lock it out
+        now = time.time_ns
+        put(lambda i: forged(world, INT64_MAX, i, now()))  # epoch 2^63 - 1
+        put(lambda i: forged(world, now(), i, now()))  # a plausible epoch, while the sim's flow
+        put(lambda i: forged(world, sim_epoch, far + i, 0))  # published at 0
+        put(lambda i: forged(world, sim_epoch, far + i, now() + 10**12))  # at +1000 s
+        put(lambda i: forged(world, sim_epoch, far + i, INT64_MIN))  # at -2^63
+        last = watch.rendering(sim_epoch, after_seq=last.update_seq + 3)
+
+        # the sim stalls: delayed updates of its epoch never end the outage
+        os.kill(sim.proc.pid, signal.SIGSTOP)
+        watch.safe()
+        for age in STALL_AGES_S:
+            late_ns = round(age * 1e9)
+            put(lambda i, late_ns=late_ns: forged(world, sim_epoch, far + i, now() - late_ns))
+        mark = watch.mark()
+        time.sleep(QUIET_S)
+        assert watch.proxies[mark:], "no proxy states while safe"
+        assert all(p.safe_state for p in watch.proxies[mark:]), "a late update ended the outage"
+
+        # after the outage a fresh epoch installs; once it is quiet the real sim comes back
+        takeover = now()
+        put(lambda i: forged(world, takeover, i, now()), TAKEOVER_COPIES)
+        watch.rendering(takeover)
+        os.kill(sim.proc.pid, signal.SIGCONT)
+        watch.rendering(sim_epoch, after_seq=last.update_seq)
+    finally:
+        os.kill(sim.proc.pid, signal.SIGCONT)
+        watch.close()
+    assert haptic.stop() == 0
+    assert sim.stop() == 0
+
+    ticks = read_ticks(log)
+    rendered = ticks[ticks["update_seq"] >= 0]
+    assert set(np.unique(rendered["update_epoch"]).tolist()) == {sim_epoch, takeover}
+    assert np.isfinite(ticks["wrench_command"]).all()
+    assert np.abs(ticks["wrench_command"][:, :2]).max() <= MAX_WRENCH_N
+    records = read_json_topic(log, UPDATE_TOPIC)
+    verdicts = Counter(
+        (r["reason"], r.get("seq", 0) >= far) for r in records if r.get("epoch") != takeover
+    )
+    # the forged ones, by verdict (some copies may be dropped by Zenoh under load: at least one)
+    assert verdicts[("epoch_ahead", False)] >= 1
+    assert verdicts[("epoch", False)] >= 1  # the plausible epoch while the sim's flowed
+    assert verdicts[("late", True)] >= 2 + len(STALL_AGES_S)  # at 0, at -2^63, the stall's
+    assert verdicts[("future", True)] >= 1
+    assert set(verdicts) <= {
+        ("", False),
+        ("epoch_ahead", False),
+        ("epoch", False),
+        ("late", True),
+        ("future", True),
+    }, verdicts
+    assert not any(r["installed"] for r in records if r.get("seq", 0) >= far)
+    assert not any(r["installed"] for r in records if r.get("epoch") == INT64_MAX)
+    # the real sim's updates installed before and after every forgery
+    sim_installed = [r["tick"] for r in records if r.get("epoch") == sim_epoch and r["installed"]]
+    takeover_ticks = [r["tick"] for r in records if r.get("epoch") == takeover and r["installed"]]
+    assert takeover_ticks and sim_installed[-1] > max(takeover_ticks)
