@@ -217,7 +217,7 @@ def wall_engine(
     device = IdealDevice(
         IdealDeviceConfig(
             inertia=(DEVICE_MASS, DEVICE_MASS, DEVICE_INERTIA),
-            max_wrench=(WALL_LIMIT_N, WALL_LIMIT_N, WALL_LIMIT_N),
+            max_wrench=(WALL_LIMIT_N, WALL_LIMIT_N, WALL_LIMIT_N / 10),  # torques: unused
             viscous_damping=(b_device, b_device, 0.0),
             substeps=DEVICE_SUBSTEPS,
         )

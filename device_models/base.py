@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-from shared.config import Vec3, require
+from shared.config import Vec3, require, within
 
 if TYPE_CHECKING:
     from device_models.common import NoiseBuffer
@@ -47,6 +47,26 @@ FAULT_NONE = 0
 FAULT_WORKSPACE = 1  # outside the workspace or at a stop
 FAULT_SINGULAR = 2  # at or near a kinematic singularity
 FAULT_SATURATED = 4  # the last command was clipped at an actuator limit
+
+
+#: The stated ranges of every device's limits (`docs/devices.md`): a desktop haptic device
+#: renders at most hundreds of N, an exoskeleton thousands; a limit beyond these is a typo
+#: that would switch the force bound off, not a device.
+FORCE_LIMIT_RANGE_N = (1e-3, 1e4)
+TORQUE_LIMIT_RANGE_NM = (1e-5, 1e3)
+RATE_RANGE_HZ = (1.0, 100_000.0)
+#: A device's own physical damping (N s/m, N m s/rad) and inertia (kg, kg m^2): beyond these a
+#: tick's explicit integration of the simulated device blows up (a typo, not a device)
+DAMPING_RANGE = (0.0, 1e4)
+INERTIA_RANGE = (0.0, 100.0)
+
+
+def require_device_limits(max_wrench: tuple[float, float, float], max_rate_hz: float) -> None:
+    """A device config's max_wrench and max_rate_hz within the stated ranges above."""
+    for axis, value in enumerate(max_wrench):
+        low, high = FORCE_LIMIT_RANGE_N if axis < 2 else TORQUE_LIMIT_RANGE_NM
+        within(value, (low, high), f"max_wrench[{axis}]", "N" if axis < 2 else "N m")
+    within(max_rate_hz, RATE_RANGE_HZ, "max_rate_hz", "Hz")
 
 
 @dataclass(frozen=True)

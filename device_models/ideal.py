@@ -16,11 +16,18 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from device_models.base import FAULT_NONE, FAULT_SATURATED, DeviceLimits, DeviceRenderingSpec
+from device_models.base import (
+    DAMPING_RANGE,
+    FAULT_NONE,
+    FAULT_SATURATED,
+    DeviceLimits,
+    DeviceRenderingSpec,
+    require_device_limits,
+)
 from device_models.common import KernelDevice, NoiseBuffer, sense_hand_wrench
 from device_models.kernels import ModelKernels, register_model
 from device_models.world_map import DeviceWorldMap, WorldMapSection
-from shared.config import Vec3, load_dataclass, require
+from shared.config import Vec3, load_dataclass, require, within, within_all
 
 
 @dataclass(frozen=True)
@@ -38,9 +45,9 @@ class IdealDeviceConfig:
 
     def __post_init__(self) -> None:
         require(all(v > 0 for v in self.inertia), "inertia", "must be > 0")
-        require(all(v > 0 for v in self.max_wrench), "max_wrench", "must be > 0")
-        require(all(v >= 0 for v in self.viscous_damping), "viscous_damping", "must be >= 0")
-        require(self.substeps >= 1, "substeps", "must be >= 1")
+        require_device_limits(self.max_wrench, self.max_rate_hz)
+        within_all(self.viscous_damping, DAMPING_RANGE, "viscous_damping")
+        within(self.substeps, (1, 100), "substeps")  # each one costs in every tick
 
     @classmethod
     def from_toml_dict(cls, data: dict[str, Any], source: str) -> IdealDeviceConfig:

@@ -25,11 +25,13 @@ from numba import njit
 
 from device_models import common
 from device_models.base import (
+    DAMPING_RANGE,
     FAULT_NONE,
     FAULT_SATURATED,
     FAULT_WORKSPACE,
     DeviceLimits,
     DeviceRenderingSpec,
+    require_device_limits,
 )
 from device_models.common import (
     FAULT_INVALID_COMMAND,
@@ -40,7 +42,7 @@ from device_models.common import (
 )
 from device_models.kernels import ModelKernels, register_model
 from device_models.world_map import DeviceWorldMap, WorldMapSection
-from shared.config import Vec3, require
+from shared.config import Vec3, require, within, within_all
 
 #: Indices of the flotor coordinates in q and v.
 X, Y, Z, ROLL, PITCH, YAW = 0, 1, 2, 3, 4, 5
@@ -131,7 +133,7 @@ class DampingSection:
 
     def __post_init__(self) -> None:
         for key in ("translational_ns_per_m", "rotational_nms_per_rad"):
-            require(all(v >= 0 for v in getattr(self, key)), key, "must be >= 0")
+            within_all(getattr(self, key), DAMPING_RANGE, key)
 
 
 @dataclass(frozen=True)
@@ -188,9 +190,8 @@ class ActuatorSection:
                 "the old spelling of max_wrench: give one of them",
             )
         fx, fy, tz = self.wrench_limit
-        require(fx > 0 and fy > 0 and tz > 0, "max_wrench", "must be > 0")
+        require_device_limits((fx, fy, tz), self.max_rate_hz)
         require(fx == fy, "max_wrench", "the x and y amplifiers are alike: give fx == fy")
-        require(self.max_rate_hz > 0, "max_rate_hz", "must be > 0")
 
     @property
     def wrench_limit(self) -> tuple[float, float, float]:
@@ -218,9 +219,10 @@ class SensorSection:
     noise_seed: int
 
     def __post_init__(self) -> None:
-        require(self.position_noise_std_m >= 0, "position_noise_std_m", "must be >= 0")
-        require(self.angle_noise_std_rad >= 0, "angle_noise_std_rad", "must be >= 0")
+        within(self.position_noise_std_m, (0.0, 0.01), "position_noise_std_m", "m")
+        within(self.angle_noise_std_rad, (0.0, 0.1), "angle_noise_std_rad", "rad")
         require(self.twist_cutoff_hz >= 0, "twist_cutoff_hz", "must be >= 0")
+        require(0 <= self.noise_seed < 2**63, "noise_seed", "must be in [0, 2^63)")
 
 
 @dataclass(frozen=True)

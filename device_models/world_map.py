@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from shared.config import Vec3, require
+from shared.config import Vec3, require, within
 
 F8 = np.float64
 I8 = np.int64
@@ -52,7 +52,7 @@ class WorldMapSection:
         require(all(math.isfinite(v) for v in self.offset), "offset", "must be finite")
         for key in ("position_scale", "angle_scale", "force_scale"):
             value = getattr(self, key)
-            require(math.isfinite(value) and value > 0, key, "must be finite and > 0")
+            within(value, (1e-3, 1e3), key)
         require(
             0 < self.rate_threshold_fraction < 1, "rate_threshold_fraction", "must be in (0, 1)"
         )

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from haptic_server.live_view import add_view_args, view_address
-from shared.cli import add_config_args, emit, run_main
+from shared.cli import add_config_args, emit, log_file, run_main, seconds
 from shared.config import load_scene, load_user, resolve, scene_text
 from shared.net.config import load_network
 
@@ -17,15 +17,17 @@ from shared.net.config import load_network
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="haptic-server", description=__doc__)
     add_config_args(parser, rate=True)
-    parser.add_argument("--log", type=Path, default=None, help="MCAP log path (default: no log)")
     parser.add_argument(
-        "--duration", type=float, default=None,
+        "--log", type=log_file, default=None, help="MCAP log path (default: no log)"
+    )
+    parser.add_argument(
+        "--duration", type=seconds, default=None,
         help="stop this many seconds after the first update (or 60 s later without one)",
     )  # fmt: skip
     parser.add_argument("--summary-json", type=Path, default=None)
     add_view_args(parser)
     parser.add_argument("--inject-leak", action="store_true", help=argparse.SUPPRESS)
-    parser.add_argument("--inject-nan-after", type=float, default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--inject-nan-after", type=seconds, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
 
     def body() -> int:

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from shared import __version__
@@ -32,12 +34,57 @@ def add_config_args(
     if rate:
         parser.add_argument(
             "--haptic-rate",
-            type=float,
+            type=haptic_rate,
             default=None,
             metavar="HZ",
             help="the haptic loop's rate, instead of the scene's haptic_rate_hz (100-10000 Hz, "
             "at most the device's max_rate_hz)",
         )
+
+
+#: the longest run any console script takes (a week): beyond it, a typo
+MAX_SECONDS = 7 * 24 * 3600.0
+
+
+def _number(text: str, low: float, high: float, unit: str, low_open: bool) -> float:
+    """A finite number in (low, high] or [low, high]: argparse's type for durations, rates."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    above = value > low if low_open else value >= low
+    if not (math.isfinite(value) and above and value <= high):
+        bracket = "(" if low_open else "["
+        raise argparse.ArgumentTypeError(
+            f"must be a finite number in {bracket}{low:g}, {high:g}] {unit}, got {text!r}"
+        )
+    return value
+
+
+def seconds(text: str) -> float:
+    """A duration for --duration and its kind: finite, > 0, at most MAX_SECONDS."""
+    return _number(text, 0.0, MAX_SECONDS, "s", low_open=True)
+
+
+def minutes(text: str) -> float:
+    return _number(text, 0.0, MAX_SECONDS / 60.0, "min", low_open=True)
+
+
+def speed(text: str) -> float:
+    """A playback speed: 0 (all at once) up to 1000x."""
+    return _number(text, 0.0, 1000.0, "x", low_open=False)
+
+
+def haptic_rate(text: str) -> float:
+    return _number(text, 100.0, 10_000.0, "Hz", low_open=False)
+
+
+def log_file(text: str) -> Path:
+    """A log path for --log: a file to write, not a directory."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a directory: give a file (run.mcap)")
+    return path
 
 
 def add_version(parser: argparse.ArgumentParser) -> None:

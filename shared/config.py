@@ -13,7 +13,7 @@ import re
 import tomllib
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -205,6 +205,32 @@ def require(cond: bool, key: str, problem: str) -> None:
         raise ValueError(f"{key}: {problem}")
 
 
+#: Stated ranges of scene and user values (docs/scenes.md): what a local model built from them
+#: can carry within the protocol's MessageLimits (positions within 100 m, velocities within
+#: 100 m/s, D entries within 1e6, stiffness, damping and friction within theirs), so that a
+#: typo is refused here, naming its key, not later by the validator as every update.
+WORLD_M = 100.0  # |position| (MessageLimits.max_abs_position_m)
+SIZE_RANGE_M = (0.0, 100.0)
+MASS_RANGE_KG = (1e-6, 1e4)
+INERTIA_RANGE_KGM2 = (1e-12, 1e4)
+LINK_LENGTH_RANGE_M = (1e-4, 10.0)
+ANGLE_RAD = 1e4  # |angle| (MessageLimits.max_abs_angle_rad)
+SPEED_M_PER_S = 100.0  # |velocity| (MessageLimits.max_abs_velocity)
+GRAVITY_M_PER_S2 = 100.0  # |g|: G(q) within max_abs_generalized_force for these masses
+STIFFNESS_RANGE_N_PER_M = (1e-9, 1e8)
+DAMPING_RANGE_NS_PER_M = (0.0, 1e6)
+FRICTION_RANGE = (0.0, 10.0)
+HAND_FORCE_N, HAND_TORQUE_NM = 1000.0, 100.0  # a simulated hand pushes no harder
+
+
+def within_all(
+    values: Sequence[float], bounds: tuple[float, float], key: str, unit: str = ""
+) -> None:
+    """`within` for each entry of a tuple, naming the entry (key[i])."""
+    for i, value in enumerate(values):
+        within(value, bounds, f"{key}[{i}]", unit)
+
+
 def within(value: float, bounds: tuple[float, float], key: str, unit: str = "") -> None:
     """A `require` that value lies in the closed range bounds (NaN never does)."""
     low, high = bounds
@@ -237,14 +263,14 @@ class Material:
         return self.stiffness_n_per_m if t is None else t
 
     def __post_init__(self) -> None:
-        require(self.stiffness_n_per_m > 0, "stiffness_n_per_m", "must be > 0")
+        within(self.stiffness_n_per_m, STIFFNESS_RANGE_N_PER_M, "stiffness_n_per_m", "N/m")
         require(
             self.tangential_stiffness_n_per_m is None or self.tangential_stiffness_n_per_m >= 0,
             "tangential_stiffness_n_per_m",
             "must be >= 0",
         )
-        require(self.damping_ns_per_m >= 0, "damping_ns_per_m", "must be >= 0")
-        require(self.friction >= 0, "friction", "must be >= 0")
+        within(self.damping_ns_per_m, DAMPING_RANGE_NS_PER_M, "damping_ns_per_m", "N s/m")
+        within(self.friction, FRICTION_RANGE, "friction")
         require(0 <= self.restitution <= 1, "restitution", "must be in [0, 1]")
 
 
@@ -276,9 +302,24 @@ class BodySpec:
             require(self.radius > 0, "radius", "circle radius must be > 0")
         if self.shape == "segment":
             require(self.a != self.b, "b", "segment end points must differ")
-        require(self.mass > 0, "mass", "must be > 0")
+        within(self.mass, MASS_RANGE_KG, "mass", "kg")
         require(self.oscillation_period_s >= 0, "oscillation_period_s", "must be >= 0")
         require(self.linear_damping_per_s >= 0, "linear_damping_per_s", "must be >= 0")
+        within_all(self.position, (-WORLD_M, WORLD_M), "position", "m")
+        within_all(self.a, (-WORLD_M, WORLD_M), "a", "m")
+        within_all(self.b, (-WORLD_M, WORLD_M), "b", "m")
+        within_all(self.size, SIZE_RANGE_M, "size", "m")
+        within(self.radius, SIZE_RANGE_M, "radius", "m")
+        within_all(self.velocity, (-SPEED_M_PER_S, SPEED_M_PER_S), "velocity", "m/s")
+        within_all(self.oscillation_amplitude, (-WORLD_M, WORLD_M), "oscillation_amplitude")
+        if any(self.oscillation_amplitude):
+            period = self.oscillation_period_s
+            peak = 2 * math.pi * max(map(abs, self.oscillation_amplitude)) / max(period, 1e-300)
+            require(
+                peak <= SPEED_M_PER_S,
+                "oscillation_period_s",
+                f"the oscillation's peak speed {peak:.3g} m/s exceeds {SPEED_M_PER_S:g} m/s",
+            )
 
     def to_world(self, px: float, py: float) -> Vec2:
         """A point of the body's frame (a segment's end, a box's corner) in the world, at the
@@ -308,8 +349,12 @@ class CrowdSpec:
 
     def __post_init__(self) -> None:
         require(self.count >= 1, "count", "must be >= 1")
-        require(self.spacing_m > 0, "spacing_m", "must be > 0")
-        require(self.mass > 0, "mass", "must be > 0")
+        within(self.spacing_m, SIZE_RANGE_M, "spacing_m", "m")
+        within(self.mass, MASS_RANGE_KG, "mass", "kg")
+        within(self.radius, SIZE_RANGE_M, "radius", "m")
+        within_all(self.size, SIZE_RANGE_M, "size", "m")
+        within_all((*self.region[0], *self.region[1]), (-WORLD_M, WORLD_M), "region", "m")
+        require(0 <= self.seed < 2**63, "seed", "must be in [0, 2^63)")
         require(self.jitter_m >= 0, "jitter_m", "must be >= 0")
         require(self.linear_damping_per_s >= 0, "linear_damping_per_s", "must be >= 0")
         extent = 2 * self.radius if self.shape == "circle" else max(self.size)
@@ -361,7 +406,7 @@ class SpaceSpec:
 
     def __post_init__(self) -> None:
         require(self.spatial_hash_cell_m >= 0, "spatial_hash_cell_m", "must be >= 0")
-        require(self.spatial_hash_count >= 1, "spatial_hash_count", "must be >= 1")
+        within(self.spatial_hash_count, (1, 1_000_000), "spatial_hash_count")
         require(self.sleep_time_s >= 0, "sleep_time_s", "must be >= 0")
         require(self.idle_speed_m_per_s >= 0, "idle_speed_m_per_s", "must be >= 0")
 
@@ -386,10 +431,16 @@ class LinkageSpec:
         require(n >= 1, "lengths", "a linkage needs at least one link")
         for key in ("masses", "inertias", "com_offsets", "initial_angles"):
             require(len(getattr(self, key)) == n, key, f"needs {n} entries, one per link")
-        require(all(v > 0 for v in self.lengths), "lengths", "must be > 0")
-        require(all(v > 0 for v in self.masses), "masses", "must be > 0")
-        require(all(v > 0 for v in self.inertias), "inertias", "must be > 0")
-        require(self.radius > 0, "radius", "must be > 0")
+        within_all(self.lengths, LINK_LENGTH_RANGE_M, "lengths", "m")
+        within_all(self.masses, MASS_RANGE_KG, "masses", "kg")
+        within_all(self.inertias, INERTIA_RANGE_KGM2, "inertias", "kg m^2")
+        within(self.radius, (1e-6, 1.0), "radius", "m")
+        within_all(self.base, (-WORLD_M, WORLD_M), "base", "m")
+        for i, offset in enumerate(self.com_offsets):
+            within_all(
+                offset, (-LINK_LENGTH_RANGE_M[1], LINK_LENGTH_RANGE_M[1]), f"com_offsets[{i}]"
+            )
+        within_all(self.initial_angles, (-ANGLE_RAD, ANGLE_RAD), "initial_angles", "rad")
 
 
 @dataclass(frozen=True)
@@ -406,10 +457,11 @@ class ToolSpec:
     tracking_bandwidth_hz: float = 8.0  # how hard the sim's tool follows the proxy
 
     def __post_init__(self) -> None:
-        require(self.characteristic_length_m > 0, "characteristic_length_m", "must be > 0")
+        within(self.characteristic_length_m, (1e-4, WORLD_M), "characteristic_length_m", "m")
+        within_all(self.point, (-LINK_LENGTH_RANGE_M[1], LINK_LENGTH_RANGE_M[1]), "point", "m")
         require(0 < self.rank_tolerance < 1, "rank_tolerance", "must be in (0, 1)")
-        require(self.neighbourhood_margin_m > 0, "neighbourhood_margin_m", "must be > 0")
-        require(self.tracking_bandwidth_hz > 0, "tracking_bandwidth_hz", "must be > 0")
+        within(self.neighbourhood_margin_m, (1e-6, 1.0), "neighbourhood_margin_m", "m")
+        within(self.tracking_bandwidth_hz, (1e-3, 1000.0), "tracking_bandwidth_hz", "Hz")
 
 
 @dataclass(frozen=True)
@@ -444,7 +496,8 @@ class RenderingSpec:
     def __post_init__(self) -> None:
         for key in (
             "coordination_stiffness", "coordination_damping", "desired_damping",
-            "foh_spring_stiffness", "foh_spring_damping",
+            "desired_stiffness", "foh_spring_stiffness", "foh_spring_damping",
+            "virtual_coupling_stiffness", "virtual_coupling_damping",
         ):  # fmt: skip
             require(all(v >= 0 for v in getattr(self, key)), key, "must be >= 0")
         require(self.penalty_stiffness >= 0, "penalty_stiffness", "must be >= 0")
@@ -477,7 +530,11 @@ class SceneConfig:
 
     def __post_init__(self) -> None:
         require(10.0 <= self.sim_rate_hz <= 500.0, "sim_rate_hz", "must be in [10, 500] Hz")
-        require(self.sim_substeps >= 1, "sim_substeps", "must be >= 1")
+        within(self.sim_substeps, (1, 1000), "sim_substeps")  # each one costs every step
+        within_all(self.gravity, (-GRAVITY_M_PER_S2, GRAVITY_M_PER_S2), "gravity", "m/s^2")
+        offset = self.initial_device_offset
+        within_all(offset[:2], (-WORLD_M, WORLD_M), "initial_device_offset", "m")
+        within(offset[2], (-ANGLE_RAD, ANGLE_RAD), "initial_device_offset[2]", "rad")
         require(
             100.0 <= self.haptic_rate_hz <= MAX_HAPTIC_RATE_HZ,
             "haptic_rate_hz",
@@ -578,7 +635,17 @@ class UserConfig:
             require(len(self.waypoints) >= 1, "waypoints", "needs at least one waypoint")
             times = [w[0] for w in self.waypoints]
             require(times == sorted(times), "waypoints", "times must be increasing")
-        require(all(v > 0 for v in self.max_wrench), "max_wrench", "must be > 0")
+        hand = (HAND_FORCE_N, HAND_FORCE_N, HAND_TORQUE_NM)
+        for i, (value, limit) in enumerate(zip(self.max_wrench, hand, strict=True)):
+            within(value, (1e-6, limit), f"max_wrench[{i}]")
+        for i, (value, limit) in enumerate(zip(self.wrench, hand, strict=True)):
+            within(value, (-limit, limit), f"wrench[{i}]")
+        within_all(self.stiffness, (0.0, 1e6), "stiffness")
+        within_all(self.damping, (0.0, 1e4), "damping")
+        for i, (t, dx, dy, dtheta) in enumerate(self.waypoints):
+            within(t, (0.0, 1e6), f"waypoints[{i}][0]", "s")
+            within_all((dx, dy), (-WORLD_M, WORLD_M), f"waypoints[{i}][1:3]", "m")
+            within(dtheta, (-ANGLE_RAD, ANGLE_RAD), f"waypoints[{i}][3]", "rad")
 
 
 # --- loading entry points -------------------------------------------------------------------

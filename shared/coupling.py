@@ -47,6 +47,9 @@ def segment_moment(
     return mass * ((length * length + 4.0 * radius * radius) / 12.0 + mid_x**2 + mid_y**2)
 
 
+NO_STABLE_STEP = 2**62  # coupling_substeps' answer when no step is stable
+
+
 def coupling_substeps(
     sim_rate_hz: float,
     mass: float,
@@ -70,4 +73,6 @@ def coupling_substeps(
     )
     if not math.isfinite(h_max):
         return 1, h_max
+    if not h_max > 0.0:  # no step is stable (an effective mass or a gain out of range)
+        return NO_STABLE_STEP, h_max
     return max(1, math.ceil(1.0 / (sim_rate_hz * SUBSTEP_MARGIN * h_max))), h_max

@@ -8,7 +8,7 @@ import signal
 import sys
 from pathlib import Path
 
-from shared.cli import add_config_args, emit, run_main
+from shared.cli import add_config_args, emit, run_main, seconds
 from shared.config import load_scene
 from shared.net.config import load_network
 
@@ -16,7 +16,9 @@ from shared.net.config import load_network
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="sim-server", description=__doc__)
     add_config_args(parser, device=False, user=False)
-    parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    parser.add_argument(
+        "--duration", type=seconds, default=None, help="stop after this many seconds"
+    )
     parser.add_argument("--summary-json", type=Path, default=None)
     args = parser.parse_args(argv)
 

@@ -38,7 +38,7 @@ def engine_with(q, qd, rows, impulses=True) -> HapticEngine:
         coordination_damping=(0.0, 0.0, 0.0), impulses=impulses, blend_ms=0.0,
     )  # fmt: skip
     scene = dataclasses.replace(scene, rendering=rendering)
-    device = IdealDevice(IdealDeviceConfig(inertia=(1.0, 1.0, 1.0), max_wrench=(1e6, 1e6, 1e6)))
+    device = IdealDevice(IdealDeviceConfig(inertia=(1.0, 1.0, 1.0), max_wrench=(1e4, 1e4, 1e3)))
     engine = HapticEngine(scene, device, UserConfig(name="none", kind="constant_wrench"))
     jt, lengths = free_body_chain()
     n = len(rows)

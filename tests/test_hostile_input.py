@@ -132,7 +132,8 @@ def reference_accepts(raw: bytes) -> bool:
     pos, ang, vel = LIM.max_abs_position_m, LIM.max_abs_angle_rad, LIM.max_abs_velocity
     too_big = [
         (g["lengths"], pos), (g["base"], pos), (g["base_angle"], ang), (g["op_point"], pos),
-        (g["q"], max(pos, ang)), (g["qd"], vel), (g["lambda_inv"], LIM.max_inverse_mass),
+        (g["q"], np.where(ints[:d] == 0, ang, pos)),  # revolute: an angle; prismatic: m
+        (g["qd"], vel), (g["lambda_inv"], LIM.max_inverse_mass),
         (g["tool_pose"][:2], pos), (g["tool_pose"][2:], ang),
         (g.get("gravity", np.zeros(0)), LIM.max_abs_generalized_force),
         (g.get("velocity_torque", np.zeros(0)), LIM.max_abs_generalized_force),

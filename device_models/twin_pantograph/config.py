@@ -11,12 +11,15 @@ import numpy as np
 
 from device_models.base import (
     FAULT_NONE,
+    INERTIA_RANGE,
+    TORQUE_LIMIT_RANGE_NM,
     DeviceRenderingSpec,
+    require_device_limits,
 )
 from device_models.common import ModelConfig, SimulationSection
 from device_models.twin_pantograph.kinematics import pose_faults
 from device_models.world_map import WorldMapSection
-from shared.config import require
+from shared.config import require, within, within_all
 
 #: Central-difference step for dM/dx, m and rad: truncation (~(h/0.1 m)^2) and round-off
 #: (~1e-16/h) errors are both ~1e-10 relative at the device's 0.1 m link scale.
@@ -147,7 +150,7 @@ class InertiaSection:
             "distal_mass_kg",
             "distal_inertia_kgm2",
         ):
-            require(all(v >= 0 for v in getattr(self, key)), key, "must be >= 0")
+            within_all(getattr(self, key), INERTIA_RANGE, key)
         require(self.handle_mass_kg > 0, "handle_mass_kg", "must be > 0")
         require(self.handle_inertia_kgm2 > 0, "handle_inertia_kgm2", "must be > 0")
 
@@ -175,9 +178,9 @@ class ActuatorSection:
     max_rate_hz: float
 
     def __post_init__(self) -> None:
-        require(all(v > 0 for v in self.torque_limit_nm), "torque_limit_nm", "must be > 0")
-        require(all(v > 0 for v in self.max_wrench), "max_wrench", "must be > 0")
-        require(self.max_rate_hz > 0, "max_rate_hz", "must be > 0")
+        for i, torque in enumerate(self.torque_limit_nm):
+            within(torque, TORQUE_LIMIT_RANGE_NM, f"torque_limit_nm[{i}]", "N m")
+        require_device_limits(self.max_wrench, self.max_rate_hz)
 
 
 @dataclass(frozen=True)
@@ -215,10 +218,11 @@ class SensorSection:
     noise_seed: int
 
     def __post_init__(self) -> None:
-        require(self.encoder_counts_per_rev > 0, "encoder_counts_per_rev", "must be > 0")
+        within(self.encoder_counts_per_rev, (1, 2**32), "encoder_counts_per_rev")
         require(self.twist_cutoff_hz >= 0, "twist_cutoff_hz", "must be >= 0")
-        require(self.force_noise_std_n >= 0, "force_noise_std_n", "must be >= 0")
-        require(self.torque_noise_std_nm >= 0, "torque_noise_std_nm", "must be >= 0")
+        within(self.force_noise_std_n, (0.0, 10.0), "force_noise_std_n", "N")
+        within(self.torque_noise_std_nm, (0.0, 1.0), "torque_noise_std_nm", "N m")
+        require(0 <= self.noise_seed < 2**63, "noise_seed", "must be in [0, 2^63)")
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ from haptic_server.stages.install import EPOCH_LAW_HIGHER
 from haptic_server.stages.tick import store_row
 from haptic_server.supervisor import Event, LoggedEvents, supervise
 from shared import source_hash
-from shared.cli import add_version
+from shared.cli import add_version, seconds, speed
 from shared.config import ConfigError, SceneConfig, UserConfig, load_config_text, parse_toml_text
 from shared.net.config import SAFE_RAMP_MS_RANGE, NetworkConfig
 from shared.protocol.codes import Reason
@@ -366,11 +366,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_view_args(parser, "the log (instead of replaying it)")
     parser.add_argument(
-        "--view-seconds", type=float, default=None, metavar="S",
+        "--view-seconds", type=seconds, default=None, metavar="S",
         help="with --view: serve the view this long, then exit (default: until Ctrl-C)",
     )  # fmt: skip
     parser.add_argument(
-        "--view-speed", type=float, default=0.0, metavar="X",
+        "--view-speed", type=speed, default=0.0, metavar="X",
         help="with --view: draw at X times log time (default 0: all at once, then scrub)",
     )  # fmt: skip
     args = parser.parse_args(argv)

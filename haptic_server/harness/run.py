@@ -23,7 +23,15 @@ from pathlib import Path
 from typing import IO, Any
 
 from haptic_server.live_view import add_view_args, view_address
-from shared.cli import EXIT_CONFIG, add_config_args, emit, print_shipped, run_main
+from shared.cli import (
+    EXIT_CONFIG,
+    add_config_args,
+    emit,
+    log_file,
+    print_shipped,
+    run_main,
+    seconds,
+)
 from shared.config import ConfigError, absolute_ref, load_scene, load_user, resolve
 from shared.net.config import load_network
 from shared.timing import avoid_cpu as keep_off_cpu
@@ -278,10 +286,12 @@ def print_summary(s: dict[str, Any]) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="haptic-run", description=__doc__)
     add_config_args(parser, rate=True)
-    parser.add_argument("--duration", type=float, default=10.0, help="seconds to run (default 10)")
+    parser.add_argument(
+        "--duration", type=seconds, default=10.0, help="seconds to run (default 10)"
+    )
     parser.add_argument("--clock", choices=["real", "virtual"], default="real")
     parser.add_argument(
-        "--log", type=Path, default=None, help="MCAP log (default ./runs/<time>-<scene>.mcap)"
+        "--log", type=log_file, default=None, help="MCAP log (default ./runs/<time>-<scene>.mcap)"
     )
     parser.add_argument("--no-log", action="store_true", help="run without a log")
     parser.add_argument("--summary-json", type=Path, default=None)

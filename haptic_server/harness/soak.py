@@ -41,7 +41,7 @@ import numpy as np
 from device_models.registry import load_device
 from haptic_server.harness.run import Child
 from haptic_server.log import EVENT_TOPIC, read_json_topic, read_ticks
-from shared.cli import EXIT_CONFIG, add_version, run_main
+from shared.cli import EXIT_CONFIG, add_version, minutes, run_main, seconds
 from shared.config import load_scene, load_user
 
 # ticks starting > 1 ms late: the bare clock loop alone measured up to 0.43% on these VMs
@@ -419,10 +419,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     add_version(parser)
     parser.add_argument(
-        "--minutes", type=float, default=3.0, help="total soak time (default 3, sized for CI)"
+        "--minutes", type=minutes, default=3.0, help="total soak time (default 3, sized for CI)"
     )
     parser.add_argument(
-        "--segment-s", type=float, default=45.0, help="seconds per segment before moving on"
+        "--segment-s", type=seconds, default=45.0, help="seconds per segment before moving on"
     )
     parser.add_argument("--out", type=Path, default=Path("runs/soak"))
     parser.add_argument("--keep-logs", action="store_true", help="keep every segment's MCAP log")
@@ -433,7 +433,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--inject-nan-after",
-        type=float,
+        type=seconds,
         default=None,
         help="debug: the hand wrench turns NaN after this many seconds (the soak must fail)",
     )

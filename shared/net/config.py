@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -12,6 +13,10 @@ from shared.config import ConfigError, load_dataclass, read_toml, require, resol
 from shared.protocol.layout import DEFAULT_CLOCK_SKEW_MS, DEFAULT_MAX_UPDATE_AGE_MS
 
 # --- network --------------------------------------------------------------------------------
+
+
+#: a Zenoh locator as its config parser takes it: <protocol>/<address>[?metadata][#config]
+ENDPOINT = re.compile(r"(tcp|udp|tls|quic|ws|unixsock-stream|unixpipe|serial|vsock)/[^\s/?#][^\s]*")
 
 
 @dataclass(frozen=True)
@@ -38,6 +43,14 @@ class EndpointSpec:
     zenoh: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        for key in ("listen", "connect"):
+            for i, endpoint in enumerate(getattr(self, key)):
+                require(
+                    ENDPOINT.fullmatch(endpoint) is not None,
+                    f"{key}[{i}]",
+                    f"{endpoint!r} is not a Zenoh endpoint <protocol>/<address>[:port]"
+                    " (e.g. tcp/127.0.0.1:7447)",
+                )
         require(
             bool(self.user) == bool(self.password_file),
             "password_file" if self.user else "user",

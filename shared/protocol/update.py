@@ -440,7 +440,8 @@ def _check_magnitudes(m, lim):
     for k in range(d):
         if abs(m.lengths[k]) > max_pos:
             return Reason.MAGNITUDE
-        if abs(m.q[k]) > max(max_pos, max_ang) or abs(m.qd[k]) > lim.max_abs_velocity:
+        max_q = max_ang if m.joint_types[k] == 0 else max_pos  # revolute, else prismatic
+        if abs(m.q[k]) > max_q or abs(m.qd[k]) > lim.max_abs_velocity:
             return Reason.MAGNITUDE
     if abs(m.base[0]) > max_pos or abs(m.base[1]) > max_pos:
         return Reason.MAGNITUDE
