@@ -237,6 +237,12 @@ class LogDrain:
             self._view(self.view.set_update, raw, code == 0 and n > 0)
             self.upd_logged += 1
             ctl[C_UPD_LOGGED] = self.upd_logged
+        lost, self.evt_tail = block.skip_overwritten(self.evt_tail, evt_head)
+        if lost:  # never silently: the log and the summary say how many
+            tick = block.event_at(self.evt_tail)[0]
+            log.event(
+                tick, "events_lost", f"{lost} events overwritten before logged", time.time_ns()
+            )
         while self.evt_tail < evt_head:
             tick, kind, detail = block.event_at(self.evt_tail)
             now_ns = time.time_ns()

@@ -80,6 +80,7 @@ class HapticRunStats:
     lost_log_ticks: int = 0
     proxy_published: int = 0
     updates_lost: int = 0
+    events_lost: int = 0  # overwritten in the event ring before the log writer read them
     realtime_priority: bool = False
     loop_cpu: int | None = None  # the CPU the loop kept to itself (None: not pinned)
 
@@ -105,6 +106,7 @@ class HapticRunStats:
             "loop_cpu": self.loop_cpu,
             "lost_log_ticks": self.lost_log_ticks,
             "updates_lost": self.updates_lost,
+            "events_lost": self.events_lost,
             "proxy_published": self.proxy_published,
             "log": str(log_path) if log_path else None,
         }
@@ -392,3 +394,4 @@ class HapticServer:
         stats.lost_log_ticks = io_counters["lost_log_ticks"]
         stats.proxy_published = io_counters["proxy_published"]
         stats.updates_lost = io_counters["lost_updates"]
+        stats.events_lost = io_counters["lost_events"]

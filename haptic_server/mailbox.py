@@ -104,13 +104,22 @@ class SharedBlock:
 
     def post_event(self, tick: int, kind: str, detail: str) -> None:
         """A rare event (watchdog, stop) as text into the event ring (the oldest overwritten
-        when its readers are behind)."""
+        when its readers are behind: `skip_overwritten` counts them)."""
         head = int(self.ctl[C_EVT_HEAD])
         data = f"{tick}\t{kind}\t{detail}".encode()[: EVENT_BYTES - 1]
         slot = self.events[head % EVENT_SLOTS]
         slot[: len(data)] = np.frombuffer(data, np.uint8)
         slot[len(data)] = 0
         self.ctl[C_EVT_HEAD] = head + 1
+
+    def skip_overwritten(self, tail: int, head: int) -> tuple[int, int]:
+        """A reader at `tail` of the event ring whose head is `head`: (the events overwritten
+        before it read them, the first one it can still read). The lost ones are counted in
+        the block's C_EVT_LOST, so the summary says so."""
+        lost = max(0, head - EVENT_SLOTS - tail)
+        if lost:
+            self.ctl[C_EVT_LOST] += lost
+        return lost, tail + lost
 
     def event_at(self, i: int) -> tuple[int, str, str]:
         """Event `i` of the ring: (tick, kind, detail). The text may have been cut inside a

@@ -34,6 +34,7 @@ from haptic_server.live_view import ViewProcess
 from haptic_server.logger import LogProcess
 from haptic_server.mailbox import (
     C_CLOSED,
+    C_EVT_LOST,
     C_LOWER_IO,
     C_PUBLISHED,
     C_READY,
@@ -134,6 +135,7 @@ class LoopIO:
         return {
             "lost_log_ticks": int(c[C_TICK_LOST]),
             "lost_updates": int(c[C_UPD_LOST]),
+            "lost_events": int(c[C_EVT_LOST]),
             "proxy_published": int(c[C_PUBLISHED]),
             "updates_arrived": int(c[C_RECEIVED]),
         }

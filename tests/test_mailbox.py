@@ -22,7 +22,15 @@ import pytest
 from device_models.registry import load_device, load_simulated_device
 from haptic_server.engine import HapticEngine
 from haptic_server.harness.virtual import run_virtual
-from haptic_server.mailbox import C_UPD_READ, MAILBOX_SLOTS, SLOT_BYTES, SharedBlock
+from haptic_server.mailbox import (
+    C_EVT_HEAD,
+    C_EVT_LOST,
+    C_UPD_READ,
+    EVENT_SLOTS,
+    MAILBOX_SLOTS,
+    SLOT_BYTES,
+    SharedBlock,
+)
 from haptic_server.sidecar import LoopIO
 from haptic_server.stages.install import DEFAULT_MAX_AGE_S
 from shared.config import load_scene, load_user
@@ -187,3 +195,24 @@ def test_mailbox_path_matches_receive(mailbox: MailboxOnly, scene: str, user: st
     assert {"size", "sequence", "epoch", "late", "future"} <= verdicts_seen.keys()
     assert by_receive.counters.epochs >= 2
     assert by_receive.counters.reinitialisations >= 1
+
+
+def test_events_overwritten_before_they_are_read_are_counted_never_misread() -> None:
+    """A reader that falls EVENT_SLOTS + 44 events behind loses the 44 oldest: counted (the
+    summary's events_lost), and what it reads next is the oldest still in the ring, in order
+    (before, it read the overwritten slots as if they were the lost events)."""
+    block = SharedBlock.create()
+    try:
+        for tick in range(EVENT_SLOTS + 44):
+            block.post_event(tick, "watchdog", f"event {tick}")
+        head = int(block.ctl[C_EVT_HEAD])
+        lost, tail = block.skip_overwritten(0, head)
+        assert (lost, tail) == (44, 44)
+        assert int(block.ctl[C_EVT_LOST]) == 44
+        read = [block.event_at(i) for i in range(tail, head)]
+        assert read == [(t, "watchdog", f"event {t}") for t in range(44, EVENT_SLOTS + 44)]
+        assert block.skip_overwritten(tail, head) == (0, tail)  # caught up: nothing more lost
+    finally:
+        block.release()
+        block.shm.close()
+        block.shm.unlink()
