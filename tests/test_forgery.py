@@ -117,16 +117,20 @@ def test_forged_epochs_and_times_with_the_sims_credentials(
     assert np.isfinite(ticks["wrench_command"]).all()
     assert np.abs(ticks["wrench_command"][:, :2]).max() <= MAX_WRENCH_N
     records = read_json_topic(log, UPDATE_TOPIC)
-    verdicts = Counter(
-        (r["reason"], r.get("seq", 0) >= far) for r in records if r.get("epoch") != takeover
-    )
+    # the forged ones: not the sim's own (which a loaded host may delay past the age bound)
+    # nor the takeover's, and decoded (a slot the I/O process logged late may be reused)
+    forged_records = [
+        r
+        for r in records
+        if "epoch" in r and r["epoch"] != takeover and (r["epoch"] != sim_epoch or r["seq"] >= far)
+    ]
+    verdicts = Counter((r["reason"], r["seq"] >= far) for r in forged_records)
     # the forged ones, by verdict (some copies may be dropped by Zenoh under load: at least one)
     assert verdicts[("epoch_ahead", False)] >= 1
     assert verdicts[("epoch", False)] >= 1  # the plausible epoch while the sim's flowed
     assert verdicts[("late", True)] >= 2 + len(STALL_AGES_S)  # at 0, at -2^63, the stall's
     assert verdicts[("future", True)] >= 1
     assert set(verdicts) <= {
-        ("", False),
         ("epoch_ahead", False),
         ("epoch", False),
         ("late", True),
