@@ -36,7 +36,7 @@ def engine_with_contacts(n: int, press_n: float = 1.0, depth_m: float = 1e-4) ->
     device = IdealDevice(IdealDeviceConfig())
     engine = HapticEngine(
         scene, device, UserConfig(name="push", kind="constant_wrench", wrench=(0.5, -press_n, 0.0))
-    )
+    ).unguarded()  # a hand-made model
     jt, lengths = free_body_chain()
     xs = np.linspace(-0.03, 0.03, n)
     floor = -0.02 + depth_m

@@ -223,6 +223,7 @@ def wall_engine(
         )
     )
     engine = HapticEngine(scene, device, UserConfig(name="none", kind="constant_wrench"))
+    engine.unguarded()  # a hand-made model: the rendering's own stability, not the guard's
     jt, lengths = free_body_chain()
     surface = phase * ENTRY_SPEED / rate_hz
     rows, floats = contact_rows(1)

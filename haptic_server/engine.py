@@ -22,7 +22,9 @@ from haptic_server.model import (
     DEVICE_IO_DTYPE,
     INSTALL_DTYPE,
     MODEL_DTYPE,
+    envelope_record,
     params_record,
+    set_guard,
 )
 from haptic_server.simulated import run_ticks, simulated_tick
 from haptic_server.stages.install import (
@@ -134,6 +136,9 @@ class HapticEngine:
             safe_ramp_s,
             self.world_map,
         )
+        # what the scene allows: checked at every install, guarded at every tick
+        self.install[0]["envelope"] = envelope_record(scene)
+        set_guard(self.model["params"], scene)
         # views of the records, for the Python side and tests
         self.params = self.model["params"]
         self.slots = self.model["slots"][0]
@@ -210,9 +215,10 @@ class HapticEngine:
         if new_epoch:
             self.counters.epochs += 1
             self._install_ticks.clear()
-        if new_epoch or self.stale:
-            # a restarted sim, or the same sim after an outage: it has moved its tool (to rest)
-            # while the proxy went on, so start again from the sim's state
+        if new_epoch or self.needs_reinit:
+            # a restarted sim, the same sim after an outage (it has moved its tool to rest
+            # while the proxy went on), or a fault the guard caught: start again from the
+            # sim's state
             self._reinitialise(self.slots[0], first=new_epoch and self.counters.epochs == 1)
         self.stale = False
         if self.method == Method.VIRTUAL_COUPLING_FOH:
@@ -226,6 +232,25 @@ class HapticEngine:
         network's max_update_age_ms and clock_skew_ms, or a replayed release's law."""
         ins = self.install[0]
         ins["max_age_s"], ins["max_skew_s"], ins["epoch_law"] = max_age_s, max_skew_s, epoch_law
+
+    def check_plausibility(self, on: bool) -> None:
+        """Whether updates are checked against the scene (haptic_server/stages/plausible.py):
+        always in a run; off only for tests of the kernels on hand-made models and for logs of
+        a release before the check."""
+        self.install[0]["envelope"]["enabled"] = 1 if on else 0
+
+    def guard(self, on: bool) -> None:
+        """Whether the loop's runaway guard and passivity observer run (stages/safety.py):
+        always in a run; off only for logs of a release before them."""
+        self.params[0]["guard"] = 1 if on else 0
+
+    def unguarded(self) -> HapticEngine:
+        """No plausibility check and no guard: for tests and benchmarks of the kernels on
+        hand-made models (a tool that is not the scene's, speeds beyond its envelope).
+        Returns the engine."""
+        self.check_plausibility(False)
+        self.guard(False)
+        return self
 
     @property
     def tick_index(self) -> int:
@@ -241,6 +266,18 @@ class HapticEngine:
     def simulated(self) -> bool:
         """The device's physics runs here, held by a simulated hand (not a hardware driver)."""
         return self.sim_device is not None
+
+    @property
+    def faulted(self) -> bool:
+        """The loop's guard or NaN check sent the device safe (state.fault): with the guard on,
+        the next installed update re-initialises the proxy (a release before it stayed safe
+        until the watchdog or a new epoch)."""
+        return int(self.state[0]["fault"]) != 0 and int(self.params[0]["guard"]) == 1
+
+    @property
+    def needs_reinit(self) -> bool:
+        """The next installed update re-initialises the proxy: after the watchdog or a fault."""
+        return self._stale or self.faulted
 
     @property
     def stale(self) -> bool:
@@ -281,6 +318,9 @@ class HapticEngine:
         st["q"] = m["q"]
         st["qd"] = m["qd"]
         st["fault"] = Fault.NONE
+        st["port_energy"] = 0.0  # the passivity observer starts afresh
+        st["device_energy"] = -1.0
+        st["last_command"] = 0.0
         st["foh_goal"] = m["tool_pose"]
         st["foh_steps_left"] = 0
         if first and self.sim_device is not None:
@@ -298,7 +338,7 @@ class HapticEngine:
             self.counters.reinitialisations += 1
             # the sim held its tool while the haptic side was silent, but the hand did not
             # stop: the proxy takes the device's velocity, so the coupling resumes at rest
-            st["qd"] = self._joint_velocity(m, world_twist)
+            st["qd"] = self._bounded(m, self._joint_velocity(m, world_twist))
         st["safe_target"] = 0.0
         if first:
             # the simulated hand's waypoints are relative to where the device starts; a later
@@ -329,6 +369,25 @@ class HapticEngine:
         qd = np.zeros(MAX_DOF)
         min_norm_least_squares(jac, 3, d, twist, qd)
         return qd
+
+    def _bounded(self, m: np.void, qd: np.ndarray) -> np.ndarray:
+        """A re-initialised proxy's joint velocity within half the guard's bounds: near a
+        singularity the least-squares solve can ask for any joint speed (138 rad/s was seen at
+        a folded arm), which the sim's tool would then follow. Scaled as a whole, so the
+        direction of motion is kept. Unchanged with the guard off (logs before 0.4)."""
+        p = self.params[0]
+        if int(p["guard"]) == 0:
+            return qd
+        d = int(m["dof"])
+        revolute = m["joint_types"][:d] == 0
+        spin = float(np.abs(np.cumsum(np.where(revolute, qd[:d], 0.0))).max(initial=0.0))
+        energy = 0.5 * float(qd[:d] @ m["mass"][:d, :d] @ qd[:d])
+        scale = 1.0
+        if spin > 0.5 * p["guard_max_angular_speed"]:
+            scale = 0.5 * float(p["guard_max_angular_speed"]) / spin
+        if energy * scale**2 > 0.25 * p["guard_max_energy"]:
+            scale = min(scale, 0.5 * float(np.sqrt(p["guard_max_energy"] / energy)))
+        return qd * scale
 
     def _advance_foh(self, target: np.ndarray) -> None:
         """Seed 002's setpoint interpolation: move toward the sim's newest tool pose over the

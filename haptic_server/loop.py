@@ -42,6 +42,7 @@ from haptic_server.sidecar import LoopIO
 from haptic_server.supervisor import Event, TickEvents, WatchdogClock, supervise
 from shared.config import SceneConfig, UserConfig
 from shared.net.config import NetworkConfig
+from shared.protocol.codes import Fault
 from shared.timing import (
     LoopCounters,
     SampleWindow,
@@ -81,6 +82,7 @@ class HapticRunStats:
     proxy_published: int = 0
     updates_lost: int = 0
     events_lost: int = 0  # overwritten in the event ring before the log writer read them
+    guard_trips: dict[str, int] = field(default_factory=dict)  # faults by kind (Fault)
     realtime_priority: bool = False
     loop_cpu: int | None = None  # the CPU the loop kept to itself (None: not pinned)
 
@@ -102,6 +104,7 @@ class HapticRunStats:
             "update_rate_hz": self.updates_received / self.wall_s if self.wall_s > 0 else 0.0,
             "update_age_ms": self.update_age_ms.percentiles(50, 99),
             "watchdog_trips": self.watchdog_trips,
+            "guard_trips": dict(self.guard_trips),
             "realtime_priority": self.realtime_priority,
             "loop_cpu": self.loop_cpu,
             "lost_log_ticks": self.lost_log_ticks,
@@ -297,9 +300,14 @@ class HapticServer:
         )
         sim = engine.sim_device
         compiled = sim is not None and not leak_bytes and nan_tick < 0
+        fault_state = engine.state["fault"]
+        fault_seen = loop["fault_reported"]
         while True:
             if compiled and not (self._stop or supervisor.stopping):
-                if self._burst(supervisor, loop, ring_io, ts) == RETURNED_TO_PYTHON:
+                status = self._burst(supervisor, loop, ring_io, ts)
+                if fault_state[0] != fault_seen[0]:
+                    self._report_fault(io, int(tick_count[0]) - 1, fault_seen)
+                if status == RETURNED_TO_PYTHON:
                     continue  # between two ticks: signals, then the next burst
             else:
                 open_tick(loop, wait_until(int(deadline[0]), spin_ns))
@@ -329,9 +337,23 @@ class HapticServer:
                 dt, lateness_ns / 1e3, float(work_v[0]), self._newest_seq, self._newest_age_ms
             )
             push_row(ring, ctl, row, lateness_window, work_window, peaks)
+            if fault_state[0] != fault_seen[0]:
+                self._report_fault(io, tick, fault_seen)
             tick_count[0] = tick + 1
             work_v[0] = (time.perf_counter_ns() - now) / 1e3
             deadline[0] += period_ns
+
+    def _report_fault(self, io: LoopIO, tick: int, fault_seen: np.ndarray) -> None:
+        """The engine's fault changed at `tick`: a new one (the guard or the NaN check sent the
+        device safe) is counted and logged; a cleared one (re-initialised) only noted."""
+        fault = int(self.engine.state[0]["fault"])
+        fault_seen[0] = fault
+        if fault == Fault.NONE:
+            return
+        tag = Fault(fault).name.lower()
+        trips = self.stats.guard_trips
+        trips[tag] = trips.get(tag, 0) + 1
+        io.event(tick, Event.FAULT, f"{tag}: device to the safe state until the next update")
 
     def _burst(
         self, supervisor: WatchdogClock, loop: np.ndarray, ring_io: tuple[Any, ...], ts: np.ndarray

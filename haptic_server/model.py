@@ -14,10 +14,11 @@ from __future__ import annotations
 import numpy as np
 
 from device_models.base import AUX_SIZE, SENSOR_DTYPE, DeviceRenderingSpec
-from shared.config import RenderingSpec
-from shared.kinematics import MAX_DOF
+from shared.config import RenderingSpec, SceneConfig
+from shared.kinematics import CHAIN_DTYPE, MAX_DOF
 from shared.protocol.codes import Method
 from shared.protocol.layout import LIMITS_DTYPE, LOCAL_MODEL_DTYPE, MAX_CONTACTS
+from shared.tool_chain import tool_bounds, tool_chain
 
 F8 = np.float64
 I8 = np.int64
@@ -50,6 +51,12 @@ PARAMS_DTYPE = np.dtype(
         ("safe_damping", F8, (3,)),  # the safe state: damping only
         ("safe_ramp_s", F8),
         ("max_wrench", F8, (3,)),  # device limits in the world frame: never exceeded
+        ("guard", I8),  # 1: the runaway guard and the passivity observer (stages/safety.py)
+        ("guard_max_speed", F8),  # m/s: the proxy's operational point (the scene's envelope)
+        ("guard_max_angular_speed", F8),  # rad/s: any link of the proxy
+        ("guard_max_energy", F8),  # J: the proxy's kinetic energy
+        ("passivity_window_s", F8),  # the observer forgets energy over this time constant
+        ("passivity_limit_j", F8),  # energy the device port may give out within the window
     ]
 )
 
@@ -67,6 +74,9 @@ STATE_DTYPE = np.dtype(
         ("foh_goal", F8, (3,)),
         ("foh_step", F8, (3,)),
         ("foh_steps_left", I8),
+        ("last_command", F8, (3,)),  # the wrench commanded last tick (world frame)
+        ("port_energy", F8),  # the passivity observer: energy the device gave the hand (J)
+        ("device_energy", F8),  # the device's kinetic energy last tick (J)
     ]
 )
 
@@ -188,6 +198,7 @@ TICK_DTYPE = np.dtype(
         ("device_fault", np.int32),
         ("device_aux", F8, (AUX_SIZE,)),  # device-specific readings (the device's aux_names)
         ("world_offset", F8, (3,)),  # device-to-world map offset (moves under rate control)
+        ("port_energy", F8),  # the passivity observer: energy the device gave the hand (J)
     ]
 )
 
@@ -231,6 +242,61 @@ CLOCK_DTYPE = np.dtype(
     ]
 )
 
+#: the sim and the haptic side compute D, G, Lambda^-1 and the tool pose by the same code from
+#: the same numbers: they agree to rounding, and a relative difference beyond this is another
+#: model (haptic_server/stages/plausible.py)
+PLAUSIBILITY_TOLERANCE = 1.0e-6
+
+#: What the scene allows an update to say (haptic_server/stages/plausible.py): its tool's
+#: chain, to recompute D, G, C qd, Lambda^-1 and the tool pose at the update's own q, and the
+#: scene's bounds on speeds, energy and contact materials; with the check's scratch.
+ENVELOPE_DTYPE = np.dtype(
+    [
+        ("enabled", I8),  # 0: no plausibility check (kernel tests, logs before 0.4)
+        ("chain", CHAIN_DTYPE, (1,)),  # the scene's tool (shared/tool_chain.py)
+        ("op_link", I8),
+        ("op_point", F8, (2,)),
+        ("gravity", F8, (2,)),
+        ("linkage", I8),  # 1: a linkage (C qd and resisted directions are sent)
+        ("characteristic_length", F8),
+        ("rank_tolerance", F8),
+        ("outline_a", F8, (MAX_DOF, 2)),  # each link's shape inside a capsule a-b of radius r
+        ("outline_b", F8, (MAX_DOF, 2)),
+        ("outline_radius", F8, (MAX_DOF,)),
+        ("max_speed", F8),  # m/s: the operational point
+        ("max_angular_speed", F8),  # rad/s: any link
+        ("max_energy", F8),  # J: the tool's kinetic energy
+        ("max_stiffness", F8),  # the scene's materials
+        ("max_tangential_stiffness", F8),
+        ("max_damping", F8),
+        ("max_friction", F8),
+        ("max_restitution", F8),
+        ("max_env_speed", F8),  # m/s: an environment point
+        ("max_penetration", F8),  # m: a contact at the sim's own tool state
+        ("sim_period_s", F8),
+        ("tolerance", F8),  # relative: sim and haptic side compute the same terms
+        # each figure of the last check over its bound (stages/plausible.py RATIO_*): how
+        # close a plausible update came (benchmarks/envelope.py reports them)
+        ("ratios", F8, (8,)),
+        ("frame_pos", F8, (MAX_DOF, 2)),  # scratch from here on
+        ("frame_angle", F8, (MAX_DOF,)),
+        ("jac", F8, (3, MAX_DOF)),
+        ("point", F8, (2,)),
+        ("mass", F8, (MAX_DOF, MAX_DOF)),
+        ("gravity_q", F8, (MAX_DOF,)),
+        ("velocity_torque", F8, (MAX_DOF,)),
+        ("mass_plus", F8, (MAX_DOF, MAX_DOF)),
+        ("mass_minus", F8, (MAX_DOF, MAX_DOF)),
+        ("q_step", F8, (MAX_DOF,)),
+        ("gravity_step", F8, (MAX_DOF,)),
+        ("chol", F8, (MAX_DOF, MAX_DOF)),
+        ("column", F8, (MAX_DOF,)),
+        ("gram", F8, (3, 3)),
+        ("eigenvalues", F8, (3,)),
+        ("eigenvectors", F8, (3, 3)),
+    ]
+)
+
 #: The install state: the order of installed updates, the verdict counters, the parser's
 #: buffers (DESIGN §3: an older epoch or a repeated sequence number is rejected).
 INSTALL_DTYPE = np.dtype(
@@ -250,6 +316,7 @@ INSTALL_DTYPE = np.dtype(
         ("parsed", LOCAL_MODEL_DTYPE, (1,)),
         ("limits", LIMITS_DTYPE, (1,)),
         ("parse_scratch", F8, (MAX_DOF, MAX_DOF)),
+        ("envelope", ENVELOPE_DTYPE, (1,)),
     ]
 )
 
@@ -305,3 +372,53 @@ def params_record(
     p["safe_ramp_s"] = safe_ramp_s
     p["max_wrench"] = np.asarray(max_wrench, dtype=np.float64) * per_wrench
     return rec
+
+
+def envelope_record(scene: SceneConfig) -> np.ndarray:
+    """What the scene allows an update to say (ENVELOPE_DTYPE[1], enabled): its tool's chain
+    (shared/tool_chain.py, as the sim builds it), the speeds and energy of its tool
+    (tool_bounds, with the margin of a tool that tracks the proxy) and its materials."""
+    tool = tool_chain(scene)
+    safety = scene.safety
+    rec = np.zeros(1, ENVELOPE_DTYPE)
+    e = rec[0]
+    d = tool.dof
+    e["enabled"] = 1
+    e["chain"] = tool.chain
+    e["op_link"] = tool.op_link
+    e["op_point"] = tool.op_point
+    e["gravity"] = tool.gravity
+    e["linkage"] = 1 if tool.kind == "linkage" else 0
+    e["characteristic_length"] = scene.tool.characteristic_length_m
+    e["rank_tolerance"] = scene.tool.rank_tolerance
+    e["outline_a"][:d] = tool.outline_a
+    e["outline_b"][:d] = tool.outline_b
+    e["outline_radius"][:d] = tool.outline_radius
+    bounds = tool_bounds(scene).tracking()  # the sim's tool follows the proxy, overshooting
+    e["max_speed"] = bounds.speed
+    e["max_angular_speed"] = bounds.spin
+    e["max_energy"] = bounds.energy
+    materials = scene.materials.values()
+    e["max_stiffness"] = max(m.stiffness_n_per_m for m in materials)
+    e["max_tangential_stiffness"] = max(m.tangential_stiffness for m in materials)
+    e["max_damping"] = max(m.damping_ns_per_m for m in materials)
+    e["max_friction"] = max(m.friction for m in materials)
+    e["max_restitution"] = max(m.restitution for m in materials)
+    e["max_env_speed"] = 2.0 * bounds.speed
+    e["max_penetration"] = safety.max_penetration_m
+    e["sim_period_s"] = 1.0 / scene.sim_rate_hz
+    e["tolerance"] = PLAUSIBILITY_TOLERANCE
+    return rec
+
+
+def set_guard(params: np.ndarray, scene: SceneConfig) -> None:
+    """The runaway guard's and passivity observer's bounds (PARAMS_DTYPE fields): the proxy's
+    (shared/tool_chain.py tool_bounds) and the scene's [safety] table; on."""
+    p = params[0]
+    bounds = tool_bounds(scene)
+    p["guard"] = 1
+    p["guard_max_speed"] = bounds.speed
+    p["guard_max_angular_speed"] = bounds.spin
+    p["guard_max_energy"] = bounds.energy
+    p["passivity_window_s"] = scene.safety.passivity_window_s
+    p["passivity_limit_j"] = scene.safety.passivity_limit_j

@@ -72,6 +72,7 @@ LOOP_DTYPE = np.dtype(
         ("lateness_ns", I8),
         ("dt", F8),
         ("status", I8),
+        ("fault_reported", I8),  # the state's fault the Python side has logged
     ]
 )
 
@@ -124,8 +125,8 @@ def _quiet_installs(lp, ring_io, recs, ts):
         if read >= load_acquire(ctl, C_UPD_HEAD):  # afresh: the sidecar writes it
             break
         slot = mailbox[read % mailbox.shape[0]]
-        if clock[0].ready == 0 or ins.follow == 1:
-            return False
+        if clock[0].ready == 0 or ins.follow == 1 or data[0].state.fault != 0:
+            return False  # the install needs the engine's Python side (re-initialisation)
         if ins.epoch_law != EPOCH_LAW_LIVE and epoch_of(slot.raw, slot.length) != ins.epoch:
             return False  # the update may begin an epoch (live, another is only rejected)
         n, installed, follow, seq, latency = take_updates(
@@ -176,7 +177,8 @@ def realtime_ticks(recs, dev, user, ring_io, loop, ts):
         end = monotonic_ns(ts)
         lp.work_prev_us = (end - now) / 1e3
         lp.deadline_ns += lp.period_ns
-        if end >= lp.return_at_ns:  # between two ticks: no tick is left opened
+        # between two ticks: no tick is left opened; a new fault is Python's to report
+        if end >= lp.return_at_ns or recs[1][0].state.fault != lp.fault_reported:
             lp.status = RETURNED_TO_PYTHON
             return lp.status
 

@@ -27,6 +27,9 @@ class Event(StrEnum):
     REINITIALISE = "reinitialise"  # an install restarted the proxy from the sim's state
     WATCHDOG_CLEAR = "watchdog_clear"  # an update arrived after a trip: normal rendering
     WATCHDOG = "watchdog"  # no valid update for watchdog_ms: ramp to the safe state
+    # the loop's guard sent the device safe (a kernel's decision: a replay recomputes it, so
+    # it is logged for people, not replayed); the next installed update re-initialises
+    FAULT = "fault"
 
 
 class EventSource(Protocol):
@@ -64,11 +67,11 @@ def supervise(engine: HapticEngine, source: EventSource) -> TickEvents:
     if source.stop():
         engine.set_safe(True)
         events.stop = True
-    epochs, was_stale = engine.counters.epochs, engine.stale
+    epochs, was_stale, reinit = engine.counters.epochs, engine.stale, engine.needs_reinit
     events.installed = source.install()
     if events.installed:
         events.new_epoch = engine.counters.epochs != epochs
-        events.reinitialised = events.new_epoch or was_stale
+        events.reinitialised = events.new_epoch or reinit
     if source.watchdog_clear(events.installed, was_stale):
         engine.set_safe(False)
         events.watchdog_clear = True

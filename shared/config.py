@@ -321,6 +321,24 @@ class BodySpec:
                 f"the oscillation's peak speed {peak:.3g} m/s exceeds {SPEED_M_PER_S:g} m/s",
             )
 
+    @property
+    def extent(self) -> float:
+        """The farthest point of the shape from the body's origin (m)."""
+        if self.shape == "box":
+            return 0.5 * math.hypot(*self.size)
+        if self.shape == "circle":
+            return self.radius
+        return max(math.hypot(*self.a), math.hypot(*self.b)) + self.radius
+
+    @property
+    def moment(self) -> float:
+        """Moment of inertia about the body's origin (kg m^2), as pymunk computes it."""
+        if self.shape == "box":
+            return coupling.box_moment(self.mass, self.size[0], self.size[1])
+        if self.shape == "circle":
+            return coupling.circle_moment(self.mass, self.radius)
+        return coupling.segment_moment(self.mass, self.a, self.b, self.radius)
+
     def to_world(self, px: float, py: float) -> Vec2:
         """A point of the body's frame (a segment's end, a box's corner) in the world, at the
         body's initial position and angle."""
@@ -506,6 +524,30 @@ class RenderingSpec:
         require(self.collision_speed_m_per_s >= 0, "collision_speed_m_per_s", "must be >= 0")
 
 
+@dataclass(frozen=True)
+class SafetySpec:
+    """What the scene allows its tool to do: the bounds the haptic server checks every update
+    against (haptic_server/stages/plausible.py) and its runaway guard and passivity observer
+    trip at (haptic_server/stages/safety.py). Speeds are of the operational point and of
+    each link's rotation; the scene's fastest kinematic body is added (twice: a tool it
+    strikes may rebound at up to twice its speed)."""
+
+    max_tool_speed_m_per_s: float = 2.0  # a hand's reach: the tool's operational point
+    max_tool_angular_speed_rad_per_s: float = 30.0  # any link of the tool
+    max_penetration_m: float = 0.04  # of a contact at the sim's own tool state
+    passivity_window_s: float = 0.2  # the passivity observer forgets energy over this
+    passivity_limit_j: float = 0.5  # energy the device port may give out within the window
+
+    def __post_init__(self) -> None:
+        within(self.max_tool_speed_m_per_s, (1e-3, SPEED_M_PER_S), "max_tool_speed_m_per_s")
+        within(
+            self.max_tool_angular_speed_rad_per_s, (1e-3, 1e3), "max_tool_angular_speed_rad_per_s"
+        )
+        within(self.max_penetration_m, (1e-6, 1.0), "max_penetration_m", "m")
+        within(self.passivity_window_s, (1e-3, 10.0), "passivity_window_s", "s")
+        within(self.passivity_limit_j, (1e-6, 1e4), "passivity_limit_j", "J")
+
+
 MAX_HAPTIC_RATE_HZ = 10000.0
 
 
@@ -527,6 +569,7 @@ class SceneConfig:
     linkages: tuple[LinkageSpec, ...] = ()
     rendering: RenderingSpec = field(default_factory=RenderingSpec)
     space: SpaceSpec = field(default_factory=SpaceSpec)
+    safety: SafetySpec = field(default_factory=SafetySpec)
 
     def __post_init__(self) -> None:
         require(10.0 <= self.sim_rate_hz <= 500.0, "sim_rate_hz", "must be in [10, 500] Hz")
@@ -577,12 +620,7 @@ class SceneConfig:
     def _check_coupling_substeps(self, body: BodySpec) -> None:
         """The sim's stiff tool-device coupling must be stable in pymunk (shared/coupling.py;
         checked for a held free body, whose effective mass is fixed)."""
-        if body.shape == "box":
-            moment = coupling.box_moment(body.mass, body.size[0], body.size[1])
-        elif body.shape == "circle":
-            moment = coupling.circle_moment(body.mass, body.radius)
-        else:
-            moment = coupling.segment_moment(body.mass, body.a, body.b, body.radius)
+        moment = body.moment
         r = self.rendering
         needed, h_max = coupling.coupling_substeps(
             self.sim_rate_hz, body.mass, moment, self.tool.point,
@@ -601,6 +639,23 @@ class SceneConfig:
     def all_bodies(self) -> tuple[BodySpec, ...]:
         """The bodies and every crowd's bodies, in that order (what the sim builds)."""
         return self.bodies + tuple(b for c in self.crowds for b in c.bodies())
+
+    @property
+    def kinematic_speed_m_per_s(self) -> float:
+        """The fastest a point of a kinematic body moves: its velocity, its oscillation's peak
+        and its spin times its extent."""
+        fastest = 0.0
+        for b in self.bodies:
+            if b.kind != "kinematic":
+                continue
+            peak = 0.0
+            if b.oscillation_period_s > 0:
+                amplitude = math.hypot(*b.oscillation_amplitude)
+                peak = 2 * math.pi * amplitude / b.oscillation_period_s
+            fastest = max(
+                fastest, math.hypot(*b.velocity) + peak + abs(b.angular_velocity) * b.extent
+            )
+        return fastest
 
     @property
     def tool_body(self) -> BodySpec:

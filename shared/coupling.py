@@ -34,17 +34,21 @@ def box_moment(mass: float, width: float, height: float) -> float:
 
 
 def circle_moment(mass: float, radius: float) -> float:
-    """Moment of a solid disc about its centre (pymunk.moment_for_circle(m, 0, r))."""
-    return 0.5 * mass * radius * radius
+    """Moment of a solid disc about its centre: pymunk.moment_for_circle(m, 0, r), bit for
+    bit (Chipmunk's cpMomentForCircle, its order of operations)."""
+    return mass * (0.5 * (0.0 * 0.0 + radius * radius) + 0.0)
 
 
 def segment_moment(
     mass: float, a: tuple[float, float], b: tuple[float, float], radius: float
 ) -> float:
-    """Moment of a capsule segment about the body origin (pymunk.moment_for_segment)."""
-    length = math.hypot(b[0] - a[0], b[1] - a[1]) + 2.0 * radius
-    mid_x, mid_y = 0.5 * (a[0] + b[0]), 0.5 * (a[1] + b[1])
-    return mass * ((length * length + 4.0 * radius * radius) / 12.0 + mid_x**2 + mid_y**2)
+    """Moment of a capsule segment about the body origin: pymunk.moment_for_segment, bit
+    for bit (Chipmunk's cpMomentForSegment, its order of operations)."""
+    mid_x, mid_y = a[0] * 0.5 + b[0] * 0.5, a[1] * 0.5 + b[1] * 0.5
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    length = math.sqrt(dx * dx + dy * dy) + 2.0 * radius
+    offset_sq = mid_x * mid_x + mid_y * mid_y
+    return mass * ((length * length + 4.0 * radius * radius) / 12.0 + offset_sq)
 
 
 NO_STABLE_STEP = 2**62  # coupling_substeps' answer when no step is stable

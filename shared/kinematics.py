@@ -18,6 +18,7 @@ PRISMATIC_X = 1  # slides along the world x axis (used before any revolute joint
 PRISMATIC_Y = 2
 
 MAX_DOF = 12
+VELOCITY_TORQUE_STEP = 1.0e-6  # rad, central differences of D(q) for C(q, qd) qd
 
 #: One tool chain as a record (MJX's jnt_* / body_* columns of one tool): the kernels take
 #: it whole, so a new column is a field here, not a new argument at every call site.
@@ -194,18 +195,26 @@ def velocity_product_torque(chain, q, qd, step, out):
     """C(q, qd) qd = Ddot qd - 1/2 grad_q(qd^T D qd): Coriolis and centripetal torques.
 
     dD/dq_k by central differences of `mass_matrix_and_gravity` (step ~1e-6 rad gives
-    ~1e-12 relative error); the sim sends the result with each update.
-    """
+    ~1e-12 relative error); the sim sends the result with each update. Allocates its
+    scratch: `velocity_product_torque_into` is the same sum on the caller's."""
     dof = chain[0].dof
-    frame_pos = np.zeros((dof, 2))
-    frame_angle = np.zeros(dof)
-    jac = np.zeros((3, dof))
-    grav = np.zeros(dof)
+    work = (
+        np.zeros((dof, 2)), np.zeros(dof), np.zeros((3, dof)), np.zeros(dof),
+        np.zeros((dof, dof)), np.zeros((dof, dof)), q.copy(),
+    )  # fmt: skip
+    velocity_product_torque_into(chain, q, qd, step, work, out)
+
+
+@njit(cache=True)
+def velocity_product_torque_into(chain, q, qd, step, work, out):
+    """velocity_product_torque on preallocated scratch: work = (frame_pos (>= d, 2),
+    frame_angle (>= d), jac (3, >= d), gravity (>= d), D+ (>= d, >= d), D- (>= d, >= d),
+    q copy (>= d)); the same operations in the same order, so the same bits."""
+    dof = chain[0].dof
+    frame_pos, frame_angle, jac, grav, d_plus, d_minus, qq = work
     zero_g = np.zeros(2)
-    d_plus = np.zeros((dof, dof))
-    d_minus = np.zeros((dof, dof))
-    qq = q.copy()
     for i in range(dof):
+        qq[i] = q[i]
         out[i] = 0.0
     for k in range(dof):
         qq[k] = q[k] + step

@@ -24,6 +24,7 @@ from numba import carray, cfunc, from_dtype, njit, types
 
 from shared.kinematics import (
     MAX_DOF,
+    VELOCITY_TORQUE_STEP,
     mass_matrix_and_gravity,
     point_jacobian,
     point_on_link,
@@ -38,7 +39,6 @@ from sim_server.tool import TOOL_LINKAGE, tool_state
 if TYPE_CHECKING:  # annotations only: world.py imports this module
     from sim_server.world import SimWorld
 
-VELOCITY_TORQUE_STEP = 1.0e-6  # rad, central differences of D(q) for C(q, qd) qd
 TOUCH_TOLERANCE_M = 1.0e-4  # gap below which the tool counts as touching (FOH force gate)
 TOOL_GROUP = 1  # pymunk shape-filter group: tool shapes never collide with each other
 HITS_PER_QUERY = 1024  # shapes one tool shape's neighbourhood may overlap (more: counted)

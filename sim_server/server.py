@@ -26,6 +26,7 @@ from shared.protocol.proxy import ProxyState, decode_proxy
 from shared.protocol.update import MessageError, stamp_publication
 from shared.timing import SampleWindow, wait_until
 from sim_server.pacing import PhaseLock
+from sim_server.proxy_check import ProxyCheck
 from sim_server.world import SimWorld, ToolTarget, warm_kernels
 
 PHASE_SPIN_NS = 600_000  # how long before a step's start the sim stops sleeping and spins
@@ -59,6 +60,7 @@ class SimServer:
         self._proxy: ProxyState | None = None
         self._proxy_wall_ns = 0
         self.phase = PhaseLock()
+        self.check = ProxyCheck(scene)
 
     def request_stop(self, *_: object) -> None:
         self._stop = True
@@ -76,6 +78,8 @@ class SimServer:
             except MessageError:
                 self.stats.proxies_rejected += 1
                 continue
+            if proxy.epoch == self.epoch and not self.check.take(proxy, time.time_ns()):
+                continue  # one the sim could not have caused: counted by the check
             self._proxy, self._proxy_wall_ns = proxy, now_ns
             if proxy.epoch == self.epoch:
                 self.phase.report(proxy.wait)
@@ -134,8 +138,10 @@ class SimServer:
                 # the state holds one period after its start, lead_s from now
                 put_ns = time.perf_counter_ns()
                 lead_s = (step_start + period_ns - put_ns) / 1e9 if seq > 0 else 0.0
-                stamp_publication(raw_update, time.time_ns(), lead_s)
+                publish_ns = time.time_ns()
+                stamp_publication(raw_update, publish_ns, lead_s)
                 pub.put(bytes(raw_update))
+                self.check.published(seq, self.world.tool_pose, publish_ns)
                 self.phase.published(seq, step_start, put_ns)
                 self.step_ms.add((time.perf_counter_ns() - t0) / 1e6)
                 self.stats.update_bytes = len(raw_update)
@@ -153,6 +159,7 @@ class SimServer:
             "overruns": self.stats.overruns,
             "proxies_received": self.stats.proxies_received,
             "proxies_rejected": self.stats.proxies_rejected,
+            "proxies_implausible": self.check.refused,
             "step_ms": self.step_ms.percentiles(50, 99),
             "interval_ms": self.interval_ms.percentiles(50, 99),
             "step_rate_hz": _rate_per_second(self.interval_ms.values()),

@@ -20,8 +20,6 @@ import pymunk
 from shared.config import BodySpec, Material, SceneConfig
 from shared.kinematics import (
     MAX_DOF,
-    chain_record,
-    free_body_chain,
     link_frames,
     mass_matrix_and_gravity,
     point_jacobian,
@@ -29,6 +27,7 @@ from shared.kinematics import (
 )
 from shared.protocol.layout import MAX_CONTACTS, MAX_RESISTED, update_size
 from shared.protocol.update import LocalModelUpdate, update_from_record
+from shared.tool_chain import tool_chain
 from sim_server.chipmunk import body_ptr, set_velocity_function, space_ptr
 from sim_server.drive import (
     DRIVE_DEVICE,
@@ -114,7 +113,7 @@ class SimWorld:
             body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
             self._kinematic.append((body, spec))
         else:
-            body = pymunk.Body(spec.mass, _moment(spec))
+            body = pymunk.Body(spec.mass, spec.moment)
             if spec.linear_damping_per_s > 0.0 and not is_tool:
                 # table_drag's cache keeps the cfunc alive as long as the process
                 set_velocity_function(body, table_drag(spec.linear_damping_per_s).address)
@@ -177,40 +176,24 @@ class SimWorld:
             self.tool_bodies = bodies
 
     def _setup_tool_chain(self) -> None:
-        tool = self.scene.tool
-        if tool.kind == "body":
-            spec = self.scene.tool_body
-            self.joint_types, self.lengths = free_body_chain()
-            self.base = np.zeros(2)
-            self.base_angle = 0.0
-            self.masses = np.array([0.0, 0.0, spec.mass])
-            self.inertias = np.array([0.0, 0.0, _moment(spec)])
-            self.com_offsets = np.zeros((3, 2))
-            self.op_link = 2
-        else:
-            lk = self.scene.tool_linkage
-            n = len(lk.lengths)
-            self.joint_types = np.zeros(n, dtype=np.int64)
-            self.lengths = np.array(lk.lengths, dtype=float)
-            self.base = np.array(lk.base, dtype=float)
-            self.base_angle = lk.base_angle
-            self.masses = np.array(lk.masses, dtype=float)
-            self.inertias = np.array(lk.inertias, dtype=float)
-            self.com_offsets = np.array(lk.com_offsets, dtype=float)
-            self.op_link = tool.link
-        self.dof = len(self.joint_types)
-        if self.dof > MAX_DOF:
-            raise ValueError(f"tool has {self.dof} DOF; at most {MAX_DOF} supported")
-        self.op_point = np.array(tool.point, dtype=float)
-        self.gravity = np.array(self.scene.gravity, dtype=float)
+        chain = tool_chain(self.scene)  # the haptic server builds the same (shared/tool_chain.py)
+        c = chain.chain[0]
+        self.dof = chain.dof
+        self.joint_types = c["joint_types"][: self.dof].copy()
+        self.lengths = c["lengths"][: self.dof].copy()
+        self.base = c["base"].copy()
+        self.base_angle = float(c["base_angle"])
+        self.masses = c["masses"][: self.dof].copy()
+        self.inertias = c["inertias"][: self.dof].copy()
+        self.com_offsets = c["com_offsets"][: self.dof].copy()
+        self.op_link = chain.op_link
+        self.op_point = chain.op_point
+        self.gravity = chain.gravity
         self._frame_pos = np.zeros((self.dof, 2))
         self._frame_angle = np.zeros(self.dof)
         self._jac = np.zeros((3, self.dof))
         self._point = np.zeros(2)
-        self.chain = chain_record(
-            self.joint_types, self.lengths, self.base, self.base_angle, self.masses,
-            self.inertias, self.com_offsets,
-        )  # fmt: skip
+        self.chain = chain.chain
 
     # --- tool state ---------------------------------------------------------------------
 
@@ -328,6 +311,11 @@ class SimWorld:
         return self._encoded[:n].tobytes()
 
     @property
+    def tool_pose(self) -> np.ndarray:
+        """The operational point's pose in the last local model built (a copy)."""
+        return self._local.record[0]["tool_pose"].copy()
+
+    @property
     def stats(self) -> StageStats:
         """Which optional stages the last local model ran, and what its query found."""
         m, counts = self._local.record[0], self._local.counts
@@ -380,11 +368,3 @@ def _kinematic_records(kinematic: list[tuple[pymunk.Body, BodySpec]]) -> np.ndar
             spec.oscillation_period_s,
         )
     return rec
-
-
-def _moment(spec: BodySpec) -> float:
-    if spec.shape == "box":
-        return float(pymunk.moment_for_box(spec.mass, spec.size))
-    if spec.shape == "circle":
-        return float(pymunk.moment_for_circle(spec.mass, 0.0, spec.radius))
-    return float(pymunk.moment_for_segment(spec.mass, spec.a, spec.b, spec.radius))

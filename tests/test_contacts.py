@@ -40,6 +40,7 @@ def engine_with(q, qd, rows, impulses=True) -> HapticEngine:
     scene = dataclasses.replace(scene, rendering=rendering)
     device = IdealDevice(IdealDeviceConfig(inertia=(1.0, 1.0, 1.0), max_wrench=(1e4, 1e4, 1e3)))
     engine = HapticEngine(scene, device, UserConfig(name="none", kind="constant_wrench"))
+    engine.unguarded()  # a hand-made model
     jt, lengths = free_body_chain()
     n = len(rows)
     update = LocalModelUpdate(

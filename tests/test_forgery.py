@@ -46,6 +46,9 @@ TAKEOVER_COPIES = 25  # 0.5 s of a forged epoch: past the 40 ms ramp out of the 
 
 
 def forged(world: SimWorld, epoch: int, seq: int, published_ns: int) -> bytes:
+    """The forger's world as the sim would publish update `seq`: a stream whose sim time
+    advances a period per update (one that stood still would be refused as a jump)."""
+    world.time = seq * world.period
     return encode_update(world.local_model(epoch, seq, published_ns))
 
 

@@ -88,6 +88,10 @@ LAW_0_2 = (0, 2, 0)
 #: the watchdog has fired (haptic_server.stages.install, EPOCH_LAW_LIVE); before, any higher
 #: epoch switched at once and no publish time was checked.
 ADMISSION_0_3 = (0, 3, 0)
+#: The first version that checks every update against the scene (stages/plausible.py) and
+#: guards the loop against a runaway proxy and an active port (stages/safety.py): before,
+#: any valid update was rendered and a NaN fault kept the device safe until the watchdog.
+GUARD_0_4 = (0, 4, 0)
 
 
 def _version(text: str | None) -> tuple[int, ...]:
@@ -123,8 +127,12 @@ def engine_from_configs(configs: dict[str, str], run: dict[str, str] | None = No
         network = _network_of_run(configs["network"], run)
         engine = HapticEngine(scene, device, user, network.safe_ramp_ms / 1000.0)
         engine.set_admission(network.max_update_age_ms / 1e3, network.clock_skew_ms / 1e3)
-    if _version((run or {}).get("version")) < ADMISSION_0_3:
+    version = _version((run or {}).get("version"))
+    if version < ADMISSION_0_3:
         engine.set_admission(math.inf, math.inf, EPOCH_LAW_HIGHER)
+    if version < GUARD_0_4:
+        engine.check_plausibility(False)
+        engine.guard(False)
     return engine
 
 

@@ -26,7 +26,7 @@ from haptic_server.logger import LogFeed
 from haptic_server.model import TICK_DTYPE
 from haptic_server.supervisor import InstallOnly, supervise
 from shared.config import SceneConfig, UserConfig, load_scene, load_user, resolve, scene_text
-from shared.protocol.codes import Method
+from shared.protocol.codes import Method, Reason
 from sim_server.world import SimWorld, ToolTarget
 from sim_server.world import warm_kernels as warm_sim_kernels
 
@@ -48,6 +48,9 @@ class VirtualResult:
     log_path: Path | None
     load_s: float = 0.0  # kernels loaded before the run (run_virtual_named), not in wall_s
     setup_s: float = 0.0  # the world, the engine and the log writer made, not in wall_s
+    # the sim's own updates the haptic side refused, by reason: only ever beyond the scene's
+    # envelope (a tool the sim let run away after the guard tripped), never malformed
+    refused: dict[str, int] = dataclasses.field(default_factory=dict)
 
     @property
     def speedup(self) -> float:
@@ -77,6 +80,7 @@ def run_virtual(
     coupled = engine.method == Method.VIRTUAL_COUPLING_FOH
     stage = dict.fromkeys(("sim_step", "local_model", "install", "tick"), 0)
     sizes: list[int] = []
+    refused: dict[str, int] = {}
     svd_steps = 0
     runs_svd = world.stats.svd  # a linkage's local model has resisted directions to find
     clock = time.perf_counter_ns
@@ -96,7 +100,7 @@ def run_virtual(
                 raw = world.local_model_bytes(VIRTUAL_EPOCH, seq, t_ns, lead)  # built, encoded
                 svd_steps += runs_svd
                 t2 = clock()
-                supervise(engine, InstallOnly(partial(_install_own, engine, raw)))
+                supervise(engine, InstallOnly(partial(_install_own, engine, raw, refused)))
                 t3 = clock()
                 stage["sim_step"] += t1 - t0
                 stage["local_model"] += t2 - t1
@@ -121,7 +125,7 @@ def run_virtual(
     wall = time.perf_counter() - started
     return VirtualResult(
         rows, seq, world, stage, sizes, svd_steps, wall, n_ticks * dt,
-        Path(log_path) if log_path else None, setup_s=started - entered,
+        Path(log_path) if log_path else None, setup_s=started - entered, refused=refused,
     )  # fmt: skip
 
 
@@ -135,19 +139,31 @@ def _next_step_tick(k: int, dt: float, next_sim_t: float) -> int:
     return guess
 
 
-def _install_own(engine: HapticEngine, raw: bytes) -> int:
-    """Install the sim's own update: it is never rejected (that would be a bug, so raise)."""
+#: why the haptic side may refuse the sim's own update: its tool beyond the scene's envelope
+#: (it followed a proxy the guard stopped); any other reason is a bug of the sim or the codec
+ENVELOPE_REASONS = (Reason.IMPLAUSIBLE.tag, Reason.JUMP.tag)
+
+
+def _install_own(engine: HapticEngine, raw: bytes, refused: dict[str, int]) -> int:
+    """Install the sim's own update; one beyond the scene's envelope is counted in
+    `refused`, any other refusal raises (a bug)."""
     reason = engine.receive(raw)
-    if reason:
+    if not reason:
+        return 1
+    if reason not in ENVELOPE_REASONS:
         raise RuntimeError(f"the sim's own update was rejected: {reason}")
-    return 1
+    refused[reason] = refused.get(reason, 0) + 1
+    return 0
 
 
 def _target(engine: HapticEngine, coupled: bool) -> ToolTarget:
+    """The proxy state the real sim would receive: it holds its tool (fresh = False) while
+    the haptic side is in (or ramping to or from) its safe state."""
     q, qd = engine.proxy_pose()
     pose, twist = engine.device_world_pose()
+    fresh = float(engine.row[0]["safe"]) == 0.0
     return ToolTarget(
-        q=q, qd=qd, device_pose=pose, device_twist=twist, coupled_to_device=coupled, fresh=True
+        q=q, qd=qd, device_pose=pose, device_twist=twist, coupled_to_device=coupled, fresh=fresh
     )
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from numba import njit
 
+from haptic_server.stages.plausible import check_plausible
 from shared.protocol.codes import Reason
 from shared.protocol.layout import DEFAULT_CLOCK_SKEW_MS, DEFAULT_MAX_UPDATE_AGE_MS
 from shared.protocol.update import parse_update
@@ -52,10 +53,19 @@ def accept_update(buf, nbytes, age_s, model, data, install):
     if code != 0:
         return code
     new_epoch = u.epoch != ins.epoch
-    if not new_epoch and u.seq <= ins.seq:
+    env = ins.envelope[0]
+    # after the watchdog (or a guard's trip) the sim's sequence is followed afresh: an
+    # update that pushed it ahead cannot lock the sim's own updates out
+    resync = env.enabled == 1 and (ins.stale == 1 or data[0].state.fault != 0)
+    if not new_epoch and u.seq <= ins.seq and not resync:
         return Reason.SEQUENCE
     if not new_epoch and ins.ready == 1 and u.dof != model[0].slots[0].dof:
         return Reason.DOF_CHANGE
+    if env.enabled == 1:
+        live = ins.ready == 1 and not new_epoch and not resync and model[0].slots[0].valid == 1
+        code = check_plausible(u, model[0].slots[0], live, env)
+        if code != 0:
+            return code
     install_update(model[0], data[0], ins, new_epoch, min(max(age_s, 0.0), MAX_LATENCY_S))
     ins.epoch = u.epoch
     ins.seq = u.seq

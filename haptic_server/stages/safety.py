@@ -19,6 +19,79 @@ def safe_wrench(m, d, c):
 
 
 @njit(cache=True)
+def runaway_guard(m, d):
+    """The last line against a model that drives the proxy or the device away (docs/security.md).
+
+    - Runaway: the proxy's operational point faster than the scene allows, any of its links
+      spinning faster, or its kinetic energy above the envelope's (Fault.RUNAWAY).
+    - Passivity observer (after Hannaford and Ryu 2002) at the hand: the energy the device
+      gives the hand is what its actuators put in, sum of u . v dt of last tick's command u
+      and the twist it produced v (relative to the map's frame), less what went into the
+      device's own kinetic energy 1/2 v^T M_d v (an inertia-compensating law drives the
+      handle's mass, not the hand); forgotten over passivity_window_s. Above
+      passivity_limit_j the rendering is generating energy (Fault.PASSIVITY). It omits
+      the device's own friction losses, so it errs toward tripping.
+    A trip sends the device to the safe state at once and stops the proxy; the next
+    installed update re-initialises it from the sim (HapticEngine.installed)."""
+    p = m.params
+    st = d.state
+    if p.guard == 0:
+        return
+    sen = d.sensors[0]
+    work = 0.0
+    kinetic = 0.0
+    for c in range(3):
+        v = sen.twist[c] - sen.frame_twist[c]
+        work += st.last_command[c] * v * d.dt
+        for k in range(3):
+            kinetic += 0.5 * v * sen.inertia[c, k] * (sen.twist[k] - sen.frame_twist[k])
+    if st.device_energy < 0.0:  # re-initialised: the device's energy so far is not the port's
+        st.device_energy = kinetic
+    given = work - (kinetic - st.device_energy)
+    st.device_energy = kinetic
+    st.port_energy = st.port_energy * math.exp(-d.dt / p.passivity_window_s) + given
+    if st.fault != Fault.NONE:
+        return
+    fault = Fault.NONE
+    if p.integrate_proxy == 1 and d.scratch.mass_ok == 1:
+        fault = _runaway(m, d)
+    if fault == Fault.NONE and st.port_energy > p.passivity_limit_j:
+        fault = Fault.PASSIVITY
+    if fault != Fault.NONE:
+        st.fault = fault
+        st.safe = 1.0
+        st.safe_target = 1.0
+        for a in range(m.slots[0].dof):
+            st.qd[a] = 0.0
+
+
+@njit(cache=True)
+def _runaway(m, d):
+    """Fault.RUNAWAY if the proxy (after this tick's step) moves beyond the scene's envelope."""
+    p = m.params
+    st = d.state
+    w = d.scratch
+    slot = m.slots[0]
+    n = slot.dof
+    vx = 0.0
+    vy = 0.0
+    spin = 0.0
+    energy = 0.0
+    for a in range(n):
+        vx += w.jac_hand[0, a] * st.qd[a]
+        vy += w.jac_hand[1, a] * st.qd[a]
+        if slot.joint_types[a] == 0:  # revolute: every link from here on turns with it
+            spin += st.qd[a]
+            if abs(spin) > p.guard_max_angular_speed:
+                return Fault.RUNAWAY
+        for b in range(n):
+            energy += 0.5 * st.qd[a] * w.mass[a, b] * st.qd[b]
+    if math.hypot(vx, vy) > p.guard_max_speed or energy > p.guard_max_energy:
+        return Fault.RUNAWAY
+    return Fault.NONE
+
+
+@njit(cache=True)
 def safety_and_limits(m, d):
     """u = (1 - s) u_law + s u_safe, clipped at the device limits (world frame); an impulse
     clipped at the limit is carried to the next ticks (seed 001 eq 7). A non-finite command,
@@ -57,6 +130,7 @@ def safety_and_limits(m, d):
                 carried = min(abs(excess), abs(f_imp))
             st.impulse_carry[c] = math.copysign(carried, f_imp) * d.dt
         r.wrench_command[c] = clipped
+        st.last_command[c] = clipped
     for a in range(m.slots[0].dof):
         if not (math.isfinite(st.q[a]) and math.isfinite(st.qd[a])):
             finite = False
@@ -67,6 +141,7 @@ def safety_and_limits(m, d):
         for c in range(3):
             lim = p.max_wrench[c]
             r.wrench_command[c] = min(lim, max(-lim, safe_wrench(m, d, c)))
+            st.last_command[c] = r.wrench_command[c]
 
 
 @njit(cache=True)
@@ -100,4 +175,5 @@ def fill_row(m, d):
     r.contact_stage = w.contact_ran
     r.safe = st.safe
     r.fault = st.fault
+    r.port_energy = st.port_energy
     r.dt = d.dt

@@ -19,7 +19,7 @@ from haptic_server.stages.kinematics import (
     proxy_kinematics,
 )
 from haptic_server.stages.proxy import proxy_step
-from haptic_server.stages.safety import fill_row, safety_and_limits
+from haptic_server.stages.safety import fill_row, runaway_guard, safety_and_limits
 
 
 @njit(cache=True)
@@ -37,6 +37,7 @@ def haptic_tick(model, data):
     coupling_errors(m, d)
     control(m, d)
     proxy_step(m, d)
+    runaway_guard(m, d)
     safety_and_limits(m, d)
     fill_row(m, d)
 

@@ -31,13 +31,16 @@ class Fault(IntEnum):
 
     NONE = 0
     NONFINITE = 1  # a NaN/Inf appeared in the command or the proxy: safe state at once
+    RUNAWAY = 2  # the proxy moved faster, or held more energy, than the scene allows
+    PASSIVITY = 3  # the device port gave out more energy than the passivity observer allows
 
 
 class Reason(IntEnum):
     """An update's verdict: 0 installed, else why it was rejected (stable: logs keep them).
 
     1-15 come from the validating parser, 16-18 from the order check at install, 19-21 from
-    the time check at install (the receiver's clock against the update's times)."""
+    the time check at install (the receiver's clock against the update's times), 22-24 from
+    the plausibility check against the scene (haptic_server/stages/plausible.py)."""
 
     OK = 0
     SHORT = 1
@@ -61,6 +64,10 @@ class Reason(IntEnum):
     LATE = 19  # older than max_update_age_ms when it arrived: the world has moved on
     FUTURE = 20  # published later than the receiver's clock allows (a forged or skewed time)
     EPOCH_AHEAD = 21  # an epoch (the sim's start time) after the update's own publish time
+    INCONSISTENT = 22  # fields that must agree do not: D, G, C qd, Lambda^-1, the tool pose
+    # or the chain against the scene's tool at the update's own q
+    IMPLAUSIBLE = 23  # beyond what the scene allows: speeds, energy, contact materials, depth
+    JUMP = 24  # the tool (or the sequence) moved on farther than it could since the last one
 
     @property
     def tag(self) -> str:
