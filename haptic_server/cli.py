@@ -9,9 +9,17 @@ import sys
 from pathlib import Path
 
 from haptic_server.live_view import add_view_args, view_address
-from shared.cli import add_config_args, emit, log_file, run_main, seconds
+from shared.cli import (
+    EXIT_FAILED,
+    EXIT_LOG_FAILED,
+    add_config_args,
+    emit,
+    log_file,
+    run_main,
+    seconds,
+)
 from shared.config import load_scene, load_user, resolve, scene_text
-from shared.net.config import load_network
+from shared.net.config import load_network, on_port
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -37,7 +45,16 @@ def main(argv: list[str] | None = None) -> int:
         scene = load_scene(args.scene, args.haptic_rate)
         user = load_user(args.user)
         network = load_network(args.network, roles=("haptic",))
+        if args.port is not None:
+            network = on_port(network, args.port)
         device = load_device(args.device)
+        if network.unauthenticated_insecure:
+            print(
+                f"warning: {args.network}: unauthenticated_insecure: anyone who reaches "
+                f"{', '.join(network.haptic.listen)} can drive the device",
+                file=sys.stderr,
+                flush=True,
+            )
         configs = {
             "scene": scene_text(resolve("scenes", args.scene), args.haptic_rate),
             "device": resolve("devices", args.device).read_text(),
@@ -54,9 +71,18 @@ def main(argv: list[str] | None = None) -> int:
             args.duration,
             ready=lambda: emit("ready", process="haptic", loop_cpu=server.stats.loop_cpu),
         )
-        if args.summary_json:
-            args.summary_json.write_text(json.dumps(summary, indent=2))
         emit("stopped", process="haptic", **summary)
+        if args.summary_json:
+            try:
+                args.summary_json.write_text(json.dumps(summary, indent=2))
+            except OSError as exc:
+                print(f"haptic-server: cannot write the summary: {exc}", file=sys.stderr)
+                return EXIT_FAILED
+        if summary["io_lost"]:
+            print("haptic-server: the I/O process died; the run was stopped", file=sys.stderr)
+            return EXIT_FAILED
+        if summary["log_failed"]:
+            return EXIT_LOG_FAILED
         return 0
 
     return run_main(body)

@@ -21,6 +21,7 @@ import contextlib
 import gc
 import json
 import os
+import shutil
 import signal
 import struct
 import subprocess
@@ -146,8 +147,8 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
     ctl = block.ctl
     try:
         log = LogWriter(config["log_path"], config["metadata"])
-    except Exception:
-        ctl[C_LOG_FAILED] = 1
+    except Exception as exc:
+        block.fail_log(f"{config['log_path']}: {exc}")
         raise
     drain = LogDrain(
         block, log, int(config["wall_start_ns"]), int(config.get("update_time_offset_ns", 0))
@@ -157,6 +158,7 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
     gc.collect()
     gc.freeze()
     ctl[C_LOG_READY] = 1
+    failed = False
     try:
         while True:
             closing = ctl[C_CLOSED] == 1 or os.getppid() != parent_pid or terminated.is_set()
@@ -166,14 +168,42 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
                 break
             if not closing:
                 time.sleep(poll_s)
-    except BaseException:
-        ctl[C_LOG_FAILED] = 1
-        raise
+    except Exception as exc:
+        # a full disk, an I/O error: logging stops (the loop and the networking go on), the
+        # file keeps what was written (read it with the streaming reader; haptic-replay
+        # --recover makes it an indexed file again)
+        failed = True
+        error = _io_error(exc, Path(config["log_path"]))
+        block.fail_log(f"{config['log_path']}: {error}")
+        print(f"log writer: logging stopped: {config['log_path']}: {error}", file=sys.stderr)
     finally:
-        log.close()
+        with contextlib.suppress(Exception):  # a failed writer cannot write its footer
+            log.close()
         ctl[C_LOG_DONE] = 1
         block.release()
         shm.close()
+    if failed:
+        os._exit(1)
+
+
+#: a log's disk with less free than this when its writer fails is full (the MCAP library
+#: reports ENOSPC in its own words)
+FULL_DISK_BYTES = 1 << 20
+
+
+def _io_error(exc: BaseException, path: Path) -> str:
+    """The root cause of a writer's error: the OSError under the MCAP library's, if any; a
+    full disk said so."""
+    seen: BaseException | None = exc
+    while seen is not None:
+        if isinstance(seen, OSError):
+            return str(seen)
+        seen = seen.__cause__ or seen.__context__
+    text = f"{type(exc).__name__}: {exc}"
+    with contextlib.suppress(OSError):
+        if shutil.disk_usage(path.parent).free < FULL_DISK_BYTES:
+            return f"no space left on the device ({text})"
+    return text
 
 
 def _load_decoder() -> None:

@@ -62,6 +62,7 @@ WINDOW_TICKS = 600_000  # percentiles over the newest 10 min at 1 kHz
 # costs Python work between two ticks, which at 10 kHz eats into a 100 us period (haptic-run
 # --haptic-rate 10000, 5 interleaved pairs: overruns median 183 every 10 ms, 113 every 50 ms)
 RETURN_EVERY_NS = 50_000_000
+IO_CHECK_S = 0.05  # how often the loop's Python side looks whether its I/O process is awake
 
 
 @dataclass
@@ -82,6 +83,9 @@ class HapticRunStats:
     proxy_published: int = 0
     updates_lost: int = 0
     events_lost: int = 0  # overwritten in the event ring before the log writer read them
+    log_failed: str = ""  # why the log writer stopped (a full disk): the run went on
+    io_stalls: int = 0  # the I/O sidecar did not wake for a watchdog period (starved)
+    io_lost: bool = False  # the I/O sidecar died: the run was stopped
     guard_trips: dict[str, int] = field(default_factory=dict)  # faults by kind (Fault)
     realtime_priority: bool = False
     loop_cpu: int | None = None  # the CPU the loop kept to itself (None: not pinned)
@@ -110,6 +114,9 @@ class HapticRunStats:
             "lost_log_ticks": self.lost_log_ticks,
             "updates_lost": self.updates_lost,
             "events_lost": self.events_lost,
+            "log_failed": self.log_failed,
+            "io_stalls": self.io_stalls,
+            "io_lost": self.io_lost,
             "proxy_published": self.proxy_published,
             "log": str(log_path) if log_path else None,
         }
@@ -163,6 +170,8 @@ class HapticServer:
         self._newest_seq = -1
         self._newest_age_ms = float("nan")
         self._peaks = np.zeros(2)  # the largest lateness and work of the run (us)
+        self._io_stalled = False
+        self._io_check_ticks = max(1, round(IO_CHECK_S * scene.haptic_rate_hz))
 
     def request_stop(self, *_: object) -> None:
         self._stop = True
@@ -302,11 +311,15 @@ class HapticServer:
         compiled = sim is not None and not leak_bytes and nan_tick < 0
         fault_state = engine.state["fault"]
         fault_seen = loop["fault_reported"]
+        check_io_at = 0
         while True:
             if compiled and not (self._stop or supervisor.stopping):
                 status = self._burst(supervisor, loop, ring_io, ts)
                 if fault_state[0] != fault_seen[0]:
                     self._report_fault(io, int(tick_count[0]) - 1, fault_seen)
+                if int(tick_count[0]) >= check_io_at:
+                    check_io_at = int(tick_count[0]) + self._io_check_ticks
+                    self._check_io(io, int(tick_count[0]), supervisor)
                 if status == RETURNED_TO_PYTHON:
                     continue  # between two ticks: signals, then the next burst
             else:
@@ -339,9 +352,35 @@ class HapticServer:
             push_row(ring, ctl, row, lateness_window, work_window, peaks)
             if fault_state[0] != fault_seen[0]:
                 self._report_fault(io, tick, fault_seen)
+            if tick >= check_io_at:
+                check_io_at = tick + self._io_check_ticks
+                self._check_io(io, tick, supervisor)
             tick_count[0] = tick + 1
             work_v[0] = (time.perf_counter_ns() - now) / 1e3
             deadline[0] += period_ns
+
+    def _check_io(self, io: LoopIO, tick: int, supervisor: WatchdogClock) -> None:
+        """Is the I/O sidecar awake? (every IO_CHECK_S) Starved for a watchdog period: said
+        once per stall (the watchdog has sent the device safe: no update came in); dead: said,
+        and the run is stopped (no update can come in again)."""
+        stats = self.stats
+        state = io.io_state(time.monotonic_ns(), int(self.network.watchdog_ms * 1e6))
+        if state == "lost" and not stats.io_lost:
+            stats.io_lost = True
+            io.event(tick, "io_lost", "the I/O process died: stopping, the device to safe")
+            supervisor.stop_why = "the I/O process died"
+            self._stop = True
+        elif state == "stalled" and not self._io_stalled:
+            self._io_stalled = True
+            stats.io_stalls += 1
+            io.event(
+                tick,
+                "io_stalled",
+                f"the I/O process has not woken for {self.network.watchdog_ms:g} ms",
+            )
+        elif state == "" and self._io_stalled:
+            self._io_stalled = False
+            io.event(tick, "io_resumed", "the I/O process is awake again")
 
     def _report_fault(self, io: LoopIO, tick: int, fault_seen: np.ndarray) -> None:
         """The engine's fault changed at `tick`: a new one (the guard or the NaN check sent the
@@ -412,8 +451,12 @@ class HapticServer:
         stats.reinitialisations = engine.counters.reinitialisations
         engine.device.safe_stop()
         io.event(stats.counters.ticks, "stopped", "loop ended; device in its safe state")
+        stats.log_failed = io.log_failure
+        ticks_logged = io.ticks_logged
         io_counters = io.close()
         stats.lost_log_ticks = io_counters["lost_log_ticks"]
+        if stats.log_failed and self.log_path is not None:  # the writer cannot count them
+            stats.lost_log_ticks = stats.counters.ticks - ticks_logged
         stats.proxy_published = io_counters["proxy_published"]
         stats.updates_lost = io_counters["lost_updates"]
         stats.events_lost = io_counters["lost_events"]

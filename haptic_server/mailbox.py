@@ -11,7 +11,11 @@ and the loop's kernels on it.
 
 from __future__ import annotations
 
+import contextlib
+import os
+import secrets
 from multiprocessing import resource_tracker, shared_memory
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -41,7 +45,9 @@ C_LOWER_IO = 12  # set by the loop when it runs without real-time priority
 C_TICK_LOGGED = 13  # tick rows the log writer has written (the virtual clock waits on it)
 C_LOG_READY, C_LOG_FAILED = 14, 15  # the log writer has opened its file / has failed
 C_LOG_DONE = 16  # the log writer has closed its file
+C_IO_BEAT = 17  # the I/O sidecar's heartbeat: its monotonic clock (ns) at its last wake-up
 N_CTL = 24
+ERROR_BYTES = 256  # the log writer's last error, as text
 
 #: One mailbox slot: a received update's bytes and what the loop made of it.
 MAILBOX_DTYPE = np.dtype(
@@ -81,13 +87,19 @@ class SharedBlock:
         self.updates = self.mailbox["raw"]
         self.events = np.ndarray((EVENT_SLOTS, EVENT_BYTES), np.uint8, buf, o)
         o += EVENT_SLOTS * EVENT_BYTES
+        self.log_error = np.ndarray((ERROR_BYTES,), np.uint8, buf, o)
+        o += ERROR_BYTES
         self.size = o
 
     @classmethod
     def create(cls) -> SharedBlock:
         """A new named segment, empty, with every page touched now (not one by one as the
-        ring first fills: a page fault is a few microseconds in the loop or the feed)."""
-        shm = shared_memory.SharedMemory(create=True, size=cls.nbytes())
+        ring first fills: a page fault is a few microseconds in the loop or the feed). Its
+        name carries this process's pid; segments of processes that died without removing
+        theirs (a SIGKILL of the whole group) are removed first (`sweep_segments`)."""
+        sweep_segments()
+        name = f"{SEGMENT_PREFIX}{os.getpid()}-{secrets.token_hex(4)}"
+        shm = shared_memory.SharedMemory(name=name, create=True, size=cls.nbytes())
         np.ndarray((shm.size,), np.uint8, shm.buf).fill(0)
         block = cls(shm)
         block.update_verdict[:] = VERDICT_PENDING
@@ -135,6 +147,7 @@ class SharedBlock:
             + (RING_TICKS * TICK_DTYPE.itemsize + 7) // 8 * 8
             + MAILBOX_SLOTS * MAILBOX_DTYPE.itemsize
             + EVENT_SLOTS * EVENT_BYTES
+            + ERROR_BYTES
         )
 
     def post_update(self, raw: bytes, recv_ns: int, logging: bool) -> bool:
@@ -158,12 +171,53 @@ class SharedBlock:
         ctl[C_UPD_HEAD] = head + 1
         return True
 
+    def fail_log(self, error: str) -> None:
+        """The log writer has stopped on `error`: its text for the loop's side, then the flag."""
+        data = error.encode(errors="replace")[: ERROR_BYTES - 1]
+        self.log_error[: len(data)] = np.frombuffer(data, np.uint8)
+        self.log_error[len(data)] = 0
+        self.ctl[C_LOG_FAILED] = 1
+
+    @property
+    def log_failure(self) -> str:
+        """Why the log writer stopped ("" if it has not)."""
+        if not self.ctl[C_LOG_FAILED]:
+            return ""
+        text = bytes(self.log_error).split(b"\0", 1)[0].decode(errors="replace")
+        return text or "the log writer stopped"
+
     def release(self) -> None:
         for name in (
             "ctl", "ticks", "mailbox", "update_len", "update_verdict", "update_tick",
             "update_recv_ns", "update_install_ns", "update_latency_s", "updates", "events",
+            "log_error",
         ):  # fmt: skip
             setattr(self, name, None)
+
+
+SEGMENT_PREFIX = "haptic-"  # /dev/shm/haptic-<pid>-<random>: the creator's pid
+SHM_DIR = Path("/dev/shm")
+
+
+def sweep_segments(folder: Path = SHM_DIR) -> list[str]:
+    """Remove the shared-memory segments of this project whose creating process is gone;
+    returns their names. A segment of a live process (or of a pid reused since) is kept."""
+    removed = []
+    for path in folder.glob(f"{SEGMENT_PREFIX}*"):
+        pid_text = path.name[len(SEGMENT_PREFIX) :].split("-", 1)[0]
+        if not pid_text.isdigit():
+            continue
+        try:
+            os.kill(int(pid_text), 0)
+            continue  # alive (or another's process of that pid: not ours to judge)
+        except ProcessLookupError:
+            pass
+        except PermissionError:
+            continue
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+            removed.append(path.name)
+    return removed
 
 
 @njit(cache=True)
@@ -203,7 +257,7 @@ def take_updates(ctl, mailbox, tick, now_ns, budget, model, data, install):
     """Validate and install the updates waiting in the mailbox, oldest first, in one call.
 
     Takes up to `budget` updates, and stops after an install that needs the engine's Python
-    side (a new epoch, or install.follow: after the watchdog, or FOH setpoints). Each verdict
+    side (a new epoch, install.follow: after the watchdog, or FOH setpoints; a fault). Each verdict
     (0 installed, else the reason code, counted in install.reject_counts), the tick and the
     publish -> now latency it was installed with go next to its update in the mailbox (the
     log writer logs them, so a replay is exact); only then is the update marked read (the
@@ -238,7 +292,9 @@ def take_updates(ctl, mailbox, tick, now_ns, budget, model, data, install):
             installed += 1
             seq = ins.seq
             newest_latency = latency
-            if ins.new_epoch == 1 or ins.follow == 1:
+            # a new epoch, a watchdog trip (install.follow) or a fault of the guard: the
+            # engine's Python side re-initialises the proxy
+            if ins.new_epoch == 1 or ins.follow == 1 or data[0].state.fault != 0:
                 follow = 1
                 break
     return taken, installed, follow, seq, newest_latency

@@ -35,11 +35,14 @@ from haptic_server.logger import LogProcess
 from haptic_server.mailbox import (
     C_CLOSED,
     C_EVT_LOST,
+    C_IO_BEAT,
+    C_LOG_FAILED,
     C_LOWER_IO,
     C_PUBLISHED,
     C_READY,
     C_RECEIVED,
     C_TICK_HEAD,
+    C_TICK_LOGGED,
     C_TICK_LOST,
     C_UPD_LOST,
     C_UPD_READ,
@@ -128,6 +131,22 @@ class LoopIO:
     def event(self, tick: int, kind: str, detail: str) -> None:
         """A rare event (watchdog, stop): text into the event ring."""
         self.block.post_event(tick, kind, detail)
+
+    @property
+    def log_failure(self) -> str:
+        """Why the log writer stopped ("" while it writes, or without a log)."""
+        return self.block.log_failure
+
+    def io_state(self, now_ns: int, stall_ns: int) -> str:
+        """ "lost" if the sidecar process has died, "stalled" if it has not woken for
+        `stall_ns` (starved of CPU, stopped), else "" (a waitpid: call it rarely)."""
+        if not self._proc.is_alive():
+            return "lost"
+        return "stalled" if now_ns - int(self.block.ctl[C_IO_BEAT]) > stall_ns else ""
+
+    @property
+    def ticks_logged(self) -> int:
+        return int(self.block.ctl[C_TICK_LOGGED])
 
     @property
     def counters(self) -> dict[str, int]:
@@ -219,10 +238,16 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     # -> 5 ms): keep it out of the collector's sight
     gc.collect()
     gc.freeze()
+    ctl[C_IO_BEAT] = time.monotonic_ns()
     ctl[C_READY] = 1
+    log_failure_told = False
     try:
         while True:
+            ctl[C_IO_BEAT] = time.monotonic_ns()  # the loop watches it (HapticServer)
             closing = ctl[C_CLOSED] == 1 or os.getppid() != parent_pid or terminated.is_set()
+            if ctl[C_LOG_FAILED] and not log_failure_told:
+                log_failure_told = True  # the I/O process says so: the loop does no I/O
+                _tell_log_failure(block)
             if ctl[C_LOWER_IO] == 1 and not lowered and not realtime:
                 _lower_priority()
                 lowered = True
@@ -247,6 +272,18 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         session.close()
         block.release()
         shm.close()
+
+
+def _tell_log_failure(block: SharedBlock) -> None:
+    """The log writer has stopped (a full disk, an I/O error): one event line for haptic-run
+    and people, into the event ring for the live view. Rendering and networking go on."""
+    from shared.cli import emit
+
+    reason = block.log_failure
+    head = int(block.ctl[C_TICK_HEAD])
+    block.post_event(head, "log_failed", reason)
+    print(f"haptic-server: logging stopped ({reason}); rendering goes on", file=sys.stderr)
+    emit("log_failed", process="haptic", reason=reason)
 
 
 def _lower_priority() -> None:

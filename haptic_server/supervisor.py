@@ -96,6 +96,7 @@ class WatchdogClock:
         self.now_ns = 0
         self.last_valid_ns = 0
         self.stop_reason = ""
+        self.stop_why = ""  # a reason of the loop's own for a stop request (a lost I/O process)
         # the earliest time the watchdog can trip (armed by an install, disarmed by a trip or
         # the stop): the loop skips the supervisor on ticks before it with nothing waiting
         self.trip_at_ns = NEVER_NS
@@ -104,7 +105,9 @@ class WatchdogClock:
         if self.stopping or not (self.stop_requested or self.now_ns >= self.end_ns):
             return False
         self.stopping = True
-        self.stop_reason = "stop requested" if self.stop_requested else "duration reached"
+        self.stop_reason = (
+            (self.stop_why or "stop requested") if self.stop_requested else "duration reached"
+        )
         self.trip_at_ns = NEVER_NS
         return True
 

@@ -14,7 +14,9 @@ from typing import Any
 from shared import __version__
 from shared.config import CONFIG_KINDS, ConfigError, shipped
 
-EXIT_CONFIG = 2
+EXIT_FAILED = 1  # the run could not go on or finish (a lost I/O process, a summary unwritten)
+EXIT_CONFIG = 2  # a config file or argument refused (one line names the file and key)
+EXIT_LOG_FAILED = 3  # the run went on, but logging stopped (a full disk): the log is cut short
 
 
 def add_config_args(
@@ -31,6 +33,11 @@ def add_config_args(
     parser.add_argument(
         "--network", default="loopback", help="network name in configs/network or a path"
     )
+    parser.add_argument(
+        "--port", type=port, default=None,
+        help="the haptic server listens (and the sim connects) on this port instead of the "
+        "network config's",
+    )  # fmt: skip
     if rate:
         parser.add_argument(
             "--haptic-rate",
@@ -58,6 +65,17 @@ def _number(text: str, low: float, high: float, unit: str, low_open: bool) -> fl
         raise argparse.ArgumentTypeError(
             f"must be a finite number in {bracket}{low:g}, {high:g}] {unit}, got {text!r}"
         )
+    return value
+
+
+def port(text: str) -> int:
+    """A TCP/UDP port number: argparse's type for --port."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a port in [1, 65535], got {text!r}")
     return value
 
 

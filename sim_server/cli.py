@@ -7,10 +7,22 @@ import json
 import signal
 import sys
 from pathlib import Path
+from typing import Any
 
-from shared.cli import add_config_args, emit, run_main, seconds
+from shared.cli import EXIT_FAILED, add_config_args, emit, run_main, seconds
 from shared.config import load_scene
-from shared.net.config import load_network
+from shared.net.config import load_network, on_port
+
+
+def clock_jump(text: str) -> Any:
+    """AT_S,BY_MS,FOR_S: the sim's clock stepped by BY_MS from AT_S into the run, for FOR_S."""
+    from sim_server.server import ClockJump
+
+    try:
+        at_s, by_ms, for_s = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected AT_S,BY_MS,FOR_S, got {text!r}") from None
+    return ClockJump(at_s, by_ms, for_s)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -20,6 +32,9 @@ def main(argv: list[str] | None = None) -> int:
         "--duration", type=seconds, default=None, help="stop after this many seconds"
     )
     parser.add_argument("--summary-json", type=Path, default=None)
+    parser.add_argument(
+        "--inject-clock-jump", type=clock_jump, default=None, help=argparse.SUPPRESS
+    )
     args = parser.parse_args(argv)
 
     def body() -> int:
@@ -27,15 +42,21 @@ def main(argv: list[str] | None = None) -> int:
 
         scene = load_scene(args.scene)
         network = load_network(args.network, roles=("sim",))
-        server = SimServer(scene, network)
+        if args.port is not None:
+            network = on_port(network, args.port)
+        server = SimServer(scene, network, clock_jump=args.inject_clock_jump)
         signal.signal(signal.SIGTERM, server.request_stop)
         signal.signal(signal.SIGINT, server.request_stop)
         summary = server.run(
             args.duration, ready=lambda: emit("ready", process="sim", epoch=server.epoch)
         )
-        if args.summary_json:
-            args.summary_json.write_text(json.dumps(summary, indent=2))
         emit("stopped", process="sim", **summary)
+        if args.summary_json:
+            try:
+                args.summary_json.write_text(json.dumps(summary, indent=2))
+            except OSError as exc:
+                print(f"sim-server: cannot write the summary: {exc}", file=sys.stderr)
+                return EXIT_FAILED
         return 0
 
     return run_main(body)

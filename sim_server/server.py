@@ -42,11 +42,30 @@ class SimStats:
     update_bytes_max: int = 0
 
 
+@dataclass(frozen=True)
+class ClockJump:
+    """A step of the sim's wall clock (sim-server --inject-clock-jump, for the fault tests):
+    from `at_s` into the run, for `for_s` seconds, its publish times are off by `by_ms`, as
+    when NTP steps one host's clock and steps it back."""
+
+    at_s: float
+    by_ms: float
+    for_s: float
+
+    def offset_ns(self, since_start_s: float) -> int:
+        inside = self.at_s <= since_start_s < self.at_s + self.for_s
+        return round(self.by_ms * 1e6) if inside else 0
+
+
 class SimServer:
     """One sim process: world + Zenoh + the paced loop."""
 
     def __init__(
-        self, scene: SceneConfig, network: NetworkConfig, zenoh_extra: dict[str, Any] | None = None
+        self,
+        scene: SceneConfig,
+        network: NetworkConfig,
+        zenoh_extra: dict[str, Any] | None = None,
+        clock_jump: ClockJump | None = None,
     ) -> None:
         self.scene = scene
         self.network = network
@@ -61,6 +80,7 @@ class SimServer:
         self._proxy_wall_ns = 0
         self.phase = PhaseLock()
         self.check = ProxyCheck(scene)
+        self.clock_jump = clock_jump
 
     def request_stop(self, *_: object) -> None:
         self._stop = True
@@ -139,6 +159,8 @@ class SimServer:
                 put_ns = time.perf_counter_ns()
                 lead_s = (step_start + period_ns - put_ns) / 1e9 if seq > 0 else 0.0
                 publish_ns = time.time_ns()
+                if self.clock_jump is not None:
+                    publish_ns += self.clock_jump.offset_ns((t0 - start) / 1e9)
                 stamp_publication(raw_update, publish_ns, lead_s)
                 pub.put(bytes(raw_update))
                 self.check.published(seq, self.world.tool_pose, publish_ns)

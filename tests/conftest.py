@@ -26,17 +26,36 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+@pytest.fixture(scope="session", autouse=True)
+def local_credentials_of_the_tests(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """ "@local" credentials (shared/net/credentials.py) made for the test session, not in the
+    user's config directory: every process a test starts inherits the variable."""
+    folder = tmp_path_factory.mktemp("home") / "credentials"
+    before = os.environ.get("HAPTIC_CREDENTIALS_DIR")
+    os.environ["HAPTIC_CREDENTIALS_DIR"] = str(folder)
+    yield folder
+    if before is None:
+        os.environ.pop("HAPTIC_CREDENTIALS_DIR", None)
+    else:
+        os.environ["HAPTIC_CREDENTIALS_DIR"] = before
+
+
 @pytest.fixture
 def network_file(tmp_path: Path) -> Path:
-    """A loopback network config on a free port, so tests never collide."""
+    """The default network (this installation's credentials, access control) on a free
+    port, so tests never collide."""
     port = free_port()
     path = tmp_path / "net.toml"
     path.write_text(
         f'namespace = "haptic/test{port}"\n'
         "[haptic]\n"
         f'listen = ["tcp/127.0.0.1:{port}"]\n'
+        'users_file = "@local"\n'
+        'sim_users = ["sim"]\n'
         "[sim]\n"
         f'connect = ["tcp/127.0.0.1:{port}"]\n'
+        'user = "sim"\n'
+        'password_file = "@local"\n'
     )
     return path
 

@@ -81,10 +81,15 @@ class ProxyWatch:
     publish on the update key (garbage)."""
 
     def __init__(self, network_file: Path, spec: EndpointSpec | None = None) -> None:
-        """On the network's sim endpoint without credentials, or as `spec` says."""
+        """On the network's sim endpoint with the sim's credentials (a faulty sim's
+        messages), or as `spec` says."""
         net = load_network(str(network_file))
         self.keys = keys(net.namespace)
-        self.session = open_session(spec or EndpointSpec(listen=(), connect=net.sim.connect))
+        sim = EndpointSpec(
+            listen=(), connect=net.sim.connect, user=net.sim.user,
+            password_file=net.sim.password_file,
+        )  # fmt: skip
+        self.session = open_session(spec or sim)
         self.publisher = self.session.declare_publisher(
             self.keys.update, congestion_control=zenoh.CongestionControl.BLOCK
         )

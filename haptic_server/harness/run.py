@@ -13,9 +13,11 @@ import argparse
 import ctypes
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -25,6 +27,7 @@ from typing import IO, Any
 from haptic_server.live_view import add_view_args, view_address
 from shared.cli import (
     EXIT_CONFIG,
+    EXIT_LOG_FAILED,
     add_config_args,
     emit,
     log_file,
@@ -33,7 +36,7 @@ from shared.cli import (
     seconds,
 )
 from shared.config import ConfigError, absolute_ref, load_scene, load_user, resolve
-from shared.net.config import load_network
+from shared.net.config import free_loopback_port, load_network, on_loopback
 from shared.timing import avoid_cpu as keep_off_cpu
 
 READY_TIMEOUT_S = 300.0  # a cold numba cache compiles for a minute or two on 2 cores
@@ -116,6 +119,8 @@ class Child:
 
 def _server_argv(module: str, args: argparse.Namespace, extra: list[str]) -> list[str]:
     argv = [sys.executable, "-m", module, "--scene", absolute_ref(args.scene)]
+    if args.port is not None:
+        argv += ["--port", str(args.port)]
     return [*argv, "--network", absolute_ref(args.network), *extra]
 
 
@@ -128,16 +133,18 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
     # validate every file here so a bad config fails fast with exit 2
     load_scene(args.scene, args.haptic_rate)
     load_user(args.user)
-    load_network(args.network)
+    network = load_network(args.network)
+    if args.port is None and on_loopback(network):
+        args.port = free_loopback_port()  # a port of this run's own: runs never collide
     resolve("devices", args.device)
     from device_models.registry import load_device
 
     load_device(args.device)
-    summary_dir = Path(args.log).resolve().parent if args.log else Path.cwd() / "runs"
-    summary_dir.mkdir(parents=True, exist_ok=True)
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    haptic_json = summary_dir / f"haptic-summary-{stamp}-{os.getpid()}.json"
-    sim_json = summary_dir / f"sim-summary-{stamp}-{os.getpid()}.json"
+    # the servers' own summaries: in a folder of this run's, not beside the log (whose disk
+    # may fill up: that is the log's failure, not the run's)
+    summary_dir = Path(tempfile.mkdtemp(prefix="haptic-run-"))
+    haptic_json = summary_dir / "haptic-summary.json"
+    sim_json = summary_dir / "sim-summary.json"
     haptic_extra = [
         "--device",
         absolute_ref(args.device),
@@ -196,12 +203,14 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
             codes["sim"] = sim.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    if failure is None and any(code != 0 for code in codes.values()):
+    summary: dict[str, Any] = _read_summary(haptic_json) or {"clock": "real-time"}
+    summary["sim"] = _read_summary(sim_json)
+    shutil.rmtree(summary_dir, ignore_errors=True)
+    log_failed = codes.get("haptic") == EXIT_LOG_FAILED and summary.get("log_failed")
+    if log_failed and failure in (None, f"haptic server exited with {EXIT_LOG_FAILED}"):
+        failure = f"logging stopped: {summary['log_failed']} (the run itself went on)"
+    elif failure is None and any(code != 0 for code in codes.values()):
         failure = f"a server exited with an error: {codes}"
-    summary: dict[str, Any] = (
-        json.loads(haptic_json.read_text()) if haptic_json.exists() else {"clock": "real-time"}
-    )
-    summary["sim"] = json.loads(sim_json.read_text()) if sim_json.exists() else None
     summary["exit_codes"] = codes
     summary["stopped_by_signal"] = stop.is_set()
     if failure is not None:
@@ -209,9 +218,16 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
         # a server that refused its configs (exit 2) before it was ready has said why, in one
         # line naming the file and key: haptic-run exits 2 after it, adding nothing
         summary["config_error"] = EXIT_CONFIG in codes.values() and not summary.get("ticks")
-    haptic_json.unlink(missing_ok=True)
-    sim_json.unlink(missing_ok=True)
     return summary
+
+
+def _read_summary(path: Path) -> dict[str, Any] | None:
+    """A server's summary file, or None if it wrote none (it failed before, or could not)."""
+    try:
+        data: dict[str, Any] = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return data
 
 
 def _watch(haptic: Child, sim: Child, stop: threading.Event, timeout_s: float) -> str | None:
@@ -323,13 +339,17 @@ def main(argv: list[str] | None = None) -> int:
             )  # fmt: skip
         summary = run_virtual_clock(args) if args.clock == "virtual" else run_real_time(args)
         if args.summary_json:
-            args.summary_json.parent.mkdir(parents=True, exist_ok=True)
-            args.summary_json.write_text(json.dumps(summary, indent=2))
+            try:
+                args.summary_json.parent.mkdir(parents=True, exist_ok=True)
+                args.summary_json.write_text(json.dumps(summary, indent=2))
+            except OSError as exc:
+                print(f"haptic-run: cannot write the summary: {exc}", file=sys.stderr)
+                summary.setdefault("failure", f"summary not written: {exc}")
         if summary.get("config_error"):
             return EXIT_CONFIG
         if "failure" in summary:
             print(f"haptic-run: {summary['failure']}", file=sys.stderr)
-            return 1
+            return EXIT_LOG_FAILED if summary["failure"].startswith("logging stopped") else 1
         print_summary(summary)
         return 0
 

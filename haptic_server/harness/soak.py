@@ -27,7 +27,6 @@ import argparse
 import json
 import math
 import os
-import socket
 import sys
 import tempfile
 import threading
@@ -43,6 +42,7 @@ from haptic_server.harness.run import Child
 from haptic_server.log import EVENT_TOPIC, read_json_topic, read_ticks
 from shared.cli import EXIT_CONFIG, add_version, minutes, run_main, seconds
 from shared.config import load_scene, load_user
+from shared.net.config import free_loopback_port
 
 # ticks starting > 1 ms late: the bare clock loop alone measured up to 0.43% on these VMs
 # (benchmarks/loop_timing.py); soak segments measured 0.03-1.2% on a quiet VM and up to 2.1%
@@ -119,12 +119,6 @@ class SegmentResult:
     log: str = ""
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def _rss_mb(pid: int) -> float | None:
     try:
         for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -195,18 +189,13 @@ def run_segment(
     """One sim + haptic pair for `seconds`; returns the checks and the data for the plots.
     Raises ChildConfigError if a server stops on a config error before it is ready."""
     result = SegmentResult(scene, device, user, seconds)
-    port = _free_port()
+    port = free_loopback_port()
     label = Path(scene).stem  # file names: `scene` may be a path to a .toml file
-    net = out / f"net-{label}-{port}.toml"
-    net.write_text(
-        f'namespace = "haptic/soak{port}"\n[haptic]\nlisten = ["tcp/127.0.0.1:{port}"]\n'
-        f'[sim]\nconnect = ["tcp/127.0.0.1:{port}"]\n'
-    )
     log = out / f"{label}-{Path(device).stem}.mcap"
     haptic_json = out / f"haptic-{label}.json"
     sim_json = out / f"sim-{label}.json"
     py = sys.executable
-    common = ["--scene", scene, "--network", str(net)]
+    common = ["--scene", scene, "--network", "loopback", "--port", str(port)]
     haptic = Child(
         "haptic",
         [

@@ -21,8 +21,10 @@ EPOCH_LAW_HIGHER = 0
 #: Since 0.3: while a sim's updates flow (a model installed, the watchdog quiet) only its
 #: epoch installs; any other, higher or lower, waits for the watchdog, as a restarted sim's
 #: first update always does. An update must be fresh (age within [-max_skew_s, max_age_s]),
-#: so an update older than an outage never ends it, and its epoch (the sim's start time)
-#: cannot lie after its own publish time, so no epoch runs ahead of the receiver's clock.
+#: so an update older than an outage never ends it. The epoch's value means nothing but
+#: "another sim": its order is never used, so no epoch can run ahead of another (0.3 also
+#: refused an epoch, the sim's start time, after the update's own publish time; a clock
+#: stepped back under a running sim then locked it out, and 0.4 dropped that check).
 EPOCH_LAW_LIVE = 1
 #: the contacts' extrapolation age at install is the update's age, clamped to [0, this]
 MAX_LATENCY_S = 1.0
@@ -82,9 +84,6 @@ def admit_live(u, age_s, ins):
         return Reason.LATE
     if age_s < -ins.max_skew_s:
         return Reason.FUTURE
-    # in floating point: a forged epoch or publish time may be anywhere in int64
-    if float(u.epoch) - float(u.publish_time_ns) > ins.max_skew_s * 1e9:
-        return Reason.EPOCH_AHEAD
     if u.epoch != ins.epoch and ins.ready == 1 and ins.stale == 0:
         return Reason.STALE_EPOCH
     return 0

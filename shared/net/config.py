@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from shared.config import ConfigError, load_dataclass, read_toml, require, resolve, within
+from shared.net.credentials import LOCAL, CredentialsError, local_credentials
 from shared.protocol.layout import DEFAULT_CLOCK_SKEW_MS, DEFAULT_MAX_UPDATE_AGE_MS
 
 # --- network --------------------------------------------------------------------------------
@@ -39,6 +40,9 @@ class EndpointSpec:
     # messages < 64 KB). Negotiated: it is used only when both ends ask for it. Measured on
     # loopback: update transit p50 0.23 -> 0.15 ms, p99 0.85 -> 0.33 ms (docs/bench/speed.md).
     low_latency: bool = True
+    # the largest message this end takes (bytes): anything longer is dropped by Zenoh before
+    # it is delivered (an update is at most ~9 KB, a proxy state ~250 B)
+    max_message_bytes: int = 65536
     # further Zenoh config keys, path -> JSON value, e.g. "transport/link/tx/lease" = "3000"
     zenoh: dict[str, str] = field(default_factory=dict)
 
@@ -72,6 +76,7 @@ class EndpointSpec:
         require(
             not self.observer_users or bool(self.sim_users), "observer_users", "needs sim_users"
         )
+        within(self.max_message_bytes, MESSAGE_BYTES_RANGE, "max_message_bytes", "bytes")
         for path, value in self.zenoh.items():
             require(
                 not any(path == m or path.startswith(m + "/") for m in ZENOH_MANAGED_KEYS),
@@ -92,8 +97,10 @@ class EndpointSpec:
 # Zenoh config paths the endpoint keys set; the `zenoh` table may not override them
 ZENOH_MANAGED_KEYS = (
     "mode", "listen/endpoints", "connect/endpoints", "transport/auth/usrpwd", "access_control",
-    "transport/unicast/lowlatency", "transport/unicast/qos",
+    "transport/unicast/lowlatency", "transport/unicast/qos", "transport/link/rx/max_message_size",
+    "low_pass_filter",
 )  # fmt: skip
+MESSAGE_BYTES_RANGE = (4096, 16 * 1024 * 1024)
 
 
 PROXY_HZ_RANGE = (1.0, 10_000.0)
@@ -116,6 +123,9 @@ class NetworkConfig:
     max_update_age_ms: float = DEFAULT_MAX_UPDATE_AGE_MS
     # how far the sim's clock may run ahead of the haptic server's (two hosts: sync them)
     clock_skew_ms: float = DEFAULT_CLOCK_SKEW_MS
+    # a haptic server that listens without authentication drives the device for anyone who
+    # reaches its endpoint: refused unless this says, knowingly, that it may (docs/security.md)
+    unauthenticated_insecure: bool = False
 
     def __post_init__(self) -> None:
         require(
@@ -130,6 +140,14 @@ class NetworkConfig:
         # an update older than the watchdog's period could end an outage it predates
         within(self.max_update_age_ms, (1.0, self.watchdog_ms), "max_update_age_ms", "ms")
         within(self.clock_skew_ms, CLOCK_SKEW_MS_RANGE, "clock_skew_ms", "ms")
+        require(
+            not self.haptic.listen or bool(self.haptic.users_file) or self.unauthenticated_insecure,
+            "haptic.users_file",
+            "the haptic server listens without authentication: anyone who reaches "
+            f'{list(self.haptic.listen)} could drive the device. Set users_file ("{LOCAL}": '
+            "this installation's own credentials) with sim.user and sim.password_file, or, "
+            "knowingly, unauthenticated_insecure = true",
+        )
         if self.haptic.users_file and self.sim.connect:
             require(bool(self.sim.user), "sim.user", "the haptic server requires a user")
         if self.haptic.sim_users and self.sim.connect:
@@ -140,6 +158,45 @@ class NetworkConfig:
             )
 
 
+#: an endpoint's address: <protocol>/<host>:<port>, then metadata or config
+_HOST_PORT = re.compile(r"(?P<head>[a-z-]+/(?P<host>.+)):(?P<port>\d+)(?P<tail>[?#].*)?")
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "[::1]")
+
+
+def on_port(network: NetworkConfig, port: int) -> NetworkConfig:
+    """The network with the haptic server listening, and the sim connecting, on `port`
+    (every endpoint of haptic.listen and sim.connect): haptic-run's free port, --port."""
+    within(port, (1, 65535), "port")
+
+    def moved(endpoints: tuple[str, ...]) -> tuple[str, ...]:
+        out = []
+        for e in endpoints:
+            m = _HOST_PORT.fullmatch(e)
+            out.append(f"{m['head']}:{port}{m['tail'] or ''}" if m else e)
+        return tuple(out)
+
+    haptic = dataclasses.replace(network.haptic, listen=moved(network.haptic.listen))
+    sim = dataclasses.replace(network.sim, connect=moved(network.sim.connect))
+    return dataclasses.replace(network, haptic=haptic, sim=sim)
+
+
+def on_loopback(network: NetworkConfig) -> bool:
+    """Both ends of the network are this host's loopback (haptic-run may move them to a free
+    port of their own)."""
+    ends = network.haptic.listen + network.sim.connect
+    matches = [_HOST_PORT.fullmatch(e) for e in ends]
+    return bool(ends) and all(m is not None and m["host"] in LOOPBACK_HOSTS for m in matches)
+
+
+def free_loopback_port() -> int:
+    """A TCP port free on 127.0.0.1 now (the kernel's choice)."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
 def load_network(name_or_path: str, roles: tuple[str, ...] = ("haptic", "sim")) -> NetworkConfig:
     """Load a network config; credential files are made absolute (relative to the config's
     folder) and those of `roles` must exist, so a host needs only its own secrets."""
@@ -148,7 +205,20 @@ def load_network(name_or_path: str, roles: tuple[str, ...] = ("haptic", "sim")) 
     specs = {}
     for role in ("haptic", "sim"):
         spec: EndpointSpec = getattr(network, role)
-        spec = dataclasses.replace(
+        if LOCAL in (spec.password_file, spec.users_file) and role in roles:
+            try:
+                local_users, local_password = local_credentials()
+            except CredentialsError as exc:
+                key = "users_file" if spec.users_file == LOCAL else "password_file"
+                raise ConfigError(str(path), f"{role}.{key}", str(exc)) from None
+            spec = dataclasses.replace(
+                spec,
+                password_file=(
+                    str(local_password) if spec.password_file == LOCAL else spec.password_file
+                ),
+                users_file=str(local_users) if spec.users_file == LOCAL else spec.users_file,
+            )
+        spec = dataclasses.replace(  # another host's "@local" stays as it is: not needed here
             spec,
             password_file=_absolute(path.parent, spec.password_file),
             users_file=_absolute(path.parent, spec.users_file),
@@ -181,7 +251,7 @@ def load_network(name_or_path: str, roles: tuple[str, ...] = ("haptic", "sim")) 
 
 
 def _absolute(folder: Path, file: str) -> str:
-    return str((folder / file).resolve()) if file else ""
+    return str((folder / file).resolve()) if file and file != LOCAL else file
 
 
 def _read_users(users_file: str, source: str) -> dict[str, str]:

@@ -77,6 +77,15 @@ def zenoh_keys(endpoints: EndpointSpec, namespace: str | None) -> dict[str, str]
             raise ValueError("access control needs the key-expression namespace")
         acl = access_control(namespace, endpoints.sim_users, endpoints.observer_users)
         out["access_control"] = json.dumps(acl)
+    # larger messages are dropped on ingress before delivery: Zenoh's low-pass filter (its
+    # defragmentation cap, transport/link/rx/max_message_size, did not drop a 2 MB message
+    # in eclipse-zenoh 1.10 here, fragmented or not; both are set)
+    limit = endpoints.max_message_bytes
+    out["low_pass_filter"] = json.dumps(
+        [{"id": "max_message_bytes", "flows": ["ingress"], "key_exprs": ["**"],
+          "messages": ["put", "delete", "query", "reply"], "size_limit": limit}]
+    )  # fmt: skip
+    out["transport/link/rx/max_message_size"] = str(limit)
     if endpoints.low_latency:  # Zenoh refuses lowlatency with QoS on
         out["transport/unicast/lowlatency"] = "true"
         out["transport/unicast/qos/enabled"] = "false"

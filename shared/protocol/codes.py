@@ -63,7 +63,7 @@ class Reason(IntEnum):
     DOF_CHANGE = 18
     LATE = 19  # older than max_update_age_ms when it arrived: the world has moved on
     FUTURE = 20  # published later than the receiver's clock allows (a forged or skewed time)
-    EPOCH_AHEAD = 21  # an epoch (the sim's start time) after the update's own publish time
+    EPOCH_AHEAD = 21  # 0.3 only: an epoch after the update's own publish time (not since)
     INCONSISTENT = 22  # fields that must agree do not: D, G, C qd, Lambda^-1, the tool pose
     # or the chain against the scene's tool at the update's own q
     IMPLAUSIBLE = 23  # beyond what the scene allows: speeds, energy, contact materials, depth

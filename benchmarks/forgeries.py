@@ -1,4 +1,4 @@
-"""Forged local models for the tests of the plausibility check and the loop's guard.
+"""Forged local models for the plausibility check and the loop's guard (tests, benchmarks).
 
 Each forgery takes a real update of the scene's sim (its own tool state, so everything else
 in it is consistent and plausible) and changes what an attacker with the sim's credentials

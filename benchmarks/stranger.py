@@ -1,0 +1,215 @@
+"""A stranger on the default network: can it install an update or slow the sim's?
+
+Both servers run as processes on the shipped default network (`loopback`: this
+installation's credentials, access control, Zenoh's message size limit) on a free port. A
+peer without credentials connects to the haptic server's endpoint and, phase by phase,
+publishes valid-looking local models of a newer epoch, then 1, 10 and 100 MB messages, then
+a 10 kHz flood of small ones. From the haptic server's log: how many of its messages arrived
+(none may), how many were installed (none may), and the age (publish -> installed) of the
+sim's updates in each phase, against a quiet phase before and after, interleaved.
+
+    python -m benchmarks.stranger [--phase-s 2] [--repeat 3] [--out docs/bench]
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import json
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from haptic_server.log import UPDATE_TOPIC, read_json_topic
+from shared.config import load_scene
+from shared.net.config import EndpointSpec, free_loopback_port, load_network, on_port
+from shared.net.transport import keys, open_session
+from shared.protocol.layout import PUBLISH_TIME_AT
+from shared.protocol.update import encode_update
+from sim_server.world import SimWorld
+
+SCENE = "free_box"
+PHASES = ("quiet", "updates", "1MB", "10MB", "100MB", "flood_10kHz", "quiet_after")
+FLOOD_HZ = 10_000.0
+READY_TIMEOUT_S = 300.0
+
+
+@dataclass
+class StrangerResult:
+    """The sim's update ages by phase (ms), and what of the stranger's arrived."""
+
+    ages_ms: dict[str, list[float]] = field(default_factory=dict)
+    stranger_sent: int = 0
+    stranger_arrived: int = 0  # records in the haptic log not from the sim
+    installed_epochs: set[int] = field(default_factory=set)
+    sim_epoch: int = 0
+
+    def percentile(self, phase: str, q: float) -> float:
+        ages = self.ages_ms.get(phase, [])
+        return float(np.percentile(ages, q)) if ages else float("nan")
+
+
+class _Server:
+    def __init__(self, argv: list[str]) -> None:
+        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+        self.ready: dict[str, Any] = {}
+
+    def wait_ready(self) -> None:
+        end = time.monotonic() + READY_TIMEOUT_S
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            try:
+                event = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if event.get("event") == "ready":
+                self.ready = event
+                return
+            if time.monotonic() > end:
+                break
+        raise RuntimeError(f"{self.proc.args} did not become ready")
+
+    def stop(self) -> int:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+        try:
+            return self.proc.wait(30.0)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            return self.proc.wait()
+
+
+def run(phase_s: float, workdir: Path, network: str = "loopback") -> StrangerResult:
+    """One run of every phase; the servers are stopped by their pids whatever happens."""
+    port = free_loopback_port()
+    net = on_port(load_network(network), port)
+    log = workdir / f"stranger-{port}.mcap"
+    common = ["--scene", SCENE, "--network", network, "--port", str(port)]
+    py = sys.executable
+    haptic = _Server([py, "-m", "haptic_server.cli", *common, "--user", "constant_push",
+                      "--log", str(log)])  # fmt: skip
+    sim: _Server | None = None
+    stranger = None
+    bounds: dict[str, tuple[int, int]] = {}
+    result = StrangerResult()
+    try:
+        haptic.wait_ready()
+        sim = _Server([py, "-m", "sim_server.cli", *common])
+        sim.wait_ready()
+        result.sim_epoch = int(sim.ready["epoch"])
+        time.sleep(1.0)  # the sim's updates flowing
+        stranger = open_session(EndpointSpec(connect=net.haptic.listen))  # no credentials
+        pub = stranger.declare_publisher(
+            keys(net.namespace).update, congestion_control=zenoh.CongestionControl.DROP
+        )
+        world = SimWorld(load_scene(SCENE))
+        for phase in PHASES:
+            start = time.time_ns()
+            result.stranger_sent += _attack(phase, pub, world, phase_s)
+            bounds[phase] = (start, time.time_ns())
+    finally:
+        if stranger is not None:
+            stranger.close()
+        codes = [haptic.stop()] + ([sim.stop()] if sim is not None else [])
+    if any(codes):
+        raise RuntimeError(f"a server exited with {codes}")
+    for rec in read_json_topic(log, UPDATE_TOPIC):
+        if rec.get("epoch") != result.sim_epoch:
+            result.stranger_arrived += 1
+            continue
+        if rec["installed"]:
+            result.installed_epochs.add(int(rec["epoch"]))
+            raw = base64.b64decode(rec["raw_b64"])
+            published = struct.unpack_from("<q", raw, PUBLISH_TIME_AT)[0]
+            for phase, (a, b) in bounds.items():
+                if a <= published < b:
+                    result.ages_ms.setdefault(phase, []).append(1e3 * rec["latency_s"])
+    log.unlink(missing_ok=True)
+    return result
+
+
+def _attack(phase: str, pub: Any, world: SimWorld, seconds: float) -> int:
+    """The stranger's messages of one phase; returns how many it sent."""
+    end = time.monotonic() + seconds
+    sent = 0
+    if phase.startswith("quiet"):
+        time.sleep(seconds)
+    elif phase == "updates":  # a newer epoch than the sim's: it would take over
+        epoch = time.time_ns()
+        while time.monotonic() < end:
+            pub.put(encode_update(world.local_model(epoch, sent, time.time_ns())))
+            sent += 1
+            time.sleep(1 / 60)
+    elif phase.endswith("MB"):
+        payload = bytes(int(phase[:-2]) * 1024 * 1024)
+        while time.monotonic() < end:
+            pub.put(payload)
+            sent += 1
+            time.sleep(0.1)
+    else:
+        # at FLOOD_HZ on average, a batch every millisecond: a stranger that spun a CPU
+        # would measure the 2-core host's contention, not the network's
+        small = encode_update(world.local_model(time.time_ns(), 0, time.time_ns()))
+        batch = round(FLOOD_HZ / 1000)
+        next_t = time.monotonic()
+        while time.monotonic() < end:
+            for _ in range(batch):
+                pub.put(small)
+            sent += batch
+            next_t += 1e-3
+            time.sleep(max(0.0, next_t - time.monotonic()))
+    return sent
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--phase-s", type=float, default=2.0)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--out", type=Path, default=None, help="write stranger.md here")
+    args = parser.parse_args(argv)
+    runs = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(args.repeat):
+            runs.append(run(args.phase_s, Path(tmp)))
+    lines = [
+        "# A stranger on the default network",
+        "",
+        f"`python -m benchmarks.stranger --phase-s {args.phase_s:g} --repeat {args.repeat}`:"
+        " the sim's update age (publish -> installed) p50 / p99 in ms per phase, each run in"
+        " one row; the stranger's messages sent, arrived at the haptic server, installed.",
+        "",
+        "| run | " + " | ".join(PHASES) + " | sent | arrived | installed |",
+        "|---|" + "---|" * (len(PHASES) + 3),
+    ]
+    for i, r in enumerate(runs):
+        cells = []
+        for phase in PHASES:
+            ages = r.ages_ms.get(phase, [])
+            cells.append(
+                f"{np.percentile(ages, 50):.2f} / {np.percentile(ages, 99):.2f}" if ages else "-"
+            )
+        others = len(r.installed_epochs - {r.sim_epoch})
+        lines.append(
+            f"| {i + 1} | " + " | ".join(cells)
+            + f" | {r.stranger_sent} | {r.stranger_arrived} | {others} |"
+        )  # fmt: skip
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "stranger.md").write_text(text)
+    return 0 if all(r.stranger_arrived == 0 for r in runs) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
