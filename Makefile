@@ -40,9 +40,9 @@ browser:
 
 test: lint typecheck pytest
 
-# the CI soak (.ci/run); a longer one locally: make soak MINUTES=60
+# the CI soak (.ci/run): every segment once (every device, every fault); locally: make soak MINUTES=60
 soak-ci: $(STAMP) warm
-	$(PY) -m haptic_server.harness.soak --minutes 3 --out runs/soak-ci
+	$(PY) -m haptic_server.harness.soak --minutes 4 --segment-s 30 --out runs/soak-ci
 
 MINUTES ?= 60
 soak: $(STAMP) warm

@@ -15,9 +15,7 @@ from __future__ import annotations
 
 import argparse
 import base64
-import json
 import struct
-import subprocess
 import sys
 import tempfile
 import time
@@ -28,6 +26,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from haptic_server.harness.run import Child
 from haptic_server.log import UPDATE_TOPIC, read_json_topic
 from shared.config import load_scene
 from shared.net.config import EndpointSpec, free_loopback_port, load_network, on_port
@@ -57,36 +56,6 @@ class StrangerResult:
         return float(np.percentile(ages, q)) if ages else float("nan")
 
 
-class _Server:
-    def __init__(self, argv: list[str]) -> None:
-        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
-        self.ready: dict[str, Any] = {}
-
-    def wait_ready(self) -> None:
-        end = time.monotonic() + READY_TIMEOUT_S
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            try:
-                event = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            if event.get("event") == "ready":
-                self.ready = event
-                return
-            if time.monotonic() > end:
-                break
-        raise RuntimeError(f"{self.proc.args} did not become ready")
-
-    def stop(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-        try:
-            return self.proc.wait(30.0)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            return self.proc.wait()
-
-
 def run(phase_s: float, workdir: Path, network: str = "loopback") -> StrangerResult:
     """One run of every phase; the servers are stopped by their pids whatever happens."""
     port = free_loopback_port()
@@ -94,17 +63,16 @@ def run(phase_s: float, workdir: Path, network: str = "loopback") -> StrangerRes
     log = workdir / f"stranger-{port}.mcap"
     common = ["--scene", SCENE, "--network", network, "--port", str(port)]
     py = sys.executable
-    haptic = _Server([py, "-m", "haptic_server.cli", *common, "--user", "constant_push",
-                      "--log", str(log)])  # fmt: skip
-    sim: _Server | None = None
+    haptic = Child("haptic", [py, "-m", "haptic_server.cli", *common, "--user", "constant_push",
+                              "--log", str(log)])  # fmt: skip
+    sim: Child | None = None
     stranger = None
     bounds: dict[str, tuple[int, int]] = {}
     result = StrangerResult()
     try:
-        haptic.wait_ready()
-        sim = _Server([py, "-m", "sim_server.cli", *common])
-        sim.wait_ready()
-        result.sim_epoch = int(sim.ready["epoch"])
+        _ready(haptic)
+        sim = Child("sim", [py, "-m", "sim_server.cli", *common])
+        result.sim_epoch = int(_ready(sim)["epoch"])
         time.sleep(1.0)  # the sim's updates flowing
         stranger = open_session(EndpointSpec(connect=net.haptic.listen))  # no credentials
         pub = stranger.declare_publisher(
@@ -134,6 +102,13 @@ def run(phase_s: float, workdir: Path, network: str = "loopback") -> StrangerRes
                     result.ages_ms.setdefault(phase, []).append(1e3 * rec["latency_s"])
     log.unlink(missing_ok=True)
     return result
+
+
+def _ready(child: Child) -> dict[str, Any]:
+    """Wait until the server says it is ready; its ready event."""
+    if not child.wait_ready(READY_TIMEOUT_S):
+        raise RuntimeError(f"the {child.name} server did not become ready")
+    return next(e for e in child.events if e.get("event") == "ready")
 
 
 def _attack(phase: str, pub: Any, world: SimWorld, seconds: float) -> int:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 from pathlib import Path
@@ -17,6 +16,7 @@ from shared.cli import (
     log_file,
     run_main,
     seconds,
+    write_summary,
 )
 from shared.config import load_scene, load_user, resolve, scene_text
 from shared.net.config import load_network, on_port
@@ -72,12 +72,8 @@ def main(argv: list[str] | None = None) -> int:
             ready=lambda: emit("ready", process="haptic", loop_cpu=server.stats.loop_cpu),
         )
         emit("stopped", process="haptic", **summary)
-        if args.summary_json:
-            try:
-                args.summary_json.write_text(json.dumps(summary, indent=2))
-            except OSError as exc:
-                print(f"haptic-server: cannot write the summary: {exc}", file=sys.stderr)
-                return EXIT_FAILED
+        if not write_summary(args.summary_json, summary, "haptic-server"):
+            return EXIT_FAILED
         if summary["io_lost"]:
             print("haptic-server: the I/O process died; the run was stopped", file=sys.stderr)
             return EXIT_FAILED

@@ -135,6 +135,20 @@ def run_main(body: Callable[[], int]) -> int:
         return EXIT_CONFIG
 
 
+def write_summary(path: Path | None, summary: dict[str, Any], prog: str) -> bool:
+    """Write a run's summary as JSON, if asked; on failure (a full disk) say so in one line.
+    Returns whether it is written (or was not asked for)."""
+    if path is None:
+        return True
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(summary, indent=2))
+    except OSError as exc:
+        print(f"{prog}: cannot write the summary: {exc}", file=sys.stderr)
+        return False
+    return True
+
+
 def emit(kind: str, **fields: Any) -> None:
     """One JSON line on stdout: how haptic-run and the tests follow a server.
 

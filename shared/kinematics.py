@@ -153,6 +153,21 @@ def point_bias_acceleration(joint_types, frame_pos, dof, link, px, py, qd, out):
 
 
 @njit(cache=True)
+def scaled_gram(jac, dof, length, out):
+    """S J J^T S with S = diag(1, 1, length) (3 x 3 into out): the Gram matrix of J_h with its
+    angular row scaled by the characteristic length (DESIGN §3), whose eigenvectors are
+    J_h's left singular vectors in the scaled space."""
+    for a in range(3):
+        sa = length if a == 2 else 1.0
+        for b in range(3):
+            sb = length if b == 2 else 1.0
+            s = 0.0
+            for i in range(dof):
+                s += (sa * jac[a, i]) * (sb * jac[b, i])
+            out[a, b] = s
+
+
+@njit(cache=True)
 def mass_matrix_and_gravity(chain, gravity, q, work, mass_out, gravity_out):
     """D(q) = sum m J_v^T J_v + I J_w^T J_w and G(q) = -sum m J_v^T g (DESIGN §2).
 

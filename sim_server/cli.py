@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 from pathlib import Path
 from typing import Any
 
-from shared.cli import EXIT_FAILED, add_config_args, emit, run_main, seconds
+from shared.cli import EXIT_FAILED, add_config_args, emit, run_main, seconds, write_summary
 from shared.config import load_scene
 from shared.net.config import load_network, on_port
 
@@ -51,12 +50,8 @@ def main(argv: list[str] | None = None) -> int:
             args.duration, ready=lambda: emit("ready", process="sim", epoch=server.epoch)
         )
         emit("stopped", process="sim", **summary)
-        if args.summary_json:
-            try:
-                args.summary_json.write_text(json.dumps(summary, indent=2))
-            except OSError as exc:
-                print(f"sim-server: cannot write the summary: {exc}", file=sys.stderr)
-                return EXIT_FAILED
+        if not write_summary(args.summary_json, summary, "sim-server"):
+            return EXIT_FAILED
         return 0
 
     return run_main(body)

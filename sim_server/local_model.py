@@ -28,6 +28,7 @@ from shared.kinematics import (
     mass_matrix_and_gravity,
     point_jacobian,
     point_on_link,
+    scaled_gram,
     velocity_product_torque,
 )
 from shared.linalg import cholesky_inplace, cholesky_solve, symmetric_eigen
@@ -223,16 +224,8 @@ def _resisted_directions(m, jac, length, tolerance, scaled, sigma):
     """The left singular vectors of diag(1, 1, L) J_h (DESIGN §3; seed 000 eq 14, 22) whose
     singular value is below `tolerance` times the largest: the eigenvectors of the scaled
     J_h J_hᵀ, in descending order, so the resisted ones come last."""
-    d = m.dof
     gram = np.empty((3, 3))
-    for a in range(3):
-        sa = length if a == 2 else 1.0
-        for b in range(3):
-            sb = length if b == 2 else 1.0
-            s = 0.0
-            for i in range(d):
-                s += (sa * jac[a, i]) * (sb * jac[b, i])
-            gram[a, b] = s
+    scaled_gram(jac, m.dof, length, gram)
     symmetric_eigen(gram, 3, sigma, scaled)
     for k in range(3):
         sigma[k] = math.sqrt(max(sigma[k], 0.0))

@@ -13,7 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from haptic_server.harness.soak import SEGMENTS, check_configs
+from haptic_server.harness.soak import SEGMENTS, Segment, check_configs
 
 REPO = Path(__file__).resolve().parent.parent
 WALL_PUSH = REPO / "configs" / "scenes" / "wall_push.toml"
@@ -23,7 +23,7 @@ def _soak_with(tmp_path: Path, segment: tuple[str, str, str]) -> subprocess.Comp
     code = (
         "import sys\n"
         "import haptic_server.harness.soak as soak\n"
-        f"soak.SEGMENTS = ({segment!r},)\n"
+        f"soak.SEGMENTS = (soak.Segment(*{segment!r}),)\n"
         "sys.exit(soak.main(['--minutes', '0.2', '--segment-s', '5', '--out', 'out']))\n"
     )
     return subprocess.run(
@@ -55,7 +55,7 @@ def test_an_error_only_the_haptic_server_finds_stops_the_soak_with_its_reason(
     assert 'name = "too_fast"' in text and "haptic_rate_hz = 2500.0" in text
     scene = tmp_path / "too_fast.toml"
     scene.write_text(text)
-    check_configs(((str(scene), "maglev", "push_2n"),))  # the soak's own check passes it
+    check_configs((Segment(str(scene), "maglev", "push_2n"),))  # the soak's own check passes it
     res = _soak_with(tmp_path, (str(scene), "maglev", "push_2n"))
     line = _one_error_line(res)
     assert "'too_fast'" in line and "'maglev'" in line, line

@@ -1,6 +1,6 @@
-"""Each forged model of benchmarks/forgeries.py, with the sim's own credentials, against the
-real processes on the default network (benchmarks/model_attacks.py runs them and writes
-the table of docs/security.md): refused for its reason, or installed and stopped by the
+"""Each forged model of haptic_server/harness/forgeries.py, with the sim's own credentials,
+against the real processes on the default network (benchmarks/model_attacks.py runs them and
+writes the table of docs/security.md): refused for its reason, or installed and stopped by the
 loop's guard; at most 50 ms at the device's limit, normal rendering within 200 ms of the
 sim's next good update after a trip, and none of the sim's own updates refused.
 """
@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.forgeries import EXPECTED, FORGERIES
-from benchmarks.model_attacks import LIMIT_MS, RESUME_MS, attack
+from benchmarks.model_attacks import attack
+from haptic_server.harness.forgeries import EXPECTED, FORGERIES, LIMIT_MS, RESUME_MS
 
 
 @pytest.mark.processes

@@ -3,10 +3,10 @@ stages/safety.py): an engine fed by the scene's own sim, one forged update among
 
 - every shipped scene's own updates pass with margin (benchmarks/envelope.py reports all
   devices and longer runs);
-- each forgery of benchmarks/forgeries.py is refused for its reason and changes nothing, or (at
-  the envelope's edge) is installed and stopped by the guard: the device at its limit for at
-  most 50 ms, the sim's next update re-initialises, rendering is back within 200 ms of it,
-  and the sim's own updates are never refused;
+- each forgery of haptic_server/harness/forgeries.py is refused for its reason and changes
+  nothing, or (at the envelope's edge) is installed and stopped by the guard: the device at
+  its limit for at most 50 ms, the sim's next update re-initialises, rendering is back within
+  200 ms of it, and the sim's own updates are never refused;
 - the consistency tolerance cuts between rounding and a real difference;
 - the passivity observer's energy is the closed form of its sum;
 - a re-initialisation at a folded arm cannot spin the proxy.
@@ -20,9 +20,9 @@ import math
 import numpy as np
 import pytest
 
-from benchmarks.forgeries import EXPECTED, FORGERIES
 from device_models.registry import load_simulated_device
 from haptic_server.engine import HapticEngine
+from haptic_server.harness.forgeries import EXPECTED, FORGERIES
 from haptic_server.harness.virtual import _target
 from haptic_server.stages.plausible import RATIO_NAMES
 from haptic_server.stages.safety import runaway_guard

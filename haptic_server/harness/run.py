@@ -34,6 +34,7 @@ from shared.cli import (
     print_shipped,
     run_main,
     seconds,
+    write_summary,
 )
 from shared.config import ConfigError, absolute_ref, load_scene, load_user, resolve
 from shared.net.config import free_loopback_port, load_network, on_loopback
@@ -338,13 +339,8 @@ def main(argv: list[str] | None = None) -> int:
                 "haptic-replay LOG --view)",
             )  # fmt: skip
         summary = run_virtual_clock(args) if args.clock == "virtual" else run_real_time(args)
-        if args.summary_json:
-            try:
-                args.summary_json.parent.mkdir(parents=True, exist_ok=True)
-                args.summary_json.write_text(json.dumps(summary, indent=2))
-            except OSError as exc:
-                print(f"haptic-run: cannot write the summary: {exc}", file=sys.stderr)
-                summary.setdefault("failure", f"summary not written: {exc}")
+        if not write_summary(args.summary_json, summary, "haptic-run"):
+            summary.setdefault("failure", "the summary was not written")
         if summary.get("config_error"):
             return EXIT_CONFIG
         if "failure" in summary:

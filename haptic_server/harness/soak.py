@@ -27,6 +27,7 @@ import argparse
 import json
 import math
 import os
+import signal
 import sys
 import tempfile
 import threading
@@ -38,11 +39,13 @@ from typing import Any
 import numpy as np
 
 from device_models.registry import load_device
+from haptic_server.harness.forgeries import Forger, measure
 from haptic_server.harness.run import Child
 from haptic_server.log import EVENT_TOPIC, read_json_topic, read_ticks
 from shared.cli import EXIT_CONFIG, add_version, minutes, run_main, seconds
 from shared.config import load_scene, load_user
-from shared.net.config import free_loopback_port
+from shared.net.config import free_loopback_port, load_network, on_port
+from shared.protocol.codes import Fault
 
 # ticks starting > 1 ms late: the bare clock loop alone measured up to 0.43% on these VMs
 # (benchmarks/loop_timing.py); soak segments measured 0.03-1.2% on a quiet VM and up to 2.1%
@@ -54,12 +57,49 @@ WARM_UP_FRACTION = 0.25  # memory is compared from the end of the first quarter 
 MEMORY_SAMPLE_S = 0.5
 APPLIED_SLACK = 1e-9  # relative: the applied wrench is clipped exactly at the limit
 
-# (scene, device, user): pushing, sliding, impacts, holding through a singularity
+SAFE_WITHIN_S = 0.050  # the device is safe within this of a watchdog trip
+# the fade spreads a resumed force over safe_ramp / dt ticks: a command within +-limit moves
+# by at most 2 limit dt_max / ramp a tick (dt <= 2 ms), doubled for the rendering's own change
+FADE_STEP_FACTOR = 2.0 * 2.0 * 2e-3
+FAULT_AT = 0.4  # a segment's fault is injected this far into it
+STALL_S, SIDECAR_STALL_S = 0.5, 0.3
+CLOCK_STEP_MS, CLOCK_STEP_S = 10_000.0, 1.0
+FORGERY = "deep_contact"  # at the envelope's edge: installed, and the guard must stop it
+
+#: what each fault is, and the watchdog trips it must cause (min, max)
+FAULTS = {
+    "": ("none", (0, 0)),
+    "sim_stall": (f"the sim stopped (SIGSTOP) for {STALL_S:g} s", (1, 1)),
+    "sim_restart": ("the sim killed (SIGKILL), a new one started", (1, 1)),
+    "sidecar_stall": (f"the haptic server's I/O process stopped for {SIDECAR_STALL_S:g} s", (1, 1)),
+    "clock_step": (
+        f"the sim's clock {CLOCK_STEP_MS / 1e3:g} s ahead for {CLOCK_STEP_S:g} s",
+        (1, 1),
+    ),
+    "forgery": ("a forged model at the scene's envelope, with the sim's credentials", (0, 0)),
+}
+
+
+@dataclass(frozen=True)
+class Segment:
+    """A scene on a device with a scripted hand, and the fault injected into it."""
+
+    scene: str
+    device: str
+    user: str
+    fault: str = ""
+
+
+#: every shipped device; pushing, sliding, impacts, holding through a singularity; a fault
+#: of each kind
 SEGMENTS = (
-    ("testbed", "ideal", "swing"),
-    ("free_box", "ideal", "waypoints"),
-    ("wall_push", "ideal", "push_2n"),
-    ("linkage_distal", "ideal_identity", "push_04n"),
+    Segment("testbed", "ideal", "swing"),
+    Segment("testbed", "twin_pantograph", "swing", "sim_stall"),
+    Segment("maglev_scoop", "maglev", "scoop", "sim_restart"),
+    Segment("wall_push", "ideal", "push_2n", "forgery"),
+    Segment("linkage_distal", "ideal_identity", "push_04n", "sidecar_stall"),
+    Segment("free_box", "maglev", "waypoints", "clock_step"),
+    Segment("wall_slide", "twin_pantograph", "slide"),
 )
 
 
@@ -69,13 +109,13 @@ class ChildConfigError(Exception):
     adds nothing to it and exits 2 too."""
 
 
-def check_configs(segments: tuple[tuple[str, str, str], ...]) -> None:
+def check_configs(segments: tuple[Segment, ...]) -> None:
     """Load every segment's scene, device and user as its servers will, before any starts: a
     bad file is a ConfigError naming the file and the key (exit 2), not a failed segment."""
-    for scene, device, user in segments:
-        load_scene(scene)
-        load_device(device)
-        load_user(user)
+    for seg in segments:
+        load_scene(seg.scene)
+        load_device(seg.device)
+        load_user(seg.user)
 
 
 def _stop_on_config_error(child: Child) -> None:
@@ -107,6 +147,7 @@ class SegmentResult:
     device: str
     user: str
     seconds: float
+    fault: str = ""
     ticks: int = 0
     late_ticks: int = 0
     lateness_p99_9_us: float = math.nan
@@ -115,6 +156,12 @@ class SegmentResult:
     updates_published: int = 0
     updates_expected: int = 0
     memory_growth_mb: dict[str, float] = field(default_factory=dict)
+    watchdog_trips: int = 0
+    guard_trips: int = 0
+    safe_within_ms: float = math.nan  # the slowest ramp to the safe state after a trip
+    resume_step_n: float = math.nan  # the largest force step while forces faded back in
+    outage_s: float = 0.0  # time without valid updates (watchdog trips), not expected of the sim
+    forgery: dict[str, Any] = field(default_factory=dict)  # a forgery's figures (AttackResult)
     failures: list[str] = field(default_factory=list)
     log: str = ""
 
@@ -177,6 +224,10 @@ class MemorySampler:
                     self.traces[name].t.append(now)
                     self.traces[name].rss_mb.append(rss)
 
+    def forget(self, name: str) -> None:
+        """Stop sampling `name` (its trace so far is kept)."""
+        self.pids.pop(name, None)
+
     def stop(self) -> dict[str, MemoryTrace]:
         self._stop.set()
         self._thread.join(2.0)
@@ -184,11 +235,13 @@ class MemorySampler:
 
 
 def run_segment(
-    scene: str, device: str, user: str, seconds: float, out: Path, inject: list[str]
+    segment: Segment, seconds: float, out: Path, inject: list[str]
 ) -> tuple[SegmentResult, dict[str, Any]]:
-    """One sim + haptic pair for `seconds`; returns the checks and the data for the plots.
-    Raises ChildConfigError if a server stops on a config error before it is ready."""
-    result = SegmentResult(scene, device, user, seconds)
+    """One sim + haptic pair for `seconds`, with the segment's fault FAULT_AT into it; returns
+    the checks and the data for the plots. Raises ChildConfigError if a server stops on a
+    config error before it is ready."""
+    scene, device, user = segment.scene, segment.device, segment.user
+    result = SegmentResult(scene, device, user, seconds, segment.fault)
     port = free_loopback_port()
     label = Path(scene).stem  # file names: `scene` may be a path to a .toml file
     log = out / f"{label}-{Path(device).stem}.mcap"
@@ -199,37 +252,32 @@ def run_segment(
     haptic = Child(
         "haptic",
         [
-            py,
-            "-m",
-            "haptic_server.cli",
-            *common,
-            "--device",
-            device,
-            "--user",
-            user,
-            "--duration",
-            str(seconds),
-            "--log",
-            str(log),
-            "--summary-json",
-            str(haptic_json),
+            py, "-m", "haptic_server.cli", *common, "--device", device, "--user", user,
+            "--duration", str(seconds), "--log", str(log), "--summary-json", str(haptic_json),
             *inject,
         ],
-    )
-    sim: Child | None = None
+    )  # fmt: skip
+    sim_argv = [py, "-m", "sim_server.cli", *common, "--summary-json", str(sim_json)]
+    fault_at = FAULT_AT * seconds
+    if segment.fault == "clock_step":
+        sim_argv += ["--inject-clock-jump", f"{fault_at},{CLOCK_STEP_MS},{CLOCK_STEP_S}"]
+    sims: list[Child] = []
     sampler: MemorySampler | None = None
     traces: dict[str, MemoryTrace] = {}
+    forged = b""
     try:
         if not haptic.wait_ready(300.0):
             _stop_on_config_error(haptic)
             result.failures.append(f"haptic server did not start (exit {haptic.proc.poll()})")
             return result, {}
-        sim = Child("sim", [py, "-m", "sim_server.cli", *common, "--summary-json", str(sim_json)])
-        if not sim.wait_ready(120.0):
-            _stop_on_config_error(sim)
-            result.failures.append(f"sim server did not start (exit {sim.proc.poll()})")
+        sims.append(Child("sim", sim_argv))
+        if not sims[0].wait_ready(120.0):
+            _stop_on_config_error(sims[0])
+            result.failures.append(f"sim server did not start (exit {sims[0].proc.poll()})")
             return result, {}
-        sampler = MemorySampler({"haptic": haptic.proc.pid, "sim": sim.proc.pid})
+        sampler = MemorySampler({"haptic": haptic.proc.pid, "sim": sims[0].proc.pid})
+        time.sleep(fault_at)
+        forged = _inject(segment, haptic, sims, sim_argv, sampler, port)
         code = haptic.proc.wait(seconds + 60.0)
         if code != 0:
             result.failures.append(f"haptic server exited with {code}")
@@ -237,8 +285,8 @@ def run_segment(
         if sampler is not None:
             traces = sampler.stop()
         codes = {"haptic": haptic.stop()}
-        if sim is not None:
-            codes["sim"] = sim.stop()
+        for sim in sims:
+            codes["sim"] = sim.stop()  # the last sim's code (a killed one's is the fault's)
         for name, c in codes.items():
             if c != 0 and f"{name} server exited" not in " ".join(result.failures):
                 result.failures.append(f"{name} server exited with {c} after SIGTERM")
@@ -246,7 +294,57 @@ def run_segment(
     sim_summary = json.loads(sim_json.read_text()) if sim_json.exists() else {}
     result.log = str(log)
     data = _check(result, summary, sim_summary, log, device, traces)
+    if segment.fault == "forgery":
+        _check_forgery(result, log, forged, device)
     return result, data
+
+
+def _inject(
+    segment: Segment,
+    haptic: Child,
+    sims: list[Child],
+    sim_argv: list[str],
+    sampler: MemorySampler,
+    port: int,
+) -> bytes:
+    """The segment's fault (the clock step was given to the sim at its start); returns the
+    forged update's bytes, if any."""
+    fault = segment.fault
+    sim = sims[0]
+    if fault == "sim_stall":
+        os.kill(sim.proc.pid, signal.SIGSTOP)
+        time.sleep(STALL_S)
+        os.kill(sim.proc.pid, signal.SIGCONT)
+    elif fault == "sim_restart":
+        sampler.forget("sim")  # a new process: its memory is the other segments' to judge
+        os.kill(sim.proc.pid, signal.SIGKILL)
+        sim.proc.wait()
+        sims.append(Child("sim2", sim_argv))
+        if not sims[-1].wait_ready(120.0):
+            raise RuntimeError("the restarted sim did not start")
+    elif fault == "sidecar_stall":
+        sidecar = next(p for p in _children(haptic.proc.pid) if _helper_name(p) == "haptic_io")
+        os.kill(sidecar, signal.SIGSTOP)
+        time.sleep(SIDECAR_STALL_S)
+        os.kill(sidecar, signal.SIGCONT)
+    elif fault == "forgery":
+        epoch = next(int(e["epoch"]) for e in sim.events if e.get("event") == "ready")
+        network = on_port(load_network("loopback"), port)
+        forger = Forger(network, load_scene(segment.scene), epoch)
+        try:
+            return forger.forge(FORGERY)
+        finally:
+            forger.close()
+    return b""
+
+
+def _check_forgery(result: SegmentResult, log: Path, raw: bytes, device: str) -> None:
+    """The forgery's targets (docs/security.md): refused, or installed and stopped by the guard
+    within the bounds."""
+    figures = measure(FORGERY, log, raw, load_device(device).limits().max_wrench)
+    result.forgery = dict(figures.__dict__)
+    if not figures.meets_targets():
+        result.failures.append(f"the forgery {FORGERY} was not stopped in bounds: {figures}")
 
 
 def _check(
@@ -285,20 +383,25 @@ def _check(
         if bad.any():
             first = int(np.argwhere(bad)[0][0])
             f.append(f"NaN/Inf in {name} from tick {int(ticks['tick'][first])}")
-    if (ticks["fault"] != 0).any():
+    result.guard_trips = int(np.count_nonzero(np.diff(ticks["fault"], prepend=0) > 0))
+    if result.guard_trips and result.fault != "forgery":  # only a forgery may trip the guard
         first = int(np.argmax(ticks["fault"] != 0))
         code, tick = int(ticks["fault"][first]), int(ticks["tick"][first])
-        f.append(f"kernel fault {code} (a NaN/Inf was caught) at tick {tick}")
+        f.append(f"kernel fault {code} ({Fault(code).name.lower()}) at tick {tick}")
+    if result.fault == "forgery" and result.guard_trips != 1:
+        f.append(f"the guard tripped {result.guard_trips} times on one forgery (expected 1)")
     limits = np.array(load_device(device).limits().max_wrench)
     excess = np.abs(ticks["wrench_applied"]) - limits * (1 + APPLIED_SLACK)
     if (excess > 0).any():
         f.append(f"applied wrench beyond the device limits by up to {excess.max():.3g}")
     if result.ticks and result.late_ticks > LATE_FRACTION_MAX * result.ticks:
         f.append(f"{result.late_ticks} late ticks of {result.ticks} (> {LATE_FRACTION_MAX:.1%})")
-    # expected: the sim's rate over the part of the run the sim was up (first update -> end)
+    _check_outages(result, ticks, events, limits)
+    # expected: the sim's rate over the part of the run the sim was up (first update -> end),
+    # but for the outages its fault made (no valid update for them, by design)
     received = ticks["update_seq"] >= 0
     if received.any():
-        window = float(ticks["t"][-1] - ticks["t"][np.argmax(received)])
+        window = float(ticks["t"][-1] - ticks["t"][np.argmax(received)]) - result.outage_s
         expected = sim_rate_hz * window
         result.updates_expected = int(expected)
         if result.updates_received < UPDATE_FRACTION_MIN * expected:
@@ -317,8 +420,49 @@ def _check(
                 f"{name} resident memory grew {growth:.1f} MB after warm-up "
                 f"(> {MEMORY_GROWTH_MAX_MB} MB)"
             )
-    watchdog = [e for e in events if e.get("kind") == "watchdog"]
-    return {"ticks": ticks, "traces": traces, "watchdog_events": len(watchdog)}
+    return {"ticks": ticks, "traces": traces, "watchdog_events": result.watchdog_trips}
+
+
+def _check_outages(
+    result: SegmentResult, ticks: np.ndarray, events: list[dict[str, Any]], limits: np.ndarray
+) -> None:
+    """The watchdog trips the segment's fault must cause, each with the device safe within
+    SAFE_WITHIN_S of it and no force step beyond the fade's bound when forces came back."""
+    f = result.failures
+    trips = [int(e["tick"]) for e in events if e.get("kind") == "watchdog"]
+    clears = [int(e["tick"]) for e in events if e.get("kind") == "watchdog_clear"]
+    result.watchdog_trips = len(trips)
+    low, high = FAULTS[result.fault][1]
+    if not low <= len(trips) <= high:
+        f.append(f"{len(trips)} watchdog trips ({FAULTS[result.fault][0]}: {low}-{high})")
+    if result.fault == "sidecar_stall":
+        kinds = {e.get("kind") for e in events}
+        if not {"io_stalled", "io_resumed"} <= kinds:
+            f.append("the I/O process's stall was not said (io_stalled, io_resumed)")
+    index = {int(t): i for i, t in enumerate(ticks["tick"])}
+    decays, steps = [], []
+    dt = float(np.median(ticks["dt"]))
+    for trip, clear in zip(trips, clears, strict=False):
+        i, j = index.get(trip), index.get(clear)
+        if i is None or j is None:
+            continue
+        result.outage_s += float(ticks["t"][j] - ticks["t"][i]) + 0.1  # and the watchdog's
+        held = ticks["safe"][i:j]
+        reached = np.flatnonzero(held >= 1.0)
+        decays.append(float(reached[0]) * dt if reached.size else 0.0)
+        after = ticks[j - 1 :]
+        end = 1 + int(np.argmax(after["safe"][1:] <= 0.0))
+        steps.append(float(np.abs(np.diff(after["wrench_command"][: end + 2], axis=0)).max()))
+    if decays:
+        result.safe_within_ms = 1e3 * max(decays)
+        if max(decays) > SAFE_WITHIN_S:
+            f.append(f"the device safe {1e3 * max(decays):.0f} ms after the watchdog (> 50)")
+    if steps:
+        result.resume_step_n = max(steps)
+        ramp_s = load_network("loopback", roles=()).safe_ramp_ms / 1000.0
+        bound = FADE_STEP_FACTOR * float(limits[:2].max()) / ramp_s
+        if max(steps) > bound:
+            f.append(f"a force step of {max(steps):.2f} N as forces came back (> {bound:.2f})")
 
 
 def plot(results: list[tuple[SegmentResult, dict[str, Any]]], path: Path) -> None:
@@ -372,20 +516,31 @@ def write_report(
         f"Host: {os.uname().nodename}; {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}. "
         f"Bounds: late ticks < {LATE_FRACTION_MAX:.1%}, updates >= {UPDATE_FRACTION_MIN:.0%} "
         f"of the sim's rate, memory growth <= {MEMORY_GROWTH_MAX_MB} MB per process after the "
-        f"first {WARM_UP_FRACTION:.0%} of a segment, no NaN, no fault, wrench within limits, "
-        "logs readable.",
+        f"first {WARM_UP_FRACTION:.0%} of a segment, no NaN, no fault (but the guard's one trip "
+        "on a forgery), wrench within limits, logs readable; each injected fault its watchdog "
+        f"trips, the device safe within {1e3 * SAFE_WITHIN_S:.0f} ms of each, no force step "
+        "beyond the fade's bound as forces return; a forgery refused or stopped within 50 ms at "
+        "the limit and rendering back within 200 ms (docs/soak.md).",
         "",
-        "| segment | s | ticks | late > 1 ms | lateness p99.9 (us) | work p99 (us) "
-        "| updates recv / expected | memory growth (MB) | result |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| segment | fault | s | ticks | late > 1 ms | lateness p99.9 (us) | work p99 (us) "
+        "| updates recv / expected | watchdog / guard trips | safe within (ms) "
+        "| resume step (N) | memory growth (MB) | result |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         mem = ", ".join(f"{k} {v:.1f}" for k, v in r["memory_growth_mb"].items())
         verdict = "ok" if not r["failures"] else "FAILED: " + "; ".join(r["failures"])
+        fault = r["fault"] or "-"
+        if r["forgery"]:
+            fg = r["forgery"]
+            fault += f" ({fg['verdict']}, {fg['at_limit_ms']:.0f} ms at the limit)"
+        safe = "-" if math.isnan(r["safe_within_ms"]) else f"{r['safe_within_ms']:.0f}"
+        step = "-" if math.isnan(r["resume_step_n"]) else f"{r['resume_step_n']:.2f}"
         lines.append(
-            f"| {r['scene']} / {r['device']} / {r['user']} | {r['seconds']:.0f} | {r['ticks']} "
-            f"| {r['late_ticks']} | {r['lateness_p99_9_us']:.0f} | {r['work_p99_us']:.0f} "
-            f"| {r['updates_received']} / {r['updates_expected']} | {mem} | {verdict} |"
+            f"| {r['scene']} / {r['device']} / {r['user']} | {fault} | {r['seconds']:.0f} "
+            f"| {r['ticks']} | {r['late_ticks']} | {r['lateness_p99_9_us']:.0f} "
+            f"| {r['work_p99_us']:.0f} | {r['updates_received']} / {r['updates_expected']} "
+            f"| {r['watchdog_trips']} / {r['guard_trips']} | {safe} | {step} | {mem} | {verdict} |"
         )
     lines += [
         "",
@@ -456,14 +611,16 @@ def run_soak(args: argparse.Namespace) -> int:
             if left < 5.0 and results:
                 break
             seconds = max(5.0, min(args.segment_s, left))
-            scene, device, user = SEGMENTS[index % len(SEGMENTS)]
-            seg, data = run_segment(scene, device, user, seconds, Path(tmp), inject)
+            segment = SEGMENTS[index % len(SEGMENTS)]
+            seg, data = run_segment(segment, seconds, Path(tmp), inject)
             status = "ok" if not seg.failures else "FAILED: " + "; ".join(seg.failures)
             memory = {k: round(v, 1) for k, v in seg.memory_growth_mb.items()}
+            fault = f" [{segment.fault}]" if segment.fault else ""
             print(
-                f"[{time.monotonic() - started:6.0f} s] {scene}/{device}/{user} {seconds:.0f} s: "
-                f"{seg.ticks} ticks, {seg.late_ticks} late, {seg.updates_received}/"
-                f"{seg.updates_expected} updates, memory growth {memory} MB -> {status}",
+                f"[{time.monotonic() - started:6.0f} s] {segment.scene}/{segment.device}/"
+                f"{segment.user}{fault} {seconds:.0f} s: {seg.ticks} ticks, {seg.late_ticks} late,"
+                f" {seg.updates_received}/{seg.updates_expected} updates, {seg.watchdog_trips}"
+                f" watchdog / {seg.guard_trips} guard trips, memory growth {memory} MB -> {status}",
                 flush=True,
             )
             if args.keep_logs and seg.log:

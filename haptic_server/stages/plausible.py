@@ -32,6 +32,7 @@ from shared.kinematics import (
     mass_matrix_and_gravity,
     point_jacobian,
     point_on_link,
+    scaled_gram,
     velocity_product_torque_into,
 )
 from shared.linalg import cholesky_inplace, cholesky_solve, symmetric_eigen
@@ -187,17 +188,8 @@ def _check_dynamics(u, env):
 def _check_resisted(u, env):
     """Each resisted direction n (scaled space) is one the scaled J_h barely moves:
     n^T (S J_h J_h^T S) n below the rank tolerance squared times the largest eigenvalue."""
-    d = env.chain[0].dof
-    jac, gram = env.jac, env.gram
-    length = env.characteristic_length
-    for a in range(3):
-        sa = length if a == 2 else 1.0
-        for b in range(3):
-            sb = length if b == 2 else 1.0
-            s = 0.0
-            for i in range(d):
-                s += (sa * jac[a, i]) * (sb * jac[b, i])
-            gram[a, b] = s
+    gram = env.gram
+    scaled_gram(env.jac, env.chain[0].dof, env.characteristic_length, gram)
     values = env.eigenvalues
     symmetric_eigen(gram, 3, values, env.eigenvectors)
     top = max(values[0], max(values[1], values[2]))
