@@ -19,6 +19,7 @@ PRISMATIC_Y = 2
 
 MAX_DOF = 12
 VELOCITY_TORQUE_STEP = 1.0e-6  # rad, central differences of D(q) for C(q, qd) qd
+NO_GRAVITY = np.zeros(2)  # a constant of the kernels (numba freezes global arrays)
 
 #: One tool chain as a record (MJX's jnt_* / body_* columns of one tool): the kernels take
 #: it whole, so a new column is a field here, not a new argument at every call site.
@@ -180,7 +181,6 @@ def mass_matrix_and_gravity(chain, gravity, q, work, mass_out, gravity_out):
     com_offsets = c.com_offsets
     frame_pos, frame_angle, jac = work
     link_frames(joint_types, c.lengths, c.base, c.base_angle, q, dof, frame_pos, frame_angle)
-    com = np.empty(2)
     for a in range(dof):
         gravity_out[a] = 0.0
         for b in range(dof):
@@ -188,8 +188,13 @@ def mass_matrix_and_gravity(chain, gravity, q, work, mass_out, gravity_out):
     for i in range(dof):
         if masses[i] == 0.0 and inertias[i] == 0.0:
             continue
-        point_on_link(frame_pos, frame_angle, i, com_offsets[i], com)
-        point_jacobian(joint_types, frame_pos, dof, i, com[0], com[1], jac)
+        # the COM in the world: point_on_link's sums, without its output array (no
+        # allocation: the haptic side checks every update with this at install)
+        cos_i = math.cos(frame_angle[i])
+        sin_i = math.sin(frame_angle[i])
+        com_x = frame_pos[i, 0] + cos_i * com_offsets[i, 0] - sin_i * com_offsets[i, 1]
+        com_y = frame_pos[i, 1] + sin_i * com_offsets[i, 0] + cos_i * com_offsets[i, 1]
+        point_jacobian(joint_types, frame_pos, dof, i, com_x, com_y, jac)
         for a in range(dof):
             gravity_out[a] -= masses[i] * (jac[0, a] * gravity[0] + jac[1, a] * gravity[1])
             for b in range(dof):
@@ -227,7 +232,7 @@ def velocity_product_torque_into(chain, q, qd, step, work, out):
     q copy (>= d)); the same operations in the same order, so the same bits."""
     dof = chain[0].dof
     frame_pos, frame_angle, jac, grav, d_plus, d_minus, qq = work
-    zero_g = np.zeros(2)
+    zero_g = NO_GRAVITY
     for i in range(dof):
         qq[i] = q[i]
         out[i] = 0.0
