@@ -80,10 +80,12 @@ def chain_spec(scene: SceneConfig) -> ChainSpec:
     )  # fmt: skip
 
 
-def reference_error_mm(scene: SceneConfig, ticks: np.ndarray, t_end: float) -> np.ndarray:
-    """Distance (mm) of the VM's operational point from the independent reference's at each
-    tick: the linkage released at rest from its initial angles under USER's constant push,
-    integrated to t_end."""
+def reference_error_mm(
+    scene: SceneConfig, ticks: np.ndarray, t_end: float, field: str = "vm_pose"
+) -> np.ndarray:
+    """Distance (mm) of the VM's operational point (or the row's `field`: the device's, what
+    the hand holds) from the independent reference's at each tick: the linkage released at
+    rest from its initial angles under USER's constant push, integrated to t_end."""
     lk = scene.tool_linkage
     ref = simulate(
         chain_spec(scene),
@@ -93,7 +95,7 @@ def reference_error_mm(scene: SceneConfig, ticks: np.ndarray, t_end: float) -> n
         t_end,
         ticks["t"],
     )
-    return 1e3 * np.hypot(*(ticks["vm_pose"][:, :2] - ref.pose[:, :2]).T)
+    return 1e3 * np.hypot(*(ticks[field][:, :2] - ref.pose[:, :2]).T)
 
 
 def reference_error(scene: SceneConfig, seconds: float, sim_hz: float) -> dict[str, float]:

@@ -31,7 +31,7 @@ import numpy as np
 
 from device_models.registry import load_device
 from haptic_server.harness.virtual import run_virtual, run_virtual_named
-from shared.config import UserConfig, load_scene
+from shared.config import SceneConfig, UserConfig, load_scene
 
 PUSH_N = 2.0
 WALL_K = 15000.0
@@ -114,10 +114,20 @@ def sweep_case(stiffness: float, push: float, law: str, seconds: float = 3.0) ->
     depth = float(ticks["penetration"][first])
     v_impact = float(ticks["vm_twist"][first - 1, 0])
     spring_back = np.sqrt(stiffness / mass) * max(0.0, depth - expected) / v_impact
+    # the device converges on the VM with the coordination coupling's slow pole: from when
+    # on does its penetration stay within SETTLE_BAND of F/K?
+    depth_ratio = (ticks["device_pose"][:, 0] + HALF_LENGTH - WALL_X) / expected
+    outside = np.flatnonzero(np.abs(depth_ratio[first:] - 1.0) > SETTLE_BAND)
+    settled = outside.size == 0 or outside[-1] + first + 1 < len(t)
+    device_settle_s = (
+        float(t[first + outside[-1] + 1] - t[first]) if outside.size and settled else 0.0
+    )
     return {
         "stiffness_n_per_m": stiffness,
         "push_n": push,
         "law": float(law),
+        "device_settle_s": device_settle_s if settled else float("inf"),
+        "coupling_time_constant_s": coupling_time_constant(scene),
         "contact_losses": losses,
         "impact_speed_m_per_s": v_impact,
         "impact_depth_m": depth,
@@ -130,6 +140,17 @@ def sweep_case(stiffness: float, push: float, law: str, seconds: float = 3.0) ->
         "port_energy_j": float(np.sum(power * ticks["dt"])),
         "peak_command_n": float(np.abs(ticks["wrench_command"][:, 0]).max()),
     }
+
+
+def coupling_time_constant(scene: SceneConfig, device_mass: float = 1.0) -> float:
+    """The slow time constant of the device's return to the VM along x: m s^2 + B s + K with
+    the coordination coupling's K_pc, B_pc and the device's mass (an overdamped pair of poles:
+    the slow one sets how long an overshoot takes to go)."""
+    k = scene.rendering.coordination_stiffness[0]
+    b = scene.rendering.coordination_damping[0]
+    disc = b * b - 4.0 * k * device_mass
+    slow = (b - np.sqrt(disc)) / (2.0 * device_mass) if disc > 0 else b / (2.0 * device_mass)
+    return float(1.0 / slow)
 
 
 def sweep(seconds: float) -> list[dict[str, float]]:
@@ -201,13 +222,14 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.sweep:
         print(f"{'K N/m':>8}{'push N':>8}{'law':>5}{'losses':>8}{'push-out':>10}{'VM/(F/K)':>10}"
-              f"{'dev/(F/K)':>11}{'port J':>9}")  # fmt: skip
+              f"{'dev/(F/K)':>11}{'dev settles s':>15}{'port J':>9}")  # fmt: skip
         rows = sweep(args.seconds)
         for r in rows:
             print(
                 f"{r['stiffness_n_per_m']:>8.0f}{r['push_n']:>8.1f}{r['law']:>5.1f}"
                 f"{r['contact_losses']:>8}{r['push_out']:>10.3f}{r['vm_penetration_ratio']:>10.4f}"
-                f"{r['device_penetration_ratio']:>11.3f}{r['port_energy_j']:>9.4f}"
+                f"{r['device_penetration_ratio']:>11.3f}{r['device_settle_s']:>15.2f}"
+                f"{r['port_energy_j']:>9.4f}"
             )
         if args.json:
             args.json.write_text(json.dumps(rows, indent=2))

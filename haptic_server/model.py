@@ -47,6 +47,7 @@ PARAMS_DTYPE = np.dtype(
         ("foh_stiffness", F8, (3,)),  # K_p of seed 002
         ("foh_damping", F8, (3,)),  # K_v
         ("foh_interpolate", I8),  # 1: first-order hold, 0: zero-order hold of the setpoint
+        ("foh_free_space", I8),  # 1: the FOH spring also while the tool touches nothing
         ("foh_gravity", F8, (3,)),  # f_g of seed 002 (world frame), added in every FOH tick
         ("safe_damping", F8, (3,)),  # the safe state: damping only
         ("safe_ramp_s", F8),
@@ -367,6 +368,7 @@ def params_record(
     p["foh_stiffness"] = np.array(dev.foh_stiffness) * per_gain
     p["foh_damping"] = np.array(dev.foh_damping) * per_gain
     p["foh_interpolate"] = 1 if dev.setpoint_hold == "first_order" else 0
+    p["foh_free_space"] = 1 if rendering.foh_free_space_force else 0
     p["foh_gravity"] = np.array(dev.gravity_feedforward) * per_wrench
     p["safe_damping"] = np.array(dev.safe_damping) * per_gain
     p["safe_ramp_s"] = safe_ramp_s

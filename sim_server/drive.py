@@ -144,7 +144,8 @@ def _drive_linkage(tool, tg, chain, work, t_ahead):
 @njit(cache=True)
 def _device_coupling(t, tg, chain, q, qd, t_ahead, work):
     """virtual_coupling_foh (seed 002 §4) on a linkage: tau = J^T (K_spring (x_dev - x_tool)
-    - K_damp v_tool), the device pose extrapolated by its twist over the period."""
+    - K_damp v_tool), the device pose extrapolated by its twist over the period (v_tool less
+    the device's twist with foh_relative_damping: a virtual coupling's damper)."""
     frame_pos, frame_angle, jac, tau, f = work[0], work[1], work[2], work[7], work[9]
     c = chain[0]
     d = t.dof
@@ -158,6 +159,7 @@ def _device_coupling(t, tg, chain, q, qd, t_ahead, work):
         for j in range(d):
             v += jac[r, j] * qd[j]
         x_dev = tg.device_pose[r] + tg.device_twist[r] * t_ahead
+        v -= t.foh_relative * tg.device_twist[r]
         f[r] = t.foh_stiffness[r] * (x_dev - x_tool[r]) - t.foh_damping[r] * v
     for j in range(d):
         tau[j] = jac[0, j] * f[0] + jac[1, j] * f[1] + jac[2, j] * f[2]
@@ -201,9 +203,10 @@ def _couple_body(t, tg, t_ahead):
     cos_t, sin_t = math.cos(th), math.sin(th)
     rx = cos_t * t.op_point[0] - sin_t * t.op_point[1]
     ry = sin_t * t.op_point[0] + cos_t * t.op_point[1]
-    fx = k[0] * (dp[0] + dv[0] * t_ahead - x - rx) - c[0] * (vx - om * ry)
-    fy = k[1] * (dp[1] + dv[1] * t_ahead - y - ry) - c[1] * (vy + om * rx)
-    tau = k[2] * (dp[2] + dv[2] * t_ahead - th) - c[2] * om
+    rel = t.foh_relative  # 1: the damper acts on the velocity relative to the device's
+    fx = k[0] * (dp[0] + dv[0] * t_ahead - x - rx) - c[0] * (vx - om * ry - rel * dv[0])
+    fy = k[1] * (dp[1] + dv[1] * t_ahead - y - ry) - c[1] * (vy + om * rx - rel * dv[1])
+    tau = k[2] * (dp[2] + dv[2] * t_ahead - th) - c[2] * (om - rel * dv[2])
     m = cp.body_mass(b)
     cp.body_apply_force_at_world_point(b, fx - m * t.gravity[0], fy - m * t.gravity[1], x, y)
     cp.body_set_torque(b, cp.body_torque(b) + (tau + rx * fy - ry * fx))

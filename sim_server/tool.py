@@ -31,6 +31,7 @@ TOOL_DTYPE = np.dtype(
         ("bandwidth_hz", F8),  # tracking bandwidth of the drive
         ("foh_stiffness", F8, (3,)),  # virtual_coupling_foh's K_spring
         ("foh_damping", F8, (3,)),  # and K_damp
+        ("foh_relative", F8),  # 1: K_damp on the tool's velocity relative to the device's
         ("characteristic_length", F8),  # m: scales J_h's angular row before the SVD
         ("rank_tolerance", F8),  # relative to the largest singular value
         ("margin", F8),  # m: the neighbourhood margin

@@ -272,6 +272,7 @@ class SimWorld:
         t["bandwidth_hz"] = tool.tracking_bandwidth_hz
         t["foh_stiffness"] = rendering.foh_spring_stiffness
         t["foh_damping"] = rendering.foh_spring_damping
+        t["foh_relative"] = 1.0 if rendering.foh_relative_damping else 0.0
         t["characteristic_length"] = tool.characteristic_length_m
         t["rank_tolerance"] = tool.rank_tolerance
         t["margin"] = tool.neighbourhood_margin_m
@@ -309,6 +310,11 @@ class SimWorld:
             lm.record, self._encoded, epoch, seq, self.time, publish_time_ns, state_lead_s
         )
         return self._encoded[:n].tobytes()
+
+    @property
+    def kinematic_bodies(self) -> list[tuple[pymunk.Body, BodySpec]]:
+        """The kinematic bodies and their specs (the sim moves them)."""
+        return list(self._kinematic)
 
     @property
     def tool_pose(self) -> np.ndarray:

@@ -55,3 +55,20 @@ def test_version_01_impulses_bounce_at_the_device_limit() -> None:
     r = sweep_case(50000.0, 5.0, "0.1", RUN_S)
     assert r["contact_losses"] > 1, r
     assert r["push_out"] > 3.0 * r["spring_back_bound"], r
+
+
+#: long enough for the device to settle: its overshoot after a carried impulse returns with the
+#: coordination coupling's slow pole (tau = 0.68 s for the scene's K_pc = 100 N/m, B_pc = 70 N
+#: s/m on a 1 kg device); from a few mm to within 5% of F/K (tens of um) takes about 8 tau
+SETTLE_RUN_S = 8.0
+SETTLE_TAUS = 10.0
+
+
+@pytest.mark.parametrize(("stiffness", "push"), SWEEP_CASES)
+def test_the_device_settles_at_force_over_stiffness(stiffness, push) -> None:
+    """Not only the VM: the device's own penetration settles within 5% of F/K, and stays,
+    within ten of the coupling's slow time constants after the impact."""
+    r = sweep_case(stiffness, push, "0.2", SETTLE_RUN_S)
+    assert r["device_settle_s"] <= SETTLE_TAUS * r["coupling_time_constant_s"], r
+    assert abs(r["device_penetration_ratio"] - 1.0) < PENETRATION_TOL, r
+    assert abs(r["vm_penetration_ratio"] - 1.0) < PENETRATION_TOL, r

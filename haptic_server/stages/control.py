@@ -189,8 +189,9 @@ def control_virtual_coupling(m, d):
 @njit(cache=True)
 def control_foh(m, d):
     """Seed 002 §4: the device is servoed to a setpoint that follows the sim's tool by
-    first-order hold; force is off while the tool touches nothing. K_v damps the handle's own
-    motion: the world twist less the workspace's (rate control). f_g is always on."""
+    first-order hold; force is off while the tool touches nothing (unless
+    foh_free_space_force). K_v damps the handle's own motion: the world twist less the
+    workspace's (rate control). f_g is always on."""
     p = m.params
     st = d.state
     sen = d.sensors[0]
@@ -202,7 +203,7 @@ def control_foh(m, d):
         st.foh_steps_left -= 1
     for c in range(3):
         r.vm_twist[c] = st.foh_step[c] / d.dt if moving else 0.0
-    if m.slots[0].tool_touching == 1:
+    if m.slots[0].tool_touching == 1 or p.foh_free_space == 1:
         for c in range(3):
             r.f_coordination[c] = p.foh_stiffness[c] * (
                 st.foh_goal[c] - sen.pose[c]
