@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 
 # numba compiles the kernels once into its on-disk cache; later starts load it in < 1 s
 warm: $(STAMP)
-	$(PY) -m haptic_server.harness.warmup
+	$(PY) -m haptic_local_model.haptic_server.harness.warmup
 
 demo: $(STAMP) warm
 	$(VENV)/bin/haptic-run --duration 10 --log runs/demo.mcap --summary-json runs/demo-summary.json
@@ -24,7 +24,13 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/lint-imports
 
+# mypy reads the packages under their installed names through a tree of links (it does not
+# run the editable install's import hook)
+TYPECHECK := build/typecheck/haptic_local_model
 typecheck: $(STAMP)
+	mkdir -p $(TYPECHECK)
+	for p in shared sim_server haptic_server device_models benchmarks; do \
+		ln -sfn ../../../$$p $(TYPECHECK)/$$p; done
 	$(VENV)/bin/mypy
 
 pytest: $(STAMP) warm browser
@@ -42,15 +48,15 @@ test: lint typecheck pytest
 
 # the CI soak (.ci/run): every segment once (every device, every fault); locally: make soak MINUTES=60
 soak-ci: $(STAMP) warm
-	$(PY) -m haptic_server.harness.soak --minutes 4 --segment-s 30 --out runs/soak-ci
+	$(PY) -m haptic_local_model.haptic_server.harness.soak --minutes 4 --segment-s 30 --out runs/soak-ci
 
 MINUTES ?= 60
 soak: $(STAMP) warm
-	$(PY) -m haptic_server.harness.soak --minutes $(MINUTES) --out runs/soak-$(MINUTES)min
+	$(PY) -m haptic_local_model.haptic_server.harness.soak --minutes $(MINUTES) --out runs/soak-$(MINUTES)min
 
 bench: $(STAMP) warm
-	$(PY) -m benchmarks.loop_timing
+	$(PY) -m haptic_local_model.benchmarks.loop_timing
 
 clean:
-	-test -x $(PY) && $(PY) -c "import shutil, shared; shutil.rmtree(shared.cache_dir(), True)"
-	rm -rf $(VENV) runs .pytest_cache .mypy_cache .ruff_cache
+	-test -x $(PY) && $(PY) -c "import shutil, haptic_local_model.shared as s; shutil.rmtree(s.cache_dir(), True)"
+	rm -rf $(VENV) runs build .pytest_cache .mypy_cache .ruff_cache

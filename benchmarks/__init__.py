@@ -1,3 +1,3 @@
 """Benchmarks and reports: measurements, not tests."""
 
-import shared as _shared  # noqa: F401 - first: sets up the numba cache (shared/__init__.py)
+import haptic_local_model.shared as _shared  # noqa: F401 - first: sets up the numba cache (shared/__init__.py)

@@ -31,18 +31,18 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from benchmarks.front import plot as plot_front
-from benchmarks.front import points as front_points
-from benchmarks.front import report as front_report
-from benchmarks.front import wall_transient
-from benchmarks.linkage import drift_mm, reference_error_mm
-from device_models.registry import load_device
-from haptic_server.engine import HapticEngine
-from haptic_server.harness.virtual import VirtualResult, run_virtual
-from shared.cli import add_version
-from shared.config import BodySpec, SceneConfig, load_scene, load_user
-from shared.protocol.update import encode_update
-from sim_server.world import SimWorld
+from haptic_local_model.benchmarks.front import plot as plot_front
+from haptic_local_model.benchmarks.front import points as front_points
+from haptic_local_model.benchmarks.front import report as front_report
+from haptic_local_model.benchmarks.front import wall_transient
+from haptic_local_model.benchmarks.linkage import drift_mm, reference_error_mm
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.harness.virtual import VirtualResult, run_virtual
+from haptic_local_model.shared.cli import add_version
+from haptic_local_model.shared.config import BodySpec, SceneConfig, load_scene, load_user
+from haptic_local_model.shared.protocol.update import encode_update
+from haptic_local_model.sim_server.world import SimWorld
 
 SIM_RATES = (30.0, 60.0, 120.0)
 HAPTIC_RATES = (500.0, 1000.0, 2000.0)

@@ -18,7 +18,7 @@ kinematic and oscillate 1 mm vertically: the haptic side extrapolates each updat
 points by their velocity, which drifts from the truth between updates, so each update moves
 the rendered surface, the step that the cross-fade exists to spread out.
 
-    python -m benchmarks.blending [--seconds 3.5] [--out docs/figures/blending.png]
+    python -m haptic_local_model.benchmarks.blending [--seconds 3.5] [--out docs/figures/blending.png]
                                   [--json out.json]
 """
 
@@ -34,9 +34,9 @@ from typing import Any
 
 import numpy as np
 
-from device_models.registry import load_device
-from haptic_server.harness.virtual import run_virtual
-from shared.config import SceneConfig, load_scene, load_user
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.harness.virtual import run_virtual
+from haptic_local_model.shared.config import SceneConfig, load_scene, load_user
 
 SCENE = "wall_slide"
 USER = "slide"

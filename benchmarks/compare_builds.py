@@ -7,7 +7,7 @@ scene and device, with the MCAP log), from which the loop's work per tick is rea
 alternates between repeats so slow spells of a shared host hit both builds; every figure is
 the median over repeats.
 
-    python -m benchmarks.compare_builds [--base 2ccdfb6] [--repeat 5] [--seconds 10]
+    python -m haptic_local_model.benchmarks.compare_builds [--base 2ccdfb6] [--repeat 5] [--seconds 10]
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.loop_timing import work_split
-from haptic_server.log import read_ticks
+from haptic_local_model.benchmarks.loop_timing import work_split
+from haptic_local_model.haptic_server.log import read_ticks
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 CONTACTS = (0, 1, 4, 8, 16, 32)
@@ -45,15 +45,40 @@ def checkout(rev: str) -> Path:
     return tree
 
 
+_PACKAGES = ("shared", "sim_server", "haptic_server", "device_models", "benchmarks")
+_NAMESPACE = "haptic_local_model"
+
+
+def _namespaced(tree: Path) -> bool:
+    """Builds from 0.4 on install their packages under haptic_local_model (pyproject.toml)."""
+    return f'"{_NAMESPACE}.shared" = "shared"' in (tree / "pyproject.toml").read_text()
+
+
 def _env(tree: Path) -> dict[str, str]:
+    """The tree's packages shadow the installed ones: the tree itself on the path for a build
+    with top-level packages, a tree of links named as the install names them otherwise."""
     env = dict(os.environ)
-    env["PYTHONPATH"] = str(tree)  # the tree's packages shadow the installed ones
+    root = tree
+    if _namespaced(tree):
+        root = tree / "build" / "compare"
+        (root / _NAMESPACE).mkdir(parents=True, exist_ok=True)
+        for package in _PACKAGES:
+            link = root / _NAMESPACE / package
+            if not link.is_symlink():
+                link.symlink_to(tree / package)
+    env["PYTHONPATH"] = str(root)
     env.pop("NUMBA_CACHE_DIR", None)  # each tree keeps its own cache
     return env
 
 
-def _module(tree: Path, new: str, old: str) -> str:
-    return new if (tree / Path(*new.split("."))).with_suffix(".py").exists() else old
+def _module(tree: Path, *candidates: str) -> str:
+    """The first of `candidates` (a path under the tree, dotted) that the tree has, named as
+    the tree imports it."""
+    found = next(
+        (c for c in candidates if (tree / Path(*c.split("."))).with_suffix(".py").exists()),
+        candidates[-1],
+    )
+    return f"{_NAMESPACE}.{found}" if _namespaced(tree) else found
 
 
 def warm(tree: Path) -> None:
@@ -67,7 +92,7 @@ def warm(tree: Path) -> None:
 def kernel_cost(tree: Path, ticks: int) -> dict[int, dict[str, float]]:
     """kernel_cost's table: contacts -> kernel us/tick (median of its repeats), call p50/p99."""
     out = subprocess.run(
-        [sys.executable, "-m", "benchmarks.kernel_cost", "--ticks", str(ticks), "--repeats", "3"],
+        [sys.executable, "-m", _module(tree, "benchmarks.kernel_cost"), "--ticks", str(ticks), "--repeats", "3"],
         cwd=tree, env=_env(tree), check=True, capture_output=True, text=True,
     ).stdout  # fmt: skip
     table: dict[int, dict[str, float]] = {}

@@ -8,7 +8,7 @@ update. Targets: the crowd's sim at >= 59 Hz (median), its haptic work per tick
 within +-20% of the testbed's (p50 and p99, medians over the runs), and its update under the
 size bound the wire allows a free tool (64 contacts), printed below.
 
-    python -m benchmarks.crowd [--seconds 10] [--repeat 3]
+    python -m haptic_local_model.benchmarks.crowd [--seconds 10] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from haptic_server.log import read_ticks
-from shared.protocol.layout import MAX_CONTACTS, update_size
+from haptic_local_model.haptic_server.log import read_ticks
+from haptic_local_model.shared.protocol.layout import MAX_CONTACTS, update_size
 
 RUNS = {"crowd": "plough", "testbed": "swing"}
 TARGET_SIM_HZ = 59.0
@@ -37,7 +37,7 @@ def one_run(scene: str, user: str, seconds: float, folder: Path) -> dict[str, An
     log, summary = folder / f"{scene}.mcap", folder / f"{scene}.json"
     subprocess.run(
         [
-            sys.executable, "-m", "haptic_server.harness.run", "--scene", scene, "--user", user,
+            sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--scene", scene, "--user", user,
             "--duration", str(seconds), "--log", str(log), "--summary-json", str(summary),
         ],
         check=True, stdout=subprocess.DEVNULL,

@@ -8,7 +8,7 @@ scene with its usual user on every shipped device on the virtual clock and repor
 figure, the largest value over its bound (a ratio; 1 would trip). It fails (exit 1) if any
 update of a scene's own sim was refused, any guard tripped, or any ratio exceeds --max-ratio.
 
-    python -m benchmarks.envelope [--seconds 10] [--max-ratio 0.5] [--out docs/bench]
+    python -m haptic_local_model.benchmarks.envelope [--seconds 10] [--max-ratio 0.5] [--out docs/bench]
 """
 
 from __future__ import annotations
@@ -23,14 +23,14 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.virtual_clock import USERS
-from haptic_server.harness.replay import engine_from_configs
-from haptic_server.harness.virtual import run_virtual_named
-from haptic_server.log import read_log
-from haptic_server.stages.plausible import RATIO_NAMES
-from shared.config import CONFIG_ROOT, SceneConfig, load_config_text
-from shared.kinematics import MAX_DOF, mass_matrix_and_gravity
-from shared.tool_chain import tool_chain
+from haptic_local_model.benchmarks.virtual_clock import USERS
+from haptic_local_model.haptic_server.harness.replay import engine_from_configs
+from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
+from haptic_local_model.haptic_server.log import read_log
+from haptic_local_model.haptic_server.stages.plausible import RATIO_NAMES
+from haptic_local_model.shared.config import CONFIG_ROOT, SceneConfig, load_config_text
+from haptic_local_model.shared.kinematics import MAX_DOF, mass_matrix_and_gravity
+from haptic_local_model.shared.tool_chain import tool_chain
 
 DEVICES = ("ideal", "twin_pantograph", "maglev")
 USER_OF = {**USERS, "crowd": "plough"}
@@ -87,7 +87,7 @@ def report(results: list[dict[str, Any]], seconds: float) -> str:
     lines = [
         "# The safety envelope's margin on every shipped scene",
         "",
-        f"`python -m benchmarks.envelope --seconds {seconds:g}`: each scene with its usual user,"
+        f"`python -m haptic_local_model.benchmarks.envelope --seconds {seconds:g}`: each scene with its usual user,"
         " virtual clock. A cell is the run's largest figure over its bound (1 refuses the update"
         " or trips the guard); `refused` counts the sim's own updates refused (must be 0).",
         "",

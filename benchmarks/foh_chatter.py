@@ -24,7 +24,7 @@ noise, twist by a 50 Hz filtered finite difference), the same maglev with its se
 set to zero (a controlled experiment: the hold alone), and the twin pantograph (encoders,
 friction, torque limits).
 
-    python -m benchmarks.foh_chatter [--out docs/figures/foh_chatter.png] [--json out.json]
+    python -m haptic_local_model.benchmarks.foh_chatter [--out docs/figures/foh_chatter.png] [--json out.json]
 """
 
 from __future__ import annotations
@@ -40,9 +40,9 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from device_models.registry import load_device
-from haptic_server.harness.virtual import run_virtual
-from shared.config import load_scene, load_user
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.harness.virtual import run_virtual
+from haptic_local_model.shared.config import load_scene, load_user
 
 SCENE = "maglev_scoop"
 USER = "scoop"

@@ -34,7 +34,7 @@ Cost: wall-clock ms per simulated second of what each way needs: the local model
 local model, install and ticks; the alternatives' sim steps and ticks (they need no local
 model). One process, runs interleaved, the lowest of `--repeat` costs.
 
-    python -m benchmarks.front [--repeat 3] [--out docs/bench]
+    python -m haptic_local_model.benchmarks.front [--repeat 3] [--out docs/bench]
 """
 
 from __future__ import annotations
@@ -49,15 +49,15 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.linkage import reference_error_mm
-from benchmarks.wall_push import HALF_LENGTH, WALL_X, impact
-from device_models.registry import device_from_text
-from haptic_server.harness.virtual import VirtualResult, run_virtual
-from haptic_server.users import hand_wrench, user_record
-from shared import coupling
-from shared.config import SceneConfig, load_scene, load_user, resolve
-from shared.kinematics import MAX_DOF, link_frames, point_jacobian, point_on_link
-from sim_server.world import SimWorld
+from haptic_local_model.benchmarks.linkage import reference_error_mm
+from haptic_local_model.benchmarks.wall_push import HALF_LENGTH, WALL_X, impact
+from haptic_local_model.device_models.registry import device_from_text
+from haptic_local_model.haptic_server.harness.virtual import VirtualResult, run_virtual
+from haptic_local_model.haptic_server.users import hand_wrench, user_record
+from haptic_local_model.shared import coupling
+from haptic_local_model.shared.config import SceneConfig, load_scene, load_user, resolve
+from haptic_local_model.shared.kinematics import MAX_DOF, link_frames, point_jacobian, point_on_link
+from haptic_local_model.sim_server.world import SimWorld
 
 HAPTIC_HZ = 1000.0
 WAYS = {
@@ -378,7 +378,7 @@ def report(front: list[FrontPoint], repeat: int) -> str:
     lines = [
         "# The error-vs-cost front",
         "",
-        f"`python -m benchmarks.front --repeat {repeat}` (and `haptic-bench`): virtual clock, haptic"
+        f"`python -m haptic_local_model.benchmarks.front --repeat {repeat}` (and `haptic-bench`): virtual clock, haptic"
         " 1 kHz; cost = wall-clock ms per simulated second of the stages each way needs (the"
         f" lowest of {repeat} interleaved rounds). Module docstring: the ways, the scenes, the"
         " references.",

@@ -21,7 +21,7 @@ The singular sweep: the distal hold pushed through the elbow's singularity (push
 starting 5 mm, 3 mm off the operational point as in seed 000; steady drift |x_h - x_VM|
 (mean of the last second) for the local model and for impedance control.
 
-    python -m benchmarks.holds [--seconds 5] [--rates 30 60 120] [--quick] [--out runs/holds]
+    python -m haptic_local_model.benchmarks.holds [--seconds 5] [--rates 30 60 120] [--quick] [--out runs/holds]
 """
 
 from __future__ import annotations
@@ -36,12 +36,12 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.linkage import chain_spec, drift_metrics
-from device_models.registry import load_device
-from haptic_server.harness.virtual import run_virtual
-from shared.config import SceneConfig, UserConfig, load_scene
-from shared.reference import ChainSpec, Hold, point_jacobian, simulate
-from shared.reference_loop import LoopGains, simulate_loop
+from haptic_local_model.benchmarks.linkage import chain_spec, drift_metrics
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.harness.virtual import run_virtual
+from haptic_local_model.shared.config import SceneConfig, UserConfig, load_scene
+from haptic_local_model.shared.reference import ChainSpec, Hold, point_jacobian, simulate
+from haptic_local_model.shared.reference_loop import LoopGains, simulate_loop
 
 BASE_SCENE = "linkage_distal"
 DEVICE = "ideal_identity"
@@ -249,7 +249,7 @@ def write_report(result: dict[str, Any], out: Path) -> Path:
     lines = [
         "# Linkage holds against independent references",
         "",
-        "Written by `python -m benchmarks.holds`; see its docstring for the cases and columns.",
+        "Written by `python -m haptic_local_model.benchmarks.holds`; see its docstring for the cases and columns.",
         f"Device `{DEVICE}` started on the operational point, {result['seconds']:g} s, virtual clock.",
         "",
         "| hold | push | singular | " + " | ".join(f"RMS @{r:g} Hz mm" for r in rates)

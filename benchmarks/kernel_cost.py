@@ -5,7 +5,7 @@ friction every tick), timed two ways: the kernel alone, run N times inside one c
 loop (its own cost), and one Python call per tick (what the real-time loop pays). Compile
 time is reported apart; figures are medians and p99 over repeats.
 
-    python -m benchmarks.kernel_cost [--ticks 20000]
+    python -m haptic_local_model.benchmarks.kernel_cost [--ticks 20000]
 """
 
 from __future__ import annotations
@@ -18,12 +18,17 @@ import time
 import numpy as np
 from numba import njit
 
-from device_models.ideal import IdealDevice, IdealDeviceConfig
-from haptic_server.engine import HapticEngine
-from haptic_server.stages.tick import haptic_tick
-from shared.config import UserConfig, load_scene
-from shared.kinematics import free_body_chain
-from shared.protocol.update import ContactSet, LocalModelUpdate, contact_rows, encode_update
+from haptic_local_model.device_models.ideal import IdealDevice, IdealDeviceConfig
+from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.stages.tick import haptic_tick
+from haptic_local_model.shared.config import UserConfig, load_scene
+from haptic_local_model.shared.kinematics import free_body_chain
+from haptic_local_model.shared.protocol.update import (
+    ContactSet,
+    LocalModelUpdate,
+    contact_rows,
+    encode_update,
+)
 
 TARGET_US = 5.0  # the target for the local-model kernel with 16 contacts
 

@@ -9,7 +9,7 @@ ideal device with M_d = I), in the virtual clock, for 5 s:
   point, at sim rates 30, 60 and 120 Hz: RMS and max error;
 - plots as seed 000 Figs. 6, 7, 11, 12: hand and VM paths per method, drift over time.
 
-    python -m benchmarks.linkage [--seconds 5] [--out docs/figures] [--json out.json]
+    python -m haptic_local_model.benchmarks.linkage [--seconds 5] [--out docs/figures] [--json out.json]
 """
 
 from __future__ import annotations
@@ -24,10 +24,10 @@ from typing import Any
 import numpy as np
 from scipy.signal import find_peaks
 
-from device_models.registry import load_device
-from haptic_server.harness.virtual import run_virtual
-from shared.config import SceneConfig, load_scene, load_user
-from shared.reference import ChainSpec, Hold, simulate
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.harness.virtual import run_virtual
+from haptic_local_model.shared.config import SceneConfig, load_scene, load_user
+from haptic_local_model.shared.reference import ChainSpec, Hold, simulate
 
 METHODS = ("local_model", "impedance_only", "virtual_coupling")
 HOLDS = ("linkage_middle", "linkage_distal")

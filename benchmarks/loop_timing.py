@@ -13,7 +13,7 @@ vCPU now and then): the three runs are repeated `--repeat` times, interleaved, a
 targets are judged on the median of each figure over the repetitions. From the log of each
 logging run it also splits work per tick into the ticks that installed an update and the rest.
 
-    python -m benchmarks.loop_timing [--rate 1000 4000 10000] [--seconds 20] [--repeat 3]
+    python -m haptic_local_model.benchmarks.loop_timing [--rate 1000 4000 10000] [--seconds 20] [--repeat 3]
                                      [--json out.json]
 """
 
@@ -33,10 +33,10 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from haptic_server.live_view import ViewAddress
-from haptic_server.log import read_ticks
-from shared.clock import monotonic_ns, wait_until_ns
-from shared.timing import spin_for, try_realtime_priority
+from haptic_local_model.haptic_server.live_view import ViewAddress
+from haptic_local_model.haptic_server.log import read_ticks
+from haptic_local_model.shared.clock import monotonic_ns, wait_until_ns
+from haptic_local_model.shared.timing import spin_for, try_realtime_priority
 
 
 @njit(cache=True)
@@ -84,13 +84,19 @@ def with_sim_beside(seconds: float, network: str, rate_hz: float = 1000.0) -> di
     """The bare loop (its own process, with the loop's real-time priority) while a sim server
     runs as another process: the same load and privileges as the system."""
     sim = subprocess.Popen(
-        [sys.executable, "-m", "sim_server.cli", "--network", network],
+        [sys.executable, "-m", "haptic_local_model.sim_server.cli", "--network", network],
         stdout=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
         assert sim.stdout is not None
         sim.stdout.readline()  # the "ready" line
-        argv = ["-m", "benchmarks.loop_timing", "--bare-only", "--seconds", str(seconds)]
+        argv = [
+            "-m",
+            "haptic_local_model.benchmarks.loop_timing",
+            "--bare-only",
+            "--seconds",
+            str(seconds),
+        ]
         argv += ["--rate", str(rate_hz)]
         out = subprocess.run([sys.executable, *argv], check=True, capture_output=True, text=True)
         return json.loads(out.stdout)  # type: ignore[no-any-return]
@@ -114,7 +120,7 @@ def system(
         summary = Path(tmp) / "summary.json"
         log_path = Path(tmp) / "run.mcap"
         argv = [
-            sys.executable, "-m", "haptic_server.harness.run", "--duration", str(seconds),
+            sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--duration", str(seconds),
             "--network", network, "--scene", scene, "--device", device,
             "--summary-json", str(summary), "--haptic-rate", str(rate_hz),
         ]  # fmt: skip
@@ -137,7 +143,7 @@ def _run_watched(argv: list[str]) -> dict[str, Any]:
     whether a browser watched and the view's own report."""
     import threading
 
-    from benchmarks.browser import chromium, open_page
+    from haptic_local_model.benchmarks.browser import chromium, open_page
 
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     browser = chromium()

@@ -14,7 +14,7 @@ the haptic server's log, over the window after it:
 - how many of the sim's own updates were refused (target: none, but one the forgery
   displaced: an installed forgery takes its sequence number).
 
-    python -m benchmarks.model_attacks [--repeat 1] [--out docs/bench]
+    python -m haptic_local_model.benchmarks.model_attacks [--repeat 1] [--out docs/bench]
 """
 
 from __future__ import annotations
@@ -26,9 +26,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.stranger import _ready
-from device_models.registry import load_device
-from haptic_server.harness.forgeries import (
+from haptic_local_model.benchmarks.stranger import _ready
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.harness.forgeries import (
     EXPECTED,
     FORGERIES,
     LIMIT_MS,
@@ -38,9 +38,9 @@ from haptic_server.harness.forgeries import (
     Forger,
     measure,
 )
-from haptic_server.harness.run import Child
-from shared.config import load_scene
-from shared.net.config import free_loopback_port, load_network, on_port
+from haptic_local_model.haptic_server.harness.run import Child
+from haptic_local_model.shared.config import load_scene
+from haptic_local_model.shared.net.config import free_loopback_port, load_network, on_port
 
 SCENE, DEVICE, USER = "testbed", "ideal", "swing"
 FLOW_S = 1.0  # the sim's updates flow this long before the forgery
@@ -54,14 +54,14 @@ def attack(forgery: str, workdir: Path, network: str = "loopback") -> AttackResu
     log = workdir / f"attack-{forgery}-{port}.mcap"
     common = ["--scene", SCENE, "--network", network, "--port", str(port)]
     py = sys.executable
-    haptic = Child("haptic", [py, "-m", "haptic_server.cli", *common, "--device", DEVICE,
+    haptic = Child("haptic", [py, "-m", "haptic_local_model.haptic_server.cli", *common, "--device", DEVICE,
                               "--user", USER, "--log", str(log)])  # fmt: skip
     sim: Child | None = None
     forger: Forger | None = None
     raw = b""
     try:
         _ready(haptic)
-        sim = Child("sim", [py, "-m", "sim_server.cli", *common])
+        sim = Child("sim", [py, "-m", "haptic_local_model.sim_server.cli", *common])
         forger = Forger(net, scene, int(_ready(sim)["epoch"]))
         time.sleep(FLOW_S)
         raw = forger.forge(forgery)
@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "# Forged local models against the real processes",
         "",
-        f"`python -m benchmarks.model_attacks --repeat {args.repeat}`: one forgery per run, in"
+        f"`python -m haptic_local_model.benchmarks.model_attacks --repeat {args.repeat}`: one forgery per run, in"
         " the sim's epoch with the sim's credentials, default network, `testbed`, ideal device,"
         f" swinging hand; judged over {WINDOW_S:g} s after it. Targets: at most {LIMIT_MS:g} ms"
         f" at the device's limit, normal rendering within {RESUME_MS:g} ms of the sim's next"

@@ -43,16 +43,21 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from benchmarks.kernel_cost import engine_with_contacts
-from device_models.ideal import IdealDevice, IdealDeviceConfig
-from haptic_server.engine import HapticEngine
-from haptic_server.harness.virtual import run_virtual
-from shared.cli import add_version
-from shared.config import SceneConfig, UserConfig, load_scene, load_user
-from shared.kinematics import free_body_chain
-from shared.protocol.layout import DEFAULT_LIMITS
-from shared.protocol.update import ContactSet, LocalModelUpdate, contact_rows, encode_update
-from sim_server.world import SimWorld
+from haptic_local_model.benchmarks.kernel_cost import engine_with_contacts
+from haptic_local_model.device_models.ideal import IdealDevice, IdealDeviceConfig
+from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.harness.virtual import run_virtual
+from haptic_local_model.shared.cli import add_version
+from haptic_local_model.shared.config import SceneConfig, UserConfig, load_scene, load_user
+from haptic_local_model.shared.kinematics import free_body_chain
+from haptic_local_model.shared.protocol.layout import DEFAULT_LIMITS
+from haptic_local_model.shared.protocol.update import (
+    ContactSet,
+    LocalModelUpdate,
+    contact_rows,
+    encode_update,
+)
+from haptic_local_model.sim_server.world import SimWorld
 
 WORST_PERIOD_S = 1.0e-3 + 60e-6  # 1 kHz plus the p99.9 lateness measured by loop_timing
 DEVICE_MASS = 0.5  # kg, the sampled-wall device

@@ -8,7 +8,7 @@ a 10 kHz flood of small ones. From the haptic server's log: how many of its mess
 (none may), how many were installed (none may), and the age (publish -> installed) of the
 sim's updates in each phase, against a quiet phase before and after, interleaved.
 
-    python -m benchmarks.stranger [--phase-s 2] [--repeat 3] [--out docs/bench]
+    python -m haptic_local_model.benchmarks.stranger [--phase-s 2] [--repeat 3] [--out docs/bench]
 """
 
 from __future__ import annotations
@@ -26,14 +26,19 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from haptic_server.harness.run import Child
-from haptic_server.log import UPDATE_TOPIC, read_json_topic
-from shared.config import load_scene
-from shared.net.config import EndpointSpec, free_loopback_port, load_network, on_port
-from shared.net.transport import keys, open_session
-from shared.protocol.layout import PUBLISH_TIME_AT
-from shared.protocol.update import encode_update
-from sim_server.world import SimWorld
+from haptic_local_model.haptic_server.harness.run import Child
+from haptic_local_model.haptic_server.log import UPDATE_TOPIC, read_json_topic
+from haptic_local_model.shared.config import load_scene
+from haptic_local_model.shared.net.config import (
+    EndpointSpec,
+    free_loopback_port,
+    load_network,
+    on_port,
+)
+from haptic_local_model.shared.net.transport import keys, open_session
+from haptic_local_model.shared.protocol.layout import PUBLISH_TIME_AT
+from haptic_local_model.shared.protocol.update import encode_update
+from haptic_local_model.sim_server.world import SimWorld
 
 SCENE = "free_box"
 PHASES = ("quiet", "updates", "1MB", "10MB", "100MB", "flood_10kHz", "quiet_after")
@@ -63,7 +68,7 @@ def run(phase_s: float, workdir: Path, network: str = "loopback") -> StrangerRes
     log = workdir / f"stranger-{port}.mcap"
     common = ["--scene", SCENE, "--network", network, "--port", str(port)]
     py = sys.executable
-    haptic = Child("haptic", [py, "-m", "haptic_server.cli", *common, "--user", "constant_push",
+    haptic = Child("haptic", [py, "-m", "haptic_local_model.haptic_server.cli", *common, "--user", "constant_push",
                               "--log", str(log)])  # fmt: skip
     sim: Child | None = None
     stranger = None
@@ -71,7 +76,7 @@ def run(phase_s: float, workdir: Path, network: str = "loopback") -> StrangerRes
     result = StrangerResult()
     try:
         _ready(haptic)
-        sim = Child("sim", [py, "-m", "sim_server.cli", *common])
+        sim = Child("sim", [py, "-m", "haptic_local_model.sim_server.cli", *common])
         result.sim_epoch = int(_ready(sim)["epoch"])
         time.sleep(1.0)  # the sim's updates flowing
         stranger = open_session(EndpointSpec(connect=net.haptic.listen))  # no credentials
@@ -159,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         "# A stranger on the default network",
         "",
-        f"`python -m benchmarks.stranger --phase-s {args.phase_s:g} --repeat {args.repeat}`:"
+        f"`python -m haptic_local_model.benchmarks.stranger --phase-s {args.phase_s:g} --repeat {args.repeat}`:"
         " the sim's update age (publish -> installed) p50 / p99 in ms per phase, each run in"
         " one row; the stranger's messages sent, arrived at the haptic server, installed.",
         "",

@@ -14,7 +14,7 @@ The floor is one hop plus the wait for the next tick: the hop alone, measured he
 the wait a phase-locked update cannot avoid (the lock's margin). Targets: p50
 <= 0.6 ms, p99 <= 1.5 ms; the figures are medians over the runs.
 
-    python -m benchmarks.update_age [--seconds 10] [--repeat 3] [--network loopback]
+    python -m haptic_local_model.benchmarks.update_age [--seconds 10] [--repeat 3] [--network loopback]
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_server.log import UPDATE_TOPIC, read_json_topic
+from haptic_local_model.haptic_server.log import UPDATE_TOPIC, read_json_topic
 
 TARGET_P50_MS, TARGET_P99_MS = 0.6, 1.5
 PROBE_BYTES = 392  # the testbed's update
@@ -43,7 +43,7 @@ def system_run(seconds: float, network: str, folder: Path) -> dict[str, np.ndarr
     log = folder / "run.mcap"
     subprocess.run(
         [
-            sys.executable, "-m", "haptic_server.harness.run", "--duration", str(seconds),
+            sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--duration", str(seconds),
             "--network", network, "--log", str(log),
         ],
         check=True, stdout=subprocess.DEVNULL,
@@ -57,13 +57,13 @@ def system_run(seconds: float, network: str, folder: Path) -> dict[str, np.ndarr
 def hop_run(seconds: float, network: str) -> np.ndarray:
     """One-way Zenoh latency (ms) of an update-sized message at the sim's rate, alone."""
     receiver = subprocess.Popen(
-        [sys.executable, "-m", "benchmarks.update_age", "--probe", "receive", "--network",
+        [sys.executable, "-m", "haptic_local_model.benchmarks.update_age", "--probe", "receive", "--network",
          network, "--seconds", str(seconds)],
         stdout=subprocess.PIPE, text=True,
     )  # fmt: skip
     time.sleep(1.0)  # the listener first
     subprocess.run(
-        [sys.executable, "-m", "benchmarks.update_age", "--probe", "send", "--network",
+        [sys.executable, "-m", "haptic_local_model.benchmarks.update_age", "--probe", "send", "--network",
          network, "--seconds", str(seconds)],
         check=True,
     )  # fmt: skip
@@ -75,8 +75,8 @@ def _probe(role: str, network_name: str, seconds: float) -> None:
     """The hop's two ends, on the haptic and sim endpoints of the network config."""
     import zenoh
 
-    from shared.net.config import load_network
-    from shared.net.transport import open_session
+    from haptic_local_model.shared.net.config import load_network
+    from haptic_local_model.shared.net.transport import open_session
 
     network = load_network(network_name)
     key = f"{network.namespace}/update_age_probe"

@@ -13,7 +13,7 @@ the network). The two sinks alternate scene by scene and repetition by repetitio
 the CPU time per frame of the sending process (median and p90 over repetitions) and the
 bytes sent per frame where the sink says.
 
-    python -m benchmarks.view_cost [--scenes testbed ...] [--seconds 5] [--repeat 3]
+    python -m haptic_local_model.benchmarks.view_cost [--scenes testbed ...] [--seconds 5] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -27,10 +27,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from shared.config import shipped
+from haptic_local_model.shared.config import shipped
 
 if TYPE_CHECKING:
-    from haptic_server.log import LogContents
+    from haptic_local_model.haptic_server.log import LogContents
 
 FOXGLOVE_CLIENT_JS = """
 (url) => new Promise((resolve) => {
@@ -58,11 +58,11 @@ def _run_log(scene: str, seconds: float) -> LogContents:
     """The log of a virtual-clock run."""
     import tempfile
 
-    from haptic_server.log import read_log
+    from haptic_local_model.haptic_server.log import read_log
 
     with tempfile.TemporaryDirectory() as tmp:
         log_path = Path(tmp) / "run.mcap"
-        from haptic_server.harness.run import main as run_main
+        from haptic_local_model.haptic_server.harness.run import main as run_main
 
         code = run_main(["--clock", "virtual", "--scene", scene, "--duration", str(seconds),
                          "--log", str(log_path)])  # fmt: skip
@@ -73,7 +73,12 @@ def _run_log(scene: str, seconds: float) -> LogContents:
 
 def rerun_cost(log: LogContents, page: Any, ports: tuple[int, int]) -> dict[str, float]:
     """CPU s per frame of SceneView to a Rerun server watched by its web viewer in `page`."""
-    from haptic_server.live_view import RerunServer, SceneView, ViewAddress, open_recording
+    from haptic_local_model.haptic_server.live_view import (
+        RerunServer,
+        SceneView,
+        ViewAddress,
+        open_recording,
+    )
 
     address = ViewAddress("127.0.0.1", *ports)
     server = RerunServer(address)
@@ -95,7 +100,11 @@ def foxglove_cost(log: LogContents, page: Any, blank_url: str) -> dict[str, floa
     import foxglove
     from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
 
-    from haptic_server.foxglove_view import SCENE_TOPIC, TRANSFORMS_TOPIC, ViewFrames
+    from haptic_local_model.haptic_server.foxglove_view import (
+        SCENE_TOPIC,
+        TRANSFORMS_TOPIC,
+        ViewFrames,
+    )
 
     ctx = foxglove.Context()
     server = foxglove.start_server(host="127.0.0.1", port=0, context=ctx)  # a free port
@@ -129,7 +138,7 @@ def _drive(frame: Any, update: Any, log: LogContents) -> tuple[float, int]:
     """Feed the log's frames (and the updates installed before each) as the live view takes
     them (haptic_server.live_view.log_frames), at the pace of log time; returns the CPU time
     spent in the calls and the frames sent."""
-    from haptic_server.live_view import log_frames
+    from haptic_local_model.haptic_server.live_view import log_frames
 
     cpu = 0.0
     n = 0
@@ -176,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
-    from benchmarks.browser import chromium, free_ports, open_page
+    from haptic_local_model.benchmarks.browser import chromium, free_ports, open_page
 
     browser = chromium()
     if browser is None:

@@ -9,7 +9,7 @@ the numba cache and is not counted. What a run pays once, before its clock start
 beside its rate: loading the kernels (from numba's cache), and making the world, the engine
 and (with a log) the writer process. Targets: >= 200x without a log, >= 100x with it.
 
-    python -m benchmarks.virtual_clock [--seconds 10] [--repeats 5]
+    python -m haptic_local_model.benchmarks.virtual_clock [--seconds 10] [--repeats 5]
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from haptic_server.harness.virtual import run_virtual_named
-from shared.config import CONFIG_ROOT
+from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
+from haptic_local_model.shared.config import CONFIG_ROOT
 
 #: The user each scene is driven by (a scene not listed here runs with `swing`).
 USERS = {

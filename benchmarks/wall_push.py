@@ -15,7 +15,7 @@ impact was detected, sqrt(K/m) (depth - F/K), may push it out), the VM's and the
 relative to F/K, and the energy the device put into the hand's port (the integral of
 command . twist; passive if <= 0).
 
-    python -m benchmarks.wall_push [--seconds 3] [--out docs/figures/wall_push.png] [--sweep]
+    python -m haptic_local_model.benchmarks.wall_push [--seconds 3] [--out docs/figures/wall_push.png] [--sweep]
 """
 
 from __future__ import annotations
@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from device_models.registry import load_device
-from haptic_server.harness.virtual import run_virtual, run_virtual_named
-from shared.config import SceneConfig, UserConfig, load_scene
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.harness.virtual import run_virtual, run_virtual_named
+from haptic_local_model.shared.config import SceneConfig, UserConfig, load_scene
 
 PUSH_N = 2.0
 WALL_K = 15000.0

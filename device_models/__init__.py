@@ -1,3 +1,3 @@
 """Device interface, registry and simulated devices."""
 
-import shared as _shared  # noqa: F401 - first: sets up the numba cache (shared/__init__.py)
+import haptic_local_model.shared as _shared  # noqa: F401 - first: sets up the numba cache (shared/__init__.py)

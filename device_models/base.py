@@ -18,11 +18,11 @@ from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-from shared.config import Vec3, require, within
+from haptic_local_model.shared.config import Vec3, require, within
 
 if TYPE_CHECKING:
-    from device_models.common import NoiseBuffer
-    from device_models.kernels import DeviceRecords
+    from haptic_local_model.device_models.common import NoiseBuffer
+    from haptic_local_model.device_models.kernels import DeviceRecords
 
 #: Entries of SENSOR_DTYPE.aux: device-specific readings the engine logs as `device_aux`.
 AUX_SIZE = 8

@@ -16,10 +16,15 @@ from typing import Any, ClassVar, Self
 import numpy as np
 from numba import njit
 
-from device_models.base import DeviceLimits, DeviceRenderingSpec
-from device_models.kernels import DeviceRecords, ModelKernels, advance_device, noise_ready
-from device_models.world_map import DeviceWorldMap
-from shared.config import load_model_config, read_toml, require
+from haptic_local_model.device_models.base import DeviceLimits, DeviceRenderingSpec
+from haptic_local_model.device_models.kernels import (
+    DeviceRecords,
+    ModelKernels,
+    advance_device,
+    noise_ready,
+)
+from haptic_local_model.device_models.world_map import DeviceWorldMap
+from haptic_local_model.shared.config import load_model_config, read_toml, require
 
 #: Device-specific fault bit (base.py defines bits 0-2): the command held NaN or Inf.
 FAULT_INVALID_COMMAND = 8

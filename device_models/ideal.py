@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from device_models.base import (
+from haptic_local_model.device_models.base import (
     DAMPING_RANGE,
     FAULT_NONE,
     FAULT_SATURATED,
@@ -24,10 +24,10 @@ from device_models.base import (
     DeviceRenderingSpec,
     require_device_limits,
 )
-from device_models.common import KernelDevice, NoiseBuffer, sense_hand_wrench
-from device_models.kernels import ModelKernels, register_model
-from device_models.world_map import DeviceWorldMap, WorldMapSection
-from shared.config import Vec3, load_dataclass, require, within, within_all
+from haptic_local_model.device_models.common import KernelDevice, NoiseBuffer, sense_hand_wrench
+from haptic_local_model.device_models.kernels import ModelKernels, register_model
+from haptic_local_model.device_models.world_map import DeviceWorldMap, WorldMapSection
+from haptic_local_model.shared.config import Vec3, load_dataclass, require, within, within_all
 
 
 @dataclass(frozen=True)

@@ -23,8 +23,8 @@ from typing import ClassVar
 import numpy as np
 from numba import njit
 
-from device_models import common
-from device_models.base import (
+from haptic_local_model.device_models import common
+from haptic_local_model.device_models.base import (
     DAMPING_RANGE,
     FAULT_NONE,
     FAULT_SATURATED,
@@ -33,16 +33,16 @@ from device_models.base import (
     DeviceRenderingSpec,
     require_device_limits,
 )
-from device_models.common import (
+from haptic_local_model.device_models.common import (
     FAULT_INVALID_COMMAND,
     KernelDevice,
     ModelConfig,
     NoiseBuffer,
     sense_hand_wrench,
 )
-from device_models.kernels import ModelKernels, register_model
-from device_models.world_map import DeviceWorldMap, WorldMapSection
-from shared.config import Vec3, require, within, within_all
+from haptic_local_model.device_models.kernels import ModelKernels, register_model
+from haptic_local_model.device_models.world_map import DeviceWorldMap, WorldMapSection
+from haptic_local_model.shared.config import Vec3, require, within, within_all
 
 #: Indices of the flotor coordinates in q and v.
 X, Y, Z, ROLL, PITCH, YAW = 0, 1, 2, 3, 4, 5

@@ -10,11 +10,16 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
-from device_models.base import Device, SimulatedDevice
-from device_models.ideal import IdealDevice, IdealDeviceConfig
-from device_models.maglev import Maglev, MaglevConfig
-from device_models.twin_pantograph import TwinPantograph, TwinPantographConfig
-from shared.config import ConfigError, load_device_table, parse_toml_text, split_device_table
+from haptic_local_model.device_models.base import Device, SimulatedDevice
+from haptic_local_model.device_models.ideal import IdealDevice, IdealDeviceConfig
+from haptic_local_model.device_models.maglev import Maglev, MaglevConfig
+from haptic_local_model.device_models.twin_pantograph import TwinPantograph, TwinPantographConfig
+from haptic_local_model.shared.config import (
+    ConfigError,
+    load_device_table,
+    parse_toml_text,
+    split_device_table,
+)
 
 
 class DeviceModel(NamedTuple):

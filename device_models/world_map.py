@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from shared.config import Vec3, require, within
+from haptic_local_model.shared.config import Vec3, require, within
 
 F8 = np.float64
 I8 = np.int64

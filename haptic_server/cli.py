@@ -7,8 +7,8 @@ import signal
 import sys
 from pathlib import Path
 
-from haptic_server.live_view import add_view_args, view_address
-from shared.cli import (
+from haptic_local_model.haptic_server.live_view import add_view_args, view_address
+from haptic_local_model.shared.cli import (
     EXIT_FAILED,
     EXIT_LOG_FAILED,
     add_config_args,
@@ -18,8 +18,8 @@ from shared.cli import (
     seconds,
     write_summary,
 )
-from shared.config import load_scene, load_user, resolve, scene_text
-from shared.net.config import load_network, on_port
+from haptic_local_model.shared.config import load_scene, load_user, resolve, scene_text
+from haptic_local_model.shared.net.config import load_network, on_port
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -39,8 +39,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     def body() -> int:
-        from device_models.registry import load_device
-        from haptic_server.loop import HapticServer, InjectedFaults, ServerExtras
+        from haptic_local_model.device_models.registry import load_device
+        from haptic_local_model.haptic_server.loop import HapticServer, InjectedFaults, ServerExtras
 
         scene = load_scene(args.scene, args.haptic_rate)
         user = load_user(args.user)

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from device_models.base import Device, SimulatedDevice
-from device_models.common import refill_noise
-from device_models.world_map import DeviceWorldMap
-from haptic_server.model import (
+from haptic_local_model.device_models.base import Device, SimulatedDevice
+from haptic_local_model.device_models.common import refill_noise
+from haptic_local_model.device_models.world_map import DeviceWorldMap
+from haptic_local_model.haptic_server.model import (
     CLOCK_DTYPE,
     DATA_DTYPE,
     DEVICE_IO_DTYPE,
@@ -26,20 +26,25 @@ from haptic_server.model import (
     params_record,
     set_guard,
 )
-from haptic_server.simulated import run_ticks, simulated_tick
-from haptic_server.stages.install import (
+from haptic_local_model.haptic_server.simulated import run_ticks, simulated_tick
+from haptic_local_model.haptic_server.stages.install import (
     DEFAULT_MAX_AGE_S,
     DEFAULT_MAX_SKEW_S,
     EPOCH_LAW_LIVE,
     accept_update,
 )
-from haptic_server.stages.tick import engine_step, store_applied
-from haptic_server.users import USER_GIVEN, user_record
-from shared.config import ConfigError, SceneConfig, UserConfig
-from shared.kinematics import MAX_DOF, link_frames, point_jacobian, point_on_link
-from shared.linalg import min_norm_least_squares
-from shared.protocol.codes import Fault, Method, Reason, reason_tag
-from shared.protocol.layout import DEFAULT_LIMITS, HEADER_BYTES, MAX_CONTACTS, limits_record
+from haptic_local_model.haptic_server.stages.tick import engine_step, store_applied
+from haptic_local_model.haptic_server.users import USER_GIVEN, user_record
+from haptic_local_model.shared.config import ConfigError, SceneConfig, UserConfig
+from haptic_local_model.shared.kinematics import MAX_DOF, link_frames, point_jacobian, point_on_link
+from haptic_local_model.shared.linalg import min_norm_least_squares
+from haptic_local_model.shared.protocol.codes import Fault, Method, Reason, reason_tag
+from haptic_local_model.shared.protocol.layout import (
+    DEFAULT_LIMITS,
+    HEADER_BYTES,
+    MAX_CONTACTS,
+    limits_record,
+)
 
 CONTACT_MATCH_RADIUS_M = 2.0e-3  # a contact keeps its state if its tool point moved less
 #: the receive buffer: the largest valid update (12 DOF, 64 contacts) with room to spare

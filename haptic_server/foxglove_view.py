@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from shared.config import BodySpec, static_bodies
-from shared.protocol.update import UpdateParser
+from haptic_local_model.shared.config import BodySpec, static_bodies
+from haptic_local_model.shared.protocol.update import UpdateParser
 
 SCENE_TOPIC = "/foxglove/scene"
 TRANSFORMS_TOPIC = "/foxglove/transforms"

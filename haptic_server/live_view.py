@@ -1,14 +1,14 @@
 """The live view: the visual loop beside the haptic and physics loops, in a browser.
 
-A process of its own (`python -m haptic_server.live_view CONFIG.json`) reads the shared
-block that the loop and its I/O sidecar fill (`haptic_server.mailbox`): the newest tick row,
-the updates the loop has given a verdict on, the events. At VIEW_HZ it draws them with
-Rerun (https://rerun.io): the scene's static bodies, the held linkage, the tool's proxy and
-the device, the contacts with their normals, the force arrows, and plots of the forces and
-the penetration. The Rerun server (its gRPC proxy and its web viewer, both shipped in the
-`rerun-sdk` wheel, so the view works offline) is a child of this process, bound to loopback
-unless asked otherwise. The loop never waits on any of it: the view only reads, and it
-stops drawing (never the run) if it fails.
+A process of its own (`python -m haptic_local_model.haptic_server.live_view CONFIG.json`)
+reads the shared block that the loop and its I/O sidecar fill (`haptic_server.mailbox`): the
+newest tick row, the updates the loop has given a verdict on, the events. At VIEW_HZ it
+draws them with Rerun (https://rerun.io): the scene's static bodies, the held linkage, the
+tool's proxy and the device, the contacts with their normals, the force arrows, and plots of
+the forces and the penetration. The Rerun server (its gRPC proxy and its web viewer, both
+shipped in the `rerun-sdk` wheel, so the view works offline) is a child of this process,
+bound to loopback unless asked otherwise. The loop never waits on any of it: the view only
+reads, and it stops drawing (never the run) if it fails.
 
 `haptic-replay LOG --view` draws a log the same way (`view_log`).
 """
@@ -33,9 +33,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from haptic_server.foxglove_view import WARNING_EVENTS
-from haptic_server.logger import BlockChild
-from haptic_server.mailbox import (
+from haptic_local_model.haptic_server.foxglove_view import WARNING_EVENTS
+from haptic_local_model.haptic_server.logger import BlockChild
+from haptic_local_model.haptic_server.mailbox import (
     C_CLOSED,
     C_EVT_HEAD,
     C_TICK_HEAD,
@@ -45,11 +45,11 @@ from haptic_server.mailbox import (
     RING_TICKS,
     SharedBlock,
 )
-from shared.config import BodySpec, ConfigError, static_bodies
-from shared.protocol.layout import MAX_DOF
+from haptic_local_model.shared.config import BodySpec, ConfigError, static_bodies
+from haptic_local_model.shared.protocol.layout import MAX_DOF
 
 if TYPE_CHECKING:
-    from haptic_server.log import LogContents
+    from haptic_local_model.haptic_server.log import LogContents
 
 VIEW_HZ = 60.0  # frames a second (of wall time live, of log time in a replay)
 GRPC_PORT = 9876  # Rerun's defaults
@@ -273,7 +273,7 @@ class SceneView:
         """An installed update: its linkage (joint types, lengths, base) and its contacts."""
         rr = _rr()
         if self._parser is None:
-            from shared.protocol.update import UpdateParser
+            from haptic_local_model.shared.protocol.update import UpdateParser
 
             self._parser = UpdateParser()
         if self._parser.parse(raw) != 0:
@@ -301,7 +301,7 @@ class SceneView:
     def frame(self, row: np.void) -> None:
         """One frame from a tick row: the device, the proxy, the linkage, the forces, the
         penetration."""
-        from shared.kinematics import link_frames
+        from haptic_local_model.shared.kinematics import link_frames
 
         rr = _rr()
         self.set_time(float(row["t"]))
@@ -356,15 +356,15 @@ def open_recording(address: ViewAddress, app: str) -> Any:
 
 
 class ViewProcess(BlockChild):
-    """Starts the view (`python -m haptic_server.live_view`) on the loop's shared block.
-    It does not wait for it: the view says where it is on stderr once it serves."""
+    """Starts the view (`python -m haptic_local_model.haptic_server.live_view`) on the loop's
+    shared block. It does not wait for it: the view says where it is on stderr once it serves."""
 
     def __init__(self, shm_name: str, config: dict[str, Any]) -> None:
-        super().__init__("haptic_server.live_view", shm_name, config)
+        super().__init__("haptic_local_model.haptic_server.live_view", shm_name, config)
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m haptic_server.live_view CONFIG.json` (ViewProcess)."""
+    """`python -m haptic_local_model.haptic_server.live_view CONFIG.json` (ViewProcess)."""
     args = sys.argv[1:] if argv is None else argv
     config = json.loads(Path(args[0]).read_text())
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run decides when the view ends
@@ -377,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _live(config: dict[str, Any]) -> None:
-    from shared.timing import avoid_cpu
+    from haptic_local_model.shared.timing import avoid_cpu
 
     terminated = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: terminated.set())
@@ -424,7 +424,7 @@ class BlockFeed:
     without taking anything from the log writer or the sidecar."""
 
     def __init__(self, block: SharedBlock, view: SceneView) -> None:
-        from haptic_server.model import TICK_DTYPE
+        from haptic_local_model.haptic_server.model import TICK_DTYPE
 
         self.block, self.view = block, view
         self.row = np.zeros(1, TICK_DTYPE)
@@ -498,7 +498,7 @@ def view_log(path: Path, address: ViewAddress, stop: threading.Event, speed: flo
     """Draw a log: every update, every event and the ticks at VIEW_HZ of log time, as fast
     as they go (speed 0) or at `speed` x log time. Returns the frames drawn. The server
     keeps serving until `stop` is set."""
-    from haptic_server.log import read_log
+    from haptic_local_model.haptic_server.log import read_log
 
     log = read_log(path)
     if len(log.ticks) == 0:

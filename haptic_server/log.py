@@ -28,8 +28,8 @@ from mcap.records import Channel, McapRecord, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer  # recover_log's
 
-from haptic_server.model import TICK_DTYPE
-from shared.protocol.update import UpdateParser
+from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.shared.protocol.update import UpdateParser
 
 TICK_TOPIC = "/haptic/tick"
 UPDATE_TOPIC = "/haptic/update"
@@ -136,8 +136,8 @@ EVENT_JSON_SCHEMA = {
 class LogWriter:
     """Writes ticks, updates and events to an MCAP file (synchronously), through the Foxglove
     SDK's compiled MCAP writer: 1.7 us a tick row where the pure-Python `mcap` writer takes
-    5.5 (`python -m benchmarks.log_writers`). Each writer has its own SDK context, so its
-    channels reach this file only."""
+    5.5 (`python -m haptic_local_model.benchmarks.log_writers`). Each writer has its own SDK
+    context, so its channels reach this file only."""
 
     def __init__(self, path: Path | str, metadata: dict[str, dict[str, str]] | None = None) -> None:
         import foxglove
@@ -166,7 +166,11 @@ class LogWriter:
         # Foxglove's well-known channels, for its 3D and Log panels (haptic_server.foxglove_view)
         from foxglove.channels import FrameTransformsChannel, LogChannel, SceneUpdateChannel
 
-        from haptic_server.foxglove_view import LOG_TOPIC, SCENE_TOPIC, TRANSFORMS_TOPIC
+        from haptic_local_model.haptic_server.foxglove_view import (
+            LOG_TOPIC,
+            SCENE_TOPIC,
+            TRANSFORMS_TOPIC,
+        )
 
         self._scene_ch = SceneUpdateChannel(SCENE_TOPIC, context=self._context)
         self._transforms_ch = FrameTransformsChannel(TRANSFORMS_TOPIC, context=self._context)
@@ -272,7 +276,7 @@ def run_metadata(
     """Metadata records: the config files' text, version, host and start time."""
     import platform
 
-    from shared import __version__, source_hash
+    from haptic_local_model.shared import __version__, source_hash
 
     meta = {
         "run": {

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from haptic_server.mailbox import (
+from haptic_local_model.haptic_server.mailbox import (
     C_CLOSED,
     C_EVT_HEAD,
     C_LOG_DONE,
@@ -50,12 +50,12 @@ from haptic_server.mailbox import (
     SLOT_BYTES,
     SharedBlock,
 )
-from haptic_server.model import TICK_DTYPE
-from shared.protocol.layout import PUBLISH_TIME_AT, PUBLISH_TIME_END
-from shared.timing import avoid_cpu
+from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.shared.protocol.layout import PUBLISH_TIME_AT, PUBLISH_TIME_END
+from haptic_local_model.shared.timing import avoid_cpu
 
 if TYPE_CHECKING:
-    from haptic_server.log import LogWriter
+    from haptic_local_model.haptic_server.log import LogWriter
 
 #: how often the writer looks for rows: for a real-time loop (its ring holds 16 s; each wake
 #: costs the machine, and at 10 kHz a writer that never idles would wake 2000 times a
@@ -104,7 +104,7 @@ class LogProcess(BlockChild):
         ready_timeout_s: float = 60.0,
     ) -> None:
         self.block = block
-        super().__init__("haptic_server.logger", shm_name, config)
+        super().__init__("haptic_local_model.haptic_server.logger", shm_name, config)
         end = time.monotonic() + ready_timeout_s
         while block.ctl[C_LOG_READY] == 0:
             if self._proc.poll() is not None or time.monotonic() > end:
@@ -123,7 +123,8 @@ class LogProcess(BlockChild):
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m haptic_server.logger CONFIG.json`: the writer process (LogProcess)."""
+    """`python -m haptic_local_model.haptic_server.logger CONFIG.json`: the writer process
+    (LogProcess)."""
     args = sys.argv[1:] if argv is None else argv
     config = json.loads(Path(args[0]).read_text())
     _logger_main(config["shm_name"], config, int(config["parent_pid"]))
@@ -134,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None:
     """Write what the block holds until it is closed and drained, or its feeder dies."""
-    from haptic_server.log import LogWriter
+    from haptic_local_model.haptic_server.log import LogWriter
 
     terminated = threading.Event()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the feeder decides when the log ends
@@ -209,7 +210,7 @@ def _io_error(exc: BaseException, path: Path) -> str:
 def _load_decoder() -> None:
     """Load the update parser's kernel now (from numba's cache: ~0.3 s), not at the first
     update, so a writer that is ready keeps up from the start."""
-    from shared.protocol.update import MessageError, decode_update
+    from haptic_local_model.shared.protocol.update import MessageError, decode_update
 
     with contextlib.suppress(MessageError):
         decode_update(bytes(8))
@@ -224,9 +225,11 @@ class LogDrain:
         """Ticks are logged at wall_start_ns + their time t; updates at their receive time
         plus `update_offset_ns` (a virtual clock's: its updates are received at virtual
         times from 0, its log starts at the run's wall-clock start)."""
-        from haptic_server.foxglove_view import ViewFrames, log_message
-        from haptic_server.log import update_record  # the writer's imports, not the loop's
-        from shared.protocol.codes import reason_tag
+        from haptic_local_model.haptic_server.foxglove_view import ViewFrames, log_message
+        from haptic_local_model.haptic_server.log import (
+            update_record,  # the writer's imports, not the loop's
+        )
+        from haptic_local_model.shared.protocol.codes import reason_tag
 
         self.block, self.log, self.wall_start_ns = block, log, wall_start_ns
         self.update_offset_ns = update_offset_ns

@@ -26,24 +26,29 @@ from typing import Any
 
 import numpy as np
 
-from device_models.base import Device
-from haptic_server.engine import HapticEngine, warm_kernels
-from haptic_server.live_view import ViewAddress
-from haptic_server.log import run_metadata
-from haptic_server.mailbox import C_UPD_HEAD, C_UPD_READ, compile_loop_kernels, push_row
-from haptic_server.realtime import (
+from haptic_local_model.device_models.base import Device
+from haptic_local_model.haptic_server.engine import HapticEngine, warm_kernels
+from haptic_local_model.haptic_server.live_view import ViewAddress
+from haptic_local_model.haptic_server.log import run_metadata
+from haptic_local_model.haptic_server.mailbox import (
+    C_UPD_HEAD,
+    C_UPD_READ,
+    compile_loop_kernels,
+    push_row,
+)
+from haptic_local_model.haptic_server.realtime import (
     RETURNED_TO_PYTHON,
     compile_realtime_kernels,
     loop_record,
     open_tick,
     realtime_ticks,
 )
-from haptic_server.sidecar import LoopIO
-from haptic_server.supervisor import Event, TickEvents, WatchdogClock, supervise
-from shared.config import SceneConfig, UserConfig
-from shared.net.config import NetworkConfig
-from shared.protocol.codes import Fault
-from shared.timing import (
+from haptic_local_model.haptic_server.sidecar import LoopIO
+from haptic_local_model.haptic_server.supervisor import Event, TickEvents, WatchdogClock, supervise
+from haptic_local_model.shared.config import SceneConfig, UserConfig
+from haptic_local_model.shared.net.config import NetworkConfig
+from haptic_local_model.shared.protocol.codes import Fault
+from haptic_local_model.shared.timing import (
     LoopCounters,
     SampleWindow,
     keep_to_cpu,

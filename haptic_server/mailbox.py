@@ -21,14 +21,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numba import njit
 
-from haptic_server.model import TICK_DTYPE
-from haptic_server.stages.install import accept_update
-from shared.atomics import load_acquire, store_release
-from shared.protocol.layout import PUBLISH_TIME_END
-from shared.protocol.update import publish_time_ns
+from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.haptic_server.stages.install import accept_update
+from haptic_local_model.shared.atomics import load_acquire, store_release
+from haptic_local_model.shared.protocol.layout import PUBLISH_TIME_END
+from haptic_local_model.shared.protocol.update import publish_time_ns
 
 if TYPE_CHECKING:
-    from haptic_server.engine import HapticEngine
+    from haptic_local_model.haptic_server.engine import HapticEngine
 
 RING_TICKS = 16384  # 16 s of ticks at 1 kHz: the writer may stall this long without loss
 MAILBOX_SLOTS = 256  # updates waiting for the loop or the log writer (about 4 s at 60 Hz)

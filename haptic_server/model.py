@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from device_models.base import AUX_SIZE, SENSOR_DTYPE, DeviceRenderingSpec
-from shared.config import RenderingSpec, SceneConfig
-from shared.kinematics import CHAIN_DTYPE, MAX_DOF
-from shared.protocol.codes import Method
-from shared.protocol.layout import LIMITS_DTYPE, LOCAL_MODEL_DTYPE, MAX_CONTACTS
-from shared.tool_chain import tool_bounds, tool_chain
+from haptic_local_model.device_models.base import AUX_SIZE, SENSOR_DTYPE, DeviceRenderingSpec
+from haptic_local_model.shared.config import RenderingSpec, SceneConfig
+from haptic_local_model.shared.kinematics import CHAIN_DTYPE, MAX_DOF
+from haptic_local_model.shared.protocol.codes import Method
+from haptic_local_model.shared.protocol.layout import LIMITS_DTYPE, LOCAL_MODEL_DTYPE, MAX_CONTACTS
+from haptic_local_model.shared.tool_chain import tool_bounds, tool_chain
 
 F8 = np.float64
 I8 = np.int64

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from haptic_server.mailbox import (
+from haptic_local_model.haptic_server.mailbox import (
     C_UPD_HEAD,
     C_UPD_READ,
     MAILBOX_DTYPE,
@@ -28,13 +28,13 @@ from haptic_server.mailbox import (
     push_row,
     take_updates,
 )
-from haptic_server.model import TICK_DTYPE
-from haptic_server.simulated import simulated_tick
-from haptic_server.stages.install import EPOCH_LAW_LIVE
-from shared.atomics import load_acquire
-from shared.clock import monotonic_ns, realtime_ns, wait_until_ns
-from shared.protocol.update import epoch_of
-from shared.timing import spin_for
+from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.haptic_server.simulated import simulated_tick
+from haptic_local_model.haptic_server.stages.install import EPOCH_LAW_LIVE
+from haptic_local_model.shared.atomics import load_acquire
+from haptic_local_model.shared.clock import monotonic_ns, realtime_ns, wait_until_ns
+from haptic_local_model.shared.protocol.update import epoch_of
+from haptic_local_model.shared.timing import spin_for
 
 I8, F8 = np.int64, np.float64
 

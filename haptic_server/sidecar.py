@@ -30,9 +30,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from haptic_server.live_view import ViewProcess
-from haptic_server.logger import LogProcess
-from haptic_server.mailbox import (
+from haptic_local_model.haptic_server.live_view import ViewProcess
+from haptic_local_model.haptic_server.logger import LogProcess
+from haptic_local_model.haptic_server.mailbox import (
     C_CLOSED,
     C_EVT_LOST,
     C_IO_BEAT,
@@ -51,12 +51,12 @@ from haptic_server.mailbox import (
     SharedBlock,
     take_updates,
 )
-from shared.protocol.proxy import MAX_WAIT_NS, NO_WAIT, UpdateWait
-from shared.protocol.update import AT_SEQ
-from shared.timing import REALTIME_PRIORITY, avoid_cpu, try_realtime_priority
+from haptic_local_model.shared.protocol.proxy import MAX_WAIT_NS, NO_WAIT, UpdateWait
+from haptic_local_model.shared.protocol.update import AT_SEQ
+from haptic_local_model.shared.timing import REALTIME_PRIORITY, avoid_cpu, try_realtime_priority
 
 if TYPE_CHECKING:
-    from haptic_server.engine import HapticEngine
+    from haptic_local_model.haptic_server.engine import HapticEngine
 
 IO_POLL_S = 0.004  # the sidecar wakes at least this often (and for each proxy publish)
 IO_NICENESS = 10  # only when the loop could not get real-time priority (see _lower_priority)
@@ -190,9 +190,9 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
 
     import zenoh
 
-    from shared.net.config import EndpointSpec
-    from shared.net.transport import keys, open_session
-    from shared.protocol.proxy import encode_proxy
+    from haptic_local_model.shared.net.config import EndpointSpec
+    from haptic_local_model.shared.net.transport import keys, open_session
+    from haptic_local_model.shared.protocol.proxy import encode_proxy
 
     # the loop decides when I/O ends: a Ctrl-C to the process group is ignored; SIGTERM (the
     # loop's close() after a timeout, or anyone's kill) closes the session and exits
@@ -277,7 +277,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
 def _tell_log_failure(block: SharedBlock) -> None:
     """The log writer has stopped (a full disk, an I/O error): one event line for haptic-run
     and people, into the event ring for the live view. Rendering and networking go on."""
-    from shared.cli import emit
+    from haptic_local_model.shared.cli import emit
 
     reason = block.log_failure
     head = int(block.ctl[C_TICK_HEAD])

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from numba import njit
 
-from device_models.kernels import (
+from haptic_local_model.device_models.kernels import (
     device_advance,
     device_applied,
     device_command,
@@ -20,8 +20,8 @@ from device_models.kernels import (
     device_sense_hand,
     device_true_state,
 )
-from haptic_server.stages.tick import engine_step, store_applied
-from haptic_server.users import hand_wrench
+from haptic_local_model.haptic_server.stages.tick import engine_step, store_applied
+from haptic_local_model.haptic_server.users import hand_wrench
 
 
 @njit(cache=True)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Protocol
 
-from haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.engine import HapticEngine
 
 NEVER_NS = 1 << 62
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from shared.config import UserConfig
+from haptic_local_model.shared.config import UserConfig
 
 MAX_WAYPOINTS = 64
 USER_CONSTANT = 0

@@ -11,8 +11,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from shared import __version__
-from shared.config import CONFIG_KINDS, ConfigError, shipped
+from haptic_local_model.shared import __version__
+from haptic_local_model.shared.config import CONFIG_KINDS, ConfigError, shipped
 
 EXIT_FAILED = 1  # the run could not go on or finish (a lost I/O process, a summary unwritten)
 EXIT_CONFIG = 2  # a config file or argument refused (one line names the file and key)

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from shared import coupling
+from haptic_local_model.shared import coupling
 
 REPO_ROOT = Path(__file__).resolve().parent.parent  # a source tree's (a checkout, -e)
 _SHIPPED = Path(__file__).resolve().parent / "configs"  # package data, in an installed wheel

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from shared.reference import ChainSpec, Hold, Integrator
+from haptic_local_model.shared.reference import ChainSpec, Hold, Integrator
 
 FloatArray = NDArray[np.float64]
 #: The hand's world wrench (fx, fy, tau) at time t given the hand point's pose and twist.

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from shared.reference import (
+from haptic_local_model.shared.reference import (
     ChainSpec,
     Hold,
     Integrator,

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shared.config import BodySpec, SceneConfig
-from shared.kinematics import MAX_DOF, chain_record, free_body_chain
+from haptic_local_model.shared.config import BodySpec, SceneConfig
+from haptic_local_model.shared.kinematics import MAX_DOF, chain_record, free_body_chain
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,3 +1,3 @@
 """The 30-60 Hz pymunk simulation server that publishes the local model."""
 
-import shared as _shared  # noqa: F401 - first: sets up the numba cache (shared/__init__.py)
+import haptic_local_model.shared as _shared  # noqa: F401 - first: sets up the numba cache (shared/__init__.py)

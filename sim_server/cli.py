@@ -8,14 +8,21 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from shared.cli import EXIT_FAILED, add_config_args, emit, run_main, seconds, write_summary
-from shared.config import load_scene
-from shared.net.config import load_network, on_port
+from haptic_local_model.shared.cli import (
+    EXIT_FAILED,
+    add_config_args,
+    emit,
+    run_main,
+    seconds,
+    write_summary,
+)
+from haptic_local_model.shared.config import load_scene
+from haptic_local_model.shared.net.config import load_network, on_port
 
 
 def clock_jump(text: str) -> Any:
     """AT_S,BY_MS,FOR_S: the sim's clock stepped by BY_MS from AT_S into the run, for FOR_S."""
-    from sim_server.server import ClockJump
+    from haptic_local_model.sim_server.server import ClockJump
 
     try:
         at_s, by_ms, for_s = (float(v) for v in text.split(","))
@@ -37,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     def body() -> int:
-        from sim_server.server import SimServer
+        from haptic_local_model.sim_server.server import SimServer
 
         scene = load_scene(args.scene)
         network = load_network(args.network, roles=("sim",))

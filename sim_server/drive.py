@@ -17,15 +17,15 @@ from typing import Any
 import numpy as np
 from numba import cfunc, njit, types
 
-from shared.kinematics import (
+from haptic_local_model.shared.kinematics import (
     MAX_DOF,
     link_frames,
     mass_matrix_and_gravity,
     point_jacobian,
     point_on_link,
 )
-from sim_server import chipmunk as cp
-from sim_server.tool import TOOL_LINKAGE, tool_state
+from haptic_local_model.sim_server import chipmunk as cp
+from haptic_local_model.sim_server.tool import TOOL_LINKAGE, tool_state
 
 DRIVE_REST, DRIVE_PROXY, DRIVE_DEVICE = 0, 1, 2  # no fresh target / follow the proxy / FOH
 

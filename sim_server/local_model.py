@@ -22,7 +22,7 @@ import numpy as np
 import pymunk
 from numba import carray, cfunc, from_dtype, njit, types
 
-from shared.kinematics import (
+from haptic_local_model.shared.kinematics import (
     MAX_DOF,
     VELOCITY_TORQUE_STEP,
     mass_matrix_and_gravity,
@@ -31,14 +31,14 @@ from shared.kinematics import (
     scaled_gram,
     velocity_product_torque,
 )
-from shared.linalg import cholesky_inplace, cholesky_solve, symmetric_eigen
-from shared.protocol.layout import LOCAL_MODEL_DTYPE, MAX_CONTACTS
-from shared.protocol.update import encode_record
-from sim_server import chipmunk as cp
-from sim_server.tool import TOOL_LINKAGE, tool_state
+from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve, symmetric_eigen
+from haptic_local_model.shared.protocol.layout import LOCAL_MODEL_DTYPE, MAX_CONTACTS
+from haptic_local_model.shared.protocol.update import encode_record
+from haptic_local_model.sim_server import chipmunk as cp
+from haptic_local_model.sim_server.tool import TOOL_LINKAGE, tool_state
 
 if TYPE_CHECKING:  # annotations only: world.py imports this module
-    from sim_server.world import SimWorld
+    from haptic_local_model.sim_server.world import SimWorld
 
 TOUCH_TOLERANCE_M = 1.0e-4  # gap below which the tool counts as touching (FOH force gate)
 TOOL_GROUP = 1  # pymunk shape-filter group: tool shapes never collide with each other

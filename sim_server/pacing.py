@@ -24,7 +24,7 @@ from collections import OrderedDict, deque
 
 import numpy as np
 
-from shared.protocol.proxy import UpdateWait
+from haptic_local_model.shared.protocol.proxy import UpdateWait
 
 ARRIVAL_MARGIN_NS = 200_000  # aim for arrivals this long before a tick (at most T / 2)
 PHASE_REPORTS = 16  # reports averaged into the phase estimate

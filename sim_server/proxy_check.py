@@ -23,10 +23,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shared.config import SceneConfig
-from shared.kinematics import MAX_DOF, REVOLUTE, link_frames, point_jacobian, point_on_link
-from shared.protocol.proxy import ProxyState
-from shared.tool_chain import tool_bounds, tool_chain
+from haptic_local_model.shared.config import SceneConfig
+from haptic_local_model.shared.kinematics import (
+    MAX_DOF,
+    REVOLUTE,
+    link_frames,
+    point_jacobian,
+    point_on_link,
+)
+from haptic_local_model.shared.protocol.proxy import ProxyState
+from haptic_local_model.shared.tool_chain import tool_bounds, tool_chain
 
 #: published updates whose tool pose the sim remembers (4 s at 60 Hz)
 REMEMBERED_UPDATES = 256

@@ -18,16 +18,16 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from shared.config import SceneConfig
-from shared.net.config import NetworkConfig
-from shared.net.transport import keys, newest_payload, open_session
-from shared.protocol.codes import Method
-from shared.protocol.proxy import ProxyState, decode_proxy
-from shared.protocol.update import MessageError, stamp_publication
-from shared.timing import SampleWindow, wait_until
-from sim_server.pacing import PhaseLock
-from sim_server.proxy_check import ProxyCheck
-from sim_server.world import SimWorld, ToolTarget, warm_kernels
+from haptic_local_model.shared.config import SceneConfig
+from haptic_local_model.shared.net.config import NetworkConfig
+from haptic_local_model.shared.net.transport import keys, newest_payload, open_session
+from haptic_local_model.shared.protocol.codes import Method
+from haptic_local_model.shared.protocol.proxy import ProxyState, decode_proxy
+from haptic_local_model.shared.protocol.update import MessageError, stamp_publication
+from haptic_local_model.shared.timing import SampleWindow, wait_until
+from haptic_local_model.sim_server.pacing import PhaseLock
+from haptic_local_model.sim_server.proxy_check import ProxyCheck
+from haptic_local_model.sim_server.world import SimWorld, ToolTarget, warm_kernels
 
 PHASE_SPIN_NS = 600_000  # how long before a step's start the sim stops sleeping and spins
 

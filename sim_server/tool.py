@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from shared.kinematics import MAX_DOF
-from sim_server import chipmunk as cp
+from haptic_local_model.shared.kinematics import MAX_DOF
+from haptic_local_model.sim_server import chipmunk as cp
 
 TOOL_BODY, TOOL_LINKAGE = 0, 1
 

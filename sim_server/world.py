@@ -17,19 +17,19 @@ from dataclasses import dataclass
 import numpy as np
 import pymunk
 
-from shared.config import BodySpec, Material, SceneConfig
-from shared.kinematics import (
+from haptic_local_model.shared.config import BodySpec, Material, SceneConfig
+from haptic_local_model.shared.kinematics import (
     MAX_DOF,
     link_frames,
     mass_matrix_and_gravity,
     point_jacobian,
     point_on_link,
 )
-from shared.protocol.layout import MAX_CONTACTS, MAX_RESISTED, update_size
-from shared.protocol.update import LocalModelUpdate, update_from_record
-from shared.tool_chain import tool_chain
-from sim_server.chipmunk import body_ptr, set_velocity_function, space_ptr
-from sim_server.drive import (
+from haptic_local_model.shared.protocol.layout import MAX_CONTACTS, MAX_RESISTED, update_size
+from haptic_local_model.shared.protocol.update import LocalModelUpdate, update_from_record
+from haptic_local_model.shared.tool_chain import tool_chain
+from haptic_local_model.sim_server.chipmunk import body_ptr, set_velocity_function, space_ptr
+from haptic_local_model.sim_server.drive import (
     DRIVE_DEVICE,
     DRIVE_PROXY,
     DRIVE_REST,
@@ -40,14 +40,14 @@ from sim_server.drive import (
     step_world,
     table_drag,
 )
-from sim_server.local_model import (
+from haptic_local_model.sim_server.local_model import (
     TOOL_GROUP,
     LocalModelKernel,
     StageStats,
     build_local_model,
     encode_stamped,
 )
-from sim_server.tool import TOOL_BODY, TOOL_DTYPE, TOOL_LINKAGE, tool_state
+from haptic_local_model.sim_server.tool import TOOL_BODY, TOOL_DTYPE, TOOL_LINKAGE, tool_state
 
 #: The largest update (all sections, every contact): the encoder's buffer
 MAX_UPDATE_BYTES = update_size(MAX_DOF, MAX_RESISTED, MAX_CONTACTS, 0xF)

@@ -74,7 +74,8 @@ def haptic_run(
     and both servers exited 0, and returns its summary."""
     res = subprocess.run(
         [
-            sys.executable, "-m", "haptic_server.harness.run", "--scene", scene, "--device", device,
+            sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--scene",
+            scene, "--device", device,
             "--user", user, "--network", str(network_file), "--duration", str(seconds),
             "--log", str(log), "--summary-json", str(summary_path),
         ],

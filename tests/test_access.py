@@ -20,12 +20,12 @@ import pytest
 import zenoh
 from conftest import free_port
 
-from haptic_server.log import UPDATE_TOPIC, read_json_topic, read_ticks
-from shared.config import CONFIG_ROOT, load_scene
-from shared.net.config import EndpointSpec, load_network
-from shared.net.transport import keys, open_session
-from shared.protocol.update import encode_update
-from sim_server.world import SimWorld
+from haptic_local_model.haptic_server.log import UPDATE_TOPIC, read_json_topic, read_ticks
+from haptic_local_model.shared.config import CONFIG_ROOT, load_scene
+from haptic_local_model.shared.net.config import EndpointSpec, load_network
+from haptic_local_model.shared.net.transport import keys, open_session
+from haptic_local_model.shared.protocol.update import encode_update
+from haptic_local_model.sim_server.world import SimWorld
 
 SCENE = "free_box"
 UPDATES_PER_PEER = 60  # each peer publishes this many,
@@ -84,13 +84,14 @@ def test_only_the_configured_sim_drives_the_haptic_server(
     key = keys(network.namespace).update
     log = tmp_path / "run.mcap"
     haptic = start_server(
-        "haptic_server.cli", "--scene", SCENE, "--device", "ideal", "--user", "constant_push",
+        "haptic_local_model.haptic_server.cli", "--scene", SCENE, "--device", "ideal", "--user",
+        "constant_push",
         "--network", str(net_path), "--log", str(log),
         "--summary-json", str(tmp_path / "haptic.json"),
     )  # fmt: skip
     haptic.wait_ready()
     sim = start_server(
-        "sim_server.cli", "--scene", SCENE, "--network", str(net_path),
+        "haptic_local_model.sim_server.cli", "--scene", SCENE, "--network", str(net_path),
         "--summary-json", str(tmp_path / "sim.json"),
     )  # fmt: skip
     sim.wait_ready()

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.blending import CASES, JumpMetrics, measure
+from haptic_local_model.benchmarks.blending import CASES, JumpMetrics, measure
 
 RATE_HZ = 30.0  # the scene's rate: sparse updates, the largest model steps
 BLEND_MS = 8.0  # configs/scenes/wall_slide.toml

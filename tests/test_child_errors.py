@@ -13,7 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from haptic_server.harness.soak import SEGMENTS, Segment, check_configs
+from haptic_local_model.haptic_server.harness.soak import SEGMENTS, Segment, check_configs
 
 REPO = Path(__file__).resolve().parent.parent
 WALL_PUSH = REPO / "configs" / "scenes" / "wall_push.toml"
@@ -22,7 +22,7 @@ WALL_PUSH = REPO / "configs" / "scenes" / "wall_push.toml"
 def _soak_with(tmp_path: Path, segment: tuple[str, str, str]) -> subprocess.CompletedProcess[str]:
     code = (
         "import sys\n"
-        "import haptic_server.harness.soak as soak\n"
+        "import haptic_local_model.haptic_server.harness.soak as soak\n"
         f"soak.SEGMENTS = (soak.Segment(*{segment!r}),)\n"
         "sys.exit(soak.main(['--minutes', '0.2', '--segment-s', '5', '--out', 'out']))\n"
     )
@@ -80,7 +80,8 @@ def test_haptic_run_passes_a_child_reason_up(tmp_path: Path) -> None:
     """The same pair given to haptic-run, which checks each file but not the pair: the haptic
     server's one line, and exit 2, nothing added."""
     res = subprocess.run(
-        [sys.executable, "-m", "haptic_server.harness.run", "--scene", str(WALL_PUSH),
+        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--scene",
+        str(WALL_PUSH),
          "--device", "maglev", "--haptic-rate", "5000", "--duration", "1", "--no-log"],
         cwd=tmp_path, capture_output=True, text=True, timeout=300,
     )  # fmt: skip

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from shared.config import ConfigError, load_scene, load_user
+from haptic_local_model.shared.config import ConfigError, load_scene, load_user
 
 REPO = Path(__file__).resolve().parent.parent
 GOOD_SCENE = (REPO / "configs/scenes/free_box.toml").read_text()
@@ -72,7 +72,7 @@ def test_missing_key_and_bad_value(tmp_path: Path) -> None:
 def test_nan_and_inf_are_rejected_with_file_and_key(tmp_path: Path, table: str, line: str) -> None:
     """TOML can spell nan and inf; no limit, gain or rate may be either (a NaN force limit
     would pass every `min()` check and command NaN)."""
-    from device_models.registry import load_device
+    from haptic_local_model.device_models.registry import load_device
 
     key = line.split(" = ")[0]
     text = (REPO / "configs" / table).read_text()
@@ -103,7 +103,8 @@ def test_cli_exits_2_naming_file_and_key(tmp_path: Path, args: list[str], needle
     bad_device.write_text('model = "ideal"\ninertia = ["heavy", 1.0, 1.0]\n')
     argv = [a.replace("{bad}", str(bad)).replace("{bad_device}", str(bad_device)) for a in args]
     res = subprocess.run(
-        [sys.executable, "-m", "haptic_server.harness.run", "--duration", "1", "--no-log", *argv],
+        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--duration",
+        "1", "--no-log", *argv],
         cwd=REPO, capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert res.returncode == 2, res.stderr

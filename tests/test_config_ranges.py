@@ -23,10 +23,10 @@ import numpy as np
 import pytest
 import tomli_w
 
-from device_models.registry import load_device, load_simulated_device
-from haptic_server.harness.virtual import run_virtual
-from shared.config import CONFIG_ROOT, ConfigError, load_scene, load_user
-from shared.net.config import load_network
+from haptic_local_model.device_models.registry import load_device, load_simulated_device
+from haptic_local_model.haptic_server.harness.virtual import run_virtual
+from haptic_local_model.shared.config import CONFIG_ROOT, ConfigError, load_scene, load_user
+from haptic_local_model.shared.net.config import load_network
 
 BAD = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf, "0": 0.0, "-1": -1.0, "1e12": 1e12}
 HARMLESS_S = 0.3
@@ -127,15 +127,19 @@ def test_every_number_refused_by_file_and_key_or_harmless(
 
 #: each console script's numeric arguments, and the values they may take of BAD
 CLI_NUMBERS = [
-    ("haptic_server.cli", "--duration", ()),
-    ("haptic_server.cli", "--haptic-rate", ()),
-    ("sim_server.cli", "--duration", ()),
-    ("haptic_server.harness.run", "--duration", ()),
-    ("haptic_server.harness.run", "--haptic-rate", ()),
-    ("haptic_server.harness.soak", "--minutes", ()),
-    ("haptic_server.harness.soak", "--segment-s", ()),
-    ("haptic_server.harness.replay", "--view-seconds", ()),
-    ("haptic_server.harness.replay", "--view-speed", ("0",)),  # 0: draw all at once
+    ("haptic_local_model.haptic_server.cli", "--duration", ()),
+    ("haptic_local_model.haptic_server.cli", "--haptic-rate", ()),
+    ("haptic_local_model.sim_server.cli", "--duration", ()),
+    ("haptic_local_model.haptic_server.harness.run", "--duration", ()),
+    ("haptic_local_model.haptic_server.harness.run", "--haptic-rate", ()),
+    ("haptic_local_model.haptic_server.harness.soak", "--minutes", ()),
+    ("haptic_local_model.haptic_server.harness.soak", "--segment-s", ()),
+    ("haptic_local_model.haptic_server.harness.replay", "--view-seconds", ()),
+    (
+        "haptic_local_model.haptic_server.harness.replay",
+        "--view-speed",
+        ("0",),
+    ),  # 0: draw all at once
 ]
 
 
@@ -159,7 +163,10 @@ def test_every_numeric_argument_refuses_bad_numbers_in_one_line(
 def test_a_log_directory_and_a_garbage_endpoint_are_refused_by_name(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    for module in ("haptic_server.cli", "haptic_server.harness.run"):
+    for module in (
+        "haptic_local_model.haptic_server.cli",
+        "haptic_local_model.haptic_server.harness.run",
+    ):
         with pytest.raises(SystemExit) as exc:
             importlib.import_module(module).main(["--log", str(tmp_path)])
         assert exc.value.code == 2

@@ -7,12 +7,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from device_models.ideal import IdealDevice, IdealDeviceConfig
-from haptic_server.engine import HapticEngine
-from shared.config import UserConfig, load_scene
-from shared.kinematics import free_body_chain
-from shared.protocol.layout import CONTACT_FLOATS
-from shared.protocol.update import ContactSet, LocalModelUpdate, encode_update
+from haptic_local_model.device_models.ideal import IdealDevice, IdealDeviceConfig
+from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.shared.config import UserConfig, load_scene
+from haptic_local_model.shared.kinematics import free_body_chain
+from haptic_local_model.shared.protocol.layout import CONTACT_FLOATS
+from haptic_local_model.shared.protocol.update import ContactSet, LocalModelUpdate, encode_update
 
 MASS, INERTIA = 2.0, 0.01  # a free body (kg, kg m^2)
 K_TINY = 1e-9  # contact stiffness small enough that the penalty adds nothing in one tick

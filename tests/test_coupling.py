@@ -11,9 +11,9 @@ import numpy as np
 import pymunk
 import pytest
 
-from shared import coupling
-from shared.config import ConfigError, SceneConfig, load_dataclass, load_scene
-from sim_server.world import SimWorld, ToolTarget
+from haptic_local_model.shared import coupling
+from haptic_local_model.shared.config import ConfigError, SceneConfig, load_dataclass, load_scene
+from haptic_local_model.sim_server.world import SimWorld, ToolTarget
 
 SCENES = Path(__file__).resolve().parent.parent / "configs" / "scenes"
 #: The tool settles on a fixed device pose: the spring's steady error is zero, the slow pole

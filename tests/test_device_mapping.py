@@ -10,16 +10,16 @@ import math
 import numpy as np
 import pytest
 
-from device_models.base import SENSOR_DTYPE, DeviceLimits, DeviceRenderingSpec
-from device_models.world_map import (
+from haptic_local_model.device_models.base import SENSOR_DTYPE, DeviceLimits, DeviceRenderingSpec
+from haptic_local_model.device_models.world_map import (
     DeviceWorldMap,
     map_command_to_device,
     map_sensors_to_world,
 )
-from haptic_server.engine import HapticEngine
-from shared.config import ConfigError, UserConfig, load_scene
-from shared.kinematics import free_body_chain
-from shared.protocol.update import ContactSet, LocalModelUpdate, encode_update
+from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.shared.config import ConfigError, UserConfig, load_scene
+from haptic_local_model.shared.kinematics import free_body_chain
+from haptic_local_model.shared.protocol.update import ContactSet, LocalModelUpdate, encode_update
 
 DT = 1e-3
 EXACT = 1e-12  # relative: a few roundings of the same closed form
@@ -229,8 +229,8 @@ def test_without_a_map_the_device_is_offset_onto_the_tool_at_scale_one() -> None
 def test_simulated_devices_scale_their_gains_and_limits_with_their_map() -> None:
     """A simulated ideal device with a [world_map] table: the engine's world-frame params are
     the device's over f_s s (wrenches) and f_s s^2 (gains)."""
-    from device_models.ideal import IdealDevice, IdealDeviceConfig
-    from device_models.world_map import WorldMapSection
+    from haptic_local_model.device_models.ideal import IdealDevice, IdealDeviceConfig
+    from haptic_local_model.device_models.world_map import WorldMapSection
 
     config = IdealDeviceConfig(
         world_map=WorldMapSection(position_scale=4.0, angle_scale=2.0, force_scale=0.5)
@@ -250,7 +250,7 @@ def test_simulated_devices_scale_their_gains_and_limits_with_their_map() -> None
 
 @pytest.mark.parametrize("bad", [{"position_scale": 0.0}, {"force_scale": -1.0}])
 def test_world_map_table_is_validated(bad: dict[str, float]) -> None:
-    from device_models.world_map import WorldMapSection
+    from haptic_local_model.device_models.world_map import WorldMapSection
 
     with pytest.raises(ValueError, match=next(iter(bad))):
         dataclasses.replace(WorldMapSection(), **bad)

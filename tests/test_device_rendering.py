@@ -11,9 +11,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from device_models.base import SENSOR_DTYPE, DeviceRenderingSpec, SimulatedDevice
-from device_models.registry import DEVICE_MODELS, load_device, load_simulated_device
-from shared.config import ConfigError
+from haptic_local_model.device_models.base import SENSOR_DTYPE, DeviceRenderingSpec, SimulatedDevice
+from haptic_local_model.device_models.registry import (
+    DEVICE_MODELS,
+    load_device,
+    load_simulated_device,
+)
+from haptic_local_model.shared.config import ConfigError
 
 DEVICES = Path(__file__).resolve().parent.parent / "configs" / "devices"
 #: every shipped device config: a new device's file is picked up here, its model from the
@@ -161,9 +165,9 @@ def test_every_registered_model_ships_a_config() -> None:
 
 def test_a_new_model_in_the_registry_is_warmed_and_loaded(monkeypatch: Any) -> None:
     """One registry entry is all the warm-up and the loader need to know of a new device."""
-    from device_models import registry
-    from device_models.ideal import IdealDevice, IdealDeviceConfig
-    from haptic_server.harness.warmup import warm_runs
+    from haptic_local_model.device_models import registry
+    from haptic_local_model.device_models.ideal import IdealDevice, IdealDeviceConfig
+    from haptic_local_model.haptic_server.harness.warmup import warm_runs
 
     entry = registry.DeviceModel(IdealDeviceConfig, IdealDevice, "ideal_identity", "a test model")
     monkeypatch.setitem(registry.DEVICE_MODELS, "test_model", entry)

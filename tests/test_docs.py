@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from haptic_server.log import (
+from haptic_local_model.haptic_server.log import (
     EVENT_TOPIC,
     TICK_TOPIC,
     UPDATE_JSON_SCHEMA,
     UPDATE_TOPIC,
     run_metadata,
 )
-from haptic_server.model import TICK_DTYPE
+from haptic_local_model.haptic_server.model import TICK_DTYPE
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 
@@ -40,10 +40,10 @@ def test_log_format_documents_the_metadata_and_replay() -> None:
 def test_devices_doc_covers_every_model_its_aux_and_the_rendering_table() -> None:
     from dataclasses import fields
 
-    from device_models.base import DeviceRenderingSpec
-    from device_models.maglev import AUX_NAMES as MAGLEV_AUX
-    from device_models.registry import DEVICE_MODELS
-    from device_models.twin_pantograph import AUX_NAMES as PANTOGRAPH_AUX
+    from haptic_local_model.device_models.base import DeviceRenderingSpec
+    from haptic_local_model.device_models.maglev import AUX_NAMES as MAGLEV_AUX
+    from haptic_local_model.device_models.registry import DEVICE_MODELS
+    from haptic_local_model.device_models.twin_pantograph import AUX_NAMES as PANTOGRAPH_AUX
 
     text = (DOCS / "devices.md").read_text()
     for model in DEVICE_MODELS:
@@ -64,7 +64,7 @@ def test_protocol_doc_is_the_table_and_matches_the_golden_bytes() -> None:
     and header values the table gives, and re-encodes to the same bytes."""
     import struct
 
-    from shared.protocol.layout import (
+    from haptic_local_model.shared.protocol.layout import (
         HEADER,
         HEADER_AT,
         HEADER_BYTES,
@@ -73,7 +73,7 @@ def test_protocol_doc_is_the_table_and_matches_the_golden_bytes() -> None:
         markdown_tables,
         update_size,
     )
-    from shared.protocol.update import decode_update, encode_update
+    from haptic_local_model.shared.protocol.update import decode_update, encode_update
 
     text = (DOCS / "protocol.md").read_text()
     embedded = text.split("<!-- protocol-tables:begin -->\n")[1].split("<!-- protocol-tables:end")[
@@ -95,7 +95,7 @@ def test_protocol_doc_is_the_table_and_matches_the_golden_bytes() -> None:
 
 def test_protocol_doc_gives_the_proxy_header() -> None:
     """docs/protocol.md states the ProxyState header's struct, size and version as coded."""
-    from shared.protocol.proxy import PROXY_HEADER, PROXY_VERSION
+    from haptic_local_model.shared.protocol.proxy import PROXY_HEADER, PROXY_VERSION
 
     text = (DOCS / "protocol.md").read_text()
     assert f"struct `{PROXY_HEADER.format}`, {PROXY_HEADER.size} bytes" in text

@@ -26,24 +26,24 @@ import numpy as np
 import pytest
 import zenoh
 
-from haptic_server.log import (
+from haptic_local_model.haptic_server.log import (
     EVENT_TOPIC,
     UPDATE_TOPIC,
     is_indexed,
     read_json_topic,
     read_ticks,
 )
-from haptic_server.loop import DT_CLAMP
-from haptic_server.mailbox import SLOT_BYTES
-from haptic_server.model import params_record
-from shared.config import load_scene
-from shared.net.config import EndpointSpec, load_network
-from shared.net.transport import keys, open_session
-from shared.protocol.codes import Reason
-from shared.protocol.layout import DEFAULT_LIMITS
-from shared.protocol.proxy import ProxyState, decode_proxy
-from shared.protocol.update import MessageError, UpdateParser, encode_update
-from sim_server.world import SimWorld
+from haptic_local_model.haptic_server.loop import DT_CLAMP
+from haptic_local_model.haptic_server.mailbox import SLOT_BYTES
+from haptic_local_model.haptic_server.model import params_record
+from haptic_local_model.shared.config import load_scene
+from haptic_local_model.shared.net.config import EndpointSpec, load_network
+from haptic_local_model.shared.net.transport import keys, open_session
+from haptic_local_model.shared.protocol.codes import Reason
+from haptic_local_model.shared.protocol.layout import DEFAULT_LIMITS
+from haptic_local_model.shared.protocol.proxy import ProxyState, decode_proxy
+from haptic_local_model.shared.protocol.update import MessageError, UpdateParser, encode_update
+from haptic_local_model.sim_server.world import SimWorld
 
 SCENE, DEVICE, USER = "free_box", "ideal", "constant_push"
 MAX_WRENCH_N = 50.0  # configs/devices/ideal.toml
@@ -314,9 +314,11 @@ def test_sim_garbage_stall_kill_and_restart(
     """One haptic server through: a clean window, garbage between the sim's updates, the sim
     stopped (SIGSTOP, same epoch on SIGCONT), the sim killed and a new one started, SIGTERM."""
     log_path, summary_path = tmp_path / "haptic.mcap", tmp_path / "haptic.json"
-    haptic = start_server("haptic_server.cli", *haptic_args(network_file, log_path, summary_path))
+    haptic = start_server(
+        "haptic_local_model.haptic_server.cli", *haptic_args(network_file, log_path, summary_path)
+    )
     haptic.wait_ready()
-    sim1 = start_server("sim_server.cli", *server_args(network_file))
+    sim1 = start_server("haptic_local_model.sim_server.cli", *server_args(network_file))
     sim1.wait_ready()
     epoch1 = sim1.events[0]["epoch"]
     watch = watch_factory(network_file)
@@ -345,7 +347,7 @@ def test_sim_garbage_stall_kill_and_restart(
     os.kill(sim1.proc.pid, signal.SIGKILL)
     assert sim1.proc.wait(10.0) == -signal.SIGKILL
     watch.safe()
-    sim2 = start_server("sim_server.cli", *server_args(network_file))
+    sim2 = start_server("haptic_local_model.sim_server.cli", *server_args(network_file))
     sim2.wait_ready()
     epoch2 = sim2.events[0]["epoch"]
     assert epoch2 > epoch1
@@ -498,11 +500,13 @@ def test_haptic_server_killed_sim_carries_on(
     stepping; a new haptic server picks the sim up; SIGTERM (sim) and SIGINT (haptic)."""
     log1, log2 = tmp_path / "h1.mcap", tmp_path / "h2.mcap"
     haptic1 = start_server(
-        "haptic_server.cli", *haptic_args(network_file, log1, tmp_path / "1.json")
+        "haptic_local_model.haptic_server.cli",
+        *haptic_args(network_file, log1, tmp_path / "1.json"),
     )
     haptic1.wait_ready()
     sim = start_server(
-        "sim_server.cli", *server_args(network_file, "--summary-json", str(tmp_path / "sim.json"))
+        "haptic_local_model.sim_server.cli",
+        *server_args(network_file, "--summary-json", str(tmp_path / "sim.json")),
     )
     sim.wait_ready()
     sim_ready = time.monotonic()
@@ -524,7 +528,8 @@ def test_haptic_server_killed_sim_carries_on(
     last_seq_1 = max(u["seq"] for u in log.updates if u["installed"])
 
     haptic2 = start_server(
-        "haptic_server.cli", *haptic_args(network_file, log2, tmp_path / "2.json")
+        "haptic_local_model.haptic_server.cli",
+        *haptic_args(network_file, log2, tmp_path / "2.json"),
     )
     haptic2.wait_ready()
     mark = watch.mark()
@@ -577,7 +582,9 @@ def test_haptic_run_killed_leaves_no_orphan(
     """SIGKILL haptic-run itself: PR_SET_PDEATHSIG stops both servers (and the haptic
     server's I/O process); the haptic log is still finalised."""
     log = tmp_path / "run.mcap"
-    run = start_server("haptic_server.harness.run", *haptic_run_args(network_file, log))
+    run = start_server(
+        "haptic_local_model.haptic_server.harness.run", *haptic_run_args(network_file, log)
+    )
     run.wait_ready()
     ready = next(e for e in run.events if e.get("event") == "ready")
     family = descendants(run.proc.pid)
@@ -602,7 +609,9 @@ def test_haptic_run_stops_the_other_child(
     exits non-zero; nothing is left. (The haptic server's own helpers after a SIGKILL:
     test_haptic_server_killed_sim_carries_on.)"""
     log = tmp_path / "run.mcap"
-    run = start_server("haptic_server.harness.run", *haptic_run_args(network_file, log))
+    run = start_server(
+        "haptic_local_model.haptic_server.harness.run", *haptic_run_args(network_file, log)
+    )
     run.wait_ready()
     ready = next(e for e in run.events if e.get("event") == "ready")
     family = descendants(run.proc.pid)
@@ -619,7 +628,7 @@ def test_haptic_run_sigint_stops_both_cleanly(
     """SIGINT to haptic-run (Ctrl-C): both servers stop cleanly, haptic-run exits 0."""
     log, summary_path = tmp_path / "run.mcap", tmp_path / "summary.json"
     run = start_server(
-        "haptic_server.harness.run", *haptic_run_args(network_file, log),
+        "haptic_local_model.haptic_server.harness.run", *haptic_run_args(network_file, log),
         "--summary-json", str(summary_path),
     )  # fmt: skip
     run.wait_ready()

@@ -30,11 +30,11 @@ import pytest
 from test_access import CREDENTIALS, secure_network
 from test_faults import ProxyWatch
 
-from haptic_server.log import UPDATE_TOPIC, read_json_topic, read_ticks
-from shared.config import load_scene
-from shared.net.config import EndpointSpec, load_network
-from shared.protocol.update import encode_update
-from sim_server.world import SimWorld
+from haptic_local_model.haptic_server.log import UPDATE_TOPIC, read_json_topic, read_ticks
+from haptic_local_model.shared.config import load_scene
+from haptic_local_model.shared.net.config import EndpointSpec, load_network
+from haptic_local_model.shared.protocol.update import encode_update
+from haptic_local_model.sim_server.world import SimWorld
 
 SCENE = "free_box"
 MAX_WRENCH_N = 50.0  # configs/devices/ideal.toml
@@ -60,11 +60,14 @@ def test_forged_epochs_and_times_with_the_sims_credentials(
     network = load_network(str(net_path))
     log = tmp_path / "run.mcap"
     haptic = start_server(
-        "haptic_server.cli", "--scene", SCENE, "--device", "ideal", "--user", "constant_push",
+        "haptic_local_model.haptic_server.cli", "--scene", SCENE, "--device", "ideal", "--user",
+        "constant_push",
         "--network", str(net_path), "--log", str(log),
     )  # fmt: skip
     haptic.wait_ready()
-    sim = start_server("sim_server.cli", "--scene", SCENE, "--network", str(net_path))
+    sim = start_server(
+        "haptic_local_model.sim_server.cli", "--scene", SCENE, "--network", str(net_path)
+    )
     sim.wait_ready()
     sim_epoch = int(next(e for e in sim.events if e.get("event") == "ready")["epoch"])
     password = tmp_path / "sim.password"

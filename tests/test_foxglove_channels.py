@@ -14,7 +14,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
-from haptic_server.foxglove_view import (
+from haptic_local_model.haptic_server.foxglove_view import (
     FORCE_M_PER_N,
     LOG_TOPIC,
     SCENE_TOPIC,
@@ -22,11 +22,11 @@ from haptic_server.foxglove_view import (
     VIEW_HZ,
     ViewFrames,
 )
-from haptic_server.harness.virtual import run_virtual_named
-from haptic_server.log import TICK_TOPIC, LogWriter, read_ticks
-from haptic_server.logger import LogDrain
-from haptic_server.mailbox import C_TICK_HEAD, SharedBlock
-from shared.config import load_scene
+from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
+from haptic_local_model.haptic_server.log import TICK_TOPIC, LogWriter, read_ticks
+from haptic_local_model.haptic_server.logger import LogDrain
+from haptic_local_model.haptic_server.mailbox import C_TICK_HEAD, SharedBlock
+from haptic_local_model.shared.config import load_scene
 
 SECONDS = 2.0
 
@@ -162,8 +162,8 @@ def test_the_shipped_layout_is_generated_and_names_what_logs_hold() -> None:
     import json
     import re
 
-    from haptic_server.foxglove_view import layout_json
-    from haptic_server.model import TICK_DTYPE
+    from haptic_local_model.haptic_server.foxglove_view import layout_json
+    from haptic_local_model.haptic_server.model import TICK_DTYPE
 
     shipped = (Path(__file__).resolve().parent.parent / "docs/foxglove/layout.json").read_text()
     assert shipped == layout_json()

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from haptic_server.harness.replay import replay
-from haptic_server.log import read_log
+from haptic_local_model.haptic_server.harness.replay import replay
+from haptic_local_model.haptic_server.log import read_log
 
 GOLDEN = Path(__file__).parent / "golden" / "logs"
 LOGS = sorted(GOLDEN.glob("*.mcap"))
@@ -48,7 +48,7 @@ def _first_same_epoch_reinit(log_events: list[dict[str, object]]) -> int | None:
 
 @pytest.mark.parametrize("path", LOGS, ids=[p.stem for p in LOGS])
 def test_golden_log_replays_exactly(path: Path) -> None:
-    from haptic_server.harness.replay import max_abs_differences
+    from haptic_local_model.haptic_server.harness.replay import max_abs_differences
 
     log = read_log(path)
     result = replay(log)
@@ -105,10 +105,10 @@ def test_virtual_clock_reruns_the_golden_runs_exactly(path: Path) -> None:
     haptic side, run again on the configs a golden virtual-clock log stores, give every one
     of its tick rows (bit for bit on the recording's CPU, within RERUN_BOUND on others).
     This covers what a replay does not: the sim and encoder."""
-    from device_models.registry import device_from_text
-    from haptic_server.harness.replay import max_abs_differences, scene_of_run
-    from haptic_server.harness.virtual import run_virtual
-    from shared.config import UserConfig, load_config_text
+    from haptic_local_model.device_models.registry import device_from_text
+    from haptic_local_model.haptic_server.harness.replay import max_abs_differences, scene_of_run
+    from haptic_local_model.haptic_server.harness.virtual import run_virtual
+    from haptic_local_model.shared.config import UserConfig, load_config_text
 
     log = read_log(path)
     configs = log.metadata["configs"]

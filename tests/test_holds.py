@@ -20,7 +20,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from benchmarks.holds import (
+from haptic_local_model.benchmarks.holds import (
     SEED_OFFSET,
     TARGET_RMS_MM,
     HoldCase,
@@ -32,8 +32,8 @@ from benchmarks.holds import (
     run_case,
     steady_drift_mm,
 )
-from shared.config import load_scene
-from shared.kinematics import (
+from haptic_local_model.shared.config import load_scene
+from haptic_local_model.shared.kinematics import (
     PRISMATIC_X,
     PRISMATIC_Y,
     REVOLUTE,
@@ -41,9 +41,9 @@ from shared.kinematics import (
     point_bias_acceleration,
     point_on_link,
 )
-from shared.reference import ChainSpec, Hold, point_pose, simulate
-from shared.reference_bodies import simulate_bodies
-from shared.reference_loop import LoopGains, simulate_loop
+from haptic_local_model.shared.reference import ChainSpec, Hold, point_pose, simulate
+from haptic_local_model.shared.reference_bodies import simulate_bodies
+from haptic_local_model.shared.reference_loop import LoopGains, simulate_loop
 
 SPEC = ChainSpec(
     base=(0.0, 0.0), lengths=(0.042, 0.042, 0.03), masses=(3.0, 3.0, 1.0),

@@ -23,18 +23,29 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from device_models.ideal import IdealDevice
-from device_models.registry import load_device
-from haptic_server.engine import HapticEngine
-from haptic_server.log import update_json, update_record
-from haptic_server.model import TICK_DTYPE
-from shared.config import load_scene, load_user
-from shared.kinematics import MAX_DOF
-from shared.protocol.codes import Reason
-from shared.protocol.codes import reason_tag as reason_of
-from shared.protocol.layout import DEFAULT_LIMITS, MAX_CONTACTS
-from shared.protocol.proxy import MAX_WAIT_NS, NO_WAIT, UpdateWait, decode_proxy, encode_proxy
-from shared.protocol.update import MessageError, UpdateParser, decode_update, encode_update
+from haptic_local_model.device_models.ideal import IdealDevice
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.log import update_json, update_record
+from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.shared.config import load_scene, load_user
+from haptic_local_model.shared.kinematics import MAX_DOF
+from haptic_local_model.shared.protocol.codes import Reason
+from haptic_local_model.shared.protocol.codes import reason_tag as reason_of
+from haptic_local_model.shared.protocol.layout import DEFAULT_LIMITS, MAX_CONTACTS
+from haptic_local_model.shared.protocol.proxy import (
+    MAX_WAIT_NS,
+    NO_WAIT,
+    UpdateWait,
+    decode_proxy,
+    encode_proxy,
+)
+from haptic_local_model.shared.protocol.update import (
+    MessageError,
+    UpdateParser,
+    decode_update,
+    encode_update,
+)
 
 EXAMPLES = {
     "random_bytes": 3000,

@@ -6,34 +6,54 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import sysconfig
 import tomllib
+import zipfile
 from pathlib import Path
 
 import pytest
 
-from shared import __version__
+from haptic_local_model.shared import __version__
 
 REPO = Path(__file__).resolve().parent.parent
 CODE_ROOTS = ("shared", "sim_server", "haptic_server", "device_models", "benchmarks")
+NAMESPACE = "haptic_local_model"
+#: what a build never needs: outputs, caches, environments
+UNSHIPPED = (".git", ".venv", "build", "runs", "*.egg-info", "__pycache__", ".*_cache", "tests")
 
 
 def test_the_package_list_is_the_tree() -> None:
-    """pyproject.toml lists the packages by hand (configs/ is mapped into `shared`): a package
-    added to the tree and not to the list would be missing from every install."""
+    """pyproject.toml lists the packages by hand, each under the one installed name
+    (configs/ is mapped into `shared`): a package added to the tree and not to the list would
+    be missing from every install."""
     setuptools = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
     code = {
-        ".".join(p.parent.relative_to(REPO).parts)
+        ".".join((NAMESPACE, *p.parent.relative_to(REPO).parts))
         for root in CODE_ROOTS
         for p in (REPO / root).rglob("__init__.py")
     }
-    data = {"shared.configs"} | {
-        f"shared.configs.{d.name}" for d in (REPO / "configs").iterdir() if d.is_dir()
+    data = {f"{NAMESPACE}.shared.configs"} | {
+        f"{NAMESPACE}.shared.configs.{d.name}" for d in (REPO / "configs").iterdir() if d.is_dir()
     }
     assert set(setuptools["packages"]) == code | data
-    assert setuptools["package-dir"] == {"shared.configs": "configs"}
+    assert setuptools["package-dir"] == {
+        **{f"{NAMESPACE}.{root}": root for root in CODE_ROOTS},
+        f"{NAMESPACE}.shared.configs": "configs",
+    }
+
+
+def test_the_wheel_installs_one_top_level_name(wheel: Path) -> None:
+    """Nothing lands in site-packages under a generic name (`shared`, `benchmarks`) another
+    project could also use: every file of the wheel is under haptic_local_model/ or its
+    metadata, and the shipped configs are inside."""
+    names = zipfile.ZipFile(wheel).namelist()
+    tops = {n.split("/")[0] for n in names}
+    assert tops == {NAMESPACE, f"{NAMESPACE}-{__version__}.dist-info"}, tops
+    assert f"{NAMESPACE}/shared/configs/scenes/testbed.toml" in names
+    assert f"{NAMESPACE}/__init__.py" not in names  # a namespace: other distributions may extend it
 
 
 def test_the_version_is_the_distribution_s() -> None:
@@ -42,18 +62,27 @@ def test_the_version_is_the_distribution_s() -> None:
 
 
 @pytest.fixture(scope="module")
-def installed(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The project's wheel, built as `pip install .` builds it, from a copy of the sources
+    (setuptools reuses a tree's build/lib: a stale one would slip old packages in)."""
+    wheels = tmp_path_factory.mktemp("wheels")
+    source = tmp_path_factory.mktemp("source") / "project"
+    shutil.copytree(REPO, source, ignore=shutil.ignore_patterns(*UNSHIPPED))
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(wheels), str(source)],
+        check=True, timeout=600,
+    )  # fmt: skip
+    (built,) = wheels.glob("haptic_local_model-*.whl")
+    return built
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory: pytest.TempPathFactory, wheel: Path) -> Path:
     """A fresh virtual environment with the project's wheel installed (not editable). Its
     dependencies come from this environment's site-packages as a plain path (a .pth line):
     that adds numpy, numba, ... but not this environment's editable install of the project,
     whose finder only a site directory's own .pth files would load."""
     root = tmp_path_factory.mktemp("install")
-    wheels = root / "wheels"
-    subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(wheels), str(REPO)],
-        check=True, timeout=600,
-    )  # fmt: skip
-    (wheel,) = wheels.glob("haptic_local_model-*.whl")
     venv = root / "venv"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
     py = venv / "bin" / "python"
@@ -88,7 +117,9 @@ def test_the_wheel_runs_from_any_directory(
     paths; each exits 0 and writes where it was asked, nothing into the install."""
     work = tmp_path / "elsewhere"
     work.mkdir()
-    where = _run(installed, work, "python", "-c", "import shared; print(shared.__file__)")
+    where = _run(
+        installed, work, "python", "-c", "import haptic_local_model.shared as s; print(s.__file__)"
+    )
     assert where.returncode == 0, where.stderr
     assert str(installed) in where.stdout, where.stdout  # the wheel's code, not the tree's
     site = Path(where.stdout.strip()).parent.parent

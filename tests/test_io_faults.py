@@ -40,8 +40,8 @@ from test_faults import (
     server_args,
 )
 
-from haptic_server.log import read_log
-from haptic_server.mailbox import SEGMENT_PREFIX, SHM_DIR, sweep_segments
+from haptic_local_model.haptic_server.log import read_log
+from haptic_local_model.haptic_server.mailbox import SEGMENT_PREFIX, SHM_DIR, sweep_segments
 
 REPO = Path(__file__).resolve().parent.parent
 FULL_FS_BYTES = 3 * 1024 * 1024  # an 8 s run's log is larger
@@ -75,7 +75,8 @@ def test_a_full_disk_stops_logging_not_the_run(tmp_path: Path, small_filesystem:
     summary_path = tmp_path / "summary.json"
     res = subprocess.run(
         [
-            sys.executable, "-m", "haptic_server.harness.run", "--scene", "testbed",
+            sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--scene",
+            "testbed",
             "--duration", str(RUN_S), "--log", str(log), "--summary-json", str(summary_path),
             "--json-events",
         ],
@@ -117,9 +118,11 @@ def test_a_starved_then_killed_sidecar(
     tmp_path: Path, network_file: Path, start_server: Any
 ) -> None:
     log_path, summary_path = tmp_path / "h.mcap", tmp_path / "h.json"
-    haptic = start_server("haptic_server.cli", *haptic_args(network_file, log_path, summary_path))
+    haptic = start_server(
+        "haptic_local_model.haptic_server.cli", *haptic_args(network_file, log_path, summary_path)
+    )
     haptic.wait_ready()
-    sim = start_server("sim_server.cli", *server_args(network_file))
+    sim = start_server("haptic_local_model.sim_server.cli", *server_args(network_file))
     sim.wait_ready()
     epoch = sim.events[0]["epoch"]
     watch = ProxyWatch(network_file)
@@ -155,7 +158,12 @@ def test_a_starved_then_killed_sidecar(
 
 @pytest.mark.processes
 def test_a_group_kill_leaves_a_segment_the_next_start_removes(network_file: Path) -> None:
-    argv = [sys.executable, "-m", "haptic_server.cli", *server_args(network_file)]
+    argv = [
+        sys.executable,
+        "-m",
+        "haptic_local_model.haptic_server.cli",
+        *server_args(network_file),
+    ]
     first = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, start_new_session=True)
     try:
         assert first.stdout is not None
@@ -189,10 +197,14 @@ def test_a_clock_step_of_the_sim(
     tmp_path: Path, network_file: Path, start_server: Any, jump_ms: float
 ) -> None:
     log_path, summary_path = tmp_path / "h.mcap", tmp_path / "h.json"
-    haptic = start_server("haptic_server.cli", *haptic_args(network_file, log_path, summary_path))
+    haptic = start_server(
+        "haptic_local_model.haptic_server.cli", *haptic_args(network_file, log_path, summary_path)
+    )
     haptic.wait_ready()
     jump = f"{JUMP_AT_S},{jump_ms},{JUMP_FOR_S}"
-    sim = start_server("sim_server.cli", *server_args(network_file, "--inject-clock-jump", jump))
+    sim = start_server(
+        "haptic_local_model.sim_server.cli", *server_args(network_file, "--inject-clock-jump", jump)
+    )
     sim.wait_ready()
     time.sleep(JUMP_AT_S + JUMP_FOR_S + 1.5)
     assert haptic.stop() == 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from shared.kinematics import (
+from haptic_local_model.shared.kinematics import (
     chain_record,
     free_body_chain,
     link_frames,
@@ -12,7 +12,7 @@ from shared.kinematics import (
     point_jacobian,
     point_on_link,
 )
-from shared.reference import ChainSpec, bias_forces, mass_matrix
+from haptic_local_model.shared.reference import ChainSpec, bias_forces, mass_matrix
 
 FD_STEP = 1e-7
 FD_TOL = 1e-6  # central differences with h = 1e-7 on O(0.1 m) lever arms

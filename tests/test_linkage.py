@@ -7,12 +7,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from benchmarks.linkage import drift_metrics, reference_error, run, with_method
-from device_models.registry import load_device
-from haptic_server.harness.virtual import run_virtual
-from shared.config import load_scene, load_user
-from sim_server.local_model import resisted_directions
-from sim_server.world import SimWorld
+from haptic_local_model.benchmarks.linkage import drift_metrics, reference_error, run, with_method
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.harness.virtual import run_virtual
+from haptic_local_model.shared.config import load_scene, load_user
+from haptic_local_model.sim_server.local_model import resisted_directions
+from haptic_local_model.sim_server.world import SimWorld
 
 NULL_TOL = 1e-12  # an exactly singular J_h: its null vectors are exact up to round-off
 LENGTH = 0.05  # configs/scenes/linkage_*.toml characteristic_length_m

@@ -24,8 +24,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.browser import chromium, colour_count, free_ports, open_page, pixels
-from haptic_server.live_view import _DEVICE, _LINKAGE, _PROXY, _STATIC
+from haptic_local_model.benchmarks.browser import (
+    chromium,
+    colour_count,
+    free_ports,
+    open_page,
+    pixels,
+)
+from haptic_local_model.haptic_server.live_view import _DEVICE, _LINKAGE, _PROXY, _STATIC
 
 ROOT = Path(__file__).resolve().parents[1]
 ARTIFACTS = Path(os.environ.get("HAPTIC_TEST_ARTIFACTS", ROOT / "runs" / "test-artifacts"))
@@ -132,7 +138,7 @@ def test_live_view_of_a_real_run_and_of_its_log(tmp_path: Path, procs: list[Proc
     browser = _browser()
     web, grpc = free_ports(2)
     run = Proc(
-        [sys.executable, "-m", "haptic_server.harness.run", "--duration", "30",
+        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--duration", "30",
          "--log", "run.mcap", "--view", "--view-port", str(web), "--view-grpc-port", str(grpc)],
         tmp_path,
     )  # fmt: skip
@@ -155,7 +161,8 @@ def test_live_view_of_a_real_run_and_of_its_log(tmp_path: Path, procs: list[Proc
 
     web, grpc = free_ports(2)
     replay = Proc(
-        [sys.executable, "-m", "haptic_server.harness.replay", "run.mcap", "--view",
+        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.replay", "run.mcap",
+        "--view",
          "--view-port", str(web), "--view-grpc-port", str(grpc), "--view-seconds", "120",
          "--view-speed", "1"],
         tmp_path,
@@ -175,7 +182,8 @@ def test_view_options_are_checked() -> None:
         ["--view", "--view-port", "9100", "--view-grpc-port", "9100", "--duration", "1"],
     ):
         out = subprocess.run(
-            [sys.executable, "-m", "haptic_server.harness.run", "--no-log", *argv],
+            [sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--no-log",
+            *argv],
             capture_output=True, text=True, timeout=120,
         )  # fmt: skip
         assert out.returncode == 2, out
@@ -188,7 +196,8 @@ def test_a_file_without_ticks_is_refused(tmp_path: Path) -> None:
     bogus.write_text("not a log\n")
     web, grpc = free_ports(2)
     out = subprocess.run(
-        [sys.executable, "-m", "haptic_server.harness.replay", str(bogus), "--view",
+        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.replay", str(bogus),
+        "--view",
          "--view-port", str(web), "--view-grpc-port", str(grpc), "--view-seconds", "5"],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip

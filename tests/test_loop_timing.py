@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmarks.loop_timing import bare_loop, median_of, work_split
-from haptic_server.model import TICK_DTYPE
+from haptic_local_model.benchmarks.loop_timing import bare_loop, median_of, work_split
+from haptic_local_model.haptic_server.model import TICK_DTYPE
 
 
 def test_work_split_attributes_each_row_to_the_tick_before() -> None:

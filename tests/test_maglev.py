@@ -9,8 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from device_models.base import FAULT_NONE, FAULT_SATURATED, FAULT_WORKSPACE, SENSOR_DTYPE
-from device_models.maglev import (
+from haptic_local_model.device_models.base import (
+    FAULT_NONE,
+    FAULT_SATURATED,
+    FAULT_WORKSPACE,
+    SENSOR_DTYPE,
+)
+from haptic_local_model.device_models.maglev import (
     FAULT_INVALID_COMMAND,
     DeviceWorldMap,
     Maglev,

@@ -19,10 +19,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from device_models.registry import load_device, load_simulated_device
-from haptic_server.engine import HapticEngine
-from haptic_server.harness.virtual import run_virtual
-from haptic_server.mailbox import (
+from haptic_local_model.device_models.registry import load_device, load_simulated_device
+from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.harness.virtual import run_virtual
+from haptic_local_model.haptic_server.mailbox import (
     C_EVT_HEAD,
     C_EVT_LOST,
     C_UPD_READ,
@@ -31,11 +31,11 @@ from haptic_server.mailbox import (
     SLOT_BYTES,
     SharedBlock,
 )
-from haptic_server.sidecar import LoopIO
-from haptic_server.stages.install import DEFAULT_MAX_AGE_S
-from shared.config import load_scene, load_user
-from shared.protocol.codes import Reason
-from shared.protocol.codes import reason_tag as reason_of
+from haptic_local_model.haptic_server.sidecar import LoopIO
+from haptic_local_model.haptic_server.stages.install import DEFAULT_MAX_AGE_S
+from haptic_local_model.shared.config import load_scene, load_user
+from haptic_local_model.shared.protocol.codes import Reason
+from haptic_local_model.shared.protocol.codes import reason_tag as reason_of
 
 R_SIZE = Reason.SIZE
 

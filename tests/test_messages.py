@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shared.protocol.proxy import decode_proxy, encode_proxy
-from shared.protocol.update import (
+from haptic_local_model.shared.protocol.proxy import decode_proxy, encode_proxy
+from haptic_local_model.shared.protocol.update import (
     ContactSet,
     LocalModelUpdate,
     MessageError,
@@ -146,7 +146,7 @@ def test_mass_matrix_must_be_spd_and_symmetric() -> None:
 
 def test_proxy_round_trip_and_rejection() -> None:
     """The one encoder (from a tick row) and the decoder agree; a NaN is rejected."""
-    from haptic_server.model import TICK_DTYPE
+    from haptic_local_model.haptic_server.model import TICK_DTYPE
 
     row = np.zeros(1, TICK_DTYPE)
     r = row[0]
@@ -167,10 +167,10 @@ def test_proxy_round_trip_and_rejection() -> None:
 
 def test_proxy_of_an_engine_tick_carries_its_state() -> None:
     """What the sidecar publishes from the loop's newest row is the engine's proxy and device."""
-    from device_models.registry import load_device
-    from haptic_server.engine import HapticEngine
-    from shared.config import load_scene, load_user
-    from sim_server.world import SimWorld
+    from haptic_local_model.device_models.registry import load_device
+    from haptic_local_model.haptic_server.engine import HapticEngine
+    from haptic_local_model.shared.config import load_scene, load_user
+    from haptic_local_model.sim_server.world import SimWorld
 
     scene = load_scene("free_box")
     engine = HapticEngine(scene, load_device("ideal"), load_user("constant_push"))
@@ -189,7 +189,7 @@ def test_derived_offsets_follow_the_table() -> None:
     """Everything derived from shared/protocol/layout.py agrees with it: contact columns are
     contiguous in table order, the row dtype has their widths, the header offsets add up to
     the struct, and the encoder's output has exactly update_size() bytes."""
-    from shared.protocol import layout
+    from haptic_local_model.shared.protocol import layout
 
     at = 0
     for column in layout.CONTACT_COLUMNS:
@@ -209,7 +209,7 @@ def test_derived_offsets_follow_the_table() -> None:
 
 def _encoded_from_record(raw: bytes) -> bytes:
     """The sim's compiled encoder run on the record the parser fills from `raw`."""
-    from shared.protocol.update import UpdateParser, encode_record
+    from haptic_local_model.shared.protocol.update import UpdateParser, encode_record
 
     parser = UpdateParser()
     assert parser.parse(raw) == 0
@@ -234,8 +234,8 @@ def test_compiled_encoder_writes_the_bytes_of_the_reference_encoder(
 def test_the_sims_bytes_are_its_dataclass_encoded() -> None:
     """SimWorld.local_model_bytes and encode_update of SimWorld.local_model agree, in a scene
     with contacts, gravity and resisted directions."""
-    from shared.config import load_scene
-    from sim_server.world import SimWorld
+    from haptic_local_model.shared.config import load_scene
+    from haptic_local_model.sim_server.world import SimWorld
 
     for scene in ("wall_slide", "linkage_middle", "testbed_free_tool"):
         world = SimWorld(load_scene(scene))

@@ -11,8 +11,13 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.model_attacks import attack
-from haptic_server.harness.forgeries import EXPECTED, FORGERIES, LIMIT_MS, RESUME_MS
+from haptic_local_model.benchmarks.model_attacks import attack
+from haptic_local_model.haptic_server.harness.forgeries import (
+    EXPECTED,
+    FORGERIES,
+    LIMIT_MS,
+    RESUME_MS,
+)
 
 
 @pytest.mark.processes

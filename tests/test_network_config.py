@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from shared.config import CONFIG_ROOT, ConfigError
-from shared.net.config import load_network
-from shared.net.security import zenoh_keys
-from shared.net.transport import session_config
+from haptic_local_model.shared.config import CONFIG_ROOT, ConfigError
+from haptic_local_model.shared.net.config import load_network
+from haptic_local_model.shared.net.security import zenoh_keys
+from haptic_local_model.shared.net.transport import session_config
 
 CREDENTIALS = CONFIG_ROOT / "credentials"
 SIM_PASSWORD = (CREDENTIALS / "example_sim.password").read_text().splitlines()[0]

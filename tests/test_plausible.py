@@ -20,17 +20,17 @@ import math
 import numpy as np
 import pytest
 
-from device_models.registry import load_simulated_device
-from haptic_server.engine import HapticEngine
-from haptic_server.harness.forgeries import EXPECTED, FORGERIES
-from haptic_server.harness.virtual import _target
-from haptic_server.stages.plausible import RATIO_NAMES
-from haptic_server.stages.safety import runaway_guard
-from shared.config import CONFIG_ROOT, load_scene, load_user
-from shared.protocol.codes import Fault
-from shared.protocol.update import encode_update
-from shared.tool_chain import tool_bounds
-from sim_server.world import SimWorld
+from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.harness.forgeries import EXPECTED, FORGERIES
+from haptic_local_model.haptic_server.harness.virtual import _target
+from haptic_local_model.haptic_server.stages.plausible import RATIO_NAMES
+from haptic_local_model.haptic_server.stages.safety import runaway_guard
+from haptic_local_model.shared.config import CONFIG_ROOT, load_scene, load_user
+from haptic_local_model.shared.protocol.codes import Fault
+from haptic_local_model.shared.protocol.update import encode_update
+from haptic_local_model.shared.tool_chain import tool_bounds
+from haptic_local_model.sim_server.world import SimWorld
 
 SCENES = sorted(p.stem for p in (CONFIG_ROOT / "scenes").glob("*.toml"))
 USERS = {"crowd": "plough", "free_box": "waypoints", "maglev_scoop": "scoop",

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from matplotlib.patches import Circle, Polygon, Rectangle
 
-from haptic_server.harness.plot import plot_run, run_figure
-from haptic_server.log import LogContents
-from haptic_server.model import TICK_DTYPE
-from shared.config import SceneConfig, load_config_text
+from haptic_local_model.haptic_server.harness.plot import plot_run, run_figure
+from haptic_local_model.haptic_server.log import LogContents
+from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.shared.config import SceneConfig, load_config_text
 
 REPO = Path(__file__).resolve().parent.parent
 #: a box turned by 30 degrees, a circle, and a dynamic body that is not drawn (the sim's)

@@ -12,12 +12,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from device_models.registry import load_device, load_simulated_device
-from haptic_server.engine import HapticEngine
-from haptic_server.harness.virtual import run_virtual
-from shared.config import load_scene, load_user
-from shared.net.config import load_network
-from sim_server.world import SimWorld
+from haptic_local_model.device_models.registry import load_device, load_simulated_device
+from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.harness.virtual import run_virtual
+from haptic_local_model.shared.config import load_scene, load_user
+from haptic_local_model.shared.net.config import load_network
+from haptic_local_model.sim_server.world import SimWorld
 
 RATES = (1000.0, 4000.0, 10000.0)
 RAMP_S = load_network("loopback").safe_ramp_ms / 1000.0

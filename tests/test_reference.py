@@ -7,7 +7,7 @@ import pytest
 from scipy.integrate import simpson
 from scipy.optimize import brentq
 
-from shared.reference import (
+from haptic_local_model.shared.reference import (
     ChainSpec,
     Hold,
     bias_forces,

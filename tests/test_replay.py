@@ -14,9 +14,9 @@ import pytest
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from haptic_server.harness.replay import FORCE_FIELDS, POSE_FIELDS, main, replay
-from haptic_server.harness.virtual import run_virtual_named
-from haptic_server.log import (
+from haptic_local_model.haptic_server.harness.replay import FORCE_FIELDS, POSE_FIELDS, main, replay
+from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
+from haptic_local_model.haptic_server.log import (
     CHUNK_SIZE,
     TICK_TOPIC,
     is_indexed,
@@ -161,12 +161,13 @@ def test_real_time_log_replays_exactly(tmp_path: Path, network_file: Path, start
     path = tmp_path / "rt.mcap"
     summary_path = tmp_path / "haptic.json"
     haptic = start_server(
-        "haptic_server.cli", "--scene", "testbed", "--user", "swing", "--network",
+        "haptic_local_model.haptic_server.cli", "--scene", "testbed", "--user", "swing",
+        "--network",
         str(network_file), "--log", str(path), "--summary-json", str(summary_path),
     )  # fmt: skip
     haptic.wait_ready()
     start_server(
-        "sim_server.cli", "--scene", "testbed", "--network", str(network_file)
+        "haptic_local_model.sim_server.cli", "--scene", "testbed", "--network", str(network_file)
     ).wait_ready()
     wait_for_logged_update(path, haptic)
     time.sleep(REAL_RUN_S)
@@ -212,14 +213,17 @@ def test_sigkilled_haptic_server_leaves_a_usable_log(
     closes the file; the log holds the run up to within 1 s of the kill and replays exactly."""
     path = tmp_path / "killed.mcap"
     haptic = start_server(
-        "haptic_server.cli", "--scene", "free_box", "--user", "constant_push", "--network",
+        "haptic_local_model.haptic_server.cli", "--scene", "free_box", "--user",
+        "constant_push", "--network",
         str(network_file), "--log", str(path),
     )  # fmt: skip
     haptic.wait_ready()
     ready_at = time.monotonic()
     sidecars = _children(haptic.proc.pid)
     assert sidecars, "the haptic server should have its I/O sidecar"
-    start_server("sim_server.cli", "--scene", "free_box", "--network", str(network_file))
+    start_server(
+        "haptic_local_model.sim_server.cli", "--scene", "free_box", "--network", str(network_file)
+    )
     wait_for_logged_update(path, haptic)  # so the log has updates to replay
     time.sleep(max(0.5, KILL_AFTER_S - (time.monotonic() - ready_at)))
     killed_at = time.monotonic() - ready_at

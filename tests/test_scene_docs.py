@@ -12,8 +12,8 @@ import typing
 from pathlib import Path
 from typing import Any
 
-from shared import config
-from shared.config import CONFIG_ROOT, SceneConfig, load_config_text
+from haptic_local_model.shared import config
+from haptic_local_model.shared.config import CONFIG_ROOT, SceneConfig, load_config_text
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "scenes.md"
 KEYS_MARKER = re.compile(r"^<!-- keys: (\w+) -->$", re.M)

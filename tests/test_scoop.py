@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from conftest import haptic_run
 
-from benchmarks.foh_chatter import CLAIM_RATIO, measure
-from device_models.registry import load_device
-from haptic_server.harness.virtual import run_virtual_named
-from haptic_server.log import EVENT_TOPIC, read_json_topic, read_ticks
+from haptic_local_model.benchmarks.foh_chatter import CLAIM_RATIO, measure
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
+from haptic_local_model.haptic_server.log import EVENT_TOPIC, read_json_topic, read_ticks
 
 REPO = Path(__file__).resolve().parent.parent
 SCENE, USER = "maglev_scoop", "scoop"

@@ -26,12 +26,12 @@ import numpy as np
 import pytest
 import zenoh
 
-from benchmarks.stranger import PHASES, run
-from haptic_server.log import UPDATE_TOPIC, read_json_topic, read_ticks
-from shared.config import CONFIG_ROOT, ConfigError
-from shared.net.config import EndpointSpec, load_network, on_loopback, on_port
-from shared.net.credentials import CredentialsError, local_credentials
-from shared.net.transport import keys, open_session
+from haptic_local_model.benchmarks.stranger import PHASES, run
+from haptic_local_model.haptic_server.log import UPDATE_TOPIC, read_json_topic, read_ticks
+from haptic_local_model.shared.config import CONFIG_ROOT, ConfigError
+from haptic_local_model.shared.net.config import EndpointSpec, load_network, on_loopback, on_port
+from haptic_local_model.shared.net.credentials import CredentialsError, local_credentials
+from haptic_local_model.shared.net.transport import keys, open_session
 
 REPO = Path(__file__).resolve().parent.parent
 #: the sim's update age during an attack phase: within noise of the quiet phase. A bound that
@@ -132,10 +132,15 @@ def test_a_message_beyond_the_size_limit_is_dropped_by_the_transport(
     log = tmp_path / "run.mcap"
     common = ["--scene", "free_box", "--network", str(network_file)]
     haptic = start_server(
-        "haptic_server.cli", *common, "--user", "constant_push", "--log", str(log)
+        "haptic_local_model.haptic_server.cli",
+        *common,
+        "--user",
+        "constant_push",
+        "--log",
+        str(log),
     )
     haptic.wait_ready()
-    sim = start_server("sim_server.cli", *common)
+    sim = start_server("haptic_local_model.sim_server.cli", *common)
     sim.wait_ready()
     network = load_network(str(network_file))
     spec = EndpointSpec(
@@ -168,7 +173,8 @@ def test_two_default_runs_at_once_do_not_collide(tmp_path: Path) -> None:
     for i in range(2):
         summary = tmp_path / f"summary-{i}.json"
         argv = [
-            sys.executable, "-m", "haptic_server.harness.run", "--scene", "free_box",
+            sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--scene",
+            "free_box",
             "--user", "constant_push", "--duration", "2", "--no-log", "--summary-json",
             str(summary),
         ]  # fmt: skip

@@ -15,8 +15,8 @@ import numpy as np
 import pymunk
 import pytest
 
-from shared.config import load_scene
-from sim_server.world import SimWorld, ToolTarget
+from haptic_local_model.shared.config import load_scene
+from haptic_local_model.sim_server.world import SimWorld, ToolTarget
 
 STEPS = 120  # 2 s at 60 Hz
 REL_TOL = 1e-9  # linkage: ulps of the torque sum's order, grown over the run
@@ -114,7 +114,7 @@ def test_a_crowd_sleeps_and_only_the_neighbourhood_is_published() -> None:
     """The crowd scene: resting pebbles fall asleep, the local model carries only contacts
     within the margin of the tool (however many bodies the world has), and none of the
     query's overlaps are dropped."""
-    from shared.protocol.update import decode_update
+    from haptic_local_model.shared.protocol.update import decode_update
 
     world = SimWorld(load_scene("crowd"))
     margin = world.scene.tool.neighbourhood_margin_m

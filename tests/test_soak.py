@@ -14,7 +14,8 @@ SEGMENT_S = 15.0  # 2 KB a tick after a 25% warm-up leaks ~22 MB: over the 10 MB
 
 def soak(tmp_path: Path, *extra: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "haptic_server.harness.soak", "--minutes", str(SEGMENT_S / 60),
+        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.soak", "--minutes",
+        str(SEGMENT_S / 60),
          "--segment-s", str(SEGMENT_S), "--out", str(tmp_path), *extra],
         cwd=REPO, capture_output=True, text=True, timeout=600,
     )  # fmt: skip

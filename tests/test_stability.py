@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from benchmarks.stability import (
+from haptic_local_model.benchmarks.stability import (
     COUPLED,
     LOCAL_MODEL,
     _push,
@@ -21,8 +21,8 @@ from benchmarks.stability import (
     sampled_wall_boundary,
     wall_generates,
 )
-from device_models.ideal import IdealDevice, IdealDeviceConfig
-from shared.config import load_scene
+from haptic_local_model.device_models.ideal import IdealDevice, IdealDeviceConfig
+from haptic_local_model.shared.config import load_scene
 
 BOUND_TOL = 0.20  # issue 7: the measured boundary within 20% of the passivity bound
 PERIOD_S = 1.06e-3  # 1 kHz plus the measured p99.9 lateness
@@ -69,10 +69,10 @@ def test_guard_a_nan_never_reaches_the_device() -> None:
     command stays finite and within limits, and the fault is logged."""
     scene = load_scene("wall_push")
     device = IdealDevice(IdealDeviceConfig())
-    from haptic_server.engine import HapticEngine
-    from shared.config import UserConfig
-    from shared.protocol.update import encode_update
-    from sim_server.world import SimWorld
+    from haptic_local_model.haptic_server.engine import HapticEngine
+    from haptic_local_model.shared.config import UserConfig
+    from haptic_local_model.shared.protocol.update import encode_update
+    from haptic_local_model.sim_server.world import SimWorld
 
     engine = HapticEngine(
         scene, device, UserConfig(name="x", kind="constant_wrench", wrench=(1.0, 0.0, 0.0))

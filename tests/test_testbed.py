@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from haptic_server.harness.virtual import run_virtual_named
-from shared.config import load_scene, load_user
+from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
+from haptic_local_model.shared.config import load_scene, load_user
 
 WALL_FACE_Y = -0.145  # inner face of the bottom wall (segment at -0.15, radius 5 mm)
 TOOL_HALF_HEIGHT = 0.015

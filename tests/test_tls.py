@@ -15,9 +15,9 @@ from typing import Any
 import pytest
 from conftest import free_port
 
-from shared.config import CONFIG_ROOT
-from shared.net.config import EndpointSpec, load_network
-from shared.net.transport import keys, open_session
+from haptic_local_model.shared.config import CONFIG_ROOT
+from haptic_local_model.shared.net.config import EndpointSpec, load_network
+from haptic_local_model.shared.net.transport import keys, open_session
 
 DOC = CONFIG_ROOT.parent / "docs/security.md"
 UPDATES = 20

@@ -13,14 +13,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linprog, minimize_scalar
 
-from device_models.base import (
+from haptic_local_model.device_models.base import (
     FAULT_NONE,
     FAULT_SATURATED,
     FAULT_SINGULAR,
     FAULT_WORKSPACE,
     SENSOR_DTYPE,
 )
-from device_models.twin_pantograph import (
+from haptic_local_model.device_models.twin_pantograph import (
     FAULT_INVALID_COMMAND,
     FrictionSection,
     SimulationSection,

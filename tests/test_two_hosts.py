@@ -27,10 +27,10 @@ import pytest
 from conftest import ServerProcess
 from mcap.reader import make_reader
 
-from haptic_server.log import EVENT_TOPIC, TICK_TOPIC, UPDATE_TOPIC, read_ticks
-from haptic_server.model import TICK_DTYPE
-from shared.config import load_scene
-from shared.net.config import load_network
+from haptic_local_model.haptic_server.log import EVENT_TOPIC, TICK_TOPIC, UPDATE_TOPIC, read_ticks
+from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.shared.config import load_scene
+from haptic_local_model.shared.net.config import load_network
 
 # the shipped two-host config: the haptic server listens on 10.213.0.1, port 7447 (free: the
 # namespaces are new), with the example credentials, a 1 s lease and 250 ms reconnects
@@ -223,12 +223,14 @@ def test_link_cut_makes_the_device_safe_and_restoring_it_resumes(
     network = load_network(NETWORK)
     log = tmp_path / "run.mcap"
     haptic = two_hosts.start(two_hosts.haptic_ns, [
-        sys.executable, "-m", "haptic_server.cli", "--scene", SCENE, "--device", "ideal",
+        sys.executable, "-m", "haptic_local_model.haptic_server.cli", "--scene", SCENE,
+        "--device", "ideal",
         "--user", "waypoints", "--network", NETWORK, "--log", str(log),
     ])  # fmt: skip
     haptic.wait_ready()
     sim = two_hosts.start(two_hosts.sim_ns, [
-        sys.executable, "-m", "sim_server.cli", "--scene", SCENE, "--network", NETWORK,
+        sys.executable, "-m", "haptic_local_model.sim_server.cli", "--scene", SCENE,
+        "--network", NETWORK,
     ])  # fmt: skip
     sim.wait_ready()
     wait_for_log(log, connected, "the sim's first update", SIM_CONNECT_TIMEOUT_S)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from conftest import haptic_run
 
-from haptic_server.foxglove_view import LOG_TOPIC
-from haptic_server.harness.summary import summarise
-from haptic_server.log import (
+from haptic_local_model.haptic_server.foxglove_view import LOG_TOPIC
+from haptic_local_model.haptic_server.harness.summary import summarise
+from haptic_local_model.haptic_server.log import (
     EVENT_TOPIC,
     TICK_TOPIC,
     UPDATE_TOPIC,

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 from mcap.reader import make_reader
 
-from haptic_server.harness.virtual import run_virtual_named
-from haptic_server.log import TICK_TOPIC, UPDATE_TOPIC, read_ticks
+from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
+from haptic_local_model.haptic_server.log import TICK_TOPIC, UPDATE_TOPIC, read_ticks
 
 PUSH_N = 0.2  # configs/users/constant_push.toml
 BOX_KG = 1.0  # configs/scenes/free_box.toml

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.wall_push import PUSH_N, SETTLE_BAND, WallPushMetrics, measure, sweep_case
+from haptic_local_model.benchmarks.wall_push import (
+    PUSH_N,
+    SETTLE_BAND,
+    WallPushMetrics,
+    measure,
+    sweep_case,
+)
 
 PENETRATION_TOL = 0.05  # issue 3: steady penetration within 5% of F/K
 RUN_S = 2.0

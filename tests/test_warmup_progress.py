@@ -1,7 +1,8 @@
-"""`make warm` (python -m haptic_server.harness.warmup) says what it compiles: a line per group
-of kernels on stderr (what, how long, compiled or loaded from the cache) and the total, at most
-ten lines; `--quiet` and library calls print nothing. The groups are faked here (the real
-ones compile for a minute on a cold cache); that they cover every warm run is checked."""
+"""`make warm` (python -m haptic_local_model.haptic_server.harness.warmup) says what it
+compiles: a line per group of kernels on stderr (what, how long, compiled or loaded from the
+cache) and the total, at most ten lines; `--quiet` and library calls print nothing. The
+groups are faked here (the real ones compile for a minute on a cold cache); that they cover
+every warm run is checked."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from haptic_server.harness import warmup
+from haptic_local_model.haptic_server.harness import warmup
 
 
 @pytest.fixture

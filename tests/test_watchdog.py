@@ -14,14 +14,14 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from device_models.registry import load_device
-from haptic_server.engine import HapticEngine
-from haptic_server.harness.virtual import _target
-from haptic_server.model import TICK_DTYPE
-from shared.config import load_scene, load_user
-from shared.net.config import load_network
-from shared.protocol.update import encode_update
-from sim_server.world import SimWorld
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.harness.virtual import _target
+from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.shared.config import load_scene, load_user
+from haptic_local_model.shared.net.config import load_network
+from haptic_local_model.shared.protocol.update import encode_update
+from haptic_local_model.sim_server.world import SimWorld
 
 NETWORK = load_network("loopback")
 WATCHDOG_S = NETWORK.watchdog_ms / 1000.0

@@ -21,8 +21,8 @@ Modules: config (constants, records, config sections, pack_parameters), kinemati
 dynamics, torques (redundancy resolution), device (tick kernels and the device class).
 """
 
-from device_models.common import FAULT_INVALID_COMMAND
-from device_models.twin_pantograph.config import (
+from haptic_local_model.device_models.common import FAULT_INVALID_COMMAND
+from haptic_local_model.device_models.twin_pantograph.config import (
     PARAMS_DTYPE,
     STATE_DTYPE,
     WORK_DTYPE,
@@ -31,13 +31,13 @@ from device_models.twin_pantograph.config import (
     TwinPantographConfig,
     pack_parameters,
 )
-from device_models.twin_pantograph.device import AUX_NAMES, TwinPantograph
-from device_models.twin_pantograph.dynamics import (
+from haptic_local_model.device_models.twin_pantograph.device import AUX_NAMES, TwinPantograph
+from haptic_local_model.device_models.twin_pantograph.dynamics import (
     christoffel_matrix,
     inertia_gradient,
     task_inertia,
 )
-from device_models.twin_pantograph.kinematics import (
+from haptic_local_model.device_models.twin_pantograph.kinematics import (
     forward_kinematics,
     inverse_kinematics,
     motor_jacobian,
@@ -45,7 +45,7 @@ from device_models.twin_pantograph.kinematics import (
     singularity_measures,
     torques_to_wrench,
 )
-from device_models.twin_pantograph.torques import resolve_torques
+from haptic_local_model.device_models.twin_pantograph.torques import resolve_torques
 
 __all__ = [
     "AUX_NAMES",

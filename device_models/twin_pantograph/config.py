@@ -9,17 +9,17 @@ from typing import ClassVar
 
 import numpy as np
 
-from device_models.base import (
+from haptic_local_model.device_models.base import (
     FAULT_NONE,
     INERTIA_RANGE,
     TORQUE_LIMIT_RANGE_NM,
     DeviceRenderingSpec,
     require_device_limits,
 )
-from device_models.common import ModelConfig, SimulationSection
-from device_models.twin_pantograph.kinematics import pose_faults
-from device_models.world_map import WorldMapSection
-from shared.config import require, within, within_all
+from haptic_local_model.device_models.common import ModelConfig, SimulationSection
+from haptic_local_model.device_models.twin_pantograph.kinematics import pose_faults
+from haptic_local_model.device_models.world_map import WorldMapSection
+from haptic_local_model.shared.config import require, within, within_all
 
 #: Central-difference step for dM/dx, m and rad: truncation (~(h/0.1 m)^2) and round-off
 #: (~1e-16/h) errors are both ~1e-10 relative at the device's 0.1 m link scale.

@@ -7,41 +7,41 @@ import math
 import numpy as np
 from numba import njit
 
-from device_models.base import (
+from haptic_local_model.device_models.base import (
     FAULT_NONE,
     FAULT_SATURATED,
     FAULT_WORKSPACE,
     DeviceLimits,
 )
-from device_models.common import (
+from haptic_local_model.device_models.common import (
     FAULT_INVALID_COMMAND,
     KernelDevice,
     NoiseBuffer,
     sense_hand_wrench,
 )
-from device_models.kernels import ModelKernels, register_model
-from device_models.twin_pantograph.config import (
+from haptic_local_model.device_models.kernels import ModelKernels, register_model
+from haptic_local_model.device_models.twin_pantograph.config import (
     PARAMS_DTYPE,
     STATE_DTYPE,
     WORK_DTYPE,
     TwinPantographConfig,
     pack_parameters,
 )
-from device_models.twin_pantograph.dynamics import (
+from haptic_local_model.device_models.twin_pantograph.dynamics import (
     _solve_spd3,
     christoffel_matrix,
     inertia_gradient,
     task_inertia,
 )
-from device_models.twin_pantograph.kinematics import (
+from haptic_local_model.device_models.twin_pantograph.kinematics import (
     forward_kinematics,
     inverse_kinematics,
     motor_jacobian,
     pose_faults,
     torques_to_wrench,
 )
-from device_models.twin_pantograph.torques import resolve_torques
-from device_models.world_map import DeviceWorldMap
+from haptic_local_model.device_models.twin_pantograph.torques import resolve_torques
+from haptic_local_model.device_models.world_map import DeviceWorldMap
 
 
 @njit(cache=True)

@@ -7,8 +7,8 @@ import math
 
 from numba import njit
 
-from device_models.twin_pantograph.config import INERTIA_FD_STEP
-from device_models.twin_pantograph.kinematics import _jacobian_row
+from haptic_local_model.device_models.twin_pantograph.config import INERTIA_FD_STEP
+from haptic_local_model.device_models.twin_pantograph.kinematics import _jacobian_row
 
 
 @njit(cache=True)

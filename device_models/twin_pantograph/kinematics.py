@@ -7,7 +7,7 @@ import math
 
 from numba import njit
 
-from device_models.base import (
+from haptic_local_model.device_models.base import (
     FAULT_NONE,
     FAULT_SINGULAR,
     FAULT_WORKSPACE,

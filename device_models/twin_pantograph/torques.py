@@ -6,8 +6,8 @@ import math
 
 from numba import njit
 
-from device_models.twin_pantograph.config import _SCALE_BISECTIONS
-from device_models.twin_pantograph.dynamics import _solve_spd3
+from haptic_local_model.device_models.twin_pantograph.config import _SCALE_BISECTIONS
+from haptic_local_model.device_models.twin_pantograph.dynamics import _solve_spd3
 
 
 @njit(cache=True)

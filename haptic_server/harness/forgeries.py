@@ -21,12 +21,17 @@ from typing import Any
 
 import numpy as np
 
-from shared.config import SceneConfig
-from shared.net.config import NetworkConfig
-from shared.protocol.codes import Fault
-from shared.protocol.layout import CONTACT_FLOATS
-from shared.protocol.proxy import ProxyState, decode_proxy
-from shared.protocol.update import ContactSet, LocalModelUpdate, contact_rows, encode_update
+from haptic_local_model.shared.config import SceneConfig
+from haptic_local_model.shared.net.config import NetworkConfig
+from haptic_local_model.shared.protocol.codes import Fault
+from haptic_local_model.shared.protocol.layout import CONTACT_FLOATS
+from haptic_local_model.shared.protocol.proxy import ProxyState, decode_proxy
+from haptic_local_model.shared.protocol.update import (
+    ContactSet,
+    LocalModelUpdate,
+    contact_rows,
+    encode_update,
+)
 
 Forgery = Callable[[LocalModelUpdate, SceneConfig], LocalModelUpdate]
 
@@ -96,7 +101,7 @@ def fast_wall(u: LocalModelUpdate, scene: SceneConfig) -> LocalModelUpdate:
 def teleport(u: LocalModelUpdate, scene: SceneConfig) -> LocalModelUpdate:
     """The tool moved far since the last update (the first joint turned by 2.5 rad, or a
     free body 0.3 m along x), every field as the sim computes it there."""
-    from sim_server.world import SimWorld
+    from haptic_local_model.sim_server.world import SimWorld
 
     world = SimWorld(scene)
     q = u.q.copy()
@@ -169,9 +174,9 @@ class Forger:
     consistent and plausible), in the sim's epoch."""
 
     def __init__(self, network: NetworkConfig, scene: SceneConfig, epoch: int) -> None:
-        from shared.net.config import EndpointSpec
-        from shared.net.transport import keys, open_session
-        from sim_server.world import SimWorld
+        from haptic_local_model.shared.net.config import EndpointSpec
+        from haptic_local_model.shared.net.transport import keys, open_session
+        from haptic_local_model.sim_server.world import SimWorld
 
         self.scene, self.epoch = scene, epoch
         sim = network.sim
@@ -257,7 +262,7 @@ def measure(
     good update rendering was normal again (not safe, no fault), the sim's own updates refused
     (an installed forgery takes its sequence number: the sim's updates up to it that arrive
     after it are refused as out of order, displaced, not refused because of what it said)."""
-    from haptic_server.log import UPDATE_TOPIC, read_json_topic, read_ticks
+    from haptic_local_model.haptic_server.log import UPDATE_TOPIC, read_json_topic, read_ticks
 
     records = read_json_topic(log, UPDATE_TOPIC)
     forged = [r for r in records if base64.b64decode(r["raw_b64"]) == raw]

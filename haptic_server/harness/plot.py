@@ -9,9 +9,9 @@ from typing import Any
 
 import numpy as np
 
-from haptic_server.harness.summary import LATE_TICK_US, ReplayError, config_name
-from haptic_server.log import LogContents
-from shared.config import BodySpec, static_bodies
+from haptic_local_model.haptic_server.harness.summary import LATE_TICK_US, ReplayError, config_name
+from haptic_local_model.haptic_server.log import LogContents
+from haptic_local_model.shared.config import BodySpec, static_bodies
 
 FORCE_SOURCES = (
     "f_user", "f_contact", "f_impulse", "f_bias", "f_penalty", "f_coordination", "f_damping",

@@ -24,27 +24,33 @@ from typing import Any
 
 import numpy as np
 
-from haptic_server.engine import EngineCounters, HapticEngine
-from haptic_server.harness.plot import plot_run
-from haptic_server.harness.summary import ReplayError, print_summary, summarise
-from haptic_server.live_view import (
+from haptic_local_model.haptic_server.engine import EngineCounters, HapticEngine
+from haptic_local_model.haptic_server.harness.plot import plot_run
+from haptic_local_model.haptic_server.harness.summary import ReplayError, print_summary, summarise
+from haptic_local_model.haptic_server.live_view import (
     EmptyLogError,
     ViewAddress,
     add_view_args,
     view_address,
     view_log,
 )
-from haptic_server.log import LogContents, read_log, recover_log
-from haptic_server.model import TICK_DTYPE
-from haptic_server.stages.install import EPOCH_LAW_HIGHER
-from haptic_server.stages.tick import store_row
-from haptic_server.supervisor import Event, LoggedEvents, supervise
-from shared import source_hash
-from shared.cli import add_version, seconds, speed
-from shared.config import ConfigError, SceneConfig, UserConfig, load_config_text, parse_toml_text
-from shared.net.config import SAFE_RAMP_MS_RANGE, NetworkConfig
-from shared.protocol.codes import Reason
-from shared.protocol.codes import reason_tag as reason_of
+from haptic_local_model.haptic_server.log import LogContents, read_log, recover_log
+from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.haptic_server.stages.install import EPOCH_LAW_HIGHER
+from haptic_local_model.haptic_server.stages.tick import store_row
+from haptic_local_model.haptic_server.supervisor import Event, LoggedEvents, supervise
+from haptic_local_model.shared import source_hash
+from haptic_local_model.shared.cli import add_version, seconds, speed
+from haptic_local_model.shared.config import (
+    ConfigError,
+    SceneConfig,
+    UserConfig,
+    load_config_text,
+    parse_toml_text,
+)
+from haptic_local_model.shared.net.config import SAFE_RAMP_MS_RANGE, NetworkConfig
+from haptic_local_model.shared.protocol.codes import Reason
+from haptic_local_model.shared.protocol.codes import reason_tag as reason_of
 
 PROGRESS_MIN_TICKS = 20_000  # show a progress bar on replays longer than 20 s at 1 kHz
 PROGRESS_EVERY = 1000  # ticks between progress bar updates (keeps its cost negligible)
@@ -114,7 +120,7 @@ def scene_of_run(scene_text: str, run: dict[str, str] | None) -> SceneConfig:
 def engine_from_configs(configs: dict[str, str], run: dict[str, str] | None = None) -> HapticEngine:
     """The engine a run used, from the config texts in its `configs` metadata record and
     the build in its `run` record (see scene_of_run)."""
-    from device_models.registry import device_from_text
+    from haptic_local_model.device_models.registry import device_from_text
 
     missing = [k for k in ("scene", "device", "user") if not configs.get(k)]
     if missing:
@@ -382,7 +388,7 @@ def main(argv: list[str] | None = None) -> int:
         help="with --view: draw at X times log time (default 0: all at once, then scrub)",
     )  # fmt: skip
     args = parser.parse_args(argv)
-    from shared.cli import run_main
+    from haptic_local_model.shared.cli import run_main
 
     recover = args.recover
     if recover == Path("-"):

@@ -24,8 +24,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
-from haptic_server.live_view import add_view_args, view_address
-from shared.cli import (
+from haptic_local_model.haptic_server.live_view import add_view_args, view_address
+from haptic_local_model.shared.cli import (
     EXIT_CONFIG,
     EXIT_LOG_FAILED,
     add_config_args,
@@ -36,9 +36,15 @@ from shared.cli import (
     seconds,
     write_summary,
 )
-from shared.config import ConfigError, absolute_ref, load_scene, load_user, resolve
-from shared.net.config import free_loopback_port, load_network, on_loopback
-from shared.timing import avoid_cpu as keep_off_cpu
+from haptic_local_model.shared.config import (
+    ConfigError,
+    absolute_ref,
+    load_scene,
+    load_user,
+    resolve,
+)
+from haptic_local_model.shared.net.config import free_loopback_port, load_network, on_loopback
+from haptic_local_model.shared.timing import avoid_cpu as keep_off_cpu
 
 READY_TIMEOUT_S = 300.0  # a cold numba cache compiles for a minute or two on 2 cores
 STOP_TIMEOUT_S = 30.0
@@ -138,7 +144,7 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
     if args.port is None and on_loopback(network):
         args.port = free_loopback_port()  # a port of this run's own: runs never collide
     resolve("devices", args.device)
-    from device_models.registry import load_device
+    from haptic_local_model.device_models.registry import load_device
 
     load_device(args.device)
     # the servers' own summaries: in a folder of this run's, not beside the log (whose disk
@@ -168,7 +174,9 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
         sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)
     }
     failure: str | None = None
-    haptic = Child("haptic", _server_argv("haptic_server.cli", args, haptic_extra))
+    haptic = Child(
+        "haptic", _server_argv("haptic_local_model.haptic_server.cli", args, haptic_extra)
+    )
     sim: Child | None = None
     try:
         if not haptic.wait_ready(READY_TIMEOUT_S, stop):
@@ -181,7 +189,9 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
             )
             sim = Child(
                 "sim",
-                _server_argv("sim_server.cli", args, ["--summary-json", str(sim_json)]),
+                _server_argv(
+                    "haptic_local_model.sim_server.cli", args, ["--summary-json", str(sim_json)]
+                ),
                 avoid_cpu=loop_cpu,
             )
             if not sim.wait_ready(READY_TIMEOUT_S, stop):
@@ -248,7 +258,7 @@ def _watch(haptic: Child, sim: Child, stop: threading.Event, timeout_s: float) -
 
 
 def run_virtual_clock(args: argparse.Namespace) -> dict[str, Any]:
-    from haptic_server.harness.virtual import run_virtual_named
+    from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
 
     load_network(args.network)  # not used on a virtual clock, but a bad file is still an error
     result = run_virtual_named(

@@ -38,14 +38,14 @@ from typing import Any
 
 import numpy as np
 
-from device_models.registry import load_device
-from haptic_server.harness.forgeries import Forger, measure
-from haptic_server.harness.run import Child
-from haptic_server.log import EVENT_TOPIC, read_json_topic, read_ticks
-from shared.cli import EXIT_CONFIG, add_version, minutes, run_main, seconds
-from shared.config import load_scene, load_user
-from shared.net.config import free_loopback_port, load_network, on_port
-from shared.protocol.codes import Fault
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.harness.forgeries import Forger, measure
+from haptic_local_model.haptic_server.harness.run import Child
+from haptic_local_model.haptic_server.log import EVENT_TOPIC, read_json_topic, read_ticks
+from haptic_local_model.shared.cli import EXIT_CONFIG, add_version, minutes, run_main, seconds
+from haptic_local_model.shared.config import load_scene, load_user
+from haptic_local_model.shared.net.config import free_loopback_port, load_network, on_port
+from haptic_local_model.shared.protocol.codes import Fault
 
 # ticks starting > 1 ms late: the bare clock loop alone measured up to 0.43% on these VMs
 # (benchmarks/loop_timing.py); soak segments measured 0.03-1.2% on a quiet VM and up to 2.1%
@@ -183,7 +183,7 @@ def _helper_name(pid: int) -> str | None:
         cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")
     except OSError:
         return None
-    if b"haptic_server.logger" in cmdline:
+    if b"haptic_local_model.haptic_server.logger" in cmdline:
         return "haptic_log"
     if b"spawn_main" in cmdline:
         return "haptic_io"
@@ -252,12 +252,20 @@ def run_segment(
     haptic = Child(
         "haptic",
         [
-            py, "-m", "haptic_server.cli", *common, "--device", device, "--user", user,
+            py, "-m", "haptic_local_model.haptic_server.cli", *common, "--device", device,
+            "--user", user,
             "--duration", str(seconds), "--log", str(log), "--summary-json", str(haptic_json),
             *inject,
         ],
     )  # fmt: skip
-    sim_argv = [py, "-m", "sim_server.cli", *common, "--summary-json", str(sim_json)]
+    sim_argv = [
+        py,
+        "-m",
+        "haptic_local_model.sim_server.cli",
+        *common,
+        "--summary-json",
+        str(sim_json),
+    ]
     fault_at = FAULT_AT * seconds
     if segment.fault == "clock_step":
         sim_argv += ["--inject-clock-jump", f"{fault_at},{CLOCK_STEP_MS},{CLOCK_STEP_S}"]

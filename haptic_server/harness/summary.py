@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_server.log import LogContents
+from haptic_local_model.haptic_server.log import LogContents
 
 
 class ReplayError(RuntimeError):

@@ -17,18 +17,25 @@ from pathlib import Path
 
 import numpy as np
 
-from device_models.base import SimulatedDevice
-from device_models.registry import load_simulated_device
-from haptic_server.engine import HapticEngine
-from haptic_server.engine import warm_kernels as warm_engine_kernels
-from haptic_server.log import run_metadata
-from haptic_server.logger import LogFeed
-from haptic_server.model import TICK_DTYPE
-from haptic_server.supervisor import InstallOnly, supervise
-from shared.config import SceneConfig, UserConfig, load_scene, load_user, resolve, scene_text
-from shared.protocol.codes import Method, Reason
-from sim_server.world import SimWorld, ToolTarget
-from sim_server.world import warm_kernels as warm_sim_kernels
+from haptic_local_model.device_models.base import SimulatedDevice
+from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.engine import warm_kernels as warm_engine_kernels
+from haptic_local_model.haptic_server.log import run_metadata
+from haptic_local_model.haptic_server.logger import LogFeed
+from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.haptic_server.supervisor import InstallOnly, supervise
+from haptic_local_model.shared.config import (
+    SceneConfig,
+    UserConfig,
+    load_scene,
+    load_user,
+    resolve,
+    scene_text,
+)
+from haptic_local_model.shared.protocol.codes import Method, Reason
+from haptic_local_model.sim_server.world import SimWorld, ToolTarget
+from haptic_local_model.sim_server.world import warm_kernels as warm_sim_kernels
 
 VIRTUAL_EPOCH = 1
 

@@ -1,6 +1,6 @@
 """Compile every numba kernel into the on-disk cache (`make warm`), so servers start fast.
 
-    python -m haptic_server.harness.warmup [--quiet]
+    python -m haptic_local_model.haptic_server.harness.warmup [--quiet]
 
 Progress goes to stderr: a line per group of kernels (what, how long, compiled or loaded
 from the cache) and the total; `--quiet` prints nothing. `warm_all()` prints only if given
@@ -19,12 +19,12 @@ from functools import partial
 from pathlib import Path
 from typing import TextIO
 
-from device_models.registry import DEVICE_MODELS, load_device
-from haptic_server.engine import HapticEngine
-from haptic_server.harness.virtual import run_virtual_named
-from haptic_server.mailbox import compile_loop_kernels
-from haptic_server.realtime import compile_realtime_kernels
-from shared.config import load_scene, load_user
+from haptic_local_model.device_models.registry import DEVICE_MODELS, load_device
+from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
+from haptic_local_model.haptic_server.mailbox import compile_loop_kernels
+from haptic_local_model.haptic_server.realtime import compile_realtime_kernels
+from haptic_local_model.shared.config import load_scene, load_user
 
 #: (scene, user, seconds) run with the ideal device: every rendering stage and the sim
 SCENE_RUNS = (("free_box", "waypoints", 1.0), ("testbed", "swing", 1.0),
@@ -107,7 +107,7 @@ def warm_all(out: TextIO | None = None) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m haptic_server.harness.warmup",
+        prog="python -m haptic_local_model.haptic_server.harness.warmup",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

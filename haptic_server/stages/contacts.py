@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from numba import njit
 
-from shared.kinematics import point_jacobian, point_on_link
-from shared.linalg import cholesky_inplace, cholesky_solve
+from haptic_local_model.shared.kinematics import point_jacobian, point_on_link
+from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
 
 
 @njit(cache=True)

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 from numba import njit
 
-from haptic_server.stages.kinematics import fading
-from shared.kinematics import point_bias_acceleration
-from shared.linalg import cholesky_inplace, cholesky_solve
-from shared.protocol.codes import Method
+from haptic_local_model.haptic_server.stages.kinematics import fading
+from haptic_local_model.shared.kinematics import point_bias_acceleration
+from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
+from haptic_local_model.shared.protocol.codes import Method
 
 
 @njit(cache=True)

@@ -9,10 +9,13 @@ from __future__ import annotations
 
 from numba import njit
 
-from haptic_server.stages.plausible import check_plausible
-from shared.protocol.codes import Reason
-from shared.protocol.layout import DEFAULT_CLOCK_SKEW_MS, DEFAULT_MAX_UPDATE_AGE_MS
-from shared.protocol.update import parse_update
+from haptic_local_model.haptic_server.stages.plausible import check_plausible
+from haptic_local_model.shared.protocol.codes import Reason
+from haptic_local_model.shared.protocol.layout import (
+    DEFAULT_CLOCK_SKEW_MS,
+    DEFAULT_MAX_UPDATE_AGE_MS,
+)
+from haptic_local_model.shared.protocol.update import parse_update
 
 #: How epochs and times are admitted (install.epoch_law). Releases before 0.3 switched to
 #: any higher epoch at once, never back to a lower one, and took any publish time: a single

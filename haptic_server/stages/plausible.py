@@ -26,7 +26,7 @@ import math
 
 from numba import njit
 
-from shared.kinematics import (
+from haptic_local_model.shared.kinematics import (
     REVOLUTE,
     VELOCITY_TORQUE_STEP,
     mass_matrix_and_gravity,
@@ -35,8 +35,8 @@ from shared.kinematics import (
     scaled_gram,
     velocity_product_torque_into,
 )
-from shared.linalg import cholesky_inplace, cholesky_solve, symmetric_eigen
-from shared.protocol.codes import Reason
+from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve, symmetric_eigen
+from haptic_local_model.shared.protocol.codes import Reason
 
 #: geometry the sim and the haptic side compute from the same numbers agrees to rounding;
 #: beyond these it is another tool (m, rad)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from numba import njit
 
-from shared.linalg import cholesky_inplace, cholesky_solve
+from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
 
 
 @njit(cache=True)

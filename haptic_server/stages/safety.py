@@ -7,7 +7,7 @@ import math
 
 from numba import njit
 
-from shared.protocol.codes import Fault
+from haptic_local_model.shared.protocol.codes import Fault
 
 
 @njit(cache=True)

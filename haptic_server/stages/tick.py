@@ -4,22 +4,26 @@ from __future__ import annotations
 
 from numba import njit
 
-from device_models.world_map import (
+from haptic_local_model.device_models.world_map import (
     map_command_to_device,
     map_rate_step,
     map_sensors_to_world,
     map_wrench_to_world,
 )
-from haptic_server.stages.contacts import contacts
-from haptic_server.stages.control import control, coupling_errors
-from haptic_server.stages.kinematics import (
+from haptic_local_model.haptic_server.stages.contacts import contacts
+from haptic_local_model.haptic_server.stages.control import control, coupling_errors
+from haptic_local_model.haptic_server.stages.kinematics import (
     blend_model,
     blend_weights,
     operational_terms,
     proxy_kinematics,
 )
-from haptic_server.stages.proxy import proxy_step
-from haptic_server.stages.safety import fill_row, runaway_guard, safety_and_limits
+from haptic_local_model.haptic_server.stages.proxy import proxy_step
+from haptic_local_model.haptic_server.stages.safety import (
+    fill_row,
+    runaway_guard,
+    safety_and_limits,
+)
 
 
 @njit(cache=True)

@@ -9,9 +9,19 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from shared.config import ConfigError, load_dataclass, read_toml, require, resolve, within
-from shared.net.credentials import LOCAL, CredentialsError, local_credentials
-from shared.protocol.layout import DEFAULT_CLOCK_SKEW_MS, DEFAULT_MAX_UPDATE_AGE_MS
+from haptic_local_model.shared.config import (
+    ConfigError,
+    load_dataclass,
+    read_toml,
+    require,
+    resolve,
+    within,
+)
+from haptic_local_model.shared.net.credentials import LOCAL, CredentialsError, local_credentials
+from haptic_local_model.shared.protocol.layout import (
+    DEFAULT_CLOCK_SKEW_MS,
+    DEFAULT_MAX_UPDATE_AGE_MS,
+)
 
 # --- network --------------------------------------------------------------------------------
 
@@ -228,7 +238,9 @@ def load_network(name_or_path: str, roles: tuple[str, ...] = ("haptic", "sim")) 
                 raise ConfigError(str(path), f"{role}.{key}", f"file not found: {file}")
         specs[role] = spec
     network = dataclasses.replace(network, haptic=specs["haptic"], sim=specs["sim"])
-    from shared.net.transport import session_config  # Zenoh checks its own keys (and is heavy)
+    from haptic_local_model.shared.net.transport import (
+        session_config,  # Zenoh checks its own keys (and is heavy)
+    )
 
     for role in roles:
         try:

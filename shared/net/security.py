@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # annotations only: the config module imports this one
-    from shared.net.config import EndpointSpec
+    from haptic_local_model.shared.net.config import EndpointSpec
 
 
 def read_password(path: str) -> str:

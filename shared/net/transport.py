@@ -13,10 +13,10 @@ from typing import TYPE_CHECKING, Any
 
 import zenoh
 
-from shared.net.security import zenoh_keys
+from haptic_local_model.shared.net.security import zenoh_keys
 
 if TYPE_CHECKING:  # annotations only: the config module imports this one
-    from shared.net.config import EndpointSpec
+    from haptic_local_model.shared.net.config import EndpointSpec
 
 
 @dataclass(frozen=True)

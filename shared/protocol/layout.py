@@ -15,8 +15,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from shared.kinematics import MAX_DOF
-from shared.protocol.codes import Flag
+from haptic_local_model.shared.kinematics import MAX_DOF
+from haptic_local_model.shared.protocol.codes import Flag
 
 PROTOCOL_VERSION = 2  # what this build sends
 SUPPORTED_VERSIONS = (1, 2)  # what it parses (logs of the previous release replay)

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from shared.kinematics import MAX_DOF
-from shared.protocol.layout import DEFAULT_LIMITS, MessageLimits
-from shared.protocol.update import MessageError
+from haptic_local_model.shared.kinematics import MAX_DOF
+from haptic_local_model.shared.protocol.layout import DEFAULT_LIMITS, MessageLimits
+from haptic_local_model.shared.protocol.update import MessageError
 
 PROXY_MAGIC = b"HPXY"
 #: The proxy state's own version. Up to 2 it was the update's PROTOCOL_VERSION; 3 added the

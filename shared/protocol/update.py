@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from shared.kinematics import PRISMATIC_Y, REVOLUTE
-from shared.linalg import cholesky_inplace
-from shared.protocol.codes import Flag, Reason
-from shared.protocol.layout import (
+from haptic_local_model.shared.kinematics import PRISMATIC_Y, REVOLUTE
+from haptic_local_model.shared.linalg import cholesky_inplace
+from haptic_local_model.shared.protocol.codes import Flag, Reason
+from haptic_local_model.shared.protocol.layout import (
     C_DAMPING,
     C_ENV,
     C_ENV_VELOCITY,
