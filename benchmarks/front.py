@@ -51,11 +51,11 @@ import numpy as np
 
 from haptic_local_model.benchmarks.linkage import reference_error_mm
 from haptic_local_model.benchmarks.wall_push import HALF_LENGTH, WALL_X, impact
-from haptic_local_model.device_models.registry import device_from_text
+from haptic_local_model.device_models.registry import device_config, device_from_text
 from haptic_local_model.haptic_server.harness.virtual import VirtualResult, run_virtual
 from haptic_local_model.haptic_server.users import hand_wrench, user_record
 from haptic_local_model.shared import coupling
-from haptic_local_model.shared.config import SceneConfig, load_scene, load_user, resolve
+from haptic_local_model.shared.config import SceneConfig, load_scene, load_user
 from haptic_local_model.shared.kinematics import MAX_DOF, link_frames, point_jacobian, point_on_link
 from haptic_local_model.sim_server.world import SimWorld
 
@@ -162,7 +162,7 @@ def coupling_substeps_needed(scene: SceneConfig, sim_hz: float) -> int:
 
 def device_for(name: str, way: str) -> Any:
     """The device with the way's setpoint hold (the in-loop and AMBF ways hold the pose)."""
-    text = resolve("devices", name).read_text()
+    text = device_config(name).read_text()
     if way in ("pymunk_in_loop", "vc_zoh"):
         text = text.replace('setpoint_hold = "first_order"', 'setpoint_hold = "zero_order"')
     return device_from_text(text, f"{name} ({way})")

@@ -13,8 +13,9 @@ docs/devices.md says what a driver must implement and guarantee.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -157,3 +158,16 @@ class SimulatedDevice(Device, Protocol):
     def servo_plant(self) -> tuple[np.ndarray, float]:
         """What a servo on this device acts against at home: the passive damping per axis
         (N s/m, N s/m, N m s/rad) and the cutoff of its twist estimate (Hz; 0: exact)."""
+
+
+class DeviceModel(NamedTuple):
+    """A device model as a driver package registers it (entry-point group
+    `haptic_local_model.devices`, docs/devices.md): its config class (with
+    `from_toml_dict(table, source)`), the factory that builds the device from a config, the
+    config file it ships with (a bare name: configs/devices/<name>.toml of this project; else
+    a path, e.g. a file inside the driver's own package), and one line on what it is."""
+
+    config_cls: Any
+    factory: Callable[[Any], Device]
+    config: str
+    description: str

@@ -21,6 +21,7 @@ from haptic_local_model.device_models.base import (
     FAULT_NONE,
     FAULT_SATURATED,
     DeviceLimits,
+    DeviceModel,
     DeviceRenderingSpec,
     require_device_limits,
 )
@@ -195,3 +196,9 @@ class IdealDevice(KernelDevice):
         st["pose"] = pose
         st["twist"] = 0.0
         st["held"] = 0.0
+
+
+#: The entry point of this model (pyproject.toml, group haptic_local_model.devices).
+MODEL = DeviceModel(
+    IdealDeviceConfig, IdealDevice, "ideal", "a point mass with exact sensing (no hardware)"
+)

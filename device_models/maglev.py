@@ -30,6 +30,7 @@ from haptic_local_model.device_models.base import (
     FAULT_SATURATED,
     FAULT_WORKSPACE,
     DeviceLimits,
+    DeviceModel,
     DeviceRenderingSpec,
     require_device_limits,
 )
@@ -610,3 +611,12 @@ class Maglev(KernelDevice):
     def rate_control_active(self) -> bool:
         """Whether rate control moved the world-map offset in the engine's last tick."""
         return self.world_map.rate_control_active()
+
+
+#: The entry point of this model (pyproject.toml, group haptic_local_model.devices).
+MODEL = DeviceModel(
+    MaglevConfig,
+    Maglev,
+    "maglev",
+    "seed 002's magnetic levitation device: 6-DOF flotor, planar x, y, yaw used",
+)

@@ -1,60 +1,150 @@
 """From the `model` name in a device config file to the class that simulates or drives it.
 
-`DEVICE_MODELS` is the one list of device models: the loader, `make warm` and the device
-tests all iterate it. Adding a device is its module, its config file in configs/devices/ and
-one entry here (docs/devices.md).
+Device models are plug-ins: every installed distribution may register models in the
+entry-point group `haptic_local_model.devices` (name: the model, as a device config's
+`model` key says it; value: a `DeviceModel`), and the built-in ones (ideal, maglev,
+twin_pantograph) register there the same way, in this project's pyproject.toml. A driver
+therefore ships as a package of its own; `haptic-run --list` shows what is installed.
+docs/devices.md says how to write one.
+
+`DEVICE_MODELS` is the one table of installed models, read once per process: the loader,
+`make warm` and the device tests iterate it. A plug-in that fails to load does not take the
+others down: it is listed in `BROKEN_MODELS` with its reason, and choosing it is a config
+error that says why.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from importlib.metadata import EntryPoint, entry_points
+from pathlib import Path
 from typing import Any, NamedTuple
 
-from haptic_local_model.device_models.base import Device, SimulatedDevice
-from haptic_local_model.device_models.ideal import IdealDevice, IdealDeviceConfig
-from haptic_local_model.device_models.maglev import Maglev, MaglevConfig
-from haptic_local_model.device_models.twin_pantograph import TwinPantograph, TwinPantographConfig
+from haptic_local_model.device_models.base import Device, DeviceModel, SimulatedDevice
 from haptic_local_model.shared.config import (
     ConfigError,
-    load_device_table,
+    is_config_path,
     parse_toml_text,
+    read_toml,
+    resolve,
     split_device_table,
 )
 
+GROUP = "haptic_local_model.devices"
+#: The distribution whose models are built in (its own entry points)
+BUILT_IN = "haptic-local-model"
 
-class DeviceModel(NamedTuple):
-    """A device model: its config class (with `from_toml_dict(table, source)`), the factory
-    that builds the device from a config, the config file it ships with (configs/devices/),
-    and one line on what it is."""
+__all__ = [
+    "BROKEN_MODELS",
+    "DEVICE_MODELS",
+    "GROUP",
+    "DeviceModel",
+    "InstalledModel",
+    "check_device",
+    "device_config",
+    "device_from_table",
+    "device_from_text",
+    "discover",
+    "installed_models",
+    "load_device",
+    "load_simulated_device",
+    "model_lines",
+]
 
-    config_cls: Any
-    factory: Callable[[Any], Device]
-    config: str
-    description: str
+
+class InstalledModel(NamedTuple):
+    """A registered model and where it comes from: the distribution and the entry point."""
+
+    name: str
+    model: DeviceModel | None  # None: it failed to load (`problem` says why)
+    distribution: str
+    value: str  # the entry point's `module:attribute`
+    problem: str = ""
+
+    @property
+    def built_in(self) -> bool:
+        return self.distribution == BUILT_IN
 
 
-DEVICE_MODELS: dict[str, DeviceModel] = {
-    "ideal": DeviceModel(
-        IdealDeviceConfig, IdealDevice, "ideal", "a point mass with exact sensing (no hardware)"
-    ),
-    "twin_pantograph": DeviceModel(
-        TwinPantographConfig,
-        TwinPantograph,
-        "twin_pantograph",
-        "seed 001's twin five-bar planar device: 4 motors, encoders, friction",
-    ),
-    "maglev": DeviceModel(
-        MaglevConfig,
-        Maglev,
-        "maglev",
-        "seed 002's magnetic levitation device: 6-DOF flotor, planar x, y, yaw used",
-    ),
-}
+def _distribution(ep: EntryPoint) -> str:
+    dist = getattr(ep, "dist", None)
+    return str(dist.metadata["Name"]) if dist is not None else "?"
+
+
+def discover() -> list[InstalledModel]:
+    """Every model registered in the entry-point group, loaded (sorted by name; the first
+    registration of a name wins, a second one is reported as broken)."""
+    found: dict[str, InstalledModel] = {}
+    broken: list[InstalledModel] = []
+    for ep in sorted(entry_points(group=GROUP), key=lambda e: (e.name, e.value)):
+        dist, model, problem = _distribution(ep), None, ""
+        if ep.name in found:
+            problem = f"is also registered by {found[ep.name].distribution}, whose model is used"
+        else:
+            try:
+                model = ep.load()
+            except Exception as exc:  # a plug-in's import error must not take the others down
+                problem = f"failed to load: {type(exc).__name__}: {exc}"
+            if model is not None and not isinstance(model, DeviceModel):
+                model, problem = None, f"is a {type(model).__name__}, not a DeviceModel"
+        entry = InstalledModel(ep.name, model, dist, ep.value, problem)
+        if model is None:
+            broken.append(entry)
+        else:
+            found[ep.name] = entry
+    return sorted([*found.values(), *broken], key=lambda m: (m.name, m.model is None))
+
+
+_INSTALLED = discover()
+DEVICE_MODELS: dict[str, DeviceModel] = {m.name: m.model for m in _INSTALLED if m.model is not None}
+BROKEN_MODELS: dict[str, str] = {m.name: m.problem for m in _INSTALLED if m.model is None}
+
+
+def installed_models() -> list[InstalledModel]:
+    """The models registered in this environment, the broken ones included."""
+    return list(_INSTALLED)
+
+
+def model_lines() -> list[str]:
+    """The installed device models for `haptic-run --list`: name, what it is, which package
+    registered it; a broken plug-in with its reason."""
+    lines = [f"device models (a device config's `model`; entry points {GROUP}):"]
+    models = installed_models()
+    width = max((len(m.name) for m in models), default=0)
+    for m in models:
+        source = "built in" if m.built_in else f"from {m.distribution} ({m.value})"
+        what = m.model.description if m.model is not None else f"BROKEN: {m.problem}"
+        lines.append(f"  {m.name:<{width}}  {what}; {source}")
+    return lines
+
+
+def device_config(name_or_path: str) -> Path:
+    """The device config file a `--device` value names: a path as it is; a bare name is the
+    shipped configs/devices/<name>.toml, else the config an installed model of that name
+    ships (a plug-in's own file)."""
+    if is_config_path(name_or_path):
+        return Path(name_or_path)
+    shipped = resolve("devices", name_or_path)
+    model = DEVICE_MODELS.get(name_or_path)
+    if shipped.is_file() or model is None:
+        return shipped  # (a missing file is read_toml's error to name)
+    if not is_config_path(model.config):
+        return resolve("devices", model.config)
+    return Path(model.config)
 
 
 def load_device(name_or_path: str) -> Device:
-    """Build the device named by a config file (bare name: configs/devices/<name>.toml)."""
-    return device_from_table(*load_device_table(name_or_path))
+    """Build the device a config file describes (`device_config` says which file)."""
+    path = device_config(name_or_path)
+    return device_from_table(*split_device_table(read_toml(path), str(path)))
+
+
+def check_device(name_or_path: str) -> DeviceModel:
+    """Read and check a device config without building the device (building a hardware
+    driver opens the hardware: only the haptic server may do that): the model it names."""
+    path = device_config(name_or_path)
+    model, table, source = split_device_table(read_toml(path), str(path))
+    _config(model, table, source)
+    return DEVICE_MODELS[model]
 
 
 def load_simulated_device(name_or_path: str) -> SimulatedDevice:
@@ -72,16 +162,24 @@ def device_from_text(text: str, source: str) -> Device:
 
 def device_from_table(model: str, table: dict[str, Any], source: str) -> Device:
     """Build the device of `model` from the rest of its config table."""
+    config = _config(model, table, source)  # first: it names an unknown or broken model
+    return DEVICE_MODELS[model].factory(config)
+
+
+def _config(model: str, table: dict[str, Any], source: str) -> Any:
+    """The model's config object from the rest of its table (a ConfigError names the key)."""
+    if model in BROKEN_MODELS and model not in DEVICE_MODELS:
+        raise ConfigError(source, "model", f"device model {model!r} {BROKEN_MODELS[model]}")
     if model not in DEVICE_MODELS:
         raise ConfigError(
-            source, "model", f"unknown device model {model!r} (known: {sorted(DEVICE_MODELS)})"
-        )
-    entry = DEVICE_MODELS[model]
+            source, "model",
+            f"unknown device model {model!r} (installed: {sorted(DEVICE_MODELS)}; "
+            f"a driver package registers its models in the entry-point group {GROUP})",
+        )  # fmt: skip
     try:
-        config = entry.config_cls.from_toml_dict(table, source)
+        return DEVICE_MODELS[model].config_cls.from_toml_dict(table, source)
     except ConfigError:
         raise
     except ValueError as exc:
         key, _, problem = str(exc).partition(": ")
         raise ConfigError(source, key, problem or str(exc)) from None
-    return entry.factory(config)

@@ -39,7 +39,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     def body() -> int:
-        from haptic_local_model.device_models.registry import load_device
+        from haptic_local_model.device_models.base import SimulatedDevice
+        from haptic_local_model.device_models.registry import device_config, load_device
         from haptic_local_model.haptic_server.loop import HapticServer, InjectedFaults, ServerExtras
 
         scene = load_scene(args.scene, args.haptic_rate)
@@ -57,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
             )
         configs = {
             "scene": scene_text(resolve("scenes", args.scene), args.haptic_rate),
-            "device": resolve("devices", args.device).read_text(),
+            "device": device_config(args.device).read_text(),
             "user": resolve("users", args.user).read_text(),
             "network": resolve("network", args.network).read_text(),
         }
@@ -66,7 +67,10 @@ def main(argv: list[str] | None = None) -> int:
         server = HapticServer(scene, device, user, network, args.log, configs, extras)
         signal.signal(signal.SIGTERM, server.request_stop)
         signal.signal(signal.SIGINT, server.request_stop)
-        server.warm_up(lambda: load_device(args.device), user)
+        # the warm-up compiles on a throwaway engine and device: a hardware driver is built
+        # once only (building one opens the hardware), its loop's kernels warm on the ideal
+        simulated = isinstance(device, SimulatedDevice)
+        server.warm_up(lambda: load_device(args.device if simulated else "ideal"), user)
         summary = server.run(
             args.duration,
             ready=lambda: emit("ready", process="haptic", loop_cpu=server.stats.loop_cpu),

@@ -7,7 +7,7 @@ import json
 import math
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -112,14 +112,16 @@ def add_version(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def print_shipped() -> None:
-    """The shipped scenes, devices, users and networks, a line each (`haptic-run --list`)."""
+def print_shipped(extra: Sequence[str] = ()) -> None:
+    """The shipped scenes, devices, users and networks, a line each, then `extra` (the
+    installed device models: `haptic-run --list`)."""
     lines = []
     for kind in CONFIG_KINDS:
         configs = shipped(kind)
         lines.append(f"{kind} (--{kind.rstrip('s')} NAME, or a path to a .toml file):")
         width = max(map(len, configs), default=0)
         lines += [f"  {name:<{width}}  {text}" for name, text in configs.items()]
+    lines += extra
     try:
         print("\n".join(lines), flush=True)
     except BrokenPipeError:  # `haptic-run --list | head`

@@ -5,24 +5,18 @@ output."""
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import subprocess
-import sys
-import sysconfig
 import tomllib
 import zipfile
 from pathlib import Path
 
 import pytest
+from conftest import run_installed as _run
 
 from haptic_local_model.shared import __version__
 
 REPO = Path(__file__).resolve().parent.parent
 CODE_ROOTS = ("shared", "sim_server", "haptic_server", "device_models", "benchmarks")
 NAMESPACE = "haptic_local_model"
-#: what a build never needs: outputs, caches, environments
-UNSHIPPED = (".git", ".venv", "build", "runs", "*.egg-info", "__pycache__", ".*_cache", "tests")
 
 
 def test_the_package_list_is_the_tree() -> None:
@@ -59,52 +53,6 @@ def test_the_wheel_installs_one_top_level_name(wheel: Path) -> None:
 def test_the_version_is_the_distribution_s() -> None:
     project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
     assert __version__ == project["version"]
-
-
-@pytest.fixture(scope="module")
-def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The project's wheel, built as `pip install .` builds it, from a copy of the sources
-    (setuptools reuses a tree's build/lib: a stale one would slip old packages in)."""
-    wheels = tmp_path_factory.mktemp("wheels")
-    source = tmp_path_factory.mktemp("source") / "project"
-    shutil.copytree(REPO, source, ignore=shutil.ignore_patterns(*UNSHIPPED))
-    subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(wheels), str(source)],
-        check=True, timeout=600,
-    )  # fmt: skip
-    (built,) = wheels.glob("haptic_local_model-*.whl")
-    return built
-
-
-@pytest.fixture(scope="module")
-def installed(tmp_path_factory: pytest.TempPathFactory, wheel: Path) -> Path:
-    """A fresh virtual environment with the project's wheel installed (not editable). Its
-    dependencies come from this environment's site-packages as a plain path (a .pth line):
-    that adds numpy, numba, ... but not this environment's editable install of the project,
-    whose finder only a site directory's own .pth files would load."""
-    root = tmp_path_factory.mktemp("install")
-    venv = root / "venv"
-    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
-    py = venv / "bin" / "python"
-    subprocess.run(
-        [str(py), "-m", "pip", "install", "--quiet", "--no-deps", str(wheel)],
-        check=True, timeout=600,
-    )  # fmt: skip
-    site = subprocess.run(
-        [str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-        check=True, capture_output=True, text=True,
-    ).stdout.strip()  # fmt: skip
-    (Path(site) / "project_dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
-    return venv
-
-
-def _run(venv: Path, cwd: Path, *argv: str, timeout: float = 900) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
-    env["PATH"] = f"{venv / 'bin'}{os.pathsep}{env.get('PATH', '')}"
-    exe = venv / "bin" / argv[0]
-    return subprocess.run(
-        [str(exe), *argv[1:]], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout
-    )
 
 
 @pytest.mark.slow

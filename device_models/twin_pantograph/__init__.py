@@ -21,6 +21,7 @@ Modules: config (constants, records, config sections, pack_parameters), kinemati
 dynamics, torques (redundancy resolution), device (tick kernels and the device class).
 """
 
+from haptic_local_model.device_models.base import DeviceModel
 from haptic_local_model.device_models.common import FAULT_INVALID_COMMAND
 from haptic_local_model.device_models.twin_pantograph.config import (
     PARAMS_DTYPE,
@@ -47,9 +48,18 @@ from haptic_local_model.device_models.twin_pantograph.kinematics import (
 )
 from haptic_local_model.device_models.twin_pantograph.torques import resolve_torques
 
+#: The entry point of this model (pyproject.toml, group haptic_local_model.devices).
+MODEL = DeviceModel(
+    TwinPantographConfig,
+    TwinPantograph,
+    "twin_pantograph",
+    "seed 001's twin five-bar planar device: 4 motors, encoders, friction",
+)
+
 __all__ = [
     "AUX_NAMES",
     "FAULT_INVALID_COMMAND",
+    "MODEL",
     "PARAMS_DTYPE",
     "STATE_DTYPE",
     "WORK_DTYPE",

@@ -41,7 +41,6 @@ from haptic_local_model.shared.config import (
     absolute_ref,
     load_scene,
     load_user,
-    resolve,
 )
 from haptic_local_model.shared.net.config import free_loopback_port, load_network, on_loopback
 from haptic_local_model.shared.timing import avoid_cpu as keep_off_cpu
@@ -143,10 +142,9 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
     network = load_network(args.network)
     if args.port is None and on_loopback(network):
         args.port = free_loopback_port()  # a port of this run's own: runs never collide
-    resolve("devices", args.device)
-    from haptic_local_model.device_models.registry import load_device
+    from haptic_local_model.device_models.registry import check_device
 
-    load_device(args.device)
+    check_device(args.device)  # not built: a hardware driver is the haptic server's to open
     # the servers' own summaries: in a folder of this run's, not beside the log (whose disk
     # may fill up: that is the log's failure, not the run's)
     summary_dir = Path(tempfile.mkdtemp(prefix="haptic-run-"))
@@ -332,7 +330,9 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     args = parser.parse_args(argv)
     if args.list:
-        print_shipped()
+        from haptic_local_model.device_models.registry import model_lines
+
+        print_shipped(model_lines())
         return 0
     if args.log is None and not args.no_log:
         stem = f"{time.strftime('%Y%m%d-%H%M%S')}-{Path(args.scene).stem}"

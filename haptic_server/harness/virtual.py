@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from haptic_local_model.device_models.base import SimulatedDevice
-from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.device_models.registry import device_config, load_simulated_device
 from haptic_local_model.haptic_server.engine import HapticEngine
 from haptic_local_model.haptic_server.engine import warm_kernels as warm_engine_kernels
 from haptic_local_model.haptic_server.log import run_metadata
@@ -190,7 +190,7 @@ def run_virtual_named(
     load_simulated_device(device)
     configs = {
         "scene": scene_text(resolve("scenes", scene), haptic_rate_hz),
-        "device": resolve("devices", device).read_text(),
+        "device": device_config(device).read_text(),
         "user": resolve("users", user).read_text(),
     }
     started = time.perf_counter()

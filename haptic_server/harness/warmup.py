@@ -19,7 +19,7 @@ from functools import partial
 from pathlib import Path
 from typing import TextIO
 
-from haptic_local_model.device_models.registry import DEVICE_MODELS, load_device
+from haptic_local_model.device_models.registry import installed_models, load_device
 from haptic_local_model.haptic_server.engine import HapticEngine
 from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
 from haptic_local_model.haptic_server.mailbox import compile_loop_kernels
@@ -31,11 +31,17 @@ SCENE_RUNS = (("free_box", "waypoints", 1.0), ("testbed", "swing", 1.0),
               ("linkage_distal", "push_04n", 1.0))  # fmt: skip
 
 
+def built_in_models() -> list[str]:
+    """The configs of the project's own device models. A plug-in's are not warmed here: its
+    driver may open hardware when built; the haptic server warms the loop it runs."""
+    return [m.model.config for m in installed_models() if m.built_in and m.model is not None]
+
+
 def warm_runs() -> list[tuple[str, str, str, float]]:
     """The virtual-clock runs that compile everything: (scene, device config, user, s).
     Every registered device model runs the FOH scene, so its kernels are in the cache."""
     runs = [(scene, "ideal", user, s) for scene, user, s in SCENE_RUNS]
-    runs += [("maglev_scoop", model.config, "scoop", 0.3) for model in DEVICE_MODELS.values()]
+    runs += [("maglev_scoop", config, "scoop", 0.3) for config in built_in_models()]
     return runs
 
 
@@ -46,8 +52,8 @@ def _run_virtual(runs: list[tuple[str, str, str, float]]) -> None:
 
 def _loop_kernels() -> None:
     """The real-time loop's kernels, per device model."""
-    for model in DEVICE_MODELS.values():
-        engine = HapticEngine(load_scene("testbed"), load_device(model.config), load_user("swing"))
+    for config in built_in_models():
+        engine = HapticEngine(load_scene("testbed"), load_device(config), load_user("swing"))
         compile_loop_kernels(engine)
         compile_realtime_kernels(engine)
 
@@ -66,7 +72,9 @@ def warm_groups() -> list[tuple[str, Callable[[], None]]]:
             partial(_run_virtual, devices),
         )
     )
-    groups.append((f"real-time loop kernels: {len(DEVICE_MODELS)} device models", _loop_kernels))
+    groups.append(
+        (f"real-time loop kernels: {len(built_in_models())} device models", _loop_kernels)
+    )
     return groups
 
 
