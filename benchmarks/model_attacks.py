@@ -26,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from haptic_local_model.benchmarks.stranger import _ready
+from haptic_local_model.benchmarks.stranger import server_pair
 from haptic_local_model.device_models.registry import load_device
 from haptic_local_model.haptic_server.harness.forgeries import (
     EXPECTED,
@@ -38,9 +38,7 @@ from haptic_local_model.haptic_server.harness.forgeries import (
     Forger,
     measure,
 )
-from haptic_local_model.haptic_server.harness.run import Child
 from haptic_local_model.shared.config import load_scene
-from haptic_local_model.shared.net.config import free_loopback_port, load_network, on_port
 
 SCENE, DEVICE, USER = "testbed", "ideal", "swing"
 FLOW_S = 1.0  # the sim's updates flow this long before the forgery
@@ -49,29 +47,17 @@ FLOW_S = 1.0  # the sim's updates flow this long before the forgery
 def attack(forgery: str, workdir: Path, network: str = "loopback") -> AttackResult:
     """One run of both servers and one forged update; the servers are stopped by their pids."""
     scene = load_scene(SCENE)
-    port = free_loopback_port()
-    net = on_port(load_network(network), port)
-    log = workdir / f"attack-{forgery}-{port}.mcap"
-    common = ["--scene", SCENE, "--network", network, "--port", str(port)]
-    py = sys.executable
-    haptic = Child("haptic", [py, "-m", "haptic_local_model.haptic_server.cli", *common, "--device", DEVICE,
-                              "--user", USER, "--log", str(log)])  # fmt: skip
-    sim: Child | None = None
-    forger: Forger | None = None
     raw = b""
-    try:
-        _ready(haptic)
-        sim = Child("sim", [py, "-m", "haptic_local_model.sim_server.cli", *common])
-        forger = Forger(net, scene, int(_ready(sim)["epoch"]))
-        time.sleep(FLOW_S)
-        raw = forger.forge(forgery)
-        time.sleep(WINDOW_S)
-    finally:
-        if forger is not None:
+    extra = ["--device", DEVICE, "--user", USER]
+    with server_pair(workdir, f"attack-{forgery}", SCENE, network, extra) as pair:
+        forger = Forger(pair.net, scene, pair.epoch)
+        try:
+            time.sleep(FLOW_S)
+            raw = forger.forge(forgery)
+            time.sleep(WINDOW_S)
+        finally:
             forger.close()
-        codes = [haptic.stop()] + ([sim.stop()] if sim is not None else [])
-    if any(codes):
-        raise RuntimeError(f"a server exited with {codes}")
+    log = pair.log
     result = measure(forgery, log, raw, load_device(DEVICE).limits().max_wrench)
     log.unlink(missing_ok=True)
     return result

@@ -19,6 +19,8 @@ import struct
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,6 +33,7 @@ from haptic_local_model.haptic_server.log import UPDATE_TOPIC, read_json_topic
 from haptic_local_model.shared.config import load_scene
 from haptic_local_model.shared.net.config import (
     EndpointSpec,
+    NetworkConfig,
     free_loopback_port,
     load_network,
     on_port,
@@ -61,39 +64,61 @@ class StrangerResult:
         return float(np.percentile(ages, q)) if ages else float("nan")
 
 
-def run(phase_s: float, workdir: Path, network: str = "loopback") -> StrangerResult:
-    """One run of every phase; the servers are stopped by their pids whatever happens."""
+@dataclass(frozen=True)
+class ServerPair:
+    """Both servers of a run on a free loopback port: the network they meet on, the haptic
+    server's log, the sim's epoch."""
+
+    net: NetworkConfig
+    log: Path
+    epoch: int
+
+
+@contextmanager
+def server_pair(
+    workdir: Path, stem: str, scene: str, network: str, haptic_extra: list[str]
+) -> Iterator[ServerPair]:
+    """Start the haptic server (logging to workdir/<stem>-<port>.mcap) and then the sim on
+    `scene`, wait until both are ready; on leaving, stop both by their pids whatever happened,
+    and raise if either exited with an error."""
     port = free_loopback_port()
     net = on_port(load_network(network), port)
-    log = workdir / f"stranger-{port}.mcap"
-    common = ["--scene", SCENE, "--network", network, "--port", str(port)]
+    log = workdir / f"{stem}-{port}.mcap"
+    common = ["--scene", scene, "--network", network, "--port", str(port)]
     py = sys.executable
-    haptic = Child("haptic", [py, "-m", "haptic_local_model.haptic_server.cli", *common, "--user", "constant_push",
-                              "--log", str(log)])  # fmt: skip
+    haptic = Child("haptic", [py, "-m", "haptic_local_model.haptic_server.cli", *common,
+                              *haptic_extra, "--log", str(log)])  # fmt: skip
     sim: Child | None = None
-    stranger = None
-    bounds: dict[str, tuple[int, int]] = {}
-    result = StrangerResult()
     try:
         _ready(haptic)
         sim = Child("sim", [py, "-m", "haptic_local_model.sim_server.cli", *common])
-        result.sim_epoch = int(_ready(sim)["epoch"])
-        time.sleep(1.0)  # the sim's updates flowing
-        stranger = open_session(EndpointSpec(connect=net.haptic.listen))  # no credentials
-        pub = stranger.declare_publisher(
-            keys(net.namespace).update, congestion_control=zenoh.CongestionControl.DROP
-        )
-        world = SimWorld(load_scene(SCENE))
-        for phase in PHASES:
-            start = time.time_ns()
-            result.stranger_sent += _attack(phase, pub, world, phase_s)
-            bounds[phase] = (start, time.time_ns())
+        yield ServerPair(net, log, int(_ready(sim)["epoch"]))
     finally:
-        if stranger is not None:
-            stranger.close()
         codes = [haptic.stop()] + ([sim.stop()] if sim is not None else [])
     if any(codes):
         raise RuntimeError(f"a server exited with {codes}")
+
+
+def run(phase_s: float, workdir: Path, network: str = "loopback") -> StrangerResult:
+    """One run of every phase; the servers are stopped by their pids whatever happens."""
+    bounds: dict[str, tuple[int, int]] = {}
+    result = StrangerResult()
+    with server_pair(workdir, "stranger", SCENE, network, ["--user", "constant_push"]) as pair:
+        result.sim_epoch = pair.epoch
+        time.sleep(1.0)  # the sim's updates flowing
+        stranger = open_session(EndpointSpec(connect=pair.net.haptic.listen))  # no credentials
+        try:
+            pub = stranger.declare_publisher(
+                keys(pair.net.namespace).update, congestion_control=zenoh.CongestionControl.DROP
+            )
+            world = SimWorld(load_scene(SCENE))
+            for phase in PHASES:
+                start = time.time_ns()
+                result.stranger_sent += _attack(phase, pub, world, phase_s)
+                bounds[phase] = (start, time.time_ns())
+        finally:
+            stranger.close()
+    log = pair.log
     for rec in read_json_topic(log, UPDATE_TOPIC):
         if rec.get("epoch") != result.sim_epoch:
             result.stranger_arrived += 1
