@@ -29,7 +29,7 @@ from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
 from haptic_local_model.haptic_server.log import read_log
 from haptic_local_model.haptic_server.stages.plausible import RATIO_NAMES
 from haptic_local_model.shared.config import CONFIG_ROOT, SceneConfig, load_config_text
-from haptic_local_model.shared.kinematics import MAX_DOF, mass_matrix_and_gravity
+from haptic_local_model.shared.kinematics import MAX_DOF, fastest_spin, mass_matrix_and_gravity
 from haptic_local_model.shared.tool_chain import tool_chain
 
 DEVICES = ("ideal", "twin_pantograph", "maglev")
@@ -64,10 +64,9 @@ def _guard_figures(ticks: np.ndarray, engine: Any, scene_text: str) -> dict[str,
     p = engine.params[0]
     chain = tool_chain(load_config_text(SceneConfig, scene_text, "log")).chain
     d = int(chain[0]["dof"])
-    revolute = chain[0]["joint_types"][:d] == 0
     qd = ticks["proxy_qd"][:, :d]
     speed = np.hypot(ticks["vm_twist"][:, 0], ticks["vm_twist"][:, 1])
-    spin = np.abs(np.cumsum(np.where(revolute, qd, 0.0), axis=1)).max(axis=1)
+    spin = fastest_spin(chain[0]["joint_types"][:d], qd)
     work = (np.zeros((MAX_DOF, 2)), np.zeros(MAX_DOF), np.zeros((3, MAX_DOF)))
     mass, grav = np.zeros((d, d)), np.zeros(d)
     energy = np.zeros(len(ticks))

@@ -36,7 +36,13 @@ from haptic_local_model.haptic_server.stages.install import (
 from haptic_local_model.haptic_server.stages.tick import engine_step, store_applied
 from haptic_local_model.haptic_server.users import USER_GIVEN, user_record
 from haptic_local_model.shared.config import ConfigError, SceneConfig, UserConfig
-from haptic_local_model.shared.kinematics import MAX_DOF, link_frames, point_jacobian, point_on_link
+from haptic_local_model.shared.kinematics import (
+    MAX_DOF,
+    fastest_spin,
+    link_frames,
+    point_jacobian,
+    point_on_link,
+)
 from haptic_local_model.shared.linalg import min_norm_least_squares
 from haptic_local_model.shared.protocol.codes import Fault, Method, Reason, reason_tag
 from haptic_local_model.shared.protocol.layout import (
@@ -384,8 +390,7 @@ class HapticEngine:
         if int(p["guard"]) == 0:
             return qd
         d = int(m["dof"])
-        revolute = m["joint_types"][:d] == 0
-        spin = float(np.abs(np.cumsum(np.where(revolute, qd[:d], 0.0))).max(initial=0.0))
+        spin = float(fastest_spin(m["joint_types"][:d], qd[:d]))
         energy = 0.5 * float(qd[:d] @ m["mass"][:d, :d] @ qd[:d])
         scale = 1.0
         if spin > 0.5 * p["guard_max_angular_speed"]:

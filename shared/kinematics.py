@@ -202,6 +202,14 @@ def mass_matrix_and_gravity(chain, gravity, q, work, mass_out, gravity_out):
                 mass_out[a, b] += inertias[i] * jac[2, a] * jac[2, b]
 
 
+def fastest_spin(joint_types: np.ndarray, qd: np.ndarray) -> np.ndarray:
+    """The fastest link's angular speed |omega| (rad/s) of a chain moving at qd: a link turns
+    with every revolute joint before it. qd's last axis is the joints (several states at
+    once: one figure per state); joint_types those joints' types."""
+    omega = np.cumsum(np.where(joint_types == REVOLUTE, qd, 0.0), axis=-1)
+    return np.abs(omega).max(axis=-1, initial=0.0)
+
+
 def free_body_chain() -> tuple[np.ndarray, np.ndarray]:
     """Joint types and lengths of a free rigid body: q = (x, y, theta) of its frame."""
     return (

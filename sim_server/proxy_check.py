@@ -26,7 +26,7 @@ import numpy as np
 from haptic_local_model.shared.config import SceneConfig
 from haptic_local_model.shared.kinematics import (
     MAX_DOF,
-    REVOLUTE,
+    fastest_spin,
     link_frames,
     point_jacobian,
     point_on_link,
@@ -140,5 +140,4 @@ class ProxyCheck:
         return pose, self._jac[:, :d] @ qd
 
     def _spin(self, qd: np.ndarray) -> float:
-        revolute = self._chain.chain[0]["joint_types"][: qd.shape[0]] == REVOLUTE
-        return float(np.abs(np.cumsum(np.where(revolute, qd, 0.0))).max(initial=0.0))
+        return float(fastest_spin(self._chain.chain[0]["joint_types"][: qd.shape[0]], qd))
