@@ -6,7 +6,6 @@ import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import sysconfig
@@ -18,14 +17,13 @@ from typing import Any
 
 import pytest
 
+from haptic_local_model.shared.net.config import free_loopback_port
+
 REPO = Path(__file__).resolve().parent.parent
 READY_TIMEOUT_S = 300.0  # a cold numba cache compiles for a while on 2 cores
 
 
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+free_port = free_loopback_port  # the tests' name for it
 
 
 @pytest.fixture(scope="session", autouse=True)
