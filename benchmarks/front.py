@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 
 from haptic_local_model.benchmarks.linkage import reference_error_mm
-from haptic_local_model.benchmarks.wall_push import HALF_LENGTH, WALL_X, impact
+from haptic_local_model.benchmarks.wall_push import device_depth, impact, port_energy_j
 from haptic_local_model.device_models.registry import device_config, device_from_text
 from haptic_local_model.haptic_server.harness.virtual import VirtualResult, run_virtual
 from haptic_local_model.haptic_server.users import hand_wrench, user_record
@@ -240,11 +240,10 @@ def wall_transient(scene: SceneConfig, ticks: np.ndarray) -> dict[str, float]:
     stiffness = max(m.stiffness_n_per_m for m in scene.materials.values())
     expected = push / stiffness
     t = ticks["t"]
-    depth = ticks["device_pose"][:, 0] + HALF_LENGTH - WALL_X
+    depth = device_depth(ticks)
     first, losses = impact(ticks)
     outside = np.abs(depth - expected) > SETTLE_BAND * expected
     last_out = int(np.flatnonzero(outside)[-1]) if outside.any() else first
-    power = (ticks["wrench_command"][:, :2] * ticks["device_twist"][:, :2]).sum(axis=1)
     after2 = t >= t[first] + 2.0
     last = t >= t[-1] - 0.5
     return {
@@ -254,7 +253,7 @@ def wall_transient(scene: SceneConfig, ticks: np.ndarray) -> dict[str, float]:
         if after2.any() else float("nan"),
         "settle_s": float(t[min(last_out + 1, len(t) - 1)] - t[first]),
         "contact_losses": float(losses),
-        "port_energy_j": float(np.sum(power * ticks["dt"])),
+        "port_energy_j": port_energy_j(ticks),
     }  # fmt: skip
 
 

@@ -106,8 +106,8 @@ def sweep_case(stiffness: float, push: float, law: str, seconds: float = 3.0) ->
     steady = t >= t[-1] - STEADY_S
     expected = push / stiffness
     vm = ticks["vm_pose"][steady, 0] + HALF_LENGTH - WALL_X
-    device = ticks["device_pose"][steady, 0] + HALF_LENGTH - WALL_X
-    power = (ticks["wrench_command"][:, :2] * ticks["device_twist"][:, :2]).sum(axis=1)
+    depth_of_device = device_depth(ticks)
+    device = depth_of_device[steady]
     # a body stopped at depth d under a push F, on a spring K, springs back at most at
     # sqrt(K / m) (d - F/K) (undamped, from rest): the bound on an honest push-out
     mass = next(b.mass for b in scene.bodies if b.name == scene.tool.name)
@@ -116,7 +116,7 @@ def sweep_case(stiffness: float, push: float, law: str, seconds: float = 3.0) ->
     spring_back = np.sqrt(stiffness / mass) * max(0.0, depth - expected) / v_impact
     # the device converges on the VM with the coordination coupling's slow pole: from when
     # on does its penetration stay within SETTLE_BAND of F/K?
-    depth_ratio = (ticks["device_pose"][:, 0] + HALF_LENGTH - WALL_X) / expected
+    depth_ratio = depth_of_device / expected
     outside = np.flatnonzero(np.abs(depth_ratio[first:] - 1.0) > SETTLE_BAND)
     settled = outside.size == 0 or outside[-1] + first + 1 < len(t)
     device_settle_s = (
@@ -137,9 +137,20 @@ def sweep_case(stiffness: float, push: float, law: str, seconds: float = 3.0) ->
         "spring_back_bound": float(spring_back),
         "vm_penetration_ratio": float(vm.mean() / expected),
         "device_penetration_ratio": float(device.mean() / expected),
-        "port_energy_j": float(np.sum(power * ticks["dt"])),
+        "port_energy_j": port_energy_j(ticks),
         "peak_command_n": float(np.abs(ticks["wrench_command"][:, 0]).max()),
     }
+
+
+def device_depth(ticks: np.ndarray) -> np.ndarray:
+    """How deep the device's bar is in the wall (m; < 0: short of it), every tick."""
+    return ticks["device_pose"][:, 0] + HALF_LENGTH - WALL_X
+
+
+def port_energy_j(ticks: np.ndarray) -> float:
+    """The energy the device's actuators gave the hand over the run (J; < 0: they took)."""
+    power = (ticks["wrench_command"][:, :2] * ticks["device_twist"][:, :2]).sum(axis=1)
+    return float(np.sum(power * ticks["dt"]))
 
 
 def coupling_time_constant(scene: SceneConfig, device_mass: float = 1.0) -> float:
