@@ -62,6 +62,11 @@ DAMPING_RANGE = (0.0, 1e4)
 INERTIA_RANGE = (0.0, 100.0)
 
 
+class DeviceError(RuntimeError):
+    """A device (its driver or the vendor's binding) failed: not found, not calibrated, not
+    answering. The haptic server sends the device to its safe state and names the failure."""
+
+
 def require_device_limits(max_wrench: tuple[float, float, float], max_rate_hz: float) -> None:
     """A device config's max_wrench and max_rate_hz within the stated ranges above."""
     for axis, value in enumerate(max_wrench):
@@ -165,9 +170,12 @@ class DeviceModel(NamedTuple):
     `haptic_local_model.devices`, docs/devices.md): its config class (with
     `from_toml_dict(table, source)`), the factory that builds the device from a config, the
     config file it ships with (a bare name: configs/devices/<name>.toml of this project; else
-    a path, e.g. a file inside the driver's own package), and one line on what it is."""
+    a path, e.g. a file inside the driver's own package), one line on what it is, and
+    whether it is a simulation (False for a hardware driver: building one opens the device,
+    so only the haptic server does; warm-ups and device tests leave it out)."""
 
     config_cls: Any
     factory: Callable[[Any], Device]
     config: str
     description: str
+    simulated: bool = True  # False: it drives hardware (building it opens the device)

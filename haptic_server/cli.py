@@ -6,6 +6,7 @@ import argparse
 import signal
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from haptic_local_model.haptic_server.live_view import add_view_args, view_address
 from haptic_local_model.shared.cli import (
@@ -20,6 +21,9 @@ from haptic_local_model.shared.cli import (
 )
 from haptic_local_model.shared.config import load_scene, load_user, resolve, scene_text
 from haptic_local_model.shared.net.config import load_network, on_port
+
+if TYPE_CHECKING:
+    from haptic_local_model.device_models.base import Device
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -39,6 +43,26 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     def body() -> int:
+        from haptic_local_model.device_models.base import DeviceError
+        from haptic_local_model.device_models.registry import load_device
+
+        try:
+            device = load_device(args.device)  # a hardware driver opens its device here
+        except DeviceError as exc:  # the driver has closed what it opened
+            print(f"haptic-server: device error: {exc}", file=sys.stderr)
+            return EXIT_FAILED
+        try:
+            return serve(device)
+        except DeviceError as exc:  # the loop has sent it safe; before the loop, this does
+            device.safe_stop()
+            print(f"haptic-server: device error: {exc}; the device is in its safe state",
+                  file=sys.stderr)  # fmt: skip
+            return EXIT_FAILED
+        except BaseException:
+            device.safe_stop()  # whatever failed, a real device is left without force
+            raise
+
+    def serve(device: Device) -> int:
         from haptic_local_model.device_models.base import SimulatedDevice
         from haptic_local_model.device_models.registry import device_config, load_device
         from haptic_local_model.haptic_server.loop import HapticServer, InjectedFaults, ServerExtras
@@ -48,7 +72,6 @@ def main(argv: list[str] | None = None) -> int:
         network = load_network(args.network, roles=("haptic",))
         if args.port is not None:
             network = on_port(network, args.port)
-        device = load_device(args.device)
         if network.unauthenticated_insecure:
             print(
                 f"warning: {args.network}: unauthenticated_insecure: anyone who reaches "

@@ -34,7 +34,11 @@ SCENE_RUNS = (("free_box", "waypoints", 1.0), ("testbed", "swing", 1.0),
 def built_in_models() -> list[str]:
     """The configs of the project's own device models. A plug-in's are not warmed here: its
     driver may open hardware when built; the haptic server warms the loop it runs."""
-    return [m.model.config for m in installed_models() if m.built_in and m.model is not None]
+    return [
+        m.model.config
+        for m in installed_models()
+        if m.built_in and m.model is not None and m.model.simulated
+    ]
 
 
 def warm_runs() -> list[tuple[str, str, str, float]]:

@@ -1,0 +1,117 @@
+"""Force Dimension devices (delta, omega, sigma, lambda) through `forcedimension-core`
+(extra: `forcedimension`), the maintained Python binding of the Force Dimension SDK.
+
+Start-up: `drd.open()` (the device's ID, -1 on failure), calibration by `drd.autoInit` when
+the device is not initialised yet (the device moves itself: `calibrate = true` allows it),
+`drd.stop(True, ID)` hands the device from the SDK's regulation to this loop with forces on,
+`dhd.setMaxForce` sets the SDK's own force cap to this config's limit, `dhd.enableForce`.
+Per tick: `dhd.getPosition` and `dhd.getLinearVelocity` (m, m/s), `dhd.setForce` (N). The
+binding returns error codes (-1) rather than raising: a failed call raises here, with
+`dhd.errorGetLastStr()`, which ends the run and sends the device safe. Safe stop: zero force,
+`dhd.stop` (forces off, brakes on), `dhd.close`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from haptic_local_model.device_models.base import DeviceError, DeviceModel
+from haptic_local_model.device_models.hardware.base import (
+    HardwareConfig,
+    PlanarHardware,
+    require_binding,
+)
+from haptic_local_model.shared.config import load_dataclass
+
+BINDING = "forcedimension_core"
+SDK_ERROR = -1
+
+
+@dataclass(frozen=True)
+class ForceDimensionConfig(HardwareConfig):
+    """configs/devices/forcedimension.toml."""
+
+    calibrate: bool = False  # may drd.autoInit move the device to calibrate it?
+
+    @classmethod
+    def from_toml_dict(cls, data: dict[str, Any], source: str) -> ForceDimensionConfig:
+        config: ForceDimensionConfig = load_dataclass(cls, data, source)
+        require_binding(BINDING, "forcedimension", source)
+        return config
+
+
+class ForceDimensionLink:
+    """The calls into forcedimension_core (base.VendorLink)."""
+
+    def __init__(self, config: ForceDimensionConfig) -> None:
+        self.config = config
+        self._dhd: Any = None
+        self.id = -1
+        self._pos = [0.0, 0.0, 0.0]  # the binding fills these in place
+        self._vel = [0.0, 0.0, 0.0]
+        self._force = [0.0, 0.0, 0.0]
+
+    def _check(self, code: int, call: str) -> int:
+        if code <= SDK_ERROR:
+            raise DeviceError(f"Force Dimension {call} failed: {self._dhd.errorGetLastStr()}")
+        return code
+
+    def open(self) -> None:
+        dhd = self._dhd = importlib.import_module(f"{BINDING}.dhd")
+        drd = importlib.import_module(f"{BINDING}.drd")
+        self.id = self._check(drd.open(), "drd.open")  # the first device found
+        if not drd.isInitialized(self.id):
+            if not self.config.calibrate:
+                dhd.close(self.id)
+                raise DeviceError(
+                    "the Force Dimension device is not calibrated; set calibrate = true to "
+                    "let drd.autoInit move it, or calibrate it with the maker's tool"
+                )
+            self._check(drd.autoInit(self.id), "drd.autoInit")
+        self._check(drd.stop(True, self.id), "drd.stop")
+        self._check(dhd.setMaxForce(float(self.config.max_wrench[0]), self.id), "setMaxForce")
+        self._check(dhd.enableForce(True, self.id), "dhd.enableForce")
+
+    def sample(self, position: np.ndarray, velocity: np.ndarray) -> int:
+        dhd, pos, vel = self._dhd, self._pos, self._vel
+        self._check(dhd.getPosition(pos, self.id), "dhd.getPosition")
+        fault = 1 if dhd.getLinearVelocity(vel, self.id) <= SDK_ERROR else 0
+        position[0], position[1], position[2] = pos
+        velocity[0], velocity[1], velocity[2] = vel
+        return fault
+
+    def send(self, force: np.ndarray) -> None:
+        f = self._force
+        f[0], f[1], f[2] = float(force[0]), float(force[1]), float(force[2])
+        self._check(self._dhd.setForce(f, self.id), "dhd.setForce")
+
+    def stop(self) -> None:
+        dhd = self._dhd
+        if dhd is None:
+            return
+        self._dhd = None
+        try:
+            dhd.setForce([0.0, 0.0, 0.0], self.id)
+        finally:
+            dhd.stop(self.id)  # forces off, brakes on
+            dhd.close(self.id)
+
+
+class ForceDimension(PlanarHardware):
+    name = "forcedimension"
+
+    def __init__(self, config: ForceDimensionConfig) -> None:
+        super().__init__(config, ForceDimensionLink(config))
+
+
+MODEL = DeviceModel(
+    ForceDimensionConfig,
+    ForceDimension,
+    "forcedimension",
+    "Force Dimension delta/omega/sigma (hardware; extra `forcedimension`: forcedimension-core)",
+    simulated=False,
+)

@@ -1,0 +1,135 @@
+"""The hardware behind the fake vendor bindings (tests/test_hardware_adapters.py).
+
+Each fake (HaplyHardwareAPI, forcedimension_core, pyOpenHaptics) exposes the maker's call
+names and units at the boundary the adapters use, and moves one `FakeHandle`: a 0.2 kg
+handle in 3D with viscous friction, pushed by a constant hand force and by the commanded
+force, integrated over the wall time between calls. It records what the adapter asked: the
+calls in order, every force with its time, the forces that were not finite or beyond the
+device's limit, and whether the device was closed. The record is JSON, written to
+$FAKE_VENDOR_RECORD when the device is closed and again at exit, so a test in another
+process reads it. Settings from the environment (a test sets them for the server it starts):
+
+- FAKE_VENDOR_RECORD: where to write the record
+- FAKE_VENDOR_HAND: "fx,fy,fz", the hand's force (N, the vendor's frame)
+- FAKE_VENDOR_START: "x,y,z", the handle's start (m, the vendor's frame)
+- FAKE_VENDOR_LIMIT: the device's force limit (N): forces beyond it are counted
+- FAKE_VENDOR_RAISE_AT: the force command at which the binding fails, once
+- FAKE_VENDOR_CALIBRATED: "0" for a device that needs calibrating
+"""
+
+from __future__ import annotations
+
+import atexit
+import itertools
+import json
+import math
+import os
+import time
+from typing import Any
+
+MASS_KG = 0.2
+FRICTION_NS_PER_M = 1.0
+MAX_STEP_S = 0.005
+
+
+def _vector(name: str, default: str = "0,0,0") -> list[float]:
+    return [float(v) for v in os.environ.get(name, default).split(",")]
+
+
+class FakeHandle:
+    """The fake device's physics and its record of every call."""
+
+    def __init__(self, vendor: str) -> None:
+        self.vendor = vendor
+        self.position = _vector("FAKE_VENDOR_START")
+        self.velocity = [0.0, 0.0, 0.0]
+        self.hand = _vector("FAKE_VENDOR_HAND")
+        self.limit = float(os.environ.get("FAKE_VENDOR_LIMIT", "inf"))
+        self.raise_at = int(os.environ.get("FAKE_VENDOR_RAISE_AT", "-1"))
+        self.calibrated = os.environ.get("FAKE_VENDOR_CALIBRATED", "1") == "1"
+        self.force = [0.0, 0.0, 0.0]
+        self.calls: list[str] = []  # in order; a repeat of the previous call is not listed
+        self.counts: dict[str, int] = {}
+        self.forces: list[tuple[float, ...]] = []  # (t ns, f N, the velocity then m/s)
+        self.not_finite = 0
+        self.over_limit = 0
+        self.closed = False
+        self._last_ns = time.monotonic_ns()
+        atexit.register(self.write)
+
+    def call(self, name: str) -> None:
+        self.counts[name] = self.counts.get(name, 0) + 1
+        if not self.calls or self.calls[-1] != name:
+            self.calls.append(name)
+        if self.closed and name not in ("close", "stop"):
+            raise RuntimeError(f"{self.vendor}: {name} called after the device was closed")
+
+    def advance(self) -> None:
+        """Move the handle over the wall time since the last call."""
+        now = time.monotonic_ns()
+        dt = min((now - self._last_ns) * 1e-9, MAX_STEP_S)
+        self._last_ns = now
+        for i in range(3):
+            f = self.hand[i] + self.force[i] - FRICTION_NS_PER_M * self.velocity[i]
+            self.velocity[i] += dt * f / MASS_KG
+            self.position[i] += dt * self.velocity[i]
+
+    def command(self, force: Any) -> None:
+        """A force (N, the vendor's frame) held from now on."""
+        f = [float(force[0]), float(force[1]), float(force[2])]
+        if len(self.forces) == self.raise_at:  # once: the glitch passes, a zero force lands
+            self.raise_at = -1
+            raise RuntimeError(f"{self.vendor}: the device stopped answering")
+        if not all(math.isfinite(v) for v in f):
+            self.not_finite += 1
+            f = [0.0, 0.0, 0.0]  # what a careful firmware would do; the test counts it
+        if max(abs(v) for v in f) > self.limit * (1 + 1e-9):
+            self.over_limit += 1
+        self.advance()
+        self.force = f
+        self.forces.append((time.monotonic_ns(), *f, *self.velocity))
+
+    def close(self) -> None:
+        self.force = [0.0, 0.0, 0.0]
+        self.closed = True
+        self.write()
+
+    def write(self) -> None:
+        path = os.environ.get("FAKE_VENDOR_RECORD")
+        if not path:
+            return
+        t = [f[0] for f in self.forces]
+        gaps = sorted((b - a) * 1e-6 for a, b in itertools.pairwise(t))
+
+        def pct(p: float) -> float:
+            return gaps[min(len(gaps) - 1, int(p / 100 * len(gaps)))] if gaps else math.nan
+
+        record = {
+            "vendor": self.vendor,
+            "calls": self.calls[:200],
+            "counts": self.counts,
+            "n_forces": len(self.forces),
+            "last_force": list(self.forces[-1][1:4]) if self.forces else None,
+            "max_abs_force": max((max(map(abs, f[1:4])) for f in self.forces), default=0.0),
+            "not_finite": self.not_finite,
+            "over_limit": self.over_limit,
+            "closed": self.closed,
+            "gap_ms_p50": pct(50),
+            "gap_ms_p99": pct(99),
+            "forces": [list(f) for f in self.forces[-20000:]],  # t, fx, fy, fz, vx, vy, vz
+            "position": self.position,
+        }
+        tmp = f"{path}.tmp"
+        with open(tmp, "w") as out:
+            json.dump(record, out)
+        os.replace(tmp, path)
+
+
+HANDLE: FakeHandle | None = None
+
+
+def handle(vendor: str) -> FakeHandle:
+    """The one handle of this process (a new one for each device opened)."""
+    global HANDLE
+    HANDLE = FakeHandle(vendor)
+    return HANDLE

@@ -1,0 +1,1 @@
+"""A fake of forcedimension-core (modules dhd and drd) at the calls the adapter makes."""
