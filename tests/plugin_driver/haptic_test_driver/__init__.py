@@ -37,7 +37,7 @@ class RecordingArmConfig:
     max_wrench: Vec3 = (10.0, 10.0, 1.0)
     max_rate_hz: float = 2000.0
     mass: float = 1.0  # kg (and kg m^2 about the handle's axis, scaled by 1e-3)
-    damping: float = 2.0  # N s/m: the hardware's own friction
+    damping: float = 2.0  # N s/m: the hardware's own friction (yaw: scaled as its inertia)
     hand_force: Vec3 = (2.0, 0.0, 0.0)  # the hand's constant push (N, N, N m)
     record: str = "recording_arm.json"  # written on the last safe stop, cwd-relative
     rendering: DeviceRenderingSpec = field(default_factory=DeviceRenderingSpec)
@@ -79,10 +79,12 @@ class RecordingArm:
         now = time.monotonic_ns()
         dt = min((now - self._last_ns) * 1e-9, 0.005) if self._last_ns else 0.0
         self._last_ns = now
-        force = (
-            np.asarray(self.config.hand_force) + self._applied - self.config.damping * self._twist
-        )
-        self._twist += dt * force / self._inertia
+        # the hardware's friction, integrated implicitly: on the handle's small yaw inertia an
+        # explicit step of it is at its stability limit (b dt / I = 2 at 1 kHz) and rings
+        force = np.asarray(self.config.hand_force) + self._applied
+        friction = self.config.damping * self._inertia / self.config.mass  # N s/m, N m s/rad
+        inertia = self._inertia
+        self._twist = (self._twist + dt * force / inertia) / (1.0 + dt * friction / inertia)
         self._pose += dt * self._twist
         low, high = np.asarray(self._limits.workspace_min), np.asarray(self._limits.workspace_max)
         stopped = (self._pose < low) | (self._pose > high)  # the mechanism's end stops
