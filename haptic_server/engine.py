@@ -34,7 +34,7 @@ from haptic_local_model.haptic_server.stages.install import (
     accept_update,
 )
 from haptic_local_model.haptic_server.stages.tick import engine_step, store_applied
-from haptic_local_model.haptic_server.users import USER_GIVEN, user_record
+from haptic_local_model.haptic_server.users import USER_GIVEN, USER_POINTER, user_record
 from haptic_local_model.shared.config import ConfigError, SceneConfig, UserConfig
 from haptic_local_model.shared.kinematics import (
     MAX_DOF,
@@ -166,6 +166,9 @@ class HapticEngine:
         self.user = user_record(user)  # its script starts (start_s) at the first update
         self._given_user = user_record(user)  # a replay's hand: set in io.hand each tick
         self._given_user[0]["kind"] = USER_GIVEN
+        # a hand that follows a pointer: its targets arrive through the real-time server's
+        # I/O sidecar (share_user); anywhere else it holds where it took hold
+        self.follows_pointer = bool(self.user[0]["kind"] == USER_POINTER)
         self.recs = (self.model, self.data, self.io, self.world_map, self.clock)
         self._true_pose = np.zeros(3)
         self._true_twist = np.zeros(3)
@@ -426,6 +429,12 @@ class HapticEngine:
         next update installed re-initialises the proxy from the sim's state, same epoch or not."""
         self.set_safe(True)
         self.stale = True
+
+    def share_user(self, slot: np.ndarray) -> None:
+        """Move the simulated user into `slot` (a USER_DTYPE[1] in the block shared with the
+        I/O sidecar, which writes a pointer's targets there); the engine uses it from now on."""
+        slot[0] = self.user[0]
+        self.user = slot
 
     def tick(
         self,

@@ -45,6 +45,7 @@ from haptic_local_model.haptic_server.mailbox import (
     C_TICK_LOST,
     C_UPD_LOGGED,
     C_UPD_READ,
+    C_WALL_START,
     MAILBOX_SLOTS,
     RING_TICKS,
     SLOT_BYTES,
@@ -222,7 +223,8 @@ class LogDrain:
     def __init__(
         self, block: SharedBlock, log: LogWriter, wall_start_ns: int, update_offset_ns: int = 0
     ) -> None:
-        """Ticks are logged at wall_start_ns + their time t; updates at their receive time
+        """Ticks are logged at wall_start_ns + their time t (the real-time loop's own start,
+        from the block's C_WALL_START, once it has started); updates at their receive time
         plus `update_offset_ns` (a virtual clock's: its updates are received at virtual
         times from 0, its log starts at the run's wall-clock start)."""
         from haptic_local_model.haptic_server.foxglove_view import ViewFrames, log_message
@@ -282,6 +284,8 @@ class LogDrain:
             log.event(tick, kind, detail, now_ns)
             self._view(self._view_log, tick, kind, detail, now_ns)
             self.evt_tail += 1
+        if ctl[C_WALL_START]:  # the loop's own start: ticks count from it, not from ours
+            self.wall_start_ns = int(ctl[C_WALL_START])
         if head - self.tick_tail > RING_TICKS:
             ctl[C_TICK_LOST] += head - self.tick_tail - RING_TICKS
             self.tick_tail = head - RING_TICKS

@@ -33,6 +33,7 @@ from haptic_local_model.haptic_server.log import run_metadata
 from haptic_local_model.haptic_server.mailbox import (
     C_UPD_HEAD,
     C_UPD_READ,
+    C_WALL_START,
     compile_loop_kernels,
     push_row,
 )
@@ -86,6 +87,8 @@ class HapticRunStats:
     wall_s: float = 0.0
     lost_log_ticks: int = 0
     proxy_published: int = 0
+    pointer_received: int = 0  # pointer inputs (a user of kind "pointer") received
+    pointer_rejected: int = 0  # ... refused: malformed, out of range, late
     updates_lost: int = 0
     events_lost: int = 0  # overwritten in the event ring before the log writer read them
     log_failed: str = ""  # why the log writer stopped (a full disk): the run went on
@@ -123,6 +126,8 @@ class HapticRunStats:
             "io_stalls": self.io_stalls,
             "io_lost": self.io_lost,
             "proxy_published": self.proxy_published,
+            "pointer_received": self.pointer_received,
+            "pointer_rejected": self.pointer_rejected,
             "log": str(log_path) if log_path else None,
         }
 
@@ -236,6 +241,8 @@ class HapticServer:
         period_ns = round(1e9 / self.scene.haptic_rate_hz)
         io = self._open_io(cpu, period_ns)
         try:  # from here on every exit path closes the I/O process (its log, its session)
+            if engine.follows_pointer:  # its targets come from the sidecar
+                engine.share_user(io.block.user)
             watchdog_ns = int(self.network.watchdog_ms * 1e6)
             self._newest_seq = -1
             self._newest_age_ms = float("nan")
@@ -255,6 +262,7 @@ class HapticServer:
             if ready is not None:
                 ready()
             start_ns = time.perf_counter_ns()
+            io.block.ctl[C_WALL_START] = time.time_ns()  # the log's time of t = 0
             # the duration counts from the first installed update (a sim that starts later, or
             # compiles first, does not eat into it); without any update it ends all the same
             # after FIRST_UPDATE_WAIT_S more
@@ -443,6 +451,7 @@ class HapticServer:
                 "wall_start_ns": time.time_ns(),
                 "proxy_publish_hz": self.network.proxy_publish_hz,
                 "method": self.engine.method,
+                "pointer": self.engine.follows_pointer,
                 "view": None if view is None else {
                     **dataclasses.asdict(view), "scene_text": self.configs.get("scene"),
                 },
@@ -454,8 +463,14 @@ class HapticServer:
         stats, engine = self.stats, self.engine
         stats.rejected_by_reason = dict(engine.counters.rejected_by_reason)
         stats.reinitialisations = engine.counters.reinitialisations
-        engine.device.safe_stop()
-        io.event(stats.counters.ticks, "stopped", "loop ended; device in its safe state")
+        stop_failed: Exception | None = None
+        try:
+            engine.device.safe_stop()
+        except Exception as exc:  # the log and the I/O process are closed all the same
+            stop_failed = exc
+            io.event(stats.counters.ticks, "safe_stop_failed", f"{type(exc).__name__}: {exc}")
+        else:
+            io.event(stats.counters.ticks, "stopped", "loop ended; device in its safe state")
         stats.log_failed = io.log_failure
         ticks_logged = io.ticks_logged
         io_counters = io.close()
@@ -463,5 +478,9 @@ class HapticServer:
         if stats.log_failed and self.log_path is not None:  # the writer cannot count them
             stats.lost_log_ticks = stats.counters.ticks - ticks_logged
         stats.proxy_published = io_counters["proxy_published"]
+        stats.pointer_received = io_counters["pointer_received"]
+        stats.pointer_rejected = io_counters["pointer_rejected"]
         stats.updates_lost = io_counters["lost_updates"]
         stats.events_lost = io_counters["lost_events"]
+        if stop_failed is not None:
+            raise stop_failed

@@ -23,6 +23,7 @@ from numba import njit
 
 from haptic_local_model.haptic_server.model import TICK_DTYPE
 from haptic_local_model.haptic_server.stages.install import accept_update
+from haptic_local_model.haptic_server.users import USER_DTYPE
 from haptic_local_model.shared.atomics import load_acquire, store_release
 from haptic_local_model.shared.protocol.layout import PUBLISH_TIME_END
 from haptic_local_model.shared.protocol.update import publish_time_ns
@@ -46,6 +47,8 @@ C_TICK_LOGGED = 13  # tick rows the log writer has written (the virtual clock wa
 C_LOG_READY, C_LOG_FAILED = 14, 15  # the log writer has opened its file / has failed
 C_LOG_DONE = 16  # the log writer has closed its file
 C_IO_BEAT = 17  # the I/O sidecar's heartbeat: its monotonic clock (ns) at its last wake-up
+C_PTR_RECEIVED, C_PTR_REJECTED = 18, 19  # pointer inputs received / refused by the sidecar
+C_WALL_START = 20  # the wall clock (ns) at the real-time loop's start: tick t = 0
 N_CTL = 24
 ERROR_BYTES = 256  # the log writer's last error, as text
 
@@ -89,6 +92,10 @@ class SharedBlock:
         o += EVENT_SLOTS * EVENT_BYTES
         self.log_error = np.ndarray((ERROR_BYTES,), np.uint8, buf, o)
         o += ERROR_BYTES
+        o = (o + 7) // 8 * 8
+        # the simulated user, when it follows a pointer: the sidecar writes its targets
+        self.user = np.ndarray((1,), USER_DTYPE, buf, o)
+        o += USER_DTYPE.itemsize
         self.size = o
 
     @classmethod
@@ -113,6 +120,15 @@ class SharedBlock:
         shm = shared_memory.SharedMemory(name=name)
         resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
         return cls(shm)
+
+    def post_pointer(self, target: tuple[float, float, float]) -> None:
+        """A pointer's new target for the user record (the sidecar's side): into the slot the
+        loop is not reading, then the index flips to it (one aligned 8-byte store)."""
+        u = self.user[0]
+        slot = 1 - int(u["target_index"])
+        u["targets"][slot] = target
+        u["target_index"] = slot
+        u["targets_received"] += 1
 
     def post_event(self, tick: int, kind: str, detail: str) -> None:
         """A rare event (watchdog, stop) as text into the event ring (the oldest overwritten
@@ -147,7 +163,8 @@ class SharedBlock:
             + (RING_TICKS * TICK_DTYPE.itemsize + 7) // 8 * 8
             + MAILBOX_SLOTS * MAILBOX_DTYPE.itemsize
             + EVENT_SLOTS * EVENT_BYTES
-            + ERROR_BYTES
+            + (ERROR_BYTES + 7) // 8 * 8
+            + USER_DTYPE.itemsize
         )
 
     def post_update(self, raw: bytes, recv_ns: int, logging: bool) -> bool:

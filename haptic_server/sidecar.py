@@ -38,6 +38,8 @@ from haptic_local_model.haptic_server.mailbox import (
     C_IO_BEAT,
     C_LOG_FAILED,
     C_LOWER_IO,
+    C_PTR_RECEIVED,
+    C_PTR_REJECTED,
     C_PUBLISHED,
     C_READY,
     C_RECEIVED,
@@ -157,6 +159,8 @@ class LoopIO:
             "lost_events": int(c[C_EVT_LOST]),
             "proxy_published": int(c[C_PUBLISHED]),
             "updates_arrived": int(c[C_RECEIVED]),
+            "pointer_received": int(c[C_PTR_RECEIVED]),
+            "pointer_rejected": int(c[C_PTR_REJECTED]),
         }
 
     def close(self, timeout_s: float = 30.0) -> dict[str, int]:
@@ -226,6 +230,11 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
             ctl[C_UPD_LOST] += 1  # the loop (or the writer) is not reading: stopped or dead
 
     subscriber = session.declare_subscriber(k.update, receive)
+    pointer_sub = (
+        session.declare_subscriber(k.pointer, _pointer_receiver(block))
+        if config.get("pointer")
+        else None
+    )
     publish_period = 1.0 / float(config["proxy_publish_hz"])
     method = int(config["method"])
     tick_period_ns = int(config["tick_period_ns"])
@@ -269,9 +278,39 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
             time.sleep(max(0.0005, min(next_publish - time.monotonic(), IO_POLL_S)))
     finally:
         subscriber.undeclare()
+        if pointer_sub is not None:
+            pointer_sub.undeclare()
         session.close()
         block.release()
         shm.close()
+
+
+def _pointer_receiver(block: SharedBlock) -> Any:
+    """The subscriber callback for pointer inputs: a valid one, stamped within
+    MAX_POINTER_AGE_NS of this clock and newer than the last (by its publish time, so a
+    restarted `haptic-pointer` is taken at once), becomes the user's target; anything else
+    is refused and counted, never installed."""
+    from haptic_local_model.shared.protocol.pointer import MAX_POINTER_AGE_NS, decode_pointer
+    from haptic_local_model.shared.protocol.update import MessageError
+
+    ctl = block.ctl
+    newest = [-(2**63)]
+
+    def receive(sample: Any) -> None:
+        ctl[C_PTR_RECEIVED] += 1
+        try:
+            pointer = decode_pointer(sample.payload.to_bytes())
+        except MessageError:
+            ctl[C_PTR_REJECTED] += 1
+            return
+        stamp = pointer.publish_time_ns
+        if stamp <= newest[0] or abs(time.time_ns() - stamp) > MAX_POINTER_AGE_NS:
+            ctl[C_PTR_REJECTED] += 1
+            return
+        newest[0] = stamp
+        block.post_pointer(pointer.target)
+
+    return receive
 
 
 def _tell_log_failure(block: SharedBlock) -> None:

@@ -1,5 +1,11 @@
-"""Simulated users ("hands", DESIGN §5): a constant wrench, or a spring-damper hand that
-follows waypoints relative to where the device started."""
+"""Simulated users ("hands", DESIGN §5): a constant wrench, a spring-damper hand that
+follows waypoints relative to where the device started, or one that follows a pointer (a
+mouse or a gamepad through `haptic-pointer`): its newest target, relative to the same start.
+
+A pointer's target is written by the I/O sidecar (another process) into this record, which
+then lives in the loop's shared block (haptic_server.mailbox): into the slot of `targets`
+the loop is not reading, then `target_index` flips to it, so the loop always reads a
+complete target."""
 
 from __future__ import annotations
 
@@ -12,6 +18,8 @@ MAX_WAYPOINTS = 64
 USER_CONSTANT = 0
 USER_WAYPOINTS = 1
 USER_GIVEN = 2  # the hand's wrench is set from outside each tick (a replay's logged hand)
+USER_POINTER = 3  # the hand follows the newest pointer target (targets[target_index])
+KINDS = {"constant_wrench": USER_CONSTANT, "waypoints": USER_WAYPOINTS, "pointer": USER_POINTER}
 
 USER_DTYPE = np.dtype(
     [
@@ -26,6 +34,9 @@ USER_DTYPE = np.dtype(
         ("start_s", np.float64),  # the clock's time when the script starts
         ("device_pose", np.float64, (3,)),  # what the hand holds: the device's true pose
         ("device_twist", np.float64, (3,)),  # and twist, this tick
+        ("target_index", np.int64),  # the slot of `targets` to read (pointer)
+        ("targets", np.float64, (2, 3)),  # dx, dy, dtheta from start_pose (pointer)
+        ("targets_received", np.int64),  # pointer targets installed so far
     ]
 )
 
@@ -36,7 +47,7 @@ def user_record(config: UserConfig) -> np.ndarray:
         raise ValueError(f"waypoints: at most {MAX_WAYPOINTS} supported")
     rec = np.zeros(1, USER_DTYPE)
     u = rec[0]
-    u["kind"] = USER_CONSTANT if config.kind == "constant_wrench" else USER_WAYPOINTS
+    u["kind"] = KINDS[config.kind]
     u["wrench"] = config.wrench
     u["stiffness"] = config.stiffness
     u["damping"] = config.damping
@@ -56,6 +67,12 @@ def hand_wrench(user, t, pose, twist, out):
     if u.kind == USER_CONSTANT:
         for c in range(3):
             out[c] = u.wrench[c]
+        return
+    if u.kind == USER_POINTER:
+        target = u.targets[u.target_index]
+        for c in range(3):
+            f = u.stiffness[c] * (u.start_pose[c] + target[c] - pose[c]) - u.damping[c] * twist[c]
+            out[c] = min(u.max_wrench[c], max(-u.max_wrench[c], f))
         return
     n = u.n_waypoints
     wp = u.waypoints

@@ -679,14 +679,16 @@ class SceneConfig:
 
 @dataclass(frozen=True)
 class UserConfig:
-    """A simulated hand: a constant wrench, or a spring-damper following waypoints.
+    """A simulated hand: a constant wrench, a spring-damper following waypoints, or one
+    following a pointer (`haptic-pointer`: a mouse or a gamepad).
 
     Waypoints are (t_s, dx, dy, dtheta) relative to the device's start pose, linearly
-    interpolated and held after the last one.
+    interpolated and held after the last one; a pointer's targets are relative to the same
+    start, and the hand holds the start until the first one arrives.
     """
 
     name: str
-    kind: Literal["constant_wrench", "waypoints"]
+    kind: Literal["constant_wrench", "waypoints", "pointer"]
     wrench: Vec3 = (0.0, 0.0, 0.0)  # N, N, N m (constant_wrench)
     stiffness: Vec3 = (200.0, 200.0, 0.5)  # hand grip stiffness (waypoints)
     damping: Vec3 = (10.0, 10.0, 0.02)

@@ -399,3 +399,36 @@ def test_an_exception_in_the_binding_stops_the_run_safe(
     assert record["n_forces"] >= 1500 and record["not_finite"] == 0
     assert record["last_force"] == [0.0, 0.0, 0.0]
     assert record["closed"] == (name != "haply_inverse3")
+
+
+class _BrokenLink:
+    """A binding that opens and reads, but whose stop fails (the cable is out)."""
+
+    def open(self) -> None:
+        self.sent: list[list[float]] = []
+
+    def sample(self, position: np.ndarray, velocity: np.ndarray) -> int:
+        position[:] = velocity[:] = 0.0
+        return 0
+
+    def send(self, force: np.ndarray) -> None:
+        self.sent.append([float(f) for f in force])
+
+    def stop(self) -> None:
+        raise OSError("the device is gone")
+
+
+def test_a_failing_safe_stop_is_a_device_error_once() -> None:
+    """A stop the binding cannot carry out is a DeviceError naming it (the server reports it
+    and still closes its log); the adapter is stopped all the same: it sends nothing more."""
+    from haptic_local_model.device_models.base import DeviceError
+    from haptic_local_model.device_models.hardware.base import HardwareConfig
+
+    link = _BrokenLink()
+    device = PlanarHardware(HardwareConfig(), link)
+    device.command(np.array([1.0, 0.0, 0.0]))
+    with pytest.raises(DeviceError, match="safe stop failed: the device is gone"):
+        device.safe_stop()
+    device.safe_stop()  # already stopped: nothing to do
+    assert list(device.command(np.array([1.0, 0.0, 0.0]))) == [0.0, 0.0, 0.0]
+    assert len(link.sent) == 1

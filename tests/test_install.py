@@ -133,6 +133,7 @@ BAD_CALLS = {
     "haptic-soak": ("--no-such-option",),
     "haptic-bench": ("--out", "x", "--no-such-option"),
     "haptic-stability": ("--rates", "fast"),
+    "haptic-pointer": ("--events", "missing.jsonl"),
 }
 
 
@@ -146,5 +147,6 @@ def test_the_installed_scripts_fail_in_one_line(installed: Path, tmp_path: Path,
     assert out.returncode == 2, (call, out.stdout, out.stderr)
     assert "Traceback" not in out.stderr + out.stdout, out.stderr
     last = out.stderr.strip().splitlines()[-1]
-    named = ("missing.toml", "bad.toml", "missing.mcap", "--no-such-option", "--rates")
+    named = ("missing.toml", "bad.toml", "missing.mcap", "--no-such-option", "--rates",
+             "missing.jsonl")  # fmt: skip
     assert any(n in last for n in named), last

@@ -239,4 +239,7 @@ class PlanarHardware:
         self._stopped = True
         self._force[:] = 0.0
         self._applied[:] = 0.0
-        self._link.stop()
+        try:
+            self._link.stop()
+        except Exception as exc:
+            raise DeviceError(f"{self.name}: the safe stop failed: {exc}") from exc

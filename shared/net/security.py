@@ -4,8 +4,8 @@ Username/password (`usrpwd`) authenticates the connecting peer to the listener a
 handshake: the listener (the haptic server) holds the `user:password` lines of the peers it
 accepts, a connecting peer (the sim) presents its own user and password. Access control on the
 listener then allows, by user name and key expression, only what the protocol needs and denies
-the rest: a sim user may publish local models and follow the proxy, an observer may only
-follow the proxy.
+the rest: a sim user may publish local models, pointer inputs (`haptic-pointer` connects as
+the sim does) and follow the proxy, an observer may only follow the proxy.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ def access_control(namespace: str, sim_users: tuple[str, ...], observers: tuple[
     learns that anyone subscribes and publishes nothing (STACK-NOTES).
     """
     update, proxy = f"{namespace}/local_model", f"{namespace}/proxy"
+    pointer = f"{namespace}/input/pointer"
     rules = [
         {"id": "put_update_in", "messages": ["put"], "flows": ["ingress"],
          "permission": "allow", "key_exprs": [update]},
@@ -42,11 +43,16 @@ def access_control(namespace: str, sim_users: tuple[str, ...], observers: tuple[
          "permission": "allow", "key_exprs": [proxy]},
         {"id": "put_proxy_out", "messages": ["put"], "flows": ["egress"],
          "permission": "allow", "key_exprs": [proxy]},
+        {"id": "put_pointer_in", "messages": ["put"], "flows": ["ingress"],
+         "permission": "allow", "key_exprs": [pointer]},
+        {"id": "announce_pointer_sub", "messages": ["declare_subscriber"], "flows": ["egress"],
+         "permission": "allow", "key_exprs": [pointer]},
     ]  # fmt: skip
     subjects = [{"id": "sims", "usernames": list(sim_users)}]
     policies = [
         {"id": "sims_drive", "subjects": ["sims"],
-         "rules": ["put_update_in", "announce_update_sub", "follow_proxy_in", "put_proxy_out"]},
+         "rules": ["put_update_in", "announce_update_sub", "follow_proxy_in", "put_proxy_out",
+                   "put_pointer_in", "announce_pointer_sub"]},
     ]  # fmt: skip
     if observers:
         subjects.append({"id": "observers", "usernames": list(observers)})

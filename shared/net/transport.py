@@ -3,6 +3,7 @@
 Key expressions under the configured namespace (docs/protocol.md):
 - `<ns>/local_model`: LocalModelUpdate, sim -> haptic
 - `<ns>/proxy`: ProxyState, haptic -> sim
+- `<ns>/input/pointer`: PointerInput, `haptic-pointer` -> haptic
 """
 
 from __future__ import annotations
@@ -23,10 +24,15 @@ if TYPE_CHECKING:  # annotations only: the config module imports this one
 class Keys:
     update: str
     proxy: str
+    pointer: str
 
 
 def keys(namespace: str) -> Keys:
-    return Keys(update=f"{namespace}/local_model", proxy=f"{namespace}/proxy")
+    return Keys(
+        update=f"{namespace}/local_model",
+        proxy=f"{namespace}/proxy",
+        pointer=f"{namespace}/input/pointer",
+    )
 
 
 def session_config(
