@@ -10,6 +10,7 @@ while the run goes on.
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import time
@@ -232,7 +233,7 @@ def _put_bad_pointers(network_file: Path) -> None:
 def test_a_gamepad_drives_the_testbed_in_real_time(
     network_file: Path, start_server: Any, tmp_path: Path
 ) -> None:
-    """Both servers on the testbed with the pointer hand; `haptic-pointer` plays synthetic
+    """`haptic-run` on the testbed with the pointer hand; `haptic-pointer` plays synthetic
     gamepad events (the stick to half right, then half up and right, then back). The
     hand pulls, tick by tick, toward exactly the targets the stick sent (38 mm per half
     deflection), in order, and the device moves that way. The loop keeps 1 kHz; a malformed
@@ -241,14 +242,14 @@ def test_a_gamepad_drives_the_testbed_in_real_time(
     log, summary = tmp_path / "run.mcap", tmp_path / "haptic.json"
     events = tmp_path / "stick.jsonl"
     _event_file(events)
-    common = ["--scene", "testbed", "--network", str(network_file)]
-    haptic = start_server(
-        "haptic_local_model.haptic_server.cli", *common, "--user", "pointer", "--log", str(log),
-        "--summary-json", str(summary),
+    # as a user runs it: haptic-run starts both servers (on the network's own port, which
+    # haptic-pointer finds, since the user follows a pointer), then haptic-pointer
+    run = start_server(
+        "haptic_local_model.haptic_server.harness.run", "--scene", "testbed", "--user",
+        "pointer", "--network", str(network_file), "--duration", "120", "--json-events",
+        "--log", str(log), "--summary-json", str(summary),
     )  # fmt: skip
-    haptic.wait_ready()
-    sim = start_server("haptic_local_model.sim_server.cli", *common)
-    sim.wait_ready()
+    run.wait_ready()
     time.sleep(1.0)
     _put_bad_pointers(network_file)
     res = subprocess.run(
@@ -258,11 +259,12 @@ def test_a_gamepad_drives_the_testbed_in_real_time(
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
     assert f"{len(SCHEDULE)} targets published" in res.stderr
-    assert haptic.stop() == 0 and sim.stop() == 0
+    assert run.stop(signal.SIGINT) == 0  # haptic-run stops both servers
     ready = json.loads(res.stdout.splitlines()[0])
     assert ready["event"] == "ready" and ready["process"] == "pointer"
 
     s = json.loads(summary.read_text())
+    assert s["exit_codes"] == {"haptic": 0, "sim": 0}
     assert s["pointer_received"] == len(SCHEDULE) + 2 and s["pointer_rejected"] == 2
     assert s["tick_rate_hz"] == pytest.approx(1000.0, rel=0.01)
     ticks = read_ticks(log)

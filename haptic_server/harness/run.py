@@ -138,10 +138,12 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
     """
     # validate every file here so a bad config fails fast with exit 2
     load_scene(args.scene, args.haptic_rate)
-    load_user(args.user)
+    pointer = load_user(args.user).kind == "pointer"
     network = load_network(args.network)
-    if args.port is None and on_loopback(network):
-        args.port = free_loopback_port()  # a port of this run's own: runs never collide
+    if args.port is None and on_loopback(network) and not pointer:
+        # a port of this run's own: runs never collide. Not for a hand that follows a
+        # pointer: `haptic-pointer` on the same network must find the haptic server
+        args.port = free_loopback_port()
     from haptic_local_model.device_models.registry import check_device
 
     check_device(args.device)  # not built: a hardware driver is the haptic server's to open
@@ -205,6 +207,13 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
                         f"{pids['sim_pid']} (Ctrl-C stops both; the device ramps to safe)",
                         flush=True,
                     )
+                    if pointer:
+                        port = f" --port {args.port}" if args.port is not None else ""
+                        print(
+                            f"the hand follows a pointer: haptic-pointer --network "
+                            f"{args.network}{port} --evdev /dev/input/eventN (--list: devices)",
+                            flush=True,
+                        )
                 failure = _watch(haptic, sim, stop, args.duration + STOP_TIMEOUT_S + 30.0)
     finally:
         codes = {"haptic": haptic.stop()}  # the haptic side first: it ramps the device to safe
