@@ -48,6 +48,7 @@ FAULT_NONE = 0
 FAULT_WORKSPACE = 1  # outside the workspace or at a stop
 FAULT_SINGULAR = 2  # at or near a kinematic singularity
 FAULT_SATURATED = 4  # the last command was clipped at an actuator limit
+FAULT_INVALID_COMMAND = 8  # the last command was not finite: zero force was sent instead
 
 
 #: The stated ranges of every device's limits (`docs/devices.md`): a desktop haptic device
@@ -65,6 +66,10 @@ INERTIA_RANGE = (0.0, 100.0)
 class DeviceError(RuntimeError):
     """A device (its driver or the vendor's binding) failed: not found, not calibrated, not
     answering. The haptic server sends the device to its safe state and names the failure."""
+
+
+class SafeStopError(DeviceError):
+    """The device could not be sent to its safe state: it may still apply force."""
 
 
 def require_device_limits(max_wrench: tuple[float, float, float], max_rate_hz: float) -> None:

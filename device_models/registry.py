@@ -148,16 +148,34 @@ def check_device(name_or_path: str) -> DeviceModel:
 
 
 def load_simulated_device(name_or_path: str) -> SimulatedDevice:
-    """A device whose physics this process simulates (the virtual clock, tests, benchmarks)."""
-    device = load_device(name_or_path)
+    """A device whose physics this process simulates (the virtual clock, tests, benchmarks).
+    A hardware model is refused before it is built: building it would open the device."""
+    path = device_config(name_or_path)
+    model, table, source = split_device_table(read_toml(path), str(path))
+    _require_simulated(model, source)
+    device = device_from_table(model, table, source)
     if not isinstance(device, SimulatedDevice):
-        raise ConfigError(name_or_path, "model", "drives hardware: a simulated device is needed")
+        raise ConfigError(source, "model", "drives hardware: a simulated device is needed")
     return device
 
 
-def device_from_text(text: str, source: str) -> Device:
-    """Build a device from a config file's TOML text (as stored in a run's log)."""
-    return device_from_table(*split_device_table(parse_toml_text(text, source), source))
+def device_from_text(text: str, source: str, simulated_only: bool = False) -> Device:
+    """Build a device from a config file's TOML text (as stored in a run's log); with
+    `simulated_only`, a hardware model is refused before it is built (a replay)."""
+    model, table, where = split_device_table(parse_toml_text(text, source), source)
+    if simulated_only:
+        _require_simulated(model, where)
+    return device_from_table(model, table, where)
+
+
+def _require_simulated(model: str, source: str) -> None:
+    entry = DEVICE_MODELS.get(model)
+    if entry is not None and not entry.simulated:
+        raise ConfigError(
+            source, "model",
+            f"{model!r} drives hardware: only the haptic server opens a real device; this "
+            "needs a simulated one (ideal, twin_pantograph, maglev, ...)",
+        )  # fmt: skip
 
 
 def device_from_table(model: str, table: dict[str, Any], source: str) -> Device:

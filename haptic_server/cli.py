@@ -6,7 +6,7 @@ import argparse
 import signal
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from haptic_local_model.haptic_server.live_view import add_view_args, view_address
 from haptic_local_model.shared.cli import (
@@ -43,35 +43,45 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     def body() -> int:
-        from haptic_local_model.device_models.base import DeviceError
-        from haptic_local_model.device_models.registry import load_device
+        from haptic_local_model.device_models.base import DeviceError, SafeStopError
+        from haptic_local_model.device_models.registry import check_device, load_device
 
+        # every config checked first: a typo must not open (or calibrate) a real device
+        scene = load_scene(args.scene, args.haptic_rate)
+        user = load_user(args.user)
+        network = load_network(args.network, roles=("haptic",))
+        if args.port is not None:
+            network = on_port(network, args.port)
+        check_device(args.device)
         try:
             device = load_device(args.device)  # a hardware driver opens its device here
         except DeviceError as exc:  # the driver has closed what it opened
             print(f"haptic-server: device error: {exc}", file=sys.stderr)
             return EXIT_FAILED
         try:
-            return serve(device)
-        except DeviceError as exc:  # the loop has sent it safe; before the loop, this does
-            device.safe_stop()
-            print(f"haptic-server: device error: {exc}; the device is in its safe state",
-                  file=sys.stderr)  # fmt: skip
+            return serve(device, scene, user, network)
+        except DeviceError as exc:  # the loop sent it safe, or tried to: once more here
+            try:
+                device.safe_stop()
+            except SafeStopError as stop_exc:
+                print(f"haptic-server: device error: {exc}; the safe stop FAILED: {stop_exc}: "
+                      "the device may still apply force", file=sys.stderr)  # fmt: skip
+                return EXIT_FAILED
+            if isinstance(exc, SafeStopError):  # the first try failed, the second worked
+                print(f"haptic-server: {exc}; a second safe stop succeeded", file=sys.stderr)
+            else:
+                print(f"haptic-server: device error: {exc}; the device is in its safe state",
+                      file=sys.stderr)  # fmt: skip
             return EXIT_FAILED
         except BaseException:
             device.safe_stop()  # whatever failed, a real device is left without force
             raise
 
-    def serve(device: Device) -> int:
+    def serve(device: Device, scene: Any, user: Any, network: Any) -> int:
         from haptic_local_model.device_models.base import SimulatedDevice
         from haptic_local_model.device_models.registry import device_config, load_device
         from haptic_local_model.haptic_server.loop import HapticServer, InjectedFaults, ServerExtras
 
-        scene = load_scene(args.scene, args.haptic_rate)
-        user = load_user(args.user)
-        network = load_network(args.network, roles=("haptic",))
-        if args.port is not None:
-            network = on_port(network, args.port)
         if network.unauthenticated_insecure:
             print(
                 f"warning: {args.network}: unauthenticated_insecure: anyone who reaches "

@@ -123,7 +123,8 @@ class SharedBlock:
 
     def post_pointer(self, target: tuple[float, float, float]) -> None:
         """A pointer's new target for the user record (the sidecar's side): into the slot the
-        loop is not reading, then the index flips to it (one aligned 8-byte store)."""
+        loop is not reading, then the index flips to it (one aligned 8-byte store, after the
+        target's; x86 keeps stores in order). See haptic_server.users on what a read sees."""
         u = self.user[0]
         slot = 1 - int(u["target_index"])
         u["targets"][slot] = target

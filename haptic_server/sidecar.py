@@ -55,7 +55,12 @@ from haptic_local_model.haptic_server.mailbox import (
 )
 from haptic_local_model.shared.protocol.proxy import MAX_WAIT_NS, NO_WAIT, UpdateWait
 from haptic_local_model.shared.protocol.update import AT_SEQ
-from haptic_local_model.shared.timing import REALTIME_PRIORITY, avoid_cpu, try_realtime_priority
+from haptic_local_model.shared.timing import (
+    GIL_SWITCH_INTERVAL_S,
+    REALTIME_PRIORITY,
+    avoid_cpu,
+    try_realtime_priority,
+)
 
 if TYPE_CHECKING:
     from haptic_local_model.haptic_server.engine import HapticEngine
@@ -63,9 +68,6 @@ if TYPE_CHECKING:
 IO_POLL_S = 0.004  # the sidecar wakes at least this often (and for each proxy publish)
 IO_NICENESS = 10  # only when the loop could not get real-time priority (see _lower_priority)
 IO_PRIORITY = REALTIME_PRIORITY // 2  # SCHED_FIFO below the loop's
-# CPython hands the GIL to a waiting thread after this long (default 5 ms): the Zenoh thread
-# that receives an update must not wait behind the main thread's Python for that long
-GIL_SWITCH_INTERVAL_S = 1e-4
 VIEW_CLOSE_S = 5.0  # the live view's last frame and flush
 
 

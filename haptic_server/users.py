@@ -4,8 +4,9 @@ mouse or a gamepad through `haptic-pointer`): its newest target, relative to the
 
 A pointer's target is written by the I/O sidecar (another process) into this record, which
 then lives in the loop's shared block (haptic_server.mailbox): into the slot of `targets`
-the loop is not reading, then `target_index` flips to it, so the loop always reads a
-complete target."""
+the loop is not reading, then `target_index` flips to it. A read mixes two targets only if
+two posts land within the loop's read of three floats (posts come at most every input
+frame, a millisecond or more apart); even then the hand's force stays clipped."""
 
 from __future__ import annotations
 

@@ -37,6 +37,9 @@ def wait_until(deadline_ns: int, spin_ns: int = SPIN_NS) -> int:
 
 
 REALTIME_PRIORITY = 10
+# CPython hands the GIL to a waiting thread after this long (default 5 ms): a thread that must
+# run every millisecond (a Zenoh receiver, a device's servo callback) must not wait that long
+GIL_SWITCH_INTERVAL_S = 1e-4
 
 
 def try_realtime_priority(priority: int = REALTIME_PRIORITY) -> bool:

@@ -27,11 +27,12 @@ import numpy as np
 import pytest
 from test_device_rendering import MAX_SPECTRAL_RADIUS, servo_spectral_radius
 
-from haptic_local_model.device_models.base import SENSOR_DTYPE
-from haptic_local_model.device_models.hardware.base import (
+from haptic_local_model.device_models.base import (
     FAULT_INVALID_COMMAND,
-    PlanarHardware,
+    FAULT_SATURATED,
+    SENSOR_DTYPE,
 )
+from haptic_local_model.device_models.hardware.base import HOLD_FADE_S, PlanarHardware
 from haptic_local_model.device_models.registry import (
     device_config,
     installed_models,
@@ -199,7 +200,9 @@ def test_units_frames_and_the_plane(
 ) -> None:
     """The handle at (12 mm, -7 mm) on the plane and 4 mm off it reads as that planar pose
     (OpenHaptics reports mm, the others m); a planar command arrives on the configured
-    device axes with their signs, and the third axis gets the hold spring, -k z - b v."""
+    device axes with their signs, and the third axis gets the hold spring, -k z - b v,
+    faded in from zero over HOLD_FADE_S (no step at start-up if the handle rests off the
+    plane)."""
     _start_at(monkeypatch, name, (0.012, -0.007, 0.004))
     device = load_device(name)
     sensors = np.zeros(1, SENSOR_DTYPE)
@@ -208,6 +211,11 @@ def test_units_frames_and_the_plane(
     device.command(np.array([0.8, -0.3, 0.0]))
     _wait_for_servo()
     ix, iy, iz, sx, sy = _axes(name)
+    assert abs(_handle().forces[-1][1 + iz]) < 1e-9  # the hold spring starts at zero ...
+    time.sleep(HOLD_FADE_S)  # ... and fades in
+    device.read(sensors)
+    device.command(np.array([0.8, -0.3, 0.0]))
+    _wait_for_servo()
     h = _handle()
     f = np.array(h.forces[-1][1:4])
     v = np.array(h.forces[-1][4:7])
@@ -220,17 +228,20 @@ def test_units_frames_and_the_plane(
 
 @pytest.mark.parametrize("name", ADAPTERS)
 def test_force_limits_and_nan_never_sent(name: str, fake_vendor: Path) -> None:
-    """A command beyond the limit is clipped there (and flagged); a NaN or infinite one is
-    replaced by zero force, flagged in the next reading, and never reaches the binding."""
+    """A command beyond the limit is clipped in magnitude (the device's limit is on the
+    force, planar and hold together) and flagged; a NaN or infinite one is replaced by zero
+    force, flagged in the next reading, and never reaches the binding."""
     limit = _config(name)["max_wrench"][0]
     device = load_device(name)
     sensors = np.zeros(1, SENSOR_DTYPE)
     device.read(sensors)
     applied = device.command(np.array([100.0, -100.0, 5.0]))
-    assert applied == pytest.approx([limit, -limit, 0.0])
+    assert applied == pytest.approx([limit / np.sqrt(2), -limit / np.sqrt(2), 0.0])
+    device.read(sensors)
+    assert sensors[0]["fault"] & FAULT_SATURATED
     _wait_for_servo()
     h = _handle()
-    assert max(abs(c) for c in h.forces[-1][1:4]) <= limit
+    assert np.linalg.norm(h.forces[-1][1:4]) == pytest.approx(limit)
     for bad in (math.nan, math.inf, -math.inf):
         applied = device.command(np.array([0.5, bad, 0.0]))
         assert list(applied) == [0.0, 0.0, 0.0]
@@ -349,7 +360,7 @@ def test_a_run_the_watchdog_and_sigint_reach_the_device(
     t, fx, vx = _scene_x(name, rows)
     limit = _config(name)["max_wrench"][0]
     assert record["not_finite"] == 0 and record["over_limit"] == 0
-    assert record["max_abs_force"] <= limit
+    assert record["max_force_norm"] <= limit * (1 + 1e-9)
     assert record["last_force"] == [0.0, 0.0, 0.0]
     assert record["closed"] == (name != "haply_inverse3")
     # at the wall, before the stop and after the resumption: the command balances the hand
@@ -371,20 +382,28 @@ def test_a_run_the_watchdog_and_sigint_reach_the_device(
     assert p50 == pytest.approx(1.0, abs=0.05) and p99 < 2.0
     summary = json.loads((tmp_path / "haptic.json").read_text())
     assert summary["tick_rate_hz"] == pytest.approx(1000.0, rel=0.02)
-    assert summary["watchdog_trips"] == 1 and summary["reinitialisations"] >= 1
+    assert summary["watchdog_trips"] >= 1 and summary["reinitialisations"] >= 1
 
 
 @pytest.mark.slow
 @pytest.mark.processes
 @pytest.mark.parametrize("name", ADAPTERS)
 def test_an_exception_in_the_binding_stops_the_run_safe(
-    name: str, fake_vendor: Path, monkeypatch: pytest.MonkeyPatch, network_file: Path
+    name: str,
+    fake_vendor: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    network_file: Path,
+    start_server: Any,
 ) -> None:
-    """The binding fails at its 1500th force command (the device stopped answering; for the
-    Touch the failure is in OpenHaptics' servo thread, which then stops): the haptic server
-    ends with an error naming it, after sending zero force and closing the device."""
+    """The binding fails at its 300th force after the first that was not zero (the loop is
+    rendering; the device stopped answering; for the Touch the failure is in OpenHaptics'
+    servo thread, which then stops): the haptic server ends with an error naming it, after
+    sending zero force and closing the device. Both servers run: the wall pushes back."""
     _hand_env(monkeypatch, name)
-    monkeypatch.setenv("FAKE_VENDOR_RAISE_AT", "1500")
+    monkeypatch.setenv("FAKE_VENDOR_RAISE_AT", "300")
+    sim = start_server(
+        "haptic_local_model.sim_server.cli", "--scene", SCENE, "--network", str(network_file)
+    )
     res = subprocess.run(
         [sys.executable, "-m", "haptic_local_model.haptic_server.cli", "--scene", SCENE,
          "--network", str(network_file), "--device", name, "--duration", "20"],
@@ -395,9 +414,14 @@ def test_an_exception_in_the_binding_stops_the_run_safe(
     line = res.stderr.strip().splitlines()[-1]
     assert line.startswith("haptic-server: device error:") and why in line, res.stderr
     assert line.endswith("the device is in its safe state")
+    sim.stop(signal.SIGINT)
     record = json.loads(fake_vendor.read_text())
-    assert record["n_forces"] >= 1500 and record["not_finite"] == 0
-    assert record["last_force"] == [0.0, 0.0, 0.0]
+    assert record["pushed_before_failure"] and record["max_abs_force"] > 0.1
+    assert record["not_finite"] == 0
+    if name == "touch":  # its servo is dead: no zero force can be set, the device is disabled
+        assert record["last_calls"][-2:] == ["hdStopScheduler", "hdDisableDevice"]
+    else:
+        assert record["last_force"] == [0.0, 0.0, 0.0]
     assert record["closed"] == (name != "haply_inverse3")
 
 
@@ -415,20 +439,50 @@ class _BrokenLink:
         self.sent.append([float(f) for f in force])
 
     def stop(self) -> None:
+        self.stops = getattr(self, "stops", 0) + 1
         raise OSError("the device is gone")
 
 
-def test_a_failing_safe_stop_is_a_device_error_once() -> None:
-    """A stop the binding cannot carry out is a DeviceError naming it (the server reports it
-    and still closes its log); the adapter is stopped all the same: it sends nothing more."""
-    from haptic_local_model.device_models.base import DeviceError
+def test_a_failing_safe_stop_says_so_and_is_tried_again() -> None:
+    """A stop the binding cannot carry out is a SafeStopError naming it (the server reports
+    that the device may still apply force, and still closes its log); nothing more is
+    commanded, and a later safe stop tries the binding's stop again."""
+    from haptic_local_model.device_models.base import SafeStopError
     from haptic_local_model.device_models.hardware.base import HardwareConfig
 
     link = _BrokenLink()
     device = PlanarHardware(HardwareConfig(), link)
     device.command(np.array([1.0, 0.0, 0.0]))
-    with pytest.raises(DeviceError, match="safe stop failed: the device is gone"):
+    with pytest.raises(SafeStopError, match="safe stop failed: the device is gone"):
         device.safe_stop()
-    device.safe_stop()  # already stopped: nothing to do
     assert list(device.command(np.array([1.0, 0.0, 0.0]))) == [0.0, 0.0, 0.0]
     assert len(link.sent) == 1
+    with pytest.raises(SafeStopError):
+        device.safe_stop()
+    assert link.stops == 2
+    link.stop = lambda: None  # type: ignore[method-assign]  # the cable is back
+    device.safe_stop()
+    device.safe_stop()  # stopped: nothing more to do
+
+
+def test_nothing_but_the_haptic_server_opens_a_real_device(
+    fake_vendor: Path, tmp_path: Path
+) -> None:
+    """The virtual clock and haptic-replay need a simulated device: a hardware model is
+    refused before it is built (building it opens, maybe calibrates, the device); and the
+    haptic server checks every config before it opens one (a typo opens nothing)."""
+    from haptic_local_model.device_models.registry import device_from_text, load_simulated_device
+
+    for name in ADAPTERS:
+        with pytest.raises(ConfigError, match="drives hardware"):
+            load_simulated_device(name)
+        with pytest.raises(ConfigError, match="drives hardware"):
+            device_from_text(device_config(name).read_text(), "log", simulated_only=True)
+    assert _handle() is None  # no fake device was ever opened
+    res = subprocess.run(
+        [sys.executable, "-m", "haptic_local_model.haptic_server.cli", "--scene",
+         str(tmp_path / "missing.toml"), "--device", "forcedimension"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert res.returncode == 2 and "missing.toml" in res.stderr
+    assert not fake_vendor.exists()  # the fake writes its record once a device is opened

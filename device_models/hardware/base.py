@@ -6,11 +6,12 @@ the scenes are planar. The `[planar]` table says which device axis is the scene'
 its y (with a sign: "-z"), and which device point is the plane's origin; the remaining axis
 is held on the plane by a spring-damper the adapter renders itself (bounded by the device's
 force limit), so the hand feels the plane as a wall on both sides. Yaw is not actuated by
-these devices: the planar pose's angle reads 0, and a commanded torque is dropped (counted).
+these devices: the planar pose's angle reads 0, and a commanded torque is not sent.
 
 Per tick the engine calls `read` (one sample of the device: position and velocity, vendor
 units, converted to metres) and `command` (the planar wrench, already clipped by the
-kernels; clipped again here, a non-finite wrench replaced by zero and flagged). Nothing here
+kernels per axis; here the whole force, planar and hold, is clipped in magnitude at the
+device's limit, and a non-finite wrench is replaced by zero and flagged). Nothing here
 allocates per tick: the arrays are made once. `safe_stop` sends zero force, switches the
 device's force output off where the binding can, and closes it; it is idempotent, and the
 haptic server calls it on every way out (the end of a run, SIGINT/SIGTERM, an exception).
@@ -18,6 +19,7 @@ haptic server calls it on every way out (the end of a run, SIGINT/SIGTERM, an ex
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import math
 import time
@@ -27,22 +29,24 @@ from typing import Protocol
 import numpy as np
 
 from haptic_local_model.device_models.base import (
+    FAULT_INVALID_COMMAND,
     FAULT_NONE,
     FAULT_SATURATED,
     FAULT_WORKSPACE,
     DeviceError,
     DeviceLimits,
     DeviceRenderingSpec,
+    SafeStopError,
     require_device_limits,
 )
 from haptic_local_model.device_models.world_map import DeviceWorldMap, WorldMapSection
 from haptic_local_model.shared.config import ConfigError, Vec3, require, within
 
-FAULT_INVALID_COMMAND = 8  # SENSOR_DTYPE.fault bit: the last command was not finite
 AXES = {"x": 0, "y": 1, "z": 2}
 #: The smallest torque limit a device config may state (base.TORQUE_LIMIT_RANGE_NM): these
 #: devices render no torque, so the kernels' torque command is clipped to almost nothing
 NO_TORQUE_NM = 1e-5
+HOLD_FADE_S = 0.5  # the plane's hold spring fades in over this from the first command
 
 
 def parse_axis(text: str, key: str) -> tuple[int, float]:
@@ -154,16 +158,20 @@ class PlanarHardware:
         self._applied = np.zeros(3)  # the planar wrench applied
         self._inertia = np.diag([p.apparent_mass_kg, p.apparent_mass_kg, 1e-3])
         self._fault = FAULT_NONE
-        self._stopped = False
+        self._stopping = False  # no command is sent once a safe stop has begun
+        self._stopped = False  # ... and the binding's stop has succeeded
+        self._first_command_ns = 0  # the hold spring fades in from the first command
         self.not_finite_commands = 0  # commands replaced by zero (never sent)
         self.saturated_commands = 0
         self.last_read_ns = 0
         self._link = link
         try:
             link.open()
-        except DeviceError:
-            raise
-        except Exception as exc:  # the binding's own error (no device on the port, ...)
+        except Exception as exc:  # no device on the port, not calibrated, ...
+            with contextlib.suppress(Exception):  # close whatever it had opened
+                link.stop()
+            if isinstance(exc, DeviceError):
+                raise
             raise DeviceError(f"{self.name}: opening the device failed: {exc}") from exc
 
     def limits(self) -> DeviceLimits:
@@ -190,7 +198,9 @@ class PlanarHardware:
         s = sensors[0]
         s["pose"] = (x, y, 0.0)
         vx, vy = self._sx * vel[ix], self._sy * vel[iy]
-        s["twist"] = (vx, vy, 0.0) if math.isfinite(vx) and math.isfinite(vy) else 0.0
+        if vendor_fault or not (math.isfinite(vx) and math.isfinite(vy)):
+            vx = vy = 0.0  # no velocity rather than a stale one
+        s["twist"] = (vx, vy, 0.0)
         s["inertia"] = self._inertia
         s["coriolis"] = 0.0
         s["hand_wrench"] = 0.0
@@ -199,9 +209,11 @@ class PlanarHardware:
 
     def command(self, wrench: np.ndarray) -> np.ndarray:
         """Send the planar wrench (fx, fy; the torque is not rendered) plus the plane's hold
-        spring, each clipped at the force limit; a non-finite wrench sends zero force."""
+        spring (faded in over HOLD_FADE_S from the first command); the force's magnitude is
+        clipped at max_wrench[0], the planar part returned as applied; a non-finite wrench
+        sends zero force."""
         applied, force, limit = self._applied, self._force, self._max
-        if self._stopped:
+        if self._stopping:
             applied[:] = 0.0
             return applied
         fx, fy = float(wrench[0]), float(wrench[1])
@@ -217,9 +229,19 @@ class PlanarHardware:
             fy = min(limit[1], max(-limit[1], fy))
         p = self.config.planar
         iz = self._iz
+        now = time.monotonic_ns()
+        if not self._first_command_ns:
+            self._first_command_ns = now
+        fade = min(1.0, (now - self._first_command_ns) * 1e-9 / HOLD_FADE_S)
         hold = -p.hold_stiffness_n_per_m * (self._position[iz] - self._origin[iz])
-        hold -= p.hold_damping_ns_per_m * self._velocity[iz]
+        hold = fade * (hold - p.hold_damping_ns_per_m * self._velocity[iz])
         hold = min(limit[0], max(-limit[0], hold)) if math.isfinite(hold) else 0.0
+        magnitude = math.sqrt(fx * fx + fy * fy + hold * hold)
+        if magnitude > limit[0]:  # the device's limit is on the force, not on each axis
+            self.saturated_commands += 1
+            self._fault |= FAULT_SATURATED
+            scale = limit[0] / magnitude
+            fx, fy, hold = fx * scale, fy * scale, hold * scale
         force[self._ix] = self._sx * fx
         force[self._iy] = self._sy * fy
         force[iz] = hold
@@ -233,13 +255,16 @@ class PlanarHardware:
         return applied
 
     def safe_stop(self) -> None:
-        """Zero force, force output off, the device closed (once; later calls do nothing)."""
+        """Zero force, force output off, the device closed. From the first call on nothing
+        more is commanded; a binding whose stop fails raises SafeStopError, and a later call
+        tries the stop again; once it has succeeded, later calls do nothing."""
+        self._stopping = True
         if self._stopped:
             return
-        self._stopped = True
         self._force[:] = 0.0
         self._applied[:] = 0.0
         try:
             self._link.stop()
         except Exception as exc:
-            raise DeviceError(f"{self.name}: the safe stop failed: {exc}") from exc
+            raise SafeStopError(f"{self.name}: the safe stop failed: {exc}") from exc
+        self._stopped = True

@@ -65,8 +65,7 @@ class ForceDimensionLink:
         drd = importlib.import_module(f"{BINDING}.drd")
         self.id = self._check(drd.open(), "drd.open")  # the first device found
         if not drd.isInitialized(self.id):
-            if not self.config.calibrate:
-                dhd.close(self.id)
+            if not self.config.calibrate:  # (the adapter then closes it: stop())
                 raise DeviceError(
                     "the Force Dimension device is not calibrated; set calibrate = true to "
                     "let drd.autoInit move it, or calibrate it with the maker's tool"

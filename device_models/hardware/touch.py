@@ -35,10 +35,10 @@ from haptic_local_model.device_models.hardware.base import (
     require_binding,
 )
 from haptic_local_model.shared.config import load_dataclass, within
+from haptic_local_model.shared.timing import GIL_SWITCH_INTERVAL_S
 
 BINDING = "pyOpenHaptics"
 MM = 1e-3
-SWITCH_INTERVAL_S = 1e-4
 STOP_WAIT_S = 0.05  # the safe stop waits this long at most for the servo to send zero
 
 
@@ -79,6 +79,7 @@ class TouchLink:
         self._servo_timeout_ns = int(config.servo_timeout_ms * 1e6)
         self._last_ns = 0
         self._zero = [0.0, 0.0, 0.0]
+        self._out = [0.0, 0.0, 0.0]  # what the servo sets (its thread only)
         self.watchdog_zeroed = 0  # servo ticks that sent zero for want of a fresh command
         self.servo_ticks = 0
         self._device: Any = None
@@ -87,7 +88,7 @@ class TouchLink:
     def open(self) -> None:
         # the servo callback is Python: it needs the GIL every millisecond, and must not wait
         # behind the loop's thread for CPython's default 5 ms switch interval
-        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+        sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_INTERVAL_S))
         self._hd = importlib.import_module(f"{BINDING}.hd")
         callback = importlib.import_module(f"{BINDING}.hd_callback").hd_callback
         device_cls = importlib.import_module(f"{BINDING}.hd_device").HapticDevice
@@ -122,14 +123,18 @@ class TouchLink:
             pos[0], pos[1], pos[2] = x, y, z
             self._last_ns = now
             fresh = self._commanded_ns and now - self._commanded_ns <= self._timeout_ns
-            force = self._force if fresh else self._zero
-            if self._commanded_ns and not fresh:
-                self.watchdog_zeroed += 1
+            out = self._out  # a copy made under the lock: send() may rewrite _force meanwhile
+            if fresh:
+                out[0], out[1], out[2] = self._force
+            else:
+                out[0] = out[1] = out[2] = 0.0
+                if self._commanded_ns:
+                    self.watchdog_zeroed += 1
             self.servo_ticks += 1
-        hd.set_force(force)
+        hd.set_force(out)
 
     def sample(self, position: np.ndarray, velocity: np.ndarray) -> int:
-        """The servo's newest reading; a servo that has not run for `command_timeout_ms`
+        """The servo's newest reading; a servo that has not run for `servo_timeout_ms`
         (OpenHaptics unscheduled the callback after an error) stops the run."""
         if time.monotonic_ns() - self._last_ns > self._servo_timeout_ns:
             raise DeviceError(

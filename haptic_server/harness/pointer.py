@@ -320,6 +320,10 @@ def main(argv: list[str] | None = None) -> int:
             sent = publish(events, mapper, network, args.quiet)
         except KeyboardInterrupt:
             return 0
+        except OSError as exc:  # the input device was unplugged (or went away) while read
+            print(f"\nhaptic-pointer: {args.evdev or args.events}: {exc.strerror or exc}",
+                  file=sys.stderr)  # fmt: skip
+            return 1
         print(f"\nhaptic-pointer: {sent} targets published", file=sys.stderr)
         return 0
 

@@ -127,7 +127,8 @@ def engine_from_configs(configs: dict[str, str], run: dict[str, str] | None = No
         raise ReplayError(f"the log's configs metadata lacks {', '.join(missing)}")
     scene = scene_of_run(configs["scene"], run)
     user = load_config_text(UserConfig, configs["user"], "log:configs.user")
-    device = device_from_text(configs["device"], "log:configs.device")
+    # a run on real hardware replays against no device: opening it would drive it
+    device = device_from_text(configs["device"], "log:configs.device", simulated_only=True)
     engine = HapticEngine(scene, device, user)
     if configs.get("network"):  # real-time runs: the safe-state ramp comes from the network
         network = _network_of_run(configs["network"], run)

@@ -13,7 +13,8 @@ process reads it. Settings from the environment (a test sets them for the server
 - FAKE_VENDOR_HAND: "fx,fy,fz", the hand's force (N, the vendor's frame)
 - FAKE_VENDOR_START: "x,y,z", the handle's start (m, the vendor's frame)
 - FAKE_VENDOR_LIMIT: the device's force limit (N): forces beyond it are counted
-- FAKE_VENDOR_RAISE_AT: the force command at which the binding fails, once
+- FAKE_VENDOR_RAISE_AT: the force command, counted from the first that is not zero, at
+  which the binding fails, once
 - FAKE_VENDOR_CALIBRATED: "0" for a device that needs calibrating
 """
 
@@ -48,6 +49,7 @@ class FakeHandle:
         self.raise_at = int(os.environ.get("FAKE_VENDOR_RAISE_AT", "-1"))
         self.calibrated = os.environ.get("FAKE_VENDOR_CALIBRATED", "1") == "1"
         self.force = [0.0, 0.0, 0.0]
+        self.first_push = -1  # the index of the first force that was not zero
         self.calls: list[str] = []  # in order; a repeat of the previous call is not listed
         self.counts: dict[str, int] = {}
         self.forces: list[tuple[float, ...]] = []  # (t ns, f N, the velocity then m/s)
@@ -77,13 +79,16 @@ class FakeHandle:
     def command(self, force: Any) -> None:
         """A force (N, the vendor's frame) held from now on."""
         f = [float(force[0]), float(force[1]), float(force[2])]
-        if len(self.forces) == self.raise_at:  # once: the glitch passes, a zero force lands
+        if self.first_push < 0 and any(abs(v) > 1e-3 for v in f):
+            self.first_push = len(self.forces)
+        pushed = len(self.forces) - self.first_push if self.first_push >= 0 else -1
+        if pushed >= 0 and pushed == self.raise_at:  # once: the glitch passes, zero lands
             self.raise_at = -1
             raise RuntimeError(f"{self.vendor}: the device stopped answering")
         if not all(math.isfinite(v) for v in f):
             self.not_finite += 1
             f = [0.0, 0.0, 0.0]  # what a careful firmware would do; the test counts it
-        if max(abs(v) for v in f) > self.limit * (1 + 1e-9):
+        if math.sqrt(sum(v * v for v in f)) > self.limit * (1 + 1e-9):
             self.over_limit += 1
         self.advance()
         self.force = f
@@ -107,10 +112,15 @@ class FakeHandle:
         record = {
             "vendor": self.vendor,
             "calls": self.calls[:200],
+            "last_calls": self.calls[-10:],
             "counts": self.counts,
             "n_forces": len(self.forces),
             "last_force": list(self.forces[-1][1:4]) if self.forces else None,
             "max_abs_force": max((max(map(abs, f[1:4])) for f in self.forces), default=0.0),
+            "max_force_norm": max(
+                (math.sqrt(sum(v * v for v in f[1:4])) for f in self.forces), default=0.0
+            ),
+            "pushed_before_failure": self.first_push >= 0,
             "not_finite": self.not_finite,
             "over_limit": self.over_limit,
             "closed": self.closed,
