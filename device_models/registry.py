@@ -132,10 +132,12 @@ def device_config(name_or_path: str) -> Path:
     return Path(model.config)
 
 
-def load_device(name_or_path: str) -> Device:
-    """Build the device a config file describes (`device_config` says which file)."""
+def load_device(name_or_path: str, simulated_only: bool = False) -> Device:
+    """Build the device a config file describes (`device_config` says which file); with
+    `simulated_only`, a hardware model is refused before it is built (device_from_table)."""
     path = device_config(name_or_path)
-    return device_from_table(*split_device_table(read_toml(path), str(path)))
+    model, table, source = split_device_table(read_toml(path), str(path))
+    return device_from_table(model, table, source, simulated_only)
 
 
 def check_device(name_or_path: str) -> DeviceModel:
@@ -150,12 +152,10 @@ def check_device(name_or_path: str) -> DeviceModel:
 def load_simulated_device(name_or_path: str) -> SimulatedDevice:
     """A device whose physics this process simulates (the virtual clock, tests, benchmarks).
     A hardware model is refused before it is built: building it would open the device."""
-    path = device_config(name_or_path)
-    model, table, source = split_device_table(read_toml(path), str(path))
-    _require_simulated(model, source)
-    device = device_from_table(model, table, source)
-    if not isinstance(device, SimulatedDevice):
-        raise ConfigError(source, "model", "drives hardware: a simulated device is needed")
+    device = load_device(name_or_path, simulated_only=True)
+    if not isinstance(device, SimulatedDevice):  # a plug-in that did not say it drives hardware
+        path = str(device_config(name_or_path))
+        raise ConfigError(path, "model", "drives hardware: a simulated device is needed")
     return device
 
 
@@ -163,25 +163,23 @@ def device_from_text(text: str, source: str, simulated_only: bool = False) -> De
     """Build a device from a config file's TOML text (as stored in a run's log); with
     `simulated_only`, a hardware model is refused before it is built (a replay)."""
     model, table, where = split_device_table(parse_toml_text(text, source), source)
-    if simulated_only:
-        _require_simulated(model, where)
-    return device_from_table(model, table, where)
+    return device_from_table(model, table, where, simulated_only)
 
 
-def _require_simulated(model: str, source: str) -> None:
-    entry = DEVICE_MODELS.get(model)
-    if entry is not None and not entry.simulated:
+def device_from_table(
+    model: str, table: dict[str, Any], source: str, simulated_only: bool = False
+) -> Device:
+    """Build the device of `model` from the rest of its config table; with
+    `simulated_only`, a hardware model is refused first (building it would open it)."""
+    config = _config(model, table, source)  # first: it names an unknown or broken model
+    entry = DEVICE_MODELS[model]
+    if simulated_only and not entry.simulated:
         raise ConfigError(
             source, "model",
             f"{model!r} drives hardware: only the haptic server opens a real device; this "
             "needs a simulated one (ideal, twin_pantograph, maglev, ...)",
         )  # fmt: skip
-
-
-def device_from_table(model: str, table: dict[str, Any], source: str) -> Device:
-    """Build the device of `model` from the rest of its config table."""
-    config = _config(model, table, source)  # first: it names an unknown or broken model
-    return DEVICE_MODELS[model].factory(config)
+    return entry.factory(config)
 
 
 def _config(model: str, table: dict[str, Any], source: str) -> Any:

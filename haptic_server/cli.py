@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         from haptic_local_model.device_models.base import DeviceError, SafeStopError
-        from haptic_local_model.device_models.registry import check_device, load_device
+        from haptic_local_model.device_models.registry import load_device
 
         # every config checked first: a typo must not open (or calibrate) a real device
         scene = load_scene(args.scene, args.haptic_rate)
@@ -52,9 +52,8 @@ def main(argv: list[str] | None = None) -> int:
         network = load_network(args.network, roles=("haptic",))
         if args.port is not None:
             network = on_port(network, args.port)
-        check_device(args.device)
-        try:
-            device = load_device(args.device)  # a hardware driver opens its device here
+        try:  # its config is checked before the driver is built (and opens its device)
+            device = load_device(args.device)
         except DeviceError as exc:  # the driver has closed what it opened
             print(f"haptic-server: device error: {exc}", file=sys.stderr)
             return EXIT_FAILED

@@ -129,7 +129,6 @@ class SharedBlock:
         slot = 1 - int(u["target_index"])
         u["targets"][slot] = target
         u["target_index"] = slot
-        u["targets_received"] += 1
 
     def post_event(self, tick: int, kind: str, detail: str) -> None:
         """A rare event (watchdog, stop) as text into the event ring (the oldest overwritten

@@ -37,7 +37,6 @@ USER_DTYPE = np.dtype(
         ("device_twist", np.float64, (3,)),  # and twist, this tick
         ("target_index", np.int64),  # the slot of `targets` to read (pointer)
         ("targets", np.float64, (2, 3)),  # dx, dy, dtheta from start_pose (pointer)
-        ("targets_received", np.int64),  # pointer targets installed so far
     ]
 )
 
@@ -72,8 +71,7 @@ def hand_wrench(user, t, pose, twist, out):
     if u.kind == USER_POINTER:
         target = u.targets[u.target_index]
         for c in range(3):
-            f = u.stiffness[c] * (u.start_pose[c] + target[c] - pose[c]) - u.damping[c] * twist[c]
-            out[c] = min(u.max_wrench[c], max(-u.max_wrench[c], f))
+            out[c] = _pull(u, c, target[c], pose, twist)
         return
     n = u.n_waypoints
     wp = u.waypoints
@@ -86,5 +84,11 @@ def hand_wrench(user, t, pose, twist, out):
         else:
             s = (t - wp[k, 0]) / (wp[k + 1, 0] - wp[k, 0])
             target = wp[k, c + 1] + s * (wp[k + 1, c + 1] - wp[k, c + 1])
-        f = u.stiffness[c] * (u.start_pose[c] + target - pose[c]) - u.damping[c] * twist[c]
-        out[c] = min(u.max_wrench[c], max(-u.max_wrench[c], f))
+        out[c] = _pull(u, c, target, pose, twist)
+
+
+@njit(cache=True, inline="always")
+def _pull(u, c, target, pose, twist):
+    """The hand's spring-damper toward start + target on axis c, clipped at its limit."""
+    f = u.stiffness[c] * (u.start_pose[c] + target - pose[c]) - u.damping[c] * twist[c]
+    return min(u.max_wrench[c], max(-u.max_wrench[c], f))

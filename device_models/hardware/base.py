@@ -24,7 +24,7 @@ import importlib.util
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, ClassVar, Protocol, Self
 
 import numpy as np
 
@@ -40,7 +40,7 @@ from haptic_local_model.device_models.base import (
     require_device_limits,
 )
 from haptic_local_model.device_models.world_map import DeviceWorldMap, WorldMapSection
-from haptic_local_model.shared.config import ConfigError, Vec3, require, within
+from haptic_local_model.shared.config import ConfigError, Vec3, load_dataclass, require, within
 
 AXES = {"x": 0, "y": 1, "z": 2}
 #: The smallest torque limit a device config may state (base.TORQUE_LIMIT_RANGE_NM): these
@@ -94,6 +94,17 @@ class HardwareConfig:
     planar: PlanarSection = field(default_factory=PlanarSection)
     rendering: DeviceRenderingSpec = field(default_factory=DeviceRenderingSpec)
     world_map: WorldMapSection | None = None  # None: scale 1, the engine sets the offset
+    #: the vendor's binding (an importable module) and the extra that installs it
+    binding: ClassVar[str] = ""
+    extra: ClassVar[str] = ""
+
+    @classmethod
+    def from_toml_dict(cls, data: dict[str, Any], source: str) -> Self:
+        """The config of a table; the binding must be installed (checked after the keys)."""
+        config: Self = load_dataclass(cls, data, source)
+        if cls.binding:
+            require_binding(cls.binding, cls.extra, source)
+        return config
 
     def __post_init__(self) -> None:
         require_device_limits(self.max_wrench, self.max_rate_hz)
@@ -161,9 +172,8 @@ class PlanarHardware:
         self._stopping = False  # no command is sent once a safe stop has begun
         self._stopped = False  # ... and the binding's stop has succeeded
         self._first_command_ns = 0  # the hold spring fades in from the first command
+        self._fade = 0.0  # ... by this factor, 1 once faded in
         self.not_finite_commands = 0  # commands replaced by zero (never sent)
-        self.saturated_commands = 0
-        self.last_read_ns = 0
         self._link = link
         try:
             link.open()
@@ -185,7 +195,6 @@ class PlanarHardware:
             raise
         except Exception as exc:  # the binding's own error: the device is lost
             raise DeviceError(f"{self.name}: reading the device failed: {exc}") from exc
-        self.last_read_ns = time.monotonic_ns()
         ix, iy = self._ix, self._iy
         x = self._sx * (pos[ix] - self._origin[ix])
         y = self._sy * (pos[iy] - self._origin[iy])
@@ -223,22 +232,21 @@ class PlanarHardware:
             self._fault = FAULT_INVALID_COMMAND
             fx = fy = 0.0
         if abs(fx) > limit[0] or abs(fy) > limit[1]:
-            self.saturated_commands += 1
             self._fault |= FAULT_SATURATED
             fx = min(limit[0], max(-limit[0], fx))
             fy = min(limit[1], max(-limit[1], fy))
         p = self.config.planar
         iz = self._iz
-        now = time.monotonic_ns()
-        if not self._first_command_ns:
-            self._first_command_ns = now
-        fade = min(1.0, (now - self._first_command_ns) * 1e-9 / HOLD_FADE_S)
+        if self._fade < 1.0:
+            now = time.monotonic_ns()
+            if not self._first_command_ns:
+                self._first_command_ns = now
+            self._fade = min(1.0, (now - self._first_command_ns) * 1e-9 / HOLD_FADE_S)
         hold = -p.hold_stiffness_n_per_m * (self._position[iz] - self._origin[iz])
-        hold = fade * (hold - p.hold_damping_ns_per_m * self._velocity[iz])
+        hold = self._fade * (hold - p.hold_damping_ns_per_m * self._velocity[iz])
         hold = min(limit[0], max(-limit[0], hold)) if math.isfinite(hold) else 0.0
         magnitude = math.sqrt(fx * fx + fy * fy + hold * hold)
         if magnitude > limit[0]:  # the device's limit is on the force, not on each axis
-            self.saturated_commands += 1
             self._fault |= FAULT_SATURATED
             scale = limit[0] / magnitude
             fx, fy, hold = fx * scale, fy * scale, hold * scale

@@ -23,9 +23,7 @@ from haptic_local_model.device_models.base import DeviceError, DeviceModel
 from haptic_local_model.device_models.hardware.base import (
     HardwareConfig,
     PlanarHardware,
-    require_binding,
 )
-from haptic_local_model.shared.config import load_dataclass
 
 BINDING = "forcedimension_core"
 SDK_ERROR = -1
@@ -35,13 +33,10 @@ SDK_ERROR = -1
 class ForceDimensionConfig(HardwareConfig):
     """configs/devices/forcedimension.toml."""
 
-    calibrate: bool = False  # may drd.autoInit move the device to calibrate it?
+    binding = BINDING
+    extra = "forcedimension"
 
-    @classmethod
-    def from_toml_dict(cls, data: dict[str, Any], source: str) -> ForceDimensionConfig:
-        config: ForceDimensionConfig = load_dataclass(cls, data, source)
-        require_binding(BINDING, "forcedimension", source)
-        return config
+    calibrate: bool = False  # may drd.autoInit move the device to calibrate it?
 
 
 class ForceDimensionLink:

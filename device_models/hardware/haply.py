@@ -24,9 +24,7 @@ from haptic_local_model.device_models.base import DeviceError, DeviceModel
 from haptic_local_model.device_models.hardware.base import (
     HardwareConfig,
     PlanarHardware,
-    require_binding,
 )
-from haptic_local_model.shared.config import load_dataclass
 
 BINDING = "HaplyHardwareAPI"
 
@@ -35,13 +33,10 @@ BINDING = "HaplyHardwareAPI"
 class Inverse3Config(HardwareConfig):
     """configs/devices/haply_inverse3.toml."""
 
-    port: str = ""  # the serial port; "" = the first one detect_inverse3s() finds
+    binding = BINDING
+    extra = "haply"
 
-    @classmethod
-    def from_toml_dict(cls, data: dict[str, Any], source: str) -> Inverse3Config:
-        config: Inverse3Config = load_dataclass(cls, data, source)
-        require_binding(BINDING, "haply", source)
-        return config
+    port: str = ""  # the serial port; "" = the first one detect_inverse3s() finds
 
 
 class Inverse3Link:
@@ -53,8 +48,6 @@ class Inverse3Link:
         self._device: Any = None
         self._position = np.zeros(3)
         self._velocity = np.zeros(3)
-        self.port = ""
-        self.info: dict[str, Any] = {}
 
     def open(self) -> None:
         api = self._api = importlib.import_module(BINDING)
@@ -64,9 +57,8 @@ class Inverse3Link:
             if not found:
                 raise DeviceError("no Inverse3 found (detect_inverse3s() lists no port)")
             port = str(found[0])
-        self.port = port
         self._device = api.Inverse3(api.SerialStream(port))
-        self.info = dict(self._device.device_wakeup_dict())
+        self._device.device_wakeup_dict()
         self._reply(self._device.end_effector_force([0.0, 0.0, 0.0]))
 
     def _reply(self, reply: Any) -> None:

@@ -9,7 +9,7 @@ commanded. The loop's `read` and `command` only exchange these values with the c
 
 The callback is also the device-side watchdog: a command older than `command_timeout_ms`
 (this loop stopped commanding: it hung or died without its safe stop) is replaced by zero
-force, and counted; a servo silent for `servo_timeout_ms` (OpenHaptics unschedules a callback
+force; a servo silent for `servo_timeout_ms` (OpenHaptics unschedules a callback
 after an error) stops the run. The callback is Python, so it takes the GIL every servo tick:
 the adapter shortens CPython's switch interval so it does not wait behind the loop's thread
 for the default 5 ms. Safe stop: zero force, then `HapticDevice.close()` (scheduler stopped,
@@ -32,9 +32,8 @@ from haptic_local_model.device_models.base import DeviceError, DeviceModel
 from haptic_local_model.device_models.hardware.base import (
     HardwareConfig,
     PlanarHardware,
-    require_binding,
 )
-from haptic_local_model.shared.config import load_dataclass, within
+from haptic_local_model.shared.config import within
 from haptic_local_model.shared.timing import GIL_SWITCH_INTERVAL_S
 
 BINDING = "pyOpenHaptics"
@@ -46,6 +45,9 @@ STOP_WAIT_S = 0.05  # the safe stop waits this long at most for the servo to sen
 class TouchConfig(HardwareConfig):
     """configs/devices/touch.toml."""
 
+    binding = BINDING
+    extra = "touch"
+
     device_name: str = "Default Device"  # as named in the Touch setup tool
     command_timeout_ms: float = 20.0  # the callback's watchdog: older commands -> zero force
     servo_timeout_ms: float = 100.0  # the servo silent this long: it has stopped (an error)
@@ -56,12 +58,6 @@ class TouchConfig(HardwareConfig):
         within(self.command_timeout_ms, (1.0, 1000.0), "command_timeout_ms", "ms")
         within(self.servo_timeout_ms, (10.0, 1000.0), "servo_timeout_ms", "ms")
         within(self.velocity_cutoff_hz, (1.0, 1000.0), "velocity_cutoff_hz", "Hz")
-
-    @classmethod
-    def from_toml_dict(cls, data: dict[str, Any], source: str) -> TouchConfig:
-        config: TouchConfig = load_dataclass(cls, data, source)
-        require_binding(BINDING, "touch", source)
-        return config
 
 
 class TouchLink:
@@ -80,7 +76,6 @@ class TouchLink:
         self._last_ns = 0
         self._zero = [0.0, 0.0, 0.0]
         self._out = [0.0, 0.0, 0.0]  # what the servo sets (its thread only)
-        self.watchdog_zeroed = 0  # servo ticks that sent zero for want of a fresh command
         self.servo_ticks = 0
         self._device: Any = None
         self._hd: Any = None
@@ -128,8 +123,6 @@ class TouchLink:
                 out[0], out[1], out[2] = self._force
             else:
                 out[0] = out[1] = out[2] = 0.0
-                if self._commanded_ns:
-                    self.watchdog_zeroed += 1
             self.servo_ticks += 1
         hd.set_force(out)
 

@@ -42,29 +42,20 @@ from haptic_local_model.shared.protocol.pointer import MAX_POINTER_M, encode_poi
 #: The event types and codes used here, as linux/input-event-codes.h defines them (evdev's
 #: `ecodes` has the same numbers; they are the kernel's ABI, so a file can name them
 #: without evdev installed).
+EV_SYN, EV_KEY, EV_REL, EV_ABS = 0x00, 0x01, 0x02, 0x03
+SYN_REPORT = 0x00
+REL_X, REL_Y, REL_WHEEL = 0x00, 0x01, 0x08
+ABS_X, ABS_Y, ABS_RX = 0x00, 0x01, 0x03
+BTN_LEFT, BTN_RIGHT, BTN_SOUTH, BTN_EAST = 0x110, 0x111, 0x130, 0x131
+#: ... by their names, as an event file gives them
 CODES = {
-    "EV_SYN": 0x00,
-    "EV_KEY": 0x01,
-    "EV_REL": 0x02,
-    "EV_ABS": 0x03,
-    "SYN_REPORT": 0x00,
-    "REL_X": 0x00,
-    "REL_Y": 0x01,
-    "REL_WHEEL": 0x08,
-    "ABS_X": 0x00,
-    "ABS_Y": 0x01,
-    "ABS_RX": 0x03,
-    "BTN_LEFT": 0x110,
-    "BTN_RIGHT": 0x111,
-    "BTN_SOUTH": 0x130,
-    "BTN_EAST": 0x131,
-}
-EV_SYN, EV_KEY, EV_REL, EV_ABS = 0, 1, 2, 3
-REL_X, REL_Y, REL_WHEEL = 0, 1, 8
-ABS_X, ABS_Y, ABS_RX = 0, 1, 3
-BTN_RIGHT, BTN_EAST = 0x111, 0x131
+    "EV_SYN": EV_SYN, "EV_KEY": EV_KEY, "EV_REL": EV_REL, "EV_ABS": EV_ABS,
+    "SYN_REPORT": SYN_REPORT, "REL_X": REL_X, "REL_Y": REL_Y, "REL_WHEEL": REL_WHEEL,
+    "ABS_X": ABS_X, "ABS_Y": ABS_Y, "ABS_RX": ABS_RX, "BTN_LEFT": BTN_LEFT,
+    "BTN_RIGHT": BTN_RIGHT, "BTN_SOUTH": BTN_SOUTH, "BTN_EAST": BTN_EAST,
+}  # fmt: skip
 RECENTRE = (BTN_RIGHT, BTN_EAST)
-BUTTON_BITS = {0x110: 1, 0x111: 2, 0x130: 1, 0x131: 2}
+BUTTON_BITS = {BTN_LEFT: 1, BTN_RIGHT: 2, BTN_SOUTH: 1, BTN_EAST: 2}
 DEFAULT_ABSINFO = (-32768, 32767)  # a gamepad stick, when the device does not say
 DEAD_ZONE = 0.05  # of the stick's half-range: a stick at rest reads a little off centre
 WHEEL_RAD = math.radians(5.0)  # a mouse wheel notch turns the hand this much
@@ -98,7 +89,7 @@ class PointerMapper:
         """One event; True when it completes a frame (publish the target then)."""
         t = self.target
         if kind == EV_SYN:
-            return code == 0
+            return code == SYN_REPORT
         if kind == EV_KEY:
             bit = BUTTON_BITS.get(code, 0)
             self.buttons = (self.buttons | bit) if value else (self.buttons & ~bit)
@@ -201,7 +192,8 @@ def evdev_events(path: str, mapper: PointerMapper, mode: str) -> Iterator[tuple[
     caps = device.capabilities()
     axes = dict(caps.get(EV_ABS, []))
     if mode == "auto":
-        mode = "absolute" if ABS_X in axes else "relative" if REL_X in caps.get(EV_REL, []) else ""
+        kinds = _kinds(caps)
+        mode = "absolute" if "stick" in kinds else "relative" if "mouse" in kinds else ""
         if not mode:
             raise ConfigError(
                 path, "", f"{device.name}: neither a stick (ABS_X) nor a mouse (REL_X)"
@@ -218,17 +210,15 @@ def list_devices() -> int:
     evdev = _evdev()
     for path in evdev.list_devices():
         device = evdev.InputDevice(path)
-        caps = device.capabilities()
-        kinds = [
-            k
-            for k, v in (
-                ("stick", ABS_X in dict(caps.get(EV_ABS, []))),
-                ("mouse", REL_X in caps.get(EV_REL, [])),
-            )
-            if v
-        ]
-        print(f"{path}  {device.name}  {', '.join(kinds) or '-'}")
+        print(f"{path}  {device.name}  {', '.join(_kinds(device.capabilities())) or '-'}")
     return 0
+
+
+def _kinds(caps: dict[int, Any]) -> list[str]:
+    """What an input device is, from its capabilities: a stick (ABS_X), a mouse (REL_X)."""
+    stick = ABS_X in dict(caps.get(EV_ABS, []))
+    mouse = REL_X in caps.get(EV_REL, [])
+    return [kind for kind, has in (("stick", stick), ("mouse", mouse)) if has]
 
 
 def publish(
