@@ -45,16 +45,12 @@ from haptic_local_model.shared.kinematics import (
 )
 from haptic_local_model.shared.linalg import min_norm_least_squares
 from haptic_local_model.shared.protocol.codes import Fault, Method, Reason, reason_tag
-from haptic_local_model.shared.protocol.layout import (
-    DEFAULT_LIMITS,
-    HEADER_BYTES,
-    MAX_CONTACTS,
-    limits_record,
-)
+from haptic_local_model.shared.protocol.layout import DEFAULT_LIMITS, limits_record
+from haptic_local_model.shared.protocol.update import MAX_UPDATE_BYTES
 
 CONTACT_MATCH_RADIUS_M = 2.0e-3  # a contact keeps its state if its tool point moved less
-#: the receive buffer: the largest valid update (12 DOF, 64 contacts) with room to spare
-RECEIVE_BUFFER_BYTES = HEADER_BYTES + 8 * (MAX_DOF + 2 * MAX_CONTACTS + 4096)
+#: the receive buffer: the largest valid update (12 DOF, 64 contacts, 64 shapes)
+RECEIVE_BUFFER_BYTES = MAX_UPDATE_BYTES
 
 
 @dataclass

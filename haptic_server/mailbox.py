@@ -26,14 +26,15 @@ from haptic_local_model.haptic_server.stages.install import accept_update
 from haptic_local_model.haptic_server.users import USER_DTYPE
 from haptic_local_model.shared.atomics import load_acquire, store_release
 from haptic_local_model.shared.protocol.layout import PUBLISH_TIME_END
-from haptic_local_model.shared.protocol.update import publish_time_ns
+from haptic_local_model.shared.protocol.update import MAX_UPDATE_BYTES, publish_time_ns
 
 if TYPE_CHECKING:
     from haptic_local_model.haptic_server.engine import HapticEngine
 
 RING_TICKS = 16384  # 16 s of ticks at 1 kHz: the writer may stall this long without loss
 MAILBOX_SLOTS = 256  # updates waiting for the loop or the log writer (about 4 s at 60 Hz)
-SLOT_BYTES = 16384  # >= the largest valid update (12 DOF, 64 contacts: about 9 KB)
+#: >= the largest valid update (12 DOF, 64 contacts, 64 shapes: about 26 KB), whole KiB
+SLOT_BYTES = -(-MAX_UPDATE_BYTES // 1024) * 1024
 EVENT_SLOTS = 256
 EVENT_BYTES = 256
 VERDICT_PENDING = -1

@@ -27,6 +27,7 @@ from haptic_local_model.shared.kinematics import (
 )
 from haptic_local_model.shared.protocol.layout import MAX_CONTACTS, MAX_RESISTED, update_size
 from haptic_local_model.shared.protocol.update import LocalModelUpdate, update_from_record
+from haptic_local_model.shared.shapes import MAX_SHAPES
 from haptic_local_model.shared.tool_chain import tool_chain
 from haptic_local_model.sim_server.chipmunk import body_ptr, set_velocity_function, space_ptr
 from haptic_local_model.sim_server.drive import (
@@ -49,8 +50,8 @@ from haptic_local_model.sim_server.local_model import (
 )
 from haptic_local_model.sim_server.tool import TOOL_BODY, TOOL_DTYPE, TOOL_LINKAGE, tool_state
 
-#: The largest update (all sections, every contact): the encoder's buffer
-MAX_UPDATE_BYTES = update_size(MAX_DOF, MAX_RESISTED, MAX_CONTACTS, 0xF)
+#: The largest update (all sections, every contact and shape): the encoder's buffer
+MAX_UPDATE_BYTES = update_size(MAX_DOF, MAX_RESISTED, MAX_CONTACTS, 0x1F, n_shapes=MAX_SHAPES)
 
 
 @dataclass

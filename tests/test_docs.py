@@ -80,7 +80,7 @@ def test_protocol_doc_is_the_table_and_matches_the_golden_bytes() -> None:
         0
     ]
     assert embedded == markdown_tables(), "docs/protocol.md: regenerate the protocol tables"
-    golden = (Path(__file__).parent / "golden" / "update_v2_linkage.bin").read_bytes()
+    golden = (Path(__file__).parent / "golden" / "update_v3_linkage.bin").read_bytes()
     names = [f.name for f in HEADER]
     header = dict(zip(names, HEADER_STRUCT.unpack_from(golden, 0), strict=True))
     assert f"Header ({HEADER_BYTES} bytes" in text

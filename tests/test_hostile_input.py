@@ -54,6 +54,7 @@ EXAMPLES = {
     "bit_flips": 2000,
     "proxy": 1000,
     "engine": 500,
+    "shapes": 1000,
 }
 assert sum(EXAMPLES.values()) >= 10_000  # issue 8
 
@@ -80,8 +81,10 @@ PARSER = UpdateParser(LIM)
 
 
 #: floats of a contact row by protocol version (version 2 added the tangential stiffness)
-CONTACT_WIDTH = {1: 12, 2: 13}
-VERSION = 2
+CONTACT_WIDTH = {1: 12, 2: 13, 3: 13}
+VERSION = 3
+SHAPE_INTS, SHAPE_FLOATS = 6, 25  # docs/protocol.md, SHAPES trailer (version 3, flag 16)
+MAX_SHAPES, MAX_VERTICES = 64, 8
 
 
 def float_groups(
@@ -98,7 +101,8 @@ def float_groups(
 
 
 def layout(raw: bytes) -> tuple[int, int, int, int, dict[str, tuple[int, int]]]:
-    """d, n, j, flags and the byte offset and count of every float group of an update."""
+    """d, n, j, flags and the byte offset and count of every float group of an update (and
+    "shapes": the trailer's offset and its count of shapes)."""
     version, flags = struct.unpack_from("<HH", raw, 4)
     d, n, j = struct.unpack_from("<HHH", raw, 40)
     offset = HEADER.size + 8 * (d + 2 * n)
@@ -106,7 +110,55 @@ def layout(raw: bytes) -> tuple[int, int, int, int, dict[str, tuple[int, int]]]:
     for name, count in float_groups(d, n, j, flags, version):
         groups[name] = (offset, count)
         offset += 8 * count
+    if flags & 16 and len(raw) >= offset + 8:
+        groups["shapes"] = (offset, struct.unpack_from("<q", raw, offset)[0])
     return d, n, j, flags, groups
+
+
+def reference_shapes_accept(raw: bytes, at: int) -> bool:
+    """The SHAPES trailer at byte `at` (the rest of the message), from docs/protocol.md."""
+    if len(raw) < at + 8:
+        return False
+    s = struct.unpack_from("<q", raw, at)[0]
+    if not 1 <= s <= MAX_SHAPES or len(raw) != at + 8 * (1 + (SHAPE_INTS + SHAPE_FLOATS) * s):
+        return False
+    ints = np.frombuffer(raw, "<i8", SHAPE_INTS * s, at + 8).reshape(s, SHAPE_INTS)
+    fl = np.frombuffer(raw, "<f8", SHAPE_FLOATS * s, at + 8 * (1 + SHAPE_INTS * s))
+    if not np.isfinite(fl).all():
+        return False
+    fl = fl.reshape(s, SHAPE_FLOATS)
+    key, owner, kind, nv, generation, motion = ints.T
+    if len(set(key.tolist())) != s or (owner != -1).any() or (generation < 0).any():
+        return False
+    if not np.isin(motion, (0, 1)).all():
+        return False
+    for k in range(s):
+        verts, rho = fl[k, :16].reshape(8, 2), fl[k, 16]
+        pose, twist, mu_s, mu_k = fl[k, 17:20], fl[k, 20:23], fl[k, 23], fl[k, 24]
+        want = {0: (1, 1), 1: (2, 2), 2: (3, MAX_VERTICES)}.get(int(kind[k]))
+        if want is None or not want[0] <= nv[k] <= want[1]:
+            return False
+        if rho < 0 or rho > LIM.max_abs_position_m or (kind[k] == 0 and rho <= 0):
+            return False
+        if (np.abs(verts) > LIM.max_abs_position_m).any() or (verts[nv[k] :] != 0).any():
+            return False
+        if (np.abs(pose[:2]) > LIM.max_abs_position_m).any():
+            return False
+        if abs(pose[2]) > LIM.max_abs_angle_rad or np.hypot(*twist[:2]) > LIM.max_abs_velocity:
+            return False
+        if abs(twist[2]) > LIM.max_abs_angular_velocity:
+            return False
+        if mu_k < 0 or mu_s < mu_k or mu_s > LIM.max_friction:
+            return False
+        v = verts[: nv[k]]
+        if nv[k] == 2 and (v[0] == v[1]).all():
+            return False
+        if nv[k] >= 3:
+            e = np.roll(v, -1, axis=0) - v
+            turn = e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0]
+            if (np.hypot(e[:, 0], e[:, 1]) <= 1e-12).any() or (turn <= 0).any():
+                return False
+    return True
 
 
 def reference_accepts(raw: bytes) -> bool:
@@ -123,7 +175,16 @@ def reference_accepts(raw: bytes) -> bool:
     groups = float_groups(d, n, j, flags, version)
     n_int = d + 2 * n
     n_float = sum(c for _, c in groups)
-    if len(raw) != HEADER.size + 8 * (n_int + n_float):
+    body_end = HEADER.size + 8 * (n_int + n_float)
+    if flags & 16:
+        if version < 3 or len(raw) < body_end + 8:
+            return False
+        s = struct.unpack_from("<q", raw, body_end)[0]
+        if not 1 <= s <= MAX_SHAPES:
+            return False
+        if len(raw) != body_end + 8 * (1 + (SHAPE_INTS + SHAPE_FLOATS) * s):
+            return False
+    elif len(raw) != body_end:
         return False
     if not all(math.isfinite(v) for v in (sim_time, char_len, lead)) or abs(lead) > 1.0:
         return False
@@ -169,6 +230,8 @@ def reference_accepts(raw: bytes) -> bool:
         return False
     c = g["contacts"].reshape(n, CONTACT_WIDTH[version])
     k_t = c[:, 12] if version >= 2 else c[:, 10]  # version 1: K_t = K_c
+    if flags & 16 and not reference_shapes_accept(raw, body_end):
+        return False
     return not (
         ((k_t < 0) | (k_t > LIM.max_stiffness_n_per_m)).any()
         or (np.abs(c[:, 0:4]) > pos).any()
@@ -197,7 +260,14 @@ CONTACT_RANGES = np.array(
 
 
 def random_update(
-    rng: np.random.Generator, d: int, n: int, j: int, flags: int, epoch: int, seq: int
+    rng: np.random.Generator,
+    d: int,
+    n: int,
+    j: int,
+    flags: int,
+    epoch: int,
+    seq: int,
+    n_shapes: int = 0,
 ) -> bytes:
     """The bytes of a valid update of the given shape with random contents."""
     groups = float_groups(d, n, j, flags)
@@ -222,7 +292,33 @@ def random_update(
         [rng.integers(0, 3, d), rng.integers(0, d, n), rng.integers(-(2**62), 2**62, n)]
     )
     floats = np.concatenate([g[name] for name, _ in groups])
-    return header + ints.astype("<i8").tobytes() + floats.astype("<f8").tobytes()
+    body = header + ints.astype("<i8").tobytes() + floats.astype("<f8").tobytes()
+    return body + (random_shapes(rng, n_shapes) if flags & 16 else b"")
+
+
+def random_shapes(rng: np.random.Generator, s: int) -> bytes:
+    """A valid SHAPES trailer of s shapes: circles, segments and convex polygons (points on
+    a circle in counter-clockwise order), random poses, twists and friction."""
+    ints = np.zeros((s, SHAPE_INTS), np.int64)
+    fl = np.zeros((s, SHAPE_FLOATS))
+    keys = rng.choice(2**40, s, replace=False)
+    for k in range(s):
+        kind = int(rng.integers(0, 3))
+        nv = (1, 2, int(rng.integers(3, MAX_VERTICES + 1)))[kind]
+        if kind == 2:
+            angles = np.linspace(0, 2 * np.pi, nv, endpoint=False) + rng.uniform(0, 1)
+            verts = rng.uniform(0.005, 0.05) * np.column_stack([np.cos(angles), np.sin(angles)])
+        else:
+            verts = rng.uniform(-0.05, 0.05, (nv, 2))
+        ints[k] = (keys[k], -1, kind, nv, rng.integers(0, 5), rng.integers(0, 2))
+        fl[k, : 2 * nv] = verts.ravel()
+        fl[k, 16] = rng.uniform(0.001, 0.01) if kind == 0 else rng.uniform(0.0, 0.002)
+        fl[k, 17:20] = (*rng.uniform(-0.3, 0.3, 2), rng.uniform(-np.pi, np.pi))
+        fl[k, 20:23] = (*rng.uniform(-0.5, 0.5, 2), rng.uniform(-5, 5))
+        mu_k = rng.uniform(0, 1)
+        fl[k, 23], fl[k, 24] = mu_k + rng.uniform(0, 0.3), mu_k
+    head = np.array([s], "<i8").tobytes()
+    return head + ints.astype("<i8").tobytes() + fl.astype("<f8").tobytes()
 
 
 @st.composite
@@ -233,9 +329,10 @@ def valid_updates(draw: Any) -> bytes:
     n = draw(st.one_of(st.integers(0, 4), st.integers(0, MAX_CONTACTS)))
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
     j = int(rng.integers(0, 4))
-    flags = int(rng.choice([0, 1, 4, 8, 9, 13])) | (2 if j else 0)
+    flags = int(rng.choice([0, 1, 4, 8, 9, 13, 16, 17, 29])) | (2 if j else 0)
+    s = draw(st.one_of(st.integers(1, 3), st.integers(1, MAX_SHAPES))) if flags & 16 else 0
     epoch, seq = (int(v) for v in rng.integers(1, 2**62, 2))
-    return random_update(rng, d, n, j, flags, epoch, seq)
+    return random_update(rng, d, n, j, flags, epoch, seq, s)
 
 
 # --- breaking one field -------------------------------------------------------------------
@@ -263,7 +360,13 @@ CONTACT_BREAKS = {
 BREAKS = [
     "nonfinite", "magic", "version", "truncate", "pad", "count", "flag", "magnitude",
     "header_float", "not_spd", "asymmetric", "contact", "resisted_norm", "joint_type",
-    "contact_link", "op_link",
+    "contact_link", "op_link", "shape",
+]  # fmt: skip
+#: ways to break one local shape (DESIGN-WAVE2 C4): (int field or float offset, value)
+SHAPE_BREAKS = [
+    "kind", "n_vert", "owner", "generation", "motion", "repeated_key", "nonconvex",
+    "clockwise", "spare_vertex", "rounding", "pose", "spin", "speed", "friction",
+    "static_below_kinetic", "nonfinite", "count",
 ]  # fmt: skip
 
 
@@ -304,8 +407,10 @@ def break_update(raw: bytes, kind: str, draw: Any) -> bytes | None:
         struct.pack_into(
             "<H", out, offset, draw(st.integers(0, 65535).filter(lambda v: v != current))
         )
-    elif kind == "flag":  # gravity, resisted or velocity-torque section announced or not
-        struct.pack_into("<H", out, 6, flags ^ draw(st.sampled_from([1, 2, 8])))
+    elif kind == "flag":  # a section (gravity, resisted, velocity torque, shapes) announced or not
+        struct.pack_into("<H", out, 6, flags ^ draw(st.sampled_from([1, 2, 8, 16])))
+    elif kind == "shape":
+        return break_shape(raw, groups, draw)
     elif kind == "magnitude":
         name = draw(st.sampled_from(sorted(k for k in MAGNITUDE_BOUNDS if k in groups)))
         offset, count = groups[name]
@@ -352,6 +457,67 @@ def break_update(raw: bytes, kind: str, draw: Any) -> bytes | None:
         struct.pack_into("<q", out, HEADER.size + 8 * (d + k), draw(st.sampled_from([-1, d, 99])))
     elif kind == "op_link":
         struct.pack_into("<H", out, 46, draw(st.integers(d, 65535)))
+    return bytes(out)
+
+
+def break_shape(raw: bytes, groups: dict[str, tuple[int, int]], draw: Any) -> bytes | None:
+    """One local shape of the trailer made invalid; None if the update has no shapes."""
+    if "shapes" not in groups:
+        return None
+    at, s = groups["shapes"]
+    out = bytearray(raw)
+    k = draw(st.integers(0, s - 1))
+    i_at = at + 8 + 8 * SHAPE_INTS * k  # this shape's ints
+    f_at = at + 8 + 8 * SHAPE_INTS * s + 8 * SHAPE_FLOATS * k  # its floats
+    kind, nv = struct.unpack_from("<qqqq", raw, i_at)[2:4]
+    how = draw(st.sampled_from(SHAPE_BREAKS))
+    if how == "kind":
+        struct.pack_into("<q", out, i_at + 16, draw(st.sampled_from([-1, 3, 7, 2**40])))
+    elif how == "n_vert":
+        bad = {0: [0, 2, 3], 1: [1, 3, 0], 2: [0, 1, 2, 9, 100]}[kind]
+        struct.pack_into("<q", out, i_at + 24, draw(st.sampled_from(bad)))
+    elif how == "owner":
+        struct.pack_into("<q", out, i_at + 8, draw(st.sampled_from([-2, 0, 5, 2**40])))
+    elif how == "generation":
+        struct.pack_into("<q", out, i_at + 32, -1)
+    elif how == "motion":
+        struct.pack_into("<q", out, i_at + 40, draw(st.sampled_from([-1, 2, 99])))
+    elif how == "repeated_key":
+        if s < 2:
+            return None
+        other = (k + 1) % s
+        key = struct.unpack_from("<q", raw, at + 8 + 8 * SHAPE_INTS * other)[0]
+        struct.pack_into("<q", out, i_at, key)
+    elif how in ("nonconvex", "clockwise"):
+        if nv < 3 or (how == "nonconvex" and nv < 4):
+            return None
+        v = np.frombuffer(raw, "<f8", 2 * nv, f_at).reshape(nv, 2).copy()
+        if how == "clockwise":
+            v = v[::-1]
+        else:  # pull one vertex inside the hull (past the centre)
+            v[0] = -0.5 * v[0] + 0.5 * v[2]
+        out[f_at : f_at + 16 * nv] = v.astype("<f8").tobytes()
+    elif how == "spare_vertex":
+        if nv == MAX_VERTICES:
+            return None
+        set_float(out, f_at + 8 * (2 * nv + 1), 0.01)
+    elif how == "rounding":
+        set_float(out, f_at + 8 * 16, -1e-3 if kind else 0.0)
+    elif how == "pose":
+        set_float(out, f_at + 8 * 17, 2 * LIM.max_abs_position_m)
+    elif how == "spin":
+        set_float(out, f_at + 8 * 22, -2 * LIM.max_abs_angular_velocity)
+    elif how == "speed":
+        set_float(out, f_at + 8 * 20, LIM.max_abs_velocity)
+        set_float(out, f_at + 8 * 21, 0.01)
+    elif how == "friction":
+        set_float(out, f_at + 8 * 24, -0.1)
+    elif how == "static_below_kinetic":
+        set_float(out, f_at + 8 * 23, struct.unpack_from("<d", raw, f_at + 8 * 24)[0] - 0.05)
+    elif how == "nonfinite":
+        set_float(out, f_at + 8 * draw(st.integers(0, SHAPE_FLOATS - 1)), math.nan)
+    elif how == "count":
+        struct.pack_into("<q", out, at, draw(st.sampled_from([0, -1, s + 1, MAX_SHAPES + 1])))
     return bytes(out)
 
 
@@ -407,6 +573,32 @@ def test_each_broken_field_is_rejected(raw: bytes, kind: str, data: st.DataObjec
     reason = reason_of_parse(broken)
     assert reason in KNOWN_REASONS, kind
     assert not reference_accepts(broken), kind
+    assert_logged_as_rejected(broken, reason)
+
+
+@st.composite
+def updates_with_shapes(draw: Any) -> bytes:
+    d = draw(st.integers(1, MAX_DOF))
+    s = draw(st.one_of(st.integers(1, 4), st.integers(1, MAX_SHAPES)))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    epoch, seq = (int(v) for v in rng.integers(1, 2**62, 2))
+    return random_update(rng, d, int(rng.integers(0, 4)), 0, 16, epoch, seq, s)
+
+
+@cases("shapes")
+@given(updates_with_shapes(), st.data())
+def test_each_broken_shape_is_rejected_and_named(raw: bytes, data: st.DataObject) -> None:
+    """Every v3 shape field (DESIGN-WAVE2 C4): a bad kind or vertex count, a non-convex or
+    clockwise polygon, an owner other than the world, a repeated key, a twist, pose, rounding
+    or friction beyond its bound, a NaN, a wrong count. Rejected as `shape` (or, for the
+    NaN and the count that no longer fits, `nonfinite` and `size`), never a crash."""
+    assert reason_of_parse(raw) == "" and reference_accepts(raw)
+    broken = break_shape(raw, layout(raw)[4], data.draw)
+    if broken is None:
+        return
+    reason = reason_of_parse(broken)
+    assert reason in ("shape", "nonfinite", "size"), reason
+    assert not reference_accepts(broken)
     assert_logged_as_rejected(broken, reason)
 
 

@@ -17,9 +17,12 @@ from haptic_local_model.shared.protocol.update import (
     decode_update,
     encode_update,
 )
+from haptic_local_model.shared.shapes import Motion, ShapeKind, set_core, shape_array
 
-GOLDEN = Path(__file__).parent / "golden" / "update_v2_linkage.bin"
-GOLDEN_V1 = Path(__file__).parent / "golden" / "update_v1_linkage.bin"  # the last release's
+GOLDEN = Path(__file__).parent / "golden" / "update_v3_linkage.bin"
+GOLDEN_SHAPES = Path(__file__).parent / "golden" / "update_v3_shapes.bin"
+GOLDEN_V2 = Path(__file__).parent / "golden" / "update_v2_linkage.bin"  # releases 0.2-0.5
+GOLDEN_V1 = Path(__file__).parent / "golden" / "update_v1_linkage.bin"  # release 0.1
 
 
 def sample_update(n_contacts: int = 2, resisted: bool = True) -> LocalModelUpdate:
@@ -44,6 +47,23 @@ def sample_update(n_contacts: int = 2, resisted: bool = True) -> LocalModelUpdat
         contacts=ContactSet(np.arange(n_contacts) % 3, np.arange(n_contacts) + 100, floats),
         tool_touching=True,
     )  # fmt: skip
+
+
+def sample_shapes() -> np.ndarray:
+    """One shape of each kind, with every field set."""
+    shapes = shape_array(3)
+    set_core(shapes[0], ShapeKind.CIRCLE, [[0.001, -0.002]], 0.004)
+    set_core(shapes[1], ShapeKind.SEGMENT, [[-0.02, 0.0], [0.02, 0.001]], 0.0005)
+    set_core(shapes[2], ShapeKind.POLYGON, [[-0.02, -0.01], [0.02, -0.01], [0.0, 0.015]], 0.0)
+    for k, s in enumerate(shapes):
+        s["key"], s["generation"], s["motion"] = 10 + k, k, int(Motion.SCREW) * (k == 2)
+        s["pose"], s["twist"] = (0.01 * k, -0.02, 0.3 * k), (0.05, -0.01 * k, 2.0 * k)
+        s["static_friction"], s["friction"] = 0.5, 0.4
+    return shapes
+
+
+def sample_with_shapes() -> LocalModelUpdate:
+    return LocalModelUpdate(**{**sample_update().__dict__, "shapes": sample_shapes()})
 
 
 def assert_same(a: LocalModelUpdate, b: LocalModelUpdate) -> None:
@@ -75,6 +95,9 @@ def assert_same(a: LocalModelUpdate, b: LocalModelUpdate) -> None:
     np.testing.assert_array_equal(a.contacts.floats, b.contacts.floats)
     np.testing.assert_array_equal(a.contacts.link, b.contacts.link)
     np.testing.assert_array_equal(a.contacts.key, b.contacts.key)
+    assert (a.shapes is None) == (b.shapes is None)
+    if a.shapes is not None and b.shapes is not None:
+        assert a.shapes.tobytes() == b.shapes.tobytes()
 
 
 def test_update_round_trip_exact() -> None:
@@ -98,6 +121,25 @@ def test_golden_file_pins_the_wire_format() -> None:
         GOLDEN.write_bytes(raw)
     assert raw == GOLDEN.read_bytes()
     assert_same(decode_update(GOLDEN.read_bytes()), sample_update())
+
+
+def test_shapes_round_trip_and_golden_file() -> None:
+    """Version 3's SHAPES trailer: every field survives, the bound is derived, and the bytes
+    are pinned (written once)."""
+    raw = encode_update(sample_with_shapes())
+    if not GOLDEN_SHAPES.exists():
+        GOLDEN_SHAPES.write_bytes(raw)
+    assert raw == GOLDEN_SHAPES.read_bytes()
+    back = decode_update(raw)
+    assert_same(back, sample_with_shapes())
+    assert encode_update(back) == raw
+
+
+def test_version_2_still_parses() -> None:
+    """Logs of releases 0.2-0.5 carry version-2 updates (no shapes): they decode to the same
+    model as today's encoding of it."""
+    assert struct.unpack_from("<H", GOLDEN_V2.read_bytes(), 4)[0] == 2
+    assert_same(decode_update(GOLDEN_V2.read_bytes()), sample_update())
 
 
 def test_version_1_still_parses_with_the_stick_stiffness_of_its_day() -> None:
@@ -205,6 +247,8 @@ def test_derived_offsets_follow_the_table() -> None:
         u = sample_update(n_contacts, resisted)
         j = 0 if u.resisted is None else len(u.resisted)
         assert len(encode_update(u)) == layout.update_size(u.dof, j, n_contacts, u.flags)
+    u = sample_with_shapes()
+    assert len(encode_update(u)) == layout.update_size(3, 1, 2, u.flags, n_shapes=3)
 
 
 def _encoded_from_record(raw: bytes) -> bytes:
@@ -224,6 +268,7 @@ def test_compiled_encoder_writes_the_bytes_of_the_reference_encoder(
     """encode_record (the sim's, compiled) gives encode_update's bytes: the golden update,
     and updates with and without the flagged sections."""
     assert _encoded_from_record(GOLDEN.read_bytes()) == GOLDEN.read_bytes()
+    assert _encoded_from_record(GOLDEN_SHAPES.read_bytes()) == GOLDEN_SHAPES.read_bytes()
     u = sample_update(n_contacts=n_contacts, resisted=optional)
     if not optional:
         u = LocalModelUpdate(**{**u.__dict__, "gravity": None, "velocity_torque": None})

@@ -16,6 +16,7 @@ class Method(IntEnum):
     IMPEDANCE_ONLY = 1  # the local model without joint penalties (the seed's baseline)
     VIRTUAL_COUPLING = 2  # a spring-damper between device and proxy
     VIRTUAL_COUPLING_FOH = 3  # seed 002: servo to the sim's tool by first-order hold
+    GOD_OBJECT = 4  # seed 003 §3: a finite-sphere god-object against the local shapes
 
     @property
     def tag(self) -> str:
@@ -38,7 +39,7 @@ class Fault(IntEnum):
 class Reason(IntEnum):
     """An update's verdict: 0 installed, else why it was rejected (stable: logs keep them).
 
-    1-15 come from the validating parser, 16-18 from the order check at install, 19-21 from
+    1-15 and 25 come from the validating parser, 16-18 from the order check at install, 19-21 from
     the time check at install (the receiver's clock against the update's times), 22-24 from
     the plausibility check against the scene (haptic_server/stages/plausible.py)."""
 
@@ -68,6 +69,8 @@ class Reason(IntEnum):
     # or the chain against the scene's tool at the update's own q
     IMPLAUSIBLE = 23  # beyond what the scene allows: speeds, energy, contact materials, depth
     JUMP = 24  # the tool (or the sequence) moved on farther than it could since the last one
+    SHAPE = 25  # a local shape breaks a rule: kind and vertex count, a non-convex or clockwise
+    # polygon, an owner other than the world, a repeated key, a twist or friction beyond limits
 
     @property
     def tag(self) -> str:
@@ -92,3 +95,4 @@ class Flag(IntFlag):
     RESISTED = 2
     TOUCHING = 4
     VELOCITY_TORQUE = 8
+    SHAPES = 16  # version 3: the local shapes trail the body (layout.SHAPE_FIELDS)

@@ -17,9 +17,10 @@ import numpy as np
 
 from haptic_local_model.shared.kinematics import MAX_DOF
 from haptic_local_model.shared.protocol.codes import Flag
+from haptic_local_model.shared.shapes import MAX_SHAPES, MAX_VERTICES, SHAPE_DTYPE
 
-PROTOCOL_VERSION = 2  # what this build sends
-SUPPORTED_VERSIONS = (1, 2)  # what it parses (logs of the previous release replay)
+PROTOCOL_VERSION = 3  # what this build sends (3: the local shapes, DESIGN-WAVE2 C4)
+SUPPORTED_VERSIONS = (1, 2, 3)  # what it parses (logs of the previous releases replay)
 UPDATE_MAGIC = b"HLMU"
 MAX_CONTACTS = 64
 MAX_RESISTED = 3
@@ -41,7 +42,8 @@ HEADER = (
         "flags",
         "H",
         "",
-        "sections present (Flag: 1 gravity, 2 resisted, 4 tool touching, 8 velocity torque)",
+        "sections present (Flag: 1 gravity, 2 resisted, 4 tool touching, 8 velocity torque,"
+        " 16 shapes)",
     ),
     HeaderField("epoch", "Q", "", "changes when the sim restarts or reloads"),
     HeaderField("seq", "Q", "", "update number within the epoch"),
@@ -150,6 +152,68 @@ CONTACT_ROW_DTYPE = np.dtype(
     [(c.name, "<f8", (c.width,)) if c.width > 1 else (c.name, "<f8") for c in CONTACT_COLUMNS]
 )
 
+
+@dataclass(frozen=True)
+class ShapeField:
+    """One field of a local shape in the SHAPES trailer (the SHAPE_DTYPE field of that name)."""
+
+    name: str
+    width: int
+    unit: str
+    bound: str
+    doc: str
+
+
+#: The SHAPES trailer (flag 16, version 3), after the float sections: int64 s (the number of
+#: shapes, <= MAX_SHAPES), then s rows of SHAPE_INTS int64, then s rows of SHAPE_FLOATS float64.
+SHAPE_INT_FIELDS = (
+    ShapeField("key", 1, "", "unique in the update", "identity, stable across updates"),
+    ShapeField("owner", 1, "", "-1", "-1: the world (shapes on links come with the tools)"),
+    ShapeField("kind", 1, "", "0, 1, 2", "0 circle, 1 segment, 2 convex polygon"),
+    ShapeField("n_vert", 1, "", "1; 2; 3..8", "vertices of the core (by kind)"),
+    ShapeField("generation", 1, "", ">= 0", "topology generation (deformables)"),
+    ShapeField("motion", 1, "", "0, 1", "pose carried by 0 ballistic, 1 screw motion"),
+)
+SHAPE_FLOAT_FIELDS = (
+    ShapeField(
+        "vertices",
+        2 * MAX_VERTICES,
+        "m",
+        "|x| <= max_abs_position_m; convex, CCW",
+        "core vertices about the COM, body frame; unused ones 0",
+    ),
+    ShapeField("rounding", 1, "m", "0 <= rho <= max_abs_position_m (> 0 circle)", "rho"),
+    ShapeField("pose", 3, "m, rad", "|x| <= max_abs_position_m", "COM position and angle"),
+    ShapeField(
+        "twist",
+        3,
+        "m/s, rad/s",
+        "<= max_abs_velocity, max_abs_angular_velocity",
+        "COM velocity, angular velocity",
+    ),
+    ShapeField("static_friction", 1, "", "mu_k <= mu_s <= max_friction", "mu_s"),
+    ShapeField("friction", 1, "", "0 <= mu_k <= max_friction", "mu_k"),
+)
+SHAPE_INTS = sum(f.width for f in SHAPE_INT_FIELDS)
+SHAPE_FLOATS = sum(f.width for f in SHAPE_FLOAT_FIELDS)
+SHAPE_AT = {}  # float offset of each float field within a shape row
+_offset = 0
+for _s in SHAPE_FLOAT_FIELDS:
+    SHAPE_AT[_s.name] = _offset
+    _offset += _s.width
+S_VERTICES = SHAPE_AT["vertices"]
+S_ROUNDING = SHAPE_AT["rounding"]
+S_POSE = SHAPE_AT["pose"]
+S_TWIST = SHAPE_AT["twist"]
+S_STATIC_FRICTION = SHAPE_AT["static_friction"]
+S_FRICTION = SHAPE_AT["friction"]
+
+
+def shapes_words(n_shapes: int) -> int:
+    """8-byte words of a SHAPES trailer of n_shapes shapes."""
+    return 1 + (SHAPE_INTS + SHAPE_FLOATS) * n_shapes
+
+
 FLOAT_SECTIONS = (
     Section("lengths", (0, 1, 0, 0, 0), "m", "link lengths"),
     Section("base", (2, 0, 0, 0, 0), "m", "base position (world)"),
@@ -184,10 +248,13 @@ def body_counts(
     return n_int, n_float - (CONTACT_FLOATS - contact_floats(version)) * n
 
 
-def update_size(d: int, j: int, n: int, flags: int, version: int = PROTOCOL_VERSION) -> int:
-    """Bytes of an update with these counts and flags."""
+def update_size(
+    d: int, j: int, n: int, flags: int, version: int = PROTOCOL_VERSION, n_shapes: int = 0
+) -> int:
+    """Bytes of an update with these counts and flags (and shapes, with Flag.SHAPES)."""
     n_int, n_float = body_counts(d, j, n, flags, version)
-    return HEADER_BYTES + 8 * (n_int + n_float)
+    trailer = shapes_words(n_shapes) if flags & Flag.SHAPES else 0
+    return HEADER_BYTES + 8 * (n_int + n_float + trailer)
 
 
 # --- limits ----------------------------------------------------------------------------------
@@ -214,6 +281,7 @@ class MessageLimits:
     symmetry_tolerance: float = 1.0e-9  # relative
     max_abs_generalized_force: float = 1.0e4  # N or N m: gravity and velocity-product torques
     max_inverse_mass: float = 1.0e9  # entries of Lambda^-1 (1/kg, 1/(kg m), 1/(kg m^2))
+    max_abs_angular_velocity: float = 1.0e3  # rad/s: a local shape's spin
 
 
 DEFAULT_LIMITS = MessageLimits()
@@ -267,6 +335,8 @@ LOCAL_MODEL_DTYPE = np.dtype(
         ("n_contacts", I8),
         ("c_link", I8, (MAX_CONTACTS,)),
         ("c_key", I8, (MAX_CONTACTS,)),
+        ("n_shapes", I8),  # local shapes (version 3, Flag.SHAPES; 0 otherwise)
+        ("shapes", SHAPE_DTYPE, (MAX_SHAPES,)),
         *[
             (f"c_{c.name}", F8, (MAX_CONTACTS, c.width) if c.width > 1 else (MAX_CONTACTS,))
             for c in CONTACT_COLUMNS
@@ -315,6 +385,24 @@ def markdown_tables() -> str:
         lines.append(
             f"| {CONTACT_AT[c.name]} | `{c.name}` | {c.width} | {c.unit or '-'} | {c.bound} |"
             f" {c.since} | {c.doc} |"
+        )
+    lines += [
+        "",
+        f"SHAPES trailer (flag {int(Flag.SHAPES)}, version 3), after the float sections: int64"
+        f" s (0..{MAX_SHAPES}), then s rows of {SHAPE_INTS} int64, then s rows of"
+        f" {SHAPE_FLOATS} float64:",
+        "",
+        "| block | offset | field | width | unit | bound | meaning |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for k, f in enumerate(SHAPE_INT_FIELDS):
+        lines.append(
+            f"| int64 | {k} | `{f.name}` | {f.width} | {f.unit or '-'} | {f.bound} | {f.doc} |"
+        )
+    for f in SHAPE_FLOAT_FIELDS:
+        lines.append(
+            f"| float64 | {SHAPE_AT[f.name]} | `{f.name}` | {f.width} | {f.unit or '-'} |"
+            f" {f.bound} | {f.doc} |"
         )
     return "\n".join(lines) + "\n"
 

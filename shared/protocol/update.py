@@ -47,18 +47,34 @@ from haptic_local_model.shared.protocol.layout import (
     PROTOCOL_VERSION,
     PUBLISH_TIME_AT,
     PUBLISH_TIME_END,
+    S_FRICTION,
+    S_POSE,
+    S_ROUNDING,
+    S_STATIC_FRICTION,
+    S_TWIST,
+    S_VERTICES,
+    SHAPE_FLOATS,
+    SHAPE_INTS,
     UPDATE_MAGIC,
     MessageLimits,
     body_counts,
     limits_record,
+    shapes_words,
 )
+from haptic_local_model.shared.shapes import MAX_SHAPES, MAX_VERTICES, ShapeKind
 
 MAGIC = tuple(UPDATE_MAGIC)
+#: The largest valid update: every section, 64 contacts and 64 shapes (receive buffers)
+MAX_UPDATE_BYTES = HEADER_BYTES + 8 * (
+    3 * MAX_DOF + MAX_DOF * MAX_DOF + 2 * MAX_CONTACTS + 64 + 3 * MAX_RESISTED
+    + CONTACT_FLOATS * MAX_CONTACTS + shapes_words(MAX_SHAPES) + MAX_DOF * 4
+)  # fmt: skip
 # numba reads IntEnum members but not IntFlag ones: the flags as plain ints for the kernels
 FLAG_GRAVITY = int(Flag.GRAVITY)
 FLAG_RESISTED = int(Flag.RESISTED)
 FLAG_TOUCHING = int(Flag.TOUCHING)
 FLAG_VELOCITY_TORQUE = int(Flag.VELOCITY_TORQUE)
+FLAG_SHAPES = int(Flag.SHAPES)
 AT_VERSION = HEADER_AT["version"]
 AT_FLAGS = HEADER_AT["flags"]
 AT_EPOCH = HEADER_AT["epoch"]
@@ -137,6 +153,8 @@ class LocalModelUpdate:
     # how far ahead of its publication the state holds (s): the sim steps its world over the
     # coming period, so moving contacts are extrapolated back by this much at install
     state_lead_s: float = 0.0
+    # the local shapes near the tool (SHAPE_DTYPE rows; version 3), None: no SHAPES trailer
+    shapes: np.ndarray | None = None
 
     @property
     def dof(self) -> int:
@@ -153,6 +171,8 @@ class LocalModelUpdate:
             flags |= Flag.TOUCHING
         if self.velocity_torque is not None:
             flags |= Flag.VELOCITY_TORQUE
+        if self.shapes is not None and len(self.shapes) > 0:
+            flags |= Flag.SHAPES
         return int(flags)
 
 
@@ -184,7 +204,25 @@ def encode_update(u: LocalModelUpdate) -> bytes:
         header
         + np.concatenate(ints).astype("<i8").tobytes()
         + np.concatenate(floats).astype("<f8").tobytes()
+        + (shapes_trailer(u.shapes) if u.flags & Flag.SHAPES else b"")
     )
+
+
+def shapes_trailer(shapes: np.ndarray) -> bytes:
+    """The SHAPES trailer of SHAPE_DTYPE rows (layout.SHAPE_INT_FIELDS, SHAPE_FLOAT_FIELDS)."""
+    n = len(shapes)
+    ints = np.zeros((n, SHAPE_INTS), np.int64)
+    floats = np.zeros((n, SHAPE_FLOATS))
+    for k, row in enumerate(shapes):
+        ints[k] = (row["key"], -1, row["kind"], row["n_vert"], row["generation"], row["motion"])
+        floats[k, S_VERTICES : S_VERTICES + 2 * MAX_VERTICES] = row["vertices"].ravel()
+        floats[k, S_ROUNDING] = row["rounding"]
+        floats[k, S_POSE : S_POSE + 3] = row["pose"]
+        floats[k, S_TWIST : S_TWIST + 3] = row["twist"]
+        floats[k, S_STATIC_FRICTION] = row["static_friction"]
+        floats[k, S_FRICTION] = row["friction"]
+    head = np.array([n], "<i8").tobytes()
+    return head + ints.astype("<i8").tobytes() + floats.astype("<f8").tobytes()
 
 
 def stamp_publication(raw: bytearray, publish_time_ns: int, state_lead_s: float) -> None:
@@ -230,8 +268,13 @@ def encode_record(out, buf):
         flags |= FLAG_TOUCHING
     if m.has_velocity_torque == 1:
         flags |= FLAG_VELOCITY_TORQUE
+    if m.n_shapes > 0:
+        flags |= FLAG_SHAPES
     n_int = d + 2 * n
-    nbytes = HEADER_BYTES + 8 * (n_int + _float_count(d, j, n, flags, CONTACT_FLOATS))
+    body_end = HEADER_BYTES + 8 * (n_int + _float_count(d, j, n, flags, CONTACT_FLOATS))
+    nbytes = body_end
+    if m.n_shapes > 0:
+        nbytes += 8 * (1 + (SHAPE_INTS + SHAPE_FLOATS) * m.n_shapes)
     for i in range(4):
         buf[i] = MAGIC[i]
     _put_u16(buf, AT_VERSION, PROTOCOL_VERSION)
@@ -252,7 +295,7 @@ def encode_record(out, buf):
     for i in range(n):
         ints[d + i] = m.c_link[i]
         ints[d + n + i] = m.c_key[i]
-    fl = buf[HEADER_BYTES + 8 * n_int : nbytes].view(np.float64)
+    fl = buf[HEADER_BYTES + 8 * n_int : body_end].view(np.float64)
     o = _write_body(m, fl, flags)
     for i in range(n):
         row = fl[o + CONTACT_FLOATS * i : o + CONTACT_FLOATS * (i + 1)]
@@ -266,7 +309,37 @@ def encode_record(out, buf):
         row[C_STIFFNESS] = m.c_stiffness[i]
         row[C_DAMPING] = m.c_damping[i]
         row[C_TANGENTIAL_STIFFNESS] = m.c_tangential_stiffness[i]
+    if m.n_shapes > 0:
+        _write_shapes(m, buf[body_end:nbytes])
     return nbytes
+
+
+@njit(cache=True)
+def _write_shapes(m, trailer):
+    """`_read_shapes` the other way: the SHAPES trailer of the record's shapes."""
+    s = m.n_shapes
+    ints = trailer.view(np.int64)
+    ints[0] = s
+    fl = trailer[8 * (1 + SHAPE_INTS * s) :].view(np.float64)
+    for k in range(s):
+        sh = m.shapes[k]
+        row = ints[1 + SHAPE_INTS * k : 1 + SHAPE_INTS * (k + 1)]
+        row[0] = sh.key
+        row[1] = -1
+        row[2] = sh.kind
+        row[3] = sh.n_vert
+        row[4] = sh.generation
+        row[5] = sh.motion
+        f = fl[SHAPE_FLOATS * k : SHAPE_FLOATS * (k + 1)]
+        for v in range(MAX_VERTICES):
+            f[S_VERTICES + 2 * v] = sh.vertices[v, 0]
+            f[S_VERTICES + 2 * v + 1] = sh.vertices[v, 1]
+        f[S_ROUNDING] = sh.rounding
+        for c in range(3):
+            f[S_POSE + c] = sh.pose[c]
+            f[S_TWIST + c] = sh.twist[c]
+        f[S_STATIC_FRICTION] = sh.static_friction
+        f[S_FRICTION] = sh.friction
 
 
 @njit(cache=True, inline="always")
@@ -346,32 +419,44 @@ def epoch_of(buf, nbytes):
 @njit(cache=True, inline="always")
 def _check_header(buf, nbytes):
     """Magic, version, counts and total size: (Reason or 0, d, n, j, flags, contact row
-    floats)."""
+    floats, shapes)."""
     if nbytes < HEADER_BYTES:
-        return Reason.SHORT, 0, 0, 0, 0, 0
+        return Reason.SHORT, 0, 0, 0, 0, 0, 0
     for i in range(4):
         if buf[i] != MAGIC[i]:
-            return Reason.MAGIC, 0, 0, 0, 0, 0
+            return Reason.MAGIC, 0, 0, 0, 0, 0, 0
     version = _u16(buf, AT_VERSION)
-    if version != PROTOCOL_VERSION and version != 1:  # version 1: logs of the last release
-        return Reason.VERSION, 0, 0, 0, 0, 0
-    n_cf = CONTACT_FLOATS if version == PROTOCOL_VERSION else CONTACT_FLOATS_V1
+    if version < 1 or version > PROTOCOL_VERSION:  # 1, 2: logs of the last releases
+        return Reason.VERSION, 0, 0, 0, 0, 0, 0
+    n_cf = CONTACT_FLOATS if version >= 2 else CONTACT_FLOATS_V1
     flags = _u16(buf, AT_FLAGS)
     d = _u16(buf, AT_DOF)
     n = _u16(buf, AT_N_CONTACTS)
     j = _u16(buf, AT_N_RESISTED)
     if d < 1 or d > MAX_DOF:
-        return Reason.DOF, d, n, j, flags, n_cf
+        return Reason.DOF, d, n, j, flags, n_cf, 0
     if n > MAX_CONTACTS:
-        return Reason.CONTACTS, d, n, j, flags, n_cf
+        return Reason.CONTACTS, d, n, j, flags, n_cf, 0
     if j > MAX_RESISTED or (j > 0) != ((flags & FLAG_RESISTED) != 0):
-        return Reason.RESISTED, d, n, j, flags, n_cf
+        return Reason.RESISTED, d, n, j, flags, n_cf, 0
     if _u16(buf, AT_OP_LINK) >= d:
-        return Reason.OP_LINK, d, n, j, flags, n_cf
+        return Reason.OP_LINK, d, n, j, flags, n_cf, 0
     n_int = d + 2 * n
-    if nbytes != HEADER_BYTES + 8 * (n_int + _float_count(d, j, n, flags, n_cf)):
-        return Reason.SIZE, d, n, j, flags, n_cf
-    return 0, d, n, j, flags, n_cf
+    body_end = HEADER_BYTES + 8 * (n_int + _float_count(d, j, n, flags, n_cf))
+    if (flags & FLAG_SHAPES) == 0:
+        if nbytes != body_end:
+            return Reason.SIZE, d, n, j, flags, n_cf, 0
+        return 0, d, n, j, flags, n_cf, 0
+    if version < 3:
+        return Reason.VERSION, d, n, j, flags, n_cf, 0
+    if nbytes < body_end + 8 or (nbytes - body_end) % 8 != 0:
+        return Reason.SIZE, d, n, j, flags, n_cf, 0
+    s = _i64(buf, body_end)
+    if s < 1 or s > MAX_SHAPES:
+        return Reason.SHAPE, d, n, j, flags, n_cf, 0
+    if nbytes != body_end + 8 * (1 + (SHAPE_INTS + SHAPE_FLOATS) * s):
+        return Reason.SIZE, d, n, j, flags, n_cf, 0
+    return 0, d, n, j, flags, n_cf, s
 
 
 @njit(cache=True, inline="always")
@@ -571,13 +656,14 @@ def parse_update(buf, nbytes, limits, out, scratch):
     """
     m = out[0]
     m.valid = 0
-    code, d, n, j, flags, n_cf = _check_header(buf, nbytes)
+    code, d, n, j, flags, n_cf, n_shapes = _check_header(buf, nbytes)
     if code != 0:
         return code
     lim = limits[0]
     n_int = d + 2 * n
+    body_end = HEADER_BYTES + 8 * (n_int + _float_count(d, j, n, flags, n_cf))
     ints = buf[HEADER_BYTES : HEADER_BYTES + 8 * n_int].view(np.int64)
-    fl = buf[HEADER_BYTES + 8 * n_int : nbytes].view(np.float64)
+    fl = buf[HEADER_BYTES + 8 * n_int : body_end].view(np.float64)
     sim_time = _f64(buf, AT_SIM_TIME)
     char_len = _f64(buf, AT_CHAR_LENGTH)
     lead = _f64(buf, AT_LEAD)
@@ -610,6 +696,9 @@ def parse_update(buf, nbytes, limits, out, scratch):
         code = _penalty_projection(m)
     if code == 0:
         code = _read_contacts(m, ints, fl, contacts_at, n_cf, lim)
+    m.n_shapes = 0
+    if code == 0 and n_shapes > 0:
+        code = _read_shapes(m, buf[body_end:nbytes], n_shapes, lim)
     if code != 0:
         return code
     m.epoch = _i64(buf, AT_EPOCH)
@@ -623,12 +712,112 @@ def parse_update(buf, nbytes, limits, out, scratch):
     return Reason.OK
 
 
+@njit(cache=True)
+def _read_shapes(m, trailer, s, lim):
+    """The SHAPES trailer into m.shapes, every field checked (layout.SHAPE_*_FIELDS): 0 or
+    Reason.NONFINITE / Reason.SHAPE."""
+    ints = trailer[8 : 8 * (1 + SHAPE_INTS * s)].view(np.int64)
+    fl = trailer[8 * (1 + SHAPE_INTS * s) :].view(np.float64)
+    for k in range(fl.shape[0]):
+        if not math.isfinite(fl[k]):
+            return Reason.NONFINITE
+    for k in range(s):
+        code = _read_shape(m.shapes[k], ints[SHAPE_INTS * k :], fl[SHAPE_FLOATS * k :], lim)
+        if code != 0:
+            return code
+        for i in range(k):
+            if m.shapes[i].key == m.shapes[k].key:
+                return Reason.SHAPE
+    m.n_shapes = s
+    return 0
+
+
+@njit(cache=True)
+def _read_shape(sh, row, f, lim):
+    """One shape: its ints (row) and floats (f) checked and stored; 0 or Reason.SHAPE."""
+    kind = row[2]
+    nv = row[3]
+    if row[1] != -1 or row[4] < 0 or row[5] < 0 or row[5] > 1:
+        return Reason.SHAPE
+    if kind == ShapeKind.CIRCLE:
+        ok = nv == 1 and f[S_ROUNDING] > 0.0
+    elif kind == ShapeKind.SEGMENT:
+        ok = nv == 2
+    elif kind == ShapeKind.POLYGON:
+        ok = 3 <= nv <= MAX_VERTICES
+    else:
+        ok = False
+    max_pos = lim.max_abs_position_m
+    rho = f[S_ROUNDING]
+    if not ok or rho < 0.0 or rho > max_pos:
+        return Reason.SHAPE
+    if abs(f[S_POSE]) > max_pos or abs(f[S_POSE + 1]) > max_pos:
+        return Reason.SHAPE
+    if abs(f[S_POSE + 2]) > lim.max_abs_angle_rad:
+        return Reason.SHAPE
+    if math.hypot(f[S_TWIST], f[S_TWIST + 1]) > lim.max_abs_velocity:
+        return Reason.SHAPE
+    if abs(f[S_TWIST + 2]) > lim.max_abs_angular_velocity:
+        return Reason.SHAPE
+    mu_k = f[S_FRICTION]
+    mu_s = f[S_STATIC_FRICTION]
+    if mu_k < 0.0 or mu_s < mu_k or mu_s > lim.max_friction:
+        return Reason.SHAPE
+    bound = 0.0
+    for v in range(MAX_VERTICES):
+        x = f[S_VERTICES + 2 * v]
+        y = f[S_VERTICES + 2 * v + 1]
+        if v >= nv and (x != 0.0 or y != 0.0):
+            return Reason.SHAPE  # unused vertices are zero: one encoding per shape
+        if abs(x) > max_pos or abs(y) > max_pos:
+            return Reason.SHAPE
+        sh.vertices[v, 0] = x
+        sh.vertices[v, 1] = y
+        bound = max(bound, math.hypot(x, y))
+    if not _core_is_proper(sh.vertices, nv):
+        return Reason.SHAPE
+    sh.key = row[0]
+    sh.kind = kind
+    sh.n_vert = nv
+    sh.generation = row[4]
+    sh.motion = row[5]
+    sh.rounding = rho
+    for c in range(3):
+        sh.pose[c] = f[S_POSE + c]
+        sh.twist[c] = f[S_TWIST + c]
+    sh.static_friction = mu_s
+    sh.friction = mu_k
+    sh.bound = bound
+    return 0
+
+
+@njit(cache=True)
+def _core_is_proper(v, nv):
+    """A segment's ends differ; a polygon turns left at every vertex (strictly convex,
+    counter-clockwise), as shared.shapes.polygon_problem asks."""
+    if nv == 2:
+        return v[0, 0] != v[1, 0] or v[0, 1] != v[1, 1]
+    if nv < 3:
+        return True
+    for i in range(nv):
+        a = v[i]
+        b = v[(i + 1) % nv]
+        c = v[(i + 2) % nv]
+        ex = b[0] - a[0]
+        ey = b[1] - a[1]
+        if math.hypot(ex, ey) <= 1e-12:
+            return False
+        if ex * (c[1] - b[1]) - ey * (c[0] - b[0]) <= 0.0:
+            return False
+    return True
+
+
 class UpdateParser:
     """Preallocated buffers around parse_update: one per receiver (tools, tests)."""
 
     def __init__(self, limits: MessageLimits = DEFAULT_LIMITS) -> None:
         self.limits = limits_record(limits)
-        self.buffer = np.zeros(HEADER_BYTES + 8 * (MAX_DOF + 2 * MAX_CONTACTS + 4096), np.uint8)
+        self.buffer = np.zeros(MAX_UPDATE_BYTES, np.uint8)
         self.out = np.zeros(1, LOCAL_MODEL_DTYPE)
         self.scratch = np.zeros((MAX_DOF, MAX_DOF))
 
@@ -685,6 +874,7 @@ def update_from_record(m: np.void) -> LocalModelUpdate:
         contacts=ContactSet(m["c_link"][:n].copy(), m["c_key"][:n].copy(), floats),
         tool_touching=bool(m["tool_touching"]),
         state_lead_s=float(m["state_lead_s"]),
+        shapes=m["shapes"][: int(m["n_shapes"])].copy() if m["n_shapes"] else None,
     )  # fmt: skip
 
 
