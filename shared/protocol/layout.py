@@ -395,14 +395,14 @@ def markdown_tables() -> str:
         "| block | offset | field | width | unit | bound | meaning |",
         "|---|---|---|---|---|---|---|",
     ]
-    for k, f in enumerate(SHAPE_INT_FIELDS):
+    for k, sf in enumerate(SHAPE_INT_FIELDS):
         lines.append(
-            f"| int64 | {k} | `{f.name}` | {f.width} | {f.unit or '-'} | {f.bound} | {f.doc} |"
+            f"| int64 | {k} | `{sf.name}` | {sf.width} | {sf.unit or '-'} | {sf.bound} | {sf.doc} |"
         )
-    for f in SHAPE_FLOAT_FIELDS:
+    for sf in SHAPE_FLOAT_FIELDS:
         lines.append(
-            f"| float64 | {SHAPE_AT[f.name]} | `{f.name}` | {f.width} | {f.unit or '-'} |"
-            f" {f.bound} | {f.doc} |"
+            f"| float64 | {SHAPE_AT[sf.name]} | `{sf.name}` | {sf.width} | {sf.unit or '-'} |"
+            f" {sf.bound} | {sf.doc} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -204,7 +204,7 @@ def encode_update(u: LocalModelUpdate) -> bytes:
         header
         + np.concatenate(ints).astype("<i8").tobytes()
         + np.concatenate(floats).astype("<f8").tobytes()
-        + (shapes_trailer(u.shapes) if u.flags & Flag.SHAPES else b"")
+        + (shapes_trailer(u.shapes) if u.shapes is not None and u.flags & Flag.SHAPES else b"")
     )
 
 
