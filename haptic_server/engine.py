@@ -23,10 +23,12 @@ from haptic_local_model.haptic_server.model import (
     INSTALL_DTYPE,
     MODEL_DTYPE,
     envelope_record,
+    god_record,
     params_record,
     set_guard,
 )
 from haptic_local_model.haptic_server.simulated import run_ticks, simulated_tick
+from haptic_local_model.haptic_server.stages.finger import restart_finger
 from haptic_local_model.haptic_server.stages.install import (
     DEFAULT_MAX_AGE_S,
     DEFAULT_MAX_SKEW_S,
@@ -143,6 +145,7 @@ class HapticEngine:
             safe_ramp_s,
             self.world_map,
         )
+        self.model["god"] = god_record(scene, self.model["params"][0]["max_wrench"])
         # what the scene allows: checked at every install, guarded at every tick
         self.install[0]["envelope"] = envelope_record(scene)
         set_guard(self.model["params"], scene)
@@ -333,6 +336,8 @@ class HapticEngine:
         st["last_command"] = 0.0
         st["foh_goal"] = m["tool_pose"]
         st["foh_steps_left"] = 0
+        if self.method == Method.GOD_OBJECT:
+            restart_finger(self.data[0], float(m["q"][0]), float(m["q"][1]))
         if first and self.sim_device is not None:
             # a simulated device starts at its home pose, offset from the VM as the scene says
             self.sim_device.reset(np.zeros(3))

@@ -14,6 +14,11 @@ from __future__ import annotations
 import numpy as np
 
 from haptic_local_model.device_models.base import AUX_SIZE, SENSOR_DTYPE, DeviceRenderingSpec
+from haptic_local_model.haptic_server.stages.god_object import (
+    GOD_DATA_DTYPE,
+    GOD_PARAMS_DTYPE,
+    god_params,
+)
 from haptic_local_model.shared.config import RenderingSpec, SceneConfig
 from haptic_local_model.shared.kinematics import CHAIN_DTYPE, MAX_DOF
 from haptic_local_model.shared.protocol.codes import Method
@@ -200,12 +205,23 @@ TICK_DTYPE = np.dtype(
         ("device_aux", F8, (AUX_SIZE,)),  # device-specific readings (the device's aux_names)
         ("world_offset", F8, (3,)),  # device-to-world map offset (moves under rate control)
         ("port_energy", F8),  # the passivity observer: energy the device gave the hand (J)
+        # the god_object method (stages/finger.py; zero under the other methods)
+        ("god_proxy", F8, (2,)),  # the god-object proxy p (world)
+        ("god_contact", np.int32),  # 0 free, 1 slide, 2 stick
+        ("god_active", np.int32),  # touching obstacles (0..2)
+        ("god_pop", np.uint8),  # 1 on the tick of a pop-through
+        ("god_pops", np.int32),  # pop-throughs so far
+        ("god_substeps", np.int32),
+        ("n_shapes", np.int32),  # local shapes in the installed model
     ]
 )
 
 
-#: What a tick only reads: the two installed models (0 newest, 1 fading out) and the gains.
-MODEL_DTYPE = np.dtype([("slots", SLOT_DTYPE, (2,)), ("params", PARAMS_DTYPE)])
+#: What a tick only reads: the two installed models (0 newest, 1 fading out), the gains, and
+#: the god-object's parameters (the god_object method).
+MODEL_DTYPE = np.dtype(
+    [("slots", SLOT_DTYPE, (2,)), ("params", PARAMS_DTYPE), ("god", GOD_PARAMS_DTYPE)]
+)
 
 #: What a tick reads and writes.
 DATA_DTYPE = np.dtype(
@@ -217,6 +233,7 @@ DATA_DTYPE = np.dtype(
         ("hand_measured", F8, (3,)),  # the measured hand wrench, world frame
         ("scratch", SCRATCH_DTYPE),
         ("row", TICK_DTYPE),
+        ("god", GOD_DATA_DTYPE),  # the god-object proxy (the god_object method)
     ]
 )
 
@@ -374,6 +391,21 @@ def params_record(
     p["safe_ramp_s"] = safe_ramp_s
     p["max_wrench"] = np.asarray(max_wrench, dtype=np.float64) * per_wrench
     return rec
+
+
+def god_record(scene: SceneConfig, max_wrench_world: np.ndarray) -> np.ndarray:
+    """The god-object's parameters (GOD_PARAMS_DTYPE[1]) of a god_object scene: the disc's
+    radius, the coupling, and the force bound (the device's smaller planar limit, world
+    frame); zeros for the other methods."""
+    if scene.rendering.method != "god_object":
+        return np.zeros(1, GOD_PARAMS_DTYPE)
+    r = scene.rendering
+    return god_params(
+        scene.tool_body.radius, r.god_object_stiffness, r.god_object_damping,
+        max_substeps=r.max_substeps, pop_ramp_s=r.pop_ramp_ms / 1e3,
+        max_force=float(min(max_wrench_world[0], max_wrench_world[1])),
+        blend_s=r.blend_ms / 1e3,
+    )  # fmt: skip
 
 
 def envelope_record(scene: SceneConfig) -> np.ndarray:

@@ -240,7 +240,7 @@ def within(value: float, bounds: tuple[float, float], key: str, unit: str = "") 
 # --- scene ----------------------------------------------------------------------------------
 
 RenderingMethod = Literal[
-    "local_model", "impedance_only", "virtual_coupling", "virtual_coupling_foh"
+    "local_model", "impedance_only", "virtual_coupling", "virtual_coupling_foh", "god_object"
 ]
 BodyKind = Literal["static", "dynamic", "kinematic"]
 ShapeKind = Literal["box", "segment", "circle"]
@@ -256,11 +256,18 @@ class Material:
     restitution: float = 0.0
     # stick stiffness of Coulomb friction (seed 001 §3.2); unset: the normal stiffness
     tangential_stiffness_n_per_m: float | None = None
+    # mu_s of the god-object's stick/slip (DESIGN-WAVE2 §3 step 4); unset: friction (mu_k)
+    static_friction: float | None = None
 
     @property
     def tangential_stiffness(self) -> float:
         t = self.tangential_stiffness_n_per_m
         return self.stiffness_n_per_m if t is None else t
+
+    @property
+    def static_coefficient(self) -> float:
+        """mu_s: static_friction, or friction when it is unset."""
+        return self.friction if self.static_friction is None else self.static_friction
 
     def __post_init__(self) -> None:
         within(self.stiffness_n_per_m, STIFFNESS_RANGE_N_PER_M, "stiffness_n_per_m", "N/m")
@@ -271,6 +278,13 @@ class Material:
         )
         within(self.damping_ns_per_m, DAMPING_RANGE_NS_PER_M, "damping_ns_per_m", "N s/m")
         within(self.friction, FRICTION_RANGE, "friction")
+        if self.static_friction is not None:
+            within(self.static_friction, FRICTION_RANGE, "static_friction")
+            require(
+                self.static_friction >= self.friction,
+                "static_friction",
+                f"must be >= friction ({self.friction:g}): mu_s >= mu_k",
+            )
         require(0 <= self.restitution <= 1, "restitution", "must be in [0, 1]")
 
 
@@ -294,6 +308,8 @@ class BodySpec:
     linear_damping_per_s: float = 0.0  # dynamic bodies: drag of the table they slide on
     oscillation_amplitude: Vec2 = (0.0, 0.0)  # kinematic bodies: x(t) = x0 + A sin(2 pi t / T)
     oscillation_period_s: float = 0.0
+    angle_amplitude: float = 0.0  # kinematic bodies: theta(t) = theta0 + a sin(2 pi t / T_a)
+    angle_period_s: float = 0.0
 
     def __post_init__(self) -> None:
         if self.shape == "box":
@@ -304,6 +320,14 @@ class BodySpec:
             require(self.a != self.b, "b", "segment end points must differ")
         within(self.mass, MASS_RANGE_KG, "mass", "kg")
         require(self.oscillation_period_s >= 0, "oscillation_period_s", "must be >= 0")
+        require(self.angle_period_s >= 0, "angle_period_s", "must be >= 0")
+        within(self.angle_amplitude, (-ANGLE_RAD, ANGLE_RAD), "angle_amplitude", "rad")
+        if self.angle_amplitude:
+            require(
+                self.kind == "kinematic" and self.angle_period_s > 0,
+                "angle_period_s",
+                "an angle oscillation needs a kinematic body and a period > 0",
+            )
         require(self.linear_damping_per_s >= 0, "linear_damping_per_s", "must be >= 0")
         within_all(self.position, (-WORLD_M, WORLD_M), "position", "m")
         within_all(self.a, (-WORLD_M, WORLD_M), "a", "m")
@@ -507,6 +531,13 @@ class RenderingSpec:
     blend_ms: float = 8.0  # cross-fade of old and new geometry after an update
     virtual_coupling_stiffness: Vec3 = (50.0, 50.0, 0.2)  # seed 000 §VIII baseline
     virtual_coupling_damping: Vec3 = (3.0, 3.0, 0.005)
+    # god_object (seed 003 §3, docs/god-object.md): the device-proxy spring K_vc, B_vc
+    # (B_vc >= K_vc dt / 2, checked), sub-steps per tick at most, and how long a pop's force
+    # change takes at least
+    god_object_stiffness: Vec2 = (1000.0, 1000.0)
+    god_object_damping: Vec2 = (2.0, 2.0)
+    max_substeps: int = 16
+    pop_ramp_ms: float = 5.0
     # virtual_coupling_foh, sim side (seed 002 table, SI): the tool's spring to the device
     foh_spring_stiffness: Vec3 = (1.0e5, 1.0e5, 800.0)
     foh_spring_damping: Vec3 = (1.0e4, 1.0e4, 20.0)
@@ -522,9 +553,12 @@ class RenderingSpec:
         for key in (
             "coordination_stiffness", "coordination_damping", "desired_damping",
             "desired_stiffness", "foh_spring_stiffness", "foh_spring_damping",
-            "virtual_coupling_stiffness", "virtual_coupling_damping",
+            "virtual_coupling_stiffness", "virtual_coupling_damping", "god_object_stiffness",
+            "god_object_damping",
         ):  # fmt: skip
             require(all(v >= 0 for v in getattr(self, key)), key, "must be >= 0")
+        within(self.max_substeps, (1, 64), "max_substeps")
+        within(self.pop_ramp_ms, (0.1, 1000.0), "pop_ramp_ms", "ms")
         require(self.penalty_stiffness >= 0, "penalty_stiffness", "must be >= 0")
         require(self.penalty_damping >= 0, "penalty_damping", "must be >= 0")
         require(self.blend_ms >= 0, "blend_ms", "must be >= 0")
@@ -624,6 +658,27 @@ class SceneConfig:
             require(0 <= self.tool.link < len(match_l[0].lengths), "tool.link", "no such link")
         if self.rendering.method == "virtual_coupling_foh" and self.tool.kind == "body":
             self._check_coupling_substeps(match[0])
+        if self.rendering.method == "god_object":
+            self._check_god_object()
+
+    def _check_god_object(self) -> None:
+        """A god-object is a disc held as a free body, and its coupling is passive (Colgate:
+        B >= K dt / 2 at the haptic rate)."""
+        require(
+            self.tool.kind == "body" and self.tool_body.shape == "circle",
+            "tool.name",
+            "the god_object method renders a disc: the held tool must be a circle body",
+        )
+        r = self.rendering
+        dt = 1.0 / self.haptic_rate_hz
+        for axis in range(2):
+            k, b = r.god_object_stiffness[axis], r.god_object_damping[axis]
+            require(
+                b >= 0.5 * k * dt,
+                "rendering.god_object_damping",
+                f"{b:g} N s/m on axis {axis} is below K dt / 2 = {0.5 * k * dt:g} (passivity "
+                f"of the {k:g} N/m spring at {self.haptic_rate_hz:g} Hz)",
+            )
 
     def _check_coupling_substeps(self, body: BodySpec) -> None:
         """The sim's stiff tool-device coupling must be stable in pymunk (shared/coupling.py;
@@ -660,9 +715,10 @@ class SceneConfig:
             if b.oscillation_period_s > 0:
                 amplitude = math.hypot(*b.oscillation_amplitude)
                 peak = 2 * math.pi * amplitude / b.oscillation_period_s
-            fastest = max(
-                fastest, math.hypot(*b.velocity) + peak + abs(b.angular_velocity) * b.extent
-            )
+            spin = abs(b.angular_velocity)
+            if b.angle_period_s > 0:
+                spin += 2 * math.pi * abs(b.angle_amplitude) / b.angle_period_s
+            fastest = max(fastest, math.hypot(*b.velocity) + peak + spin * b.extent)
         return fastest
 
     @property

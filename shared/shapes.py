@@ -23,6 +23,7 @@ import enum
 import math
 
 import numpy as np
+import numpy.typing as npt
 from numba import njit
 
 MAX_SHAPES = 64
@@ -71,7 +72,7 @@ def shape_array(n: int) -> np.ndarray:
     return np.zeros(n, dtype=SHAPE_DTYPE)
 
 
-def polygon_problem(vertices: np.ndarray) -> str:
+def polygon_problem(vertices: npt.ArrayLike) -> str:
     """Why a polygon core is not acceptable ("" if it is): 3..8 finite vertices, strictly
     convex and counter-clockwise (every turn a left turn), no repeated vertex."""
     v = np.asarray(vertices, dtype=float)
@@ -92,7 +93,7 @@ def polygon_problem(vertices: np.ndarray) -> str:
     return ""
 
 
-def set_core(shape: np.void, kind: ShapeKind, vertices: np.ndarray, rounding: float) -> None:
+def set_core(shape: np.void, kind: ShapeKind, vertices: npt.ArrayLike, rounding: float) -> None:
     """Fill a shape record's core (kind, vertices, rho, bound) from body-frame vertices."""
     v = np.asarray(vertices, dtype=float).reshape(-1, 2)
     shape["kind"] = int(kind)

@@ -112,7 +112,13 @@ def tool_bounds(scene: SceneConfig) -> ToolBounds:
     rebounds at up to twice its speed), and the kinetic energy they allow the tool."""
     tool = tool_chain(scene)
     spin_kin = max(
-        (abs(b.angular_velocity) for b in scene.bodies if b.kind == "kinematic"), default=0
+        (
+            abs(b.angular_velocity)
+            + (2 * np.pi * abs(b.angle_amplitude) / b.angle_period_s if b.angle_period_s else 0)
+            for b in scene.bodies
+            if b.kind == "kinematic"
+        ),
+        default=0,
     )
     speed = scene.safety.max_tool_speed_m_per_s + 2.0 * scene.kinematic_speed_m_per_s
     spin = scene.safety.max_tool_angular_speed_rad_per_s + 2.0 * spin_kin

@@ -42,10 +42,14 @@ TARGET_DTYPE = np.dtype(
     ]
 )
 
-#: An oscillating kinematic body: v(t) = velocity + amplitude w cos(w t), w = 2 pi / period.
+#: An oscillating kinematic body: v(t) = velocity + amplitude w cos(w t), w = 2 pi / period;
+#: and turning: theta(t) = theta0 + spin t + angle_amplitude sin(2 pi t / angle_period_s).
 KINEMATIC_DTYPE = np.dtype(
-    [("body", I8), ("velocity", F8, (2,)), ("amplitude", F8, (2,)), ("period_s", F8)]
-)
+    [
+        ("body", I8), ("velocity", F8, (2,)), ("amplitude", F8, (2,)), ("period_s", F8),
+        ("spin", F8), ("angle_amplitude", F8), ("angle_period_s", F8),
+    ]
+)  # fmt: skip
 
 
 def drive_work() -> tuple[np.ndarray, ...]:
@@ -87,7 +91,7 @@ def step_world(tool, target, chain, kinematic, sim_time, period, substeps, work)
     for k in range(substeps):
         now = sim_time + k * h
         for i in range(kinematic.shape[0]):
-            _move_kinematic(kinematic[i], now + h)
+            _move_kinematic(kinematic[i], now + h, h)
         if t.kind == TOOL_LINKAGE:
             _drive_linkage(tool, tg, chain, work, k * h)
         elif tg.mode == DRIVE_DEVICE:
@@ -98,7 +102,9 @@ def step_world(tool, target, chain, kinematic, sim_time, period, substeps, work)
 
 
 @njit(cache=True)
-def _move_kinematic(kin, t):
+def _move_kinematic(kin, t, h):
+    """The velocities of the substep ending at t: the oscillation's at t (as since 0.1), and
+    the angle oscillation's mean over the substep, so the angle is exact at its ends."""
     if kin.period_s > 0.0:
         w = 2.0 * math.pi / kin.period_s
         cp.body_set_velocity(
@@ -106,6 +112,10 @@ def _move_kinematic(kin, t):
             kin.velocity[0] + kin.amplitude[0] * w * math.cos(w * t),
             kin.velocity[1] + kin.amplitude[1] * w * math.cos(w * t),
         )
+    if kin.angle_period_s > 0.0:
+        w = 2.0 * math.pi / kin.angle_period_s
+        swing = kin.angle_amplitude * (math.sin(w * t) - math.sin(w * (t - h))) / h
+        cp.body_set_angular_velocity(kin.body, kin.spin + swing)
 
 
 @njit(cache=True)

@@ -48,6 +48,7 @@ from haptic_local_model.sim_server.local_model import (
     build_local_model,
     encode_stamped,
 )
+from haptic_local_model.sim_server.shapes import LocalShapes
 from haptic_local_model.sim_server.tool import TOOL_BODY, TOOL_DTYPE, TOOL_LINKAGE, tool_state
 
 #: The largest update (all sections, every contact and shape): the encoder's buffer
@@ -95,6 +96,16 @@ class SimWorld:
         self._drive_work = drive_work()
         self._local = LocalModelKernel(self)
         self._encoded = np.zeros(MAX_UPDATE_BYTES, np.uint8)
+        # a god_object tool is rendered against the shapes near it (DESIGN-WAVE2 C2)
+        self.local_shapes = (
+            LocalShapes(
+                {s: (k, self.shape_materials[s]) for s, k in self.shape_keys.items()},
+                [s for s, _ in self.tool_shapes],
+                scene.tool.neighbourhood_margin_m,
+            )
+            if scene.rendering.method == "god_object"
+            else None
+        )
 
     # --- construction -------------------------------------------------------------------
 
@@ -307,6 +318,8 @@ class SimWorld:
         covers the coming period, driven by the extrapolated proxy)."""
         lm = self._local
         build_local_model(self.tool, self.chain, lm.query, lm.work, lm.record)
+        if self.local_shapes is not None:
+            self.local_shapes.fill(self.space, lm.record[0])
         n = encode_stamped(
             lm.record, self._encoded, epoch, seq, self.time, publish_time_ns, state_lead_s
         )
@@ -365,7 +378,11 @@ def warm_kernels(scene: SceneConfig) -> None:
 def _kinematic_records(kinematic: list[tuple[pymunk.Body, BodySpec]]) -> np.ndarray:
     """The oscillating kinematic bodies, for the compiled step (the others keep the velocity
     they were given)."""
-    moving = [(b, spec) for b, spec in kinematic if spec.oscillation_period_s > 0.0]
+    moving = [
+        (b, spec)
+        for b, spec in kinematic
+        if spec.oscillation_period_s > 0.0 or spec.angle_period_s > 0.0
+    ]
     rec = np.zeros(len(moving), KINEMATIC_DTYPE)
     for i, (body, spec) in enumerate(moving):
         rec[i] = (
@@ -373,5 +390,8 @@ def _kinematic_records(kinematic: list[tuple[pymunk.Body, BodySpec]]) -> np.ndar
             spec.velocity,
             spec.oscillation_amplitude,
             spec.oscillation_period_s,
+            spec.angular_velocity,
+            spec.angle_amplitude,
+            spec.angle_period_s,
         )
     return rec

@@ -27,8 +27,10 @@ from haptic_local_model.haptic_server.realtime import compile_realtime_kernels
 from haptic_local_model.shared.config import load_scene, load_user
 
 #: (scene, user, seconds) run with the ideal device: every rendering stage and the sim
-SCENE_RUNS = (("free_box", "waypoints", 1.0), ("testbed", "swing", 1.0),
-              ("linkage_distal", "push_04n", 1.0))  # fmt: skip
+SCENE_RUNS = (
+    ("free_box", "waypoints", 1.0), ("testbed", "swing", 1.0), ("linkage_distal", "push_04n", 1.0),
+    ("god_rotating_box", "press_down", 1.0),
+)  # fmt: skip
 
 
 def built_in_models() -> list[str]:

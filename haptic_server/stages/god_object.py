@@ -90,6 +90,9 @@ GOD_DATA_DTYPE = np.dtype(
         ("touched", np.int64),
         ("fade_elapsed_s", np.float64),  # time since the last install's pose blend began
         ("finger", np.float64, (2,)),  # x_h of the current sub-step
+        ("finger_prev", np.float64, (2,)),  # x_h at the last tick (the haptic tick's stage)
+        ("finger_now", np.float64, (2,)),
+        ("started", np.int64),  # finger_prev holds a reading
         ("proxy_start", np.float64, (2,)),  # p at the start of the tick
         ("sweep_dir", np.float64, (2,)),  # scratch of seek_goal
         ("n_near", np.int64),
@@ -138,11 +141,12 @@ def god_data(proxy: tuple[float, float]) -> np.ndarray:
     d[0]["popped_key"] = -1
     d[0]["stick_shape"] = -1
     d[0]["active"] = -1
+    d[0]["fade_elapsed_s"] = 1e300  # no install blend running
     return d
 
 
 @njit(cache=True)
-def blend_weights(m, elapsed_s):
+def pose_blend_weights(m, elapsed_s):
     """The cubic Hermite weights (h, g, h', g') that take an install's offset o and its rate
     v to zero over blend_s with zero rate: offset(t) = h o + g v, C1 at both ends, so
     neither the position nor the velocity of a shape jumps at an install (a linear fade
@@ -161,7 +165,7 @@ def blend_weights(m, elapsed_s):
 @njit(cache=True)
 def place_shapes(m, d, shapes, tau, elapsed_s):
     """Every near shape's pose at age tau, plus what is left of its install offset."""
-    h, g, _, _ = blend_weights(m, elapsed_s)
+    h, g, _, _ = pose_blend_weights(m, elapsed_s)
     for i in range(d.n_near):
         k = d.near[i]
         s = shapes[k]
@@ -525,10 +529,14 @@ def release_popped(m, d, shapes, n_shapes):
 
 @njit(cache=True)
 def god_object_tick(model, data, shapes, n_shapes, x0, x1, tau, dt):
-    """One tick: the device point moves x0 -> x1 while the shapes age from tau to tau + dt.
-    model is GOD_PARAMS_DTYPE[1], data GOD_DATA_DTYPE[1]; the force is left in data.force."""
-    m = model[0]
-    d = data[0]
+    """god_object_step on GOD_PARAMS_DTYPE[1] and GOD_DATA_DTYPE[1] arrays (tests, benchmarks)."""
+    god_object_step(model[0], data[0], shapes, n_shapes, x0, x1, tau, dt)
+
+
+@njit(cache=True)
+def god_object_step(m, d, shapes, n_shapes, x0, x1, tau, dt):
+    """One tick: the device point moves x0 -> x1 while the shapes age from tau to tau + dt;
+    the force on the user is left in d.force (a non-finite finger: zero, the proxy kept)."""
     d.pop = 0
     d.proxy_start[0] = d.proxy[0]
     d.proxy_start[1] = d.proxy[1]
@@ -571,14 +579,18 @@ def _wrap(angle):
 
 @njit(cache=True)
 def install_shapes(model, data, old, n_old, old_tau, new, n_new, new_tau):
+    """install_shapes_step on GOD_PARAMS_DTYPE[1] and GOD_DATA_DTYPE[1] arrays."""
+    install_shapes_step(model[0], data[0], old, n_old, old_tau, new, n_new, new_tau)
+
+
+@njit(cache=True)
+def install_shapes_step(m, d, old, n_old, old_tau, new, n_new, new_tau):
     """A new set of shapes replaces the old at an install. A shape present in both (by key)
     keeps its rendered pose and velocity: the difference from the new extrapolation (the
-    old one's error) and its rate fade out over blend_s by `blend_weights` (DESIGN-WAVE2
+    old one's error) and its rate fade out over blend_s by `pose_blend_weights` (DESIGN-WAVE2
     C2's pose FOH, made C1). The stick follows its shape by key (the pop keeps its key).
     old_tau and new_tau are the two updates' ages now."""
-    m = model[0]
-    d = data[0]
-    h, g, hd, gd = blend_weights(m, d.fade_elapsed_s)
+    h, g, hd, gd = pose_blend_weights(m, d.fade_elapsed_s)
     stick_key = old[d.stick_shape].key if 0 <= d.stick_shape < n_old else -1
     d.stick_shape = -1
     for k in range(n_new):
@@ -613,3 +625,25 @@ def install_shapes(model, data, old, n_old, old_tau, new, n_new, new_tau):
     d.fade_elapsed_s = 0.0
     if d.stick_shape < 0 and d.contact == Contact.STICK:
         d.contact = Contact.SLIDE
+
+
+@njit(cache=True)
+def reset_proxy(d, x, y):
+    """A free proxy at (x, y), nothing carried, popped, fading or owed (re-initialisation)."""
+    d.proxy[0] = x
+    d.proxy[1] = y
+    d.contact = Contact.FREE
+    d.stick_shape = -1
+    d.popped_key = -1
+    d.ramping = 0
+    d.n_active = 0
+    d.fade_elapsed_s = 1e300
+    for c in range(2):
+        d.force[c] = 0.0
+        d.force_target[c] = 0.0
+    for k in range(MAX_SHAPES):
+        for c in range(3):
+            d.pose_offset[k, c] = 0.0
+            d.pose_offset_rate[k, c] = 0.0
+        d.impulse[k, 0] = 0.0
+        d.impulse[k, 1] = 0.0

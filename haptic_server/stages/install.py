@@ -9,8 +9,9 @@ from __future__ import annotations
 
 from numba import njit
 
+from haptic_local_model.haptic_server.stages.finger import install_finger_shapes
 from haptic_local_model.haptic_server.stages.plausible import check_plausible
-from haptic_local_model.shared.protocol.codes import Reason
+from haptic_local_model.shared.protocol.codes import Method, Reason
 from haptic_local_model.shared.protocol.layout import (
     DEFAULT_CLOCK_SKEW_MS,
     DEFAULT_MAX_UPDATE_AGE_MS,
@@ -107,6 +108,8 @@ def install_update(m, d, ins, new_epoch, latency_s):
     cs.age_s += latency_s
     inherit_contact_state(m.slots[0], cs, m.slots[1], d.contacts[1], ins.match_radius_m)
     d.state.blend = 1.0 if m.slots[1].valid == 0 else 0.0
+    if m.params.method == Method.GOD_OBJECT:
+        install_finger_shapes(m, d)
 
 
 @njit(cache=True)

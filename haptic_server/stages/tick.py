@@ -12,6 +12,7 @@ from haptic_local_model.device_models.world_map import (
 )
 from haptic_local_model.haptic_server.stages.contacts import contacts
 from haptic_local_model.haptic_server.stages.control import control, coupling_errors
+from haptic_local_model.haptic_server.stages.finger import finger
 from haptic_local_model.haptic_server.stages.kinematics import (
     blend_model,
     blend_weights,
@@ -24,6 +25,7 @@ from haptic_local_model.haptic_server.stages.safety import (
     runaway_guard,
     safety_and_limits,
 )
+from haptic_local_model.shared.protocol.codes import Method
 
 
 @njit(cache=True)
@@ -34,6 +36,9 @@ def haptic_tick(model, data):
     m = model[0]
     d = data[0]
     blend_weights(m, d)
+    if m.params.method == Method.GOD_OBJECT:
+        finger_tick(m, d)
+        return
     proxy_kinematics(m, d)
     blend_model(m, d)
     contacts(m, d)
@@ -41,6 +46,18 @@ def haptic_tick(model, data):
     coupling_errors(m, d)
     control(m, d)
     proxy_step(m, d)
+    runaway_guard(m, d)
+    safety_and_limits(m, d)
+    fill_row(m, d)
+
+
+@njit(cache=True)
+def finger_tick(m, d):
+    """The god_object method's tick (seed 003 §3): the god-object against the local shapes,
+    then the proxy's frames and D^ (the guard reads them), the guard, the limits, the row."""
+    finger(m, d)
+    proxy_kinematics(m, d)
+    blend_model(m, d)
     runaway_guard(m, d)
     safety_and_limits(m, d)
     fill_row(m, d)

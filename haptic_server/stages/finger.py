@@ -1,0 +1,82 @@
+"""The god_object method's stages of a haptic tick (seed 003 §3; docs/god-object.md).
+
+The held tool is a disc; the device's point drives a god-object proxy against the newest
+update's local shapes (haptic_server/stages/god_object.py), and the command is the proxy
+coupling's force. The proxy is the tool's configuration (q = its centre, the angle kept), so
+the guard, the NaN check, the log row and the proxy state the sim tracks work unchanged.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+from haptic_local_model.haptic_server.stages.god_object import (
+    god_object_step,
+    install_shapes_step,
+    reset_proxy,
+)
+
+
+@njit(cache=True)
+def finger(m, d):
+    """The god-object's tick: the device point x_h from the last tick's to this one's, the
+    shapes aged by the contact clock of slot 0; F into the coordination channel."""
+    g = d.god
+    st = d.state
+    sen = d.sensors[0]
+    r = d.row
+    x1 = g.finger_now
+    x0 = g.finger_prev
+    x1[0] = sen.pose[0]
+    x1[1] = sen.pose[1]
+    if g.started == 0:
+        x0[0] = x1[0]
+        x0[1] = x1[1]
+        g.started = 1
+    slot = m.slots[0]
+    god_object_step(m.god, g, slot.shapes, slot.n_shapes, x0, x1, d.contacts[0].age_s, d.dt)
+    d.contacts[0].age_s += d.dt
+    d.contacts[1].age_s += d.dt
+    x0[0] = x1[0]
+    x0[1] = x1[1]
+    for c in range(2):
+        st.qd[c] = (g.proxy[c] - st.q[c]) / d.dt
+        st.q[c] = g.proxy[c]
+    st.qd[2] = 0.0
+    for c in range(3):
+        r.f_user[c] = 0.0
+        r.f_contact[c] = 0.0
+        r.f_impulse[c] = 0.0
+        r.f_bias[c] = 0.0
+        r.f_penalty[c] = 0.0
+        r.f_damping[c] = 0.0
+    r.f_coordination[0] = g.force[0]
+    r.f_coordination[1] = g.force[1]
+    r.f_coordination[2] = 0.0
+    r.god_proxy[0] = g.proxy[0]
+    r.god_proxy[1] = g.proxy[1]
+    r.god_contact = g.contact
+    r.god_active = g.n_active
+    r.god_pop = g.pop
+    r.god_pops = g.pops
+    r.god_substeps = g.substeps
+    r.n_shapes = slot.n_shapes
+
+
+@njit(cache=True)
+def install_finger_shapes(m, d):
+    """At an install: the new slot's shapes replace the old slot's (by key, blended)."""
+    old = m.slots[1]
+    n_old = old.n_shapes if old.valid == 1 else 0
+    new = m.slots[0]
+    install_shapes_step(
+        m.god, d.god, old.shapes, n_old, d.contacts[1].age_s, new.shapes, new.n_shapes,
+        d.contacts[0].age_s,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def restart_finger(d, x, y):
+    """A re-initialised proxy at the sim's tool, the device point there too."""
+    reset_proxy(d.god, x, y)
+    d.god.started = 0

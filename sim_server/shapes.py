@@ -1,0 +1,116 @@
+"""The local shapes a god-object tool is rendered against (DESIGN-WAVE2 C2, C4).
+
+Each pymunk shape of the world becomes one SHAPE_DTYPE row: its convex core in its body's
+frame about the body's centre of gravity (a circle's centre, a segment's ends, a polygon's
+vertices counter-clockwise) with pymunk's radius as the rounding, computed once; at each
+update the rows of the shapes near the tool get their body's pose (the centre of gravity's
+position and the angle) and twist (pymunk's body velocity is the centre of gravity's).
+Bodies move ballistically between updates as far as the haptic side knows (Motion.BALLISTIC:
+a free body's centre moves straight; a kinematic body here turns about its centre too).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pymunk
+
+from haptic_local_model.shared.config import Material
+from haptic_local_model.shared.shapes import (
+    MAX_SHAPES,
+    Motion,
+    ShapeKind,
+    polygon_problem,
+    set_core,
+    shape_array,
+)
+
+
+@dataclass(frozen=True)
+class _Entry:
+    body: pymunk.Body
+    row: np.ndarray  # SHAPE_DTYPE[1]: the core and materials; pose and twist per update
+
+
+class LocalShapes:
+    """The world's shapes as local-shape rows, and the query that picks the near ones."""
+
+    def __init__(
+        self,
+        shapes: dict[pymunk.Shape, tuple[int, Material]],
+        tool_shapes: list[pymunk.Shape],
+        margin_m: float,
+    ) -> None:
+        self._entries = {
+            s: _Entry(_body(s), _core_row(s, key, mat)) for s, (key, mat) in shapes.items()
+        }
+        self._tool = tool_shapes
+        self.margin_m = margin_m
+        self.dropped = 0  # shapes within the margin beyond MAX_SHAPES (the farthest go)
+
+    def fill(self, space: pymunk.Space, record: np.void) -> int:
+        """The shapes within margin_m of the tool's shapes into record["shapes"], nearest
+        first, at most MAX_SHAPES; returns how many."""
+        tool = self._tool
+        bb = tool[0].bb
+        for s in tool[1:]:
+            bb = bb.merge(s.bb)
+        bb = pymunk.BB(
+            bb.left - self.margin_m, bb.bottom - self.margin_m,
+            bb.right + self.margin_m, bb.top + self.margin_m,
+        )  # fmt: skip
+        centre = bb.center()
+        found = []
+        for shape in space.bb_query(bb, pymunk.ShapeFilter()):
+            entry = self._entries.get(shape)
+            if entry is None or shape in tool:
+                continue
+            gap = shape.point_query(centre).distance
+            found.append((gap, id(shape), entry))
+        found.sort(key=lambda f: (f[0], f[1]))
+        self.dropped += max(0, len(found) - MAX_SHAPES)
+        rows = record["shapes"]
+        for k, (_, _, entry) in enumerate(found[:MAX_SHAPES]):
+            rows[k] = entry.row[0]
+            body = entry.body
+            cog = body.local_to_world(body.center_of_gravity)
+            rows[k]["pose"] = (cog.x, cog.y, body.angle)
+            v = body.velocity
+            rows[k]["twist"] = (v.x, v.y, body.angular_velocity)
+        n = min(len(found), MAX_SHAPES)
+        record["n_shapes"] = n
+        return n
+
+
+def _body(shape: pymunk.Shape) -> pymunk.Body:
+    body = shape.body
+    if body is None:
+        raise ValueError("a shape of the world has no body")
+    return body
+
+
+def _core_row(shape: pymunk.Shape, key: int, material: Material) -> np.ndarray:
+    """A shape's core about its body's centre of gravity, its rounding and its friction."""
+    rows = shape_array(1)
+    row = rows[0]
+    cog = np.array(_body(shape).center_of_gravity)
+    if isinstance(shape, pymunk.Circle):
+        set_core(row, ShapeKind.CIRCLE, [np.array(shape.offset) - cog], shape.radius)
+    elif isinstance(shape, pymunk.Segment):
+        ends = [np.array(shape.a) - cog, np.array(shape.b) - cog]
+        set_core(row, ShapeKind.SEGMENT, ends, shape.radius)
+    else:
+        assert isinstance(shape, pymunk.Poly)
+        verts = np.array([tuple(v) for v in shape.get_vertices()]) - cog
+        if "clockwise" in polygon_problem(verts):
+            verts = verts[::-1]
+        problem = polygon_problem(verts)
+        if problem:
+            raise ValueError(f"shape {key}: {problem}")
+        set_core(row, ShapeKind.POLYGON, verts, shape.radius)
+    row["key"] = key
+    row["motion"] = int(Motion.BALLISTIC)
+    row["static_friction"] = material.static_coefficient
+    row["friction"] = material.friction
+    return rows
