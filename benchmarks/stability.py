@@ -18,7 +18,8 @@ report: docs/stability):
    The method that puts a sampled wall at the device port is the virtual coupling with the
    tool pinned to the wall (`wall_engine` says why); the default local-model method is
    measured too, and has no such bound.
-3. The local model's stability map in the virtual clock, one axis at a time: contact
+3. The local model's stability map in the virtual clock, one axis at a time (and the
+   god-object's coupling gains K_vc x B_vc at 1 and 4 kHz, its finger pushed into a floor): contact
    stiffness 1e2..1e6 N/m and damping, tool masses and inertias over six decades, haptic
    time steps, exactly at and near singular configurations, 32+ simultaneous contacts,
    impact speeds up to 2 m/s, user forces up to the device limits. Each case is classified
@@ -574,6 +575,49 @@ def _case(
     return classify(axis, label, ticks, proxy_kinetic(ticks, scene))
 
 
+def god_wall_scene(stiffness: float, damping: float, rate_hz: float = 1000.0) -> SceneConfig:
+    """god_slabs without its ceiling: a god-object finger on a static floor, its coupling
+    K_vc = stiffness, B_vc = damping, at rate_hz."""
+    scene = load_scene("god_slabs")
+    rendering = dataclasses.replace(
+        scene.rendering,
+        god_object_stiffness=(stiffness, stiffness),
+        god_object_damping=(damping, damping),
+    )
+    bodies = tuple(b for b in scene.bodies if b.name != "ceiling")
+    return dataclasses.replace(scene, rendering=rendering, bodies=bodies, haptic_rate_hz=rate_hz)
+
+
+def god_object_map(quick: bool) -> list[Case]:
+    """The god-object's coupling gains (DESIGN-WAVE2 §11): K_vc over four decades, B_vc from
+    the loader's minimum K_vc dt / 2 up, at 1 and 4 kHz, the finger pushed into a floor by
+    2 N (and by 20 N). Not covered: a push the coupling cannot hold within the device's force
+    limit (the clipped spring stores energy it never renders, which this classification
+    would count)."""
+    cases: list[Case] = []
+    seconds = 0.6 if quick else 1.5
+    down = UserConfig(name="press_2n", kind="constant_wrench", wrench=(0.0, -2.0, 0.0))
+    for rate in (1000.0,) if quick else (1000.0, 4000.0):
+        for k in (1e2, 1e4) if quick else (1e2, 1e3, 1e4, 1e5):
+            for factor in (1.0, 20.0) if quick else (1.0, 4.0, 20.0):
+                b = factor * 0.5 * k / rate
+                label = f"K={k:.0e} B={b:.3g} ({factor:g} x K dt/2) at {rate / 1e3:g} kHz"
+                cases.append(_god_case(label, god_wall_scene(k, b, rate), down, seconds))
+    hard = UserConfig(name="press_20n", kind="constant_wrench", wrench=(0.0, -20.0, 0.0))
+    cases.append(_god_case("K=1e+04 B=5, 20 N push", god_wall_scene(1e4, 5.0), hard, seconds))
+    return cases
+
+
+def _god_case(label: str, scene: SceneConfig, user: UserConfig, seconds: float) -> Case:
+    """A god-object run, classified with what it stores: the proxy's kinetic energy and the
+    coupling spring's 1/2 K |p - x_h|^2 as far as it is rendered (not in the safe state)."""
+    ticks = _run(scene, user, seconds)
+    k = np.array(scene.rendering.god_object_stiffness)
+    stretch = ticks["god_proxy"] - ticks["device_pose"][:, :2]
+    spring = 0.5 * np.sum(k * np.nan_to_num(stretch) ** 2, axis=1) * (1.0 - ticks["safe"])
+    return classify("god-object coupling", label, ticks, proxy_kinetic(ticks, scene) + spring)
+
+
 def local_model_map(quick: bool) -> list[Case]:
     cases: list[Case] = []
     seconds = 0.6 if quick else 1.5
@@ -689,10 +733,10 @@ def main(argv: list[str] | None = None) -> int:
             )
     engine_walls = engine_wall_table(args.rates, args.quick)
     lines += ["", *engine_wall_lines(engine_walls, command)]
-    cases = local_model_map(args.quick)
+    cases = local_model_map(args.quick) + god_object_map(args.quick)
     lines += [
         "",
-        "## The local model's stability map",
+        "## The local model's and the god-object's stability map",
         "",
         "| axis | case | stable | finite at the device | energy excess (J) | max |pose| (m) "
         "| fault ticks | note |",

@@ -44,8 +44,12 @@ def local_credentials_of_the_tests(tmp_path_factory: pytest.TempPathFactory) -> 
 def network_file(tmp_path: Path) -> Path:
     """The default network (this installation's credentials, access control) on a free
     port, so tests never collide."""
+    return write_network_file(tmp_path / "net.toml")
+
+
+def write_network_file(path: Path) -> Path:
+    """network_file's config at `path` (for fixtures of a wider scope)."""
     port = free_port()
-    path = tmp_path / "net.toml"
     path.write_text(
         f'namespace = "haptic/test{port}"\n'
         "[haptic]\n"

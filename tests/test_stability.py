@@ -16,6 +16,7 @@ from haptic_local_model.benchmarks.stability import (
     classify,
     colgate_bound,
     engine_wall_boundary,
+    god_object_map,
     many_contacts_case,
     proxy_kinetic,
     sampled_wall_boundary,
@@ -56,6 +57,16 @@ def test_stiff_and_soft_walls_stay_stable_and_passive(stiffness: float) -> None:
     ticks = _run(scene, _push(2.0), 0.6)
     case = classify("K", str(stiffness), ticks, proxy_kinetic(ticks, scene))
     assert case.stable and case.finite and case.faults == 0, case
+
+
+def test_god_object_coupling_gains_stay_stable_passive_and_finite() -> None:
+    """The god-object's K_vc over three decades, B_vc from the loader's minimum up, the finger
+    pressed into a floor (haptic-stability's "god-object coupling" axis, quick subset): every
+    case finite, bounded, passive at the hand and without a fault."""
+    cases = god_object_map(quick=True)
+    assert len(cases) >= 5
+    for case in cases:
+        assert case.stable and case.finite and case.faults == 0, case
 
 
 def test_many_simultaneous_contacts_stay_finite_and_still() -> None:

@@ -36,9 +36,6 @@ def haptic_tick(model, data):
     m = model[0]
     d = data[0]
     blend_weights(m, d)
-    if m.params.method == Method.GOD_OBJECT:
-        finger_tick(m, d)
-        return
     proxy_kinematics(m, d)
     blend_model(m, d)
     contacts(m, d)
@@ -52,9 +49,21 @@ def haptic_tick(model, data):
 
 
 @njit(cache=True)
-def finger_tick(m, d):
+def rendering_tick(model, data):
+    """The scene's method's tick: the god-object's (finger_tick) or the local model's."""
+    if model[0].params.method == Method.GOD_OBJECT:
+        finger_tick(model, data)
+    else:
+        haptic_tick(model, data)
+
+
+@njit(cache=True)
+def finger_tick(model, data):
     """The god_object method's tick (seed 003 §3): the god-object against the local shapes,
     then the proxy's frames and D^ (the guard reads them), the guard, the limits, the row."""
+    m = model[0]
+    d = data[0]
+    blend_weights(m, d)
     finger(m, d)
     proxy_kinematics(m, d)
     blend_model(m, d)
@@ -106,7 +115,7 @@ def engine_step(model, data, io, world_map, clock, dt, lateness_us, work_us):
     r.update_epoch = slot.epoch
     r.dof = slot.dof
     if clock[0].ready == 1:
-        haptic_tick(model, data)
+        rendering_tick(model, data)
     dio = io[0]
     map_command_to_device(world_map, r.wrench_command, dio.max_wrench, dio.command)
     map_rate_step(world_map, dio.sensors[0].pose, dt)
