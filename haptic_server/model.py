@@ -213,6 +213,9 @@ TICK_DTYPE = np.dtype(
         ("god_pops", np.int32),  # pop-throughs so far
         ("god_substeps", np.int32),
         ("n_shapes", np.int32),  # local shapes in the installed model
+        ("god_env_key", np.int64, (2,)),  # the shapes it touches (-1: none) ...
+        ("god_env_point", F8, (2, 2)),  # ... the points where it touches them (world) ...
+        ("god_env_force", F8, (2, 2)),  # ... and the force on each, N (the sim applies it)
     ]
 )
 

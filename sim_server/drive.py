@@ -39,6 +39,10 @@ TARGET_DTYPE = np.dtype(
         ("qd", F8, (MAX_DOF,)),
         ("device_pose", F8, (3,)),  # the device, world frame (DRIVE_DEVICE)
         ("device_twist", F8, (3,)),
+        # a god-object's forces on the bodies it touches (0: none), applied every substep
+        ("env_body", I8, (2,)),  # cpBody pointers of dynamic bodies
+        ("env_point", F8, (2, 2)),  # world, m
+        ("env_force", F8, (2, 2)),  # N
     ]
 )
 
@@ -92,6 +96,7 @@ def step_world(tool, target, chain, kinematic, sim_time, period, substeps, work)
         now = sim_time + k * h
         for i in range(kinematic.shape[0]):
             _move_kinematic(kinematic[i], now + h, h)
+        _push_touched(tg)
         if t.kind == TOOL_LINKAGE:
             _drive_linkage(tool, tg, chain, work, k * h)
         elif tg.mode == DRIVE_DEVICE:
@@ -99,6 +104,19 @@ def step_world(tool, target, chain, kinematic, sim_time, period, substeps, work)
         else:
             _drive_body(t, tg, k * h)
         cp.space_step(t.space, h)
+
+
+@njit(cache=True)
+def _push_touched(tg):
+    """The god-object's forces on the dynamic bodies it touches, for this substep (pymunk
+    clears a body's force after each step); a sleeping body is woken."""
+    for j in range(2):
+        b = tg.env_body[j]
+        if b != 0:
+            cp.body_activate(b)
+            cp.body_apply_force_at_world_point(
+                b, tg.env_force[j, 0], tg.env_force[j, 1], tg.env_point[j, 0], tg.env_point[j, 1]
+            )
 
 
 @njit(cache=True)

@@ -114,6 +114,7 @@ class SimServer:
         return ToolTarget(
             q=p.q, qd=p.qd, device_pose=p.device_pose, device_twist=p.device_twist,
             coupled_to_device=p.method == Method.VIRTUAL_COUPLING_FOH, fresh=fresh,
+            env_keys=p.env_keys, env_points=p.env_points, env_forces=p.env_forces,
         )  # fmt: skip
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:

@@ -12,7 +12,7 @@ records they read.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pymunk
@@ -65,6 +65,10 @@ class ToolTarget:
     device_twist: np.ndarray
     coupled_to_device: bool  # virtual_coupling_foh: spring to the device instead of the proxy
     fresh: bool  # False: the haptic side is silent; hold the tool
+    # god_object: the forces on the shapes the proxy touches (keys -1: none)
+    env_keys: tuple[int, int] = (-1, -1)
+    env_points: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
+    env_forces: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
 
 
 class SimWorld:
@@ -106,6 +110,13 @@ class SimWorld:
             if scene.rendering.method == "god_object"
             else None
         )
+        self._dynamic_by_key = {
+            k: s.body
+            for s, k in self.shape_keys.items()
+            if s.body is not None
+            and s.body.body_type == pymunk.Body.DYNAMIC
+            and s not in {t for t, _ in self.tool_shapes}
+        }
 
     # --- construction -------------------------------------------------------------------
 
@@ -145,7 +156,11 @@ class SimWorld:
         shape.friction = mat.friction
         shape.elasticity = mat.restitution
         if is_tool:
-            shape.filter = pymunk.ShapeFilter(group=TOOL_GROUP)
+            # a god-object's finger only shows where the proxy is: the proxy's forces reach the
+            # world through the proxy state (collisions too would count them twice)
+            god = self.scene.rendering.method == "god_object"
+            mask = 0 if god else pymunk.ShapeFilter.ALL_MASKS()
+            shape.filter = pymunk.ShapeFilter(group=TOOL_GROUP, mask=mask)
             self.tool_bodies = [body]
             self.tool_shapes = [(shape, 2)]
         if body is self.space.static_body:
@@ -293,18 +308,32 @@ class SimWorld:
     def step(self, target: ToolTarget | None) -> None:
         """Advance one sim period: drive the tool, move kinematic bodies, substep pymunk (one
         compiled call)."""
+        tg = self._target[0]
+        tg["env_body"] = 0
         if target is None or not target.fresh:
-            self._target[0]["mode"] = DRIVE_REST
+            tg["mode"] = DRIVE_REST
         else:
             mode = DRIVE_DEVICE if target.coupled_to_device else DRIVE_PROXY
             set_target(
                 self._target, mode, target.q, target.qd, target.device_pose, target.device_twist
             )
+            if self.local_shapes is not None:
+                self._touched(target)
         step_world(
             self.tool, self._target, self.chain, self._kinematic_rec, self.time, self.period,
             self.substeps, self._drive_work,
         )  # fmt: skip
         self.time += self.period
+
+    def _touched(self, target: ToolTarget) -> None:
+        """The god-object's forces on dynamic bodies into the step's target (by shape key)."""
+        tg = self._target[0]
+        for j, key in enumerate(target.env_keys):
+            body = self._dynamic_by_key.get(key)
+            if body is not None:
+                tg["env_body"][j] = body_ptr(body)
+                tg["env_point"][j] = target.env_points[j]
+                tg["env_force"][j] = target.env_forces[j]
 
     # --- the local model (sim_server/local_model.py) ------------------------------------
 
@@ -318,7 +347,8 @@ class SimWorld:
         covers the coming period, driven by the extrapolated proxy)."""
         lm = self._local
         build_local_model(self.tool, self.chain, lm.query, lm.work, lm.record)
-        if self.local_shapes is not None:
+        if self.local_shapes is not None:  # the god-object needs shapes, not contact points
+            lm.record[0]["n_contacts"] = 0
             self.local_shapes.fill(self.space, lm.record[0])
         n = encode_stamped(
             lm.record, self._encoded, epoch, seq, self.time, publish_time_ns, state_lead_s

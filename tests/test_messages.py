@@ -205,6 +205,21 @@ def test_proxy_round_trip_and_rejection() -> None:
     np.testing.assert_array_equal(back.device_twist, np.ones(3))
     with pytest.raises(MessageError, match="nonfinite"):
         decode_proxy(_corrupt_float(raw, float("nan"), 1))
+    assert back.env_keys == (-1, -1)  # not a god-object: no forces on shapes
+    r["god_env_key"] = [7, -1]
+    r["god_env_point"] = [[0.01, 0.02], [0.0, 0.0]]
+    r["god_env_force"] = [[-1.5, 0.25], [0.0, 0.0]]
+    god = decode_proxy(encode_proxy(row, 4, publish_time_ns=11))
+    assert god.env_keys == (7, -1)
+    np.testing.assert_array_equal(god.env_points, r["god_env_point"])
+    np.testing.assert_array_equal(god.env_forces, r["god_env_force"])
+    assert decode_proxy(encode_proxy(row, 2, publish_time_ns=11)).env_keys == (-1, -1)
+    bad = bytearray(encode_proxy(row, 4, publish_time_ns=11))
+    struct.pack_into("<q", bad, len(bad) - 80, -5)  # the first key
+    with pytest.raises(MessageError, match="env"):
+        decode_proxy(bytes(bad))
+    with pytest.raises(MessageError, match="magnitude"):  # a force of 1e9 N on a shape
+        decode_proxy(_corrupt_float(encode_proxy(row, 4, publish_time_ns=11), 1e9, 1))
 
 
 def test_proxy_of_an_engine_tick_carries_its_state() -> None:

@@ -168,10 +168,14 @@ def _target(engine: HapticEngine, coupled: bool) -> ToolTarget:
     the haptic side is in (or ramping to or from) its safe state."""
     q, qd = engine.proxy_pose()
     pose, twist = engine.device_world_pose()
-    fresh = float(engine.row[0]["safe"]) == 0.0
+    r = engine.row[0]
+    fresh = float(r["safe"]) == 0.0
+    god = engine.method == Method.GOD_OBJECT
     return ToolTarget(
-        q=q, qd=qd, device_pose=pose, device_twist=twist, coupled_to_device=coupled, fresh=fresh
-    )
+        q=q, qd=qd, device_pose=pose, device_twist=twist, coupled_to_device=coupled, fresh=fresh,
+        env_keys=(int(r["god_env_key"][0]), int(r["god_env_key"][1])) if god else (-1, -1),
+        env_points=r["god_env_point"].copy(), env_forces=r["god_env_force"].copy(),
+    )  # fmt: skip
 
 
 def run_virtual_named(

@@ -61,6 +61,11 @@ def finger(m, d):
     r.god_pops = g.pops
     r.god_substeps = g.substeps
     r.n_shapes = slot.n_shapes
+    for j in range(2):
+        r.god_env_key[j] = g.env_key[j]
+        for c in range(2):
+            r.god_env_point[j, c] = g.env_point[j, c]
+            r.god_env_force[j, c] = g.env_force[j, c]
 
 
 @njit(cache=True)

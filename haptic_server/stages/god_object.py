@@ -79,6 +79,9 @@ GOD_DATA_DTYPE = np.dtype(
         ("multipliers", np.float64, (2,)),  # lambda_k, N
         ("force", np.float64, (2,)),  # rendered force on the user, N
         ("force_target", np.float64, (2,)),  # before the pop ramp, N
+        ("env_key", np.int64, (2,)),  # the touched obstacles' keys (-1: none) ...
+        ("env_point", np.float64, (2, 2)),  # ... where the proxy touches them (world, m) ...
+        ("env_force", np.float64, (2, 2)),  # ... and the force on each (N): -F split
         ("pop", np.int64),  # 1 on the tick a pop happened
         ("pops", np.int64),  # pop events so far
         ("ramping", np.int64),  # the pop ramp is limiting the force
@@ -444,22 +447,24 @@ def apply_friction(m, d, shapes, xh, hold_x, hold_y):
 
 @njit(cache=True)
 def settle_multipliers(m, d, shapes, xh, dt):
-    """lambda_k of the touching planes from sum lambda_k n_k = K (p - x_h), and the opposite
-    of the rendered force on the obstacles as impulses (one plane takes the whole force)."""
+    """lambda_k of the touching planes from sum lambda_k n_k = K (p - x_h), and the force on
+    the obstacles: the opposite of the rendered force (one plane takes it whole; two share it
+    by their multipliers), at the point where the proxy touches each, as a force and as an
+    impulse accumulated per shape."""
     collect_planes(m, d, shapes, TOUCH_M)
     fx = m.stiffness[0] * (d.proxy[0] - xh[0])
     fy = m.stiffness[1] * (d.proxy[1] - xh[1])
     d.n_active = min(d.n_planes, 2)
-    d.active[0] = -1
-    d.active[1] = -1
-    d.multipliers[0] = 0.0
-    d.multipliers[1] = 0.0
+    for j in range(2):
+        d.active[j] = -1
+        d.multipliers[j] = 0.0
+        d.env_key[j] = -1
+        for c in range(2):
+            d.env_point[j, c] = 0.0
+            d.env_force[j, c] = 0.0
     if d.n_active == 1:
-        k = d.plane_index[0]
-        d.active[0] = k
         d.multipliers[0] = max(0.0, fx * d.plane_normal[0, 0] + fy * d.plane_normal[0, 1])
-        d.impulse[k, 0] -= d.force[0] * dt
-        d.impulse[k, 1] -= d.force[1] * dt
+        _push(m, d, shapes, 0, -d.force[0], -d.force[1], dt)
     elif d.n_active == 2:
         a = d.plane_normal[0]
         b = d.plane_normal[1]
@@ -470,17 +475,24 @@ def settle_multipliers(m, d, shapes, xh, dt):
         else:
             la = max(0.0, (fx * b[1] - b[0] * fy) / det)
             lb = max(0.0, (a[0] * fy - fx * a[1]) / det)
-        _push(d, 0, la, dt)
-        _push(d, 1, lb, dt)
+        d.multipliers[0] = la
+        d.multipliers[1] = lb
+        _push(m, d, shapes, 0, -la * a[0], -la * a[1], dt)
+        _push(m, d, shapes, 1, -lb * b[0], -lb * b[1], dt)
 
 
 @njit(cache=True)
-def _push(d, j, lam, dt):
+def _push(m, d, shapes, j, fx, fy, dt):
+    """Plane j's obstacle takes force (fx, fy) where the proxy touches it."""
     k = d.plane_index[j]
     d.active[j] = k
-    d.multipliers[j] = lam
-    d.impulse[k, 0] -= lam * d.plane_normal[j, 0] * dt
-    d.impulse[k, 1] -= lam * d.plane_normal[j, 1] * dt
+    d.env_key[j] = shapes[k].key
+    d.env_point[j, 0] = d.proxy[0] - m.radius * d.plane_normal[j, 0]
+    d.env_point[j, 1] = d.proxy[1] - m.radius * d.plane_normal[j, 1]
+    d.env_force[j, 0] = fx
+    d.env_force[j, 1] = fy
+    d.impulse[k, 0] += fx * dt
+    d.impulse[k, 1] += fy * dt
 
 
 @njit(cache=True)
