@@ -14,7 +14,7 @@ targets are judged on the median of each figure over the repetitions. From the l
 logging run it also splits work per tick into the ticks that installed an update and the rest.
 
     python -m haptic_local_model.benchmarks.loop_timing [--rate 1000 4000 10000] [--seconds 20] [--repeat 3]
-                                     [--json out.json]
+                                     [--scene testbed] [--user U] [--json out.json]
 """
 
 from __future__ import annotations
@@ -113,6 +113,7 @@ def system(
     device: str,
     rate_hz: float,
     view: bool = False,
+    user: str | None = None,
 ) -> dict[str, Any]:
     """One haptic-run; with `view`, its live view open in a headless browser throughout (if
     there is one: `benchmarks.browser`), and the view's own cost in `view`."""
@@ -125,6 +126,7 @@ def system(
             "--summary-json", str(summary), "--haptic-rate", str(rate_hz),
         ]  # fmt: skip
         argv += ["--log", str(log_path)] if log else ["--no-log"]
+        argv += ["--user", user] if user else []
         if view:
             argv += ViewAddress("127.0.0.1", *VIEW_PORTS).argv()
             watched = _run_watched(argv)
@@ -230,6 +232,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--network", default="loopback")
     parser.add_argument("--scene", default="testbed")
     parser.add_argument("--device", default="ideal")
+    parser.add_argument("--user", default=None, help="the haptic-run default if not given")
     parser.add_argument(
         "--rate", type=float, nargs="+", default=[1000.0], metavar="HZ",
         help="haptic rates to measure, each beside a bare loop at that rate (default 1000)",
@@ -255,7 +258,15 @@ def main(argv: list[str] | None = None) -> int:
             runs["bare_loop_with_sim"].append(with_sim_beside(args.seconds, args.network, rate))
             for name, log in (("system_log_on", True), ("system_log_off", False)):
                 runs[name].append(
-                    system(args.seconds, log, args.network, args.scene, args.device, rate)
+                    system(
+                        args.seconds,
+                        log,
+                        args.network,
+                        args.scene,
+                        args.device,
+                        rate,
+                        user=args.user,
+                    )
                 )
             if args.view:
                 runs[VIEW_CONFIG].append(
