@@ -212,6 +212,7 @@ TICK_DTYPE = np.dtype(
         ("god_pop", np.uint8),  # 1 on the tick of a pop-through
         ("god_pops", np.int32),  # pop-throughs so far
         ("god_substeps", np.int32),
+        ("god_capped", np.uint8),  # 1: an obstacle was faster than max_substeps can follow
         ("n_shapes", np.int32),  # local shapes in the installed model
         ("god_env_key", np.int64, (2,)),  # the shapes it touches (-1: none) ...
         ("god_env_point", F8, (2, 2)),  # ... the points where it touches them (world) ...

@@ -65,6 +65,7 @@ SHAPE_DTYPE = np.dtype(
 )
 
 SERIES_BELOW = 1.0e-4  # |omega tau| under which the screw map uses its Taylor series
+MIN_EDGE_M = 1.0e-12  # a segment or polygon edge shorter than this is degenerate
 
 
 def shape_array(n: int) -> np.ndarray:
@@ -74,7 +75,8 @@ def shape_array(n: int) -> np.ndarray:
 
 def polygon_problem(vertices: npt.ArrayLike) -> str:
     """Why a polygon core is not acceptable ("" if it is): 3..8 finite vertices, strictly
-    convex and counter-clockwise (every turn a left turn), no repeated vertex."""
+    convex and counter-clockwise (every vertex strictly left of every edge it is not on: a
+    left turn at each vertex alone would pass a star), no repeated vertex."""
     v = np.asarray(vertices, dtype=float)
     n = len(v)
     if not 3 <= n <= MAX_VERTICES:
@@ -82,14 +84,19 @@ def polygon_problem(vertices: npt.ArrayLike) -> str:
     if not np.all(np.isfinite(v)):
         return "a vertex is not finite"
     edges = np.roll(v, -1, axis=0) - v
-    if np.any(np.hypot(edges[:, 0], edges[:, 1]) <= 1e-12):
+    if np.any(np.hypot(edges[:, 0], edges[:, 1]) <= MIN_EDGE_M):
         return "two consecutive vertices coincide"
     nxt = np.roll(edges, -1, axis=0)
     turns = edges[:, 0] * nxt[:, 1] - edges[:, 1] * nxt[:, 0]
     if np.all(turns < 0.0):
         return "the vertices run clockwise (counter-clockwise expected)"
-    if not np.all(turns > 0.0):
-        return "the polygon is not convex"
+    for i in range(n):
+        rel = v - v[i]
+        side = edges[i, 0] * rel[:, 1] - edges[i, 1] * rel[:, 0]
+        others = np.ones(n, dtype=bool)
+        others[[i, (i + 1) % n]] = False
+        if not np.all(side[others] > 0.0):
+            return "the polygon is not convex"
     return ""
 
 
@@ -187,7 +194,7 @@ def core_distance(shape, qx, qy):
         ex = v[j, 0] - ax
         ey = v[j, 1] - ay
         length2 = ex * ex + ey * ey
-        t = ((qx - ax) * ex + (qy - ay) * ey) / length2
+        t = ((qx - ax) * ex + (qy - ay) * ey) / length2 if length2 > 0.0 else 0.0
         t = min(1.0, max(0.0, t))
         cx = ax + t * ex
         cy = ay + t * ey
@@ -196,7 +203,7 @@ def core_distance(shape, qx, qy):
             best = d
             bx = cx
             by = cy
-        if n >= 3:
+        if n >= 3 and length2 > 0.0:
             length = math.sqrt(length2)
             nx = ey / length
             ny = -ex / length
@@ -215,6 +222,8 @@ def core_distance(shape, qx, qy):
         ex = v[1, 0] - v[0, 0]
         ey = v[1, 1] - v[0, 1]
         length = math.hypot(ex, ey)
+        if length == 0.0:
+            return 0.0, 0.0, 1.0
         return 0.0, -ey / length, ex / length
     return best, (qx - bx) / best, (qy - by) / best
 

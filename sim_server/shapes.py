@@ -11,6 +11,7 @@ a free body's centre moves straight; a kinematic body here turns about its centr
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,7 +76,7 @@ class LocalShapes:
             rows[k] = entry.row[0]
             body = entry.body
             cog = body.local_to_world(body.center_of_gravity)
-            rows[k]["pose"] = (cog.x, cog.y, body.angle)
+            rows[k]["pose"] = (cog.x, cog.y, math.remainder(body.angle, 2.0 * math.pi))
             v = body.velocity
             rows[k]["twist"] = (v.x, v.y, body.angular_velocity)
         n = min(len(found), MAX_SHAPES)

@@ -42,7 +42,9 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
             network_file, log, d / "summary.json",
             scene=scene, device=device, user=user, seconds=RUN_S,
         )  # fmt: skip
-        assert not summary["updates_rejected"], (scene, summary)
+        # a loaded machine may stall a process past the update age limit (late); nothing the
+        # sim sends about the god-object's world is ever refused
+        assert set(summary["rejected_by_reason"] or {}) <= {"late"}, (scene, summary)
         out[scene] = log
     return out
 
@@ -92,9 +94,10 @@ def test_each_closing_of_the_slabs_is_one_ramped_pop(runs: dict[str, Path]) -> N
     f_max = min(load_device("ideal").limits().max_wrench[:2])
     ramp = f_max * 1e-3 / (scene.rendering.pop_ramp_ms / 1e3)
     f = ticks["wrench_command"][:, :2]
-    steps = np.hypot(*np.diff(f, axis=0).T)
-    at_pops = np.flatnonzero(ticks["god_pop"][1:] == 1)
-    assert steps[at_pops].max() <= ramp + 1e-9
+    steps = np.hypot(*np.diff(f, axis=0).T)  # steps[i]: tick i + 1's change
+    ramp_ticks = round(scene.rendering.pop_ramp_ms)  # the ramp, at 1 kHz
+    for pop in np.flatnonzero(ticks["god_pop"] == 1):
+        assert steps[pop - 1 : pop - 1 + ramp_ticks].max() <= ramp + 1e-9
 
 
 @pytest.mark.processes

@@ -78,7 +78,8 @@ RERUN_BOUND = 1e-8
 TICK_FIELDS_SINCE_0_2 = {
     "port_energy",  # 0.4: the passivity observer
     *("god_proxy", "god_contact", "god_active", "god_pop", "god_pops", "god_substeps"),
-    "n_shapes",  # 0.5: the god-object method
+    "god_capped",
+    *("n_shapes", "god_env_key", "god_env_point", "god_env_force"),  # 0.5: the god-object
 }
 
 VIRTUAL_LOGS = sorted(GOLDEN.glob("vc_*.mcap")) + sorted(GOLDEN_02.glob("vc_*.mcap"))

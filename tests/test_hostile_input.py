@@ -115,6 +115,21 @@ def layout(raw: bytes) -> tuple[int, int, int, int, dict[str, tuple[int, int]]]:
     return d, n, j, flags, groups
 
 
+def strictly_convex_ccw(v: np.ndarray) -> bool:
+    """Every edge longer than 1e-12 m and every vertex strictly left of every other edge."""
+    n = len(v)
+    for i in range(n):
+        a, b = v[i], v[(i + 1) % n]
+        if np.hypot(*(b - a)) <= 1e-12:
+            return False
+        for k in range(n):
+            if k not in (i, (i + 1) % n):
+                rel = v[k] - a
+                if (b - a)[0] * rel[1] - (b - a)[1] * rel[0] <= 0:
+                    return False
+    return True
+
+
 def reference_shapes_accept(raw: bytes, at: int) -> bool:
     """The SHAPES trailer at byte `at` (the rest of the message), from docs/protocol.md."""
     if len(raw) < at + 8:
@@ -128,7 +143,9 @@ def reference_shapes_accept(raw: bytes, at: int) -> bool:
         return False
     fl = fl.reshape(s, SHAPE_FLOATS)
     key, owner, kind, nv, generation, motion = ints.T
-    if len(set(key.tolist())) != s or (owner != -1).any() or (generation < 0).any():
+    if len(set(key.tolist())) != s or (key < 0).any() or (owner != -1).any():
+        return False
+    if (generation < 0).any():
         return False
     if not np.isin(motion, (0, 1)).all():
         return False
@@ -151,13 +168,10 @@ def reference_shapes_accept(raw: bytes, at: int) -> bool:
         if mu_k < 0 or mu_s < mu_k or mu_s > LIM.max_friction:
             return False
         v = verts[: nv[k]]
-        if nv[k] == 2 and (v[0] == v[1]).all():
+        if nv[k] == 2 and np.hypot(*(v[1] - v[0])) <= 1e-12:
             return False
-        if nv[k] >= 3:
-            e = np.roll(v, -1, axis=0) - v
-            turn = e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0]
-            if (np.hypot(e[:, 0], e[:, 1]) <= 1e-12).any() or (turn <= 0).any():
-                return False
+        if nv[k] >= 3 and not strictly_convex_ccw(v):
+            return False
     return True
 
 
@@ -366,7 +380,7 @@ BREAKS = [
 SHAPE_BREAKS = [
     "kind", "n_vert", "owner", "generation", "motion", "repeated_key", "nonconvex",
     "clockwise", "spare_vertex", "rounding", "pose", "spin", "speed", "friction",
-    "static_below_kinetic", "nonfinite", "count",
+    "static_below_kinetic", "nonfinite", "count", "negative_key", "tiny_segment", "star",
 ]  # fmt: skip
 
 
@@ -518,6 +532,19 @@ def break_shape(raw: bytes, groups: dict[str, tuple[int, int]], draw: Any) -> by
         set_float(out, f_at + 8 * draw(st.integers(0, SHAPE_FLOATS - 1)), math.nan)
     elif how == "count":
         struct.pack_into("<q", out, at, draw(st.sampled_from([0, -1, s + 1, MAX_SHAPES + 1])))
+    elif how == "negative_key":
+        struct.pack_into("<q", out, i_at, draw(st.sampled_from([-1, -2, -(2**62)])))
+    elif how == "tiny_segment":  # ends 1e-200 m apart: a point that divides by zero
+        struct.pack_into("<qq", out, i_at + 16, 1, 2)
+        ends = np.zeros(2 * MAX_VERTICES)
+        ends[2] = 1e-200
+        out[f_at : f_at + 8 * 2 * MAX_VERTICES] = ends.astype("<f8").tobytes()
+    elif how == "star":  # a pentagram: a left turn at every vertex, not convex
+        a = np.arange(5) * 4 * np.pi / 5
+        verts = np.zeros(2 * MAX_VERTICES)
+        verts[:10] = (0.01 * np.column_stack([np.cos(a), np.sin(a)])).ravel()
+        struct.pack_into("<qq", out, i_at + 16, 2, 5)
+        out[f_at : f_at + 8 * 2 * MAX_VERTICES] = verts.astype("<f8").tobytes()
     return bytes(out)
 
 

@@ -8,6 +8,8 @@ the guard, the NaN check, the log row and the proxy state the sim tracks work un
 
 from __future__ import annotations
 
+import math
+
 from numba import njit
 
 from haptic_local_model.haptic_server.stages.god_object import (
@@ -37,8 +39,9 @@ def finger(m, d):
     god_object_step(m.god, g, slot.shapes, slot.n_shapes, x0, x1, d.contacts[0].age_s, d.dt)
     d.contacts[0].age_s += d.dt
     d.contacts[1].age_s += d.dt
-    x0[0] = x1[0]
-    x0[1] = x1[1]
+    if math.isfinite(x1[0]) and math.isfinite(x1[1]):  # a bad reading is not the next start
+        x0[0] = x1[0]
+        x0[1] = x1[1]
     for c in range(2):
         st.qd[c] = (g.proxy[c] - st.q[c]) / d.dt
         st.q[c] = g.proxy[c]
@@ -60,6 +63,7 @@ def finger(m, d):
     r.god_pop = g.pop
     r.god_pops = g.pops
     r.god_substeps = g.substeps
+    r.god_capped = g.capped
     r.n_shapes = slot.n_shapes
     for j in range(2):
         r.god_env_key[j] = g.env_key[j]

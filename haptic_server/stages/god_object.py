@@ -16,7 +16,7 @@ obstacle moves more than (r + rho)/2 relative to the proxy in one of them:
 
 The force on the user is F = K (p - x_h) + B (p' - x_h'); the force on the touched obstacles
 is its opposite, split by the planes' multipliers (the seed's eq 3 names only the first),
-accumulated as impulses for the sim. Every kernel is a pure function of its records.
+sent to the sim with the proxy state. Every kernel is a pure function of its records.
 """
 
 from __future__ import annotations
@@ -86,6 +86,7 @@ GOD_DATA_DTYPE = np.dtype(
         ("pops", np.int64),  # pop events so far
         ("ramping", np.int64),  # the pop ramp is limiting the force
         ("substeps", np.int64),
+        ("capped", np.int64),  # 1: the sub-steps needed exceeded max_substeps this tick
         ("popped_key", np.int64),  # key of the obstacle being passed through, -1 none
         ("stick_shape", np.int64),  # index of the obstacle the proxy sticks to
         ("stick_local", np.float64, (2,)),  # p in that obstacle's frame
@@ -107,7 +108,6 @@ GOD_DATA_DTYPE = np.dtype(
         ("old_pose", np.float64, (3,)),  # scratch of install_shapes
         ("old_rate", np.float64, (3,)),
         ("new_rate", np.float64, (3,)),
-        ("impulse", np.float64, (MAX_SHAPES, 2)),  # N s on each shape since the last read
         ("n_planes", np.int64),
         ("plane_index", np.int64, (MAX_PLANES,)),
         ("plane_phi", np.float64, (MAX_PLANES,)),
@@ -180,11 +180,30 @@ def place_shapes(m, d, shapes, tau, elapsed_s):
 
 @njit(cache=True)
 def near_shapes(m, d, shapes, n_shapes, x0, x1, tau, dt):
-    """The swept-AABB prefilter (a bounding-circle test per shape over the tick's motion)
-    and the sub-step count: n = ceil(2 max_k(|v_k| + |omega_k| R_k) dt / (r + rho_k))."""
+    """The prefilter (a bounding-circle test per shape over the tick's motion) and the
+    sub-step count n = ceil(2 max_k(|v_k| + |omega_k| R_k) dt / (r + rho_k)), capped at
+    max_substeps (d.capped: a faster obstacle may pass through the proxy unnoticed).
+
+    The proxy may move this tick by twice the finger's path (sliding round a curved
+    obstacle), plus what the fastest obstacle carries or pushes it, plus the install blend's
+    offsets: a shape farther than that and its own reach cannot touch it."""
     p = d.proxy
     r = m.radius
-    reach = math.hypot(x0[0] - p[0], x0[1] - p[1]) + math.hypot(x1[0] - x0[0], x1[1] - x0[1])
+    finger = math.hypot(x0[0] - p[0], x0[1] - p[1]) + math.hypot(x1[0] - x0[0], x1[1] - x0[1])
+    big_g = 4.0 * m.blend_s / 27.0  # |g| <= 4 T / 27 of the blend's rate term
+    fastest = 0.0
+    blend_reach = 0.0
+    fading = d.fade_elapsed_s < m.blend_s
+    for k in range(n_shapes):
+        s = shapes[k]
+        fastest = max(fastest, math.hypot(s.twist[0], s.twist[1]) + abs(s.twist[2]) * s.bound)
+        if fading:
+            off = math.hypot(d.pose_offset[k, 0], d.pose_offset[k, 1])
+            off += abs(d.pose_offset[k, 2]) * s.bound
+            off += big_g * math.hypot(d.pose_offset_rate[k, 0], d.pose_offset_rate[k, 1])
+            off += big_g * abs(d.pose_offset_rate[k, 2]) * s.bound
+            blend_reach = max(blend_reach, off)
+    reach = 2.0 * finger + (fastest * dt + blend_reach)
     d.n_near = 0
     steps = 1
     for k in range(n_shapes):
@@ -192,20 +211,14 @@ def near_shapes(m, d, shapes, n_shapes, x0, x1, tau, dt):
         speed = math.hypot(s.twist[0], s.twist[1]) + abs(s.twist[2]) * s.bound
         carry_pose(s.pose, s.twist, s.motion, tau, d.poses[k])
         dist = math.hypot(d.poses[k, 0] - p[0], d.poses[k, 1] - p[1])
-        offset = 0.0
-        if d.fade_elapsed_s < m.blend_s:  # |h| <= 1, |g| <= 4 T / 27
-            big_g = 4.0 * m.blend_s / 27.0
-            offset = math.hypot(d.pose_offset[k, 0], d.pose_offset[k, 1])
-            offset += abs(d.pose_offset[k, 2]) * s.bound
-            offset += big_g * math.hypot(d.pose_offset_rate[k, 0], d.pose_offset_rate[k, 1])
-            offset += big_g * abs(d.pose_offset_rate[k, 2]) * s.bound
-        limit = s.bound + s.rounding + r + reach + speed * dt + offset + NEAR_SLACK_M
+        limit = s.bound + s.rounding + r + reach + speed * dt + blend_reach + NEAR_SLACK_M
         if dist > limit:
             continue
         d.near[d.n_near] = k
         d.n_near += 1
         need = math.ceil(2.0 * speed * dt / (r + s.rounding))
         steps = max(steps, need)
+    d.capped = 1 if steps > m.max_substeps else 0
     d.substeps = min(max(steps, 1), m.max_substeps)
 
 
@@ -407,6 +420,11 @@ def apply_friction(m, d, shapes, xh, hold_x, hold_y):
             return
         cx = d.touch[0]
         cy = d.touch[1]
+        phi_touch, _, _ = signed_distance(s, d.poses[k], cx, cy, m.radius)
+        if phi_touch >= TOUCH_M:  # the sweep stopped short of this obstacle: no stick there
+            d.contact = Contact.SLIDE
+            d.stick_shape = -1
+            return
     ex = xh[0] - cx
     ey = xh[1] - cy
     depth = -(nx * ex + ny * ey)  # d_n = n . (c - x_h)
@@ -446,14 +464,15 @@ def apply_friction(m, d, shapes, xh, hold_x, hold_y):
 
 
 @njit(cache=True)
-def settle_multipliers(m, d, shapes, xh, dt):
-    """lambda_k of the touching planes from sum lambda_k n_k = K (p - x_h), and the force on
-    the obstacles: the opposite of the rendered force (one plane takes it whole; two share it
-    by their multipliers), at the point where the proxy touches each, as a force and as an
-    impulse accumulated per shape."""
+def settle_multipliers(m, d, shapes):
+    """The force on the touched obstacles: the opposite of the rendered force F, split over
+    the (at most two) touching planes as F = sum lambda_k n_k with lambda_k >= 0, at the point
+    where the proxy touches each. An obstacle is only pushed, never pulled: a plane whose
+    share would pull it (the finger withdrawing, the damping, a pop's ramp) takes none. One
+    plane takes F whole (its tangential part is the friction) when F . n > 0."""
     collect_planes(m, d, shapes, TOUCH_M)
-    fx = m.stiffness[0] * (d.proxy[0] - xh[0])
-    fy = m.stiffness[1] * (d.proxy[1] - xh[1])
+    fx = d.force[0]
+    fy = d.force[1]
     d.n_active = min(d.n_planes, 2)
     for j in range(2):
         d.active[j] = -1
@@ -463,8 +482,12 @@ def settle_multipliers(m, d, shapes, xh, dt):
             d.env_point[j, c] = 0.0
             d.env_force[j, c] = 0.0
     if d.n_active == 1:
-        d.multipliers[0] = max(0.0, fx * d.plane_normal[0, 0] + fy * d.plane_normal[0, 1])
-        _push(m, d, shapes, 0, -d.force[0], -d.force[1], dt)
+        lam = fx * d.plane_normal[0, 0] + fy * d.plane_normal[0, 1]
+        if lam > 0.0:
+            d.multipliers[0] = lam
+            _push(m, d, shapes, 0, -fx, -fy)
+        else:
+            d.active[0] = d.plane_index[0]
     elif d.n_active == 2:
         a = d.plane_normal[0]
         b = d.plane_normal[1]
@@ -477,12 +500,12 @@ def settle_multipliers(m, d, shapes, xh, dt):
             lb = max(0.0, (a[0] * fy - fx * a[1]) / det)
         d.multipliers[0] = la
         d.multipliers[1] = lb
-        _push(m, d, shapes, 0, -la * a[0], -la * a[1], dt)
-        _push(m, d, shapes, 1, -lb * b[0], -lb * b[1], dt)
+        _push(m, d, shapes, 0, -la * a[0], -la * a[1])
+        _push(m, d, shapes, 1, -lb * b[0], -lb * b[1])
 
 
 @njit(cache=True)
-def _push(m, d, shapes, j, fx, fy, dt):
+def _push(m, d, shapes, j, fx, fy):
     """Plane j's obstacle takes force (fx, fy) where the proxy touches it."""
     k = d.plane_index[j]
     d.active[j] = k
@@ -491,8 +514,6 @@ def _push(m, d, shapes, j, fx, fy, dt):
     d.env_point[j, 1] = d.proxy[1] - m.radius * d.plane_normal[j, 1]
     d.env_force[j, 0] = fx
     d.env_force[j, 1] = fy
-    d.impulse[k, 0] += fx * dt
-    d.impulse[k, 1] += fy * dt
 
 
 @njit(cache=True)
@@ -559,6 +580,11 @@ def god_object_step(m, d, shapes, n_shapes, x0, x1, tau, dt):
     if not finite:
         d.force[0] = 0.0
         d.force[1] = 0.0
+        d.n_active = 0
+        for j in range(2):
+            d.env_key[j] = -1
+            for c in range(2):
+                d.env_force[j, c] = 0.0
         return
     near_shapes(m, d, shapes, n_shapes, x0, x1, tau, dt)
     n = d.substeps
@@ -580,7 +606,7 @@ def god_object_step(m, d, shapes, n_shapes, x0, x1, tau, dt):
     release_popped(m, d, shapes, n_shapes)
     d.fade_elapsed_s += dt
     render_force(m, d, d.proxy_start, x0, x1, dt)
-    settle_multipliers(m, d, shapes, x1, dt)
+    settle_multipliers(m, d, shapes)
 
 
 @njit(cache=True)
@@ -657,5 +683,3 @@ def reset_proxy(d, x, y):
         for c in range(3):
             d.pose_offset[k, c] = 0.0
             d.pose_offset_rate[k, c] = 0.0
-        d.impulse[k, 0] = 0.0
-        d.impulse[k, 1] = 0.0

@@ -167,7 +167,7 @@ class ShapeField:
 #: The SHAPES trailer (flag 16, version 3), after the float sections: int64 s (the number of
 #: shapes, <= MAX_SHAPES), then s rows of SHAPE_INTS int64, then s rows of SHAPE_FLOATS float64.
 SHAPE_INT_FIELDS = (
-    ShapeField("key", 1, "", "unique in the update", "identity, stable across updates"),
+    ShapeField("key", 1, "", ">= 0, unique in the update", "identity, stable across updates"),
     ShapeField("owner", 1, "", "-1", "-1: the world (shapes on links come with the tools)"),
     ShapeField("kind", 1, "", "0, 1, 2", "0 circle, 1 segment, 2 convex polygon"),
     ShapeField("n_vert", 1, "", "1; 2; 3..8", "vertices of the core (by kind)"),

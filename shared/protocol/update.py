@@ -61,7 +61,7 @@ from haptic_local_model.shared.protocol.layout import (
     limits_record,
     shapes_words,
 )
-from haptic_local_model.shared.shapes import MAX_SHAPES, MAX_VERTICES, ShapeKind
+from haptic_local_model.shared.shapes import MAX_SHAPES, MAX_VERTICES, MIN_EDGE_M, ShapeKind
 
 MAGIC = tuple(UPDATE_MAGIC)
 #: The largest valid update: every section, 64 contacts and 64 shapes (receive buffers)
@@ -737,7 +737,7 @@ def _read_shape(sh, row, f, lim):
     """One shape: its ints (row) and floats (f) checked and stored; 0 or Reason.SHAPE."""
     kind = row[2]
     nv = row[3]
-    if row[1] != -1 or row[4] < 0 or row[5] < 0 or row[5] > 1:
+    if row[0] < 0 or row[1] != -1 or row[4] < 0 or row[5] < 0 or row[5] > 1:
         return Reason.SHAPE
     if kind == ShapeKind.CIRCLE:
         ok = nv == 1 and f[S_ROUNDING] > 0.0
@@ -793,22 +793,25 @@ def _read_shape(sh, row, f, lim):
 
 @njit(cache=True)
 def _core_is_proper(v, nv):
-    """A segment's ends differ; a polygon turns left at every vertex (strictly convex,
-    counter-clockwise), as shared.shapes.polygon_problem asks."""
+    """A segment's ends lie more than MIN_EDGE_M apart; a polygon is strictly convex and
+    counter-clockwise: every vertex strictly left of every edge it is not on (as
+    shared.shapes.polygon_problem asks; a left turn at each vertex alone passes a star)."""
     if nv == 2:
-        return v[0, 0] != v[1, 0] or v[0, 1] != v[1, 1]
+        return math.hypot(v[1, 0] - v[0, 0], v[1, 1] - v[0, 1]) > MIN_EDGE_M
     if nv < 3:
         return True
     for i in range(nv):
         a = v[i]
         b = v[(i + 1) % nv]
-        c = v[(i + 2) % nv]
         ex = b[0] - a[0]
         ey = b[1] - a[1]
-        if math.hypot(ex, ey) <= 1e-12:
+        if math.hypot(ex, ey) <= MIN_EDGE_M:
             return False
-        if ex * (c[1] - b[1]) - ey * (c[0] - b[0]) <= 0.0:
-            return False
+        for k in range(nv):
+            if k == i or k == (i + 1) % nv:
+                continue
+            if ex * (v[k, 1] - a[1]) - ey * (v[k, 0] - a[0]) <= 0.0:
+                return False
     return True
 
 
