@@ -28,6 +28,7 @@ SCENES = {
     "god_testbed": ("twin_pantograph", "press_down"),
     "god_slabs": ("ideal", "press_lift"),
     "god_shuttle_fast": ("ideal", "hold_still"),
+    "god_crowd": ("maglev", "plough"),
 }
 
 
