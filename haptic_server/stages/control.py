@@ -63,6 +63,12 @@ def coupling_errors(m, d):
         n_res = old.n_resisted
     w.n_resisted = n_res
     r.n_resisted = n_res
+    clear_command_terms(r)
+
+
+@njit(cache=True)
+def clear_command_terms(r):
+    """The row's command terms to zero: a law sets those it has (safety_and_limits sums them)."""
     for c in range(3):
         r.f_user[c] = 0.0
         r.f_contact[c] = 0.0

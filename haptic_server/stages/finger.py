@@ -12,6 +12,7 @@ import math
 
 from numba import njit
 
+from haptic_local_model.haptic_server.stages.control import clear_command_terms
 from haptic_local_model.haptic_server.stages.god_object import (
     god_object_step,
     install_shapes_step,
@@ -46,16 +47,9 @@ def finger(m, d):
         st.qd[c] = (g.proxy[c] - st.q[c]) / d.dt
         st.q[c] = g.proxy[c]
     st.qd[2] = 0.0
-    for c in range(3):
-        r.f_user[c] = 0.0
-        r.f_contact[c] = 0.0
-        r.f_impulse[c] = 0.0
-        r.f_bias[c] = 0.0
-        r.f_penalty[c] = 0.0
-        r.f_damping[c] = 0.0
+    clear_command_terms(r)
     r.f_coordination[0] = g.force[0]
     r.f_coordination[1] = g.force[1]
-    r.f_coordination[2] = 0.0
     r.god_proxy[0] = g.proxy[0]
     r.god_proxy[1] = g.proxy[1]
     r.god_contact = g.contact
