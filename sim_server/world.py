@@ -110,12 +110,11 @@ class SimWorld:
             if scene.rendering.method == "god_object"
             else None
         )
-        self._dynamic_by_key = {
+        tool = {t for t, _ in self.tool_shapes}
+        self._dynamic_by_key = {  # the bodies a god-object's push is applied to, by shape key
             k: s.body
             for s, k in self.shape_keys.items()
-            if s.body is not None
-            and s.body.body_type == pymunk.Body.DYNAMIC
-            and s not in {t for t, _ in self.tool_shapes}
+            if s.body is not None and s.body.body_type == pymunk.Body.DYNAMIC and s not in tool
         }
 
     # --- construction -------------------------------------------------------------------

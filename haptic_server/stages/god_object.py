@@ -75,10 +75,7 @@ GOD_DATA_DTYPE = np.dtype(
         ("proxy", np.float64, (2,)),  # p, m, world
         ("contact", np.int64),  # Contact
         ("n_active", np.int64),  # touching obstacles after the tick
-        ("active", np.int64, (2,)),  # their shape indices
-        ("multipliers", np.float64, (2,)),  # lambda_k, N
         ("force", np.float64, (2,)),  # rendered force on the user, N
-        ("force_target", np.float64, (2,)),  # before the pop ramp, N
         ("env_key", np.int64, (2,)),  # the touched obstacles' keys (-1: none) ...
         ("env_point", np.float64, (2, 2)),  # ... where the proxy touches them (world, m) ...
         ("env_force", np.float64, (2, 2)),  # ... and the force on each (N): -F split
@@ -143,7 +140,6 @@ def god_data(proxy: tuple[float, float]) -> np.ndarray:
     d[0]["proxy"] = proxy
     d[0]["popped_key"] = -1
     d[0]["stick_shape"] = -1
-    d[0]["active"] = -1
     d[0]["fade_elapsed_s"] = 1e300  # no install blend running
     return d
 
@@ -178,6 +174,12 @@ def place_shapes(m, d, shapes, tau, elapsed_s):
                 d.poses[k, c] += h * d.pose_offset[k, c] + g * d.pose_offset_rate[k, c]
 
 
+@njit(cache=True, inline="always")
+def _point_speed(s):
+    """The fastest a point of the shape's core moves: |v| + |omega| R."""
+    return math.hypot(s.twist[0], s.twist[1]) + abs(s.twist[2]) * s.bound
+
+
 @njit(cache=True)
 def near_shapes(m, d, shapes, n_shapes, x0, x1, tau, dt):
     """The prefilter (a bounding-circle test per shape over the tick's motion) and the
@@ -196,7 +198,7 @@ def near_shapes(m, d, shapes, n_shapes, x0, x1, tau, dt):
     fading = d.fade_elapsed_s < m.blend_s
     for k in range(n_shapes):
         s = shapes[k]
-        fastest = max(fastest, math.hypot(s.twist[0], s.twist[1]) + abs(s.twist[2]) * s.bound)
+        fastest = max(fastest, _point_speed(s))
         if fading:
             off = math.hypot(d.pose_offset[k, 0], d.pose_offset[k, 1])
             off += abs(d.pose_offset[k, 2]) * s.bound
@@ -208,7 +210,7 @@ def near_shapes(m, d, shapes, n_shapes, x0, x1, tau, dt):
     steps = 1
     for k in range(n_shapes):
         s = shapes[k]
-        speed = math.hypot(s.twist[0], s.twist[1]) + abs(s.twist[2]) * s.bound
+        speed = _point_speed(s)
         carry_pose(s.pose, s.twist, s.motion, tau, d.poses[k])
         dist = math.hypot(d.poses[k, 0] - p[0], d.poses[k, 1] - p[1])
         limit = s.bound + s.rounding + r + reach + speed * dt + blend_reach + NEAR_SLACK_M
@@ -464,7 +466,7 @@ def apply_friction(m, d, shapes, xh, hold_x, hold_y):
 
 
 @njit(cache=True)
-def settle_multipliers(m, d, shapes):
+def share_force(m, d, shapes):
     """The force on the touched obstacles: the opposite of the rendered force F, split over
     the (at most two) touching planes as F = sum lambda_k n_k with lambda_k >= 0, at the point
     where the proxy touches each. An obstacle is only pushed, never pulled: a plane whose
@@ -475,8 +477,6 @@ def settle_multipliers(m, d, shapes):
     fy = d.force[1]
     d.n_active = min(d.n_planes, 2)
     for j in range(2):
-        d.active[j] = -1
-        d.multipliers[j] = 0.0
         d.env_key[j] = -1
         for c in range(2):
             d.env_point[j, c] = 0.0
@@ -484,10 +484,7 @@ def settle_multipliers(m, d, shapes):
     if d.n_active == 1:
         lam = fx * d.plane_normal[0, 0] + fy * d.plane_normal[0, 1]
         if lam > 0.0:
-            d.multipliers[0] = lam
             _push(m, d, shapes, 0, -fx, -fy)
-        else:
-            d.active[0] = d.plane_index[0]
     elif d.n_active == 2:
         a = d.plane_normal[0]
         b = d.plane_normal[1]
@@ -498,8 +495,6 @@ def settle_multipliers(m, d, shapes):
         else:
             la = max(0.0, (fx * b[1] - b[0] * fy) / det)
             lb = max(0.0, (a[0] * fy - fx * a[1]) / det)
-        d.multipliers[0] = la
-        d.multipliers[1] = lb
         _push(m, d, shapes, 0, -la * a[0], -la * a[1])
         _push(m, d, shapes, 1, -lb * b[0], -lb * b[1])
 
@@ -508,7 +503,6 @@ def settle_multipliers(m, d, shapes):
 def _push(m, d, shapes, j, fx, fy):
     """Plane j's obstacle takes force (fx, fy) where the proxy touches it."""
     k = d.plane_index[j]
-    d.active[j] = k
     d.env_key[j] = shapes[k].key
     d.env_point[j, 0] = d.proxy[0] - m.radius * d.plane_normal[j, 0]
     d.env_point[j, 1] = d.proxy[1] - m.radius * d.plane_normal[j, 1]
@@ -528,8 +522,6 @@ def render_force(m, d, p0, x0, x1, dt):
     if mag > m.max_force:
         fx *= m.max_force / mag
         fy *= m.max_force / mag
-    d.force_target[0] = fx
-    d.force_target[1] = fy
     if d.ramping == 0:
         d.force[0] = fx
         d.force[1] = fy
@@ -606,7 +598,7 @@ def god_object_step(m, d, shapes, n_shapes, x0, x1, tau, dt):
     release_popped(m, d, shapes, n_shapes)
     d.fade_elapsed_s += dt
     render_force(m, d, d.proxy_start, x0, x1, dt)
-    settle_multipliers(m, d, shapes)
+    share_force(m, d, shapes)
 
 
 @njit(cache=True)
@@ -678,7 +670,6 @@ def reset_proxy(d, x, y):
     d.fade_elapsed_s = 1e300
     for c in range(2):
         d.force[c] = 0.0
-        d.force_target[c] = 0.0
     for k in range(MAX_SHAPES):
         for c in range(3):
             d.pose_offset[k, c] = 0.0
