@@ -48,7 +48,7 @@ test: lint typecheck pytest
 
 # the CI soak (.ci/run): every segment once (every device, every fault); locally: make soak MINUTES=60
 soak-ci: $(STAMP) warm
-	$(PY) -m haptic_local_model.haptic_server.harness.soak --minutes 4 --segment-s 30 --out runs/soak-ci
+	$(PY) -m haptic_local_model.haptic_server.harness.soak --minutes 5 --segment-s 30 --out runs/soak-ci
 
 MINUTES ?= 60
 soak: $(STAMP) warm

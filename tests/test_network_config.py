@@ -47,6 +47,15 @@ def test_shipped_network_configs_load_and_make_zenoh_configs() -> None:
             session_config(spec, None, network.namespace)  # zenoh accepts every key
 
 
+def test_no_shared_memory_transport() -> None:
+    """Zenoh's shared memory is off for both endpoints: with it, the haptic server's I/O
+    process mapped each sim's 16 MB pool (a killed one's too) and kept it resident."""
+    network = load_network("loopback")
+    for spec in (network.haptic, network.sim):
+        conf = session_config(spec, None, network.namespace)
+        assert json.loads(conf.get_json("transport/shared_memory/enabled")) is False
+
+
 def test_relative_credential_paths_are_resolved_next_to_the_config(tmp_path: Path) -> None:
     network = load_network(str(_secure(tmp_path)))
     assert network.haptic.users_file == str(tmp_path / "example_users.txt")

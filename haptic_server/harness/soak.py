@@ -90,8 +90,8 @@ class Segment:
     fault: str = ""
 
 
-#: every shipped device; pushing, sliding, impacts, holding through a singularity; a fault
-#: of each kind
+#: every shipped device; pushing, sliding, impacts, holding through a singularity; the
+#: god-object among 64 moving shapes; a fault of each kind
 SEGMENTS = (
     Segment("testbed", "ideal", "swing"),
     Segment("testbed", "twin_pantograph", "swing", "sim_stall"),
@@ -100,6 +100,7 @@ SEGMENTS = (
     Segment("linkage_distal", "ideal_identity", "push_04n", "sidecar_stall"),
     Segment("free_box", "maglev", "waypoints", "clock_step"),
     Segment("wall_slide", "twin_pantograph", "slide"),
+    Segment("god_crowd", "ideal", "plough", "sim_restart"),
 )
 
 

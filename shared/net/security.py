@@ -92,6 +92,11 @@ def zenoh_keys(endpoints: EndpointSpec, namespace: str | None) -> dict[str, str]
           "messages": ["put", "delete", "query", "reply"], "size_limit": limit}]
     )  # fmt: skip
     out["transport/link/rx/max_message_size"] = str(limit)
+    # no shared-memory transport (on by default: on one host a message over 3 KB goes through
+    # the sender's 16 MB pool, which the receiver maps). The haptic server's I/O process kept
+    # every sim's pool mapped and resident, a killed one's too: 17 MB more for each sim
+    # started (god_crowd's 17 KB updates; smaller ones never used it)
+    out["transport/shared_memory/enabled"] = "false"
     if endpoints.low_latency:  # Zenoh refuses lowlatency with QoS on
         out["transport/unicast/lowlatency"] = "true"
         out["transport/unicast/qos/enabled"] = "false"
