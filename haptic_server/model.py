@@ -17,6 +17,7 @@ from haptic_local_model.device_models.base import AUX_SIZE, SENSOR_DTYPE, Device
 from haptic_local_model.haptic_server.stages.god_object import (
     GOD_DATA_DTYPE,
     GOD_PARAMS_DTYPE,
+    GeometryBlend,
     god_params,
 )
 from haptic_local_model.shared.config import RenderingSpec, SceneConfig
@@ -408,7 +409,8 @@ def god_record(scene: SceneConfig, max_wrench_world: np.ndarray) -> np.ndarray:
         scene.tool_body.radius, r.god_object_stiffness, r.god_object_damping,
         max_substeps=r.max_substeps, pop_ramp_s=r.pop_ramp_ms / 1e3,
         max_force=float(min(max_wrench_world[0], max_wrench_world[1])),
-        blend_s=r.blend_ms / 1e3,
+        blend_s=r.blend_ms / 1e3, geometry_blend=GeometryBlend[r.geometry_blend.upper()],
+        node_period_s=min((1.0 / m.publish_hz for m in scene.deformables), default=0.0),
     )  # fmt: skip
 
 

@@ -371,6 +371,69 @@ class BodySpec:
         return (x + c * px - s * py, y + s * px + c * py)
 
 
+MAX_MEMBRANE_NODES = 33  # 32 segments: half the local shapes an update carries
+
+
+@dataclass(frozen=True)
+class DeformableSpec:
+    """A string under tension (DESIGN-WAVE2 §4): `nodes` point masses from a to b, the two
+    ends pinned, each pair of neighbours joined by a zero-rest-length damped spring whose
+    stiffness makes the straight string's tension `tension_n` (so the tension grows with the
+    length as the string stretches, and a point load F at mid-span deflects it by exactly
+    F L / (4 T)). The haptic side renders its segments, rounded by `radius`, as NODAL shapes
+    held between updates by the scene's geometry_blend."""
+
+    name: str
+    a: Vec2
+    b: Vec2
+    material: str
+    kind: Literal["string"] = "string"
+    nodes: int = 21
+    mass: float = 0.6  # kg, the moving nodes' total
+    tension_n: float = 5.0
+    radius: float = 0.001  # rho of the segments, m
+    publish_hz: float = 10.0  # the surface is sampled for the haptic side at this rate
+    damping_per_s: float = 600.0  # gamma of the dashpots on each node (c = gamma m_node)
+    spring_damping_ns_per_m: float = 0.0  # along each spring
+
+    def __post_init__(self) -> None:
+        require(self.kind == "string", "kind", f"only 'string' is known, got {self.kind!r}")
+        within(self.nodes, (3, MAX_MEMBRANE_NODES), "nodes")
+        within_all((*self.a, *self.b), (-WORLD_M, WORLD_M), "a", "m")
+        require(math.dist(self.a, self.b) >= 1e-3, "b", "the string must be >= 1 mm long")
+        within(self.mass, MASS_RANGE_KG, "mass", "kg")
+        within(self.tension_n, (1e-3, 1e4), "tension_n", "N")
+        within(self.radius, SIZE_RANGE_M, "radius", "m")
+        within(self.publish_hz, (1.0, 1000.0), "publish_hz", "Hz")
+        within(self.damping_per_s, (0.0, 1e5), "damping_per_s", "1/s")
+        within(self.spring_damping_ns_per_m, (0.0, 1e5), "spring_damping_ns_per_m", "N s/m")
+
+    @property
+    def length(self) -> float:
+        """L, m."""
+        return math.dist(self.a, self.b)
+
+    @property
+    def spring_stiffness(self) -> float:
+        """k of each spring: T = k L / (nodes - 1) when straight."""
+        return self.tension_n * (self.nodes - 1) / self.length
+
+    def loop_gain(self, coupling_n_per_m: float, predicted: bool) -> float:
+        """The gain, per sample, of the loop the god-object closes through the string: a
+        surface step dy changes the coupling's force by K dy before the device can follow;
+        the string yields C = L / (4 T) per newton at mid-span, all of it within a sample if
+        it is quick, or T_u / tau of it if its dashpots make it slow (tau = gamma m L / (12 T),
+        the mid-span mode's effective mass m / 3 against 4 T / L): min(C K, 3 K / (f gamma m)).
+        The node hold's prediction extrapolates each step once more: twice the gain. Above 1
+        the press limit-cycles (membrane_10hz at K = 1000 N/m with node_foh: 4 N peak to
+        peak; at 300 N/m: 0.3 mN)."""
+        quick = self.length / (4.0 * self.tension_n) * coupling_n_per_m
+        slow = (
+            3.0 * coupling_n_per_m / max(self.publish_hz * self.damping_per_s * self.mass, 1e-300)
+        )
+        return min(quick, slow) * (2.0 if predicted else 1.0)
+
+
 @dataclass(frozen=True)
 class CrowdSpec:
     """Many like dynamic bodies on a jittered grid filling a rectangle: `count` bodies named
@@ -538,6 +601,9 @@ class RenderingSpec:
     god_object_damping: Vec2 = (2.0, 2.0)
     max_substeps: int = 16
     pop_ramp_ms: float = 5.0
+    # how a deformable surface's segments move between its updates (DESIGN-WAVE2 §4):
+    # node_foh toward the predicted next surface, linear toward the newest, none holds it
+    geometry_blend: Literal["node_foh", "linear", "none"] = "node_foh"
     # virtual_coupling_foh, sim side (seed 002 table, SI): the tool's spring to the device
     foh_spring_stiffness: Vec3 = (1.0e5, 1.0e5, 800.0)
     foh_spring_damping: Vec3 = (1.0e4, 1.0e4, 20.0)
@@ -559,6 +625,11 @@ class RenderingSpec:
             require(all(v >= 0 for v in getattr(self, key)), key, "must be >= 0")
         within(self.max_substeps, (1, 64), "max_substeps")
         within(self.pop_ramp_ms, (0.1, 1000.0), "pop_ramp_ms", "ms")
+        require(
+            self.geometry_blend in ("node_foh", "linear", "none"),
+            "geometry_blend",
+            f"must be node_foh, linear or none, got {self.geometry_blend!r}",
+        )
         require(self.penalty_stiffness >= 0, "penalty_stiffness", "must be >= 0")
         require(self.penalty_damping >= 0, "penalty_damping", "must be >= 0")
         require(self.blend_ms >= 0, "blend_ms", "must be >= 0")
@@ -608,6 +679,7 @@ class SceneConfig:
     bodies: tuple[BodySpec, ...] = ()
     crowds: tuple[CrowdSpec, ...] = ()
     linkages: tuple[LinkageSpec, ...] = ()
+    deformables: tuple[DeformableSpec, ...] = ()
     rendering: RenderingSpec = field(default_factory=RenderingSpec)
     space: SpaceSpec = field(default_factory=SpaceSpec)
     safety: SafetySpec = field(default_factory=SafetySpec)
@@ -627,8 +699,11 @@ class SceneConfig:
         )
         names = [b.name for b in self.bodies] + [lk.name for lk in self.linkages]
         names += [f"{c.name}_{i}" for c in self.crowds for i in range(c.count)]
+        names += [m.name for m in self.deformables]
         require(
-            len(names) == len(set(names)), "bodies", "body, crowd and linkage names must be unique"
+            len(names) == len(set(names)),
+            "bodies",
+            "body, crowd, linkage and deformable names must be unique",
         )
         for i, c in enumerate(self.crowds):
             require(
@@ -641,6 +716,32 @@ class SceneConfig:
                 b.material in self.materials,
                 f"bodies[{i}].material",
                 f"unknown material {b.material!r}",
+            )
+        for i, dm in enumerate(self.deformables):
+            require(
+                dm.material in self.materials,
+                f"deformables[{i}].material",
+                f"unknown material {dm.material!r}",
+            )
+            require(
+                self.rendering.method == "god_object",
+                f"deformables[{i}]",
+                "a deformable is rendered by the god_object method only",
+            )
+            require(
+                dm.publish_hz <= self.sim_rate_hz,
+                f"deformables[{i}].publish_hz",
+                f"{dm.publish_hz:g} Hz exceeds sim_rate_hz {self.sim_rate_hz:g}",
+            )
+            k = max(self.rendering.god_object_stiffness)
+            gain = dm.loop_gain(k, self.rendering.geometry_blend == "node_foh")
+            require(
+                gain < 1.0,
+                f"deformables[{i}]",
+                f"the god-object's loop through the string sampled at {dm.publish_hz:g} Hz has "
+                f"a gain of {gain:.2f} per sample (>= 1: the press would limit-cycle; "
+                "DeformableSpec.loop_gain): lower rendering.god_object_stiffness, raise the "
+                "string's mass or damping_per_s, or publish it faster",
             )
         for i, lk in enumerate(self.linkages):
             require(

@@ -9,7 +9,11 @@ age tau, by one of two exact maps:
 - BALLISTIC (a free body): the COM moves in a straight line at v and the body spins at
   omega about it, c(tau) = c_u + v tau, theta(tau) = theta_u + omega tau;
 - SCREW (a prescribed motion, a constant spatial twist): the body turns about its fixed
-  instantaneous centre, c(tau) = c_u + sin(w tau)/w v + (1 - cos(w tau))/w perp(v).
+  instantaneous centre, c(tau) = c_u + sin(w tau)/w v + (1 - cos(w tau))/w perp(v);
+
+or, for a segment of a deformable surface (a membrane's polyline), NODAL: its two nodes
+move each on its own, by the haptic side's node first-order hold (DESIGN-WAVE2 §4; the
+update carries the nodes only, about a pose with zero angle and zero twist).
 
 For the finite-sphere proxy of radius r, an obstacle is the configuration-space set
 core + B(rho + r); its signed distance phi = dist(p, core) - rho - r is convex in p (the
@@ -43,6 +47,7 @@ class Motion(enum.IntEnum):
 
     BALLISTIC = 0
     SCREW = 1
+    NODAL = 2  # segments only: the nodes are held by the haptic side (module docstring)
 
 
 #: One local shape as the haptic loop holds it: what the sim sent, plus `bound` (the core's
@@ -167,11 +172,17 @@ def to_world(pose, x, y):
 
 @njit(cache=True)
 def core_distance(shape, qx, qy):
-    """Signed distance from a body-frame point to the core, and the outward unit normal
-    (body frame): positive outside, minus the depth to the nearest edge inside a polygon.
-    A point on a point or segment core gets the segment's left normal (no direction)."""
-    v = shape.vertices
-    n = shape.n_vert
+    """Signed distance from a body-frame point to the shape's core, and the outward unit
+    normal (body frame): `vertex_distance` of its vertices."""
+    return vertex_distance(shape.vertices, shape.n_vert, qx, qy)
+
+
+@njit(cache=True)
+def vertex_distance(v, n, qx, qy):
+    """Signed distance from a point to the core of the first n vertices of v (a point, a
+    segment, or a convex counter-clockwise polygon) and the outward unit normal: positive
+    outside, minus the depth to the nearest edge inside a polygon. A point on a point or
+    segment core gets the segment's left normal (no direction)."""
     if n == 1:
         dx = qx - v[0, 0]
         dy = qy - v[0, 1]
@@ -232,11 +243,19 @@ def core_distance(shape, qx, qy):
 def signed_distance(shape, pose, px, py, radius):
     """phi and the world normal of a disc of the given radius at (px, py) against the shape
     at pose: phi = dist(p, core) - rho - radius (convex in p)."""
+    return vertex_signed_distance(
+        shape.vertices, shape.n_vert, shape.rounding, pose, px, py, radius
+    )
+
+
+@njit(cache=True)
+def vertex_signed_distance(v, n, rounding, pose, px, py, radius):
+    """signed_distance of the core of v[:n] (body frame of pose) rounded by rho."""
     qx, qy = to_body(pose, px, py)
-    d, nx, ny = core_distance(shape, qx, qy)
+    d, nx, ny = vertex_distance(v, n, qx, qy)
     cs = math.cos(pose[2])
     sn = math.sin(pose[2])
-    return d - shape.rounding - radius, cs * nx - sn * ny, sn * nx + cs * ny
+    return d - rounding - radius, cs * nx - sn * ny, sn * nx + cs * ny
 
 
 SWEEP_ITERATIONS = 8
@@ -245,6 +264,14 @@ SWEEP_TOLERANCE_M = 1.0e-9
 
 @njit(cache=True)
 def sweep_distance(shape, pose, p, u, length, radius, gap):
+    """`vertex_sweep_distance` of the shape's core."""
+    return vertex_sweep_distance(
+        shape.vertices, shape.n_vert, shape.rounding, pose, p, u, length, radius, gap
+    )
+
+
+@njit(cache=True)
+def vertex_sweep_distance(v, n, rounding, pose, p, u, length, radius, gap):
     """How far the disc can move from p along the unit direction u (at most `length`) and
     stay `gap` outside the shape: Newton's iteration on the convex phi along the ray, which
     approaches its root from below and never steps past it (a convex function lies above its
@@ -252,7 +279,9 @@ def sweep_distance(shape, pose, p, u, length, radius, gap):
     if the iteration cap is met."""
     s = 0.0
     for _ in range(SWEEP_ITERATIONS):
-        phi, nx, ny = signed_distance(shape, pose, p[0] + s * u[0], p[1] + s * u[1], radius)
+        x = p[0] + s * u[0]
+        y = p[1] + s * u[1]
+        phi, nx, ny = vertex_signed_distance(v, n, rounding, pose, x, y, radius)
         psi = phi - gap
         if psi <= SWEEP_TOLERANCE_M:
             return s

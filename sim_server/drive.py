@@ -28,6 +28,7 @@ from haptic_local_model.sim_server import chipmunk as cp
 from haptic_local_model.sim_server.tool import TOOL_LINKAGE, tool_state
 
 DRIVE_REST, DRIVE_PROXY, DRIVE_DEVICE = 0, 1, 2  # no fresh target / follow the proxy / FOH
+MAX_PUSHES = 4  # bodies a god-object pushes per step: two shapes, each a body or two nodes
 
 I8, F8 = np.int64, np.float64
 
@@ -40,9 +41,9 @@ TARGET_DTYPE = np.dtype(
         ("device_pose", F8, (3,)),  # the device, world frame (DRIVE_DEVICE)
         ("device_twist", F8, (3,)),
         # a god-object's forces on the bodies it touches (0: none), applied every substep
-        ("env_body", I8, (2,)),  # cpBody pointers of dynamic bodies
-        ("env_point", F8, (2, 2)),  # world, m
-        ("env_force", F8, (2, 2)),  # N
+        ("env_body", I8, (MAX_PUSHES,)),  # cpBody pointers of dynamic bodies
+        ("env_point", F8, (MAX_PUSHES, 2)),  # world, m
+        ("env_force", F8, (MAX_PUSHES, 2)),  # N
     ]
 )
 
@@ -110,7 +111,7 @@ def step_world(tool, target, chain, kinematic, sim_time, period, substeps, work)
 def _push_touched(tg):
     """The god-object's forces on the dynamic bodies it touches, for this substep (pymunk
     clears a body's force after each step); a sleeping body is woken."""
-    for j in range(2):
+    for j in range(MAX_PUSHES):
         b = tg.env_body[j]
         if b != 0:
             cp.body_activate(b)

@@ -26,6 +26,9 @@ from haptic_local_model.shared.shapes import (
     set_core,
     shape_array,
 )
+from haptic_local_model.sim_server.membrane import Membrane
+
+_Segment = tuple[Membrane, int, np.ndarray, np.ndarray]  # a string's segment: its nodes
 
 
 @dataclass(frozen=True)
@@ -42,11 +45,13 @@ class LocalShapes:
         shapes: dict[pymunk.Shape, tuple[int, Material]],
         tool_shapes: list[pymunk.Shape],
         margin_m: float,
+        membranes: list[Membrane] | None = None,
     ) -> None:
         self._entries = {
             s: _Entry(_body(s), _core_row(s, key, mat)) for s, (key, mat) in shapes.items()
         }
         self._tool = tool_shapes
+        self._membranes = membranes or []
         self.margin_m = margin_m
         self.dropped = 0  # shapes within the margin beyond MAX_SHAPES (the farthest go)
 
@@ -62,19 +67,32 @@ class LocalShapes:
             bb.right + self.margin_m, bb.top + self.margin_m,
         )  # fmt: skip
         centre = bb.center()
-        found = []
+        found: list[tuple[float, int, _Entry | _Segment]] = []
         for shape in space.bb_query(bb, pymunk.ShapeFilter()):
             entry = self._entries.get(shape)
             if entry is None or shape in tool:
                 continue
             gap = shape.point_query(centre).distance
             found.append((gap, id(shape), entry))
+        for mem in self._membranes:
+            nodes = mem.published
+            for i in range(len(nodes) - 1):
+                a, b = nodes[i], nodes[i + 1]
+                lo, hi = np.minimum(a, b) - mem.spec.radius, np.maximum(a, b) + mem.spec.radius
+                if lo[0] > bb.right or hi[0] < bb.left or lo[1] > bb.top or hi[1] < bb.bottom:
+                    continue
+                gap = _segment_gap(np.array(centre), a, b) - mem.spec.radius
+                found.append((gap, mem.first_key + i, (mem, i, a, b)))
         found.sort(key=lambda f: (f[0], f[1]))
         self.dropped += max(0, len(found) - MAX_SHAPES)
         rows = record["shapes"]
-        for k, (_, _, entry) in enumerate(found[:MAX_SHAPES]):
-            rows[k] = entry.row[0]
-            body = entry.body
+        for k, (_, _, near) in enumerate(found[:MAX_SHAPES]):
+            if isinstance(near, tuple):
+                mem, i, a, b = near
+                mem.fill_row(rows[k], i, a, b)
+                continue
+            rows[k] = near.row[0]
+            body = near.body
             cog = body.local_to_world(body.center_of_gravity)
             rows[k]["pose"] = (cog.x, cog.y, math.remainder(body.angle, 2.0 * math.pi))
             v = body.velocity
@@ -82,6 +100,13 @@ class LocalShapes:
         n = min(len(found), MAX_SHAPES)
         record["n_shapes"] = n
         return n
+
+
+def _segment_gap(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """|p - the nearest point of segment ab|."""
+    ab = b - a
+    t = float(np.clip(np.dot(p - a, ab) / max(float(np.dot(ab, ab)), 1e-300), 0.0, 1.0))
+    return float(np.hypot(*(p - a - t * ab)))
 
 
 def _body(shape: pymunk.Shape) -> pymunk.Body:

@@ -48,6 +48,7 @@ from haptic_local_model.sim_server.local_model import (
     build_local_model,
     encode_stamped,
 )
+from haptic_local_model.sim_server.membrane import Membrane
 from haptic_local_model.sim_server.shapes import LocalShapes
 from haptic_local_model.sim_server.tool import TOOL_BODY, TOOL_DTYPE, TOOL_LINKAGE, tool_state
 
@@ -92,6 +93,15 @@ class SimWorld:
             self._add_body(spec)
         for lk in scene.linkages:
             self._add_linkage(lk.name)
+        self.membranes: list[Membrane] = []
+        first_key = len(self.shape_keys)
+        for string in scene.deformables:
+            mat = scene.materials[string.material]
+            substep = self.period / self.substeps
+            mem = Membrane(self.space, string, mat, first_key, substep)
+            mem.every = max(1, round(scene.sim_rate_hz / string.publish_hz))
+            self.membranes.append(mem)
+            first_key += string.nodes - 1
         self._setup_tool_chain()
         self.space.step(0.0)  # pymunk's checks of the bodies added (a zero step moves nothing)
         self.tool = self._tool_record()
@@ -106,6 +116,7 @@ class SimWorld:
                 {s: (k, self.shape_materials[s]) for s, k in self.shape_keys.items()},
                 [s for s, _ in self.tool_shapes],
                 scene.tool.neighbourhood_margin_m,
+                self.membranes,
             )
             if scene.rendering.method == "god_object"
             else None
@@ -323,16 +334,27 @@ class SimWorld:
             self.substeps, self._drive_work,
         )  # fmt: skip
         self.time += self.period
+        for mem in self.membranes:
+            mem.stepped()
 
     def _touched(self, target: ToolTarget) -> None:
-        """The god-object's forces on dynamic bodies into the step's target (by shape key)."""
+        """The god-object's forces on dynamic bodies into the step's target (by shape key; a
+        membrane's segment passes its force to its two nodes)."""
         tg = self._target[0]
+        slot = 0
         for j, key in enumerate(target.env_keys):
+            pushes = []
             body = self._dynamic_by_key.get(key)
             if body is not None:
-                tg["env_body"][j] = body_ptr(body)
-                tg["env_point"][j] = target.env_points[j]
-                tg["env_force"][j] = target.env_forces[j]
+                pushes = [(body, target.env_points[j], target.env_forces[j])]
+            for mem in self.membranes:
+                if key in mem.keys:
+                    pushes = mem.pushes(key, target.env_points[j], target.env_forces[j])
+            for body, point, force in pushes:
+                tg["env_body"][slot] = body_ptr(body)
+                tg["env_point"][slot] = point
+                tg["env_force"][slot] = force
+                slot += 1
 
     # --- the local model (sim_server/local_model.py) ------------------------------------
 

@@ -136,7 +136,7 @@ def test_install_keeps_the_stick_on_its_shape_by_key() -> None:
     new[1]["pose"] = (0.0002 + 0.00003, 0.0, 0.0)  # the sim's pose: 30 um from the forecast
     new[1]["motion"] = int(Motion.BALLISTIC)
     before = d[0]["proxy"].copy()
-    install_shapes(m, d, old, 2, 10 * DT, new, 2, 0.0)
+    install_shapes(m, d, old, 2, 10 * DT, new, 2, 0.0, 10 * DT)
     assert d[0]["stick_shape"] == 1
     god_object_tick(m, d, new, 2, x, x, 0.0, DT)
     assert d[0]["contact"] == Contact.STICK

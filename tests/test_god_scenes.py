@@ -29,6 +29,7 @@ SCENES = {
     "god_slabs": ("ideal", "press_lift"),
     "god_shuttle_fast": ("ideal", "hold_still"),
     "god_crowd": ("maglev", "plough"),
+    "membrane_10hz": ("ideal", "press_1n"),
 }
 
 
@@ -110,6 +111,29 @@ def test_the_fast_bar_is_sub_stepped(runs: dict[str, Path]) -> None:
     assert ticks["god_substeps"].max() >= 3
     assert int(ticks["god_pops"].max()) == 0
     assert (ticks["god_contact"] > 0).any()
+
+
+@pytest.mark.processes
+def test_the_membrane_sampled_at_10_hz_yields_as_a_string(runs: dict[str, Path]) -> None:
+    """V2.3 over Zenoh: the hand presses the string at mid-span while the sim samples it at
+    10 Hz; at rest (the last 3 s) its deflection, read from the proxy, is F L / (4 T) within
+    5 % of the force the hand feels, the force steady within 0.02 N peak to peak; the proxy
+    touches the string's segments, keyed after the finger's shape."""
+    from haptic_local_model.benchmarks.node_hold import (
+        DEFLECTION_TOLERANCE,
+        PEAK_TO_PEAK_N,
+        press_figures,
+    )
+
+    log = read_log(runs["membrane_10hz"])
+    scene = load_scene("membrane_10hz")
+    ready = log.ticks[log.ticks["update_seq"] >= 0]
+    press = press_figures(ready, scene, "node_foh")
+    assert press.force_n == pytest.approx(1.1, abs=0.1)
+    assert abs(press.error) <= DEFLECTION_TOLERANCE, press
+    assert press.peak_to_peak_n <= PEAK_TO_PEAK_N, press
+    touched = ready["god_env_key"][ready["god_active"] > 0]
+    assert np.isin(touched[touched >= 0], np.arange(1, 21)).all()
 
 
 #: the sim applies the newest proxy state's force over each of its steps (a sample-and-hold

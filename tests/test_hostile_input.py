@@ -147,11 +147,13 @@ def reference_shapes_accept(raw: bytes, at: int) -> bool:
         return False
     if (generation < 0).any():
         return False
-    if not np.isin(motion, (0, 1)).all():
+    if not np.isin(motion, (0, 1, 2)).all():
         return False
     for k in range(s):
         verts, rho = fl[k, :16].reshape(8, 2), fl[k, 16]
         pose, twist, mu_s, mu_k = fl[k, 17:20], fl[k, 20:23], fl[k, 23], fl[k, 24]
+        if motion[k] == 2 and (kind[k] != 1 or pose[2] != 0 or (twist != 0).any()):
+            return False  # nodal: a segment's nodes about a pose of zero angle, no twist
         want = {0: (1, 1), 1: (2, 2), 2: (3, MAX_VERTICES)}.get(int(kind[k]))
         if want is None or not want[0] <= nv[k] <= want[1]:
             return False
@@ -324,11 +326,14 @@ def random_shapes(rng: np.random.Generator, s: int) -> bytes:
             verts = rng.uniform(0.005, 0.05) * np.column_stack([np.cos(angles), np.sin(angles)])
         else:
             verts = rng.uniform(-0.05, 0.05, (nv, 2))
-        ints[k] = (keys[k], -1, kind, nv, rng.integers(0, 5), rng.integers(0, 2))
+        motion = int(rng.integers(0, 3 if kind == 1 else 2))  # nodal: segments only
+        ints[k] = (keys[k], -1, kind, nv, rng.integers(0, 5), motion)
         fl[k, : 2 * nv] = verts.ravel()
         fl[k, 16] = rng.uniform(0.001, 0.01) if kind == 0 else rng.uniform(0.0, 0.002)
         fl[k, 17:20] = (*rng.uniform(-0.3, 0.3, 2), rng.uniform(-np.pi, np.pi))
         fl[k, 20:23] = (*rng.uniform(-0.5, 0.5, 2), rng.uniform(-5, 5))
+        if motion == 2:
+            fl[k, 19:23] = 0.0  # nodes about a pose of zero angle, no twist
         mu_k = rng.uniform(0, 1)
         fl[k, 23], fl[k, 24] = mu_k + rng.uniform(0, 0.3), mu_k
     head = np.array([s], "<i8").tobytes()
@@ -381,6 +386,7 @@ SHAPE_BREAKS = [
     "kind", "n_vert", "owner", "generation", "motion", "repeated_key", "nonconvex",
     "clockwise", "spare_vertex", "rounding", "pose", "spin", "speed", "friction",
     "static_below_kinetic", "nonfinite", "count", "negative_key", "tiny_segment", "star",
+    "nodal_kind", "nodal_twist", "nodal_angle",
 ]  # fmt: skip
 
 
@@ -495,7 +501,7 @@ def break_shape(raw: bytes, groups: dict[str, tuple[int, int]], draw: Any) -> by
     elif how == "generation":
         struct.pack_into("<q", out, i_at + 32, -1)
     elif how == "motion":
-        struct.pack_into("<q", out, i_at + 40, draw(st.sampled_from([-1, 2, 99])))
+        struct.pack_into("<q", out, i_at + 40, draw(st.sampled_from([-1, 3, 99])))
     elif how == "repeated_key":
         if s < 2:
             return None
@@ -539,6 +545,17 @@ def break_shape(raw: bytes, groups: dict[str, tuple[int, int]], draw: Any) -> by
         ends = np.zeros(2 * MAX_VERTICES)
         ends[2] = 1e-200
         out[f_at : f_at + 8 * 2 * MAX_VERTICES] = ends.astype("<f8").tobytes()
+    elif how == "nodal_kind":  # nodes held by the haptic side: segments only
+        if kind == 1:
+            return None
+        struct.pack_into("<q", out, i_at + 40, 2)
+    elif how in ("nodal_twist", "nodal_angle"):  # nodal: no twist, a pose of zero angle
+        if kind != 1:
+            return None
+        struct.pack_into("<q", out, i_at + 40, 2)
+        offset = draw(st.sampled_from([20, 21, 22])) if how == "nodal_twist" else 19
+        value = draw(st.sampled_from([1e-9, 0.01, 0.5, -0.5]))
+        set_float(out, f_at + 8 * offset, value)
     elif how == "star":  # a pentagram: a left turn at every vertex, not convex
         a = np.arange(5) * 4 * np.pi / 5
         verts = np.zeros(2 * MAX_VERTICES)

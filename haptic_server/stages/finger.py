@@ -74,7 +74,7 @@ def install_finger_shapes(m, d):
     new = m.slots[0]
     install_shapes_step(
         m.god, d.god, old.shapes, n_old, d.contacts[1].age_s, new.shapes, new.n_shapes,
-        d.contacts[0].age_s,
+        d.contacts[0].age_s, new.sim_time,
     )  # fmt: skip
 
 

@@ -17,6 +17,15 @@ obstacle moves more than (r + rho)/2 relative to the proxy in one of them:
 The force on the user is F = K (p - x_h) + B (p' - x_h'); the force on the touched obstacles
 is its opposite, split by the planes' multipliers (the seed's eq 3 names only the first),
 sent to the sim with the proxy state. Every kernel is a pure function of its records.
+
+A deformable surface (a membrane) arrives as NODAL segments at a low rate (10 Hz). Between
+its updates the god-object runs against the rendered nodes (DESIGN-WAVE2 §4, F2): with
+`node_foh`, at each install every node moves linearly from where it is rendered to the
+predicted next surface y_new + (y_new - y_prev) over T_avg, the mean of the last three
+update intervals, so the surface moves smoothly and the proxy meets it as a moving obstacle
+(the nodes' speed enters the sub-step bound). `linear` moves toward y_new without the
+prediction (a lag of T_avg), `none` holds y_new (the zero-order hold). A segment keeps its
+hold while its key and generation do; a new generation starts from its new nodes.
 """
 
 from __future__ import annotations
@@ -29,12 +38,15 @@ from numba import njit
 
 from haptic_local_model.shared.shapes import (
     MAX_SHAPES,
+    Motion,
     carry_pose,
     carry_rate,
     signed_distance,
     sweep_distance,
     to_body,
     to_world,
+    vertex_signed_distance,
+    vertex_sweep_distance,
 )
 
 MAX_PLANES = 4  # touching obstacles kept per solve (2 bind in 2D; the rest are checked)
@@ -46,6 +58,8 @@ PARALLEL_SIN = 1.0e-6  # two planes closer than this in direction are merged
 FEASIBLE_M = 1.0e-12  # slack of a satisfied plane
 HYSTERESIS = 0.6  # slip returns to stick below 0.6 atan(mu_k) (CHAI3D's multiplier)
 NEAR_SLACK_M = 1.0e-3  # prefilter margin beyond every motion bound
+INTERVALS = 3  # update intervals averaged into the node hold's horizon T_avg
+SAMPLE_DUE = 0.95  # an unchanged surface is a new sample this far into its period
 
 
 class Contact(enum.IntEnum):
@@ -54,6 +68,14 @@ class Contact(enum.IntEnum):
     FREE = 0
     SLIDE = 1
     STICK = 2
+
+
+class GeometryBlend(enum.IntEnum):
+    """How NODAL segments are rendered between their updates (module docstring)."""
+
+    NONE = 0  # zero-order hold: the newest nodes
+    LINEAR = 1  # toward the newest nodes over T_avg (no prediction)
+    NODE_FOH = 2  # toward the predicted next nodes over T_avg
 
 
 #: Parameters of one god-object tool (static per scene).
@@ -66,6 +88,8 @@ GOD_PARAMS_DTYPE = np.dtype(
         ("pop_ramp_s", np.float64),  # T_pop: a pop's force change takes at least this long
         ("max_force", np.float64),  # N, |F| is clipped here (the device's limit)
         ("blend_s", np.float64),  # pose FOH of the extrapolation error at installs
+        ("geometry_blend", np.int64),  # GeometryBlend of NODAL segments
+        ("node_period_s", np.float64),  # the sim's sample period of NODAL segments (0: unknown)
     ]
 )
 
@@ -90,6 +114,9 @@ GOD_DATA_DTYPE = np.dtype(
         ("touch", np.float64, (2,)),  # where the last swept move met an obstacle
         ("touched", np.int64),
         ("fade_elapsed_s", np.float64),  # time since the last install's pose blend began
+        ("node_elapsed_s", np.float64),  # time since the NODAL holds began (a new sample)
+        ("node_sample_time", np.float64),  # the sim time of the newest node sample, s
+        ("node_samples", np.int64),  # node samples installed so far
         ("finger", np.float64, (2,)),  # x_h of the current sub-step
         ("finger_prev", np.float64, (2,)),  # x_h at the last tick (the haptic tick's stage)
         ("finger_now", np.float64, (2,)),
@@ -101,7 +128,7 @@ GOD_DATA_DTYPE = np.dtype(
         ("poses", np.float64, (MAX_SHAPES, 3)),  # placed poses this sub-step
         ("pose_offset", np.float64, (MAX_SHAPES, 3)),  # install error being faded out
         ("pose_offset_rate", np.float64, (MAX_SHAPES, 3)),  # and its rate at the install
-        ("install_scratch", np.float64, (MAX_SHAPES, 6)),
+        ("install_scratch", np.float64, (MAX_SHAPES, 8)),
         ("old_pose", np.float64, (3,)),  # scratch of install_shapes
         ("old_rate", np.float64, (3,)),
         ("new_rate", np.float64, (3,)),
@@ -109,6 +136,15 @@ GOD_DATA_DTYPE = np.dtype(
         ("plane_index", np.int64, (MAX_PLANES,)),
         ("plane_phi", np.float64, (MAX_PLANES,)),
         ("plane_normal", np.float64, (MAX_PLANES, 2)),
+        ("node_start", np.float64, (MAX_SHAPES, 2, 2)),  # NODAL: rendered nodes at the install
+        ("node_rate", np.float64, (MAX_SHAPES, 2, 2)),  # and their velocity until the horizon
+        ("node_core", np.float64, (MAX_SHAPES, 2, 2)),  # placed segment about its midpoint
+        ("node_bound", np.float64, (MAX_SHAPES,)),  # its largest half length over the hold
+        ("node_speed", np.float64, (MAX_SHAPES,)),  # its fastest node, m/s
+        ("node_horizon_s", np.float64),  # T_avg, the horizon of the next holds
+        ("node_hold_s", np.float64),  # the horizon of the running holds
+        ("intervals", np.float64, (INTERVALS,)),  # the last update intervals, s
+        ("n_intervals", np.int64),
     ]
 )
 
@@ -121,6 +157,8 @@ def god_params(
     pop_ramp_s: float = 5e-3,
     max_force: float = 10.0,
     blend_s: float = 8e-3,
+    geometry_blend: GeometryBlend = GeometryBlend.NODE_FOH,
+    node_period_s: float = 0.0,
 ) -> np.ndarray:
     """One GOD_PARAMS_DTYPE record (the scene loader checks the ranges)."""
     g = np.zeros(1, dtype=GOD_PARAMS_DTYPE)
@@ -131,6 +169,8 @@ def god_params(
     g[0]["pop_ramp_s"] = pop_ramp_s
     g[0]["max_force"] = max_force
     g[0]["blend_s"] = blend_s
+    g[0]["geometry_blend"] = int(geometry_blend)
+    g[0]["node_period_s"] = node_period_s
     return g
 
 
@@ -162,22 +202,65 @@ def pose_blend_weights(m, elapsed_s):
 
 
 @njit(cache=True)
-def place_shapes(m, d, shapes, tau, elapsed_s):
-    """Every near shape's pose at age tau, plus what is left of its install offset."""
-    h, g, _, _ = pose_blend_weights(m, elapsed_s)
+def place_shapes(m, d, shapes, tau, ahead_s):
+    """Every near shape ahead_s into the tick (its update's age tau + ahead_s): its pose,
+    plus what is left of its install offset; a NODAL segment's held nodes."""
+    h, g, _, _ = pose_blend_weights(m, d.fade_elapsed_s + ahead_s)
     for i in range(d.n_near):
         k = d.near[i]
         s = shapes[k]
-        carry_pose(s.pose, s.twist, s.motion, tau, d.poses[k])
+        if s.motion == Motion.NODAL:
+            place_nodes(d, k, d.node_elapsed_s + ahead_s)
+            continue
+        carry_pose(s.pose, s.twist, s.motion, tau + ahead_s, d.poses[k])
         if h != 0.0 or g != 0.0:
             for c in range(3):
                 d.poses[k, c] += h * d.pose_offset[k, c] + g * d.pose_offset_rate[k, c]
 
 
+@njit(cache=True)
+def place_nodes(d, k, elapsed_s):
+    """A NODAL segment's nodes at elapsed_s after the install (held at the horizon), as a
+    pose (the midpoint, the direction a -> b) and a core about it."""
+    t = min(max(elapsed_s, 0.0), d.node_hold_s)
+    ax = d.node_start[k, 0, 0] + t * d.node_rate[k, 0, 0]
+    ay = d.node_start[k, 0, 1] + t * d.node_rate[k, 0, 1]
+    bx = d.node_start[k, 1, 0] + t * d.node_rate[k, 1, 0]
+    by = d.node_start[k, 1, 1] + t * d.node_rate[k, 1, 1]
+    half = 0.5 * math.hypot(bx - ax, by - ay)
+    d.poses[k, 0] = 0.5 * (ax + bx)
+    d.poses[k, 1] = 0.5 * (ay + by)
+    d.poses[k, 2] = math.atan2(by - ay, bx - ax)
+    d.node_core[k, 0, 0] = -half
+    d.node_core[k, 1, 0] = half
+    d.node_core[k, 0, 1] = 0.0
+    d.node_core[k, 1, 1] = 0.0
+
+
 @njit(cache=True, inline="always")
-def _point_speed(s):
-    """The fastest a point of the shape's core moves: |v| + |omega| R."""
+def shape_distance(m, d, shapes, k, x, y):
+    """phi and the world normal of the proxy at (x, y) against placed shape k."""
+    s = shapes[k]
+    if s.motion == Motion.NODAL:
+        return vertex_signed_distance(d.node_core[k], 2, s.rounding, d.poses[k], x, y, m.radius)
+    return signed_distance(s, d.poses[k], x, y, m.radius)
+
+
+@njit(cache=True, inline="always")
+def _point_speed(d, s, k):
+    """The fastest a point of the shape's core moves: |v| + |omega| R (NODAL: its fastest
+    node, as a point of a segment moves by the blend of its nodes' velocities)."""
+    if s.motion == Motion.NODAL:
+        return d.node_speed[k]
     return math.hypot(s.twist[0], s.twist[1]) + abs(s.twist[2]) * s.bound
+
+
+@njit(cache=True, inline="always")
+def _bound(d, s, k):
+    """The core's radius about its pose (NODAL: the largest half length over the hold)."""
+    if s.motion == Motion.NODAL:
+        return d.node_bound[k]
+    return s.bound
 
 
 @njit(cache=True)
@@ -198,7 +281,7 @@ def near_shapes(m, d, shapes, n_shapes, x0, x1, tau, dt):
     fading = d.fade_elapsed_s < m.blend_s
     for k in range(n_shapes):
         s = shapes[k]
-        fastest = max(fastest, _point_speed(s))
+        fastest = max(fastest, _point_speed(d, s, k))
         if fading:
             off = math.hypot(d.pose_offset[k, 0], d.pose_offset[k, 1])
             off += abs(d.pose_offset[k, 2]) * s.bound
@@ -210,10 +293,13 @@ def near_shapes(m, d, shapes, n_shapes, x0, x1, tau, dt):
     steps = 1
     for k in range(n_shapes):
         s = shapes[k]
-        speed = _point_speed(s)
-        carry_pose(s.pose, s.twist, s.motion, tau, d.poses[k])
+        speed = _point_speed(d, s, k)
+        if s.motion == Motion.NODAL:
+            place_nodes(d, k, d.node_elapsed_s)
+        else:
+            carry_pose(s.pose, s.twist, s.motion, tau, d.poses[k])
         dist = math.hypot(d.poses[k, 0] - p[0], d.poses[k, 1] - p[1])
-        limit = s.bound + s.rounding + r + reach + speed * dt + blend_reach + NEAR_SLACK_M
+        limit = _bound(d, s, k) + s.rounding + r + reach + speed * dt + blend_reach + NEAR_SLACK_M
         if dist > limit:
             continue
         d.near[d.n_near] = k
@@ -233,7 +319,7 @@ def collect_planes(m, d, shapes, below):
         k = d.near[i]
         if shapes[k].key == d.popped_key:
             continue
-        phi, nx, ny = signed_distance(shapes[k], d.poses[k], d.proxy[0], d.proxy[1], m.radius)
+        phi, nx, ny = shape_distance(m, d, shapes, k, d.proxy[0], d.proxy[1])
         if phi >= below:
             continue
         slot = d.n_planes
@@ -347,6 +433,16 @@ def depenetrate(m, d, shapes, xh):
         d.proxy[1] = y
 
 
+@njit(cache=True, inline="always")
+def _sweep(m, d, shapes, k, p, u, length):
+    """How far the proxy moves from p along u (at most length) and stays GAP_M outside k."""
+    s = shapes[k]
+    if s.motion == Motion.NODAL:
+        core = d.node_core[k]
+        return vertex_sweep_distance(core, 2, s.rounding, d.poses[k], p, u, length, m.radius, GAP_M)
+    return sweep_distance(s, d.poses[k], p, u, length, m.radius, GAP_M)
+
+
 @njit(cache=True)
 def seek_goal(m, d, shapes, xh):
     """Step 3: toward x_h projected onto the touching planes, swept against the others."""
@@ -374,7 +470,7 @@ def seek_goal(m, d, shapes, xh):
                     touching = True
             if touching:
                 continue  # its linearised plane holds along the whole move (phi is convex)
-            reach = sweep_distance(shapes[k], d.poses[k], p, u, s, m.radius, GAP_M)
+            reach = _sweep(m, d, shapes, k, p, u, s)
             s = min(s, reach)
         p[0] += s * u[0]
         p[1] += s * u[1]
@@ -414,7 +510,7 @@ def apply_friction(m, d, shapes, xh, hold_x, hold_y):
     free_y = d.proxy[1]
     cx = hold_x
     cy = hold_y
-    phi_hold, _, _ = signed_distance(s, d.poses[k], cx, cy, m.radius)
+    phi_hold, _, _ = shape_distance(m, d, shapes, k, cx, cy)
     if phi_hold >= TOUCH_M:
         if d.touched == 0:
             d.contact = Contact.SLIDE
@@ -422,7 +518,7 @@ def apply_friction(m, d, shapes, xh, hold_x, hold_y):
             return
         cx = d.touch[0]
         cy = d.touch[1]
-        phi_touch, _, _ = signed_distance(s, d.poses[k], cx, cy, m.radius)
+        phi_touch, _, _ = shape_distance(m, d, shapes, k, cx, cy)
         if phi_touch >= TOUCH_M:  # the sweep stopped short of this obstacle: no stick there
             d.contact = Contact.SLIDE
             d.stick_shape = -1
@@ -546,7 +642,7 @@ def release_popped(m, d, shapes, n_shapes):
         return
     for k in range(n_shapes):
         if shapes[k].key == d.popped_key:
-            phi, _, _ = signed_distance(shapes[k], d.poses[k], d.proxy[0], d.proxy[1], m.radius)
+            phi, _, _ = shape_distance(m, d, shapes, k, d.proxy[0], d.proxy[1])
             if phi < 0.0:
                 return
     d.popped_key = -1
@@ -585,7 +681,7 @@ def god_object_step(m, d, shapes, n_shapes, x0, x1, tau, dt):
         f = (i + 1) / n
         xh[0] = x0[0] + f * (x1[0] - x0[0])
         xh[1] = x0[1] + f * (x1[1] - x0[1])
-        place_shapes(m, d, shapes, tau + f * dt, d.fade_elapsed_s + f * dt)
+        place_shapes(m, d, shapes, tau, f * dt)
         if d.contact == Contact.STICK and d.stick_shape >= 0:
             x, y = to_world(d.poses[d.stick_shape], d.stick_local[0], d.stick_local[1])
             d.proxy[0] = x
@@ -597,6 +693,7 @@ def god_object_step(m, d, shapes, n_shapes, x0, x1, tau, dt):
         apply_friction(m, d, shapes, xh, hold_x, hold_y)
     release_popped(m, d, shapes, n_shapes)
     d.fade_elapsed_s += dt
+    d.node_elapsed_s += dt
     render_force(m, d, d.proxy_start, x0, x1, dt)
     share_force(m, d, shapes)
 
@@ -608,23 +705,32 @@ def _wrap(angle):
 
 
 @njit(cache=True)
-def install_shapes(model, data, old, n_old, old_tau, new, n_new, new_tau):
+def install_shapes(model, data, old, n_old, old_tau, new, n_new, new_tau, new_time):
     """install_shapes_step on GOD_PARAMS_DTYPE[1] and GOD_DATA_DTYPE[1] arrays."""
-    install_shapes_step(model[0], data[0], old, n_old, old_tau, new, n_new, new_tau)
+    install_shapes_step(model[0], data[0], old, n_old, old_tau, new, n_new, new_tau, new_time)
 
 
 @njit(cache=True)
-def install_shapes_step(m, d, old, n_old, old_tau, new, n_new, new_tau):
+def install_shapes_step(m, d, old, n_old, old_tau, new, n_new, new_tau, new_time):
     """A new set of shapes replaces the old at an install. A shape present in both (by key)
     keeps its rendered pose and velocity: the difference from the new extrapolation (the
     old one's error) and its rate fade out over blend_s by `pose_blend_weights` (DESIGN-WAVE2
     C2's pose FOH, made C1). The stick follows its shape by key (the pop keeps its key).
-    old_tau and new_tau are the two updates' ages now."""
+    old_tau and new_tau are the two updates' ages now, new_time the new one's sim time (the
+    clock of the node samples)."""
     h, g, hd, gd = pose_blend_weights(m, d.fade_elapsed_s)
     stick_key = old[d.stick_shape].key if 0 <= d.stick_shape < n_old else -1
     d.stick_shape = -1
+    sample = new_node_sample(m, d, old, n_old, new, n_new, new_time)
+    if sample:
+        count_interval(m, d, new_time - d.node_sample_time)
     for k in range(n_new):
         s = new[k]
+        if s.motion == Motion.NODAL:
+            hold_nodes(m, d, old, n_old, s, k, sample)
+            if s.key == stick_key:
+                d.stick_shape = k
+            continue
         carry_pose(s.pose, s.twist, s.motion, new_tau, d.poses[k])
         carry_rate(s.twist, s.motion, new_tau, d.new_rate)
         found = -1
@@ -649,12 +755,138 @@ def install_shapes_step(m, d, old, n_old, old_tau, new, n_new, new_tau):
         if s.key == stick_key:
             d.stick_shape = k
     for k in range(n_new):
+        if new[k].motion == Motion.NODAL:
+            start_nodes(d, k, sample)
+            continue
         for c in range(3):
             d.pose_offset[k, c] = d.install_scratch[k, c]
             d.pose_offset_rate[k, c] = d.install_scratch[k, 3 + c]
     d.fade_elapsed_s = 0.0
+    if sample:
+        d.node_elapsed_s = 0.0
+        d.node_sample_time = new_time
+        d.node_samples += 1
+        d.node_hold_s = d.node_horizon_s
     if d.stick_shape < 0 and d.contact == Contact.STICK:
         d.contact = Contact.SLIDE
+
+
+@njit(cache=True)
+def _old_match(old, n_old, s):
+    """The index of the old NODAL segment of s's key and generation, -1 if none."""
+    for j in range(n_old):
+        o = old[j]
+        if o.key == s.key and o.motion == Motion.NODAL and o.generation == s.generation:
+            return j
+    return -1
+
+
+@njit(cache=True)
+def new_node_sample(m, d, old, n_old, new, n_new, new_time):
+    """Whether the new update brings a new sample of the deformable surface: a NODAL segment
+    that is new, of a new generation, or whose nodes moved; or, the surface unchanged, a
+    sample period (node_period_s) since the last. The sim may publish a surface at a lower
+    rate than its updates, repeating the last sample in between: then the holds run on. (A
+    surface at rest, or at the same place at two samples, is sampled all the same.)"""
+    period = m.node_period_s
+    due = new_time - d.node_sample_time >= SAMPLE_DUE * period
+    if period > 0.0 and d.node_samples > 0 and due:
+        return True
+    for k in range(n_new):
+        s = new[k]
+        if s.motion != Motion.NODAL:
+            continue
+        j = _old_match(old, n_old, s)
+        if j < 0:
+            return True
+        o = old[j]
+        for c in range(2):
+            if s.pose[c] != o.pose[c]:
+                return True
+        for i in range(2):
+            for c in range(2):
+                if s.vertices[i, c] != o.vertices[i, c]:
+                    return True
+    return False
+
+
+@njit(cache=True)
+def count_interval(m, d, interval):
+    """The sim time between two node samples into the last INTERVALS, and the node hold's
+    horizon T_avg, their mean (not before a second sample). An interval over twice the
+    sample period (the surface was out of reach, or updates were lost) counts as one
+    period."""
+    if d.node_samples == 0 or not interval > 0.0:
+        return
+    if m.node_period_s > 0.0 and interval > 2.0 * m.node_period_s:
+        interval = m.node_period_s
+    for i in range(INTERVALS - 1, 0, -1):
+        d.intervals[i] = d.intervals[i - 1]
+    d.intervals[0] = interval
+    d.n_intervals = min(d.n_intervals + 1, INTERVALS)
+    total = 0.0
+    for i in range(d.n_intervals):
+        total += d.intervals[i]
+    d.node_horizon_s = total / d.n_intervals
+
+
+@njit(cache=True)
+def hold_nodes(m, d, old, n_old, s, k, sample):
+    """Where new NODAL segment k's nodes start (install_scratch[k, 0:4]) and their velocity
+    (4:8). On a new sample: from where the old segment of the same key and generation is
+    rendered now toward the newest nodes (LINEAR) or the predicted next ones (NODE_FOH) over
+    T_avg, otherwise held at the newest nodes. Between samples: the old hold runs on."""
+    sc = d.install_scratch[k]
+    if not sample:
+        j = _old_match(old, n_old, s)
+        for i in range(2):
+            for c in range(2):
+                sc[2 * i + c] = d.node_start[j, i, c]
+                sc[4 + 2 * i + c] = d.node_rate[j, i, c]
+        return
+    for i in range(2):
+        x, y = to_world(s.pose, s.vertices[i, 0], s.vertices[i, 1])
+        sc[2 * i] = x
+        sc[2 * i + 1] = y
+        sc[4 + 2 * i] = 0.0
+        sc[5 + 2 * i] = 0.0
+    if m.geometry_blend == GeometryBlend.NONE or d.node_horizon_s <= 0.0:
+        return
+    found = _old_match(old, n_old, s)
+    if found < 0:
+        return
+    o = old[found]
+    t = min(max(d.node_elapsed_s, 0.0), d.node_hold_s)
+    for i in range(2):
+        for c in range(2):
+            now = d.node_start[found, i, c] + t * d.node_rate[found, i, c]
+            target = sc[2 * i + c]
+            if m.geometry_blend == GeometryBlend.NODE_FOH:
+                prev = to_world(o.pose, o.vertices[i, 0], o.vertices[i, 1])[c]
+                target += target - prev
+            sc[2 * i + c] = now
+            sc[4 + 2 * i + c] = (target - now) / d.node_horizon_s
+
+
+@njit(cache=True)
+def start_nodes(d, k, sample):
+    """Install segment k's node hold from install_scratch, with the bounds the prefilter
+    reads: the largest half length over the hold (at an end: |b - a| is convex in t) and
+    the fastest node."""
+    sc = d.install_scratch[k]
+    for i in range(2):
+        for c in range(2):
+            d.node_start[k, i, c] = sc[2 * i + c]
+            d.node_rate[k, i, c] = sc[4 + 2 * i + c]
+    span = d.node_horizon_s if sample else d.node_hold_s
+    dx0 = sc[2] - sc[0]
+    dy0 = sc[3] - sc[1]
+    dx1 = dx0 + span * (sc[6] - sc[4])
+    dy1 = dy0 + span * (sc[7] - sc[5])
+    d.node_bound[k] = 0.5 * max(math.hypot(dx0, dy0), math.hypot(dx1, dy1))
+    d.node_speed[k] = max(math.hypot(sc[4], sc[5]), math.hypot(sc[6], sc[7]))
+    d.pose_offset[k, :] = 0.0
+    d.pose_offset_rate[k, :] = 0.0
 
 
 @njit(cache=True)

@@ -172,7 +172,14 @@ SHAPE_INT_FIELDS = (
     ShapeField("kind", 1, "", "0, 1, 2", "0 circle, 1 segment, 2 convex polygon"),
     ShapeField("n_vert", 1, "", "1; 2; 3..8", "vertices of the core (by kind)"),
     ShapeField("generation", 1, "", ">= 0", "topology generation (deformables)"),
-    ShapeField("motion", 1, "", "0, 1", "pose carried by 0 ballistic, 1 screw motion"),
+    ShapeField(
+        "motion",
+        1,
+        "",
+        "0, 1, 2",
+        "pose carried by 0 ballistic, 1 screw motion; 2 nodal: a segment's nodes, held by the "
+        "haptic side (pose angle and twist 0)",
+    ),
 )
 SHAPE_FLOAT_FIELDS = (
     ShapeField(

@@ -61,7 +61,7 @@ from haptic_local_model.shared.protocol.layout import (
     limits_record,
     shapes_words,
 )
-from haptic_local_model.shared.shapes import MAX_SHAPES, MAX_VERTICES, MIN_EDGE_M, ShapeKind
+from haptic_local_model.shared.shapes import MAX_SHAPES, MAX_VERTICES, MIN_EDGE_M, Motion, ShapeKind
 
 MAGIC = tuple(UPDATE_MAGIC)
 #: The largest valid update: every section, 64 contacts and 64 shapes (receive buffers)
@@ -737,8 +737,14 @@ def _read_shape(sh, row, f, lim):
     """One shape: its ints (row) and floats (f) checked and stored; 0 or Reason.SHAPE."""
     kind = row[2]
     nv = row[3]
-    if row[0] < 0 or row[1] != -1 or row[4] < 0 or row[5] < 0 or row[5] > 1:
+    if row[0] < 0 or row[1] != -1 or row[4] < 0 or row[5] < 0 or row[5] > Motion.NODAL:
         return Reason.SHAPE
+    if row[5] == Motion.NODAL and (kind != ShapeKind.SEGMENT or f[S_POSE + 2] != 0.0):
+        return Reason.SHAPE  # nodes about a pose with zero angle ...
+    if row[5] == Motion.NODAL and (
+        f[S_TWIST] != 0.0 or f[S_TWIST + 1] != 0.0 or f[S_TWIST + 2] != 0.0
+    ):
+        return Reason.SHAPE  # ... and no twist: the haptic side holds them
     if kind == ShapeKind.CIRCLE:
         ok = nv == 1 and f[S_ROUNDING] > 0.0
     elif kind == ShapeKind.SEGMENT:

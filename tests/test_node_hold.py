@@ -1,0 +1,236 @@
+"""Deformable surfaces sampled at a low rate (DESIGN-WAVE2 §4, F2): the node hold of NODAL
+segments in the god-object kernel against closed forms (V2.1), the pymunk string against
+F L / (4 T), the membrane_10hz scene pressed through the whole system in the virtual clock
+(V2.3), and the loop-gain check that keeps a scene from limit-cycling."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from haptic_local_model.benchmarks import node_hold
+from haptic_local_model.haptic_server.stages.god_object import (
+    GeometryBlend,
+    god_data,
+    god_object_tick,
+    god_params,
+    install_shapes,
+)
+from haptic_local_model.shared.config import load_scene
+from haptic_local_model.shared.shapes import Motion, ShapeKind, set_core, shape_array
+from haptic_local_model.sim_server.membrane import Membrane
+from haptic_local_model.sim_server.world import SimWorld, ToolTarget
+
+DT = 1e-3
+R = 0.002
+
+
+def nodal(
+    shapes: np.ndarray, k: int, a: tuple[float, float], b: tuple[float, float], **f: object
+) -> None:
+    """shapes[k] = a NODAL segment a -> b (world), rounded by 0.5 mm."""
+    mid = np.add(a, b) / 2
+    set_core(shapes[k], ShapeKind.SEGMENT, [np.subtract(a, mid), np.subtract(b, mid)], 5e-4)
+    shapes[k]["key"] = f.pop("key", 1)
+    shapes[k]["motion"] = int(Motion.NODAL)
+    shapes[k]["pose"] = (*mid, 0.0)
+    for name, value in f.items():
+        shapes[k][name] = value
+
+
+@pytest.mark.parametrize("rate_hz", [10.0, 30.0, 60.0])
+def test_v2_1_the_node_hold_moves_a_sampled_wall_without_steps(rate_hz: float) -> None:
+    """V2.1: y = 5 mm sin(2 pi t) sampled at rate_hz, the finger fixed in it, K = 1000 N/m:
+    the per-tick force step at updates <= 0.1 N and <= 2x the largest elsewhere, and the RMS
+    error against the wall as it is at every tick <= 1.1x the zero-order hold's. The
+    zero-order hold steps by the sampled sine's increments (2 A sin(pi f / f_u) cos(...) K),
+    and the hold without prediction lags by T_u (larger RMS): both checked as they are."""
+    runs = {b: node_hold.moving_wall(rate_hz, b) for b in GeometryBlend}
+    foh, zoh, lin = (
+        runs[GeometryBlend.NODE_FOH],
+        runs[GeometryBlend.NONE],
+        runs[GeometryBlend.LINEAR],
+    )
+    assert foh.update_max_n <= node_hold.STEP_TARGET_N
+    assert foh.update_max_n <= node_hold.STEP_RATIO * foh.other_max_n
+    assert foh.rms_n <= node_hold.RMS_RATIO * zoh.rms_n
+    step = 2 * node_hold.AMPLITUDE * math.sin(math.pi / rate_hz) * node_hold.K
+    # (the installs fall on the 1 ms grid: a sample interval may be a tick longer)
+    assert step * math.cos(math.pi / rate_hz) * 0.99 <= zoh.update_max_n <= step * 1.03
+    assert zoh.other_max_n == 0.0
+    assert lin.rms_n > foh.rms_n
+
+
+def test_v2_1_with_the_coupling_damping_the_update_steps_stay_small() -> None:
+    """The scenes' B = 2 N s/m turns the hold's change of velocity at an update into a force
+    step B dv: still <= 0.1 N and <= 2x elsewhere at 10 Hz (the zero-order hold: 8.8 N)."""
+    w = node_hold.moving_wall(10.0, GeometryBlend.NODE_FOH, damping=2.0)
+    assert w.update_max_n <= node_hold.STEP_TARGET_N
+    assert w.update_max_n <= node_hold.STEP_RATIO * w.other_max_n
+
+
+def run_wall(install_every_s: float, sample_every_s: float, ticks: int = 1200) -> np.ndarray:
+    """The V2.1 wall sampled every sample_every_s but installed every install_every_s (the
+    sim's updates repeating its last sample in between): the force per tick."""
+    m = god_params(
+        R, (1000.0, 1000.0), (0.0, 0.0), max_force=1e3, node_period_s=sample_every_s
+    )  # fmt: skip
+    old, new = shape_array(1), shape_array(1)
+    node_hold._sample(new, 0.0)
+    d = god_data((0.0, R))
+    install_shapes(m, d, old, 0, 0.0, new, 1, 0.0, 0.0)
+    x = np.array([0.0, node_hold.FINGER_Y])
+    sample_t, last, k_install = 0.0, 0.0, 1
+    out = np.zeros(ticks)
+    for i in range(ticks):
+        t = i * DT
+        if t >= k_install * install_every_s - 1e-12:
+            if t >= sample_t + sample_every_s - 1e-9:
+                sample_t = round(t / sample_every_s) * sample_every_s
+            old[:] = new
+            node_hold._sample(new, sample_t)
+            install_shapes(m, d, old, 1, t - last, new, 1, 0.0, t)
+            last = t
+            k_install += 1
+        god_object_tick(m, d, new, 1, x, x, t - last, DT)
+        out[i] = d[0]["force"][1]
+    return out
+
+
+def test_updates_that_repeat_a_sample_leave_the_hold_running() -> None:
+    """A surface published at 10 Hz in updates at 50 Hz: the four repeats between samples
+    change nothing; the force is the one of 10 Hz updates alone."""
+    alone = run_wall(0.1, 0.1)
+    repeated = run_wall(0.02, 0.1)
+    assert np.max(np.abs(alone - repeated)) < 1e-9
+    assert np.ptp(alone[200:]) > 5.0  # the wall moves: the figure is not of a still surface
+
+
+def test_a_still_surface_is_sampled_all_the_same() -> None:
+    """Samples that repeat the surface bit for bit (a string at rest) still count once per
+    period, so the hold's horizon is the sample period when the surface starts to move."""
+    m = god_params(R, (1000.0, 1000.0), (2.0, 2.0), node_period_s=0.1)
+    old, new = shape_array(1), shape_array(1)
+    nodal(new, 0, (-0.05, 0.0), (0.05, 0.0))
+    d = god_data((0.0, 0.01))
+    x = np.array([0.0, 0.01])
+    install_shapes(m, d, old, 0, 0.0, new, 1, 0.0, 0.0)
+    for i in range(1, 1000):
+        if i % 20 == 0:  # updates at 50 Hz, the surface unchanged
+            old[:] = new
+            install_shapes(m, d, old, 1, 0.02, new, 1, 0.0, i * DT)
+        god_object_tick(m, d, new, 1, x, x, 0.0, DT)
+    assert d[0]["node_samples"] == 10  # t = 0, 0.1, ..., 0.9 s
+    assert d[0]["node_horizon_s"] == pytest.approx(0.1, abs=2e-3)
+
+
+def test_a_new_generation_starts_from_its_own_nodes() -> None:
+    """A segment whose generation changes (a remesh) is not held toward a prediction from the
+    old geometry: its nodes are the new ones, at rest, from the install on."""
+    m = god_params(R, (1000.0, 1000.0), (2.0, 2.0), node_period_s=0.1)
+    old, new = shape_array(1), shape_array(1)
+    nodal(new, 0, (-0.05, 0.0), (0.05, 0.0))
+    d = god_data((0.0, 0.01))
+    x = np.array([0.0, 0.01])
+    install_shapes(m, d, old, 0, 0.0, new, 1, 0.0, 0.0)
+    for step, generation in ((1, 0), (2, 1)):
+        old[:] = new
+        nodal(new, 0, (-0.05, 0.002 * step), (0.05, 0.002 * step), generation=generation)
+        install_shapes(m, d, old, 1, 0.1, new, 1, 0.0, 0.1 * step)
+        god_object_tick(m, d, new, 1, x, x, 0.0, DT)
+    np.testing.assert_allclose(d[0]["node_start"][0], [[-0.05, 0.004], [0.05, 0.004]])
+    assert not d[0]["node_rate"][0].any()
+
+
+def test_a_fast_held_surface_is_substepped_and_never_passes_the_proxy() -> None:
+    """A thin segment (rho 0.5 mm) held from 20 mm below the finger to 40 mm above it in one
+    20 ms sample period (3 m/s, 3 mm per tick against (r + rho) / 2 = 1.25 mm): the node
+    speed sets the sub-steps, and the surface carries the proxy up instead of passing it."""
+    m = god_params(R, (1000.0, 1000.0), (2.0, 2.0), max_force=1e3, node_period_s=0.02)
+    old, new = shape_array(1), shape_array(1)
+    d = god_data((0.0, 0.0))
+    x = np.array([0.0, 0.0])
+    for i, y in enumerate((-0.05, -0.04, -0.03)):  # two samples so far; predicted: -0.02 ...
+        old[:] = new
+        nodal(new, 0, (-0.05, y), (0.05, y))
+        install_shapes(m, d, old, i, 0.02, new, 1, 0.0, 0.02 * i)
+        for _ in range(20):
+            god_object_tick(m, d, new, 1, x, x, 0.0, DT)
+    old[:] = new
+    nodal(new, 0, (-0.05, 0.005), (0.05, 0.005))  # predicts +0.04: it sweeps past the finger
+    install_shapes(m, d, old, 1, 0.02, new, 1, 0.0, 0.06)
+    substeps = []
+    for _ in range(20):
+        god_object_tick(m, d, new, 1, x, x, 0.0, DT)
+        substeps.append(d[0]["substeps"])
+    assert max(substeps) >= 3  # ceil(2 x 3 mm / 2.5 mm)
+    assert d[0]["proxy"][1] == pytest.approx(0.04 + 5e-4 + R, abs=1e-6)  # on top of it
+    assert d[0]["pops"] == 0
+
+
+def test_the_pymunk_string_deflects_by_the_closed_form() -> None:
+    """1 N on the mid-span node of membrane_10hz's string: F L / (4 T) = 10 mm per newton at
+    rest (the zero-rest-length springs make it exact; the dashpots exert nothing at rest)."""
+    world = SimWorld(load_scene("membrane_10hz"))
+    mem = world.membranes[0]
+    q, qd = world.tool_state()
+    target = ToolTarget(
+        q=q, qd=qd, device_pose=np.zeros(3), device_twist=np.zeros(3), coupled_to_device=False,
+        fresh=True, env_keys=(mem.first_key + 10, -1),
+        env_points=np.array([[0.0, -1.0], [0.0, 0.0]]),  # projects onto node 10: all of it
+        env_forces=np.array([[0.0, -1.0], [0.0, 0.0]]),
+    )  # fmt: skip
+    for _ in range(600):  # 10 s: tau = 0.6 s
+        world.step(target)
+    spec = mem.spec
+    closed = 1.0 * spec.length / (4 * spec.tension_n)
+    assert -mem.nodes()[10, 1] == pytest.approx(closed, rel=1e-4)
+    assert np.abs(mem.nodes()[:, 0] - np.linspace(-0.05, 0.05, 21)).max() < 1e-6
+
+
+def test_a_segment_force_is_shared_by_its_nodes_and_the_pins_take_theirs() -> None:
+    world = SimWorld(load_scene("membrane_10hz"))
+    mem = world.membranes[0]
+    nodes = mem.nodes()
+    point = 0.75 * nodes[5] + 0.25 * nodes[6]
+    pushes = mem.pushes(mem.first_key + 5, point, np.array([0.0, -2.0]))
+    assert [b for b, _, _ in pushes] == [mem.bodies[4], mem.bodies[5]]
+    np.testing.assert_allclose([f[1] for _, _, f in pushes], [-1.5, -0.5])
+    end = mem.pushes(mem.first_key, nodes[0], np.array([0.0, -1.0]))
+    assert end == []  # on the pinned end: the wall takes it
+
+
+def test_an_unstable_string_is_refused_with_the_substep_it_needs() -> None:
+    scene = load_scene("membrane_10hz")
+    light = dataclasses.replace(scene.deformables[0], mass=0.001)
+    world = SimWorld(scene)
+    with pytest.raises(ValueError, match=r"deformables.membrane: .* sim substep under"):
+        Membrane(world.space, light, scene.materials["skin"], 100, 1e-3)
+
+
+def test_the_scene_refuses_a_coupling_that_would_limit_cycle_through_the_string() -> None:
+    """K = 1000 N/m with node_foh: a gain of 1.7 per sample (measured: 4 N peak to peak);
+    the zero-order hold halves it (0.83): accepted."""
+    scene = load_scene("membrane_10hz")
+    stiff = dataclasses.replace(scene.rendering, god_object_stiffness=(1000.0, 1000.0))
+    with pytest.raises(ValueError, match=r"deformables\[0\]: .* gain of 1.67"):
+        dataclasses.replace(scene, rendering=stiff)
+    held = dataclasses.replace(stiff, geometry_blend="none")
+    assert dataclasses.replace(scene, rendering=held).deformables[0].loop_gain(1000.0, False) < 1
+
+
+def test_v2_3_the_membrane_pressed_through_the_system_at_10_hz() -> None:
+    """V2.3 in the virtual clock (the real sim and haptic engine): at rest the string's
+    deflection, read from the proxy, is F L / (4 T) within 5 % of the force the hand feels,
+    the force's peak to peak <= 0.02 N, no fault; the zero-order hold's ripple is larger."""
+    foh = node_hold.membrane_press("node_foh", 10.0)
+    zoh = node_hold.membrane_press("none", 10.0)
+    assert foh.force_n == pytest.approx(1.1, abs=0.1)  # the hand's 1 N, give or take its spring
+    assert abs(foh.error) <= node_hold.DEFLECTION_TOLERANCE
+    assert foh.node_deflection_m == pytest.approx(foh.deflection_m, abs=1e-4)  # sim and proxy
+    assert foh.peak_to_peak_n <= node_hold.PEAK_TO_PEAK_N
+    assert foh.faults == 0 and zoh.faults == 0
+    assert zoh.peak_to_peak_n > foh.peak_to_peak_n
