@@ -22,6 +22,7 @@ from haptic_local_model.haptic_server.stages.god_object import (
     god_data,
     god_object_tick,
     god_params,
+    install_clock,
     install_shapes,
 )
 from haptic_local_model.shared.shapes import (
@@ -301,7 +302,7 @@ def update_boundary(blend_s: float, rate_hz: float = 30.0, seconds: float = 5.0)
             y, v = state(t)
             new[0]["pose"] = (0.0, y, 0.0)
             new[0]["twist"] = (0.0, v, 0.0)
-            install_shapes(m, d, old, 1, t - last_update, new, 1, 0.0, t)
+            install_shapes(m, d, old, 1, new, 1, install_clock(t - last_update, 0.0, t))
             last_update = t
             installs.append(i)
             next_update += 1

@@ -1,12 +1,14 @@
-"""Deformable surfaces sampled at a low rate (DESIGN-WAVE2 §4, F2): the figures of V2.1 and
-V2.3 for the god-object's node hold against the zero-order hold and the unpredicted hold.
+"""Deformable surfaces sampled at a low rate and changes of topology (DESIGN-WAVE2 §4, F2):
+the figures of V2.1 and V2.3 for the god-object's node hold against the zero-order hold and
+the unpredicted hold, and of V2.2 for the two-proxy blend.
 
 V2.1, a wall moving as y = 5 mm sin(2 pi 1 Hz t) sampled at 10, 30 and 60 Hz, the finger
 fixed inside it, K_vc = 1000 N/m: the compiled kernel against the closed-form force on the
 wall as it is at every tick (the 1 kHz oracle). V2.3, the membrane_10hz scene in the
 deterministic virtual clock (the real sim's pymunk string, the real haptic engine): a soft
 hand presses the string at mid-span; its deflection at rest against the closed form
-F L / (4 T), and the force's peak to peak at rest.
+F L / (4 T), and the force's peak to peak at rest. V2.2, a 3 mm bump appearing under a
+finger pressing 2 mm: the force's rise time and largest step against the smoothstep's.
 
     python -m haptic_local_model.benchmarks.node_hold
 """
@@ -20,11 +22,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from haptic_local_model.benchmarks.god_object import box
 from haptic_local_model.haptic_server.stages.god_object import (
     GeometryBlend,
+    blend_data,
+    blend_tick,
     god_data,
     god_object_tick,
     god_params,
+    install_blended,
+    install_clock,
     install_shapes,
 )
 from haptic_local_model.shared.shapes import Motion, ShapeKind, set_core, shape_array
@@ -78,7 +85,7 @@ def moving_wall(
     old, new = shape_array(1), shape_array(1)
     _sample(new, 0.0)
     d = god_data((0.0, surface(0.0) + RADIUS))
-    install_shapes(m, d, old, 0, 0.0, new, 1, 0.0, 0.0)
+    install_shapes(m, d, old, 0, new, 1, install_clock(0.0, 0.0, 0.0))
     x = np.array([0.0, FINGER_Y])
     period = 1.0 / rate_hz
     next_k, last = 1, 0.0
@@ -88,7 +95,7 @@ def moving_wall(
         if t >= next_k * period - 1e-12:
             old[:] = new
             _sample(new, t)
-            install_shapes(m, d, old, 1, t - last, new, 1, 0.0, t)
+            install_shapes(m, d, old, 1, new, 1, install_clock(t - last, 0.0, t))
             installs.append(i)
             last = t
             next_k += 1
@@ -107,6 +114,58 @@ def moving_wall(
     err = (f - np.array(oracle))[warm:]
     return Wall(
         rate_hz, blend, float(update.max()), float(other.max()), float(np.sqrt(np.mean(err**2)))
+    )
+
+
+def bump_forces(blend_s: float, steps: list[tuple[int, list[tuple[int, float]]]]) -> np.ndarray:
+    """A finger pressing 2 mm into a floor (top at y = 0); at each (tick, bumps) the update
+    becomes the floor plus boxes (key, height) under the finger. The rendered force per tick
+    (y), K = 1000 N/m, B = 2 N s/m."""
+    m = god_params(RADIUS, (1000.0, 1000.0), (2.0, 2.0), max_force=20.0, blend_s=blend_s)
+    d, b = god_data((0.0, RADIUS)), blend_data()
+    old, new = shape_array(8), shape_array(8)
+    box(new, 0, (0.1, 0.02), 1, pose=(0.0, -0.01, 0.0))
+    n_new, t_last = 1, 0.0
+    install_blended(m, d, b, old, 0, new, 1, install_clock(0.0, 0.0, 0.0))
+    x = np.array([0.0, RADIUS - 0.002])
+    changes = dict(steps)
+    out = []
+    for i in range(400):
+        if i in changes:
+            old[:] = new
+            n_old = n_new
+            for j, (key, height) in enumerate(changes[i]):
+                box(new, 1 + j, (0.02, height), key, pose=(0.0, height / 2, 0.0))
+            n_new = 1 + len(changes[i])
+            clock = install_clock(i * DT - t_last, 0.0, i * DT)
+            install_blended(m, d, b, old, n_old, new, n_new, clock)
+            t_last = i * DT
+        god_object_tick(m, d, new, n_new, x, x, i * DT - t_last, DT)
+        blend_tick(m, d, b, x, x, DT)
+        out.append(b[0]["force"][1])
+    return np.array(out)
+
+
+@dataclass(frozen=True)
+class Bump:
+    """V2.2's figures: a 3 mm bump appears under a finger pressing 2 mm."""
+
+    rise_ticks: int  # from the install to the force's last change
+    max_step_n: float
+    bound_n: float  # the smoothstep's steepest, 1.5 dF dt / T_b
+    without_n: float  # the largest step without the blend
+
+
+def bump(blend_s: float = 0.025) -> Bump:
+    """V2.2: F from K 2 mm to K 5 mm, blended over T_b = blend_s, and without a blend."""
+    f = bump_forces(blend_s, [(200, [(2, 0.003)])])
+    done = 200 + int(np.flatnonzero(np.abs(f[200:] - 5.0) < 1e-9)[0])
+    bare = bump_forces(0.0, [(200, [(2, 0.003)])])
+    return Bump(
+        rise_ticks=done - 199,
+        max_step_n=float(np.abs(np.diff(f[195:300])).max()),
+        bound_n=1.5 * 3.0 * DT / blend_s,
+        without_n=float(np.abs(np.diff(bare[195:300])).max()),
     )
 
 
@@ -199,6 +258,15 @@ def main(argv: list[str] | None = None) -> int:
                 f"  {rate:4.0f}  {b.name.lower():9s} {w.update_max_n:10.4f} N  {w.other_max_n:9.4f} N "
                 f"  {w.rms_n:.4f} N"
             )
+    bp = bump()
+    good = abs(bp.rise_ticks - 25) <= 1 and bp.max_step_n <= bp.bound_n * 1.01
+    ok &= good
+    print(
+        f"V2.2 a 3 mm bump appears under a finger pressing 2 mm (2 N -> 5 N), T_b = 25 ms: "
+        f"rise {bp.rise_ticks} ticks (25 +- 1), max per-tick step {bp.max_step_n:.4f} N "
+        f"(<= 1.5 dF dt / T_b = {bp.bound_n:.4f} N){'  ok' if good else '  FAIL'}; without the "
+        f"blend {bp.without_n:.3f} N"
+    )
     print(
         f"V2.3 membrane_10hz, the press_1n hand, {args.seconds:g} s (virtual clock; at rest: last 3 s):"
     )

@@ -15,6 +15,7 @@ import numpy as np
 
 from haptic_local_model.device_models.base import AUX_SIZE, SENSOR_DTYPE, DeviceRenderingSpec
 from haptic_local_model.haptic_server.stages.god_object import (
+    BLEND_DTYPE,
     GOD_DATA_DTYPE,
     GOD_PARAMS_DTYPE,
     GeometryBlend,
@@ -218,6 +219,7 @@ TICK_DTYPE = np.dtype(
         ("god_env_key", np.int64, (2,)),  # the shapes it touches (-1: none) ...
         ("god_env_point", F8, (2, 2)),  # ... the points where it touches them (world) ...
         ("god_env_force", F8, (2, 2)),  # ... and the force on each, N (the sim applies it)
+        ("god_blend", F8),  # a two-proxy blend's weight of the new geometry, 0 < s <= 1; 0: none
     ]
 )
 
@@ -239,6 +241,7 @@ DATA_DTYPE = np.dtype(
         ("scratch", SCRATCH_DTYPE),
         ("row", TICK_DTYPE),
         ("god", GOD_DATA_DTYPE),  # the god-object proxy (the god_object method)
+        ("god_blend", BLEND_DTYPE),  # its two-proxy blend, and what it renders
     ]
 )
 

@@ -264,16 +264,17 @@ SWEEP_TOLERANCE_M = 1.0e-9
 
 @njit(cache=True)
 def sweep_distance(shape, pose, p, u, length, radius, gap):
-    """`vertex_sweep_distance` of the shape's core."""
-    return vertex_sweep_distance(
-        shape.vertices, shape.n_vert, shape.rounding, pose, p, u, length, radius, gap
-    )
+    """`vertex_sweep_distance` of the shape's core, for a disc of the given radius that must
+    stay `gap` outside it."""
+    reach = shape.rounding + radius + gap
+    return vertex_sweep_distance(shape.vertices, shape.n_vert, pose, p, u, length, reach)
 
 
 @njit(cache=True)
-def vertex_sweep_distance(v, n, rounding, pose, p, u, length, radius, gap):
-    """How far the disc can move from p along the unit direction u (at most `length`) and
-    stay `gap` outside the shape: Newton's iteration on the convex phi along the ray, which
+def vertex_sweep_distance(v, n, pose, p, u, length, reach):
+    """How far a point can move from p along the unit direction u (at most `length`) and
+    stay `reach` (the core's rounding, the disc's radius and a gap) outside the core of
+    v[:n]: Newton's iteration on the convex psi = dist - reach along the ray, which
     approaches its root from below and never steps past it (a convex function lies above its
     tangents). Returns `length` when the shape is not reached; stops short (never through)
     if the iteration cap is met."""
@@ -281,8 +282,7 @@ def vertex_sweep_distance(v, n, rounding, pose, p, u, length, radius, gap):
     for _ in range(SWEEP_ITERATIONS):
         x = p[0] + s * u[0]
         y = p[1] + s * u[1]
-        phi, nx, ny = vertex_signed_distance(v, n, rounding, pose, x, y, radius)
-        psi = phi - gap
+        psi, nx, ny = vertex_signed_distance(v, n, reach, pose, x, y, 0.0)
         if psi <= SWEEP_TOLERANCE_M:
             return s
         slope = nx * u[0] + ny * u[1]

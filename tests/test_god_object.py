@@ -28,6 +28,7 @@ from haptic_local_model.haptic_server.stages.god_object import (
     god_data,
     god_object_tick,
     god_params,
+    install_clock,
     install_shapes,
 )
 from haptic_local_model.shared.shapes import Motion, shape_array
@@ -136,7 +137,7 @@ def test_install_keeps_the_stick_on_its_shape_by_key() -> None:
     new[1]["pose"] = (0.0002 + 0.00003, 0.0, 0.0)  # the sim's pose: 30 um from the forecast
     new[1]["motion"] = int(Motion.BALLISTIC)
     before = d[0]["proxy"].copy()
-    install_shapes(m, d, old, 2, 10 * DT, new, 2, 0.0, 10 * DT)
+    install_shapes(m, d, old, 2, new, 2, install_clock(10 * DT, 0.0, 10 * DT))
     assert d[0]["stick_shape"] == 1
     god_object_tick(m, d, new, 2, x, x, 0.0, DT)
     assert d[0]["contact"] == Contact.STICK

@@ -80,6 +80,7 @@ TICK_FIELDS_SINCE_0_2 = {
     *("god_proxy", "god_contact", "god_active", "god_pop", "god_pops", "god_substeps"),
     "god_capped",
     *("n_shapes", "god_env_key", "god_env_point", "god_env_force"),  # 0.5: the god-object
+    "god_blend",  # 0.6: its two-proxy blend
 }
 
 VIRTUAL_LOGS = sorted(GOLDEN.glob("vc_*.mcap")) + sorted(GOLDEN_02.glob("vc_*.mcap"))

@@ -14,9 +14,13 @@ import pytest
 from haptic_local_model.benchmarks import node_hold
 from haptic_local_model.haptic_server.stages.god_object import (
     GeometryBlend,
+    blend_data,
+    blend_tick,
     god_data,
     god_object_tick,
     god_params,
+    install_blended,
+    install_clock,
     install_shapes,
 )
 from haptic_local_model.shared.config import load_scene
@@ -81,7 +85,7 @@ def run_wall(install_every_s: float, sample_every_s: float, ticks: int = 1200) -
     old, new = shape_array(1), shape_array(1)
     node_hold._sample(new, 0.0)
     d = god_data((0.0, R))
-    install_shapes(m, d, old, 0, 0.0, new, 1, 0.0, 0.0)
+    install_shapes(m, d, old, 0, new, 1, install_clock(0.0, 0.0, 0.0))
     x = np.array([0.0, node_hold.FINGER_Y])
     sample_t, last, k_install = 0.0, 0.0, 1
     out = np.zeros(ticks)
@@ -92,7 +96,7 @@ def run_wall(install_every_s: float, sample_every_s: float, ticks: int = 1200) -
                 sample_t = round(t / sample_every_s) * sample_every_s
             old[:] = new
             node_hold._sample(new, sample_t)
-            install_shapes(m, d, old, 1, t - last, new, 1, 0.0, t)
+            install_shapes(m, d, old, 1, new, 1, install_clock(t - last, 0.0, t))
             last = t
             k_install += 1
         god_object_tick(m, d, new, 1, x, x, t - last, DT)
@@ -117,11 +121,11 @@ def test_a_still_surface_is_sampled_all_the_same() -> None:
     nodal(new, 0, (-0.05, 0.0), (0.05, 0.0))
     d = god_data((0.0, 0.01))
     x = np.array([0.0, 0.01])
-    install_shapes(m, d, old, 0, 0.0, new, 1, 0.0, 0.0)
+    install_shapes(m, d, old, 0, new, 1, install_clock(0.0, 0.0, 0.0))
     for i in range(1, 1000):
         if i % 20 == 0:  # updates at 50 Hz, the surface unchanged
             old[:] = new
-            install_shapes(m, d, old, 1, 0.02, new, 1, 0.0, i * DT)
+            install_shapes(m, d, old, 1, new, 1, install_clock(0.02, 0.0, i * DT))
         god_object_tick(m, d, new, 1, x, x, 0.0, DT)
     assert d[0]["node_samples"] == 10  # t = 0, 0.1, ..., 0.9 s
     assert d[0]["node_horizon_s"] == pytest.approx(0.1, abs=2e-3)
@@ -135,11 +139,11 @@ def test_a_new_generation_starts_from_its_own_nodes() -> None:
     nodal(new, 0, (-0.05, 0.0), (0.05, 0.0))
     d = god_data((0.0, 0.01))
     x = np.array([0.0, 0.01])
-    install_shapes(m, d, old, 0, 0.0, new, 1, 0.0, 0.0)
+    install_shapes(m, d, old, 0, new, 1, install_clock(0.0, 0.0, 0.0))
     for step, generation in ((1, 0), (2, 1)):
         old[:] = new
         nodal(new, 0, (-0.05, 0.002 * step), (0.05, 0.002 * step), generation=generation)
-        install_shapes(m, d, old, 1, 0.1, new, 1, 0.0, 0.1 * step)
+        install_shapes(m, d, old, 1, new, 1, install_clock(0.1, 0.0, 0.1 * step))
         god_object_tick(m, d, new, 1, x, x, 0.0, DT)
     np.testing.assert_allclose(d[0]["node_start"][0], [[-0.05, 0.004], [0.05, 0.004]])
     assert not d[0]["node_rate"][0].any()
@@ -156,12 +160,12 @@ def test_a_fast_held_surface_is_substepped_and_never_passes_the_proxy() -> None:
     for i, y in enumerate((-0.05, -0.04, -0.03)):  # two samples so far; predicted: -0.02 ...
         old[:] = new
         nodal(new, 0, (-0.05, y), (0.05, y))
-        install_shapes(m, d, old, i, 0.02, new, 1, 0.0, 0.02 * i)
+        install_shapes(m, d, old, i, new, 1, install_clock(0.02, 0.0, 0.02 * i))
         for _ in range(20):
             god_object_tick(m, d, new, 1, x, x, 0.0, DT)
     old[:] = new
     nodal(new, 0, (-0.05, 0.005), (0.05, 0.005))  # predicts +0.04: it sweeps past the finger
-    install_shapes(m, d, old, 1, 0.02, new, 1, 0.0, 0.06)
+    install_shapes(m, d, old, 1, new, 1, install_clock(0.02, 0.0, 0.06))
     substeps = []
     for _ in range(20):
         god_object_tick(m, d, new, 1, x, x, 0.0, DT)
@@ -234,3 +238,57 @@ def test_v2_3_the_membrane_pressed_through_the_system_at_10_hz() -> None:
     assert foh.peak_to_peak_n <= node_hold.PEAK_TO_PEAK_N
     assert foh.faults == 0 and zoh.faults == 0
     assert zoh.peak_to_peak_n > foh.peak_to_peak_n
+
+
+# --- V2.2: a change of topology under the proxy (the two-proxy blend) ----------------------
+
+
+def test_v2_2_a_bump_appearing_under_the_finger_is_blended_in_over_t_b() -> None:
+    """V2.2: a 3 mm bump appears under a finger pressing 2 mm: the force rises from 2 N to
+    5 N over T_b = 25 ms (+- 1 tick), no per-tick step above the smoothstep's steepest,
+    1.5 dF dt / T_b (+ 1 %); without the blend it steps at once (the damping kicks too)."""
+    f = node_hold.bump_forces(0.025, [(200, [(2, 0.003)])])
+    assert f[199] == pytest.approx(2.0, abs=1e-9)
+    done = 200 + int(np.flatnonzero(np.abs(f[200:] - 5.0) < 1e-9)[0])
+    assert abs((done - 199) - 25) <= 1  # the blend's last tick is its 25th
+    steps = np.abs(np.diff(f[195:300]))
+    assert steps.max() <= 1.5 * 3.0 * DT / 0.025 * 1.01
+    jump = node_hold.bump_forces(0.0, [(200, [(2, 0.003)])])
+    assert np.abs(np.diff(jump[195:300])).max() > 3.0
+
+
+def test_v2_2_a_second_change_mid_blend_restarts_from_what_is_rendered() -> None:
+    """The bump grows to 5 mm 10 ticks into the blend: A restarts from the rendered proxy,
+    so the force neither jumps nor runs back; it reaches K 7 mm over a new T_b."""
+    f = node_hold.bump_forces(0.025, [(200, [(2, 0.003)]), (210, [(2, 0.003), (3, 0.005)])])
+    steps = np.abs(np.diff(f[195:320]))
+    assert steps.max() <= 1.5 * (7.0 - f[209]) * DT / 0.025 * 1.01
+    assert (np.diff(f[200:260]) >= -1e-9).all()  # rises only
+    assert f[-1] == pytest.approx(7.0, abs=1e-9)
+
+
+def test_a_new_generation_of_a_held_surface_is_blended_in() -> None:
+    """A membrane's segment under the finger comes in a new generation 1 mm higher (a remesh):
+    the two-proxy blend runs over min(blend_s, 0.8 T_avg) and the force rises without a
+    step; the weight of the new geometry is logged (god_blend) while it runs."""
+    m = god_params(
+        R, (1000.0, 1000.0), (2.0, 2.0), max_force=20.0, blend_s=0.025, node_period_s=0.1
+    )
+    d, b = god_data((0.0, 5e-4 + R)), blend_data()
+    old, new = shape_array(1), shape_array(1)
+    x = np.array([0.0, 5e-4 + R - 0.002])
+    forces, weights = [], []
+    for i in range(400):
+        if i % 100 == 0:
+            old[:] = new
+            y, gen = (0.001, 1) if i == 300 else (0.0, 0)
+            nodal(new, 0, (-0.05, y), (0.05, y), generation=gen)
+            install_blended(m, d, b, old, min(i, 1), new, 1, install_clock(0.1, 0.0, i * DT))
+        god_object_tick(m, d, new, 1, x, x, 0.0, DT)
+        blend_tick(m, d, b, x, x, DT)
+        forces.append(b[0]["force"][1])
+        weights.append(b[0]["weight"])
+    f, w = np.array(forces), np.array(weights)
+    assert f[299] == pytest.approx(2.0, abs=1e-6) and f[-1] == pytest.approx(3.0, abs=1e-6)
+    assert np.count_nonzero(w[300:] > 0) == 25  # T_b = min(25 ms, 0.8 x 100 ms)
+    assert np.abs(np.diff(f[290:])).max() <= 1.5 * 1.0 * DT / 0.025 * 1.01

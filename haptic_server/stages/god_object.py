@@ -18,6 +18,13 @@ The force on the user is F = K (p - x_h) + B (p' - x_h'); the force on the touch
 is its opposite, split by the planes' multipliers (the seed's eq 3 names only the first),
 sent to the sim with the proxy state. Every kernel is a pure function of its records.
 
+When the topology under the proxy changes (a shape appears that touches it, or one it
+touches comes in a new generation: a remesh, a cut), the new geometry may hold the proxy
+somewhere else entirely. A two-proxy blend (DESIGN-WAVE2 §4) then runs proxy A on against a
+copy of the old shapes and B, the god-object's own state, against the new ones, and renders
+(1 - s) A + s B, s = smoothstep(t / T_b), T_b = min(blend_s, 0.8 T_avg): the force moves to
+the new geometry's over T_b instead of in one tick.
+
 A deformable surface (a membrane) arrives as NODAL segments at a low rate (10 Hz). Between
 its updates the god-object runs against the rendered nodes (DESIGN-WAVE2 §4, F2): with
 `node_foh`, at each install every node moves linearly from where it is rendered to the
@@ -38,6 +45,7 @@ from numba import njit
 
 from haptic_local_model.shared.shapes import (
     MAX_SHAPES,
+    SHAPE_DTYPE,
     Motion,
     carry_pose,
     carry_rate,
@@ -76,6 +84,18 @@ class GeometryBlend(enum.IntEnum):
     NONE = 0  # zero-order hold: the newest nodes
     LINEAR = 1  # toward the newest nodes over T_avg (no prediction)
     NODE_FOH = 2  # toward the predicted next nodes over T_avg
+
+
+#: When an install happens: the old and new updates' ages now (s) and the new one's sim time
+#: (the clock of the node samples).
+CLOCK_DTYPE = np.dtype([("old_tau", np.float64), ("new_tau", np.float64), ("new_time", np.float64)])
+
+
+def install_clock(old_tau: float, new_tau: float, new_time: float) -> np.ndarray:
+    """A CLOCK_DTYPE[1] record."""
+    c = np.zeros(1, dtype=CLOCK_DTYPE)
+    c[0] = (old_tau, new_tau, new_time)
+    return c
 
 
 #: Parameters of one god-object tool (static per scene).
@@ -144,33 +164,61 @@ GOD_DATA_DTYPE = np.dtype(
         ("node_horizon_s", np.float64),  # T_avg, the horizon of the next holds
         ("node_hold_s", np.float64),  # the horizon of the running holds
         ("intervals", np.float64, (INTERVALS,)),  # the last update intervals, s
+        ("clock", CLOCK_DTYPE),  # the install's (filled by the caller)
         ("n_intervals", np.int64),
     ]
 )
 
 
+#: The two-proxy blend and what the god_object method renders (the blend's or B's alone).
+BLEND_DTYPE = np.dtype(
+    [
+        ("active", np.int64),
+        ("elapsed_s", np.float64),
+        ("total_s", np.float64),  # T_b
+        ("weight", np.float64),  # s, the new geometry's weight this tick (0: no blend)
+        ("tau", np.float64),  # the age of A's shapes
+        ("n_shapes", np.int64),
+        ("shapes", SHAPE_DTYPE, (MAX_SHAPES,)),  # A's: the old update's, kept
+        ("a", GOD_DATA_DTYPE),  # proxy A and its per-shape state
+        ("offset_p", np.float64, (2,)),  # carried with A: what was rendered minus A, at a
+        ("offset_f", np.float64, (2,)),  # restart (zero for a blend from rest)
+        ("proxy", np.float64, (2,)),  # the rendered proxy
+        ("force", np.float64, (2,)),  # the rendered force on the user, N
+        ("env_key", np.int64, (2,)),  # the rendered forces on obstacles (as in GOD_DATA)
+        ("env_point", np.float64, (2, 2)),
+        ("env_force", np.float64, (2, 2)),
+    ]
+)
+
+
+def blend_data() -> np.ndarray:
+    """No blend running (BLEND_DTYPE[1])."""
+    return np.zeros(1, dtype=BLEND_DTYPE)
+
+
+#: The god-object's parameters beyond the disc and its coupling, unless given.
+GOD_DEFAULTS: dict[str, float] = {
+    "max_substeps": 16,
+    "pop_ramp_s": 5e-3,
+    "max_force": 10.0,
+    "blend_s": 8e-3,
+    "geometry_blend": GeometryBlend.NODE_FOH,
+    "node_period_s": 0.0,  # unknown: a deformable's samples are told by their change only
+}
+
+
 def god_params(
-    radius: float,
-    stiffness: tuple[float, float],
-    damping: tuple[float, float],
-    max_substeps: int = 16,
-    pop_ramp_s: float = 5e-3,
-    max_force: float = 10.0,
-    blend_s: float = 8e-3,
-    geometry_blend: GeometryBlend = GeometryBlend.NODE_FOH,
-    node_period_s: float = 0.0,
+    radius: float, stiffness: tuple[float, float], damping: tuple[float, float], **fields: float
 ) -> np.ndarray:
-    """One GOD_PARAMS_DTYPE record (the scene loader checks the ranges)."""
+    """One GOD_PARAMS_DTYPE record: the disc's radius, the coupling, and any other field by
+    name (GOD_DEFAULTS otherwise; the scene loader checks the ranges)."""
     g = np.zeros(1, dtype=GOD_PARAMS_DTYPE)
     g[0]["radius"] = radius
     g[0]["stiffness"] = stiffness
     g[0]["damping"] = damping
-    g[0]["max_substeps"] = max_substeps
-    g[0]["pop_ramp_s"] = pop_ramp_s
-    g[0]["max_force"] = max_force
-    g[0]["blend_s"] = blend_s
-    g[0]["geometry_blend"] = int(geometry_blend)
-    g[0]["node_period_s"] = node_period_s
+    for name, value in {**GOD_DEFAULTS, **fields}.items():
+        g[0][name] = value  # an unknown name is numpy's ValueError, naming it
     return g
 
 
@@ -438,8 +486,8 @@ def _sweep(m, d, shapes, k, p, u, length):
     """How far the proxy moves from p along u (at most length) and stays GAP_M outside k."""
     s = shapes[k]
     if s.motion == Motion.NODAL:
-        core = d.node_core[k]
-        return vertex_sweep_distance(core, 2, s.rounding, d.poses[k], p, u, length, m.radius, GAP_M)
+        reach = s.rounding + m.radius + GAP_M
+        return vertex_sweep_distance(d.node_core[k], 2, d.poses[k], p, u, length, reach)
     return sweep_distance(s, d.poses[k], p, u, length, m.radius, GAP_M)
 
 
@@ -705,19 +753,21 @@ def _wrap(angle):
 
 
 @njit(cache=True)
-def install_shapes(model, data, old, n_old, old_tau, new, n_new, new_tau, new_time):
-    """install_shapes_step on GOD_PARAMS_DTYPE[1] and GOD_DATA_DTYPE[1] arrays."""
-    install_shapes_step(model[0], data[0], old, n_old, old_tau, new, n_new, new_tau, new_time)
+def install_shapes(model, data, old, n_old, new, n_new, clock):
+    """install_shapes_step on GOD_PARAMS_DTYPE[1], GOD_DATA_DTYPE[1] and CLOCK_DTYPE[1]."""
+    install_shapes_step(model[0], data[0], old, n_old, new, n_new, clock[0])
 
 
 @njit(cache=True)
-def install_shapes_step(m, d, old, n_old, old_tau, new, n_new, new_tau, new_time):
+def install_shapes_step(m, d, old, n_old, new, n_new, clock):
     """A new set of shapes replaces the old at an install. A shape present in both (by key)
     keeps its rendered pose and velocity: the difference from the new extrapolation (the
     old one's error) and its rate fade out over blend_s by `pose_blend_weights` (DESIGN-WAVE2
     C2's pose FOH, made C1). The stick follows its shape by key (the pop keeps its key).
-    old_tau and new_tau are the two updates' ages now, new_time the new one's sim time (the
-    clock of the node samples)."""
+    The clock (CLOCK_DTYPE) holds the two updates' ages now and the new one's sim time."""
+    old_tau = clock.old_tau
+    new_tau = clock.new_tau
+    new_time = clock.new_time
     h, g, hd, gd = pose_blend_weights(m, d.fade_elapsed_s)
     stick_key = old[d.stick_shape].key if 0 <= d.stick_shape < n_old else -1
     d.stick_shape = -1
@@ -887,6 +937,136 @@ def start_nodes(d, k, sample):
     d.node_speed[k] = max(math.hypot(sc[4], sc[5]), math.hypot(sc[6], sc[7]))
     d.pose_offset[k, :] = 0.0
     d.pose_offset_rate[k, :] = 0.0
+
+
+@njit(cache=True)
+def topology_changes(m, d, old, n_old, new, n_new, new_tau):
+    """Whether the new shapes change the topology under the proxy: a shape that touches or
+    overlaps it now and is new (its key not in the old update) or of a new generation."""
+    for k in range(n_new):
+        s = new[k]
+        changed = True
+        for j in range(n_old):
+            if old[j].key == s.key:
+                changed = old[j].generation != s.generation
+                break
+        if not changed:
+            continue
+        if s.motion == Motion.NODAL:  # its sample, about a pose of zero angle
+            phi, _, _ = signed_distance(s, s.pose, d.proxy[0], d.proxy[1], m.radius)
+        else:
+            carry_pose(s.pose, s.twist, s.motion, new_tau, d.old_pose)
+            phi, _, _ = signed_distance(s, d.old_pose, d.proxy[0], d.proxy[1], m.radius)
+        if phi < TOUCH_M:
+            return True
+    return False
+
+
+@njit(cache=True)
+def begin_blend(m, d, b, old, n_old, old_tau):
+    """Start a two-proxy blend at an install, before the new shapes replace the old in d:
+    A <- the god-object as it is, with the old shapes and their per-shape state. A blend
+    already running restarts from what it renders: A <- B (on B's geometry, now the old one)
+    plus a constant offset, what was rendered minus B, so the rendered proxy and force go on
+    from where they were. (DESIGN-WAVE2 puts A at p_r and depenetrates it against B's
+    geometry, a jump of up to (1 - s) |p_A - p_B|; the offset makes none.) No blend when T_b
+    is zero."""
+    total = m.blend_s
+    if d.n_intervals > 0:
+        total = min(total, 0.8 * d.node_horizon_s)
+    if total <= 0.0:
+        return
+    running = b.active == 1
+    b.a = d
+    for c in range(2):
+        b.offset_p[c] = b.proxy[c] - d.proxy[c] if running else 0.0
+        b.offset_f[c] = b.force[c] - d.force[c] if running else 0.0
+    for k in range(n_old):
+        b.shapes[k] = old[k]
+    b.n_shapes = n_old
+    b.tau = old_tau
+    b.elapsed_s = 0.0
+    b.total_s = total
+    b.active = 1
+
+
+@njit(cache=True)
+def install_blended_step(m, d, b, old, n_old, new, n_new, clock):
+    """An install: a two-proxy blend begins if the topology under the proxy changes, then
+    the new shapes replace the old (install_shapes_step)."""
+    if topology_changes(m, d, old, n_old, new, n_new, clock.new_tau):
+        begin_blend(m, d, b, old, n_old, clock.old_tau)
+    install_shapes_step(m, d, old, n_old, new, n_new, clock)
+
+
+@njit(cache=True)
+def install_blended(model, data, blend, old, n_old, new, n_new, clock):
+    """install_blended_step on [1] arrays (tests, benchmarks)."""
+    install_blended_step(model[0], data[0], blend[0], old, n_old, new, n_new, clock[0])
+
+
+@njit(cache=True)
+def blend_step(m, d, b, x0, x1, dt):
+    """After the god-object's tick (B, in d): while a blend runs, A's tick against its old
+    shapes; the rendered proxy, force and obstacle forces into b (B's alone otherwise), the
+    force clipped at max_force again (A carries a restart's offset)."""
+    s = 1.0
+    blending = b.active == 1
+    if blending:
+        god_object_step(m, b.a, b.shapes, b.n_shapes, x0, x1, b.tau, dt)
+        b.tau += dt
+        b.elapsed_s += dt
+        u = min(1.0, b.elapsed_s / b.total_s)
+        s = u * u * (3.0 - 2.0 * u)
+        if u >= 1.0:
+            b.active = 0
+    b.weight = s if blending else 0.0
+    a = b.a
+    for c in range(2):
+        if s < 1.0:
+            b.proxy[c] = (1.0 - s) * (a.proxy[c] + b.offset_p[c]) + s * d.proxy[c]
+            b.force[c] = (1.0 - s) * (a.force[c] + b.offset_f[c]) + s * d.force[c]
+        else:
+            b.proxy[c] = d.proxy[c]
+            b.force[c] = d.force[c]
+    mag = math.hypot(b.force[0], b.force[1])
+    if mag > m.max_force:
+        b.force[0] *= m.max_force / mag
+        b.force[1] *= m.max_force / mag
+    for j in range(2):
+        b.env_key[j] = d.env_key[j]
+        for c in range(2):
+            b.env_point[j, c] = d.env_point[j, c]
+            b.env_force[j, c] = s * d.env_force[j, c]
+    if s < 1.0:
+        for j in range(2):
+            if a.env_key[j] >= 0:
+                _add_env(b, a.env_key[j], a.env_point[j], 1.0 - s, a.env_force[j])
+
+
+@njit(cache=True)
+def _add_env(b, key, point, w, force):
+    """A's share w of its force on obstacle `key`: onto B's force on the same key, else into
+    a free slot (B touches at most two obstacles; a third share is dropped)."""
+    for j in range(2):
+        if b.env_key[j] == key:
+            b.env_force[j, 0] += w * force[0]
+            b.env_force[j, 1] += w * force[1]
+            return
+    for j in range(2):
+        if b.env_key[j] < 0:
+            b.env_key[j] = key
+            b.env_point[j, 0] = point[0]
+            b.env_point[j, 1] = point[1]
+            b.env_force[j, 0] = w * force[0]
+            b.env_force[j, 1] = w * force[1]
+            return
+
+
+@njit(cache=True)
+def blend_tick(model, data, blend, x0, x1, dt):
+    """blend_step on [1] arrays (tests, benchmarks)."""
+    blend_step(model[0], data[0], blend[0], x0, x1, dt)
 
 
 @njit(cache=True)
