@@ -418,6 +418,12 @@ class DeformableSpec:
         """k of each spring: T = k L / (nodes - 1) when straight."""
         return self.tension_n * (self.nodes - 1) / self.length
 
+    @property
+    def highest_mode_rad_s(self) -> float:
+        """2 sqrt(k / m_node): the chain's fastest mode (pymunk's explicit spring needs
+        it times the substep below 1)."""
+        return 2.0 * math.sqrt(self.spring_stiffness * (self.nodes - 2) / self.mass)
+
     def loop_gain(self, coupling_n_per_m: float, predicted: bool) -> float:
         """The gain, per sample, of the loop the god-object closes through the string: a
         surface step dy changes the coupling's force by K dy before the device can follow;
@@ -728,10 +734,26 @@ class SceneConfig:
                 f"deformables[{i}]",
                 "a deformable is rendered by the god_object method only",
             )
+            every = self.sim_rate_hz / dm.publish_hz
             require(
-                dm.publish_hz <= self.sim_rate_hz,
+                every >= 1.0 and abs(every - round(every)) <= 1e-9 * every,
                 f"deformables[{i}].publish_hz",
-                f"{dm.publish_hz:g} Hz exceeds sim_rate_hz {self.sim_rate_hz:g}",
+                f"{dm.publish_hz:g} Hz must divide sim_rate_hz {self.sim_rate_hz:g} (the sim "
+                "samples the string every sim_rate_hz / publish_hz steps)",
+            )
+            require(
+                dm.publish_hz == self.deformables[0].publish_hz,
+                f"deformables[{i}].publish_hz",
+                "every deformable of a scene is sampled at the same rate",
+            )
+            h = 1.0 / (self.sim_rate_hz * self.sim_substeps)
+            omega = dm.highest_mode_rad_s
+            require(
+                omega * h < 1.0,
+                "sim_substeps",
+                f"deformables[{i}]: the string's highest mode ({omega:.0f} rad/s) needs a sim "
+                f"substep under {1e3 / omega:.3f} ms for pymunk's explicit spring, got "
+                f"{1e3 * h:.3f} ms: raise sim_substeps, lower nodes or tension, or add mass",
             )
             k = max(self.rendering.god_object_stiffness)
             gain = dm.loop_gain(k, self.rendering.geometry_blend == "node_foh")

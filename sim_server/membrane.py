@@ -45,7 +45,7 @@ class Membrane:
         n = spec.nodes
         k = spec.spring_stiffness
         node_mass = spec.mass / (n - 2)
-        omega = 2.0 * math.sqrt(k / node_mass)  # the highest mode of the chain
+        omega = spec.highest_mode_rad_s  # (the scene loader checks it too)
         if omega * substep_s >= 1.0:
             raise ValueError(
                 f"deformables.{spec.name}: the string's highest mode ({omega:.0f} rad/s) needs "

@@ -20,6 +20,7 @@ import pymunk
 from haptic_local_model.shared.config import Material
 from haptic_local_model.shared.shapes import (
     MAX_SHAPES,
+    MIN_EDGE_M,
     Motion,
     ShapeKind,
     polygon_problem,
@@ -55,13 +56,21 @@ class LocalShapes:
         self.margin_m = margin_m
         self.dropped = 0  # shapes within the margin beyond MAX_SHAPES (the farthest go)
 
-    def fill(self, space: pymunk.Space, record: np.void) -> int:
+    def fill(
+        self, space: pymunk.Space, record: np.void, proxy: tuple[float, float, float] | None = None
+    ) -> int:
         """The shapes within margin_m of the tool's shapes into record["shapes"], nearest
-        first, at most MAX_SHAPES; returns how many."""
+        first, at most MAX_SHAPES; returns how many. Given the haptic side's proxy (x, y and
+        its radius), the query is about the proxy instead: the sim's finger follows it
+        centimetres behind when it moves fast, and a shape the proxy touches must never fall
+        out of the nearest MAX_SHAPES (the proxy would jump off it)."""
         tool = self._tool
         bb = tool[0].bb
         for s in tool[1:]:
             bb = bb.merge(s.bb)
+        if proxy is not None:
+            x, y, r = proxy
+            bb = pymunk.BB(x - r, y - r, x + r, y + r)
         bb = pymunk.BB(
             bb.left - self.margin_m, bb.bottom - self.margin_m,
             bb.right + self.margin_m, bb.top + self.margin_m,
@@ -78,6 +87,8 @@ class LocalShapes:
             nodes = mem.published
             for i in range(len(nodes) - 1):
                 a, b = nodes[i], nodes[i + 1]
+                if np.hypot(*(b - a)) <= 1e3 * MIN_EDGE_M:
+                    continue  # a segment the parser would refuse (nodes crushed together)
                 lo, hi = np.minimum(a, b) - mem.spec.radius, np.maximum(a, b) + mem.spec.radius
                 if lo[0] > bb.right or hi[0] < bb.left or lo[1] > bb.top or hi[1] < bb.bottom:
                     continue

@@ -121,6 +121,9 @@ class SimWorld:
             if scene.rendering.method == "god_object"
             else None
         )
+        # the god-object's proxy (x, y, r) from the newest proxy state: the shapes are sent
+        # about it (LocalShapes.fill); None while the haptic side is silent
+        self._proxy: tuple[float, float, float] | None = None
         tool = {t for t, _ in self.tool_shapes}
         self._dynamic_by_key = {  # the bodies a god-object's push is applied to, by shape key
             k: s.body
@@ -320,6 +323,7 @@ class SimWorld:
         compiled call)."""
         tg = self._target[0]
         tg["env_body"] = 0
+        self._proxy = None
         if target is None or not target.fresh:
             tg["mode"] = DRIVE_REST
         else:
@@ -329,6 +333,8 @@ class SimWorld:
             )
             if self.local_shapes is not None:
                 self._touched(target)
+                radius = self.scene.tool_body.radius
+                self._proxy = (float(target.q[0]), float(target.q[1]), radius)
         step_world(
             self.tool, self._target, self.chain, self._kinematic_rec, self.time, self.period,
             self.substeps, self._drive_work,
@@ -370,7 +376,7 @@ class SimWorld:
         build_local_model(self.tool, self.chain, lm.query, lm.work, lm.record)
         if self.local_shapes is not None:  # the god-object needs shapes, not contact points
             lm.record[0]["n_contacts"] = 0
-            self.local_shapes.fill(self.space, lm.record[0])
+            self.local_shapes.fill(self.space, lm.record[0], self._proxy)
         n = encode_stamped(
             lm.record, self._encoded, epoch, seq, self.time, publish_time_ns, state_lead_s
         )

@@ -27,12 +27,13 @@ the new geometry's over T_b instead of in one tick.
 
 A deformable surface (a membrane) arrives as NODAL segments at a low rate (10 Hz). Between
 its updates the god-object runs against the rendered nodes (DESIGN-WAVE2 §4, F2): with
-`node_foh`, at each install every node moves linearly from where it is rendered to the
+`node_foh`, at each new sample every node moves linearly from where it is rendered to the
 predicted next surface y_new + (y_new - y_prev) over T_avg, the mean of the last three
-update intervals, so the surface moves smoothly and the proxy meets it as a moving obstacle
-(the nodes' speed enters the sub-step bound). `linear` moves toward y_new without the
-prediction (a lag of T_avg), `none` holds y_new (the zero-order hold). A segment keeps its
-hold while its key and generation do; a new generation starts from its new nodes.
+sample intervals (sim time), so the surface moves smoothly and the proxy meets it as a
+moving obstacle (the nodes' speed enters the sub-step bound). `linear` moves toward y_new
+without the prediction (a lag of T_avg), `none` holds y_new (the zero-order hold). A segment
+keeps its hold while its key and generation do; a new generation, or a segment entering the
+neighbourhood, starts at rest at its new nodes.
 """
 
 from __future__ import annotations
@@ -66,7 +67,8 @@ PARALLEL_SIN = 1.0e-6  # two planes closer than this in direction are merged
 FEASIBLE_M = 1.0e-12  # slack of a satisfied plane
 HYSTERESIS = 0.6  # slip returns to stick below 0.6 atan(mu_k) (CHAI3D's multiplier)
 NEAR_SLACK_M = 1.0e-3  # prefilter margin beyond every motion bound
-INTERVALS = 3  # update intervals averaged into the node hold's horizon T_avg
+INTERVALS = 3  # sample intervals averaged into the node hold's horizon T_avg
+MIN_HORIZON_S = 1.0e-3  # the shortest T_avg: a hostile clock cannot make a node's rate infinite
 SAMPLE_DUE = 0.95  # an unchanged surface is a new sample this far into its period
 
 
@@ -834,10 +836,12 @@ def _old_match(old, n_old, s):
 @njit(cache=True)
 def new_node_sample(m, d, old, n_old, new, n_new, new_time):
     """Whether the new update brings a new sample of the deformable surface: a NODAL segment
-    that is new, of a new generation, or whose nodes moved; or, the surface unchanged, a
-    sample period (node_period_s) since the last. The sim may publish a surface at a lower
-    rate than its updates, repeating the last sample in between: then the holds run on. (A
-    surface at rest, or at the same place at two samples, is sampled all the same.)"""
+    of the same key and generation whose nodes moved; or, the surface unchanged, a sample
+    period (node_period_s) since the last. The sim may publish a surface at a lower rate
+    than its updates, repeating the last sample in between: then the holds run on. (A
+    surface at rest, or at the same place at two samples, is sampled all the same.) A
+    segment without a match (one entering the neighbourhood, a new generation) is not a
+    sample by itself, except the very first: it is held at its nodes (hold_nodes)."""
     period = m.node_period_s
     due = new_time - d.node_sample_time >= SAMPLE_DUE * period
     if period > 0.0 and d.node_samples > 0 and due:
@@ -848,7 +852,9 @@ def new_node_sample(m, d, old, n_old, new, n_new, new_time):
             continue
         j = _old_match(old, n_old, s)
         if j < 0:
-            return True
+            if d.node_samples == 0:
+                return True
+            continue
         o = old[j]
         for c in range(2):
             if s.pose[c] != o.pose[c]:
@@ -868,8 +874,11 @@ def count_interval(m, d, interval):
     period."""
     if d.node_samples == 0 or not interval > 0.0:
         return
-    if m.node_period_s > 0.0 and interval > 2.0 * m.node_period_s:
-        interval = m.node_period_s
+    period = m.node_period_s
+    if period > 0.0 and interval < SAMPLE_DUE * period:
+        return  # not a sample interval (the clock went wrong): T_avg keeps its history
+    if period > 0.0 and interval > 2.0 * period:
+        interval = period
     for i in range(INTERVALS - 1, 0, -1):
         d.intervals[i] = d.intervals[i - 1]
     d.intervals[0] = interval
@@ -877,7 +886,7 @@ def count_interval(m, d, interval):
     total = 0.0
     for i in range(d.n_intervals):
         total += d.intervals[i]
-    d.node_horizon_s = total / d.n_intervals
+    d.node_horizon_s = max(total / d.n_intervals, MIN_HORIZON_S)
 
 
 @njit(cache=True)
@@ -885,10 +894,11 @@ def hold_nodes(m, d, old, n_old, s, k, sample):
     """Where new NODAL segment k's nodes start (install_scratch[k, 0:4]) and their velocity
     (4:8). On a new sample: from where the old segment of the same key and generation is
     rendered now toward the newest nodes (LINEAR) or the predicted next ones (NODE_FOH) over
-    T_avg, otherwise held at the newest nodes. Between samples: the old hold runs on."""
+    T_avg, otherwise held at the newest nodes. Between samples: the old hold runs on (a
+    segment without one: at rest at its nodes)."""
     sc = d.install_scratch[k]
-    if not sample:
-        j = _old_match(old, n_old, s)
+    j = _old_match(old, n_old, s)
+    if not sample and j >= 0:
         for i in range(2):
             for c in range(2):
                 sc[2 * i + c] = d.node_start[j, i, c]
@@ -900,9 +910,9 @@ def hold_nodes(m, d, old, n_old, s, k, sample):
         sc[2 * i + 1] = y
         sc[4 + 2 * i] = 0.0
         sc[5 + 2 * i] = 0.0
-    if m.geometry_blend == GeometryBlend.NONE or d.node_horizon_s <= 0.0:
-        return
-    found = _old_match(old, n_old, s)
+    if not sample or m.geometry_blend == GeometryBlend.NONE or d.node_horizon_s <= 0.0:
+        return  # (a segment without a match between samples: at rest at its nodes)
+    found = j
     if found < 0:
         return
     o = old[found]
