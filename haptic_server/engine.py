@@ -522,5 +522,6 @@ def warm_kernels(
         engine.sim_device.reset(np.zeros(3))
     engine._joint_velocity(engine.slots[0], np.zeros(3))
     min_norm_least_squares(np.eye(3, MAX_DOF), 3, 3, np.zeros(3), np.zeros(MAX_DOF))
-    restart_finger(engine.data[0], 0.0, 0.0)  # a god-object's re-initialisation
+    install_finger_shapes(engine.model[0], engine.data[0])  # a god-object's re-initialisation
+    restart_finger(engine.data[0], 0.0, 0.0)
     return engine
