@@ -144,15 +144,21 @@ def test_a_segment_entering_between_samples_leaves_the_holds_running() -> None:
     assert np.ptp(alone[300:]) > 1.0  # the surface moves under the finger
 
 
-def test_a_still_surface_is_sampled_all_the_same() -> None:
-    """Samples that repeat the surface bit for bit (a string at rest) still count once per
-    period, so the hold's horizon is the sample period when the surface starts to move."""
+def straight_string() -> tuple[np.ndarray, ...]:
+    """(params, data, old, new, finger): one NODAL segment along y = 0 sampled every 100 ms,
+    installed; the finger 10 mm above it, free."""
     m = god_params(R, (1000.0, 1000.0), (2.0, 2.0), node_period_s=0.1)
     old, new = shape_array(1), shape_array(1)
     nodal(new, 0, (-0.05, 0.0), (0.05, 0.0))
     d = god_data((0.0, 0.01))
-    x = np.array([0.0, 0.01])
     install_shapes(m, d, old, 0, new, 1, install_clock(0.0, 0.0, 0.0))
+    return m, d, old, new, np.array([0.0, 0.01])
+
+
+def test_a_still_surface_is_sampled_all_the_same() -> None:
+    """Samples that repeat the surface bit for bit (a string at rest) still count once per
+    period, so the hold's horizon is the sample period when the surface starts to move."""
+    m, d, old, new, x = straight_string()
     for i in range(1, 1000):
         if i % 20 == 0:  # updates at 50 Hz, the surface unchanged
             old[:] = new
@@ -165,12 +171,7 @@ def test_a_still_surface_is_sampled_all_the_same() -> None:
 def test_a_new_generation_starts_from_its_own_nodes() -> None:
     """A segment whose generation changes (a remesh) is not held toward a prediction from the
     old geometry: its nodes are the new ones, at rest, from the install on."""
-    m = god_params(R, (1000.0, 1000.0), (2.0, 2.0), node_period_s=0.1)
-    old, new = shape_array(1), shape_array(1)
-    nodal(new, 0, (-0.05, 0.0), (0.05, 0.0))
-    d = god_data((0.0, 0.01))
-    x = np.array([0.0, 0.01])
-    install_shapes(m, d, old, 0, new, 1, install_clock(0.0, 0.0, 0.0))
+    m, d, old, new, x = straight_string()
     for step, generation in ((1, 0), (2, 1)):
         old[:] = new
         nodal(new, 0, (-0.05, 0.002 * step), (0.05, 0.002 * step), generation=generation)
