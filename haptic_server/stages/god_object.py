@@ -981,9 +981,7 @@ def begin_blend(m, d, b, old, n_old, old_tau):
     from where they were. (DESIGN-WAVE2 puts A at p_r and depenetrates it against B's
     geometry, a jump of up to (1 - s) |p_A - p_B|; the offset makes none.) No blend when T_b
     is zero."""
-    total = m.blend_s
-    if d.n_intervals > 0:
-        total = min(total, 0.8 * d.node_horizon_s)
+    total = blend_time(m, d)
     if total <= 0.0:
         return
     running = b.active == 1
@@ -1001,12 +999,24 @@ def begin_blend(m, d, b, old, n_old, old_tau):
 
 
 @njit(cache=True)
+def blend_time(m, d):
+    """T_b = min(blend_s, 0.8 T_avg) (T_avg of a deformable's samples, once known)."""
+    if d.n_intervals > 0:
+        return min(m.blend_s, 0.8 * d.node_horizon_s)
+    return m.blend_s
+
+
+@njit(cache=True)
 def install_blended_step(m, d, b, old, n_old, new, n_new, clock):
     """An install: a two-proxy blend begins if the topology under the proxy changes, then
-    the new shapes replace the old (install_shapes_step)."""
-    if topology_changes(m, d, old, n_old, new, n_new, clock.new_tau):
+    the new shapes replace the old (install_shapes_step); T_b counts this install's sample
+    interval too."""
+    began = topology_changes(m, d, old, n_old, new, n_new, clock.new_tau)
+    if began:
         begin_blend(m, d, b, old, n_old, clock.old_tau)
     install_shapes_step(m, d, old, n_old, new, n_new, clock)
+    if began and b.active == 1:
+        b.total_s = max(blend_time(m, d), 1e-9)
 
 
 @njit(cache=True)
