@@ -12,6 +12,9 @@ import numpy as np
 import pytest
 
 from haptic_local_model.benchmarks import node_hold
+from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.model import TICK_DTYPE
 from haptic_local_model.haptic_server.stages.god_object import (
     GeometryBlend,
     blend_data,
@@ -23,7 +26,7 @@ from haptic_local_model.haptic_server.stages.god_object import (
     install_clock,
     install_shapes,
 )
-from haptic_local_model.shared.config import load_scene
+from haptic_local_model.shared.config import load_scene, load_user
 from haptic_local_model.shared.shapes import Motion, ShapeKind, set_core, shape_array
 from haptic_local_model.sim_server.membrane import Membrane
 from haptic_local_model.sim_server.world import SimWorld, ToolTarget
@@ -341,3 +344,40 @@ def test_a_new_generation_of_a_held_surface_is_blended_in() -> None:
     assert f[299] == pytest.approx(2.0, abs=1e-6) and f[-1] == pytest.approx(3.0, abs=1e-6)
     assert np.count_nonzero(w[300:] > 0) == 80  # T_b = min(100 ms, 0.8 x 100 ms)
     assert np.abs(np.diff(f[290:])).max() <= 1.5 * 1.0 * DT / 0.08 * 1.01
+
+
+def test_a_reinitialisation_starts_the_string_hold_at_the_new_sample() -> None:
+    """After the watchdog, the next update re-initialises: the string's hold must start at
+    that update's sample, at rest, not predict from the stale sample before the outage (the
+    pressed string relaxes while the haptic side is away: 2 y_new - y_stale would be off by
+    what it relaxed)."""
+    scene = load_scene("membrane_10hz")
+    world = SimWorld(scene)
+    engine = HapticEngine(scene, load_simulated_device("ideal"), load_user("press_1n"))
+    mem = world.membranes[0]
+    q, qd = world.tool_state()
+    press = ToolTarget(
+        q=q, qd=qd, device_pose=np.zeros(3), device_twist=np.zeros(3), coupled_to_device=False,
+        fresh=True, env_keys=(mem.first_key + 10, -1),
+        env_points=np.array([[0.0, -1.0], [0.0, 0.0]]),
+        env_forces=np.array([[0.0, -1.0], [0.0, 0.0]]),
+    )  # fmt: skip
+    seq = 0
+    for target in [press] * 60 + [None] * 9:  # 1 s pressed, then 150 ms of outage
+        world.step(target)
+        raw = world.local_model_bytes(1, seq, seq * 16_666_667)
+        seq += 1
+        if target is None:
+            continue
+        assert engine.receive(raw) == ""
+        engine.run_ticks(1e-3, np.zeros(16, TICK_DTYPE), 0, 16)
+    stale = engine.data[0]["god"]["node_start"].copy()
+    engine.set_stale()
+    assert engine.receive(raw) == ""  # the first update after the outage: a new sample
+    god = engine.data[0]["god"]
+    n = int(engine.slots[0]["n_shapes"])
+    assert n > 0 and not god["node_rate"][:n].any()  # at rest at the new sample
+    shapes = engine.slots[0]["shapes"][:n]
+    mid = shapes["pose"][:, None, :2] + shapes["vertices"][:, :2]
+    np.testing.assert_allclose(god["node_start"][:n], mid)
+    assert np.abs(god["node_start"][:n] - stale[:n]).max() > 5e-4  # it did relax
