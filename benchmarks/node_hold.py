@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from haptic_local_model.benchmarks.god_object import box
+from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.harness.virtual import run_virtual
 from haptic_local_model.haptic_server.stages.god_object import (
     GeometryBlend,
     blend_data,
@@ -34,6 +36,7 @@ from haptic_local_model.haptic_server.stages.god_object import (
     install_clock,
     install_shapes,
 )
+from haptic_local_model.shared.config import SceneConfig, load_scene, load_user
 from haptic_local_model.shared.shapes import Motion, ShapeKind, set_core, shape_array
 
 DT = 1e-3
@@ -188,10 +191,6 @@ class Press:
 
 def membrane_press(blend: str = "node_foh", seconds: float = 10.0, device: str = "ideal") -> Press:
     """V2.3 in the virtual clock: membrane_10hz pressed by the press_1n hand."""
-    from haptic_local_model.device_models.registry import load_simulated_device
-    from haptic_local_model.haptic_server.harness.virtual import run_virtual
-    from haptic_local_model.shared.config import load_scene, load_user
-
     scene = load_scene("membrane_10hz")
     scene = dataclasses.replace(
         scene, rendering=dataclasses.replace(scene.rendering, geometry_blend=blend)
@@ -202,12 +201,11 @@ def membrane_press(blend: str = "node_foh", seconds: float = 10.0, device: str =
     )
 
 
-def press_figures(ticks: np.ndarray, scene: object, blend: str, node_y: float = math.nan) -> Press:
+def press_figures(
+    ticks: np.ndarray, scene: SceneConfig, blend: str, node_y: float = math.nan
+) -> Press:
     """The V2.3 figures of a membrane_10hz log's ticks (the last 3 s before the run stops are
     at rest)."""
-    from haptic_local_model.shared.config import SceneConfig
-
-    assert isinstance(scene, SceneConfig)
     string = scene.deformables[0]
     top = string.a[1] + string.radius + scene.tool_body.radius  # the proxy's height at rest
     live = ticks[ticks["safe"] == 0]  # not the run's end, the device ramped to its safe state

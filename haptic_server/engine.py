@@ -28,7 +28,7 @@ from haptic_local_model.haptic_server.model import (
     set_guard,
 )
 from haptic_local_model.haptic_server.simulated import run_ticks, simulated_tick
-from haptic_local_model.haptic_server.stages.finger import install_finger_shapes, restart_finger
+from haptic_local_model.haptic_server.stages.finger import restart_finger
 from haptic_local_model.haptic_server.stages.install import (
     DEFAULT_MAX_AGE_S,
     DEFAULT_MAX_SKEW_S,
@@ -337,9 +337,6 @@ class HapticEngine:
         st["foh_goal"] = m["tool_pose"]
         st["foh_steps_left"] = 0
         if self.method == Method.GOD_OBJECT:
-            # the shapes again without the stale ones (a deformable's hold starts at the new
-            # sample, at rest), then the proxy at the sim's tool
-            install_finger_shapes(self.model[0], self.data[0])
             restart_finger(self.data[0], float(m["q"][0]), float(m["q"][1]))
         if first and self.sim_device is not None:
             # a simulated device starts at its home pose, offset from the VM as the scene says
@@ -522,6 +519,5 @@ def warm_kernels(
         engine.sim_device.reset(np.zeros(3))
     engine._joint_velocity(engine.slots[0], np.zeros(3))
     min_norm_least_squares(np.eye(3, MAX_DOF), 3, 3, np.zeros(3), np.zeros(MAX_DOF))
-    install_finger_shapes(engine.model[0], engine.data[0])  # a god-object's re-initialisation
-    restart_finger(engine.data[0], 0.0, 0.0)
+    restart_finger(engine.data[0], 0.0, 0.0)  # a god-object's re-initialisation
     return engine

@@ -26,6 +26,7 @@ from haptic_local_model.shared.shapes import (
     polygon_problem,
     set_core,
     shape_array,
+    vertex_distance,
 )
 from haptic_local_model.sim_server.membrane import Membrane
 
@@ -92,7 +93,7 @@ class LocalShapes:
                 lo, hi = np.minimum(a, b) - mem.spec.radius, np.maximum(a, b) + mem.spec.radius
                 if lo[0] > bb.right or hi[0] < bb.left or lo[1] > bb.top or hi[1] < bb.bottom:
                     continue
-                gap = _segment_gap(np.array(centre), a, b) - mem.spec.radius
+                gap = vertex_distance(np.array([a, b]), 2, centre.x, centre.y)[0] - mem.spec.radius
                 found.append((gap, mem.first_key + i, (mem, i, a, b)))
         found.sort(key=lambda f: (f[0], f[1]))
         self.dropped += max(0, len(found) - MAX_SHAPES)
@@ -111,13 +112,6 @@ class LocalShapes:
         n = min(len(found), MAX_SHAPES)
         record["n_shapes"] = n
         return n
-
-
-def _segment_gap(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-    """|p - the nearest point of segment ab|."""
-    ab = b - a
-    t = float(np.clip(np.dot(p - a, ab) / max(float(np.dot(ab, ab)), 1e-300), 0.0, 1.0))
-    return float(np.hypot(*(p - a - t * ab)))
 
 
 def _body(shape: pymunk.Shape) -> pymunk.Body:

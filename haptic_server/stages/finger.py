@@ -71,11 +71,13 @@ def finger(m, d):
 
 
 @njit(cache=True)
-def install_finger_shapes(m, d):
+def install_finger_shapes(m, d, restart):
     """At an install: the new slot's shapes replace the old slot's (by key, blended; a
-    change of topology under the proxy begins a two-proxy blend)."""
+    change of topology under the proxy begins a two-proxy blend). On a restart (the engine
+    re-initialises after this install) the old slot is stale: the shapes start afresh (a
+    deformable's hold at rest at the new sample)."""
     old = m.slots[1]
-    n_old = old.n_shapes if old.valid == 1 else 0
+    n_old = old.n_shapes if old.valid == 1 and not restart else 0
     new = m.slots[0]
     clock = d.god.clock
     clock.old_tau = d.contacts[1].age_s

@@ -778,10 +778,10 @@ def install_shapes_step(m, d, old, n_old, new, n_new, clock):
         count_interval(m, d, new_time - d.node_sample_time)
     for k in range(n_new):
         s = new[k]
+        if s.key == stick_key:
+            d.stick_shape = k
         if s.motion == Motion.NODAL:
             hold_nodes(m, d, old, n_old, s, k, sample)
-            if s.key == stick_key:
-                d.stick_shape = k
             continue
         carry_pose(s.pose, s.twist, s.motion, new_tau, d.poses[k])
         carry_rate(s.twist, s.motion, new_tau, d.new_rate)
@@ -804,8 +804,6 @@ def install_shapes_step(m, d, old, n_old, new, n_new, clock):
                 d.install_scratch[k, c] = d.old_pose[c] - d.poses[k, c]
                 d.install_scratch[k, 3 + c] = d.old_rate[c] - d.new_rate[c]
             d.install_scratch[k, 2] = _wrap(d.install_scratch[k, 2])
-        if s.key == stick_key:
-            d.stick_shape = k
     for k in range(n_new):
         if new[k].motion == Motion.NODAL:
             start_nodes(d, k, sample)

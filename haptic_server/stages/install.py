@@ -109,7 +109,9 @@ def install_update(m, d, ins, new_epoch, latency_s):
     inherit_contact_state(m.slots[0], cs, m.slots[1], d.contacts[1], ins.match_radius_m)
     d.state.blend = 1.0 if m.slots[1].valid == 0 else 0.0
     if m.params.method == Method.GOD_OBJECT:
-        install_finger_shapes(m, d)
+        # a re-initialisation follows (new epoch, watchdog, fault): no stale shapes to blend
+        restart = new_epoch or ins.stale == 1 or d.state.fault != 0
+        install_finger_shapes(m, d, restart)
 
 
 @njit(cache=True)
