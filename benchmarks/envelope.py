@@ -66,7 +66,7 @@ def _guard_figures(ticks: np.ndarray, engine: Any, scene_text: str) -> dict[str,
     d = int(chain[0]["dof"])
     qd = ticks["proxy_qd"][:, :d]
     speed = np.hypot(ticks["vm_twist"][:, 0], ticks["vm_twist"][:, 1])
-    spin = fastest_spin(chain[0]["joint_types"][:d], qd)
+    spin = fastest_spin(chain[0]["joint_types"][:d], chain[0]["parents"][:d], qd)
     work = (np.zeros((MAX_DOF, 2)), np.zeros(MAX_DOF), np.zeros((3, MAX_DOF)))
     mass, grav = np.zeros((d, d)), np.zeros(d)
     energy = np.zeros(len(ticks))

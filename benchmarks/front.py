@@ -278,10 +278,9 @@ def testbed_reference(scene_name: str, device: str, user_name: str, seconds: flo
     def operational() -> tuple[np.ndarray, np.ndarray]:
         tq, tqd = world.tool_state()
         q[:d] = tq
-        link_frames(chain["joint_types"], chain["lengths"], chain["base"], chain["base_angle"],
-                    q, d, frame_pos, frame_angle)  # fmt: skip
+        link_frames(chain, q, d, frame_pos, frame_angle)
         point_on_link(frame_pos, frame_angle, world.op_link, world.op_point, point)
-        point_jacobian(chain["joint_types"], frame_pos, d, world.op_link, point[0], point[1], jac)
+        point_jacobian(chain, frame_pos, d, world.op_link, point[0], point[1], jac)
         pose = np.array([point[0], point[1], frame_angle[world.op_link]])
         return pose, jac[:, :d] @ tqd
 

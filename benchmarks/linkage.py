@@ -31,6 +31,7 @@ from haptic_local_model.shared.reference import ChainSpec, Hold, simulate
 
 METHODS = ("local_model", "impedance_only", "virtual_coupling")
 HOLDS = ("linkage_middle", "linkage_distal")
+TREES = ("linkage_tree",)  # a tree linkage (DESIGN-WAVE2 C1): its VM against the reference
 DEVICE = "ideal_identity"  # seed 000's simulations: M_d = identity
 USER = "push_04n"
 STEADY_S = 1.0  # steady drift: mean over the last second
@@ -77,6 +78,7 @@ def chain_spec(scene: SceneConfig) -> ChainSpec:
     return ChainSpec(
         base=lk.base, lengths=lk.lengths, masses=lk.masses, inertias=lk.inertias,
         com_offsets=lk.com_offsets, gravity=scene.gravity, base_angle=lk.base_angle,
+        parents=lk.parents,
     )  # fmt: skip
 
 
@@ -193,8 +195,14 @@ def main(argv: list[str] | None = None) -> int:
                 f"{d['drift_half_mm']:>9.2f}{d['drift_end_mm']:>9.2f}{d['growth']:>8.2f}"
                 f"{d['turning_points']:>6}{d['resisted_fraction']:>6.2f}"
             )
+    for tree in TREES:
+        report[tree] = {
+            "reference": [
+                reference_error(load_scene(tree), args.seconds, hz) for hz in (30.0, 60.0, 120.0)
+            ]
+        }
     print("\nlocal_model VM vs reference (device starting on the operational point):")
-    for hold in HOLDS:
+    for hold in HOLDS + TREES:
         for e in report[hold]["reference"]:
             print(
                 f"  {hold:<16} sim {e['sim_hz']:>5.0f} Hz: RMS {e['rms_mm']:.3f} mm, "

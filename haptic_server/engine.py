@@ -375,12 +375,9 @@ class HapticEngine:
         point = np.zeros(2)
         jac = np.zeros((3, MAX_DOF))
         link = int(m["op_link"])
-        link_frames(
-            m["joint_types"], m["lengths"], m["base"], m["base_angle"], m["q"], d, frame_pos,
-            frame_angle,
-        )  # fmt: skip
+        link_frames(m, m["q"], d, frame_pos, frame_angle)
         point_on_link(frame_pos, frame_angle, link, m["op_point"], point)
-        point_jacobian(m["joint_types"], frame_pos, d, link, point[0], point[1], jac)
+        point_jacobian(m, frame_pos, d, link, point[0], point[1], jac)
         qd = np.zeros(MAX_DOF)
         min_norm_least_squares(jac, 3, d, twist, qd)
         return qd
@@ -394,7 +391,7 @@ class HapticEngine:
         if int(p["guard"]) == 0:
             return qd
         d = int(m["dof"])
-        spin = float(fastest_spin(m["joint_types"][:d], qd[:d]))
+        spin = float(fastest_spin(m["joint_types"][:d], m["parents"][:d], qd[:d]))
         energy = 0.5 * float(qd[:d] @ m["mass"][:d, :d] @ qd[:d])
         scale = 1.0
         if spin > 0.5 * p["guard_max_angular_speed"]:

@@ -237,7 +237,7 @@ class SceneView:
         for path, colors, names in series:
             self._log(f"plots/{path}", rr.SeriesLines(colors=colors, names=names), static=True)
         self._static(scene_text)
-        self._chain: tuple[np.ndarray, np.ndarray, np.ndarray, float, int] | None = None
+        self._chain: tuple[np.void, int] | None = None
         self._frame_pos = np.zeros((MAX_DOF, 2))
         self._frame_angle = np.zeros(MAX_DOF)
         self._contacts: list[tuple[float, float, float, float]] | None = None
@@ -280,10 +280,7 @@ class SceneView:
             return
         out = self._parser.out[0]
         dof = int(out["dof"])
-        self._chain = (
-            out["joint_types"].copy(), out["lengths"].copy(), out["base"].copy(),
-            float(out["base_angle"]), dof,
-        )  # fmt: skip
+        self._chain = (out.copy(), dof)  # the parsed record: its tree and bases
         n = int(out["n_contacts"])
         contacts = [
             (float(e[0]), float(e[1]), float(k[0]), float(k[1]))
@@ -322,14 +319,13 @@ class SceneView:
             colors=[_DEVICE, _PROXY],
         ))  # fmt: skip
         if self._chain is not None:
-            types, lengths, base, base_angle, dof = self._chain
+            model, dof = self._chain
             if 0 < dof == int(row["dof"]):
-                link_frames(
-                    types, lengths, base, base_angle, row["proxy_q"], dof, self._frame_pos,
-                    self._frame_angle,
-                )  # fmt: skip
-                strip = [*map(tuple, self._frame_pos[:dof].tolist()), vm_xy]
-                self._log("world/linkage", rr.LineStrips2D([strip], radii=0.003, colors=[_LINKAGE]))
+                link_frames(model, row["proxy_q"], dof, self._frame_pos, self._frame_angle)
+                self._log("world/linkage", rr.LineStrips2D(
+                    _link_strips(model, self._frame_pos, self._frame_angle, dof),
+                    radii=0.003, colors=[_LINKAGE],
+                ))  # fmt: skip
         self._log("plots/force", rr.Scalars([cx, cy, fx, fy]))
         if "penetration" in (row.dtype.names or ()):
             self._log("plots/penetration", rr.Scalars([float(row["penetration"]) * 1e3]))
@@ -342,6 +338,23 @@ class SceneView:
         warn = any(w in kind for w in WARNING_EVENTS)
         text = f"tick {tick}: {kind} {detail}".rstrip()
         self._log("events", rr.TextLog(text, level="WARN" if warn else "INFO"))
+
+
+def _link_strips(
+    model: np.void, frame_pos: np.ndarray, frame_angle: np.ndarray, dof: int
+) -> list[list[tuple[float, float]]]:
+    """Each link of the tool's tree as a line from its joint to its tip."""
+    lengths = model["lengths"]
+    return [
+        [
+            (float(frame_pos[i, 0]), float(frame_pos[i, 1])),
+            (
+                float(frame_pos[i, 0] + lengths[i] * np.cos(frame_angle[i])),
+                float(frame_pos[i, 1] + lengths[i] * np.sin(frame_angle[i])),
+            ),
+        ]
+        for i in range(dof)
+    ]
 
 
 def open_recording(address: ViewAddress, app: str) -> Any:

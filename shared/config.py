@@ -524,7 +524,9 @@ class SpaceSpec:
 
 @dataclass(frozen=True)
 class LinkageSpec:
-    """A grounded planar serial linkage with revolute joints (DESIGN §2)."""
+    """A grounded planar linkage with revolute joints (DESIGN §2): serial, or a tree when
+    `parents` names the link each link hangs from (at that link's far end; -1 the base),
+    every parent before its child (DESIGN-WAVE2 C1)."""
 
     name: str
     base: Vec2
@@ -536,12 +538,21 @@ class LinkageSpec:
     material: str
     base_angle: float = 0.0
     radius: float = 0.004  # half-thickness of the capsule drawn for each link, m
+    parents: tuple[int, ...] = ()  # empty: serial, link i on link i - 1
 
     def __post_init__(self) -> None:
         n = len(self.lengths)
         require(n >= 1, "lengths", "a linkage needs at least one link")
         for key in ("masses", "inertias", "com_offsets", "initial_angles"):
             require(len(getattr(self, key)) == n, key, f"needs {n} entries, one per link")
+        if self.parents:
+            require(len(self.parents) == n, "parents", f"needs {n} entries, one per link")
+            for i, up in enumerate(self.parents):
+                require(
+                    -1 <= up < i,
+                    "parents",
+                    f"link {i} hangs from {up}: it must be -1 (the base) or an earlier link",
+                )
         within_all(self.lengths, LINK_LENGTH_RANGE_M, "lengths", "m")
         within_all(self.masses, MASS_RANGE_KG, "masses", "kg")
         within_all(self.inertias, INERTIA_RANGE_KGM2, "inertias", "kg m^2")
@@ -552,6 +563,10 @@ class LinkageSpec:
                 offset, (-LINK_LENGTH_RANGE_M[1], LINK_LENGTH_RANGE_M[1]), f"com_offsets[{i}]"
             )
         within_all(self.initial_angles, (-ANGLE_RAD, ANGLE_RAD), "initial_angles", "rad")
+
+    def parent_of(self, i: int) -> int:
+        """The link link i hangs from (-1: the base)."""
+        return self.parents[i] if self.parents else i - 1
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,9 @@ WrenchFunction = Callable[[float, FloatArray, FloatArray], ArrayLike]
 
 @dataclass(frozen=True)
 class ChainSpec:
-    """Geometry and inertia of a planar serial chain; per-link tuples are ordered base to tip."""
+    """Geometry and inertia of a planar chain of revolute joints; per-link tuples are ordered
+    base to tip. A tree when `parents` is given: link i hangs from the tip of link
+    parents[i] (-1: the base), every parent before its child."""
 
     base: tuple[float, float]
     lengths: tuple[float, ...]
@@ -33,11 +35,16 @@ class ChainSpec:
     com_offsets: tuple[tuple[float, float], ...]
     gravity: tuple[float, float] = (0.0, 0.0)
     base_angle: float = 0.0
+    parents: tuple[int, ...] = ()  # empty: serial
 
     def __post_init__(self) -> None:
         n = len(self.lengths)
         if n == 0:
             raise ValueError("chain needs at least one link")
+        if self.parents and (
+            len(self.parents) != n or any(not -1 <= p < i for i, p in enumerate(self.parents))
+        ):
+            raise ValueError("parents needs one entry per link, each -1 or an earlier link")
         if not (len(self.masses) == len(self.inertias) == len(self.com_offsets) == n):
             raise ValueError("lengths, masses, inertias and com_offsets must have equal length")
         if any(m <= 0.0 for m in self.masses) or any(i < 0.0 for i in self.inertias):
@@ -47,6 +54,18 @@ class ChainSpec:
     def n(self) -> int:
         """Number of links (and joints)."""
         return len(self.lengths)
+
+    def parent(self, i: int) -> int:
+        """The link link i hangs from (-1: the base)."""
+        return self.parents[i] if self.parents else i - 1
+
+    def moved_by(self, link: int) -> list[int]:
+        """The joints that move `link`: it and its ancestors."""
+        out = []
+        while link >= 0:
+            out.append(link)
+            link = self.parent(link)
+        return sorted(out)
 
 
 def _rot(phi: float) -> FloatArray:
@@ -65,16 +84,34 @@ def _cross(a: FloatArray, b: FloatArray) -> float:
     return float(a[0] * b[1] - a[1] * b[0])
 
 
+def _rooted_sum(spec: ChainSpec, root: float, x: FloatArray) -> FloatArray:
+    """y_i = y_parent(i) + x_i (root for the base): angles, rates, accelerations of links."""
+    y = np.empty(spec.n)
+    for i in range(spec.n):
+        p = spec.parent(i)
+        y[i] = (root if p < 0 else y[p]) + x[i]
+    return y
+
+
 def _link_angles(spec: ChainSpec, q: FloatArray) -> FloatArray:
-    """Absolute link angles phi_i = base_angle + cumulative joint angles."""
-    return spec.base_angle + np.cumsum(q)
+    """Absolute link angles phi_i = phi_parent + q_i (base_angle for a root)."""
+    return _rooted_sum(spec, spec.base_angle, q)
+
+
+def _link_vectors(spec: ChainSpec, phi: FloatArray) -> FloatArray:
+    """Each link's pivot-to-tip vector (n, 2)."""
+    lengths = np.asarray(spec.lengths, dtype=float)
+    return lengths[:, None] * np.column_stack((np.cos(phi), np.sin(phi)))
 
 
 def _joint_positions(spec: ChainSpec, phi: FloatArray) -> FloatArray:
-    """Joint positions p_0..p_n (n+1 rows); p_i is the pivot of link i, p_n the chain tip."""
-    lengths = np.asarray(spec.lengths, dtype=float)
-    steps = lengths[:, None] * np.column_stack((np.cos(phi), np.sin(phi)))
-    return np.vstack((np.zeros(2), np.cumsum(steps, axis=0))) + np.asarray(spec.base, float)
+    """The pivot of every link (n rows): its parent's tip, or the base."""
+    steps = _link_vectors(spec, phi)
+    pivots = np.empty((spec.n, 2))
+    for i in range(spec.n):
+        p = spec.parent(i)
+        pivots[i] = np.asarray(spec.base, float) if p < 0 else pivots[p] + steps[p]
+    return pivots
 
 
 def _as_vector(x: ArrayLike, n: int, name: str) -> FloatArray:
@@ -95,34 +132,39 @@ def inverse_dynamics(
     n = spec.n
     q, qd, qdd = (_as_vector(x, n, name) for x, name in ((q, "q"), (qd, "qd"), (qdd, "qdd")))
     phi = _link_angles(spec, q)
-    omega = np.cumsum(qd)
-    alpha = np.cumsum(qdd)
-    joint_pos = _joint_positions(spec, phi)
-
-    link_vec = np.diff(joint_pos, axis=0)
+    omega = _rooted_sum(spec, 0.0, qd)
+    alpha = _rooted_sum(spec, 0.0, qdd)
+    link_vec = _link_vectors(spec, phi)
     com_vec = np.array([_rot(phi[i]) @ np.asarray(spec.com_offsets[i], float) for i in range(n)])
 
     gravity = np.asarray(spec.gravity, dtype=float) if with_gravity else np.zeros(2)
-    pivot_acc = -gravity
+    tip_acc = np.empty((n, 2))  # each link's tip, where its children hang
     com_acc = np.empty((n, 2))
     for i in range(n):
+        p = spec.parent(i)
+        pivot_acc = -gravity if p < 0 else tip_acc[p]
         com_acc[i] = pivot_acc + alpha[i] * _perp(com_vec[i]) - omega[i] ** 2 * com_vec[i]
-        pivot_acc = pivot_acc + alpha[i] * _perp(link_vec[i]) - omega[i] ** 2 * link_vec[i]
+        tip_acc[i] = pivot_acc + alpha[i] * _perp(link_vec[i]) - omega[i] ** 2 * link_vec[i]
 
+    # backwards: each link passes the force and moment (about its pivot) it transmits to
+    # its parent's tip; a link sums its children's
+    force_out = np.zeros((n, 2))
+    moment_out = np.zeros(n)
     tau = np.empty(n)
-    force_out = np.zeros(2)
-    moment_out = 0.0
     for i in reversed(range(n)):
         inertial_force = spec.masses[i] * com_acc[i]
-        force_in = inertial_force + force_out
+        force_in = inertial_force + force_out[i]
         moment_in = (
             spec.inertias[i] * alpha[i]
             + _cross(com_vec[i], inertial_force)
-            + _cross(link_vec[i], force_out)
-            + moment_out
+            + _cross(link_vec[i], force_out[i])
+            + moment_out[i]
         )
         tau[i] = moment_in
-        force_out, moment_out = force_in, moment_in
+        p = spec.parent(i)
+        if p >= 0:
+            force_out[p] += force_in
+            moment_out[p] += moment_in
     return tau
 
 
@@ -153,7 +195,8 @@ def point_pose(spec: ChainSpec, q: ArrayLike, link: int, r: ArrayLike) -> FloatA
 def point_jacobian(spec: ChainSpec, q: ArrayLike, link: int, r: ArrayLike) -> FloatArray:
     """Analytic 3 x n Jacobian of (x, y, phi_link) of point r on link `link`.
 
-    Joint j <= link rotates the point about pivot p_j: column j = (e_z x (P - p_j), 1).
+    Joint j that moves the link rotates the point about pivot p_j: column j =
+    (e_z x (P - p_j), 1).
     """
     q = _as_vector(q, spec.n, "q")
     _check_link(spec, link)
@@ -161,7 +204,7 @@ def point_jacobian(spec: ChainSpec, q: ArrayLike, link: int, r: ArrayLike) -> Fl
     joint_pos = _joint_positions(spec, phi)
     point = joint_pos[link] + _rot(phi[link]) @ _as_vector(r, 2, "r")
     jac = np.zeros((3, spec.n))
-    for j in range(link + 1):
+    for j in spec.moved_by(link):
         jac[:2, j] = _perp(point - joint_pos[j])
         jac[2, j] = 1.0
     return jac

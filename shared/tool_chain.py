@@ -67,6 +67,7 @@ def tool_chain(scene: SceneConfig) -> ToolChain:
             np.zeros(n, dtype=np.int64), np.array(lk.lengths, dtype=float),
             np.array(lk.base, dtype=float), lk.base_angle, np.array(lk.masses, dtype=float),
             np.array(lk.inertias, dtype=float), np.array(lk.com_offsets, dtype=float),
+            np.array([lk.parent_of(i) for i in range(n)], dtype=np.int64),
         )  # fmt: skip
         outline_a = np.zeros((n, 2))
         outline_b = np.column_stack([np.array(lk.lengths, dtype=float), np.zeros(n)])

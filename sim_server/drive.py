@@ -178,10 +178,10 @@ def _device_coupling(t, tg, chain, q, qd, t_ahead, work):
     frame_pos, frame_angle, jac, tau, f = work[0], work[1], work[2], work[7], work[9]
     c = chain[0]
     d = t.dof
-    link_frames(c.joint_types, c.lengths, c.base, c.base_angle, q, d, frame_pos, frame_angle)
+    link_frames(c, q, d, frame_pos, frame_angle)
     point_on_link(frame_pos, frame_angle, t.op_link, t.op_point, f)
     px, py = f[0], f[1]
-    point_jacobian(c.joint_types, frame_pos, d, t.op_link, px, py, jac)
+    point_jacobian(c, frame_pos, d, t.op_link, px, py, jac)
     x_tool = (px, py, frame_angle[t.op_link])
     for r in range(3):
         v = 0.0

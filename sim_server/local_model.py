@@ -182,6 +182,18 @@ def build_local_model(tool, chain, query, work, out):
     for i in range(d):
         m.joint_types[i] = c.joint_types[i]
         m.lengths[i] = c.lengths[i]
+        m.parents[i] = c.parents[i]
+    m.n_chains = c.n_chains
+    m.has_chains = 1 if c.n_chains > 1 else 0  # a tree or several chains need the trailer
+    for i in range(d):
+        if c.parents[i] != i - 1:
+            m.has_chains = 1
+    for k in range(c.n_chains):
+        m.chain_first[k] = c.chain_first[k]
+        m.chain_kind[k] = c.chain_kind[k]
+        m.chain_port[k] = c.chain_port[k]
+        for a in range(3):
+            m.chain_base[k, a] = c.chain_base[k, a]
     for i in range(2):
         m.base[i] = c.base[i]
         m.op_point[i] = t.op_point[i]
@@ -191,7 +203,7 @@ def build_local_model(tool, chain, query, work, out):
     point_on_link(frame_pos, frame_angle, t.op_link, t.op_point, sigma)
     m.tool_pose[0], m.tool_pose[1] = sigma[0], sigma[1]
     m.tool_pose[2] = frame_angle[t.op_link]
-    point_jacobian(c.joint_types, frame_pos, d, t.op_link, sigma[0], sigma[1], jac)
+    point_jacobian(c, frame_pos, d, t.op_link, sigma[0], sigma[1], jac)
     m.has_gravity = 1 if (t.gravity[0] != 0.0 or t.gravity[1] != 0.0) else 0
     _inverse_inertia(m, jac, chol, col)
     m.n_resisted = 0

@@ -127,17 +127,13 @@ class ProxyCheck:
         d = self._chain.dof
         qq = np.zeros(MAX_DOF)
         qq[:d] = q
-        link_frames(
-            c["joint_types"], c["lengths"], c["base"], c["base_angle"], qq, d, self._frame_pos,
-            self._frame_angle,
-        )  # fmt: skip
+        link_frames(c, qq, d, self._frame_pos, self._frame_angle)
         link = self._chain.op_link
         point_on_link(self._frame_pos, self._frame_angle, link, self._chain.op_point, self._point)
-        point_jacobian(
-            c["joint_types"], self._frame_pos, d, link, self._point[0], self._point[1], self._jac
-        )
+        point_jacobian(c, self._frame_pos, d, link, self._point[0], self._point[1], self._jac)
         pose = np.array([self._point[0], self._point[1], self._frame_angle[link]])
         return pose, self._jac[:, :d] @ qd
 
     def _spin(self, qd: np.ndarray) -> float:
-        return float(fastest_spin(self._chain.chain[0]["joint_types"][: qd.shape[0]], qd))
+        c = self._chain.chain[0]
+        return float(fastest_spin(c["joint_types"][: qd.shape[0]], c["parents"][: qd.shape[0]], qd))

@@ -26,6 +26,7 @@ TOOL_DTYPE = np.dtype(
         ("bodies", I8, (MAX_DOF,)),  # cpBody* of the tool's bodies (one for a free body)
         ("gravity", F8, (2,)),  # m/s^2
         ("base_angle", F8),  # rad, of a linkage
+        ("parents", I8, (MAX_DOF,)),  # the link each link hangs from, -1 the base
         ("op_link", I8),
         ("op_point", F8, (2,)),  # m, in the operational link's frame
         ("bandwidth_hz", F8),  # tracking bandwidth of the drive
@@ -42,7 +43,7 @@ TOOL_DTYPE = np.dtype(
 @njit(cache=True)
 def tool_state(tool, q, qd):
     """The tool's q and qd read back from its pymunk bodies (a linkage's joint angles are the
-    differences of its links' absolute angles, the first from the base angle)."""
+    differences of its links' absolute angles and its parents', a root's from the base)."""
     t = tool[0]
     if t.kind == TOOL_BODY:
         b = t.bodies[0]
@@ -51,11 +52,12 @@ def tool_state(tool, q, qd):
         qd[0], qd[1] = cp.body_velocity(b)
         qd[2] = cp.body_angular_velocity(b)
         return
-    prev_angle = t.base_angle
-    prev_rate = 0.0
     for i in range(t.dof):
-        angle = cp.body_angle(t.bodies[i])
-        rate = cp.body_angular_velocity(t.bodies[i])
-        q[i] = angle - prev_angle
-        qd[i] = rate - prev_rate
-        prev_angle, prev_rate = angle, rate
+        up = t.parents[i]
+        prev_angle = t.base_angle
+        prev_rate = 0.0
+        if 0 <= up < i:
+            prev_angle = cp.body_angle(t.bodies[up])
+            prev_rate = cp.body_angular_velocity(t.bodies[up])
+        q[i] = cp.body_angle(t.bodies[i]) - prev_angle
+        qd[i] = cp.body_angular_velocity(t.bodies[i]) - prev_rate

@@ -186,17 +186,18 @@ class SimWorld:
         lk = next(k for k in self.scene.linkages if k.name == name)
         is_tool = self.scene.tool.kind == "linkage" and self.scene.tool.name == name
         ground = self.space.static_body
-        prev: pymunk.Body = ground
-        angle = lk.base_angle
-        pos = np.array(lk.base, dtype=float)
         mat = self.scene.materials[lk.material]
-        bodies = []
+        bodies: list[pymunk.Body] = []
+        tips: list[np.ndarray] = []  # the far end of each link, where its children hang
         for i, length in enumerate(lk.lengths):
-            angle += lk.initial_angles[i]
+            up = lk.parent_of(i)
+            prev = ground if up < 0 else bodies[up]
+            pos = np.array(lk.base, dtype=float) if up < 0 else tips[up]
+            angle = (lk.base_angle if up < 0 else bodies[up].angle) + lk.initial_angles[i]
             body = pymunk.Body(lk.masses[i], lk.inertias[i])
             body.center_of_gravity = lk.com_offsets[i]
+            body.angle = angle  # before the position: see set_tool_state
             body.position = tuple(pos)
-            body.angle = angle
             shape = pymunk.Segment(body, (0.0, 0.0), (length, 0.0), lk.radius)
             shape.friction = mat.friction
             shape.elasticity = mat.restitution
@@ -210,8 +211,7 @@ class SimWorld:
             bodies.append(body)
             if is_tool:
                 self.tool_shapes.append((shape, i))
-            pos = pos + length * np.array([math.cos(angle), math.sin(angle)])
-            prev = body
+            tips.append(pos + length * np.array([math.cos(angle), math.sin(angle)]))
         if is_tool:
             self.tool_bodies = bodies
 
@@ -248,33 +248,26 @@ class SimWorld:
         """Place the tool at q with velocity qd (used to start it where the proxy is)."""
         if self.scene.tool.kind == "body":
             b = self.tool_bodies[0]
-            b.position = (q[0], q[1])
+            # the angle first: Chipmunk keeps the centre of gravity where it is when the
+            # angle changes, so a position set before it would move the body's origin
             b.angle = q[2]
+            b.position = (q[0], q[1])
             b.velocity = (qd[0], qd[1])
             b.angular_velocity = qd[2]
         else:
-            link_frames(
-                self.joint_types,
-                self.lengths,
-                self.base,
-                self.base_angle,
-                q,
-                self.dof,
-                self._frame_pos,
-                self._frame_angle,
-            )
-            rate = 0.0
+            c = self.chain[0]
+            link_frames(c, q, self.dof, self._frame_pos, self._frame_angle)
+            rates = np.zeros(self.dof)
             com = np.zeros(2)
             for i, b in enumerate(self.tool_bodies):
-                rate += qd[i]
+                up = int(c["parents"][i])
+                rates[i] = (rates[up] if up >= 0 else 0.0) + qd[i]
+                b.angle = self._frame_angle[i]  # first, as above
                 b.position = tuple(self._frame_pos[i])
-                b.angle = self._frame_angle[i]
-                b.angular_velocity = rate
+                b.angular_velocity = rates[i]
                 # pymunk's body velocity is that of the centre of gravity
                 point_on_link(self._frame_pos, self._frame_angle, i, self.com_offsets[i], com)
-                point_jacobian(
-                    self.joint_types, self._frame_pos, self.dof, i, com[0], com[1], self._jac
-                )
+                point_jacobian(c, self._frame_pos, self.dof, i, com[0], com[1], self._jac)
                 b.velocity = tuple(self._jac[:2] @ qd)
         for b in self.tool_bodies:
             self.space.reindex_shapes_for_body(b)
@@ -290,7 +283,7 @@ class SimWorld:
         mass_matrix_and_gravity(self.chain, self.gravity, q, work, mass, grav)
         point_on_link(self._frame_pos, self._frame_angle, self.op_link, self.op_point, self._point)
         point_jacobian(
-            self.joint_types, self._frame_pos, d, self.op_link, self._point[0], self._point[1], jac
+            self.chain[0], self._frame_pos, d, self.op_link, self._point[0], self._point[1], jac
         )
         return mass, grav, jac
 
@@ -307,6 +300,7 @@ class SimWorld:
         t["bodies"][: len(self.tool_bodies)] = [body_ptr(b) for b in self.tool_bodies]
         t["gravity"] = self.gravity
         t["base_angle"] = self.base_angle
+        t["parents"][: self.dof] = self.chain[0]["parents"][: self.dof]
         t["op_link"] = self.op_link
         t["op_point"] = self.op_point
         t["bandwidth_hz"] = tool.tracking_bandwidth_hz

@@ -37,6 +37,7 @@ from haptic_local_model.shared.kinematics import (
     PRISMATIC_X,
     PRISMATIC_Y,
     REVOLUTE,
+    chain_record,
     link_frames,
     point_bias_acceleration,
     point_on_link,
@@ -56,11 +57,15 @@ def kernel_jdot_qd(types, lengths, q, qd, link, r):
     n = len(q)
     frame_pos = np.zeros((n, 2))
     frame_angle = np.zeros(n)
-    link_frames(np.array(types), np.array(lengths), np.zeros(2), 0.0, q, n, frame_pos, frame_angle)
+    chain = chain_record(
+        np.array(types), np.array(lengths), np.zeros(2), 0.0, np.zeros(n), np.zeros(n),
+        np.zeros((n, 2)),
+    )[0]  # fmt: skip
+    link_frames(chain, q, n, frame_pos, frame_angle)
     p = np.zeros(2)
     point_on_link(frame_pos, frame_angle, link, np.array(r), p)
     out = np.zeros(3)
-    point_bias_acceleration(np.array(types), frame_pos, n, link, p[0], p[1], qd, out)
+    point_bias_acceleration(chain, frame_pos, n, link, p[0], p[1], qd, out)
     return out
 
 

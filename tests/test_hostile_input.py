@@ -55,6 +55,7 @@ EXAMPLES = {
     "proxy": 1000,
     "engine": 500,
     "shapes": 1000,
+    "chains": 1000,
 }
 assert sum(EXAMPLES.values()) >= 10_000  # issue 8
 
@@ -85,6 +86,12 @@ CONTACT_WIDTH = {1: 12, 2: 13, 3: 13}
 VERSION = 3
 SHAPE_INTS, SHAPE_FLOATS = 6, 25  # docs/protocol.md, SHAPES trailer (version 3, flag 16)
 MAX_SHAPES, MAX_VERTICES = 64, 8
+MAX_CHAINS, MAX_PORTS = 4, 2  # docs/protocol.md, CHAINS trailer (version 3, flag 32)
+
+
+def chains_words(d: int, c: int) -> int:
+    """8-byte words of a CHAINS trailer: c, d parents, c rows of 3 ints, c - 1 base poses."""
+    return 1 + d + 3 * c + 3 * (c - 1)
 
 
 def float_groups(
@@ -110,6 +117,10 @@ def layout(raw: bytes) -> tuple[int, int, int, int, dict[str, tuple[int, int]]]:
     for name, count in float_groups(d, n, j, flags, version):
         groups[name] = (offset, count)
         offset += 8 * count
+    if flags & 32 and len(raw) >= offset + 8:
+        c = struct.unpack_from("<q", raw, offset)[0]
+        groups["chains"] = (offset, c)
+        offset += 8 * chains_words(d, c) if 1 <= c <= MAX_CHAINS else len(raw)
     if flags & 16 and len(raw) >= offset + 8:
         groups["shapes"] = (offset, struct.unpack_from("<q", raw, offset)[0])
     return d, n, j, flags, groups
@@ -177,6 +188,50 @@ def reference_shapes_accept(raw: bytes, at: int) -> bool:
     return True
 
 
+def reference_chains_accept(raw: bytes, at: int, d: int, op_link: int) -> bool:
+    """The CHAINS trailer at byte `at` (its size already checked), from docs/protocol.md."""
+    c = struct.unpack_from("<q", raw, at)[0]
+    parents = np.frombuffer(raw, "<i8", d, at + 8)
+    rows = np.frombuffer(raw, "<i8", 3 * c, at + 8 * (1 + d)).reshape(c, 3)
+    bases = np.frombuffer(raw, "<f8", 3 * (c - 1), at + 8 * (1 + d + 3 * c)).reshape(c - 1, 3)
+    first, kind, port = rows.T
+    if tuple(rows[0]) != (0, 0, 0) or (np.diff(first) <= 0).any() or (first >= d).any():
+        return False
+    if not np.isin(kind, (0, 1, 2, 3)).all() or ((port < -1) | (port >= MAX_PORTS)).any():
+        return False
+    if not np.isfinite(bases).all() or (np.abs(bases[:, :2]) > LIM.max_abs_position_m).any():
+        return False
+    if (np.abs(bases[:, 2]) > LIM.max_abs_angle_rad).any():
+        return False
+    if c > 1 and op_link >= first[1]:
+        return False
+    for i, up in enumerate(parents):
+        chain_first = first[first <= i].max()
+        if not (up == -1 or chain_first <= up < i):
+            return False
+    return True
+
+
+def reference_trailers_accept(raw: bytes, body_end: int, flags: int, d: int) -> tuple[bool, int]:
+    """Sizes of the CHAINS and SHAPES trailers: (fits, byte offset of the SHAPES trailer)."""
+    end = body_end
+    if flags & 32:
+        if len(raw) < end + 8:
+            return False, end
+        c = struct.unpack_from("<q", raw, end)[0]
+        if not 1 <= c <= MAX_CHAINS:
+            return False, end
+        end += 8 * chains_words(d, c)
+    if flags & 16:
+        if len(raw) < end + 8:
+            return False, end
+        s = struct.unpack_from("<q", raw, end)[0]
+        if not 1 <= s <= MAX_SHAPES:
+            return False, end
+        return len(raw) == end + 8 * (1 + (SHAPE_INTS + SHAPE_FLOATS) * s), end
+    return len(raw) == end, end
+
+
 def reference_accepts(raw: bytes) -> bool:
     """Whether a LocalModelUpdate is valid, straight from the protocol document."""
     if len(raw) < HEADER.size:
@@ -192,15 +247,10 @@ def reference_accepts(raw: bytes) -> bool:
     n_int = d + 2 * n
     n_float = sum(c for _, c in groups)
     body_end = HEADER.size + 8 * (n_int + n_float)
-    if flags & 16:
-        if version < 3 or len(raw) < body_end + 8:
-            return False
-        s = struct.unpack_from("<q", raw, body_end)[0]
-        if not 1 <= s <= MAX_SHAPES:
-            return False
-        if len(raw) != body_end + 8 * (1 + (SHAPE_INTS + SHAPE_FLOATS) * s):
-            return False
-    elif len(raw) != body_end:
+    if flags & 48 and version < 3:
+        return False
+    fits, shapes_at = reference_trailers_accept(raw, body_end, flags, d)
+    if not fits:
         return False
     if not all(math.isfinite(v) for v in (sim_time, char_len, lead)) or abs(lead) > 1.0:
         return False
@@ -246,7 +296,9 @@ def reference_accepts(raw: bytes) -> bool:
         return False
     c = g["contacts"].reshape(n, CONTACT_WIDTH[version])
     k_t = c[:, 12] if version >= 2 else c[:, 10]  # version 1: K_t = K_c
-    if flags & 16 and not reference_shapes_accept(raw, body_end):
+    if flags & 32 and not reference_chains_accept(raw, body_end, d, op_link):
+        return False
+    if flags & 16 and not reference_shapes_accept(raw, shapes_at):
         return False
     return not (
         ((k_t < 0) | (k_t > LIM.max_stiffness_n_per_m)).any()
@@ -300,16 +352,38 @@ def random_update(
     angles = rng.uniform(-np.pi, np.pi, n)
     c[:, 4], c[:, 5] = np.cos(angles), np.sin(angles)
     g["contacts"] = c.ravel()
+    op_link = int(rng.integers(0, d))
     header = HEADER.pack(
         b"HLMU", VERSION, flags, epoch, seq, rng.uniform(0, 100), int(rng.integers(0, 2**62)), d, n,
-        j, int(rng.integers(0, d)), rng.uniform(0.01, 0.2), rng.uniform(-0.02, 0.02),
+        j, op_link, rng.uniform(0.01, 0.2), rng.uniform(-0.02, 0.02),
     )  # fmt: skip
     ints = np.concatenate(
         [rng.integers(0, 3, d), rng.integers(0, d, n), rng.integers(-(2**62), 2**62, n)]
     )
     floats = np.concatenate([g[name] for name, _ in groups])
     body = header + ints.astype("<i8").tobytes() + floats.astype("<f8").tobytes()
+    body += random_chains(rng, d, op_link) if flags & 32 else b""
     return body + (random_shapes(rng, n_shapes) if flags & 16 else b"")
+
+
+def random_chains(rng: np.random.Generator, d: int, op_link: int) -> bytes:
+    """A valid CHAINS trailer: chain 0 (the tool, port 0) holds op_link, further chains start
+    after it; every joint hangs from its chain's base or an earlier joint of its chain."""
+    starts = [k for k in range(op_link + 1, d)]
+    extra = rng.choice(starts, min(len(starts), int(rng.integers(0, MAX_CHAINS))), replace=False)
+    first = np.array([0, *sorted(int(k) for k in extra)], np.int64)
+    c = len(first)
+    parents = np.zeros(d, np.int64)
+    for i in range(d):
+        lo = first[first <= i].max()
+        parents[i] = -1 if i == lo or rng.uniform() < 0.2 else int(rng.integers(lo, i))
+    rows = np.zeros((c, 3), np.int64)
+    rows[:, 0] = first
+    rows[1:, 1] = rng.integers(0, 4, c - 1)
+    rows[1:, 2] = rng.integers(-1, MAX_PORTS, c - 1)
+    bases = np.column_stack([rng.uniform(-0.3, 0.3, (c - 1, 2)), rng.uniform(-3, 3, c - 1)])
+    head = np.array([c, *parents], "<i8").tobytes() + rows.astype("<i8").tobytes()
+    return head + bases.astype("<f8").tobytes()
 
 
 def random_shapes(rng: np.random.Generator, s: int) -> bytes:
@@ -348,7 +422,7 @@ def valid_updates(draw: Any) -> bytes:
     n = draw(st.one_of(st.integers(0, 4), st.integers(0, MAX_CONTACTS)))
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
     j = int(rng.integers(0, 4))
-    flags = int(rng.choice([0, 1, 4, 8, 9, 13, 16, 17, 29])) | (2 if j else 0)
+    flags = int(rng.choice([0, 1, 4, 8, 9, 13, 16, 17, 29, 32, 41, 48, 61])) | (2 if j else 0)
     s = draw(st.one_of(st.integers(1, 3), st.integers(1, MAX_SHAPES))) if flags & 16 else 0
     epoch, seq = (int(v) for v in rng.integers(1, 2**62, 2))
     return random_update(rng, d, n, j, flags, epoch, seq, s)
@@ -400,8 +474,9 @@ def break_update(raw: bytes, kind: str, draw: Any) -> bytes | None:
     out = bytearray(raw)
     big = draw(st.sampled_from([1.5, 10.0, 1e6, 1e100, 1e300]))
     sign = draw(st.sampled_from([1.0, -1.0]))
-    if kind == "nonfinite":
-        n_float = (len(raw) - HEADER.size) // 8 - (d + 2 * n)
+    if kind == "nonfinite":  # a float of the body (the trailers' own cases break theirs)
+        contacts_at, contact_floats = groups["contacts"]
+        n_float = (contacts_at + 8 * contact_floats - HEADER.size) // 8 - (d + 2 * n)
         k = draw(st.integers(0, n_float - 1))
         value = draw(st.sampled_from([math.nan, math.inf, -math.inf]))
         set_float(out, HEADER.size + 8 * (d + 2 * n + k), value)
@@ -427,8 +502,8 @@ def break_update(raw: bytes, kind: str, draw: Any) -> bytes | None:
         struct.pack_into(
             "<H", out, offset, draw(st.integers(0, 65535).filter(lambda v: v != current))
         )
-    elif kind == "flag":  # a section (gravity, resisted, velocity torque, shapes) announced or not
-        struct.pack_into("<H", out, 6, flags ^ draw(st.sampled_from([1, 2, 8, 16])))
+    elif kind == "flag":  # a section (gravity, resisted, velocity torque, shapes, chains)
+        struct.pack_into("<H", out, 6, flags ^ draw(st.sampled_from([1, 2, 8, 16, 32])))
     elif kind == "shape":
         return break_shape(raw, groups, draw)
     elif kind == "magnitude":
@@ -565,6 +640,78 @@ def break_shape(raw: bytes, groups: dict[str, tuple[int, int]], draw: Any) -> by
     return bytes(out)
 
 
+#: ways to break the tree and chains (DESIGN-WAVE2 C4: parents topologically ordered)
+CHAIN_BREAKS = [
+    "parent_after", "parent_self", "parent_below", "parent_other_chain", "count", "first_zero",
+    "first_order", "first_beyond", "kind", "port", "tool_port", "op_link", "base", "nonfinite",
+]  # fmt: skip
+
+
+def break_chains(raw: bytes, draw: Any) -> bytes | None:
+    """One rule of the CHAINS trailer broken; None if the update cannot break it."""
+    d, _, _, _, groups = layout(raw)
+    at, c = groups["chains"]
+    out = bytearray(raw)
+    p_at = at + 8  # parents
+    r_at = at + 8 * (1 + d)  # chain rows
+    b_at = r_at + 8 * 3 * c  # bases of chains 1..
+    rows = np.frombuffer(raw, "<i8", 3 * c, r_at).reshape(c, 3)
+    op_link = struct.unpack_from("<H", raw, 46)[0]
+    how = draw(st.sampled_from(CHAIN_BREAKS))
+    i = draw(st.integers(0, d - 1))
+    if how == "parent_after":  # a parent that comes after its joint
+        if i == d - 1:
+            return None
+        struct.pack_into("<q", out, p_at + 8 * i, draw(st.integers(i + 1, d - 1)))
+    elif how == "parent_self":
+        struct.pack_into("<q", out, p_at + 8 * i, i)
+    elif how == "parent_below":
+        struct.pack_into("<q", out, p_at + 8 * i, draw(st.sampled_from([-2, -99, -(2**62)])))
+    elif how == "parent_other_chain":
+        if c < 2:
+            return None
+        k = draw(st.integers(1, c - 1))
+        if rows[k, 0] == 0:
+            return None
+        struct.pack_into("<q", out, p_at + 8 * int(rows[k, 0]), int(rows[k, 0]) - 1)
+    elif how == "count":
+        struct.pack_into("<q", out, at, draw(st.sampled_from([0, -1, MAX_CHAINS + 1, 2**40])))
+    elif how == "first_zero":  # chain 0 must start at joint 0
+        struct.pack_into("<q", out, r_at, draw(st.integers(1, 5)))
+    elif how in ("first_order", "first_beyond"):
+        if c < 2:
+            return None
+        k = draw(st.integers(1, c - 1))
+        value = int(rows[k - 1, 0]) if how == "first_order" else d + draw(st.integers(0, 3))
+        struct.pack_into("<q", out, r_at + 24 * k, value)
+    elif how == "kind":
+        k = draw(st.integers(0, c - 1))
+        bad = [-1, 4, 99] if k else [1, 2, 3, -1]  # chain 0 is the tool
+        struct.pack_into("<q", out, r_at + 24 * k + 8, draw(st.sampled_from(bad)))
+    elif how == "port":
+        k = draw(st.integers(0, c - 1))
+        struct.pack_into("<q", out, r_at + 24 * k + 16, draw(st.sampled_from([-2, MAX_PORTS, 99])))
+    elif how == "tool_port":  # chain 0 is port 0's
+        struct.pack_into("<q", out, r_at + 16, -1)
+    elif how == "op_link":  # the held link outside the tool's chain
+        if c < 2:
+            return None
+        struct.pack_into("<H", out, 46, int(rows[1, 0]) + draw(st.integers(0, d - 1 - rows[1, 0])))
+    elif how == "base":
+        if c < 2:
+            return None
+        k = draw(st.integers(0, 3 * (c - 1) - 1))
+        bound = LIM.max_abs_angle_rad if k % 3 == 2 else LIM.max_abs_position_m
+        set_float(out, b_at + 8 * k, draw(st.sampled_from([1.5, 1e9])) * bound)
+    elif how == "nonfinite":
+        if c < 2:
+            return None
+        k = draw(st.integers(0, 3 * (c - 1) - 1))
+        set_float(out, b_at + 8 * k, draw(st.sampled_from([math.nan, math.inf])))
+    del op_link
+    return bytes(out)
+
+
 def reason_of_parse(raw: bytes) -> str:
     code = PARSER.parse(raw)
     return "" if code == 0 else Reason(code).tag
@@ -642,6 +789,33 @@ def test_each_broken_shape_is_rejected_and_named(raw: bytes, data: st.DataObject
         return
     reason = reason_of_parse(broken)
     assert reason in ("shape", "nonfinite", "size"), reason
+    assert not reference_accepts(broken)
+    assert_logged_as_rejected(broken, reason)
+
+
+@st.composite
+def updates_with_chains(draw: Any) -> bytes:
+    d = draw(st.integers(1, MAX_DOF))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    epoch, seq = (int(v) for v in rng.integers(1, 2**62, 2))
+    flags = 32 | int(rng.choice([0, 16]))
+    return random_update(rng, d, int(rng.integers(0, 4)), 0, flags, epoch, seq, 2)
+
+
+@cases("chains")
+@given(updates_with_chains(), st.data())
+def test_each_broken_chain_is_rejected_and_named(raw: bytes, data: st.DataObject) -> None:
+    """The tree and chains (DESIGN-WAVE2 C1, C4): a parent after its joint, itself, below -1
+    or in another chain; a wrong count; chains that do not start at 0 or out of order; a kind
+    or port out of range, chain 0 not the tool of port 0, the held link outside it; a base
+    beyond limits or not finite. Rejected as `chain` (or `nonfinite`, `size` for a count that
+    no longer fits), never a crash."""
+    assert reason_of_parse(raw) == "" and reference_accepts(raw)
+    broken = break_chains(raw, data.draw)
+    if broken is None:
+        return
+    reason = reason_of_parse(broken)
+    assert reason in ("chain", "nonfinite", "size"), reason
     assert not reference_accepts(broken)
     assert_logged_as_rejected(broken, reason)
 

@@ -24,10 +24,15 @@ SPEC = ChainSpec(
 )  # fmt: skip
 
 
+CHAIN = chain_record(
+    np.zeros(3, np.int64), np.array(SPEC.lengths), np.zeros(2), 0.0, np.array(SPEC.masses),
+    np.array(SPEC.inertias), np.array(SPEC.com_offsets),
+)[0]  # fmt: skip
+
+
 def _pose(q: np.ndarray, link: int, r: np.ndarray) -> np.ndarray:
-    jt = np.zeros(3, np.int64)
     pos, ang, out = np.zeros((3, 2)), np.zeros(3), np.zeros(2)
-    link_frames(jt, np.array(SPEC.lengths), np.zeros(2), 0.0, q, 3, pos, ang)
+    link_frames(CHAIN, q, 3, pos, ang)
     point_on_link(pos, ang, link, r, out)
     return np.array([out[0], out[1], ang[link]])
 
@@ -38,11 +43,10 @@ def test_jacobian_matches_finite_differences() -> None:
         q = rng.uniform(-np.pi, np.pi, 3)
         r = rng.normal(scale=0.01, size=2)
         for link in range(3):
-            jt = np.zeros(3, np.int64)
             pos, ang, jac = np.zeros((3, 2)), np.zeros(3), np.zeros((3, 3))
-            link_frames(jt, np.array(SPEC.lengths), np.zeros(2), 0.0, q, 3, pos, ang)
+            link_frames(CHAIN, q, 3, pos, ang)
             p = _pose(q, link, r)
-            point_jacobian(jt, pos, 3, link, p[0], p[1], jac)
+            point_jacobian(CHAIN, pos, 3, link, p[0], p[1], jac)
             for j in range(3):
                 dq = np.zeros(3)
                 dq[j] = FD_STEP

@@ -10,6 +10,7 @@ import pytest
 
 from haptic_local_model.shared.protocol.proxy import decode_proxy, encode_proxy
 from haptic_local_model.shared.protocol.update import (
+    ChainTable,
     ContactSet,
     LocalModelUpdate,
     MessageError,
@@ -21,6 +22,7 @@ from haptic_local_model.shared.shapes import Motion, ShapeKind, set_core, shape_
 
 GOLDEN = Path(__file__).parent / "golden" / "update_v3_linkage.bin"
 GOLDEN_SHAPES = Path(__file__).parent / "golden" / "update_v3_shapes.bin"
+GOLDEN_CHAINS = Path(__file__).parent / "golden" / "update_v3_chains.bin"
 GOLDEN_V2 = Path(__file__).parent / "golden" / "update_v2_linkage.bin"  # releases 0.2-0.5
 GOLDEN_V1 = Path(__file__).parent / "golden" / "update_v1_linkage.bin"  # release 0.1
 
@@ -66,6 +68,17 @@ def sample_with_shapes() -> LocalModelUpdate:
     return LocalModelUpdate(**{**sample_update().__dict__, "shapes": sample_shapes()})
 
 
+def sample_with_chains() -> LocalModelUpdate:
+    """The sample as a tree of two chains and a shape: the held finger (joints 0-1, the
+    tool) and a free branch's joint 2 on a base of its own (an object)."""
+    chains = ChainTable(
+        parents=np.array([-1, 0, -1]), first=np.array([0, 2]), kind=np.array([0, 1]),
+        port=np.array([0, -1]), bases=np.array([[0.1, -0.2, 0.3]]),
+    )  # fmt: skip
+    fields = {**sample_update().__dict__, "op_link": 1, "chains": chains}
+    return LocalModelUpdate(**{**fields, "shapes": sample_shapes()[:1]})
+
+
 def assert_same(a: LocalModelUpdate, b: LocalModelUpdate) -> None:
     for name in (
         "epoch",
@@ -98,6 +111,10 @@ def assert_same(a: LocalModelUpdate, b: LocalModelUpdate) -> None:
     assert (a.shapes is None) == (b.shapes is None)
     if a.shapes is not None and b.shapes is not None:
         assert a.shapes.tobytes() == b.shapes.tobytes()
+    assert (a.chains is None) == (b.chains is None)
+    if a.chains is not None and b.chains is not None:
+        for name in ("parents", "first", "kind", "port", "bases"):
+            np.testing.assert_array_equal(getattr(a.chains, name), getattr(b.chains, name))
 
 
 def test_update_round_trip_exact() -> None:
@@ -131,6 +148,26 @@ def test_shapes_round_trip_and_golden_file() -> None:
     back = decode_update(raw)
     assert_same(back, sample_with_shapes())
     assert encode_update(back) == raw
+
+
+def test_chains_round_trip_and_golden_file() -> None:
+    """The CHAINS trailer (DESIGN-WAVE2 C1, C4) before the SHAPES one: every field survives,
+    the parsed record carries the tree, and the bytes are pinned. A serial update leaves it
+    out, and parses as one chain with parents[i] = i - 1."""
+    from haptic_local_model.shared.protocol.update import UpdateParser
+
+    raw = encode_update(sample_with_chains())
+    assert raw == GOLDEN_CHAINS.read_bytes()  # a change of the format must change the version
+    back = decode_update(raw)
+    assert_same(back, sample_with_chains())
+    assert encode_update(back) == raw
+    parser = UpdateParser()
+    assert parser.parse(raw) == 0
+    m = parser.out[0]
+    assert m["n_chains"] == 2 and list(m["parents"][:3]) == [-1, 0, -1]
+    np.testing.assert_array_equal(m["chain_base"][1], [0.1, -0.2, 0.3])
+    assert parser.parse(encode_update(sample_update())) == 0
+    assert m["n_chains"] == 1 and list(m["parents"][:3]) == [-1, 0, 1] and not m["has_chains"]
 
 
 def test_version_2_still_parses() -> None:
@@ -282,6 +319,7 @@ def test_compiled_encoder_writes_the_bytes_of_the_reference_encoder(
     and updates with and without the flagged sections."""
     assert _encoded_from_record(GOLDEN.read_bytes()) == GOLDEN.read_bytes()
     assert _encoded_from_record(GOLDEN_SHAPES.read_bytes()) == GOLDEN_SHAPES.read_bytes()
+    assert _encoded_from_record(GOLDEN_CHAINS.read_bytes()) == GOLDEN_CHAINS.read_bytes()
     u = sample_update(n_contacts=n_contacts, resisted=optional)
     if not optional:
         u = LocalModelUpdate(**{**u.__dict__, "gravity": None, "velocity_torque": None})

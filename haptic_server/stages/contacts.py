@@ -126,7 +126,7 @@ def contact_kinematics(m, d, k, i):
     point_on_link(ws.frame_pos, ws.frame_angle, link, slot.c_tool[i], ws.contact_point)
     px = ws.contact_point[0]
     py = ws.contact_point[1]
-    point_jacobian(slot.joint_types, ws.frame_pos, n, link, px, py, ws.jac_point)
+    point_jacobian(slot, ws.frame_pos, n, link, px, py, ws.jac_point)
     nx = slot.c_normal[i, 0]
     ny = slot.c_normal[i, 1]
     ex = slot.c_env[i, 0] + slot.c_env_velocity[i, 0] * cs.age_s

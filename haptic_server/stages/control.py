@@ -130,9 +130,8 @@ def control_impedance_only(m, d):
     if m.params.jdot_qd == 1:
         slot = m.slots[0]
         point_bias_acceleration(
-            slot.joint_types, w.frame_pos, n, slot.op_link, w.op_point[0], w.op_point[1],
-            st.qd, w.jdot_qd,
-        )  # fmt: skip
+            slot, w.frame_pos, n, slot.op_link, w.op_point[0], w.op_point[1], st.qd, w.jdot_qd
+        )
         for c in range(3):
             w.acc_bias[c] += w.jdot_qd[c]
     mat3_vec(M, w.acc_contact, r.f_contact, 1.0)

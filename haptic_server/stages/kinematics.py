@@ -34,14 +34,11 @@ def proxy_kinematics(m, d):
     st = d.state
     w = d.scratch
     n = new.dof
-    link_frames(
-        new.joint_types, new.lengths, new.base, new.base_angle, st.q, n, w.frame_pos,
-        w.frame_angle,
-    )  # fmt: skip
+    link_frames(new, st.q, n, w.frame_pos, w.frame_angle)
     point_on_link(w.frame_pos, w.frame_angle, new.op_link, new.op_point, w.op_point)
     hx = w.op_point[0]
     hy = w.op_point[1]
-    point_jacobian(new.joint_types, w.frame_pos, n, new.op_link, hx, hy, w.jac_hand)
+    point_jacobian(new, w.frame_pos, n, new.op_link, hx, hy, w.jac_hand)
     w.x_vm[0] = hx
     w.x_vm[1] = hy
     w.x_vm[2] = w.frame_angle[new.op_link]

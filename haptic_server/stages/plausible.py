@@ -29,6 +29,7 @@ from numba import njit
 from haptic_local_model.shared.kinematics import (
     REVOLUTE,
     VELOCITY_TORQUE_STEP,
+    link_spin,
     mass_matrix_and_gravity,
     point_jacobian,
     point_on_link,
@@ -95,7 +96,7 @@ def _check_chain(u, env):
     if u.dof != d or u.op_link != env.op_link:
         return Reason.INCONSISTENT
     for i in range(d):
-        if u.joint_types[i] != c.joint_types[i]:
+        if u.joint_types[i] != c.joint_types[i] or u.parents[i] != c.parents[i]:
             return Reason.INCONSISTENT
         if _differs(u.lengths[i], c.lengths[i], GEOMETRY_TOLERANCE):
             return Reason.INCONSISTENT
@@ -106,6 +107,14 @@ def _check_chain(u, env):
             return Reason.INCONSISTENT
     if _differs(u.base_angle, c.base_angle, GEOMETRY_TOLERANCE):
         return Reason.INCONSISTENT
+    if u.n_chains != c.n_chains:
+        return Reason.INCONSISTENT
+    for k in range(1, c.n_chains):
+        if u.chain_first[k] != c.chain_first[k] or u.chain_kind[k] != c.chain_kind[k]:
+            return Reason.INCONSISTENT
+        for a in range(3):
+            if _differs(u.chain_base[k, a], c.chain_base[k, a], GEOMETRY_TOLERANCE):
+                return Reason.INCONSISTENT
     length = env.characteristic_length
     if _differs(u.characteristic_length, length, GEOMETRY_TOLERANCE * length):
         return Reason.INCONSISTENT
@@ -159,7 +168,7 @@ def _check_dynamics(u, env):
     angle = env.frame_angle[env.op_link]
     if _differs(u.tool_pose[2], angle, tol * (1.0 + abs(angle))):
         return Reason.INCONSISTENT
-    point_jacobian(c.joint_types, env.frame_pos, d, env.op_link, point[0], point[1], jac)
+    point_jacobian(c, env.frame_pos, d, env.op_link, point[0], point[1], jac)
     if not cholesky_inplace(mass, d, env.chol):
         return Reason.INCONSISTENT
     lam = env.gram  # J_h D^-1 J_h^T, as the sim computes it
@@ -219,10 +228,9 @@ def _check_motion(u, env):
     env.ratios[RATIO_SPEED] = math.hypot(vx, vy) / env.max_speed
     if math.hypot(vx, vy) > env.max_speed:
         return Reason.IMPLAUSIBLE
-    spin = 0.0
     for i in range(d):
         if c.joint_types[i] == REVOLUTE:
-            spin += u.qd[i]
+            spin = link_spin(c, u.qd, i)
             env.ratios[RATIO_SPIN] = max(env.ratios[RATIO_SPIN], abs(spin) / env.max_angular_speed)
             if abs(spin) > env.max_angular_speed:
                 return Reason.IMPLAUSIBLE

@@ -7,6 +7,7 @@ import math
 
 from numba import njit
 
+from haptic_local_model.shared.kinematics import REVOLUTE, link_spin
 from haptic_local_model.shared.protocol.codes import Fault
 
 
@@ -75,13 +76,12 @@ def _runaway(m, d):
     n = slot.dof
     vx = 0.0
     vy = 0.0
-    spin = 0.0
     energy = 0.0
     for a in range(n):
         vx += w.jac_hand[0, a] * st.qd[a]
         vy += w.jac_hand[1, a] * st.qd[a]
-        if slot.joint_types[a] == 0:  # revolute: every link from here on turns with it
-            spin += st.qd[a]
+        if slot.joint_types[a] == REVOLUTE:  # its link turns with it and its ancestors
+            spin = link_spin(slot, st.qd, a)
             if abs(spin) > p.guard_max_angular_speed:
                 return Fault.RUNAWAY
         for b in range(n):

@@ -71,6 +71,9 @@ class Reason(IntEnum):
     JUMP = 24  # the tool (or the sequence) moved on farther than it could since the last one
     SHAPE = 25  # a local shape breaks a rule: kind and vertex count, a non-convex or clockwise
     # polygon, an owner other than the world, a repeated key, a twist or friction beyond limits
+    CHAIN = 26  # the chains break a rule: a parent not before its joint or in another chain,
+    # chains out of order, empty or too many, a kind or port out of range, the held link
+    # outside chain 0, a base beyond limits
 
     @property
     def tag(self) -> str:
@@ -96,3 +99,4 @@ class Flag(IntFlag):
     TOUCHING = 4
     VELOCITY_TORQUE = 8
     SHAPES = 16  # version 3: the local shapes trail the body (layout.SHAPE_FIELDS)
+    CHAINS = 32  # version 3: the tree and chains of the configuration (layout.CHAIN_FIELDS)

@@ -15,7 +15,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from haptic_local_model.shared.kinematics import MAX_DOF
+from haptic_local_model.shared.kinematics import MAX_CHAINS, MAX_DOF, MAX_PORTS
 from haptic_local_model.shared.protocol.codes import Flag
 from haptic_local_model.shared.shapes import MAX_SHAPES, MAX_VERTICES, SHAPE_DTYPE
 
@@ -43,7 +43,7 @@ HEADER = (
         "H",
         "",
         "sections present (Flag: 1 gravity, 2 resisted, 4 tool touching, 8 velocity torque,"
-        " 16 shapes)",
+        " 16 shapes, 32 chains)",
     ),
     HeaderField("epoch", "Q", "", "changes when the sim restarts or reloads"),
     HeaderField("seq", "Q", "", "update number within the epoch"),
@@ -221,6 +221,24 @@ def shapes_words(n_shapes: int) -> int:
     return 1 + (SHAPE_INTS + SHAPE_FLOATS) * n_shapes
 
 
+#: The CHAINS trailer (flag 32, version 3; DESIGN-WAVE2 C1, C4), after the float sections and
+#: before a SHAPES trailer: int64 c (chains, 1..MAX_CHAINS), d int64 `parents`, c rows of
+#: CHAIN_INTS int64, then c - 1 rows of 3 float64, the base pose of chains 1 .. c - 1 (chain
+#: 0's is the body's base and base_angle). Without it the joints are one serial chain,
+#: parents[i] = i - 1: the encoder sends it only for a tree or several chains.
+CHAIN_INT_FIELDS = (
+    ShapeField("first", 1, "", "0 for chain 0, then increasing, < d", "its first joint"),
+    ShapeField("kind", 1, "", "0..3; 0 for chain 0", "0 tool, 1 object, 2 hand, 3 avar"),
+    ShapeField("port", 1, "", f"-1..{MAX_PORTS - 1}; 0 for chain 0", "device port, -1 none"),
+)
+CHAIN_INTS = len(CHAIN_INT_FIELDS)
+
+
+def chains_words(d: int, n_chains: int) -> int:
+    """8-byte words of a CHAINS trailer of n_chains chains over d joints."""
+    return 1 + d + CHAIN_INTS * n_chains + 3 * (n_chains - 1)
+
+
 FLOAT_SECTIONS = (
     Section("lengths", (0, 1, 0, 0, 0), "m", "link lengths"),
     Section("base", (2, 0, 0, 0, 0), "m", "base position (world)"),
@@ -256,11 +274,19 @@ def body_counts(
 
 
 def update_size(
-    d: int, j: int, n: int, flags: int, version: int = PROTOCOL_VERSION, n_shapes: int = 0
+    d: int,
+    j: int,
+    n: int,
+    flags: int,
+    version: int = PROTOCOL_VERSION,
+    n_shapes: int = 0,
+    n_chains: int = 1,
 ) -> int:
-    """Bytes of an update with these counts and flags (and shapes, with Flag.SHAPES)."""
+    """Bytes of an update with these counts and flags (and shapes, with Flag.SHAPES; chains,
+    with Flag.CHAINS)."""
     n_int, n_float = body_counts(d, j, n, flags, version)
     trailer = shapes_words(n_shapes) if flags & Flag.SHAPES else 0
+    trailer += chains_words(d, n_chains) if flags & Flag.CHAINS else 0
     return HEADER_BYTES + 8 * (n_int + n_float + trailer)
 
 
@@ -342,6 +368,14 @@ LOCAL_MODEL_DTYPE = np.dtype(
         ("n_contacts", I8),
         ("c_link", I8, (MAX_CONTACTS,)),
         ("c_key", I8, (MAX_CONTACTS,)),
+        # the tree and chains (Flag.CHAINS; otherwise one serial chain): shared.kinematics
+        ("has_chains", I8),  # the update carries the CHAINS trailer
+        ("parents", I8, (MAX_DOF,)),
+        ("n_chains", I8),
+        ("chain_first", I8, (MAX_CHAINS,)),
+        ("chain_kind", I8, (MAX_CHAINS,)),
+        ("chain_port", I8, (MAX_CHAINS,)),
+        ("chain_base", F8, (MAX_CHAINS, 3)),  # chains 1..: x, y, angle (chain 0: base)
         ("n_shapes", I8),  # local shapes (version 3, Flag.SHAPES; 0 otherwise)
         ("shapes", SHAPE_DTYPE, (MAX_SHAPES,)),
         *[
@@ -411,6 +445,20 @@ def markdown_tables() -> str:
             f"| float64 | {SHAPE_AT[sf.name]} | `{sf.name}` | {sf.width} | {sf.unit or '-'} |"
             f" {sf.bound} | {sf.doc} |"
         )
+    lines += [
+        "",
+        f"CHAINS trailer (flag {int(Flag.CHAINS)}, version 3), after the float sections and"
+        f" before a SHAPES trailer: int64 c (1..{MAX_CHAINS}), d int64 `parents` (joint i hangs"
+        " from the tip of link parents[i], -1 from its chain's base; every parent before its"
+        f" joint and in its chain), c rows of {CHAIN_INTS} int64, then c - 1 rows of 3 float64"
+        " `base` (x m, y m, angle rad; |x| <= max_abs_position_m) of chains 1 .. c - 1. Absent:"
+        " one serial chain (parents[i] = i - 1) at base, base_angle.",
+        "",
+        "| offset | field | bound | meaning |",
+        "|---|---|---|---|",
+    ]
+    for k, cf in enumerate(CHAIN_INT_FIELDS):
+        lines.append(f"| {k} | `{cf.name}` | {cf.bound} | {cf.doc} |")
     return "\n".join(lines) + "\n"
 
 

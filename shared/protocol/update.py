@@ -16,7 +16,14 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from haptic_local_model.shared.kinematics import PRISMATIC_Y, REVOLUTE
+from haptic_local_model.shared.kinematics import (
+    CHAIN_AVAR,
+    CHAIN_TOOL,
+    MAX_CHAINS,
+    MAX_PORTS,
+    PRISMATIC_Y,
+    REVOLUTE,
+)
 from haptic_local_model.shared.linalg import cholesky_inplace
 from haptic_local_model.shared.protocol.codes import Flag, Reason
 from haptic_local_model.shared.protocol.layout import (
@@ -29,6 +36,7 @@ from haptic_local_model.shared.protocol.layout import (
     C_STIFFNESS,
     C_TANGENTIAL_STIFFNESS,
     C_TOOL,
+    CHAIN_INTS,
     CONTACT_COLUMNS,
     CONTACT_FLOATS,
     CONTACT_FLOATS_V1,
@@ -58,6 +66,7 @@ from haptic_local_model.shared.protocol.layout import (
     UPDATE_MAGIC,
     MessageLimits,
     body_counts,
+    chains_words,
     limits_record,
     shapes_words,
 )
@@ -68,6 +77,7 @@ MAGIC = tuple(UPDATE_MAGIC)
 MAX_UPDATE_BYTES = HEADER_BYTES + 8 * (
     3 * MAX_DOF + MAX_DOF * MAX_DOF + 2 * MAX_CONTACTS + 64 + 3 * MAX_RESISTED
     + CONTACT_FLOATS * MAX_CONTACTS + shapes_words(MAX_SHAPES) + MAX_DOF * 4
+    + chains_words(MAX_DOF, MAX_CHAINS)
 )  # fmt: skip
 # numba reads IntEnum members but not IntFlag ones: the flags as plain ints for the kernels
 FLAG_GRAVITY = int(Flag.GRAVITY)
@@ -75,6 +85,7 @@ FLAG_RESISTED = int(Flag.RESISTED)
 FLAG_TOUCHING = int(Flag.TOUCHING)
 FLAG_VELOCITY_TORQUE = int(Flag.VELOCITY_TORQUE)
 FLAG_SHAPES = int(Flag.SHAPES)
+FLAG_CHAINS = int(Flag.CHAINS)
 AT_VERSION = HEADER_AT["version"]
 AT_FLAGS = HEADER_AT["flags"]
 AT_EPOCH = HEADER_AT["epoch"]
@@ -126,6 +137,35 @@ def contact_rows(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 @dataclass(frozen=True, eq=False)
+class ChainTable:
+    """The joints' tree and the chains of the configuration (DESIGN-WAVE2 C1; Flag.CHAINS):
+    joint i hangs from link parents[i] (-1: its chain's base), chain k covers the joints from
+    first[k], of kind (shared.kinematics.CHAIN_*) and device port (-1 none), based at
+    bases[k - 1] (chain 0 at the update's base and base_angle)."""
+
+    parents: np.ndarray  # (d,) int64
+    first: np.ndarray  # (c,) int64
+    kind: np.ndarray  # (c,) int64
+    port: np.ndarray  # (c,) int64
+    bases: np.ndarray  # (c - 1, 3) x, y, angle
+
+    @staticmethod
+    def serial(d: int) -> ChainTable:
+        """One chain of d joints, each on the one before (what an update without it means)."""
+        return ChainTable(
+            np.arange(d, dtype=np.int64) - 1, np.zeros(1, np.int64), np.zeros(1, np.int64),
+            np.zeros(1, np.int64), np.zeros((0, 3)),
+        )  # fmt: skip
+
+    def trailer(self) -> bytes:
+        """The CHAINS trailer (layout.CHAIN_INT_FIELDS)."""
+        c = len(self.first)
+        ints = np.column_stack([self.first, self.kind, self.port]).astype("<i8")
+        head = np.concatenate([[c], self.parents]).astype("<i8").tobytes()
+        return head + ints.tobytes() + np.asarray(self.bases, "<f8").reshape(c - 1, 3).tobytes()
+
+
+@dataclass(frozen=True, eq=False)
 class LocalModelUpdate:
     """What the sim publishes each step about its tool (DESIGN §3)."""
 
@@ -155,6 +195,8 @@ class LocalModelUpdate:
     state_lead_s: float = 0.0
     # the local shapes near the tool (SHAPE_DTYPE rows; version 3), None: no SHAPES trailer
     shapes: np.ndarray | None = None
+    # the tree and chains (version 3), None: one serial chain, no CHAINS trailer
+    chains: ChainTable | None = None
 
     @property
     def dof(self) -> int:
@@ -173,6 +215,8 @@ class LocalModelUpdate:
             flags |= Flag.VELOCITY_TORQUE
         if self.shapes is not None and len(self.shapes) > 0:
             flags |= Flag.SHAPES
+        if self.chains is not None:
+            flags |= Flag.CHAINS
         return int(flags)
 
 
@@ -204,6 +248,7 @@ def encode_update(u: LocalModelUpdate) -> bytes:
         header
         + np.concatenate(ints).astype("<i8").tobytes()
         + np.concatenate(floats).astype("<f8").tobytes()
+        + (u.chains.trailer() if u.chains is not None else b"")
         + (shapes_trailer(u.shapes) if u.shapes is not None and u.flags & Flag.SHAPES else b"")
     )
 
@@ -270,9 +315,14 @@ def encode_record(out, buf):
         flags |= FLAG_VELOCITY_TORQUE
     if m.n_shapes > 0:
         flags |= FLAG_SHAPES
+    if m.has_chains == 1:
+        flags |= FLAG_CHAINS
     n_int = d + 2 * n
     body_end = HEADER_BYTES + 8 * (n_int + _float_count(d, j, n, flags, CONTACT_FLOATS))
     nbytes = body_end
+    if (flags & FLAG_CHAINS) != 0:
+        nbytes += 8 * _chains_words(d, m.n_chains)
+    chains_end = nbytes
     if m.n_shapes > 0:
         nbytes += 8 * (1 + (SHAPE_INTS + SHAPE_FLOATS) * m.n_shapes)
     for i in range(4):
@@ -309,9 +359,35 @@ def encode_record(out, buf):
         row[C_STIFFNESS] = m.c_stiffness[i]
         row[C_DAMPING] = m.c_damping[i]
         row[C_TANGENTIAL_STIFFNESS] = m.c_tangential_stiffness[i]
+    if (flags & FLAG_CHAINS) != 0:
+        _write_chains(m, buf[body_end:chains_end])
     if m.n_shapes > 0:
-        _write_shapes(m, buf[body_end:nbytes])
+        _write_shapes(m, buf[chains_end:nbytes])
     return nbytes
+
+
+@njit(cache=True, inline="always")
+def _chains_words(d, c):
+    """layout.chains_words, compiled."""
+    return 1 + d + CHAIN_INTS * c + 3 * (c - 1)
+
+
+@njit(cache=True)
+def _write_chains(m, trailer):
+    """`_read_chains` the other way: the CHAINS trailer of the record's tree and chains."""
+    d, c = m.dof, m.n_chains
+    ints = trailer[: 8 * (1 + d + CHAIN_INTS * c)].view(np.int64)
+    ints[0] = c
+    for i in range(d):
+        ints[1 + i] = m.parents[i]
+    for k in range(c):
+        ints[1 + d + CHAIN_INTS * k] = m.chain_first[k]
+        ints[2 + d + CHAIN_INTS * k] = m.chain_kind[k]
+        ints[3 + d + CHAIN_INTS * k] = m.chain_port[k]
+    fl = trailer[8 * (1 + d + CHAIN_INTS * c) :].view(np.float64)
+    for k in range(1, c):
+        for a in range(3):
+            fl[3 * (k - 1) + a] = m.chain_base[k, a]
 
 
 @njit(cache=True)
@@ -419,7 +495,39 @@ def epoch_of(buf, nbytes):
 @njit(cache=True, inline="always")
 def _check_header(buf, nbytes):
     """Magic, version, counts and total size: (Reason or 0, d, n, j, flags, contact row
-    floats, shapes)."""
+    floats, shapes, chains (0: no CHAINS trailer))."""
+    code, d, n, j, flags, n_cf, body_end = _check_body(buf, nbytes)
+    if code != 0 or (flags & (FLAG_SHAPES | FLAG_CHAINS)) == 0:
+        return code, d, n, j, flags, n_cf, 0, 0
+    if _u16(buf, AT_VERSION) < 3:
+        return Reason.VERSION, d, n, j, flags, n_cf, 0, 0
+    if nbytes < body_end + 8 or (nbytes - body_end) % 8 != 0:
+        return Reason.SIZE, d, n, j, flags, n_cf, 0, 0
+    end = body_end
+    c = 0
+    if (flags & FLAG_CHAINS) != 0:
+        c = _i64(buf, end)
+        if c < 1 or c > MAX_CHAINS:
+            return Reason.CHAIN, d, n, j, flags, n_cf, 0, 0
+        end += 8 * _chains_words(d, c)
+    if (flags & FLAG_SHAPES) == 0:
+        if nbytes != end:
+            return Reason.SIZE, d, n, j, flags, n_cf, 0, c
+        return 0, d, n, j, flags, n_cf, 0, c
+    if nbytes < end + 8:
+        return Reason.SIZE, d, n, j, flags, n_cf, 0, c
+    s = _i64(buf, end)
+    if s < 1 or s > MAX_SHAPES:
+        return Reason.SHAPE, d, n, j, flags, n_cf, 0, c
+    if nbytes != end + 8 * (1 + (SHAPE_INTS + SHAPE_FLOATS) * s):
+        return Reason.SIZE, d, n, j, flags, n_cf, 0, c
+    return 0, d, n, j, flags, n_cf, s, c
+
+
+@njit(cache=True, inline="always")
+def _check_body(buf, nbytes):
+    """The header's magic, version and counts: (Reason or 0, d, n, j, flags, contact row
+    floats, end of the body in bytes); an update without trailers ends there."""
     if nbytes < HEADER_BYTES:
         return Reason.SHORT, 0, 0, 0, 0, 0, 0
     for i in range(4):
@@ -443,20 +551,9 @@ def _check_header(buf, nbytes):
         return Reason.OP_LINK, d, n, j, flags, n_cf, 0
     n_int = d + 2 * n
     body_end = HEADER_BYTES + 8 * (n_int + _float_count(d, j, n, flags, n_cf))
-    if (flags & FLAG_SHAPES) == 0:
-        if nbytes != body_end:
-            return Reason.SIZE, d, n, j, flags, n_cf, 0
-        return 0, d, n, j, flags, n_cf, 0
-    if version < 3:
-        return Reason.VERSION, d, n, j, flags, n_cf, 0
-    if nbytes < body_end + 8 or (nbytes - body_end) % 8 != 0:
+    if (flags & (FLAG_SHAPES | FLAG_CHAINS)) == 0 and nbytes != body_end:
         return Reason.SIZE, d, n, j, flags, n_cf, 0
-    s = _i64(buf, body_end)
-    if s < 1 or s > MAX_SHAPES:
-        return Reason.SHAPE, d, n, j, flags, n_cf, 0
-    if nbytes != body_end + 8 * (1 + (SHAPE_INTS + SHAPE_FLOATS) * s):
-        return Reason.SIZE, d, n, j, flags, n_cf, 0
-    return 0, d, n, j, flags, n_cf, s
+    return 0, d, n, j, flags, n_cf, body_end
 
 
 @njit(cache=True, inline="always")
@@ -656,7 +753,7 @@ def parse_update(buf, nbytes, limits, out, scratch):
     """
     m = out[0]
     m.valid = 0
-    code, d, n, j, flags, n_cf, n_shapes = _check_header(buf, nbytes)
+    code, d, n, j, flags, n_cf, n_shapes, n_chains = _check_header(buf, nbytes)
     if code != 0:
         return code
     lim = limits[0]
@@ -696,9 +793,12 @@ def parse_update(buf, nbytes, limits, out, scratch):
         code = _penalty_projection(m)
     if code == 0:
         code = _read_contacts(m, ints, fl, contacts_at, n_cf, lim)
+    chains_end = body_end + (8 * _chains_words(d, n_chains) if n_chains > 0 else 0)
+    if code == 0:
+        code = _read_chains(m, buf[body_end:chains_end], n_chains, _u16(buf, AT_OP_LINK), lim)
     m.n_shapes = 0
     if code == 0 and n_shapes > 0:
-        code = _read_shapes(m, buf[body_end:nbytes], n_shapes, lim)
+        code = _read_shapes(m, buf[chains_end:nbytes], n_shapes, lim)
     if code != 0:
         return code
     m.epoch = _i64(buf, AT_EPOCH)
@@ -710,6 +810,69 @@ def parse_update(buf, nbytes, limits, out, scratch):
     m.state_lead_s = lead
     m.valid = 1
     return Reason.OK
+
+
+@njit(cache=True)
+def _read_chains(m, trailer, c, op_link, lim):
+    """The CHAINS trailer into the record, every rule checked: 0 or Reason.NONFINITE /
+    Reason.CHAIN. c = 0 (no trailer): one serial chain."""
+    d = m.dof
+    for k in range(MAX_CHAINS):
+        m.chain_first[k] = 0
+        m.chain_kind[k] = CHAIN_TOOL
+        m.chain_port[k] = -1
+        for a in range(3):
+            m.chain_base[k, a] = 0.0
+    m.chain_port[0] = 0
+    m.n_chains = 1
+    m.has_chains = 1 if c > 0 else 0
+    for i in range(MAX_DOF):
+        m.parents[i] = i - 1 if i < d else -1
+    if c == 0:
+        return 0
+    ints = trailer[8 : 8 * (1 + d + CHAIN_INTS * c)].view(np.int64)
+    fl = trailer[8 * (1 + d + CHAIN_INTS * c) :].view(np.float64)
+    for k in range(fl.shape[0]):
+        if not math.isfinite(fl[k]):
+            return Reason.NONFINITE
+    last = -1
+    for k in range(c):
+        first, kind, port = (
+            ints[d + CHAIN_INTS * k],
+            ints[d + CHAIN_INTS * k + 1],
+            ints[d + CHAIN_INTS * k + 2],
+        )
+        if first <= last or first >= d or kind < CHAIN_TOOL or kind > CHAIN_AVAR:
+            return Reason.CHAIN
+        if port < -1 or port >= MAX_PORTS:
+            return Reason.CHAIN
+        if k == 0 and (first != 0 or kind != CHAIN_TOOL or port != 0):
+            return Reason.CHAIN  # chain 0 is the held tool, from joint 0
+        if k > 0:
+            for a in range(2):
+                if abs(fl[3 * (k - 1) + a]) > lim.max_abs_position_m:
+                    return Reason.CHAIN
+            if abs(fl[3 * (k - 1) + 2]) > lim.max_abs_angle_rad:
+                return Reason.CHAIN
+        m.chain_first[k] = first
+        m.chain_kind[k] = kind
+        m.chain_port[k] = port
+        last = first
+    if c > 1 and op_link >= m.chain_first[1]:
+        return Reason.CHAIN  # the held link is the tool's
+    chain = 0
+    for i in range(d):
+        while chain + 1 < c and m.chain_first[chain + 1] <= i:
+            chain += 1
+        up = ints[i]
+        if up < -1 or up >= i or (up >= 0 and up < m.chain_first[chain]):
+            return Reason.CHAIN
+        m.parents[i] = up
+    for k in range(1, c):
+        for a in range(3):
+            m.chain_base[k, a] = fl[3 * (k - 1) + a]
+    m.n_chains = c
+    return 0
 
 
 @njit(cache=True)
@@ -884,11 +1047,24 @@ def update_from_record(m: np.void) -> LocalModelUpdate:
         tool_touching=bool(m["tool_touching"]),
         state_lead_s=float(m["state_lead_s"]),
         shapes=m["shapes"][: int(m["n_shapes"])].copy() if m["n_shapes"] else None,
+        chains=_chain_table(m),
+    )  # fmt: skip
+
+
+def _chain_table(m: np.void) -> ChainTable | None:
+    """A parsed record's tree and chains, None without a CHAINS trailer (one serial chain)."""
+    d, c = int(m["dof"]), int(m["n_chains"])
+    if not m["has_chains"]:
+        return None
+    return ChainTable(
+        m["parents"][:d].copy(), m["chain_first"][:c].copy(), m["chain_kind"][:c].copy(),
+        m["chain_port"][:c].copy(), m["chain_base"][1:c].copy(),
     )  # fmt: skip
 
 
 __all__ = [
     "PUBLISH_TIME_END",
+    "ChainTable",
     "ContactSet",
     "LocalModelUpdate",
     "MessageError",
