@@ -53,7 +53,13 @@ from haptic_local_model.haptic_server.mailbox import (
     SharedBlock,
     take_updates,
 )
-from haptic_local_model.shared.protocol.proxy import MAX_WAIT_NS, NO_WAIT, UpdateWait
+from haptic_local_model.shared.protocol.codes import Method
+from haptic_local_model.shared.protocol.proxy import (
+    MAX_WAIT_NS,
+    NO_WAIT,
+    ShapeImpulses,
+    UpdateWait,
+)
 from haptic_local_model.shared.protocol.update import AT_SEQ
 from haptic_local_model.shared.timing import (
     GIL_SWITCH_INTERVAL_S,
@@ -242,6 +248,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     tick_period_ns = int(config["tick_period_ns"])
     waits_scanned, wait = 0, NO_WAIT
     last_published_tick = -1
+    impulses_from = 0  # the ring's count of ticks whose impulses are published
     next_publish = time.monotonic()
     lowered = False
     # a full collection of everything imported so far holds the GIL for up to ~50 ms, and
@@ -271,7 +278,9 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
                     and int(newest["update_seq"][0]) >= 0
                 ):
                     waits_scanned, wait = newest_wait(block, waits_scanned, wait, tick_period_ns)
-                    publisher.put(encode_proxy(newest, method, wait=wait))
+                    impulses = ticks_impulses(block, impulses_from, head, method)
+                    impulses_from = head
+                    publisher.put(encode_proxy(newest, method, wait=wait, impulses=impulses))
                     ctl[C_PUBLISHED] += 1
                     last_published_tick = int(newest["tick"][0])
                 next_publish = now + publish_period
@@ -285,6 +294,17 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         session.close()
         block.release()
         shm.close()
+
+
+def ticks_impulses(block: SharedBlock, start: int, head: int, method: int) -> ShapeImpulses:
+    """The god-object's impulses on shapes over the ring's ticks start .. head - 1 (those
+    still in the ring), for the proxy state (DESIGN-WAVE2 C4); none under other methods."""
+    if method != Method.GOD_OBJECT or head <= start:
+        return ShapeImpulses.none()
+    rows = block.ticks[np.arange(max(start, head - RING_TICKS), head) % RING_TICKS]
+    return ShapeImpulses.of_ticks(
+        rows["god_env_key"], rows["god_env_point"], rows["god_env_force"], rows["dt"]
+    )
 
 
 def _pointer_receiver(block: SharedBlock) -> Any:

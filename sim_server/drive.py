@@ -24,11 +24,14 @@ from haptic_local_model.shared.kinematics import (
     point_jacobian,
     point_on_link,
 )
+from haptic_local_model.shared.protocol.proxy import MAX_IMPULSES
 from haptic_local_model.sim_server import chipmunk as cp
 from haptic_local_model.sim_server.tool import TOOL_LINKAGE, tool_state
 
 DRIVE_REST, DRIVE_PROXY, DRIVE_DEVICE = 0, 1, 2  # no fresh target / follow the proxy / FOH
-MAX_PUSHES = 4  # bodies a god-object pushes per step: two shapes, each a body or two nodes
+#: bodies a god-object pushes per step: the shapes of a step's impulses, each a body or a
+#: string segment's two nodes
+MAX_PUSHES = 2 * MAX_IMPULSES
 
 I8, F8 = np.int64, np.float64
 

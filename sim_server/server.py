@@ -22,13 +22,14 @@ from haptic_local_model.shared.config import SceneConfig
 from haptic_local_model.shared.net.config import NetworkConfig
 from haptic_local_model.shared.net.transport import keys, newest_payload, open_session
 from haptic_local_model.shared.protocol.codes import Method
-from haptic_local_model.shared.protocol.proxy import ProxyState, decode_proxy
+from haptic_local_model.shared.protocol.proxy import ProxyState, ShapeImpulses, decode_proxy
 from haptic_local_model.shared.protocol.update import MessageError, stamp_publication
 from haptic_local_model.shared.timing import SampleWindow, wait_until
 from haptic_local_model.sim_server.pacing import PhaseLock
 from haptic_local_model.sim_server.proxy_check import ProxyCheck
 from haptic_local_model.sim_server.world import SimWorld, ToolTarget, warm_kernels
 
+PROXY_RING = 32  # proxy states kept between two reads: 8 steps' worth at 250 Hz and 60 Hz
 PHASE_SPIN_NS = 600_000  # how long before a step's start the sim stops sleeping and spins
 
 
@@ -78,6 +79,7 @@ class SimServer:
         self._stop = False
         self._proxy: ProxyState | None = None
         self._proxy_wall_ns = 0
+        self._impulses = ShapeImpulses.none()  # received since the last step, not yet applied
         self.phase = PhaseLock()
         self.check = ProxyCheck(scene)
         self.clock_jump = clock_jump
@@ -86,13 +88,17 @@ class SimServer:
         self._stop = True
 
     def _read_proxies(self, sub: Any, now_ns: int) -> None:
-        """Take the proxy states waiting: the newest valid one is the drive target, and its
-        report of how long our updates waited in the haptic server times our next steps.
-        Older ones are superseded: counted, not decoded (a decode is ~50 us, four of them
+        """Take the proxy states waiting, oldest first: the newest valid one is the drive
+        target, and its report of how long our updates waited in the haptic server times our
+        next steps; every valid one of this epoch adds its impulses on the shapes the
+        god-object touched (DESIGN-WAVE2 C4), which the next step applies whole. Under the
+        other methods an older one is superseded unread (a decode is ~50 us, four of them
         between two steps made the step's start jitter)."""
         waiting = newest_payload(sub)
         self.stats.proxies_received += len(waiting)
-        for raw in reversed(waiting):
+        every = self.scene.rendering.method == "god_object"
+        newest: ProxyState | None = None
+        for raw in waiting if every else reversed(waiting):
             try:
                 proxy = decode_proxy(raw)
             except MessageError:
@@ -100,21 +106,29 @@ class SimServer:
                 continue
             if proxy.epoch == self.epoch and not self.check.take(proxy, time.time_ns()):
                 continue  # one the sim could not have caused: counted by the check
-            self._proxy, self._proxy_wall_ns = proxy, now_ns
-            if proxy.epoch == self.epoch:
-                self.phase.report(proxy.wait)
-            return
+            newest = proxy
+            if not every:
+                break
+            if proxy.epoch == self.epoch and proxy.valid:
+                self._impulses = self._impulses.merged(proxy.impulses)
+        if newest is not None:
+            self._proxy, self._proxy_wall_ns = newest, now_ns
+            if newest.epoch == self.epoch:
+                self.phase.report(newest.wait)
 
     def target(self, now_ns: int) -> ToolTarget | None:
-        """The newest proxy as a drive target; not fresh once the haptic side is silent."""
+        """The newest proxy as the next step's drive target, with the impulses received since
+        the last step (taken: each is applied once); not fresh once the haptic side is
+        silent."""
         p = self._proxy
         if p is None or not p.valid or p.epoch != self.epoch:
             return None
         fresh = now_ns - self._proxy_wall_ns < self.network.watchdog_ms * 1e6 and not p.safe_state
+        impulses, self._impulses = self._impulses, ShapeImpulses.none()
         return ToolTarget(
             q=p.q, qd=p.qd, device_pose=p.device_pose, device_twist=p.device_twist,
             coupled_to_device=p.method == Method.VIRTUAL_COUPLING_FOH, fresh=fresh,
-            env_keys=p.env_keys, env_points=p.env_points, env_forces=p.env_forces,
+            impulses=impulses,
         )  # fmt: skip
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
@@ -124,7 +138,8 @@ class SimServer:
         pub = session.declare_publisher(
             k.update, congestion_control=zenoh.CongestionControl.DROP, express=True
         )
-        sub = session.declare_subscriber(k.proxy, zenoh.handlers.RingChannel(4))
+        # room for the proxy states of a stalled step or two: each carries impulses
+        sub = session.declare_subscriber(k.proxy, zenoh.handlers.RingChannel(PROXY_RING))
         period_ns = round(1e9 / self.scene.sim_rate_hz)
         # the first step and local model load the kernels (about a second on a busy machine):
         # do it before saying ready, so a ready sim publishes within one period

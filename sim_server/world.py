@@ -26,6 +26,7 @@ from haptic_local_model.shared.kinematics import (
     point_on_link,
 )
 from haptic_local_model.shared.protocol.layout import MAX_CONTACTS, MAX_RESISTED, update_size
+from haptic_local_model.shared.protocol.proxy import ShapeImpulses
 from haptic_local_model.shared.protocol.update import LocalModelUpdate, update_from_record
 from haptic_local_model.shared.shapes import MAX_SHAPES
 from haptic_local_model.shared.tool_chain import tool_chain
@@ -66,10 +67,8 @@ class ToolTarget:
     device_twist: np.ndarray
     coupled_to_device: bool  # virtual_coupling_foh: spring to the device instead of the proxy
     fresh: bool  # False: the haptic side is silent; hold the tool
-    # god_object: the forces on the shapes the proxy touches (keys -1: none)
-    env_keys: tuple[int, int] = (-1, -1)
-    env_points: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
-    env_forces: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
+    # god_object: the impulses on the shapes the proxy touched since the previous step
+    impulses: ShapeImpulses = field(default_factory=ShapeImpulses.none)
 
 
 class SimWorld:
@@ -318,6 +317,8 @@ class SimWorld:
         tg = self._target[0]
         tg["env_body"] = 0
         self._proxy = None
+        if target is not None and self.local_shapes is not None:
+            self._touched(target)  # delivered to the hand: applied, fresh or not
         if target is None or not target.fresh:
             tg["mode"] = DRIVE_REST
         else:
@@ -326,7 +327,6 @@ class SimWorld:
                 self._target, mode, target.q, target.qd, target.device_pose, target.device_twist
             )
             if self.local_shapes is not None:
-                self._touched(target)
                 radius = self.scene.tool_body.radius
                 self._proxy = (float(target.q[0]), float(target.q[1]), radius)
         step_world(
@@ -338,18 +338,22 @@ class SimWorld:
             mem.stepped()
 
     def _touched(self, target: ToolTarget) -> None:
-        """The god-object's forces on dynamic bodies into the step's target (by shape key; a
-        membrane's segment passes its force to its two nodes)."""
+        """The god-object's impulses on dynamic bodies into the step's target, each as the
+        force that delivers it over the step (by shape key; a membrane's segment passes its
+        force to its two nodes)."""
         tg = self._target[0]
         slot = 0
-        for j, key in enumerate(target.env_keys):
+        imp = target.impulses
+        for j in range(imp.count):
+            key = int(imp.keys[j])
+            force = imp.impulses[j] / self.period
             pushes = []
             body = self._dynamic_by_key.get(key)
             if body is not None:
-                pushes = [(body, target.env_points[j], target.env_forces[j])]
+                pushes = [(body, imp.points[j], force)]
             for mem in self.membranes:
                 if key in mem.keys:
-                    pushes = mem.pushes(key, target.env_points[j], target.env_forces[j])
+                    pushes = mem.pushes(key, imp.points[j], force)
             for body, point, force in pushes:
                 tg["env_body"][slot] = body_ptr(body)
                 tg["env_point"][slot] = point

@@ -8,7 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from haptic_local_model.shared.protocol.proxy import decode_proxy, encode_proxy
+from haptic_local_model.shared.protocol.proxy import (
+    MAX_IMPULSES,
+    ShapeImpulses,
+    decode_proxy,
+    encode_proxy,
+)
 from haptic_local_model.shared.protocol.update import (
     ChainTable,
     ContactSet,
@@ -238,23 +243,63 @@ def test_proxy_round_trip_and_rejection() -> None:
     assert (back.epoch, back.update_seq, back.publish_time_ns) == (5, 9, 11)
     np.testing.assert_array_equal(back.q, [0.1, 0.2, 0.3])
     np.testing.assert_array_equal(back.device_twist, np.ones(3))
-    with pytest.raises(MessageError, match="nonfinite"):
-        decode_proxy(_corrupt_float(raw, float("nan"), 1))
-    assert back.env_keys == (-1, -1)  # not a god-object: no forces on shapes
+    with pytest.raises(MessageError, match="nonfinite"):  # the twist's last, before n = 0
+        decode_proxy(_corrupt_float(raw, float("nan"), 2))
+    assert back.impulses.count == 0  # not a god-object: no impulses on shapes
+    r["dt"] = 1e-3
     r["god_env_key"] = [7, -1]
     r["god_env_point"] = [[0.01, 0.02], [0.0, 0.0]]
     r["god_env_force"] = [[-1.5, 0.25], [0.0, 0.0]]
     god = decode_proxy(encode_proxy(row, 4, publish_time_ns=11))
-    assert god.env_keys == (7, -1)
-    np.testing.assert_array_equal(god.env_points, r["god_env_point"])
-    np.testing.assert_array_equal(god.env_forces, r["god_env_force"])
-    assert decode_proxy(encode_proxy(row, 2, publish_time_ns=11)).env_keys == (-1, -1)
-    bad = bytearray(encode_proxy(row, 4, publish_time_ns=11))
-    struct.pack_into("<q", bad, len(bad) - 80, -5)  # the first key
+    np.testing.assert_array_equal(god.impulses.keys, [7])  # this tick's force x its dt
+    np.testing.assert_array_equal(god.impulses.points, [[0.01, 0.02]])
+    np.testing.assert_allclose(god.impulses.impulses, [[-1.5e-3, 0.25e-3]], rtol=1e-15)
+    assert decode_proxy(encode_proxy(row, 2, publish_time_ns=11)).impulses.count == 0
+    raw_god = encode_proxy(row, 4, publish_time_ns=11)
+    bad = bytearray(raw_god)
+    struct.pack_into("<q", bad, len(bad) - 40, -5)  # the key
     with pytest.raises(MessageError, match="env"):
         decode_proxy(bytes(bad))
-    with pytest.raises(MessageError, match="magnitude"):  # a force of 1e9 N on a shape
-        decode_proxy(_corrupt_float(encode_proxy(row, 4, publish_time_ns=11), 1e9, 1))
+    bad = bytearray(raw_god)
+    struct.pack_into("<q", bad, len(bad) - 48, MAX_IMPULSES + 1)  # the count
+    with pytest.raises(MessageError, match="env"):
+        decode_proxy(bytes(bad))
+    with pytest.raises(MessageError, match="magnitude"):  # an impulse of 1e9 N s on a shape
+        decode_proxy(_corrupt_float(raw_god, 1e9, 1))
+    with pytest.raises(MessageError, match="size"):
+        decode_proxy(raw_god[:-8])
+
+
+def test_impulses_over_ticks_sum_per_shape_and_keep_the_moment() -> None:
+    """DESIGN-WAVE2 C4: the ticks between two proxy states give, per shape key, the sum of
+    force x dt, at the |impulse|-weighted mean point; merging two intervals is the same as
+    taking them at once; two shapes in one tick are kept apart."""
+    rng = np.random.default_rng(3)
+    n = 9
+    keys = np.where(rng.uniform(size=(n, 2)) < 0.7, rng.integers(0, 3, (n, 2)), -1)
+    keys[:, 1] = np.where(keys[:, 1] == keys[:, 0], -1, keys[:, 1])
+    points = rng.uniform(-0.1, 0.1, (n, 2, 2))
+    forces = rng.uniform(-2, 2, (n, 2, 2))
+    dt = rng.uniform(0.9e-3, 1.1e-3, n)
+    whole = ShapeImpulses.of_ticks(keys, points, forces, dt)
+    for j, key in enumerate(whole.keys):
+        on = keys == key
+        impulse = (forces[on] * np.broadcast_to(dt[:, None], keys.shape)[on][:, None]).sum(0)
+        np.testing.assert_allclose(whole.impulses[j], impulse, rtol=1e-12)
+        w = np.hypot(*(forces[on] * np.broadcast_to(dt[:, None], keys.shape)[on][:, None]).T)
+        np.testing.assert_allclose(whole.points[j], (points[on] * w[:, None]).sum(0) / w.sum())
+    halves = ShapeImpulses.of_ticks(keys[:4], points[:4], forces[:4], dt[:4]).merged(
+        ShapeImpulses.of_ticks(keys[4:], points[4:], forces[4:], dt[4:])
+    )
+    np.testing.assert_array_equal(halves.keys, whole.keys)
+    np.testing.assert_allclose(halves.impulses, whole.impulses, rtol=1e-12, atol=1e-18)
+    assert ShapeImpulses.of_ticks(-np.ones((3, 2)), points[:3], forces[:3], dt[:3]).count == 0
+    many = ShapeImpulses.of_ticks(
+        np.arange(40).reshape(20, 2), points[:1].repeat(20, 0), np.ones((20, 2, 2)),
+        np.linspace(1e-3, 2e-3, 20),  # the later ticks the larger impulses
+    )  # fmt: skip
+    assert many.count == MAX_IMPULSES  # the largest kept (a stalled I/O process only)
+    assert set(many.keys.tolist()) == set(range(40 - MAX_IMPULSES, 40))
 
 
 def test_proxy_of_an_engine_tick_carries_its_state() -> None:

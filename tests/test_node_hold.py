@@ -27,6 +27,7 @@ from haptic_local_model.haptic_server.stages.god_object import (
     install_shapes,
 )
 from haptic_local_model.shared.config import load_scene, load_user
+from haptic_local_model.shared.protocol.proxy import ShapeImpulses
 from haptic_local_model.shared.shapes import Motion, ShapeKind, set_core, shape_array
 from haptic_local_model.sim_server.membrane import Membrane
 from haptic_local_model.sim_server.world import SimWorld, ToolTarget
@@ -218,9 +219,10 @@ def test_the_pymunk_string_deflects_by_the_closed_form() -> None:
     q, qd = world.tool_state()
     target = ToolTarget(
         q=q, qd=qd, device_pose=np.zeros(3), device_twist=np.zeros(3), coupled_to_device=False,
-        fresh=True, env_keys=(mem.first_key + 10, -1),
-        env_points=np.array([[0.0, -1.0], [0.0, 0.0]]),  # projects onto node 10: all of it
-        env_forces=np.array([[0.0, -1.0], [0.0, 0.0]]),
+        fresh=True, impulses=ShapeImpulses(  # 1 N over each step, on a point that
+            np.array([mem.first_key + 10]), np.array([[0.0, -1.0]]),  # projects onto node 10
+            np.array([[0.0, -1.0]]) * world.period,
+        ),
     )  # fmt: skip
     for _ in range(600):  # 10 s: tau = 0.6 s
         world.step(target)
@@ -320,6 +322,19 @@ def test_v2_2_a_second_change_mid_blend_restarts_from_what_is_rendered() -> None
     assert f[-1] == pytest.approx(7.0, abs=1e-9)
 
 
+def test_a_shape_gone_from_under_the_finger_is_blended_out_over_t_b() -> None:
+    """The bump the finger presses on is gone from the next update (the sim flung it out of
+    the neighbourhood: god_crowd, 0.7): the force falls from 5 N to 2 N over T_b with no step
+    above 1.5 dF dt / T_b, where before the proxy fell onto the floor in one tick (a 3 mm
+    jump the runaway guard took for a fault)."""
+    f = node_hold.bump_forces(0.025, [(200, [(2, 0.003)]), (300, [])])
+    assert f[299] == pytest.approx(5.0, abs=1e-9) and f[-1] == pytest.approx(2.0, abs=1e-9)
+    assert np.abs(np.diff(f[295:])).max() <= 1.5 * 3.0 * DT / 0.025 * 1.01
+    assert 20 <= np.count_nonzero(np.abs(f[300:] - 2.0) > 1e-9) <= 26  # over T_b = 25 ms
+    jump = node_hold.bump_forces(0.0, [(200, [(2, 0.003)]), (300, [])])
+    assert np.abs(np.diff(jump[295:])).max() > 3.0
+
+
 def test_a_new_generation_of_a_held_surface_is_blended_in() -> None:
     """A membrane's segment under the finger comes in a new generation 1 mm higher (a remesh):
     the two-proxy blend runs over min(blend_s, 0.8 T_avg) = 80 ms (blend_s 100 ms, samples
@@ -358,9 +373,10 @@ def test_a_reinitialisation_starts_the_string_hold_at_the_new_sample() -> None:
     q, qd = world.tool_state()
     press = ToolTarget(
         q=q, qd=qd, device_pose=np.zeros(3), device_twist=np.zeros(3), coupled_to_device=False,
-        fresh=True, env_keys=(mem.first_key + 10, -1),
-        env_points=np.array([[0.0, -1.0], [0.0, 0.0]]),
-        env_forces=np.array([[0.0, -1.0], [0.0, 0.0]]),
+        fresh=True, impulses=ShapeImpulses(
+            np.array([mem.first_key + 10]), np.array([[0.0, -1.0]]),
+            np.array([[0.0, -1.0]]) * world.period,
+        ),
     )  # fmt: skip
     seq = 0
     for target in [press] * 60 + [None] * 9:  # 1 s pressed, then 150 ms of outage

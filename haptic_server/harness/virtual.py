@@ -34,6 +34,7 @@ from haptic_local_model.shared.config import (
     scene_text,
 )
 from haptic_local_model.shared.protocol.codes import Method, Reason
+from haptic_local_model.shared.protocol.proxy import ShapeImpulses
 from haptic_local_model.sim_server.world import SimWorld, ToolTarget
 from haptic_local_model.sim_server.world import warm_kernels as warm_sim_kernels
 
@@ -92,6 +93,7 @@ def run_virtual(
     runs_svd = world.stats.svd  # a linkage's local model has resisted directions to find
     clock = time.perf_counter_ns
     started = time.perf_counter()
+    impulses_from = 0  # the ticks whose impulses on shapes the sim has applied
     try:
         k = 0
         while k < n_ticks:
@@ -99,8 +101,10 @@ def run_virtual(
             if t >= next_sim_t - 1e-12:
                 lead = 0.0
                 t0 = clock()
-                if seq > 0:
-                    world.step(_target(engine, coupled))
+                if seq > 0:  # with the impulses of the ticks since the last step, as the
+                    # real sim gets them from the proxy states of those ticks
+                    world.step(_target(engine, coupled, rows[impulses_from:k]))
+                    impulses_from = k
                     lead = sim_period  # the world now holds one period ahead of the proxy
                 t1 = clock()
                 t_ns = round(t * 1e9)  # published (and received) at the virtual time
@@ -163,18 +167,22 @@ def _install_own(engine: HapticEngine, raw: bytes, refused: dict[str, int]) -> i
     return 0
 
 
-def _target(engine: HapticEngine, coupled: bool) -> ToolTarget:
+def _target(engine: HapticEngine, coupled: bool, ticks: np.ndarray | None = None) -> ToolTarget:
     """The proxy state the real sim would receive: it holds its tool (fresh = False) while
-    the haptic side is in (or ramping to or from) its safe state."""
+    the haptic side is in (or ramping to or from) its safe state; under god_object, with the
+    impulses on shapes over `ticks` (tick rows: those since the sim's last step)."""
     q, qd = engine.proxy_pose()
     pose, twist = engine.device_world_pose()
     r = engine.row[0]
     fresh = float(r["safe"]) == 0.0
-    god = engine.method == Method.GOD_OBJECT
+    impulses = ShapeImpulses.none()
+    if engine.method == Method.GOD_OBJECT and ticks is not None:
+        impulses = ShapeImpulses.of_ticks(
+            ticks["god_env_key"], ticks["god_env_point"], ticks["god_env_force"], ticks["dt"]
+        )
     return ToolTarget(
         q=q, qd=qd, device_pose=pose, device_twist=twist, coupled_to_device=coupled, fresh=fresh,
-        env_keys=(int(r["god_env_key"][0]), int(r["god_env_key"][1])) if god else (-1, -1),
-        env_points=r["god_env_point"].copy(), env_forces=r["god_env_force"].copy(),
+        impulses=impulses,
     )  # fmt: skip
 
 

@@ -948,9 +948,28 @@ def start_nodes(d, k, sample):
 
 
 @njit(cache=True)
-def topology_changes(m, d, old, n_old, new, n_new, new_tau):
+def topology_changes(m, d, old, n_old, new, n_new, clock):
     """Whether the new shapes change the topology under the proxy: a shape that touches or
-    overlaps it now and is new (its key not in the old update) or of a new generation."""
+    overlaps it now and is new (its key not in the old update) or of a new generation, or one
+    that touches it now and is gone from the new update (a pebble the sim's step flung out
+    of the neighbourhood: without the blend the proxy would jump to the device in a tick)."""
+    new_tau = clock.new_tau
+    for j in range(n_old):
+        o = old[j]
+        gone = True
+        for k in range(n_new):
+            if new[k].key == o.key:
+                gone = False
+                break
+        if not gone:
+            continue
+        if o.motion == Motion.NODAL:
+            phi, _, _ = signed_distance(o, o.pose, d.proxy[0], d.proxy[1], m.radius)
+        else:
+            carry_pose(o.pose, o.twist, o.motion, clock.old_tau, d.old_pose)
+            phi, _, _ = signed_distance(o, d.old_pose, d.proxy[0], d.proxy[1], m.radius)
+        if phi < TOUCH_M:
+            return True
     for k in range(n_new):
         s = new[k]
         changed = True
@@ -1009,7 +1028,7 @@ def install_blended_step(m, d, b, old, n_old, new, n_new, clock):
     """An install: a two-proxy blend begins if the topology under the proxy changes, then
     the new shapes replace the old (install_shapes_step); T_b counts this install's sample
     interval too."""
-    began = topology_changes(m, d, old, n_old, new, n_new, clock.new_tau)
+    began = topology_changes(m, d, old, n_old, new, n_new, clock)
     if began:
         begin_blend(m, d, b, old, n_old, clock.old_tau)
     install_shapes_step(m, d, old, n_old, new, n_new, clock)

@@ -19,18 +19,18 @@ from haptic_local_model.shared.protocol.update import MessageError
 PROXY_MAGIC = b"HPXY"
 #: The proxy state's own version. Up to 2 it was the update's PROTOCOL_VERSION; 3 added the
 #: receipt -> install wait of an update, which the sim locks its phase to (sim_server/pacing.py);
-#: 4 the god-object's forces on the shapes it touches (the sim applies them to their bodies).
-PROXY_VERSION = 4
+#: 4 the god-object's forces on the shapes it touches (the sim applies them to their bodies);
+#: 5 the impulses on them since the previous proxy state instead (DESIGN-WAVE2 C4).
+PROXY_VERSION = 5
 # magic, version, flags, epoch, update_seq, tick, haptic_time, publish_time_ns, dof, method,
 # wait_seq, update_wait_ns, tick_period_ns
 PROXY_HEADER = struct.Struct("<4sHHQQQdqHHqqq")
 MAX_TICK_PERIOD_NS = 10_000_000  # a haptic loop at >= 100 Hz
 MAX_WAIT_NS = 1_000_000_000  # an update waits longer only in a stalled loop
-#: version 4's trailer: two touched shapes' keys (-1: none), then their contact points (world,
-#: m) and the forces on them (N), x y each
-ENV_KEYS = struct.Struct("<qq")
-ENV_FLOATS = 8
-ENV_BYTES = ENV_KEYS.size + 8 * ENV_FLOATS
+#: version 5's trailer: int64 n (0..MAX_IMPULSES), n int64 shape keys (>= 0, unique), then n
+#: rows of 4 float64: the impulse-weighted contact point (world, m) and the impulse (N s)
+MAX_IMPULSES = 16
+IMPULSE_FLOATS = 4
 PROXY_SAFE_STATE = 1
 PROXY_VALID = 2  # the haptic side has installed a model of this epoch
 
@@ -50,6 +50,76 @@ NO_WAIT = UpdateWait(-1, -1, 0)
 
 
 @dataclass(frozen=True, eq=False)
+class ShapeImpulses:
+    """The god-object's impulses on the shapes it touched over an interval (DESIGN-WAVE2 C4):
+    per shape key, the impulse (N s: the sum of force x dt over the ticks) and where it acted
+    (the contact points weighted by each tick's |impulse|, world, m). The sim applies them
+    whole, so no momentum is lost between the 1 kHz loop and its slower steps."""
+
+    keys: np.ndarray  # (n,) int64
+    points: np.ndarray  # (n, 2)
+    impulses: np.ndarray  # (n, 2)
+
+    @property
+    def count(self) -> int:
+        return int(self.keys.shape[0])
+
+    @staticmethod
+    def none() -> ShapeImpulses:
+        return ShapeImpulses(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2)))
+
+    @staticmethod
+    def of_ticks(
+        keys: np.ndarray, points: np.ndarray, forces: np.ndarray, dt: np.ndarray
+    ) -> ShapeImpulses:
+        """Of tick rows' god_env_key (t, k), god_env_point (t, k, 2), god_env_force (t, k, 2)
+        and dt (t,): each tick's force times its dt, summed per key (-1: no shape)."""
+        k = np.asarray(keys, np.int64).reshape(-1)
+        p = np.asarray(points, np.float64).reshape(-1, 2)
+        width = np.asarray(keys).shape[-1] if np.ndim(keys) else 1
+        j = np.asarray(forces, np.float64).reshape(-1, 2) * np.repeat(dt, width)[:, None]
+        touching = k >= 0
+        return _grouped(k[touching], p[touching], j[touching])
+
+    def merged(self, other: ShapeImpulses) -> ShapeImpulses:
+        """Both intervals' impulses, summed per key."""
+        if other.count == 0:
+            return self
+        if self.count == 0:
+            return other
+        return _grouped(
+            np.concatenate((self.keys, other.keys)), np.concatenate((self.points, other.points)),
+            np.concatenate((self.impulses, other.impulses)),
+        )  # fmt: skip
+
+    def trailer(self) -> bytes:
+        rows = np.column_stack((self.points, self.impulses)).astype("<f8")
+        head = np.concatenate(([self.count], self.keys)).astype("<i8")
+        return head.tobytes() + rows.tobytes()
+
+
+def _grouped(keys: np.ndarray, points: np.ndarray, impulses: np.ndarray) -> ShapeImpulses:
+    """Impulses summed per key, points weighted by |impulse| (by count where all are zero);
+    beyond MAX_IMPULSES keys, the largest impulses are kept (a publication 8 ticks apart
+    touches at most 16 shapes; only a stalled I/O process drops any)."""
+    if keys.shape[0] == 0:
+        return ShapeImpulses.none()
+    unique, inverse = np.unique(keys, return_inverse=True)
+    n = unique.shape[0]
+    total = np.zeros((n, 2))
+    np.add.at(total, inverse, impulses)
+    weight = np.hypot(impulses[:, 0], impulses[:, 1])
+    weight = np.where(np.bincount(inverse, weight, n)[inverse] > 0.0, weight, 1.0)
+    where = np.zeros((n, 2))
+    np.add.at(where, inverse, points * weight[:, None])
+    where /= np.bincount(inverse, weight, n)[:, None]
+    if n > MAX_IMPULSES:
+        keep = np.sort(np.argsort(-np.hypot(total[:, 0], total[:, 1]))[:MAX_IMPULSES])
+        unique, where, total = unique[keep], where[keep], total[keep]
+    return ShapeImpulses(unique.astype(np.int64), where, total)
+
+
+@dataclass(frozen=True, eq=False)
 class ProxyState:
     """What the haptic server publishes for the sim: the proxy and the device (world frame)."""
 
@@ -66,10 +136,9 @@ class ProxyState:
     device_pose: np.ndarray
     device_twist: np.ndarray
     wait: UpdateWait = NO_WAIT
-    # the god-object's forces on what it touches (god_object method; keys -1 otherwise)
-    env_keys: tuple[int, int] = (-1, -1)
-    env_points: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
-    env_forces: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
+    # the god-object's impulses on what it touched since the previous proxy state (none under
+    # the other methods)
+    impulses: ShapeImpulses = field(default_factory=ShapeImpulses.none)
 
 
 def encode_proxy(
@@ -77,9 +146,12 @@ def encode_proxy(
     method: int,
     publish_time_ns: int | None = None,
     wait: UpdateWait = NO_WAIT,
+    impulses: ShapeImpulses | None = None,
 ) -> bytes:
     """The ProxyState of a tick row (TICK_DTYPE[1] or one record): proxy q, qd, the measured
-    device pose and twist, and the newest known update wait; stamped now unless
+    device pose and twist, the newest known update wait, and under god_object the impulses
+    on the shapes touched since the previous proxy state (`impulses`, accumulated over the
+    ticks by the caller; by default this row's force times its dt); stamped now unless
     `publish_time_ns` is given."""
     r = row[0] if row.ndim else row
     d = int(r["dof"])
@@ -93,10 +165,14 @@ def encode_proxy(
     body = np.concatenate(
         (r["proxy_q"][:d], r["proxy_qd"][:d], r["device_pose"], r["device_twist"])
     ).astype("<f8")
-    god = method == Method.GOD_OBJECT
-    keys = ENV_KEYS.pack(*(int(k) for k in r["god_env_key"])) if god else ENV_KEYS.pack(-1, -1)
-    env = np.concatenate((r["god_env_point"].ravel(), r["god_env_force"].ravel())).astype("<f8")
-    return header + body.tobytes() + keys + (env if god else np.zeros(ENV_FLOATS)).tobytes()
+    if method != Method.GOD_OBJECT:
+        impulses = ShapeImpulses.none()
+    elif impulses is None:
+        impulses = ShapeImpulses.of_ticks(
+            r["god_env_key"][None], r["god_env_point"][None], r["god_env_force"][None],
+            np.array([r["dt"]]),
+        )  # fmt: skip
+    return header + body.tobytes() + impulses.trailer()
 
 
 def decode_proxy(data: bytes, limits: MessageLimits = DEFAULT_LIMITS) -> ProxyState:
@@ -117,26 +193,32 @@ def decode_proxy(data: bytes, limits: MessageLimits = DEFAULT_LIMITS) -> ProxySt
             "timing", f"update wait {wait_ns} ns / tick period {period_ns} ns out of range"
         )
     body_end = PROXY_HEADER.size + 8 * (2 * d + 6)
-    expected = body_end + ENV_BYTES
+    if len(data) < body_end + 8:
+        raise MessageError("size", f"{len(data)} bytes, expected at least {body_end + 8}")
+    n = struct.unpack_from("<q", data, body_end)[0]
+    if not 0 <= n <= MAX_IMPULSES:
+        raise MessageError("env", f"{n} impulses: 0..{MAX_IMPULSES}")
+    expected = body_end + 8 * (1 + n + IMPULSE_FLOATS * n)
     if len(data) != expected:
         raise MessageError("size", f"{len(data)} bytes, expected {expected}")
     v = np.frombuffer(data, "<f8", 2 * d + 6, PROXY_HEADER.size).astype(np.float64)
-    env = np.frombuffer(data, "<f8", ENV_FLOATS, body_end + ENV_KEYS.size).astype(np.float64)
+    env = np.frombuffer(data, "<f8", IMPULSE_FLOATS * n, body_end + 8 * (1 + n))
+    env = env.astype(np.float64).reshape(n, IMPULSE_FLOATS)
     if not np.isfinite(v).all() or not np.isfinite(htime) or not np.isfinite(env).all():
         raise MessageError("nonfinite", "NaN or Inf in the payload")
     if np.abs(v).max(initial=0.0) > max(limits.max_abs_position_m, limits.max_abs_angle_rad):
         raise MessageError("magnitude", "proxy state out of bounds")
-    env_keys = ENV_KEYS.unpack_from(data, body_end)
-    if min(env_keys) < -1:
-        raise MessageError("env", f"shape keys {env_keys}: -1 (none) or a key >= 0")
-    if np.abs(env[:4]).max() > limits.max_abs_position_m or (
-        np.abs(env[4:]).max() > limits.max_abs_generalized_force
+    env_keys = np.frombuffer(data, "<i8", n, body_end + 8).astype(np.int64)
+    if n and (env_keys.min() < 0 or np.unique(env_keys).shape[0] != n):
+        raise MessageError("env", f"shape keys {env_keys.tolist()}: each >= 0, none twice")
+    if np.abs(env[:, :2]).max(initial=0.0) > limits.max_abs_position_m or (
+        np.abs(env[:, 2:]).max(initial=0.0) > limits.max_abs_generalized_force
     ):
-        raise MessageError("magnitude", "a contact point or force on a shape out of bounds")
+        raise MessageError("magnitude", "a contact point or impulse on a shape out of bounds")
     return ProxyState(
         epoch=epoch, update_seq=useq, tick=tick, haptic_time=htime, publish_time_ns=pub_ns,
         method=method, safe_state=bool(flags & PROXY_SAFE_STATE), valid=bool(flags & PROXY_VALID),
         q=v[:d], qd=v[d : 2 * d], device_pose=v[2 * d : 2 * d + 3], device_twist=v[2 * d + 3 :],
         wait=UpdateWait(wseq, wait_ns, period_ns) if wseq >= 0 else NO_WAIT,
-        env_keys=env_keys, env_points=env[:4].reshape(2, 2), env_forces=env[4:].reshape(2, 2),
+        impulses=ShapeImpulses(env_keys, env[:, :2].copy(), env[:, 2:].copy()),
     )  # fmt: skip
