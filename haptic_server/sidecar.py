@@ -303,7 +303,7 @@ def ticks_impulses(block: SharedBlock, start: int, head: int, method: int) -> Sh
         return ShapeImpulses.none()
     rows = block.ticks[np.arange(max(start, head - RING_TICKS), head) % RING_TICKS]
     return ShapeImpulses.of_ticks(
-        rows["god_env_key"], rows["god_env_point"], rows["god_env_force"], rows["dt"]
+        rows["god_env_key"], rows["god_env_arm"], rows["god_env_force"], rows["dt"]
     )
 
 

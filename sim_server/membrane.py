@@ -102,6 +102,12 @@ class Membrane:
         row["static_friction"] = self.material.static_coefficient
         row["friction"] = self.material.friction
 
+    def midpoint(self, key: int) -> np.ndarray:
+        """Segment `key`'s midpoint now (the centre the haptic side's arms start from)."""
+        i = key - self.first_key
+        nodes = self.nodes()
+        return 0.5 * (nodes[i] + nodes[i + 1])
+
     def pushes(
         self, key: int, point: np.ndarray, force: np.ndarray
     ) -> list[tuple[pymunk.Body, np.ndarray, np.ndarray]]:

@@ -81,6 +81,7 @@ TICK_FIELDS_SINCE_0_2 = {
     "god_capped",
     *("n_shapes", "god_env_key", "god_env_point", "god_env_force"),  # 0.5: the god-object
     "god_blend",  # 0.6: its two-proxy blend
+    "god_env_arm",  # 0.7: the arms of its pushes (impulses, DESIGN-WAVE2 C4)
 }
 
 GOLDEN_07 = Path(__file__).parent / "golden" / "logs-0.7"

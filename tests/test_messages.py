@@ -243,25 +243,31 @@ def test_proxy_round_trip_and_rejection() -> None:
     assert (back.epoch, back.update_seq, back.publish_time_ns) == (5, 9, 11)
     np.testing.assert_array_equal(back.q, [0.1, 0.2, 0.3])
     np.testing.assert_array_equal(back.device_twist, np.ones(3))
-    with pytest.raises(MessageError, match="nonfinite"):  # the twist's last, before n = 0
-        decode_proxy(_corrupt_float(raw, float("nan"), 2))
+    with pytest.raises(MessageError, match="nonfinite"):  # the twist's last, before n, span
+        decode_proxy(_corrupt_float(raw, float("nan"), 3))
     assert back.impulses.count == 0  # not a god-object: no impulses on shapes
     r["dt"] = 1e-3
     r["god_env_key"] = [7, -1]
     r["god_env_point"] = [[0.01, 0.02], [0.0, 0.0]]
+    r["god_env_arm"] = [[0.004, 0.0], [0.0, 0.0]]
     r["god_env_force"] = [[-1.5, 0.25], [0.0, 0.0]]
     god = decode_proxy(encode_proxy(row, 4, publish_time_ns=11))
     np.testing.assert_array_equal(god.impulses.keys, [7])  # this tick's force x its dt
-    np.testing.assert_array_equal(god.impulses.points, [[0.01, 0.02]])
+    np.testing.assert_array_equal(god.impulses.points, [[0.004, 0.0]])  # the arm
     np.testing.assert_allclose(god.impulses.impulses, [[-1.5e-3, 0.25e-3]], rtol=1e-15)
     assert decode_proxy(encode_proxy(row, 2, publish_time_ns=11)).impulses.count == 0
     raw_god = encode_proxy(row, 4, publish_time_ns=11)
+    assert god.impulses.span_s == 1e-3  # the tick's dt
     bad = bytearray(raw_god)
     struct.pack_into("<q", bad, len(bad) - 40, -5)  # the key
     with pytest.raises(MessageError, match="env"):
         decode_proxy(bytes(bad))
     bad = bytearray(raw_god)
-    struct.pack_into("<q", bad, len(bad) - 48, MAX_IMPULSES + 1)  # the count
+    struct.pack_into("<q", bad, len(bad) - 56, MAX_IMPULSES + 1)  # the count
+    with pytest.raises(MessageError, match="env"):
+        decode_proxy(bytes(bad))
+    bad = bytearray(raw_god)
+    struct.pack_into("<d", bad, len(bad) - 48, -1e-3)  # the span
     with pytest.raises(MessageError, match="env"):
         decode_proxy(bytes(bad))
     with pytest.raises(MessageError, match="magnitude"):  # an impulse of 1e9 N s on a shape
@@ -270,10 +276,16 @@ def test_proxy_round_trip_and_rejection() -> None:
         decode_proxy(raw_god[:-8])
 
 
+def cross2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The planar cross product a x b (z), over the last axis."""
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
 def test_impulses_over_ticks_sum_per_shape_and_keep_the_moment() -> None:
     """DESIGN-WAVE2 C4: the ticks between two proxy states give, per shape key, the sum of
-    force x dt, at the |impulse|-weighted mean point; merging two intervals is the same as
-    taking them at once; two shapes in one tick are kept apart."""
+    force x dt at a point on its line of action with the parts' moment (a finger sliding
+    round a pebble pushes it through its centre, and so does the sum); merging two intervals
+    is the same as taking them at once; two shapes in one tick are kept apart."""
     rng = np.random.default_rng(3)
     n = 9
     keys = np.where(rng.uniform(size=(n, 2)) < 0.7, rng.integers(0, 3, (n, 2)), -1)
@@ -286,13 +298,25 @@ def test_impulses_over_ticks_sum_per_shape_and_keep_the_moment() -> None:
         on = keys == key
         impulse = (forces[on] * np.broadcast_to(dt[:, None], keys.shape)[on][:, None]).sum(0)
         np.testing.assert_allclose(whole.impulses[j], impulse, rtol=1e-12)
-        w = np.hypot(*(forces[on] * np.broadcast_to(dt[:, None], keys.shape)[on][:, None]).T)
-        np.testing.assert_allclose(whole.points[j], (points[on] * w[:, None]).sum(0) / w.sum())
+        parts = forces[on] * np.broadcast_to(dt[:, None], keys.shape)[on][:, None]
+        moment = cross2(points[on], parts).sum()  # about the origin: the parts' and the sum's
+        np.testing.assert_allclose(cross2(whole.points[j], whole.impulses[j]), moment, atol=1e-15)
     halves = ShapeImpulses.of_ticks(keys[:4], points[:4], forces[:4], dt[:4]).merged(
         ShapeImpulses.of_ticks(keys[4:], points[4:], forces[4:], dt[4:])
     )
     np.testing.assert_array_equal(halves.keys, whole.keys)
+    assert halves.span_s == pytest.approx(whole.span_s) == pytest.approx(dt.sum())
     np.testing.assert_allclose(halves.impulses, whole.impulses, rtol=1e-12, atol=1e-18)
+    np.testing.assert_allclose(
+        cross2(halves.points, halves.impulses), cross2(whole.points, whole.impulses),
+        atol=1e-15,
+    )  # fmt: skip
+    centre, turn = np.array([1.0, 2.0]), np.linspace(0.0, 1.0, 17)
+    rim = centre + 0.004 * np.column_stack([np.cos(turn), np.sin(turn)])
+    slide = ShapeImpulses.of_ticks(
+        np.full((17, 1), 5), rim[:, None], (centre - rim)[:, None] * 500, np.full(17, 1e-3)
+    )  # radial pushes round a pebble: no torque about its centre
+    assert abs(cross2(slide.points[0] - centre, slide.impulses[0])) < 1e-15
     assert ShapeImpulses.of_ticks(-np.ones((3, 2)), points[:3], forces[:3], dt[:3]).count == 0
     many = ShapeImpulses.of_ticks(
         np.arange(40).reshape(20, 2), points[:1].repeat(20, 0), np.ones((20, 2, 2)),

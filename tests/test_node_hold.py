@@ -219,8 +219,8 @@ def test_the_pymunk_string_deflects_by_the_closed_form() -> None:
     q, qd = world.tool_state()
     target = ToolTarget(
         q=q, qd=qd, device_pose=np.zeros(3), device_twist=np.zeros(3), coupled_to_device=False,
-        fresh=True, impulses=ShapeImpulses(  # 1 N over each step, on a point that
-            np.array([mem.first_key + 10]), np.array([[0.0, -1.0]]),  # projects onto node 10
+        fresh=True, impulses=ShapeImpulses(  # 1 N over each step, past segment 10's first
+            np.array([mem.first_key + 10]), np.array([[-0.01, 0.0]]),  # end: all on node 10
             np.array([[0.0, -1.0]]) * world.period,
         ),
     )  # fmt: skip
@@ -374,7 +374,7 @@ def test_a_reinitialisation_starts_the_string_hold_at_the_new_sample() -> None:
     press = ToolTarget(
         q=q, qd=qd, device_pose=np.zeros(3), device_twist=np.zeros(3), coupled_to_device=False,
         fresh=True, impulses=ShapeImpulses(
-            np.array([mem.first_key + 10]), np.array([[0.0, -1.0]]),
+            np.array([mem.first_key + 10]), np.array([[-0.01, 0.0]]),
             np.array([[0.0, -1.0]]) * world.period,
         ),
     )  # fmt: skip

@@ -178,7 +178,7 @@ def _target(engine: HapticEngine, coupled: bool, ticks: np.ndarray | None = None
     impulses = ShapeImpulses.none()
     if engine.method == Method.GOD_OBJECT and ticks is not None:
         impulses = ShapeImpulses.of_ticks(
-            ticks["god_env_key"], ticks["god_env_point"], ticks["god_env_force"], ticks["dt"]
+            ticks["god_env_key"], ticks["god_env_arm"], ticks["god_env_force"], ticks["dt"]
         )
     return ToolTarget(
         q=q, qd=qd, device_pose=pose, device_twist=twist, coupled_to_device=coupled, fresh=fresh,

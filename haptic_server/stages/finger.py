@@ -67,6 +67,7 @@ def finger(m, d):
         r.god_env_key[j] = b.env_key[j]
         for c in range(2):
             r.god_env_point[j, c] = b.env_point[j, c]
+            r.god_env_arm[j, c] = b.env_arm[j, c]
             r.god_env_force[j, c] = b.env_force[j, c]
 
 

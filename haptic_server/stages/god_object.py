@@ -124,6 +124,7 @@ GOD_DATA_DTYPE = np.dtype(
         ("force", np.float64, (2,)),  # rendered force on the user, N
         ("env_key", np.int64, (2,)),  # the touched obstacles' keys (-1: none) ...
         ("env_point", np.float64, (2, 2)),  # ... where the proxy touches them (world, m) ...
+        ("env_arm", np.float64, (2, 2)),  # ... that point less the shape's centre (world axes)
         ("env_force", np.float64, (2, 2)),  # ... and the force on each (N): -F split
         ("pop", np.int64),  # 1 on the tick a pop happened
         ("pops", np.int64),  # pop events so far
@@ -189,6 +190,7 @@ BLEND_DTYPE = np.dtype(
         ("force", np.float64, (2,)),  # the rendered force on the user, N
         ("env_key", np.int64, (2,)),  # the rendered forces on obstacles (as in GOD_DATA)
         ("env_point", np.float64, (2, 2)),
+        ("env_arm", np.float64, (2, 2)),
         ("env_force", np.float64, (2, 2)),
     ]
 )
@@ -626,6 +628,7 @@ def share_force(m, d, shapes):
         d.env_key[j] = -1
         for c in range(2):
             d.env_point[j, c] = 0.0
+            d.env_arm[j, c] = 0.0
             d.env_force[j, c] = 0.0
     if d.n_active == 1:
         lam = fx * d.plane_normal[0, 0] + fy * d.plane_normal[0, 1]
@@ -652,6 +655,10 @@ def _push(m, d, shapes, j, fx, fy):
     d.env_key[j] = shapes[k].key
     d.env_point[j, 0] = d.proxy[0] - m.radius * d.plane_normal[j, 0]
     d.env_point[j, 1] = d.proxy[1] - m.radius * d.plane_normal[j, 1]
+    # the lever about the shape's centre as placed now (a held segment's: its midpoint): the
+    # sim applies the force there on its own body, wherever that body has got to
+    d.env_arm[j, 0] = d.env_point[j, 0] - d.poses[k, 0]
+    d.env_arm[j, 1] = d.env_point[j, 1] - d.poses[k, 1]
     d.env_force[j, 0] = fx
     d.env_force[j, 1] = fy
 
@@ -1074,29 +1081,31 @@ def blend_step(m, d, b, x0, x1, dt):
         b.env_key[j] = d.env_key[j]
         for c in range(2):
             b.env_point[j, c] = d.env_point[j, c]
+            b.env_arm[j, c] = d.env_arm[j, c]
             b.env_force[j, c] = s * d.env_force[j, c]
     if s < 1.0:
         for j in range(2):
             if a.env_key[j] >= 0:
-                _add_env(b, a.env_key[j], a.env_point[j], 1.0 - s, a.env_force[j])
+                _add_env(b, a, j, 1.0 - s)
 
 
 @njit(cache=True)
-def _add_env(b, key, point, w, force):
-    """A's share w of its force on obstacle `key`: onto B's force on the same key, else into
+def _add_env(b, a, i, w):
+    """A's share w of its force on its obstacle i: onto B's force on the same key, else into
     a free slot (B touches at most two obstacles; a third share is dropped)."""
+    key = a.env_key[i]
     for j in range(2):
         if b.env_key[j] == key:
-            b.env_force[j, 0] += w * force[0]
-            b.env_force[j, 1] += w * force[1]
+            b.env_force[j, 0] += w * a.env_force[i, 0]
+            b.env_force[j, 1] += w * a.env_force[i, 1]
             return
     for j in range(2):
         if b.env_key[j] < 0:
             b.env_key[j] = key
-            b.env_point[j, 0] = point[0]
-            b.env_point[j, 1] = point[1]
-            b.env_force[j, 0] = w * force[0]
-            b.env_force[j, 1] = w * force[1]
+            for c in range(2):
+                b.env_point[j, c] = a.env_point[i, c]
+                b.env_arm[j, c] = a.env_arm[i, c]
+                b.env_force[j, c] = w * a.env_force[i, c]
             return
 
 

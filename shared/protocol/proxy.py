@@ -5,6 +5,7 @@ One encoder, from a logged tick row (what the I/O sidecar publishes), and one de
 
 from __future__ import annotations
 
+import math
 import struct
 import time
 from dataclasses import dataclass, field
@@ -27,8 +28,12 @@ PROXY_VERSION = 5
 PROXY_HEADER = struct.Struct("<4sHHQQQdqHHqqq")
 MAX_TICK_PERIOD_NS = 10_000_000  # a haptic loop at >= 100 Hz
 MAX_WAIT_NS = 1_000_000_000  # an update waits longer only in a stalled loop
-#: version 5's trailer: int64 n (0..MAX_IMPULSES), n int64 shape keys (>= 0, unique), then n
-#: rows of 4 float64: the impulse-weighted contact point (world, m) and the impulse (N s)
+#: version 5's trailer: int64 n (0..MAX_IMPULSES), float64 span (s, the haptic time the
+#: impulses cover), n int64 shape keys (>= 0, unique), then n rows of 4 float64: the arm from
+#: the shape's centre to a point on the impulse's line of action (world axes, m) and the
+#: impulse (N s)
+MAX_SPAN_S = 1.0  # a proxy state covers at most this much haptic time
+MAX_LEVER_M = 0.1  # how far an impulse's point may move from its parts' mean to carry its moment
 MAX_IMPULSES = 16
 IMPULSE_FLOATS = 4
 PROXY_SAFE_STATE = 1
@@ -52,13 +57,18 @@ NO_WAIT = UpdateWait(-1, -1, 0)
 @dataclass(frozen=True, eq=False)
 class ShapeImpulses:
     """The god-object's impulses on the shapes it touched over an interval (DESIGN-WAVE2 C4):
-    per shape key, the impulse (N s: the sum of force x dt over the ticks) and where it acted
-    (the contact points weighted by each tick's |impulse|, world, m). The sim applies them
-    whole, so no momentum is lost between the 1 kHz loop and its slower steps."""
+    per shape key, the impulse (N s: the sum of force x dt over the ticks) and where it acted,
+    as an arm from the shape's centre (world axes, m: the sim applies it at its own body's
+    centre plus the arm, so a body that has moved on since still gets the haptic side's
+    torque, none for a push through its centre), and the haptic time they cover (span_s:
+    every tick's dt, touching or not). The sim applies them whole, so no momentum is lost
+    between the 1 kHz loop and its slower steps; the span lets it apply them at the rate they
+    were rendered (sim_server/world.py)."""
 
     keys: np.ndarray  # (n,) int64
     points: np.ndarray  # (n, 2)
     impulses: np.ndarray  # (n, 2)
+    span_s: float = 0.0
 
     @property
     def count(self) -> int:
@@ -72,38 +82,44 @@ class ShapeImpulses:
     def of_ticks(
         keys: np.ndarray, points: np.ndarray, forces: np.ndarray, dt: np.ndarray
     ) -> ShapeImpulses:
-        """Of tick rows' god_env_key (t, k), god_env_point (t, k, 2), god_env_force (t, k, 2)
+        """Of tick rows' god_env_key (t, k), god_env_arm (t, k, 2), god_env_force (t, k, 2)
         and dt (t,): each tick's force times its dt, summed per key (-1: no shape)."""
         k = np.asarray(keys, np.int64).reshape(-1)
         p = np.asarray(points, np.float64).reshape(-1, 2)
         width = np.asarray(keys).shape[-1] if np.ndim(keys) else 1
         j = np.asarray(forces, np.float64).reshape(-1, 2) * np.repeat(dt, width)[:, None]
         touching = k >= 0
-        return _grouped(k[touching], p[touching], j[touching])
+        return _grouped(k[touching], p[touching], j[touching], float(np.sum(dt)))
 
     def merged(self, other: ShapeImpulses) -> ShapeImpulses:
         """Both intervals' impulses, summed per key."""
-        if other.count == 0:
-            return self
-        if self.count == 0:
-            return other
         return _grouped(
             np.concatenate((self.keys, other.keys)), np.concatenate((self.points, other.points)),
-            np.concatenate((self.impulses, other.impulses)),
+            np.concatenate((self.impulses, other.impulses)), self.span_s + other.span_s,
         )  # fmt: skip
+
+    def scaled(self, fraction: float, span_s: float) -> ShapeImpulses:
+        """`fraction` of each impulse, covering span_s."""
+        return ShapeImpulses(self.keys, self.points, self.impulses * fraction, span_s)
 
     def trailer(self) -> bytes:
         rows = np.column_stack((self.points, self.impulses)).astype("<f8")
-        head = np.concatenate(([self.count], self.keys)).astype("<i8")
-        return head.tobytes() + rows.tobytes()
+        head = struct.pack("<qd", self.count, self.span_s)
+        return head + self.keys.astype("<i8").tobytes() + rows.tobytes()
 
 
-def _grouped(keys: np.ndarray, points: np.ndarray, impulses: np.ndarray) -> ShapeImpulses:
-    """Impulses summed per key, points weighted by |impulse| (by count where all are zero);
-    beyond MAX_IMPULSES keys, the largest impulses are kept (a publication 8 ticks apart
-    touches at most 16 shapes; only a stalled I/O process drops any)."""
+def _grouped(
+    keys: np.ndarray, points: np.ndarray, impulses: np.ndarray, span_s: float
+) -> ShapeImpulses:
+    """Impulses summed per key, each at the point on its line of action that gives the
+    moment of its parts, sum (p_i - w) x J_i about their |impulse|-weighted mean point w: a
+    finger sliding around a pebble pushes it through its centre at every tick, and so does
+    the sum (a weighted mean point alone sits inside the pebble, off that line: 1000 rad/s
+    spins seen). A sum too small to carry its moment within MAX_LEVER_M keeps w. Beyond
+    MAX_IMPULSES keys, the largest impulses are kept (a publication 8 ticks apart touches at
+    most 16 shapes; only a stalled I/O process drops any)."""
     if keys.shape[0] == 0:
-        return ShapeImpulses.none()
+        return ShapeImpulses(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2)), span_s)
     unique, inverse = np.unique(keys, return_inverse=True)
     n = unique.shape[0]
     total = np.zeros((n, 2))
@@ -113,10 +129,19 @@ def _grouped(keys: np.ndarray, points: np.ndarray, impulses: np.ndarray) -> Shap
     where = np.zeros((n, 2))
     np.add.at(where, inverse, points * weight[:, None])
     where /= np.bincount(inverse, weight, n)[:, None]
+    arm = points - where[inverse]
+    moment = np.bincount(inverse, arm[:, 0] * impulses[:, 1] - arm[:, 1] * impulses[:, 0], n)
+    size = total[:, 0] ** 2 + total[:, 1] ** 2
+    lever = (
+        np.column_stack((total[:, 1], -total[:, 0]))
+        * (moment / np.where(size > 0.0, size, 1.0))[:, None]
+    )
+    carried = (size > 0.0) & (np.hypot(lever[:, 0], lever[:, 1]) <= MAX_LEVER_M)
+    where = np.where(carried[:, None], where + lever, where)
     if n > MAX_IMPULSES:
         keep = np.sort(np.argsort(-np.hypot(total[:, 0], total[:, 1]))[:MAX_IMPULSES])
         unique, where, total = unique[keep], where[keep], total[keep]
-    return ShapeImpulses(unique.astype(np.int64), where, total)
+    return ShapeImpulses(unique.astype(np.int64), where, total, span_s)
 
 
 @dataclass(frozen=True, eq=False)
@@ -169,7 +194,7 @@ def encode_proxy(
         impulses = ShapeImpulses.none()
     elif impulses is None:
         impulses = ShapeImpulses.of_ticks(
-            r["god_env_key"][None], r["god_env_point"][None], r["god_env_force"][None],
+            r["god_env_key"][None], r["god_env_arm"][None], r["god_env_force"][None],
             np.array([r["dt"]]),
         )  # fmt: skip
     return header + body.tobytes() + impulses.trailer()
@@ -193,22 +218,26 @@ def decode_proxy(data: bytes, limits: MessageLimits = DEFAULT_LIMITS) -> ProxySt
             "timing", f"update wait {wait_ns} ns / tick period {period_ns} ns out of range"
         )
     body_end = PROXY_HEADER.size + 8 * (2 * d + 6)
-    if len(data) < body_end + 8:
-        raise MessageError("size", f"{len(data)} bytes, expected at least {body_end + 8}")
-    n = struct.unpack_from("<q", data, body_end)[0]
+    if len(data) < body_end + 16:
+        raise MessageError("size", f"{len(data)} bytes, expected at least {body_end + 16}")
+    n, span = struct.unpack_from("<qd", data, body_end)
     if not 0 <= n <= MAX_IMPULSES:
         raise MessageError("env", f"{n} impulses: 0..{MAX_IMPULSES}")
-    expected = body_end + 8 * (1 + n + IMPULSE_FLOATS * n)
+    expected = body_end + 8 * (2 + n + IMPULSE_FLOATS * n)
     if len(data) != expected:
         raise MessageError("size", f"{len(data)} bytes, expected {expected}")
     v = np.frombuffer(data, "<f8", 2 * d + 6, PROXY_HEADER.size).astype(np.float64)
-    env = np.frombuffer(data, "<f8", IMPULSE_FLOATS * n, body_end + 8 * (1 + n))
+    env = np.frombuffer(data, "<f8", IMPULSE_FLOATS * n, body_end + 8 * (2 + n))
     env = env.astype(np.float64).reshape(n, IMPULSE_FLOATS)
-    if not np.isfinite(v).all() or not np.isfinite(htime) or not np.isfinite(env).all():
+    if not (np.isfinite(v).all() and np.isfinite(htime) and np.isfinite(env).all()) or not (
+        math.isfinite(span)
+    ):
         raise MessageError("nonfinite", "NaN or Inf in the payload")
+    if not 0.0 <= span <= MAX_SPAN_S:
+        raise MessageError("env", f"impulses over {span} s: 0..{MAX_SPAN_S} s")
     if np.abs(v).max(initial=0.0) > max(limits.max_abs_position_m, limits.max_abs_angle_rad):
         raise MessageError("magnitude", "proxy state out of bounds")
-    env_keys = np.frombuffer(data, "<i8", n, body_end + 8).astype(np.int64)
+    env_keys = np.frombuffer(data, "<i8", n, body_end + 16).astype(np.int64)
     if n and (env_keys.min() < 0 or np.unique(env_keys).shape[0] != n):
         raise MessageError("env", f"shape keys {env_keys.tolist()}: each >= 0, none twice")
     if np.abs(env[:, :2]).max(initial=0.0) > limits.max_abs_position_m or (
@@ -220,5 +249,5 @@ def decode_proxy(data: bytes, limits: MessageLimits = DEFAULT_LIMITS) -> ProxySt
         method=method, safe_state=bool(flags & PROXY_SAFE_STATE), valid=bool(flags & PROXY_VALID),
         q=v[:d], qd=v[d : 2 * d], device_pose=v[2 * d : 2 * d + 3], device_twist=v[2 * d + 3 :],
         wait=UpdateWait(wseq, wait_ns, period_ns) if wseq >= 0 else NO_WAIT,
-        impulses=ShapeImpulses(env_keys, env[:, :2].copy(), env[:, 2:].copy()),
+        impulses=ShapeImpulses(env_keys, env[:, :2].copy(), env[:, 2:].copy(), span),
     )  # fmt: skip
