@@ -75,6 +75,7 @@ IO_POLL_S = 0.004  # the sidecar wakes at least this often (and for each proxy p
 IO_NICENESS = 10  # only when the loop could not get real-time priority (see _lower_priority)
 IO_PRIORITY = REALTIME_PRIORITY // 2  # SCHED_FIFO below the loop's
 VIEW_CLOSE_S = 5.0  # the live view's last frame and flush
+RING_MARGIN = 64  # ring slots the impulse sum leaves alone: the loop may be writing them
 
 
 class LoopIO:
@@ -273,10 +274,9 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
             now = time.monotonic()
             if head > 0 and now >= next_publish:
                 newest = block.ticks[(head - 1) % RING_TICKS : (head - 1) % RING_TICKS + 1]
-                if (
-                    int(newest["tick"][0]) != last_published_tick
-                    and int(newest["update_seq"][0]) >= 0
-                ):
+                if int(newest["update_seq"][0]) < 0:
+                    impulses_from = head  # no model yet: nothing rendered to push with
+                elif int(newest["tick"][0]) != last_published_tick:
                     waits_scanned, wait = newest_wait(block, waits_scanned, wait, tick_period_ns)
                     impulses = ticks_impulses(block, impulses_from, head, method)
                     impulses_from = head
@@ -301,7 +301,8 @@ def ticks_impulses(block: SharedBlock, start: int, head: int, method: int) -> Sh
     still in the ring), for the proxy state (DESIGN-WAVE2 C4); none under other methods."""
     if method != Method.GOD_OBJECT or head <= start:
         return ShapeImpulses.none()
-    rows = block.ticks[np.arange(max(start, head - RING_TICKS), head) % RING_TICKS]
+    # the loop writes slot head % RING_TICKS next: keep clear of the oldest slots
+    rows = block.ticks[np.arange(max(start, head - RING_TICKS + RING_MARGIN), head) % RING_TICKS]
     return ShapeImpulses.of_ticks(
         rows["god_env_key"], rows["god_env_arm"], rows["god_env_force"], rows["dt"]
     )

@@ -168,8 +168,9 @@ def _drive_linkage(tool, tg, chain, work, t_ahead):
         torque = tau[i] + grav[i]
         body = t.bodies[i]
         cp.body_set_torque(body, cp.body_torque(body) + torque)
-        if i > 0:
-            prev = t.bodies[i - 1]
+        up = t.parents[i]  # the joint's reaction: on the link it hangs from (a root: ground)
+        if 0 <= up < i:
+            prev = t.bodies[up]
             cp.body_set_torque(prev, cp.body_torque(prev) - torque)
 
 

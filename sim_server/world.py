@@ -19,6 +19,7 @@ import pymunk
 
 from haptic_local_model.shared.config import BodySpec, Material, SceneConfig
 from haptic_local_model.shared.kinematics import (
+    MAX_CHAINS,
     MAX_DOF,
     link_frames,
     mass_matrix_and_gravity,
@@ -53,8 +54,13 @@ from haptic_local_model.sim_server.membrane import Membrane
 from haptic_local_model.sim_server.shapes import LocalShapes
 from haptic_local_model.sim_server.tool import TOOL_BODY, TOOL_DTYPE, TOOL_LINKAGE, tool_state
 
+#: the most haptic time of impulses a step keeps for the next (in steps): enough to even out
+#: 4 and 5 proxy states between two steps, while a stall's backlog is let out at once
+KEPT_SPAN_STEPS = 0.5
 #: The largest update (all sections, every contact and shape): the encoder's buffer
-MAX_UPDATE_BYTES = update_size(MAX_DOF, MAX_RESISTED, MAX_CONTACTS, 0x1F, n_shapes=MAX_SHAPES)
+MAX_UPDATE_BYTES = update_size(
+    MAX_DOF, MAX_RESISTED, MAX_CONTACTS, 0x3F, n_shapes=MAX_SHAPES, n_chains=MAX_CHAINS
+)
 
 
 @dataclass
@@ -190,6 +196,7 @@ class SimWorld:
         mat = self.scene.materials[lk.material]
         bodies: list[pymunk.Body] = []
         tips: list[np.ndarray] = []  # the far end of each link, where its children hang
+        first_key = len(self.shape_keys)
         for i, length in enumerate(lk.lengths):
             up = lk.parent_of(i)
             prev = ground if up < 0 else bodies[up]
@@ -202,9 +209,10 @@ class SimWorld:
             shape = pymunk.Segment(body, (0.0, 0.0), (length, 0.0), lk.radius)
             shape.friction = mat.friction
             shape.elasticity = mat.restitution
-            shape.filter = pymunk.ShapeFilter(
-                group=TOOL_GROUP if is_tool else 100 + len(self.shape_keys)
-            )
+            # a passive serial linkage's links collide with all but their neighbours; a
+            # tree's siblings share their pivot, so a tree's links are one group
+            group = 100 + len(self.shape_keys) if not lk.parents else 100 + first_key
+            shape.filter = pymunk.ShapeFilter(group=TOOL_GROUP if is_tool else group)
             joint = pymunk.PivotJoint(prev, body, tuple(pos))
             joint.collide_bodies = False
             self.space.add(body, shape, joint)
@@ -350,12 +358,13 @@ class SimWorld:
         if target is not None:
             pending = pending.merged(target.impulses)
         span, period = pending.span_s, self.period
-        if span <= period:
+        keep = min(span - period, KEPT_SPAN_STEPS * period)  # never more: a stall is let out
+        if keep <= 0.0 or pending.count == 0:
             self.pending_impulses = ShapeImpulses.none()
             return pending
-        share = period / span
-        self.pending_impulses = pending.scaled(1.0 - share, span - period)
-        return pending.scaled(share, period)
+        share = 1.0 - keep / span
+        self.pending_impulses = pending.scaled(1.0 - share, keep)
+        return pending.scaled(share, span - keep)
 
     def _touched(self, imp: ShapeImpulses) -> None:
         """The god-object's impulses on dynamic bodies into the step's target, each as the

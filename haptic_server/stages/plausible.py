@@ -112,6 +112,8 @@ def _check_chain(u, env):
     for k in range(1, c.n_chains):
         if u.chain_first[k] != c.chain_first[k] or u.chain_kind[k] != c.chain_kind[k]:
             return Reason.INCONSISTENT
+        if u.chain_port[k] != c.chain_port[k]:
+            return Reason.INCONSISTENT
         for a in range(3):
             if _differs(u.chain_base[k, a], c.chain_base[k, a], GEOMETRY_TOLERANCE):
                 return Reason.INCONSISTENT

@@ -451,8 +451,8 @@ def markdown_tables() -> str:
         f" before a SHAPES trailer: int64 c (1..{MAX_CHAINS}), d int64 `parents` (joint i hangs"
         " from the tip of link parents[i], -1 from its chain's base; every parent before its"
         f" joint and in its chain), c rows of {CHAIN_INTS} int64, then c - 1 rows of 3 float64"
-        " `base` (x m, y m, angle rad; |x| <= max_abs_position_m) of chains 1 .. c - 1. Absent:"
-        " one serial chain (parents[i] = i - 1) at base, base_angle.",
+        " `base` (x m, y m within max_abs_position_m, angle rad within max_abs_angle_rad) of"
+        " chains 1 .. c - 1. Absent: one serial chain (parents[i] = i - 1) at base, base_angle.",
         "",
         "| offset | field | bound | meaning |",
         "|---|---|---|---|",

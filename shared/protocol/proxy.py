@@ -104,7 +104,8 @@ class ShapeImpulses:
 
     def trailer(self) -> bytes:
         rows = np.column_stack((self.points, self.impulses)).astype("<f8")
-        head = struct.pack("<qd", self.count, self.span_s)
+        # a stalled I/O process's backlog is sent as at most MAX_SPAN_S (applied sooner)
+        head = struct.pack("<qd", self.count, min(self.span_s, MAX_SPAN_S))
         return head + self.keys.astype("<i8").tobytes() + rows.tobytes()
 
 
