@@ -216,20 +216,24 @@ def reference_trailers_accept(raw: bytes, body_end: int, flags: int, d: int) -> 
     """Sizes of the CHAINS and SHAPES trailers: (fits, byte offset of the SHAPES trailer)."""
     end = body_end
     if flags & 32:
-        if len(raw) < end + 8:
-            return False, end
-        c = struct.unpack_from("<q", raw, end)[0]
-        if not 1 <= c <= MAX_CHAINS:
+        c = trailer_count(raw, end, MAX_CHAINS)
+        if c is None:
             return False, end
         end += 8 * chains_words(d, c)
     if flags & 16:
-        if len(raw) < end + 8:
-            return False, end
-        s = struct.unpack_from("<q", raw, end)[0]
-        if not 1 <= s <= MAX_SHAPES:
+        s = trailer_count(raw, end, MAX_SHAPES)
+        if s is None:
             return False, end
         return len(raw) == end + 8 * (1 + (SHAPE_INTS + SHAPE_FLOATS) * s), end
     return len(raw) == end, end
+
+
+def trailer_count(raw: bytes, at: int, most: int) -> int | None:
+    """A trailer's leading int64 count at byte `at`, if it is there and in 1..most."""
+    if len(raw) < at + 8:
+        return None
+    count = struct.unpack_from("<q", raw, at)[0]
+    return count if 1 <= count <= most else None
 
 
 def reference_accepts(raw: bytes) -> bool:
@@ -717,6 +721,19 @@ def reason_of_parse(raw: bytes) -> str:
     return "" if code == 0 else Reason(code).tag
 
 
+def assert_rejected_as(raw: bytes, broken: bytes | None, rule: str) -> None:
+    """A valid update with one trailer field broken (None: nothing to break) is refused as
+    `rule` (or `nonfinite`, or `size` for a count that no longer fits), by the parser and the
+    reference alike, and logged as such."""
+    assert reason_of_parse(raw) == "" and reference_accepts(raw)
+    if broken is None:
+        return
+    reason = reason_of_parse(broken)
+    assert reason in (rule, "nonfinite", "size"), reason
+    assert not reference_accepts(broken)
+    assert_logged_as_rejected(broken, reason)
+
+
 def assert_logged_as_rejected(raw: bytes, reason: str) -> None:
     """The I/O process logs every received message; a hostile one must not break that."""
     rec = update_json(update_record(7, raw, reason, 0.0))
@@ -783,14 +800,7 @@ def test_each_broken_shape_is_rejected_and_named(raw: bytes, data: st.DataObject
     clockwise polygon, an owner other than the world, a repeated key, a twist, pose, rounding
     or friction beyond its bound, a NaN, a wrong count. Rejected as `shape` (or, for the
     NaN and the count that no longer fits, `nonfinite` and `size`), never a crash."""
-    assert reason_of_parse(raw) == "" and reference_accepts(raw)
-    broken = break_shape(raw, layout(raw)[4], data.draw)
-    if broken is None:
-        return
-    reason = reason_of_parse(broken)
-    assert reason in ("shape", "nonfinite", "size"), reason
-    assert not reference_accepts(broken)
-    assert_logged_as_rejected(broken, reason)
+    assert_rejected_as(raw, break_shape(raw, layout(raw)[4], data.draw), "shape")
 
 
 @st.composite
@@ -810,14 +820,7 @@ def test_each_broken_chain_is_rejected_and_named(raw: bytes, data: st.DataObject
     or port out of range, chain 0 not the tool of port 0, the held link outside it; a base
     beyond limits or not finite. Rejected as `chain` (or `nonfinite`, `size` for a count that
     no longer fits), never a crash."""
-    assert reason_of_parse(raw) == "" and reference_accepts(raw)
-    broken = break_chains(raw, data.draw)
-    if broken is None:
-        return
-    reason = reason_of_parse(broken)
-    assert reason in ("chain", "nonfinite", "size"), reason
-    assert not reference_accepts(broken)
-    assert_logged_as_rejected(broken, reason)
+    assert_rejected_as(raw, break_chains(raw, data.draw), "chain")
 
 
 @cases("bit_flips")
