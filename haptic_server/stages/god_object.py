@@ -960,7 +960,6 @@ def topology_changes(m, d, old, n_old, new, n_new, clock):
     overlaps it now and is new (its key not in the old update) or of a new generation, or one
     that touches it now and is gone from the new update (a pebble the sim's step flung out
     of the neighbourhood: without the blend the proxy would jump to the device in a tick)."""
-    new_tau = clock.new_tau
     for j in range(n_old):
         o = old[j]
         gone = True
@@ -968,14 +967,7 @@ def topology_changes(m, d, old, n_old, new, n_new, clock):
             if new[k].key == o.key:
                 gone = False
                 break
-        if not gone:
-            continue
-        if o.motion == Motion.NODAL:
-            phi, _, _ = signed_distance(o, o.pose, d.proxy[0], d.proxy[1], m.radius)
-        else:
-            carry_pose(o.pose, o.twist, o.motion, clock.old_tau, d.old_pose)
-            phi, _, _ = signed_distance(o, d.old_pose, d.proxy[0], d.proxy[1], m.radius)
-        if phi < TOUCH_M:
+        if gone and _touches_now(m, d, o, clock.old_tau):
             return True
     for k in range(n_new):
         s = new[k]
@@ -984,16 +976,21 @@ def topology_changes(m, d, old, n_old, new, n_new, clock):
             if old[j].key == s.key:
                 changed = old[j].generation != s.generation
                 break
-        if not changed:
-            continue
-        if s.motion == Motion.NODAL:  # its sample, about a pose of zero angle
-            phi, _, _ = signed_distance(s, s.pose, d.proxy[0], d.proxy[1], m.radius)
-        else:
-            carry_pose(s.pose, s.twist, s.motion, new_tau, d.old_pose)
-            phi, _, _ = signed_distance(s, d.old_pose, d.proxy[0], d.proxy[1], m.radius)
-        if phi < TOUCH_M:
+        if changed and _touches_now(m, d, s, clock.new_tau):
             return True
     return False
+
+
+@njit(cache=True, inline="always")
+def _touches_now(m, d, s, tau):
+    """Shape s, carried tau past its update (a nodal one at its sample, about a pose of zero
+    angle), touches or overlaps the proxy."""
+    if s.motion == Motion.NODAL:
+        phi, _, _ = signed_distance(s, s.pose, d.proxy[0], d.proxy[1], m.radius)
+    else:
+        carry_pose(s.pose, s.twist, s.motion, tau, d.old_pose)
+        phi, _, _ = signed_distance(s, d.old_pose, d.proxy[0], d.proxy[1], m.radius)
+    return phi < TOUCH_M
 
 
 @njit(cache=True)

@@ -149,14 +149,6 @@ class ChainTable:
     port: np.ndarray  # (c,) int64
     bases: np.ndarray  # (c - 1, 3) x, y, angle
 
-    @staticmethod
-    def serial(d: int) -> ChainTable:
-        """One chain of d joints, each on the one before (what an update without it means)."""
-        return ChainTable(
-            np.arange(d, dtype=np.int64) - 1, np.zeros(1, np.int64), np.zeros(1, np.int64),
-            np.zeros(1, np.int64), np.zeros((0, 3)),
-        )  # fmt: skip
-
     def trailer(self) -> bytes:
         """The CHAINS trailer (layout.CHAIN_INT_FIELDS)."""
         c = len(self.first)
