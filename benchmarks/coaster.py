@@ -1,0 +1,323 @@
+"""Seed 003's animation-variable linkages against independent references (DESIGN-WAVE2 §5).
+
+The avar kernels (shared/track.py, shared/avar.py, shared/crank.py) at the haptic loop's
+1 kHz, RK4, on the validation cases of DESIGN-WAVE2 §5:
+
+- V3.1 the free-running loop (ellipse 60 x 40 mm, 50 g, I = 2e-6 kg m^2, from the bottom at
+  1.5 m/s): one car against Lagrange's equation in the ellipse's native parameter, three
+  cars (20 mm apart) against the arc-length Lagrangian with closed-form geometry, both by
+  DOP853 (shared/reference_avar.py): track-point error over 10 s, |dE| / E0 over 60 s;
+- V3.2 a clothoid ramp (line, clothoid 0 -> 6 1/m, arc, clothoid back, line): the largest
+  per-tick change of the track's force on the middle car, against the step m v^2 kappa of
+  the same ramp built with line-arc joins;
+- V3.3 seed 003's eq 8 as printed (the unweighted pseudo-inverse) on V3.1's car;
+- V3.5 a polyline valley (C0 knots): the energy lost at each knot against the plastic
+  projection's closed form, and whether the energy ever rises;
+- V3.6 a slider-crank through both dead centres, driven by the crank angle (no flag, no
+  NaN) and by the slider position (refused at load unless allowed; flagged, no NaN);
+- the cost of one RK4 step of a three-car train (the 1 kHz loop's share).
+
+    python -m haptic_local_model.benchmarks.coaster [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from haptic_local_model.shared.avar import (
+    avar_state,
+    track_force,
+    train_accel,
+    train_energy,
+    train_record,
+    train_step,
+)
+from haptic_local_model.shared.crank import (
+    CrankDriver,
+    check_conditioning,
+    conditioning,
+    crank_energy,
+    crank_record,
+    crank_step,
+)
+from haptic_local_model.shared.reference_avar import (
+    Ellipse,
+    ellipse_car,
+    ellipse_car_seed_form,
+    ellipse_train,
+)
+from haptic_local_model.shared.track import Segment, TrackSpec, tabulate, track_point
+
+DT = 1.0e-3  # the haptic loop's period
+GRAVITY = (0.0, -9.81)
+LOOP = Ellipse(a=0.06, b=0.04, mass=0.05, inertia=2.0e-6, gravity=GRAVITY)
+LOOP_SPEED = 1.5  # m/s at the bottom
+SPACING = 0.02  # m between cars
+#: the clothoid ramp (V3.2): lines at +-0.4 rad joined through clothoids 0 -> 6 1/m
+RAMP_KAPPA = 6.0
+RAMP_CLOTHOID_M = 0.12
+RAMP_HEADING = 0.4
+RAMP_LINE_M = 0.05
+#: the polyline valley (V3.5): two kinks of 0.4 rad
+VALLEY_TURN = 0.4
+VALLEY_LINES_M = (0.06, 0.04, 0.06)
+#: the slider-crank (V3.6)
+CRANK = dict(crank_length=0.02, rod_length=0.06, crank_mass=0.02, rod_mass=0.03, slider_mass=0.05)
+CRANK_SPEED = 60.0  # rad/s: enough to turn against gravity
+
+
+def loop_spec() -> TrackSpec:
+    return TrackSpec(center=(0.0, 0.0), semi_axes=(LOOP.a, LOOP.b))
+
+
+def ramp_spec(clothoids: bool = True) -> TrackSpec:
+    """The V3.2 valley: with clothoid transitions (C2), or the same arc met by lines (C1)."""
+    turn = 2.0 * RAMP_HEADING
+    if clothoids:
+        bend: tuple[Segment, ...] = (
+            Segment.clothoid(RAMP_CLOTHOID_M, 0.0, RAMP_KAPPA),
+            Segment.arc(1.0 / RAMP_KAPPA, turn - RAMP_KAPPA * RAMP_CLOTHOID_M),
+            Segment.clothoid(RAMP_CLOTHOID_M, RAMP_KAPPA, 0.0),
+        )
+    else:
+        bend = (Segment.arc(1.0 / RAMP_KAPPA, turn),)
+    segments = (Segment.line(RAMP_LINE_M), *bend, Segment.line(RAMP_LINE_M))
+    return TrackSpec(segments=segments, start=(0.0, 0.1), heading=-RAMP_HEADING)
+
+
+def valley_spec() -> TrackSpec:
+    a, b, c = VALLEY_LINES_M
+    segments = (
+        Segment.line(a),
+        Segment.kink(VALLEY_TURN),
+        Segment.line(b),
+        Segment.kink(VALLEY_TURN),
+        Segment.line(c),
+    )
+    return TrackSpec(segments=segments, start=(0.0, 0.05), heading=-VALLEY_TURN)
+
+
+@dataclass
+class Ride:
+    """A train's run at DT: per tick t, s, s', the energy and the track's force on car
+    `rider`, and the state at the end (counts of kinks, bumps, losses)."""
+
+    t: np.ndarray
+    s: np.ndarray
+    sd: np.ndarray
+    energy: np.ndarray
+    force: np.ndarray  # (n, 2)
+    point: np.ndarray  # (n, 2) the lead car's track point
+    state: np.void
+
+
+def ride(
+    spec: TrackSpec, n_cars: int, s0: float, sd0: float, seconds: float, rider: int = 0
+) -> Ride:
+    """Run a train of n V3.1 cars from (s0, sd0) for `seconds` at DT, free (no push)."""
+    table = tabulate(spec)[0]
+    train = train_record(n_cars, SPACING, LOOP.mass, LOOP.inertia, GRAVITY)[0]
+    st = avar_state(s0, sd0)[0]
+    st["sdd"] = train_accel(table, train, s0, sd0, 0.0)
+    n = round(seconds / DT) + 1
+    out = Ride(
+        np.arange(n) * DT,
+        np.empty(n),
+        np.empty(n),
+        np.empty(n),
+        np.empty((n, 2)),
+        np.empty((n, 2)),
+        st,
+    )
+    for i in range(n):
+        if i > 0:
+            train_step(table, train, st, 0.0, DT)
+        out.s[i] = st["s"]
+        out.sd[i] = st["sd"]
+        out.energy[i] = train_energy(table, train, st["s"], st["sd"])
+        out.force[i] = track_force(table, train, st["s"], st["sd"], st["sdd"], rider, 0.0, 0.0)
+        out.point[i] = track_point(table, st["s"])[:2]
+    return out
+
+
+def loop_figures(seconds: float = 10.0, drift_seconds: float = 60.0) -> dict[str, Any]:
+    """V3.1 and V3.3 (module docstring)."""
+    t = np.arange(round(seconds / DT) + 1) * DT
+    bottom = float(LOOP.potential(np.array(0.0)))
+    out: dict[str, Any] = {}
+    for n_cars in (1, 3):
+        ours = ride(loop_spec(), n_cars, 0.0, LOOP_SPEED, seconds)
+        if n_cars == 1:
+            points, _ = ellipse_car(LOOP, LOOP_SPEED, t)
+        else:
+            points, _ = ellipse_train(LOOP, n_cars, SPACING, LOOP_SPEED, t)
+        long = ride(loop_spec(), n_cars, 0.0, LOOP_SPEED, drift_seconds)
+        available = long.energy[0] - n_cars * bottom  # E0 above every car at the bottom
+        out[f"{n_cars}_car"] = {
+            "track_error_um": float(1e6 * np.max(np.hypot(*(ours.point - points).T))),
+            "energy_drift": float(np.max(np.abs(long.energy - long.energy[0])) / available),
+            "laps": float(ours.s.size and _laps(ours)),
+        }
+    _, seed_energy = ellipse_car_seed_form(LOOP, LOOP_SPEED, t)
+    seed_change = (seed_energy - seed_energy[0]) / (seed_energy[0] - bottom)
+    out["seed_form"] = {
+        "energy_change_max": float(np.max(np.abs(seed_change))),
+        "energy_change_end": float(seed_change[-1]),
+    }
+    return out
+
+
+def _laps(r: Ride) -> float:
+    """Laps of a loop from the unwrapped s."""
+    length = tabulate(loop_spec())[0]["length"]
+    return float(np.sum(np.mod(np.diff(r.s) + length / 2, length) - length / 2) / length)
+
+
+def ramp_figures(seconds: float = 3.0) -> dict[str, Any]:
+    """V3.2 on the middle car, in units of m g: the largest per-tick |dF| over the whole ride
+    with clothoid transitions; with line-arc joins, the step over each tick in which the car
+    crosses a join against m v^2 kappa at that speed."""
+    mg = LOOP.mass * abs(GRAVITY[1])
+    out: dict[str, Any] = {}
+    for name, clothoids in (("clothoid", True), ("line_arc", False)):
+        spec = ramp_spec(clothoids)
+        r = ride(spec, 3, 2 * SPACING + 0.005, 0.0, seconds, rider=1)
+        steps = np.hypot(*np.diff(r.force, axis=0).T) / mg
+        rider = r.s - SPACING
+        lengths = np.cumsum([seg.length for seg in spec.segments])[:-1]
+        crossed = [
+            int(i) for join in lengths for i in np.flatnonzero(np.diff(np.sign(rider - join)) != 0)
+        ]
+        out[name] = {
+            "max_force_step_mg": float(steps.max()),
+            "max_step_at_joins_mg": float(max(steps[i] for i in crossed)),
+            "joins_crossed": len(crossed),
+            "max_speed": float(np.max(np.abs(r.sd))),
+        }
+        if not clothoids:
+            predicted = [LOOP.mass * r.sd[i] ** 2 * RAMP_KAPPA / mg for i in crossed]
+            out[name]["join_step_error"] = float(
+                max(abs(steps[i] / p - 1.0) for i, p in zip(crossed, predicted, strict=True))
+            )
+    return out
+
+
+def valley_figures(seconds: float = 2.0) -> dict[str, Any]:
+    """V3.5: one car from rest at the top of the valley: each of the first two knots' loss
+    against the plastic projection's closed form; the largest rise of the energy over a
+    tick (one car and a train of three)."""
+    out: dict[str, Any] = {}
+    r = ride(valley_spec(), 1, 0.0, 0.0, seconds)
+    drop = np.diff(r.energy)
+    knots = np.flatnonzero(drop < -1e-9)[:2]
+    v1 = math.sqrt(2.0 * abs(GRAVITY[1]) * math.sin(VALLEY_TURN) * VALLEY_LINES_M[0])
+    speeds = (v1, v1 * math.cos(VALLEY_TURN))
+    expected = [0.5 * LOOP.mass * v * v * math.sin(VALLEY_TURN) ** 2 for v in speeds]
+    out["knot_loss_error"] = [
+        float(-drop[k] / e - 1.0) for k, e in zip(knots, expected, strict=True)
+    ]
+    out["one_car_max_rise_j"] = float(drop.max())
+    train = ride(valley_spec(), 3, 2 * SPACING, 0.0, seconds)
+    out["train_max_rise_j"] = float(np.diff(train.energy).max())
+    out["train_kinks"] = int(train.state["kinks"])
+    out["train_plastic_loss_j"] = float(train.state["plastic_loss"])
+    out["energy_start_j"] = float(train.energy[0])
+    return out
+
+
+def crank_figures(seconds: float = 5.0) -> dict[str, Any]:
+    """V3.6 (module docstring)."""
+    out: dict[str, Any] = {}
+    for driver, q0, qd0 in (
+        (CrankDriver.CRANK_ANGLE, 0.1, CRANK_SPEED),
+        (CrankDriver.SLIDER_POSITION, CRANK["rod_length"], -0.3),
+    ):
+        c = crank_record(**CRANK, gravity=GRAVITY, driver=driver)
+        refused = False
+        try:
+            check_conditioning(c, allow_singular=False, where="crank")
+        except ValueError:
+            refused = True
+        st = avar_state(q0, qd0)[0]
+        e0 = crank_energy(c[0], q0, qd0)
+        q = np.empty(round(seconds / DT))
+        drift = 0.0
+        for i in range(q.size):
+            crank_step(c[0], st, 0.0, DT)
+            q[i] = st["s"]
+            drift = max(drift, abs(crank_energy(c[0], st["s"], st["sd"]) - e0))
+        finite = bool(np.all(np.isfinite(q)))
+        out[driver.name.lower()] = {
+            "conditioning": conditioning(c),
+            "refused_at_load": refused,
+            "finite": finite,
+            "flagged_steps": int(st["singular"]),
+            "dead_centres_passed": int(np.sum(np.diff(np.floor(q / math.pi)) != 0))
+            if driver == 0
+            else 0,
+            "energy_drift": drift / abs(e0),
+        }
+    return out
+
+
+@njit(cache=True)
+def _steps(table, train, st, n):
+    for _ in range(n):
+        train_step(table, train, st, 0.0, DT)
+
+
+def step_cost(repeats: int = 200, batch: int = 1000) -> dict[str, float]:
+    """One train_step of three cars on the loop, timed inside compiled code (batches of
+    `batch` steps, as the loop calls it; the compile apart)."""
+    tables = tabulate(loop_spec())
+    trains = train_record(3, SPACING, LOOP.mass, LOOP.inertia, GRAVITY)
+    states = avar_state(0.0, LOOP_SPEED)
+    start = time.perf_counter()
+    _steps(tables[0], trains[0], states[0], 1)
+    compile_s = time.perf_counter() - start
+    per_step = np.empty(repeats)
+    for i in range(repeats):
+        t0 = time.perf_counter_ns()
+        _steps(tables[0], trains[0], states[0], batch)
+        per_step[i] = (time.perf_counter_ns() - t0) / batch
+    return {
+        "compile_s": compile_s,
+        "p50_us": float(np.percentile(per_step, 50) / 1e3),
+        "p99_us": float(np.percentile(per_step, 99) / 1e3),
+    }
+
+
+def report() -> dict[str, Any]:
+    return {
+        "loop": loop_figures(),
+        "ramp": ramp_figures(),
+        "valley": valley_figures(),
+        "crank": crank_figures(),
+        "step_cost": step_cost(),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--json", help="write the figures here too")
+    args = parser.parse_args(argv)
+    figures = report()
+    text = json.dumps(figures, indent=2)
+    print(text)
+    if args.json:
+        with open(args.json, "w") as f:
+            f.write(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
