@@ -23,6 +23,7 @@ The avar kernels (shared/track.py, shared/avar.py, shared/crank.py) at the hapti
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -33,14 +34,18 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.harness.virtual import VirtualResult, run_virtual
 from haptic_local_model.shared.avar import (
     avar_state,
+    contact_jacobian,
     track_force,
     train_accel,
     train_energy,
     train_record,
     train_step,
 )
+from haptic_local_model.shared.config import SceneConfig, load_scene, load_user
 from haptic_local_model.shared.crank import (
     CrankDriver,
     check_conditioning,
@@ -269,6 +274,94 @@ def crank_figures(seconds: float = 5.0) -> dict[str, Any]:
     return out
 
 
+PUSH_SCENE, PUSH_DEVICE, PUSH_USER = "coaster_loop", "twin_pantograph", "push_car"
+RELEASE_S = 3.0  # the free ride after the finger's last touch compared with the reference
+
+
+def push_run(
+    seconds: float = 6.0, sim_hz: float | None = None
+) -> tuple[SceneConfig, VirtualResult]:
+    """V3.4's run: coaster_loop in the virtual clock, the twin pantograph, the hand that
+    shoves the last car (optionally at another sim rate)."""
+    scene = load_scene(PUSH_SCENE)
+    if sim_hz is not None:
+        scene = dataclasses.replace(scene, sim_rate_hz=sim_hz)
+    return scene, run_virtual(scene, load_device(PUSH_DEVICE), load_user(PUSH_USER), seconds)
+
+
+def finger_work(scene: SceneConfig, result: VirtualResult) -> np.ndarray:
+    """The work of the rendered finger on the cars up to each tick (J), from the log alone:
+    sum over ticks of F_env . J_c dS, F_env the force the god-object put on each touched
+    car (row god_env_force, at god_env_point), J_c its contact point's velocity per unit s'
+    (shared/avar.py) and dS the tick's move of s."""
+    t = result.ticks
+    world = result.world
+    assert world.train is not None
+    car_of = {world.shape_keys[shape]: k for shape, k in world.train.owner.items()}
+    table = tabulate(scene.track_spec)[0]
+    cars = scene.cars[0]
+    train = train_record(cars.count, cars.spacing_m, cars.mass, cars.inertia, scene.gravity)[0]
+    moved = np.diff(t["avar_s"], prepend=t["avar_s"][0])
+    moved -= table["length"] * np.round(moved / table["length"])
+    power = np.zeros(len(t))
+    for i in np.flatnonzero((t["god_env_key"] >= 0).any(axis=1)):
+        for j in range(2):
+            car = car_of.get(int(t["god_env_key"][i, j]), -1)
+            if car < 0:
+                continue
+            px, py = t["god_env_point"][i, j]
+            jx, jy = contact_jacobian(table, train, float(t["avar_s"][i - 1]), car, px, py)
+            fx, fy = t["god_env_force"][i, j]
+            power[i] += (fx * jx + fy * jy) * moved[i]
+    return np.cumsum(power)
+
+
+def port_given(result: VirtualResult, window_s: float) -> np.ndarray:
+    """The energy the device gave the hand up to each tick, not forgotten (J): the passivity
+    observer's windowed sum (row port_energy) undone."""
+    t = result.ticks
+    decay = np.exp(-t["dt"] / window_s)
+    given = t["port_energy"] - np.concatenate(([0.0], t["port_energy"][:-1])) * decay
+    return np.cumsum(given)
+
+
+def push_figures(seconds: float = 6.0, sim_hz: float | None = None) -> dict[str, Any]:
+    """V3.4: the train's energy against the work of the rendered finger (from the log), the
+    port's energy balance, and the free ride after the last touch against the independent
+    reference (shared/reference_avar.py) started from the haptic side's state there."""
+    scene, result = push_run(seconds, sim_hz)
+    t = result.ticks
+    work = finger_work(scene, result)
+    gained = t["avar_energy"] - t["avar_energy"][0]
+    scale = float(np.max(np.abs(work)))
+    touched = np.flatnonzero((t["god_env_key"] >= 0).any(axis=1))
+    cars = scene.cars[0]
+    track = scene.tracks[0]
+    loop = Ellipse(*track.semi_axes, track.center, cars.mass, cars.inertia, scene.gravity)
+    release = int(touched[-1]) + 1
+    end = min(len(t) - 1, release + round(RELEASE_S / DT))
+    times = t["t"][release : end + 1]
+    points, _ = ellipse_train(
+        loop, cars.count, cars.spacing_m, float(t["avar_sd"][release]), times,
+        float(t["avar_s"][release]),
+    )  # fmt: skip
+    table = tabulate(scene.track_spec)[0]
+    ours = np.array([track_point(table, s)[:2] for s in t["avar_s"][release : end + 1]])
+    port = port_given(result, scene.safety.passivity_window_s)
+    return {
+        "scene": PUSH_SCENE, "sim_hz": scene.sim_rate_hz, "seconds": seconds,
+        "work_j": float(work[-1]), "max_work_j": scale,
+        "work_energy_error": float(np.max(np.abs(gained - work)) / scale),
+        "exact_accounting_j": float(np.max(np.abs(gained - t["avar_work"]))),
+        "port_given_max_j": float(port.max()),
+        "touch_ticks": int(touched.size), "release_s": float(t["t"][release]),
+        "free_ride_s": float(times[-1] - times[0]),
+        "free_ride_error_um": float(1e6 * np.max(np.hypot(*(ours - points).T))),
+        "max_speed": float(np.max(np.abs(t["avar_sd"]))),
+        "faults": int(t["fault"].max()), "pops": int(t["god_pops"][-1]),
+    }  # fmt: skip
+
+
 @njit(cache=True)
 def _steps(table, train, st, n):
     for _ in range(n):
@@ -302,6 +395,7 @@ def report() -> dict[str, Any]:
         "ramp": ramp_figures(),
         "valley": valley_figures(),
         "crank": crank_figures(),
+        "push": push_figures(),
         "step_cost": step_cost(),
     }
 

@@ -36,6 +36,7 @@ from haptic_local_model.haptic_server.stages.install import (
     accept_update,
 )
 from haptic_local_model.haptic_server.stages.tick import engine_step, store_applied
+from haptic_local_model.haptic_server.stages.train import restart_train, train_model
 from haptic_local_model.haptic_server.users import USER_GIVEN, USER_POINTER, user_record
 from haptic_local_model.shared.config import ConfigError, SceneConfig, UserConfig
 from haptic_local_model.shared.kinematics import (
@@ -146,6 +147,7 @@ class HapticEngine:
             self.world_map,
         )
         self.model["god"] = god_record(scene, self.model["params"][0]["max_wrench"])
+        self.model["train"] = train_model(scene)
         # what the scene allows: checked at every install, guarded at every tick
         self.install[0]["envelope"] = envelope_record(scene)
         set_guard(self.model["params"], scene)
@@ -338,6 +340,9 @@ class HapticEngine:
         st["foh_steps_left"] = 0
         if self.method == Method.GOD_OBJECT:
             restart_finger(self.data[0], float(m["q"][0]), float(m["q"][1]))
+        # a train starts where the sim has it (the install checked it is this scene's)
+        m0 = self.model[0]
+        restart_train(m0["train"], self.data[0]["train"], float(m["avar_s"]), float(m["avar_sd"]))
         if first and self.sim_device is not None:
             # a simulated device starts at its home pose, offset from the VM as the scene says
             self.sim_device.reset(np.zeros(3))
@@ -517,4 +522,5 @@ def warm_kernels(
     engine._joint_velocity(engine.slots[0], np.zeros(3))
     min_norm_least_squares(np.eye(3, MAX_DOF), 3, 3, np.zeros(3), np.zeros(MAX_DOF))
     restart_finger(engine.data[0], 0.0, 0.0)  # a god-object's re-initialisation
+    restart_train(engine.model[0]["train"], engine.data[0]["train"], 0.0, 0.0)  # a train's
     return engine

@@ -89,6 +89,8 @@ class HapticRunStats:
     proxy_published: int = 0
     pointer_received: int = 0  # pointer inputs (a user of kind "pointer") received
     pointer_rejected: int = 0  # ... refused: malformed, out of range, late
+    static_received: int = 0  # the sim's static messages of this scene's train ...
+    static_refused: int = 0  # ... and of another train, or malformed
     updates_lost: int = 0
     events_lost: int = 0  # overwritten in the event ring before the log writer read them
     log_failed: str = ""  # why the log writer stopped (a full disk): the run went on
@@ -128,6 +130,8 @@ class HapticRunStats:
             "proxy_published": self.proxy_published,
             "pointer_received": self.pointer_received,
             "pointer_rejected": self.pointer_rejected,
+            "static_received": self.static_received,
+            "static_refused": self.static_refused,
             "log": str(log_path) if log_path else None,
         }
 
@@ -452,6 +456,7 @@ class HapticServer:
                 "proxy_publish_hz": self.network.proxy_publish_hz,
                 "method": self.engine.method,
                 "pointer": self.engine.follows_pointer,
+                "static_id": int(self.engine.model[0]["train"]["static_id"]),
                 "view": None if view is None else {
                     **dataclasses.asdict(view), "scene_text": self.configs.get("scene"),
                 },
@@ -480,6 +485,8 @@ class HapticServer:
         stats.proxy_published = io_counters["proxy_published"]
         stats.pointer_received = io_counters["pointer_received"]
         stats.pointer_rejected = io_counters["pointer_rejected"]
+        stats.static_received = io_counters["static_received"]
+        stats.static_refused = io_counters["static_refused"]
         stats.updates_lost = io_counters["lost_updates"]
         stats.events_lost = io_counters["lost_events"]
         if stop_failed is not None:

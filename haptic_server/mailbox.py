@@ -50,6 +50,7 @@ C_LOG_DONE = 16  # the log writer has closed its file
 C_IO_BEAT = 17  # the I/O sidecar's heartbeat: its monotonic clock (ns) at its last wake-up
 C_PTR_RECEIVED, C_PTR_REJECTED = 18, 19  # pointer inputs received / refused by the sidecar
 C_WALL_START = 20  # the wall clock (ns) at the real-time loop's start: tick t = 0
+C_STATIC_OK, C_STATIC_BAD = 21, 22  # static messages of this scene's train / refused
 N_CTL = 24
 ERROR_BYTES = 256  # the log writer's last error, as text
 

@@ -21,6 +21,7 @@ from haptic_local_model.haptic_server.stages.god_object import (
     GeometryBlend,
     god_params,
 )
+from haptic_local_model.haptic_server.stages.train import TRAIN_DATA_DTYPE, TRAIN_MODEL_DTYPE
 from haptic_local_model.shared.config import RenderingSpec, SceneConfig
 from haptic_local_model.shared.kinematics import CHAIN_DTYPE, MAX_DOF
 from haptic_local_model.shared.protocol.codes import Method
@@ -221,14 +222,28 @@ TICK_DTYPE = np.dtype(
         ("god_env_arm", F8, (2, 2)),  # ... those less each shape's centre (world axes) ...
         ("god_env_force", F8, (2, 2)),  # ... and the force on each, N (the sim applies it)
         ("god_blend", F8),  # a two-proxy blend's weight of the new geometry, 0 < s <= 1; 0: none
+        # a train of cars (stages/train.py; zero without one): its animation variable
+        ("avar_cars", np.int32),  # cars of the scene's train (0: none)
+        ("avar_static_id", I8),  # its track's static id (shared/protocol/static.py)
+        ("avar_s", F8),  # the lead car's arc length, m
+        ("avar_sd", F8),  # its rate, m/s
+        ("avar_force", F8),  # Q, the finger's generalised force on the train this tick, N
+        ("avar_energy", F8),  # the train's energy, J
+        ("avar_work", F8),  # the finger's work on the train so far, J
+        ("avar_events", np.int32),  # kinks crossed and bumper hits so far
     ]
 )
 
 
-#: What a tick only reads: the two installed models (0 newest, 1 fading out), the gains, and
-#: the god-object's parameters (the god_object method).
+#: What a tick only reads: the two installed models (0 newest, 1 fading out), the gains, the
+#: god-object's parameters (the god_object method) and the scene's train (stages/train.py).
 MODEL_DTYPE = np.dtype(
-    [("slots", SLOT_DTYPE, (2,)), ("params", PARAMS_DTYPE), ("god", GOD_PARAMS_DTYPE)]
+    [
+        ("slots", SLOT_DTYPE, (2,)),
+        ("params", PARAMS_DTYPE),
+        ("god", GOD_PARAMS_DTYPE),
+        ("train", TRAIN_MODEL_DTYPE),
+    ]
 )
 
 #: What a tick reads and writes.
@@ -243,6 +258,7 @@ DATA_DTYPE = np.dtype(
         ("row", TICK_DTYPE),
         ("god", GOD_DATA_DTYPE),  # the god-object proxy (the god_object method)
         ("god_blend", BLEND_DTYPE),  # its two-proxy blend, and what it renders
+        ("train", TRAIN_DATA_DTYPE),  # the scene's train (stages/train.py)
     ]
 )
 

@@ -43,6 +43,8 @@ from haptic_local_model.haptic_server.mailbox import (
     C_PUBLISHED,
     C_READY,
     C_RECEIVED,
+    C_STATIC_BAD,
+    C_STATIC_OK,
     C_TICK_HEAD,
     C_TICK_LOGGED,
     C_TICK_LOST,
@@ -170,6 +172,8 @@ class LoopIO:
             "updates_arrived": int(c[C_RECEIVED]),
             "pointer_received": int(c[C_PTR_RECEIVED]),
             "pointer_rejected": int(c[C_PTR_REJECTED]),
+            "static_received": int(c[C_STATIC_OK]),
+            "static_refused": int(c[C_STATIC_BAD]),
         }
 
     def close(self, timeout_s: float = 30.0) -> dict[str, int]:
@@ -244,6 +248,11 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         if config.get("pointer")
         else None
     )
+    static_sub = (
+        session.declare_subscriber(k.static, _static_receiver(block, int(config["static_id"])))
+        if int(config.get("static_id", -1)) >= 0
+        else None
+    )
     publish_period = 1.0 / float(config["proxy_publish_hz"])
     method = int(config["method"])
     tick_period_ns = int(config["tick_period_ns"])
@@ -291,6 +300,8 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         subscriber.undeclare()
         if pointer_sub is not None:
             pointer_sub.undeclare()
+        if static_sub is not None:
+            static_sub.undeclare()
         session.close()
         block.release()
         shm.close()
@@ -332,6 +343,36 @@ def _pointer_receiver(block: SharedBlock) -> Any:
             return
         newest[0] = stamp
         block.post_pointer(pointer.target)
+
+    return receive
+
+
+def _static_receiver(block: SharedBlock, static_id: int) -> Any:
+    """Subscriber callback for the sim's static message (shared/protocol/static.py): one of
+    this scene's train is counted; any other, or a malformed one, is counted as refused and
+    told once per distinct reason in the event ring (the loop installs no update of another
+    train: Reason.STATIC)."""
+    from haptic_local_model.shared.protocol.static import decode_static
+    from haptic_local_model.shared.protocol.update import MessageError
+
+    ctl = block.ctl
+    told: set[str] = set()
+
+    def receive(sample: Any) -> None:
+        try:
+            sid, _ = decode_static(sample.payload.to_bytes())
+            problem = (
+                "" if sid == static_id else f"the sim's train {sid} is not this scene's {static_id}"
+            )
+        except MessageError as exc:
+            problem = f"a malformed static message: {exc}"
+        if not problem:
+            ctl[C_STATIC_OK] += 1
+            return
+        ctl[C_STATIC_BAD] += 1
+        if problem not in told:
+            told.add(problem)
+            block.post_event(int(ctl[C_TICK_HEAD]), "static", problem)
 
     return receive
 

@@ -371,6 +371,122 @@ class BodySpec:
         return (x + c * px - s * py, y + s * px + c * py)
 
 
+#: Animation-variable linkages (seed 003 §4; shared/track.py, shared/avar.py)
+TRACK_SIZE_M = 10.0  # a track's lengths and radii
+MAX_CURVATURE = 1.0e4  # 1/m: a 0.1 mm radius
+MAX_TRAIN = 8  # cars of a train (shared/avar.py MAX_CARS)
+SegmentKindName = Literal["line", "arc", "clothoid", "kink"]
+
+
+@dataclass(frozen=True)
+class SegmentConfig:
+    """One piece of a segment track (shared/track.py): a line (length), an arc (radius,
+    turn), a clothoid (length, kappa0 -> kappa1) or a kink (turn: a C0 corner)."""
+
+    kind: SegmentKindName
+    length: float = 0.0  # m (line, clothoid)
+    radius: float = 0.0  # m (arc)
+    turn: float = 0.0  # rad, positive to the left (arc, kink)
+    kappa0: float = 0.0  # 1/m, positive to the left (clothoid)
+    kappa1: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.kind in ("line", "clothoid"):
+            require(
+                0.0 < self.length <= TRACK_SIZE_M, "length", f"must be in (0, {TRACK_SIZE_M:g}] m"
+            )
+        if self.kind == "arc":
+            require(
+                0.0 < self.radius <= TRACK_SIZE_M, "radius", f"must be in (0, {TRACK_SIZE_M:g}] m"
+            )
+            require(
+                0.0 < abs(self.turn) <= 8.0 * math.pi,
+                "turn",
+                "an arc turns by 0 < |turn| <= 8 pi rad",
+            )
+        if self.kind == "kink":
+            require(0.0 < abs(self.turn) < math.pi, "turn", "a kink turns by 0 < |turn| < pi rad")
+        within(self.kappa0, (-MAX_CURVATURE, MAX_CURVATURE), "kappa0", "1/m")
+        within(self.kappa1, (-MAX_CURVATURE, MAX_CURVATURE), "kappa1", "1/m")
+
+    @property
+    def arc_length(self) -> float:
+        return self.radius * abs(self.turn) if self.kind == "arc" else self.length
+
+
+@dataclass(frozen=True)
+class TrackConfig:
+    """A track the cars of a scene ride (shared/track.py): an ellipse (centre, semi-axes; a
+    loop from its lowest point, counter-clockwise) or segments laid from `start` heading
+    `heading` (open, with end bumpers, unless `closed`)."""
+
+    name: str
+    kind: Literal["ellipse", "segments"]
+    center: Vec2 = (0.0, 0.0)
+    semi_axes: Vec2 = (0.0, 0.0)
+    start: Vec2 = (0.0, 0.0)
+    heading: float = 0.0
+    closed: bool = False
+    segments: tuple[SegmentConfig, ...] = ()
+
+    def __post_init__(self) -> None:
+        within_all(self.center, (-WORLD_M, WORLD_M), "center", "m")
+        within_all(self.start, (-WORLD_M, WORLD_M), "start", "m")
+        within(self.heading, (-ANGLE_RAD, ANGLE_RAD), "heading", "rad")
+        if self.kind == "ellipse":
+            within_all(self.semi_axes, (1e-4, TRACK_SIZE_M), "semi_axes", "m")
+            require(not self.segments, "segments", "an ellipse has no segments")
+        else:
+            require(
+                any(seg.kind != "kink" for seg in self.segments),
+                "segments",
+                "a segment track needs at least one line, arc or clothoid",
+            )
+            require(self.semi_axes == (0.0, 0.0), "semi_axes", "only an ellipse has semi_axes")
+
+    @property
+    def length(self) -> float:
+        """The track's arc length (m; the ellipse's by Simpson's rule, to 1e-9)."""
+        if self.kind == "segments":
+            return sum(seg.arc_length for seg in self.segments)
+        a, b = self.semi_axes
+        n = 2000
+        h = 2.0 * math.pi / n
+        f = [math.hypot(a * math.cos(i * h), b * math.sin(i * h)) for i in range(n + 1)]
+        return h / 3.0 * (f[0] + f[n] + 4.0 * sum(f[1:n:2]) + 2.0 * sum(f[2:n:2]))
+
+    @property
+    def is_closed(self) -> bool:
+        return self.kind == "ellipse" or self.closed
+
+
+@dataclass(frozen=True)
+class CarsConfig:
+    """A train of `count` cars on a track, coupled `spacing_m` apart in arc length (car k
+    at s - k spacing), each a box `size` (along the track, across it) centred on the track,
+    of mass m and moment I about that point; the lead car starts at initial_s."""
+
+    track: str
+    material: str
+    count: int = 1
+    spacing_m: float = 0.02
+    mass: float = 0.05
+    inertia: float = 2.0e-6  # kg m^2
+    size: Vec2 = (0.015, 0.008)
+    initial_s: float = 0.0
+    initial_speed: float = 0.0
+    restitution: float = 0.5  # of an open track's end bumpers
+
+    def __post_init__(self) -> None:
+        within(self.count, (1, MAX_TRAIN), "count")
+        within(self.spacing_m, (0.0, TRACK_SIZE_M), "spacing_m", "m")
+        within(self.mass, MASS_RANGE_KG, "mass", "kg")
+        within(self.inertia, INERTIA_RANGE_KGM2, "inertia", "kg m^2")
+        within_all(self.size, (1e-4, TRACK_SIZE_M), "size", "m")
+        within(self.initial_speed, (-SPEED_M_PER_S, SPEED_M_PER_S), "initial_speed", "m/s")
+        within(self.restitution, (0.0, 1.0), "restitution")
+
+
 MAX_MEMBRANE_NODES = 33  # 32 segments: half the local shapes an update carries
 
 
@@ -701,6 +817,8 @@ class SceneConfig:
     crowds: tuple[CrowdSpec, ...] = ()
     linkages: tuple[LinkageSpec, ...] = ()
     deformables: tuple[DeformableSpec, ...] = ()
+    tracks: tuple[TrackConfig, ...] = ()
+    cars: tuple[CarsConfig, ...] = ()
     rendering: RenderingSpec = field(default_factory=RenderingSpec)
     space: SpaceSpec = field(default_factory=SpaceSpec)
     safety: SafetySpec = field(default_factory=SafetySpec)
@@ -798,6 +916,62 @@ class SceneConfig:
             self._check_coupling_substeps(match[0])
         if self.rendering.method == "god_object":
             self._check_god_object()
+        if self.tracks or self.cars:
+            self._check_train()
+
+    def _check_train(self) -> None:
+        """One train on one track (one avar per scene in this build), pushed by a god-object
+        finger, fitting its track; the track itself is tabulated here once, so a spec that
+        does not close or needs too many knots is refused at load."""
+        from haptic_local_model.shared.track import tabulate  # numpy only, at load
+
+        require(len(self.tracks) == 1, "tracks", "a scene has one track (for its one train)")
+        require(len(self.cars) == 1, "cars", "a scene has one train of cars on its track")
+        track, cars = self.tracks[0], self.cars[0]
+        require(cars.track == track.name, "cars[0].track", f"no track named {cars.track!r}")
+        require(
+            cars.material in self.materials,
+            "cars[0].material",
+            f"unknown material {cars.material!r}",
+        )
+        require(
+            self.rendering.method == "god_object",
+            "cars",
+            "a train is pushed by the god_object method's finger (rendering.method)",
+        )
+        try:
+            tabulate(self.track_spec)
+        except ValueError as exc:
+            raise ValueError(f"tracks[0]: {exc}") from None
+        length = track.length
+        tail = (cars.count - 1) * cars.spacing_m
+        if track.is_closed:
+            require(tail < length, "cars[0].spacing_m", f"the train ({tail:g} m) exceeds the loop")
+            within(cars.initial_s, (0.0, length), "cars[0].initial_s", "m")
+        else:
+            within(
+                cars.initial_s, (tail, length), "cars[0].initial_s", "m (the train on the track)"
+            )
+
+    @property
+    def track_spec(self) -> Any:
+        """The scene's track as shared.track.TrackSpec."""
+        from haptic_local_model.shared.track import Segment, SegmentKind, TrackSpec
+
+        t = self.tracks[0]
+        if t.kind == "ellipse":
+            return TrackSpec(center=t.center, semi_axes=t.semi_axes)
+        segments = []
+        for seg in t.segments:
+            kind = SegmentKind[seg.kind.upper()]
+            if kind == SegmentKind.ARC:
+                segments.append(Segment.arc(seg.radius, seg.turn))
+            elif kind == SegmentKind.KINK:
+                segments.append(Segment.kink(seg.turn))
+            else:
+                k0, k1 = (seg.kappa0, seg.kappa1) if kind == SegmentKind.CLOTHOID else (0.0, 0.0)
+                segments.append(Segment(kind, seg.length, k0, k1))
+        return TrackSpec(tuple(segments), t.start, t.heading, t.closed)
 
     def _check_god_object(self) -> None:
         """A god-object is a disc held as a free body, and its coupling is passive (Colgate:

@@ -104,11 +104,11 @@ def ellipse_car(e: Ellipse, sd0: float, t_eval: FloatArray) -> tuple[FloatArray,
 
 
 def ellipse_train(
-    e: Ellipse, n_cars: int, spacing: float, sd0: float, t_eval: FloatArray
+    e: Ellipse, n_cars: int, spacing: float, sd0: float, t_eval: FloatArray, s0: float = 0.0
 ) -> tuple[FloatArray, FloatArray]:
-    """n cars, the lead one from the bottom at speed sd0, car k spacing*k behind it:
-    (the lead car's track points (n, 2), energy (n,))."""
-    u0 = [e.u_at(-k * spacing) for k in range(n_cars)]
+    """n cars, the lead one at arc length s0 (0: the bottom) at speed sd0, car k spacing*k
+    behind it, from t_eval[0]: (the lead car's track points (n, 2), energy (n,))."""
+    u0 = [e.u_at(s0 - k * spacing) for k in range(n_cars)]
 
     def rates(_t: float, y: FloatArray) -> FloatArray:
         u = y[:n_cars]
@@ -127,7 +127,8 @@ def ellipse_train(
         out[n_cars] = num / den
         return out
 
-    sol = solve_ivp(rates, (0.0, t_eval[-1]), [*u0, sd0], "DOP853", t_eval, rtol=RTOL, atol=ATOL)
+    span = (t_eval[0], t_eval[-1])
+    sol = solve_ivp(rates, span, [*u0, sd0], "DOP853", t_eval, rtol=RTOL, atol=ATOL)
     u = sol.y[:n_cars]
     sd = sol.y[n_cars]
     kappa, _ = e.curvature(u)

@@ -48,6 +48,7 @@ class Motion(enum.IntEnum):
     BALLISTIC = 0
     SCREW = 1
     NODAL = 2  # segments only: the nodes are held by the haptic side (module docstring)
+    TRACK = 3  # a car of a train: posed by the haptic side's avar (shared/avar.py), by `owner`
 
 
 #: One local shape as the haptic loop holds it: what the sim sent, plus `bound` (the core's
@@ -66,6 +67,7 @@ SHAPE_DTYPE = np.dtype(
         ("static_friction", np.float64),  # mu_s
         ("friction", np.float64),  # mu_k
         ("bound", np.float64),  # m, max |vertex| (derived)
+        ("owner", np.int64),  # -1 the world; k: car k of the train (motion TRACK)
     ]
 )
 
@@ -74,8 +76,10 @@ MIN_EDGE_M = 1.0e-12  # a segment or polygon edge shorter than this is degenerat
 
 
 def shape_array(n: int) -> np.ndarray:
-    """n zeroed shape records."""
-    return np.zeros(n, dtype=SHAPE_DTYPE)
+    """n zeroed shape records of the world (owner -1)."""
+    rows = np.zeros(n, dtype=SHAPE_DTYPE)
+    rows["owner"] = -1
+    return rows
 
 
 def polygon_problem(vertices: npt.ArrayLike) -> str:

@@ -27,6 +27,7 @@ from haptic_local_model.shared.kinematics import (
 from haptic_local_model.shared.protocol.proxy import MAX_IMPULSES
 from haptic_local_model.sim_server import chipmunk as cp
 from haptic_local_model.sim_server.tool import TOOL_LINKAGE, tool_state
+from haptic_local_model.sim_server.train import move_train, no_train
 
 DRIVE_REST, DRIVE_PROXY, DRIVE_DEVICE = 0, 1, 2  # no fresh target / follow the proxy / FOH
 #: bodies a god-object pushes per step: the shapes of a step's impulses, each a body or a
@@ -60,13 +61,14 @@ KINEMATIC_DTYPE = np.dtype(
 )  # fmt: skip
 
 
-def drive_work() -> tuple[np.ndarray, ...]:
+def drive_work(train: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """Scratch for step_world: frame positions, frame angles, Jacobian, D, G, q, qd, tau,
-    the acceleration asked of the tool, a 3-vector."""
+    the acceleration asked of the tool, a 3-vector; and the scene's train
+    (sim_server/train.py SIM_TRAIN_DTYPE[1], a disabled one if none)."""
     return (
         np.zeros((MAX_DOF, 2)), np.zeros(MAX_DOF), np.zeros((3, MAX_DOF)),
         np.zeros((MAX_DOF, MAX_DOF)), np.zeros(MAX_DOF), np.zeros(MAX_DOF), np.zeros(MAX_DOF),
-        np.zeros(MAX_DOF), np.zeros(MAX_DOF), np.zeros(3),
+        np.zeros(MAX_DOF), np.zeros(MAX_DOF), np.zeros(3), no_train() if train is None else train,
     )  # fmt: skip
 
 
@@ -100,6 +102,7 @@ def step_world(tool, target, chain, kinematic, sim_time, period, substeps, work)
         now = sim_time + k * h
         for i in range(kinematic.shape[0]):
             _move_kinematic(kinematic[i], now + h, h)
+        move_train(work[10], h)
         _push_touched(tg)
         if t.kind == TOOL_LINKAGE:
             _drive_linkage(tool, tg, chain, work, k * h)

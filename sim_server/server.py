@@ -23,6 +23,7 @@ from haptic_local_model.shared.net.config import NetworkConfig
 from haptic_local_model.shared.net.transport import keys, newest_payload, open_session
 from haptic_local_model.shared.protocol.codes import Method
 from haptic_local_model.shared.protocol.proxy import ProxyState, ShapeImpulses, decode_proxy
+from haptic_local_model.shared.protocol.static import STATIC_PERIOD_S, encode_static
 from haptic_local_model.shared.protocol.update import MessageError, stamp_publication
 from haptic_local_model.shared.timing import SampleWindow, wait_until
 from haptic_local_model.sim_server.pacing import PhaseLock
@@ -128,7 +129,8 @@ class SimServer:
         return ToolTarget(
             q=p.q, qd=p.qd, device_pose=p.device_pose, device_twist=p.device_twist,
             coupled_to_device=p.method == Method.VIRTUAL_COUPLING_FOH, fresh=fresh,
-            impulses=impulses,
+            impulses=impulses, train=p.train,
+            train_age_s=max(0.0, (time.time_ns() - p.publish_time_ns) / 1e9),
         )  # fmt: skip
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
@@ -140,6 +142,10 @@ class SimServer:
         )
         # room for the proxy states of a stalled step or two: each carries impulses
         sub = session.declare_subscriber(k.proxy, zenoh.handlers.RingChannel(PROXY_RING))
+        # a train's tables, latched: re-published every STATIC_PERIOD_S for late joiners
+        static = session.declare_publisher(k.static) if self.scene.cars else None
+        static_bytes = encode_static(self.scene) if self.scene.cars else b""
+        static_due = 0
         period_ns = round(1e9 / self.scene.sim_rate_hz)
         # the first step and local model load the kernels (about a second on a busy machine):
         # do it before saying ready, so a ready sim publishes within one period
@@ -179,6 +185,9 @@ class SimServer:
                     publish_ns += self.clock_jump.offset_ns((t0 - start) / 1e9)
                 stamp_publication(raw_update, publish_ns, lead_s)
                 pub.put(bytes(raw_update))
+                if static is not None and put_ns >= static_due:
+                    static.put(static_bytes)
+                    static_due = put_ns + int(STATIC_PERIOD_S * 1e9)
                 self.check.published(seq, self.world.tool_pose, publish_ns)
                 self.phase.published(seq, step_start, put_ns)
                 self.step_ms.add((time.perf_counter_ns() - t0) / 1e6)

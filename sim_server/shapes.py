@@ -48,10 +48,15 @@ class LocalShapes:
         tool_shapes: list[pymunk.Shape],
         margin_m: float,
         membranes: list[Membrane] | None = None,
+        cars: dict[pymunk.Shape, int] | None = None,
     ) -> None:
         self._entries = {
             s: _Entry(_body(s), _core_row(s, key, mat)) for s, (key, mat) in shapes.items()
         }
+        for shape, k in (cars or {}).items():  # posed by the haptic side's train
+            row = self._entries[shape].row
+            row["motion"] = int(Motion.TRACK)
+            row["owner"] = k
         self._tool = tool_shapes
         self._membranes = membranes or []
         self.margin_m = margin_m

@@ -27,7 +27,7 @@ from haptic_local_model.shared.kinematics import (
     point_on_link,
 )
 from haptic_local_model.shared.protocol.layout import MAX_CONTACTS, MAX_RESISTED, update_size
-from haptic_local_model.shared.protocol.proxy import ShapeImpulses
+from haptic_local_model.shared.protocol.proxy import ShapeImpulses, TrainState
 from haptic_local_model.shared.protocol.update import LocalModelUpdate, update_from_record
 from haptic_local_model.shared.shapes import MAX_SHAPES
 from haptic_local_model.shared.tool_chain import tool_chain
@@ -53,13 +53,14 @@ from haptic_local_model.sim_server.local_model import (
 from haptic_local_model.sim_server.membrane import Membrane
 from haptic_local_model.sim_server.shapes import LocalShapes
 from haptic_local_model.sim_server.tool import TOOL_BODY, TOOL_DTYPE, TOOL_LINKAGE, tool_state
+from haptic_local_model.sim_server.train import SimTrain
 
 #: the most haptic time of impulses a step keeps for the next (in steps): enough to even out
 #: 4 and 5 proxy states between two steps, while a stall's backlog is let out at once
 KEPT_SPAN_STEPS = 0.5
 #: The largest update (all sections, every contact and shape): the encoder's buffer
 MAX_UPDATE_BYTES = update_size(
-    MAX_DOF, MAX_RESISTED, MAX_CONTACTS, 0x3F, n_shapes=MAX_SHAPES, n_chains=MAX_CHAINS
+    MAX_DOF, MAX_RESISTED, MAX_CONTACTS, 0x7F, n_shapes=MAX_SHAPES, n_chains=MAX_CHAINS
 )
 
 
@@ -75,6 +76,9 @@ class ToolTarget:
     fresh: bool  # False: the haptic side is silent; hold the tool
     # god_object: the impulses on the shapes the proxy touched since the previous step
     impulses: ShapeImpulses = field(default_factory=ShapeImpulses.none)
+    # the haptic side's train (a scene with one) and its age when the step begins (s)
+    train: TrainState | None = None
+    train_age_s: float = 0.0
 
 
 class SimWorld:
@@ -109,12 +113,14 @@ class SimWorld:
             mem.every = max(1, round(scene.sim_rate_hz / string.publish_hz))
             self.membranes.append(mem)
             first_key += string.nodes - 1
+        # the train's cars (kinematic; their keys after the strings' segments)
+        self.train = SimTrain(scene, self.space, self._register_car) if scene.cars else None
         self._setup_tool_chain()
         self.space.step(0.0)  # pymunk's checks of the bodies added (a zero step moves nothing)
         self.tool = self._tool_record()
         self._target = np.zeros(1, TARGET_DTYPE)
         self._kinematic_rec = _kinematic_records(self._kinematic)
-        self._drive_work = drive_work()
+        self._drive_work = drive_work(self.train.record if self.train else None)
         self._local = LocalModelKernel(self)
         self._encoded = np.zeros(MAX_UPDATE_BYTES, np.uint8)
         # a god_object tool is rendered against the shapes near it (DESIGN-WAVE2 C2)
@@ -124,6 +130,7 @@ class SimWorld:
                 [s for s, _ in self.tool_shapes],
                 scene.tool.neighbourhood_margin_m,
                 self.membranes,
+                self.train.owner if self.train else None,
             )
             if scene.rendering.method == "god_object"
             else None
@@ -143,6 +150,12 @@ class SimWorld:
     def _register(self, shape: pymunk.Shape, material: str) -> None:
         self.shape_materials[shape] = self.scene.materials[material]
         self.shape_keys[shape] = len(self.shape_keys)
+
+    def _register_car(self, shape: pymunk.Shape, material: str) -> None:
+        """A car's shape: its key after the strings' segments (which take keys of their own)."""
+        self.shape_materials[shape] = self.scene.materials[material]
+        strings = sum(s.nodes - 1 for s in self.scene.deformables)
+        self.shape_keys[shape] = len(self.shape_keys) + strings
 
     def _add_body(self, spec: BodySpec) -> None:
         is_tool = self.scene.tool.kind == "body" and self.scene.tool.name == spec.name
@@ -329,6 +342,8 @@ class SimWorld:
         self._proxy = None
         if self.local_shapes is not None:  # delivered to the hand: applied, fresh or not
             self._touched(self._deliver(target))
+        if self.train is not None and target is not None and target.fresh:
+            self.train.follow(target.train, target.train_age_s)
         if target is None or not target.fresh:
             tg["mode"] = DRIVE_REST
         else:
@@ -405,6 +420,12 @@ class SimWorld:
         if self.local_shapes is not None:  # the god-object needs shapes, not contact points
             lm.record[0]["n_contacts"] = 0
             self.local_shapes.fill(self.space, lm.record[0], self._proxy)
+        if self.train is not None:
+            rec = lm.record[0]
+            rec["has_avars"] = 1
+            rec["avar_static_id"] = self.train.static_id
+            rec["avar_cars"] = self.train.n_cars
+            rec["avar_s"], rec["avar_sd"] = self.train.state
         n = encode_stamped(
             lm.record, self._encoded, epoch, seq, self.time, publish_time_ns, state_lead_s
         )

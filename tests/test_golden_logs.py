@@ -82,6 +82,8 @@ TICK_FIELDS_SINCE_0_2 = {
     *("n_shapes", "god_env_key", "god_env_point", "god_env_force"),  # 0.5: the god-object
     "god_blend",  # 0.6: its two-proxy blend
     "god_env_arm",  # 0.7: the arms of its pushes (impulses, DESIGN-WAVE2 C4)
+    *("avar_cars", "avar_static_id", "avar_s", "avar_sd", "avar_force"),  # 0.8: a train
+    *("avar_energy", "avar_work", "avar_events"),
 }
 
 GOLDEN_07 = Path(__file__).parent / "golden" / "logs-0.7"

@@ -56,6 +56,7 @@ EXAMPLES = {
     "engine": 500,
     "shapes": 1000,
     "chains": 1000,
+    "avars": 500,
 }
 assert sum(EXAMPLES.values()) >= 10_000  # issue 8
 
@@ -87,6 +88,7 @@ VERSION = 3
 SHAPE_INTS, SHAPE_FLOATS = 6, 25  # docs/protocol.md, SHAPES trailer (version 3, flag 16)
 MAX_SHAPES, MAX_VERTICES = 64, 8
 MAX_CHAINS, MAX_PORTS = 4, 2  # docs/protocol.md, CHAINS trailer (version 3, flag 32)
+AVAR_WORDS = 4  # docs/protocol.md, AVARS trailer (version 3, flag 64)
 
 
 def chains_words(d: int, c: int) -> int:
@@ -121,6 +123,9 @@ def layout(raw: bytes) -> tuple[int, int, int, int, dict[str, tuple[int, int]]]:
         c = struct.unpack_from("<q", raw, offset)[0]
         groups["chains"] = (offset, c)
         offset += 8 * chains_words(d, c) if 1 <= c <= MAX_CHAINS else len(raw)
+    if flags & 64 and len(raw) >= offset + 8 * AVAR_WORDS:
+        groups["avars"] = (offset, AVAR_WORDS)
+        offset += 8 * AVAR_WORDS
     if flags & 16 and len(raw) >= offset + 8:
         groups["shapes"] = (offset, struct.unpack_from("<q", raw, offset)[0])
     return d, n, j, flags, groups
@@ -141,8 +146,9 @@ def strictly_convex_ccw(v: np.ndarray) -> bool:
     return True
 
 
-def reference_shapes_accept(raw: bytes, at: int) -> bool:
-    """The SHAPES trailer at byte `at` (the rest of the message), from docs/protocol.md."""
+def reference_shapes_accept(raw: bytes, at: int, cars: int) -> bool:
+    """The SHAPES trailer at byte `at` (the rest of the message), from docs/protocol.md, in
+    an update whose AVARS trailer names `cars` cars (0: none)."""
     if len(raw) < at + 8:
         return False
     s = struct.unpack_from("<q", raw, at)[0]
@@ -154,11 +160,13 @@ def reference_shapes_accept(raw: bytes, at: int) -> bool:
         return False
     fl = fl.reshape(s, SHAPE_FLOATS)
     key, owner, kind, nv, generation, motion = ints.T
-    if len(set(key.tolist())) != s or (key < 0).any() or (owner != -1).any():
+    if len(set(key.tolist())) != s or (key < 0).any():
         return False
     if (generation < 0).any():
         return False
-    if not np.isin(motion, (0, 1, 2)).all():
+    world = (owner == -1) & np.isin(motion, (0, 1, 2))
+    on_car = (owner >= 0) & (owner < cars) & (motion == 3)
+    if not (world | on_car).all():
         return False
     for k in range(s):
         verts, rho = fl[k, :16].reshape(8, 2), fl[k, 16]
@@ -212,14 +220,27 @@ def reference_chains_accept(raw: bytes, at: int, d: int, op_link: int) -> bool:
     return True
 
 
+def reference_avars_accept(raw: bytes, at: int) -> int:
+    """The AVARS trailer at byte `at`: its car count if it is valid, else 0."""
+    static_id, cars, s, sd = struct.unpack_from("<qqdd", raw, at)
+    if static_id < 0 or not 1 <= cars <= 8 or not (math.isfinite(s) and math.isfinite(sd)):
+        return 0
+    if abs(s) > LIM.max_abs_position_m or abs(sd) > LIM.max_abs_velocity:
+        return 0
+    return cars
+
+
 def reference_trailers_accept(raw: bytes, body_end: int, flags: int, d: int) -> tuple[bool, int]:
-    """Sizes of the CHAINS and SHAPES trailers: (fits, byte offset of the SHAPES trailer)."""
+    """Sizes of the CHAINS, AVARS and SHAPES trailers: (fits, byte offset of the SHAPES
+    trailer)."""
     end = body_end
     if flags & 32:
         c = trailer_count(raw, end, MAX_CHAINS)
         if c is None:
             return False, end
         end += 8 * chains_words(d, c)
+    if flags & 64:
+        end += 8 * AVAR_WORDS
     if flags & 16:
         s = trailer_count(raw, end, MAX_SHAPES)
         if s is None:
@@ -251,7 +272,7 @@ def reference_accepts(raw: bytes) -> bool:
     n_int = d + 2 * n
     n_float = sum(c for _, c in groups)
     body_end = HEADER.size + 8 * (n_int + n_float)
-    if flags & 48 and version < 3:
+    if flags & 112 and version < 3:
         return False
     fits, shapes_at = reference_trailers_accept(raw, body_end, flags, d)
     if not fits:
@@ -302,7 +323,12 @@ def reference_accepts(raw: bytes) -> bool:
     k_t = c[:, 12] if version >= 2 else c[:, 10]  # version 1: K_t = K_c
     if flags & 32 and not reference_chains_accept(raw, body_end, d, op_link):
         return False
-    if flags & 16 and not reference_shapes_accept(raw, shapes_at):
+    cars = 0
+    if flags & 64:
+        cars = reference_avars_accept(raw, shapes_at - 8 * AVAR_WORDS)
+        if not cars:
+            return False
+    if flags & 16 and not reference_shapes_accept(raw, shapes_at, cars):
         return False
     return not (
         ((k_t < 0) | (k_t > LIM.max_stiffness_n_per_m)).any()
@@ -367,7 +393,10 @@ def random_update(
     floats = np.concatenate([g[name] for name, _ in groups])
     body = header + ints.astype("<i8").tobytes() + floats.astype("<f8").tobytes()
     body += random_chains(rng, d, op_link) if flags & 32 else b""
-    return body + (random_shapes(rng, n_shapes) if flags & 16 else b"")
+    cars = int(rng.integers(1, 9)) if flags & 64 else 0
+    if cars:
+        body += struct.pack("<qqdd", int(rng.integers(0, 2**62)), cars, *rng.uniform(-1, 1, 2))
+    return body + (random_shapes(rng, n_shapes, cars) if flags & 16 else b"")
 
 
 def random_chains(rng: np.random.Generator, d: int, op_link: int) -> bytes:
@@ -390,9 +419,10 @@ def random_chains(rng: np.random.Generator, d: int, op_link: int) -> bytes:
     return head + bases.astype("<f8").tobytes()
 
 
-def random_shapes(rng: np.random.Generator, s: int) -> bytes:
+def random_shapes(rng: np.random.Generator, s: int, cars: int = 0) -> bytes:
     """A valid SHAPES trailer of s shapes: circles, segments and convex polygons (points on
-    a circle in counter-clockwise order), random poses, twists and friction."""
+    a circle in counter-clockwise order), random poses, twists and friction; with `cars`,
+    some on a car of the train (motion 3)."""
     ints = np.zeros((s, SHAPE_INTS), np.int64)
     fl = np.zeros((s, SHAPE_FLOATS))
     keys = rng.choice(2**40, s, replace=False)
@@ -405,7 +435,10 @@ def random_shapes(rng: np.random.Generator, s: int) -> bytes:
         else:
             verts = rng.uniform(-0.05, 0.05, (nv, 2))
         motion = int(rng.integers(0, 3 if kind == 1 else 2))  # nodal: segments only
-        ints[k] = (keys[k], -1, kind, nv, rng.integers(0, 5), motion)
+        owner = -1
+        if cars and rng.uniform() < 0.5:
+            owner, motion = int(rng.integers(0, cars)), 3
+        ints[k] = (keys[k], owner, kind, nv, rng.integers(0, 5), motion)
         fl[k, : 2 * nv] = verts.ravel()
         fl[k, 16] = rng.uniform(0.001, 0.01) if kind == 0 else rng.uniform(0.0, 0.002)
         fl[k, 17:20] = (*rng.uniform(-0.3, 0.3, 2), rng.uniform(-np.pi, np.pi))
@@ -426,7 +459,8 @@ def valid_updates(draw: Any) -> bytes:
     n = draw(st.one_of(st.integers(0, 4), st.integers(0, MAX_CONTACTS)))
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
     j = int(rng.integers(0, 4))
-    flags = int(rng.choice([0, 1, 4, 8, 9, 13, 16, 17, 29, 32, 41, 48, 61])) | (2 if j else 0)
+    flags = int(rng.choice([0, 1, 4, 8, 9, 13, 16, 17, 29, 32, 41, 48, 61, 64, 80, 112]))
+    flags |= 2 if j else 0
     s = draw(st.one_of(st.integers(1, 3), st.integers(1, MAX_SHAPES))) if flags & 16 else 0
     epoch, seq = (int(v) for v in rng.integers(1, 2**62, 2))
     return random_update(rng, d, n, j, flags, epoch, seq, s)
@@ -821,6 +855,69 @@ def test_each_broken_chain_is_rejected_and_named(raw: bytes, data: st.DataObject
     beyond limits or not finite. Rejected as `chain` (or `nonfinite`, `size` for a count that
     no longer fits), never a crash."""
     assert_rejected_as(raw, break_chains(raw, data.draw), "chain")
+
+
+@st.composite
+def updates_with_avars(draw: Any) -> bytes:
+    d = draw(st.integers(1, MAX_DOF))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    epoch, seq = (int(v) for v in rng.integers(1, 2**62, 2))
+    flags = 64 | int(rng.choice([16, 16, 48]))
+    return random_update(rng, d, int(rng.integers(0, 4)), 0, flags, epoch, seq, 4)
+
+
+AVAR_BREAKS = (
+    "static_id", "cars", "nonfinite", "s", "sd", "owner_beyond", "owner_world_track",
+    "car_not_track",
+)  # fmt: skip
+
+
+def break_avars(raw: bytes, draw: Any) -> bytes | None:
+    """One rule of the AVARS trailer, or of a shape's owner against it, broken; None if the
+    update cannot break it."""
+    _, _, _, _, groups = layout(raw)
+    at, _ = groups["avars"]
+    shapes_at, s = groups["shapes"]
+    cars = struct.unpack_from("<q", raw, at + 8)[0]
+    ints = np.frombuffer(raw, "<i8", SHAPE_INTS * s, shapes_at + 8).reshape(s, SHAPE_INTS)
+    out = bytearray(raw)
+    how = draw(st.sampled_from(AVAR_BREAKS))
+    k = draw(st.integers(0, s - 1))
+    row = shapes_at + 8 * (1 + SHAPE_INTS * k)
+    if how == "static_id":
+        struct.pack_into("<q", out, at, draw(st.sampled_from([-1, -(2**62)])))
+    elif how == "cars":
+        struct.pack_into("<q", out, at + 8, draw(st.sampled_from([0, -1, 9, 2**40])))
+    elif how == "nonfinite":
+        set_float(
+            out, at + 16 + 8 * draw(st.integers(0, 1)), draw(st.sampled_from([math.nan, math.inf]))
+        )
+    elif how == "s":
+        set_float(out, at + 16, draw(st.sampled_from([1.5, 1e9])) * LIM.max_abs_position_m)
+    elif how == "sd":
+        set_float(out, at + 24, draw(st.sampled_from([-1.5, 1e9])) * LIM.max_abs_velocity)
+    elif how == "owner_beyond":  # a car the train does not have
+        struct.pack_into("<q", out, row + 8, cars + draw(st.integers(0, 3)))
+        struct.pack_into("<q", out, row + 40, 3)
+    elif how == "owner_world_track":  # a world shape carried by the train
+        if ints[k, 5] == 2:
+            return None  # a nodal segment's pose rules come first
+        struct.pack_into("<q", out, row + 8, -1)
+        struct.pack_into("<q", out, row + 40, 3)
+    elif how == "car_not_track":  # a car's shape carried by its own twist
+        struct.pack_into("<q", out, row + 8, draw(st.integers(0, cars - 1)))
+        struct.pack_into("<q", out, row + 40, draw(st.sampled_from([0, 1])))
+    return bytes(out)
+
+
+@cases("avars")
+@given(updates_with_avars(), st.data())
+def test_each_broken_avar_is_rejected_and_named(raw: bytes, data: st.DataObject) -> None:
+    """A train's animation variable (DESIGN-WAVE2 §5, C4): a negative static id, a car count
+    out of 1..8, s or s' beyond limits or not finite, a shape on a car the train does not
+    have, a world shape carried by the train, a car's shape carried by its twist. Rejected
+    as `avar` (or `nonfinite`), never a crash."""
+    assert_rejected_as(raw, break_avars(raw, data.draw), "avar")
 
 
 @cases("bit_flips")

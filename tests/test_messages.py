@@ -15,6 +15,7 @@ from haptic_local_model.shared.protocol.proxy import (
     encode_proxy,
 )
 from haptic_local_model.shared.protocol.update import (
+    AvarState,
     ChainTable,
     ContactSet,
     LocalModelUpdate,
@@ -28,6 +29,7 @@ from haptic_local_model.shared.shapes import Motion, ShapeKind, set_core, shape_
 GOLDEN = Path(__file__).parent / "golden" / "update_v3_linkage.bin"
 GOLDEN_SHAPES = Path(__file__).parent / "golden" / "update_v3_shapes.bin"
 GOLDEN_CHAINS = Path(__file__).parent / "golden" / "update_v3_chains.bin"
+GOLDEN_AVARS = Path(__file__).parent / "golden" / "update_v3_avars.bin"
 GOLDEN_V2 = Path(__file__).parent / "golden" / "update_v2_linkage.bin"  # releases 0.2-0.5
 GOLDEN_V1 = Path(__file__).parent / "golden" / "update_v1_linkage.bin"  # release 0.1
 
@@ -84,6 +86,15 @@ def sample_with_chains() -> LocalModelUpdate:
     return LocalModelUpdate(**{**fields, "shapes": sample_shapes()[:1]})
 
 
+def sample_with_avars() -> LocalModelUpdate:
+    """The sample with a train of two cars (DESIGN-WAVE2 §5): the AVARS trailer, a world
+    shape and one on car 1, posed by the train (motion 3)."""
+    shapes = sample_shapes()[1:]
+    shapes[1]["owner"], shapes[1]["motion"] = 1, int(Motion.TRACK)
+    avars = AvarState(static_id=123456789, cars=2, s=0.25, sd=-1.5)
+    return LocalModelUpdate(**{**sample_update().__dict__, "avars": avars, "shapes": shapes})
+
+
 def assert_same(a: LocalModelUpdate, b: LocalModelUpdate) -> None:
     for name in (
         "epoch",
@@ -116,6 +127,7 @@ def assert_same(a: LocalModelUpdate, b: LocalModelUpdate) -> None:
     assert (a.shapes is None) == (b.shapes is None)
     if a.shapes is not None and b.shapes is not None:
         assert a.shapes.tobytes() == b.shapes.tobytes()
+    assert a.avars == b.avars
     assert (a.chains is None) == (b.chains is None)
     if a.chains is not None and b.chains is not None:
         for name in ("parents", "first", "kind", "port", "bases"):
@@ -173,6 +185,18 @@ def test_chains_round_trip_and_golden_file() -> None:
     np.testing.assert_array_equal(m["chain_base"][1], [0.1, -0.2, 0.3])
     assert parser.parse(encode_update(sample_update())) == 0
     assert m["n_chains"] == 1 and list(m["parents"][:3]) == [-1, 0, 1] and not m["has_chains"]
+
+
+def test_avars_round_trip_and_golden_file() -> None:
+    """The AVARS trailer (DESIGN-WAVE2 §5) between CHAINS and SHAPES: every field survives,
+    a car's shape keeps its owner, and the bytes are pinned (the compiled encoder's too)."""
+    raw = encode_update(sample_with_avars())
+    assert raw == GOLDEN_AVARS.read_bytes()
+    back = decode_update(raw)
+    assert_same(back, sample_with_avars())
+    assert back.shapes is not None and list(back.shapes["owner"]) == [-1, 1]
+    assert encode_update(back) == raw
+    assert _encoded_from_record(raw) == raw
 
 
 def test_version_2_still_parses() -> None:
@@ -244,7 +268,7 @@ def test_proxy_round_trip_and_rejection() -> None:
     np.testing.assert_array_equal(back.q, [0.1, 0.2, 0.3])
     np.testing.assert_array_equal(back.device_twist, np.ones(3))
     with pytest.raises(MessageError, match="nonfinite"):  # the twist's last, before n, span
-        decode_proxy(_corrupt_float(raw, float("nan"), 3))
+        decode_proxy(_corrupt_float(raw, float("nan"), 4))  # and the train count
     assert back.impulses.count == 0  # not a god-object: no impulses on shapes
     r["dt"] = 1e-3
     r["god_env_key"] = [7, -1]
@@ -259,21 +283,37 @@ def test_proxy_round_trip_and_rejection() -> None:
     raw_god = encode_proxy(row, 4, publish_time_ns=11)
     assert god.impulses.span_s == 1e-3  # the tick's dt
     bad = bytearray(raw_god)
-    struct.pack_into("<q", bad, len(bad) - 40, -5)  # the key
+    struct.pack_into("<q", bad, len(bad) - 48, -5)  # the key (before the train count)
     with pytest.raises(MessageError, match="env"):
         decode_proxy(bytes(bad))
     bad = bytearray(raw_god)
-    struct.pack_into("<q", bad, len(bad) - 56, MAX_IMPULSES + 1)  # the count
+    struct.pack_into("<q", bad, len(bad) - 64, MAX_IMPULSES + 1)  # the count
     with pytest.raises(MessageError, match="env"):
         decode_proxy(bytes(bad))
     bad = bytearray(raw_god)
-    struct.pack_into("<d", bad, len(bad) - 48, -1e-3)  # the span
+    struct.pack_into("<d", bad, len(bad) - 56, -1e-3)  # the span
     with pytest.raises(MessageError, match="env"):
         decode_proxy(bytes(bad))
     with pytest.raises(MessageError, match="magnitude"):  # an impulse of 1e9 N s on a shape
-        decode_proxy(_corrupt_float(raw_god, 1e9, 1))
+        decode_proxy(_corrupt_float(raw_god, 1e9, 2))
     with pytest.raises(MessageError, match="size"):
         decode_proxy(raw_god[:-8])
+    # version 6: the train the haptic side integrates, which the sim poses its cars by
+    assert god.train is None
+    r["avar_cars"], r["avar_static_id"], r["avar_s"], r["avar_sd"] = 3, 77, 0.25, -1.5
+    train = decode_proxy(encode_proxy(row, 4, publish_time_ns=11)).train
+    assert train is not None and (train.static_id, train.s, train.sd) == (77, 0.25, -1.5)
+    raw_train = encode_proxy(row, 4, publish_time_ns=11)
+    with pytest.raises(MessageError, match="nonfinite"):
+        decode_proxy(_corrupt_float(raw_train, float("nan"), 1))
+    with pytest.raises(MessageError, match="train"):
+        decode_proxy(_corrupt_float(raw_train, 1e9, 2))
+    bad = bytearray(raw_train)
+    struct.pack_into("<q", bad, len(bad) - 32, 2)  # two trains
+    with pytest.raises(MessageError, match="train"):
+        decode_proxy(bytes(bad))
+    with pytest.raises(MessageError, match="size"):
+        decode_proxy(raw_train[:-8])
 
 
 def cross2(a: np.ndarray, b: np.ndarray) -> np.ndarray:

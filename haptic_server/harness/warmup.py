@@ -29,7 +29,7 @@ from haptic_local_model.shared.config import load_scene, load_user
 #: (scene, user, seconds) run with the ideal device: every rendering stage and the sim
 SCENE_RUNS = (
     ("free_box", "waypoints", 1.0), ("testbed", "swing", 1.0), ("linkage_distal", "push_04n", 1.0),
-    ("god_rotating_box", "press_down", 1.0),
+    ("god_rotating_box", "press_down", 1.0), ("coaster_loop", "push_car", 1.0),
 )  # fmt: skip
 
 

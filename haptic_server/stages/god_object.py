@@ -44,6 +44,7 @@ import math
 import numpy as np
 from numba import njit
 
+from haptic_local_model.shared.avar import MAX_CARS
 from haptic_local_model.shared.shapes import (
     MAX_SHAPES,
     SHAPE_DTYPE,
@@ -169,6 +170,11 @@ GOD_DATA_DTYPE = np.dtype(
         ("intervals", np.float64, (INTERVALS,)),  # the last update intervals, s
         ("clock", CLOCK_DTYPE),  # the install's (filled by the caller)
         ("n_intervals", np.int64),
+        # the cars of a train (Motion.TRACK shapes, by owner): their poses at this tick's
+        # start and the twist that carries them to the train's predicted poses at its end
+        # (haptic_server/stages/train.py writes them before the god-object's step)
+        ("car_pose", np.float64, (MAX_CARS, 3)),
+        ("car_twist", np.float64, (MAX_CARS, 3)),
     ]
 )
 
@@ -264,10 +270,21 @@ def place_shapes(m, d, shapes, tau, ahead_s):
         if s.motion == Motion.NODAL:
             place_nodes(d, k, d.node_elapsed_s + ahead_s)
             continue
-        carry_pose(s.pose, s.twist, s.motion, tau + ahead_s, d.poses[k])
+        carry_shape(d, s, tau, ahead_s, d.poses[k])
         if h != 0.0 or g != 0.0:
             for c in range(3):
                 d.poses[k, c] += h * d.pose_offset[k, c] + g * d.pose_offset_rate[k, c]
+
+
+@njit(cache=True, inline="always")
+def carry_shape(d, s, tau, ahead_s, out):
+    """Shape s's pose ahead_s into the tick that starts tau past its update: its twist map,
+    or for a car of a train (TRACK) its pose on the train, from this tick's start whatever
+    the update's age (the haptic side integrates the train)."""
+    if s.motion == Motion.TRACK:
+        carry_pose(d.car_pose[s.owner], d.car_twist[s.owner], Motion.BALLISTIC, ahead_s, out)
+    else:
+        carry_pose(s.pose, s.twist, s.motion, tau + ahead_s, out)
 
 
 @njit(cache=True)
@@ -304,6 +321,9 @@ def _point_speed(d, s, k):
     node, as a point of a segment moves by the blend of its nodes' velocities)."""
     if s.motion == Motion.NODAL:
         return d.node_speed[k]
+    if s.motion == Motion.TRACK:
+        t = d.car_twist[s.owner]
+        return math.hypot(t[0], t[1]) + abs(t[2]) * s.bound
     return math.hypot(s.twist[0], s.twist[1]) + abs(s.twist[2]) * s.bound
 
 
@@ -349,7 +369,7 @@ def near_shapes(m, d, shapes, n_shapes, x0, x1, tau, dt):
         if s.motion == Motion.NODAL:
             place_nodes(d, k, d.node_elapsed_s)
         else:
-            carry_pose(s.pose, s.twist, s.motion, tau, d.poses[k])
+            carry_shape(d, s, tau, 0.0, d.poses[k])
         dist = math.hypot(d.poses[k, 0] - p[0], d.poses[k, 1] - p[1])
         limit = _bound(d, s, k) + s.rounding + r + reach + speed * dt + blend_reach + NEAR_SLACK_M
         if dist > limit:
@@ -790,6 +810,11 @@ def install_shapes_step(m, d, old, n_old, new, n_new, clock):
         if s.motion == Motion.NODAL:
             hold_nodes(m, d, old, n_old, s, k, sample)
             continue
+        for c in range(6):
+            d.install_scratch[k, c] = 0.0
+        if s.motion == Motion.TRACK:  # posed by the train, which no install moves
+            carry_shape(d, s, new_tau, 0.0, d.poses[k])
+            continue
         carry_pose(s.pose, s.twist, s.motion, new_tau, d.poses[k])
         carry_rate(s.twist, s.motion, new_tau, d.new_rate)
         found = -1
@@ -797,8 +822,6 @@ def install_shapes_step(m, d, old, n_old, new, n_new, clock):
             if old[j].key == s.key:
                 found = j
                 break
-        for c in range(6):
-            d.install_scratch[k, c] = 0.0
         if found >= 0 and m.blend_s > 0.0:
             o = old[found]
             carry_pose(o.pose, o.twist, o.motion, old_tau, d.old_pose)
@@ -988,7 +1011,7 @@ def _touches_now(m, d, s, tau):
     if s.motion == Motion.NODAL:
         phi, _, _ = signed_distance(s, s.pose, d.proxy[0], d.proxy[1], m.radius)
     else:
-        carry_pose(s.pose, s.twist, s.motion, tau, d.old_pose)
+        carry_shape(d, s, tau, 0.0, d.old_pose)
         phi, _, _ = signed_distance(s, d.old_pose, d.proxy[0], d.proxy[1], m.radius)
     return phi < TOUCH_M
 

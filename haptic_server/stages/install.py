@@ -67,6 +67,11 @@ def accept_update(buf, nbytes, age_s, model, data, install):
         return Reason.SEQUENCE
     if not new_epoch and ins.ready == 1 and u.dof != model[0].slots[0].dof:
         return Reason.DOF_CHANGE
+    tm = model[0].train
+    if u.has_avars != tm.enabled or (
+        tm.enabled == 1 and (u.avar_static_id != tm.static_id or u.avar_cars != tm.train.n_cars)
+    ):
+        return Reason.STATIC  # another train, or a train where the scene has none
     if env.enabled == 1:
         live = ins.ready == 1 and not new_epoch and not resync and model[0].slots[0].valid == 1
         code = check_plausible(u, model[0].slots[0], live, env)

@@ -25,6 +25,7 @@ from haptic_local_model.haptic_server.stages.safety import (
     runaway_guard,
     safety_and_limits,
 )
+from haptic_local_model.haptic_server.stages.train import fill_train_row, train_begin, train_end
 from haptic_local_model.shared.protocol.codes import Method
 
 
@@ -59,17 +60,23 @@ def rendering_tick(model, data):
 
 @njit(cache=True)
 def finger_tick(model, data):
-    """The god_object method's tick (seed 003 §3): the god-object against the local shapes,
-    then the proxy's frames and D^ (the guard reads them), the guard, the limits, the row."""
+    """The god_object method's tick (seed 003 §3): the god-object against the local shapes
+    (a train's cars among them, moved by its animation variable around the step: seed 003
+    §4), then the proxy's frames and D^ (the guard reads them), the guard, the limits, the
+    row."""
     m = model[0]
     d = data[0]
     blend_weights(m, d)
+    train_begin(m.train, d.train, d.god, d.god_blend, d.dt)
     finger(m, d)
+    slot = m.slots[0]
+    train_end(m.train, d.train, m.god, d.god_blend, slot.shapes, slot.n_shapes, d.dt)
     proxy_kinematics(m, d)
     blend_model(m, d)
     runaway_guard(m, d)
     safety_and_limits(m, d)
     fill_row(m, d)
+    fill_train_row(m.train, d.train, d.row)
 
 
 @njit(cache=True)

@@ -5,7 +5,8 @@ handshake: the listener (the haptic server) holds the `user:password` lines of t
 accepts, a connecting peer (the sim) presents its own user and password. Access control on the
 listener then allows, by user name and key expression, only what the protocol needs and denies
 the rest: a sim user may publish local models, pointer inputs (`haptic-pointer` connects as
-the sim does) and follow the proxy, an observer may only follow the proxy.
+the sim does) and a scene's static description, and follow the proxy; an observer may only
+follow the proxy.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ def access_control(namespace: str, sim_users: tuple[str, ...], observers: tuple[
     """
     update, proxy = f"{namespace}/local_model", f"{namespace}/proxy"
     pointer = f"{namespace}/input/pointer"
+    static = f"{namespace}/static"
     rules = [
         {"id": "put_update_in", "messages": ["put"], "flows": ["ingress"],
          "permission": "allow", "key_exprs": [update]},
@@ -47,12 +49,17 @@ def access_control(namespace: str, sim_users: tuple[str, ...], observers: tuple[
          "permission": "allow", "key_exprs": [pointer]},
         {"id": "announce_pointer_sub", "messages": ["declare_subscriber"], "flows": ["egress"],
          "permission": "allow", "key_exprs": [pointer]},
+        {"id": "put_static_in", "messages": ["put"], "flows": ["ingress"],
+         "permission": "allow", "key_exprs": [static]},
+        {"id": "announce_static_sub", "messages": ["declare_subscriber"], "flows": ["egress"],
+         "permission": "allow", "key_exprs": [static]},
     ]  # fmt: skip
     subjects = [{"id": "sims", "usernames": list(sim_users)}]
     policies = [
         {"id": "sims_drive", "subjects": ["sims"],
          "rules": ["put_update_in", "announce_update_sub", "follow_proxy_in", "put_proxy_out",
-                   "put_pointer_in", "announce_pointer_sub"]},
+                   "put_pointer_in", "announce_pointer_sub", "put_static_in",
+                   "announce_static_sub"]},
     ]  # fmt: skip
     if observers:
         subjects.append({"id": "observers", "usernames": list(observers)})

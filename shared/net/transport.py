@@ -25,6 +25,7 @@ class Keys:
     update: str
     proxy: str
     pointer: str
+    static: str  # latched description of the scene's train (shared/protocol/static.py)
 
 
 def keys(namespace: str) -> Keys:
@@ -32,6 +33,7 @@ def keys(namespace: str) -> Keys:
         update=f"{namespace}/local_model",
         proxy=f"{namespace}/proxy",
         pointer=f"{namespace}/input/pointer",
+        static=f"{namespace}/static",
     )
 
 

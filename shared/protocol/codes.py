@@ -39,9 +39,10 @@ class Fault(IntEnum):
 class Reason(IntEnum):
     """An update's verdict: 0 installed, else why it was rejected (stable: logs keep them).
 
-    1-15 and 25 come from the validating parser, 16-18 from the order check at install, 19-21 from
-    the time check at install (the receiver's clock against the update's times), 22-24 from
-    the plausibility check against the scene (haptic_server/stages/plausible.py)."""
+    1-15 and 25-27 come from the validating parser, 16-18 from the order check at install,
+    19-21 from the time check at install (the receiver's clock against the update's times),
+    22-24 and 28 from the plausibility check against the scene
+    (haptic_server/stages/plausible.py)."""
 
     OK = 0
     SHORT = 1
@@ -74,6 +75,10 @@ class Reason(IntEnum):
     CHAIN = 26  # the chains break a rule: a parent not before its joint or in another chain,
     # chains out of order, empty or too many, a kind or port out of range, the held link
     # outside chain 0, a base beyond limits
+    AVAR = 27  # the AVARS trailer breaks a rule: a negative static id, a car count out of
+    # range, s or s' beyond limits; or a shape on a car (owner >= 0) without it, beyond its
+    # cars, or not carried by the train (motion 3), or a world shape carried by it
+    STATIC = 28  # the update's track (its static id) is not the one this scene rides
 
     @property
     def tag(self) -> str:
@@ -100,3 +105,4 @@ class Flag(IntFlag):
     VELOCITY_TORQUE = 8
     SHAPES = 16  # version 3: the local shapes trail the body (layout.SHAPE_FIELDS)
     CHAINS = 32  # version 3: the tree and chains of the configuration (layout.CHAIN_FIELDS)
+    AVARS = 64  # version 3: the animation variable of a train of cars (layout.AVAR_FIELDS)

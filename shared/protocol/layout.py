@@ -43,7 +43,7 @@ HEADER = (
         "H",
         "",
         "sections present (Flag: 1 gravity, 2 resisted, 4 tool touching, 8 velocity torque,"
-        " 16 shapes, 32 chains)",
+        " 16 shapes, 32 chains, 64 avars)",
     ),
     HeaderField("epoch", "Q", "", "changes when the sim restarts or reloads"),
     HeaderField("seq", "Q", "", "update number within the epoch"),
@@ -168,7 +168,13 @@ class ShapeField:
 #: shapes, <= MAX_SHAPES), then s rows of SHAPE_INTS int64, then s rows of SHAPE_FLOATS float64.
 SHAPE_INT_FIELDS = (
     ShapeField("key", 1, "", ">= 0, unique in the update", "identity, stable across updates"),
-    ShapeField("owner", 1, "", "-1", "-1: the world (shapes on links come with the tools)"),
+    ShapeField(
+        "owner",
+        1,
+        "",
+        "-1; 0..cars-1 with motion 3 and AVARS",
+        "-1: the world; k: car k of the train (shapes on tool links come with the tools)",
+    ),
     ShapeField("kind", 1, "", "0, 1, 2", "0 circle, 1 segment, 2 convex polygon"),
     ShapeField("n_vert", 1, "", "1; 2; 3..8", "vertices of the core (by kind)"),
     ShapeField("generation", 1, "", ">= 0", "topology generation (deformables)"),
@@ -176,9 +182,9 @@ SHAPE_INT_FIELDS = (
         "motion",
         1,
         "",
-        "0, 1, 2",
+        "0..3; 3 iff owner >= 0",
         "pose carried by 0 ballistic, 1 screw motion; 2 nodal: a segment's nodes, held by the "
-        "haptic side (pose angle and twist 0)",
+        "haptic side (pose angle and twist 0); 3 track: posed by the haptic side's train",
     ),
 )
 SHAPE_FLOAT_FIELDS = (
@@ -234,6 +240,18 @@ CHAIN_INT_FIELDS = (
 CHAIN_INTS = len(CHAIN_INT_FIELDS)
 
 
+#: The AVARS trailer (flag 64, version 3; DESIGN-WAVE2 §5), after a CHAINS trailer and
+#: before a SHAPES trailer: the state of the scene's one animation variable, the arc length s
+#: of the lead car of its train (used only to re-initialise: the haptic side integrates it).
+AVAR_FIELDS = (
+    ShapeField("static_id", 1, "", ">= 0", "the track and train (the `<ns>/static` message's)"),
+    ShapeField("cars", 1, "", "1..8", "cars of the train (owners of the shapes on cars)"),
+    ShapeField("s", 1, "m", "|s| <= max_abs_position_m", "the lead car's arc length"),
+    ShapeField("sd", 1, "m/s", "|s'| <= max_abs_velocity", "its rate"),
+)
+AVAR_WORDS = len(AVAR_FIELDS)
+
+
 def chains_words(d: int, n_chains: int) -> int:
     """8-byte words of a CHAINS trailer of n_chains chains over d joints."""
     return 1 + d + CHAIN_INTS * n_chains + 3 * (n_chains - 1)
@@ -283,10 +301,11 @@ def update_size(
     n_chains: int = 1,
 ) -> int:
     """Bytes of an update with these counts and flags (and shapes, with Flag.SHAPES; chains,
-    with Flag.CHAINS)."""
+    with Flag.CHAINS; the avars' fixed trailer with Flag.AVARS)."""
     n_int, n_float = body_counts(d, j, n, flags, version)
     trailer = shapes_words(n_shapes) if flags & Flag.SHAPES else 0
     trailer += chains_words(d, n_chains) if flags & Flag.CHAINS else 0
+    trailer += AVAR_WORDS if flags & Flag.AVARS else 0
     return HEADER_BYTES + 8 * (n_int + n_float + trailer)
 
 
@@ -376,6 +395,12 @@ LOCAL_MODEL_DTYPE = np.dtype(
         ("chain_kind", I8, (MAX_CHAINS,)),
         ("chain_port", I8, (MAX_CHAINS,)),
         ("chain_base", F8, (MAX_CHAINS, 3)),  # chains 1..: x, y, angle (chain 0: base)
+        # a train's animation variable (Flag.AVARS): shared.avar
+        ("has_avars", I8),
+        ("avar_static_id", I8),
+        ("avar_cars", I8),
+        ("avar_s", F8),
+        ("avar_sd", F8),
         ("n_shapes", I8),  # local shapes (version 3, Flag.SHAPES; 0 otherwise)
         ("shapes", SHAPE_DTYPE, (MAX_SHAPES,)),
         *[
@@ -459,6 +484,16 @@ def markdown_tables() -> str:
     ]
     for k, cf in enumerate(CHAIN_INT_FIELDS):
         lines.append(f"| {k} | `{cf.name}` | {cf.bound} | {cf.doc} |")
+    lines += [
+        "",
+        f"AVARS trailer (flag {int(Flag.AVARS)}, version 3), after a CHAINS trailer and before"
+        f" a SHAPES trailer: {AVAR_WORDS} words, int64 then float64:",
+        "",
+        "| offset | field | unit | bound | meaning |",
+        "|---|---|---|---|---|",
+    ]
+    for k, af in enumerate(AVAR_FIELDS):
+        lines.append(f"| {k} | `{af.name}` | {af.unit or '-'} | {af.bound} | {af.doc} |")
     return "\n".join(lines) + "\n"
 
 

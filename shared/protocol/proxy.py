@@ -9,6 +9,7 @@ import math
 import struct
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -21,8 +22,9 @@ PROXY_MAGIC = b"HPXY"
 #: The proxy state's own version. Up to 2 it was the update's PROTOCOL_VERSION; 3 added the
 #: receipt -> install wait of an update, which the sim locks its phase to (sim_server/pacing.py);
 #: 4 the god-object's forces on the shapes it touches (the sim applies them to their bodies);
-#: 5 the impulses on them since the previous proxy state instead (DESIGN-WAVE2 C4).
-PROXY_VERSION = 5
+#: 5 the impulses on them since the previous proxy state instead (DESIGN-WAVE2 C4); 6 the
+#: haptic side's train state, which the sim poses its cars by (DESIGN-WAVE2 §5).
+PROXY_VERSION = 6
 # magic, version, flags, epoch, update_seq, tick, haptic_time, publish_time_ns, dof, method,
 # wait_seq, update_wait_ns, tick_period_ns
 PROXY_HEADER = struct.Struct("<4sHHQQQdqHHqqq")
@@ -36,6 +38,9 @@ MAX_SPAN_S = 1.0  # a proxy state covers at most this much haptic time
 MAX_LEVER_M = 0.1  # how far an impulse's point may move from its parts' mean to carry its moment
 MAX_IMPULSES = 16
 IMPULSE_FLOATS = 4
+#: version 6's second trailer: int64 n (0 or 1); with 1, int64 static_id (>= 0), float64 s (m)
+#: and s' (m/s) of the train the haptic side integrates
+TRAIN_WORDS = 3
 PROXY_SAFE_STATE = 1
 PROXY_VALID = 2  # the haptic side has installed a model of this epoch
 
@@ -145,6 +150,28 @@ def _grouped(
     return ShapeImpulses(unique.astype(np.int64), where, total, span_s)
 
 
+@dataclass(frozen=True)
+class TrainState:
+    """The haptic side's train (its static id, the lead car's s and s') at a tick."""
+
+    static_id: int
+    s: float
+    sd: float
+
+    def trailer(self) -> bytes:
+        return struct.pack("<qqdd", 1, self.static_id, self.s, self.sd)
+
+    @staticmethod
+    def of_row(r: Any) -> TrainState | None:
+        """A tick row's train, None when the scene has none (avar_cars == 0)."""
+        if r["avar_cars"] == 0:
+            return None
+        return TrainState(int(r["avar_static_id"]), float(r["avar_s"]), float(r["avar_sd"]))
+
+
+NO_TRAIN = struct.pack("<q", 0)
+
+
 @dataclass(frozen=True, eq=False)
 class ProxyState:
     """What the haptic server publishes for the sim: the proxy and the device (world frame)."""
@@ -165,6 +192,8 @@ class ProxyState:
     # the god-object's impulses on what it touched since the previous proxy state (none under
     # the other methods)
     impulses: ShapeImpulses = field(default_factory=ShapeImpulses.none)
+    # the train the haptic side integrates (a scene with one), None otherwise
+    train: TrainState | None = None
 
 
 def encode_proxy(
@@ -177,8 +206,8 @@ def encode_proxy(
     """The ProxyState of a tick row (TICK_DTYPE[1] or one record): proxy q, qd, the measured
     device pose and twist, the newest known update wait, and under god_object the impulses
     on the shapes touched since the previous proxy state (`impulses`, accumulated over the
-    ticks by the caller; by default this row's force times its dt); stamped now unless
-    `publish_time_ns` is given."""
+    ticks by the caller; by default this row's force times its dt), the row's train state if
+    the scene has one; stamped now unless `publish_time_ns` is given."""
     r = row[0] if row.ndim else row
     d = int(r["dof"])
     flags = (PROXY_SAFE_STATE if r["safe"] > 0.0 else 0) | PROXY_VALID  # a row is a tick run
@@ -198,7 +227,8 @@ def encode_proxy(
             r["god_env_key"][None], r["god_env_arm"][None], r["god_env_force"][None],
             np.array([r["dt"]]),
         )  # fmt: skip
-    return header + body.tobytes() + impulses.trailer()
+    train = TrainState.of_row(r)
+    return header + body.tobytes() + impulses.trailer() + (train.trailer() if train else NO_TRAIN)
 
 
 def decode_proxy(data: bytes, limits: MessageLimits = DEFAULT_LIMITS) -> ProxyState:
@@ -224,9 +254,8 @@ def decode_proxy(data: bytes, limits: MessageLimits = DEFAULT_LIMITS) -> ProxySt
     n, span = struct.unpack_from("<qd", data, body_end)
     if not 0 <= n <= MAX_IMPULSES:
         raise MessageError("env", f"{n} impulses: 0..{MAX_IMPULSES}")
-    expected = body_end + 8 * (2 + n + IMPULSE_FLOATS * n)
-    if len(data) != expected:
-        raise MessageError("size", f"{len(data)} bytes, expected {expected}")
+    train_at = body_end + 8 * (2 + n + IMPULSE_FLOATS * n)
+    train = _train(data, train_at, limits)
     v = np.frombuffer(data, "<f8", 2 * d + 6, PROXY_HEADER.size).astype(np.float64)
     env = np.frombuffer(data, "<f8", IMPULSE_FLOATS * n, body_end + 8 * (2 + n))
     env = env.astype(np.float64).reshape(n, IMPULSE_FLOATS)
@@ -251,4 +280,25 @@ def decode_proxy(data: bytes, limits: MessageLimits = DEFAULT_LIMITS) -> ProxySt
         q=v[:d], qd=v[d : 2 * d], device_pose=v[2 * d : 2 * d + 3], device_twist=v[2 * d + 3 :],
         wait=UpdateWait(wseq, wait_ns, period_ns) if wseq >= 0 else NO_WAIT,
         impulses=ShapeImpulses(env_keys, env[:, :2].copy(), env[:, 2:].copy(), span),
+        train=train,
     )  # fmt: skip
+
+
+def _train(data: bytes, at: int, limits: MessageLimits) -> TrainState | None:
+    """Version 6's train trailer at byte `at`, which ends the message."""
+    if len(data) < at + 8:
+        raise MessageError("size", f"{len(data)} bytes, expected at least {at + 8}")
+    (count,) = struct.unpack_from("<q", data, at)
+    if count not in (0, 1):
+        raise MessageError("train", f"{count} trains: 0 or 1")
+    expected = at + 8 * (1 + TRAIN_WORDS * count)
+    if len(data) != expected:
+        raise MessageError("size", f"{len(data)} bytes, expected {expected}")
+    if count == 0:
+        return None
+    static_id, s, sd = struct.unpack_from("<qdd", data, at + 8)
+    if not (math.isfinite(s) and math.isfinite(sd)):
+        raise MessageError("nonfinite", "NaN or Inf in the train's state")
+    if static_id < 0 or abs(s) > limits.max_abs_position_m or abs(sd) > limits.max_abs_velocity:
+        raise MessageError("train", f"train {static_id} at s {s} m, s' {sd} m/s out of bounds")
+    return TrainState(static_id, s, sd)

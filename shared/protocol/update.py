@@ -27,6 +27,7 @@ from haptic_local_model.shared.kinematics import (
 from haptic_local_model.shared.linalg import cholesky_inplace
 from haptic_local_model.shared.protocol.codes import Flag, Reason
 from haptic_local_model.shared.protocol.layout import (
+    AVAR_WORDS,
     C_DAMPING,
     C_ENV,
     C_ENV_VELOCITY,
@@ -77,7 +78,7 @@ MAGIC = tuple(UPDATE_MAGIC)
 MAX_UPDATE_BYTES = HEADER_BYTES + 8 * (
     3 * MAX_DOF + MAX_DOF * MAX_DOF + 2 * MAX_CONTACTS + 64 + 3 * MAX_RESISTED
     + CONTACT_FLOATS * MAX_CONTACTS + shapes_words(MAX_SHAPES) + MAX_DOF * 4
-    + chains_words(MAX_DOF, MAX_CHAINS)
+    + chains_words(MAX_DOF, MAX_CHAINS) + AVAR_WORDS
 )  # fmt: skip
 # numba reads IntEnum members but not IntFlag ones: the flags as plain ints for the kernels
 FLAG_GRAVITY = int(Flag.GRAVITY)
@@ -86,6 +87,9 @@ FLAG_TOUCHING = int(Flag.TOUCHING)
 FLAG_VELOCITY_TORQUE = int(Flag.VELOCITY_TORQUE)
 FLAG_SHAPES = int(Flag.SHAPES)
 FLAG_CHAINS = int(Flag.CHAINS)
+FLAG_AVARS = int(Flag.AVARS)
+MAX_TRAIN_CARS = 8  # shared.avar.MAX_CARS (the protocol does not import the dynamics)
+TRAILERS = FLAG_SHAPES | FLAG_CHAINS | FLAG_AVARS
 AT_VERSION = HEADER_AT["version"]
 AT_FLAGS = HEADER_AT["flags"]
 AT_EPOCH = HEADER_AT["epoch"]
@@ -157,6 +161,21 @@ class ChainTable:
         return head + ints.tobytes() + np.asarray(self.bases, "<f8").reshape(c - 1, 3).tobytes()
 
 
+@dataclass(frozen=True)
+class AvarState:
+    """A train's animation variable (DESIGN-WAVE2 §5; Flag.AVARS): its track and train by
+    static id, the number of cars (shape owners), the lead car's arc length and rate."""
+
+    static_id: int
+    cars: int
+    s: float
+    sd: float
+
+    def trailer(self) -> bytes:
+        """The AVARS trailer (layout.AVAR_FIELDS)."""
+        return struct.pack("<qqdd", self.static_id, self.cars, self.s, self.sd)
+
+
 @dataclass(frozen=True, eq=False)
 class LocalModelUpdate:
     """What the sim publishes each step about its tool (DESIGN §3)."""
@@ -189,6 +208,8 @@ class LocalModelUpdate:
     shapes: np.ndarray | None = None
     # the tree and chains (version 3), None: one serial chain, no CHAINS trailer
     chains: ChainTable | None = None
+    # a train's animation variable (version 3), None: no AVARS trailer
+    avars: AvarState | None = None
 
     @property
     def dof(self) -> int:
@@ -209,6 +230,8 @@ class LocalModelUpdate:
             flags |= Flag.SHAPES
         if self.chains is not None:
             flags |= Flag.CHAINS
+        if self.avars is not None:
+            flags |= Flag.AVARS
         return int(flags)
 
 
@@ -241,6 +264,7 @@ def encode_update(u: LocalModelUpdate) -> bytes:
         + np.concatenate(ints).astype("<i8").tobytes()
         + np.concatenate(floats).astype("<f8").tobytes()
         + (u.chains.trailer() if u.chains is not None else b"")
+        + (u.avars.trailer() if u.avars is not None else b"")
         + (shapes_trailer(u.shapes) if u.shapes is not None and u.flags & Flag.SHAPES else b"")
     )
 
@@ -251,7 +275,8 @@ def shapes_trailer(shapes: np.ndarray) -> bytes:
     ints = np.zeros((n, SHAPE_INTS), np.int64)
     floats = np.zeros((n, SHAPE_FLOATS))
     for k, row in enumerate(shapes):
-        ints[k] = (row["key"], -1, row["kind"], row["n_vert"], row["generation"], row["motion"])
+        owner = row["owner"] if row["motion"] == Motion.TRACK else -1
+        ints[k] = (row["key"], owner, row["kind"], row["n_vert"], row["generation"], row["motion"])
         floats[k, S_VERTICES : S_VERTICES + 2 * MAX_VERTICES] = row["vertices"].ravel()
         floats[k, S_ROUNDING] = row["rounding"]
         floats[k, S_POSE : S_POSE + 3] = row["pose"]
@@ -309,12 +334,17 @@ def encode_record(out, buf):
         flags |= FLAG_SHAPES
     if m.has_chains == 1:
         flags |= FLAG_CHAINS
+    if m.has_avars == 1:
+        flags |= FLAG_AVARS
     n_int = d + 2 * n
     body_end = HEADER_BYTES + 8 * (n_int + _float_count(d, j, n, flags, CONTACT_FLOATS))
     nbytes = body_end
     if (flags & FLAG_CHAINS) != 0:
         nbytes += 8 * _chains_words(d, m.n_chains)
     chains_end = nbytes
+    if (flags & FLAG_AVARS) != 0:
+        nbytes += 8 * AVAR_WORDS
+    avars_end = nbytes
     if m.n_shapes > 0:
         nbytes += 8 * (1 + (SHAPE_INTS + SHAPE_FLOATS) * m.n_shapes)
     for i in range(4):
@@ -353,8 +383,15 @@ def encode_record(out, buf):
         row[C_TANGENTIAL_STIFFNESS] = m.c_tangential_stiffness[i]
     if (flags & FLAG_CHAINS) != 0:
         _write_chains(m, buf[body_end:chains_end])
+    if (flags & FLAG_AVARS) != 0:
+        ints = buf[chains_end : chains_end + 16].view(np.int64)
+        ints[0] = m.avar_static_id
+        ints[1] = m.avar_cars
+        fl = buf[chains_end + 16 : avars_end].view(np.float64)
+        fl[0] = m.avar_s
+        fl[1] = m.avar_sd
     if m.n_shapes > 0:
-        _write_shapes(m, buf[chains_end:nbytes])
+        _write_shapes(m, buf[avars_end:nbytes])
     return nbytes
 
 
@@ -393,7 +430,7 @@ def _write_shapes(m, trailer):
         sh = m.shapes[k]
         row = ints[1 + SHAPE_INTS * k : 1 + SHAPE_INTS * (k + 1)]
         row[0] = sh.key
-        row[1] = -1
+        row[1] = sh.owner if sh.motion == Motion.TRACK else -1
         row[2] = sh.kind
         row[3] = sh.n_vert
         row[4] = sh.generation
@@ -489,7 +526,7 @@ def _check_header(buf, nbytes):
     """Magic, version, counts and total size: (Reason or 0, d, n, j, flags, contact row
     floats, shapes, chains (0: no CHAINS trailer))."""
     code, d, n, j, flags, n_cf, body_end = _check_body(buf, nbytes)
-    if code != 0 or (flags & (FLAG_SHAPES | FLAG_CHAINS)) == 0:
+    if code != 0 or (flags & TRAILERS) == 0:
         return code, d, n, j, flags, n_cf, 0, 0
     if _u16(buf, AT_VERSION) < 3:
         return Reason.VERSION, d, n, j, flags, n_cf, 0, 0
@@ -502,6 +539,8 @@ def _check_header(buf, nbytes):
         if c < 1 or c > MAX_CHAINS:
             return Reason.CHAIN, d, n, j, flags, n_cf, 0, 0
         end += 8 * _chains_words(d, c)
+    if (flags & FLAG_AVARS) != 0:
+        end += 8 * AVAR_WORDS
     if (flags & FLAG_SHAPES) == 0:
         if nbytes != end:
             return Reason.SIZE, d, n, j, flags, n_cf, 0, c
@@ -543,7 +582,7 @@ def _check_body(buf, nbytes):
         return Reason.OP_LINK, d, n, j, flags, n_cf, 0
     n_int = d + 2 * n
     body_end = HEADER_BYTES + 8 * (n_int + _float_count(d, j, n, flags, n_cf))
-    if (flags & (FLAG_SHAPES | FLAG_CHAINS)) == 0 and nbytes != body_end:
+    if (flags & TRAILERS) == 0 and nbytes != body_end:
         return Reason.SIZE, d, n, j, flags, n_cf, 0
     return 0, d, n, j, flags, n_cf, body_end
 
@@ -788,9 +827,12 @@ def parse_update(buf, nbytes, limits, out, scratch):
     chains_end = body_end + (8 * _chains_words(d, n_chains) if n_chains > 0 else 0)
     if code == 0:
         code = _read_chains(m, buf[body_end:chains_end], n_chains, _u16(buf, AT_OP_LINK), lim)
+    avars_end = chains_end + (8 * AVAR_WORDS if (flags & FLAG_AVARS) != 0 else 0)
+    if code == 0:
+        code = _read_avars(m, buf[chains_end:avars_end], lim)
     m.n_shapes = 0
     if code == 0 and n_shapes > 0:
-        code = _read_shapes(m, buf[chains_end:nbytes], n_shapes, lim)
+        code = _read_shapes(m, buf[avars_end:nbytes], n_shapes, lim)
     if code != 0:
         return code
     m.epoch = _i64(buf, AT_EPOCH)
@@ -868,6 +910,32 @@ def _read_chains(m, trailer, c, op_link, lim):
 
 
 @njit(cache=True)
+def _read_avars(m, trailer, lim):
+    """The AVARS trailer (empty: none) into the record: 0 or Reason.NONFINITE / Reason.AVAR."""
+    m.has_avars = 0
+    m.avar_static_id = -1
+    m.avar_cars = 0
+    m.avar_s = 0.0
+    m.avar_sd = 0.0
+    if trailer.shape[0] == 0:
+        return 0
+    ints = trailer[:16].view(np.int64)
+    fl = trailer[16:].view(np.float64)
+    if not (math.isfinite(fl[0]) and math.isfinite(fl[1])):
+        return Reason.NONFINITE
+    if ints[0] < 0 or ints[1] < 1 or ints[1] > MAX_TRAIN_CARS:
+        return Reason.AVAR
+    if abs(fl[0]) > lim.max_abs_position_m or abs(fl[1]) > lim.max_abs_velocity:
+        return Reason.AVAR
+    m.has_avars = 1
+    m.avar_static_id = ints[0]
+    m.avar_cars = ints[1]
+    m.avar_s = fl[0]
+    m.avar_sd = fl[1]
+    return 0
+
+
+@njit(cache=True)
 def _read_shapes(m, trailer, s, lim):
     """The SHAPES trailer into m.shapes, every field checked (layout.SHAPE_*_FIELDS): 0 or
     Reason.NONFINITE / Reason.SHAPE."""
@@ -878,8 +946,11 @@ def _read_shapes(m, trailer, s, lim):
             return Reason.NONFINITE
     for k in range(s):
         code = _read_shape(m.shapes[k], ints[SHAPE_INTS * k :], fl[SHAPE_FLOATS * k :], lim)
+        if code == 0:
+            code = _shape_owner(m, ints[SHAPE_INTS * k + 1], ints[SHAPE_INTS * k + 5])
         if code != 0:
             return code
+        m.shapes[k].owner = ints[SHAPE_INTS * k + 1]
         for i in range(k):
             if m.shapes[i].key == m.shapes[k].key:
                 return Reason.SHAPE
@@ -892,7 +963,7 @@ def _read_shape(sh, row, f, lim):
     """One shape: its ints (row) and floats (f) checked and stored; 0 or Reason.SHAPE."""
     kind = row[2]
     nv = row[3]
-    if row[0] < 0 or row[1] != -1 or row[4] < 0 or row[5] < 0 or row[5] > Motion.NODAL:
+    if row[0] < 0 or row[4] < 0 or row[5] < 0 or row[5] > Motion.TRACK:
         return Reason.SHAPE
     if row[5] == Motion.NODAL and (kind != ShapeKind.SEGMENT or f[S_POSE + 2] != 0.0):
         return Reason.SHAPE  # nodes about a pose with zero angle ...
@@ -949,6 +1020,20 @@ def _read_shape(sh, row, f, lim):
     sh.static_friction = mu_s
     sh.friction = mu_k
     sh.bound = bound
+    return 0
+
+
+@njit(cache=True, inline="always")
+def _shape_owner(m, owner, motion):
+    """A shape's owner against its motion: the world's (-1) are carried by their twist, a
+    car's (0..cars - 1, with AVARS only) by the train. 0 or Reason.SHAPE (no AVARS: as
+    before them) / Reason.AVAR."""
+    if m.has_avars == 0:
+        return Reason.SHAPE if owner != -1 or motion == Motion.TRACK else 0
+    if owner == -1:
+        return Reason.AVAR if motion == Motion.TRACK else 0
+    if owner < 0 or owner >= m.avar_cars or motion != Motion.TRACK:
+        return Reason.AVAR
     return 0
 
 
@@ -1040,6 +1125,11 @@ def update_from_record(m: np.void) -> LocalModelUpdate:
         state_lead_s=float(m["state_lead_s"]),
         shapes=m["shapes"][: int(m["n_shapes"])].copy() if m["n_shapes"] else None,
         chains=_chain_table(m),
+        avars=AvarState(
+            int(m["avar_static_id"]), int(m["avar_cars"]), float(m["avar_s"]), float(m["avar_sd"])
+        )
+        if m["has_avars"]
+        else None,
     )  # fmt: skip
 
 
@@ -1056,6 +1146,7 @@ def _chain_table(m: np.void) -> ChainTable | None:
 
 __all__ = [
     "PUBLISH_TIME_END",
+    "AvarState",
     "ChainTable",
     "ContactSet",
     "LocalModelUpdate",
