@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import json
 import math
 import sys
@@ -38,7 +39,6 @@ from haptic_local_model.device_models.registry import load_device
 from haptic_local_model.haptic_server.harness.virtual import VirtualResult, run_virtual
 from haptic_local_model.shared.avar import (
     avar_state,
-    contact_jacobian,
     track_force,
     train_accel,
     train_energy,
@@ -54,8 +54,10 @@ from haptic_local_model.shared.crank import (
     crank_record,
     crank_step,
 )
+from haptic_local_model.shared.mechanism import mechanism_record, moved, point_rate
 from haptic_local_model.shared.reference_avar import (
     Ellipse,
+    crank_reference_mass,
     ellipse_car,
     ellipse_car_seed_form,
     ellipse_train,
@@ -275,45 +277,51 @@ def crank_figures(seconds: float = 5.0) -> dict[str, Any]:
 
 
 PUSH_SCENE, PUSH_DEVICE, PUSH_USER = "coaster_loop", "twin_pantograph", "push_car"
-RELEASE_S = 3.0  # the free ride after the finger's last touch compared with the reference
+CRANK_SCENE, CRANK_USER = "crank", "flick_crank"
+RELEASE_S = 3.0  # the free motion after the finger's last touch compared with a reference
 
 
-def push_run(
-    seconds: float = 6.0, sim_hz: float | None = None
+def mechanism_run(
+    scene_name: str, user: str, seconds: float, sim_hz: float | None = None
 ) -> tuple[SceneConfig, VirtualResult]:
-    """V3.4's run: coaster_loop in the virtual clock, the twin pantograph, the hand that
-    shoves the last car (optionally at another sim rate)."""
-    scene = load_scene(PUSH_SCENE)
+    """A mechanism scene in the virtual clock with the twin pantograph and a hand that pushes
+    it (optionally at another sim rate)."""
+    scene = load_scene(scene_name)
     if sim_hz is not None:
         scene = dataclasses.replace(scene, sim_rate_hz=sim_hz)
-    return scene, run_virtual(scene, load_device(PUSH_DEVICE), load_user(PUSH_USER), seconds)
+    return scene, run_virtual(scene, load_device(PUSH_DEVICE), load_user(user), seconds)
 
 
 def finger_work(scene: SceneConfig, result: VirtualResult) -> np.ndarray:
-    """The work of the rendered finger on the cars up to each tick (J), from the log alone:
-    sum over ticks of F_env . J_c dS, F_env the force the god-object put on each touched
-    car (row god_env_force, at god_env_point), J_c its contact point's velocity per unit s'
-    (shared/avar.py) and dS the tick's move of s."""
+    """The work of the rendered finger on the mechanism up to each tick (J), from the log
+    alone: sum over ticks of F_env . J_c dq, F_env the force the god-object put on each
+    touched body (row god_env_force, at god_env_point), J_c that point's velocity per unit
+    q' (shared/mechanism.py) and dq the tick's move of q."""
     t = result.ticks
     world = result.world
     assert world.train is not None
-    car_of = {world.shape_keys[shape]: k for shape, k in world.train.owner.items()}
-    table = tabulate(scene.track_spec)[0]
-    cars = scene.cars[0]
-    train = train_record(cars.count, cars.spacing_m, cars.mass, cars.inertia, scene.gravity)[0]
-    moved = np.diff(t["avar_s"], prepend=t["avar_s"][0])
-    moved -= table["length"] * np.round(moved / table["length"])
+    body_of = {world.shape_keys[shape]: k for shape, k in world.train.owner.items()}
+    mech = mechanism_record(scene)[0]
+    q = t["avar_s"]
+    moves = np.array([moved(mech, a, b) for a, b in itertools.pairwise(q)])
+    moves = np.concatenate(([0.0], moves))
     power = np.zeros(len(t))
     for i in np.flatnonzero((t["god_env_key"] >= 0).any(axis=1)):
         for j in range(2):
-            car = car_of.get(int(t["god_env_key"][i, j]), -1)
-            if car < 0:
+            body = body_of.get(int(t["god_env_key"][i, j]), -1)
+            if body < 0:
                 continue
             px, py = t["god_env_point"][i, j]
-            jx, jy = contact_jacobian(table, train, float(t["avar_s"][i - 1]), car, px, py)
+            jx, jy = point_rate(mech, float(q[i - 1]), body, px, py)
             fx, fy = t["god_env_force"][i, j]
-            power[i] += (fx * jx + fy * jy) * moved[i]
+            power[i] += (fx * jx + fy * jy) * moves[i]
     return np.cumsum(power)
+
+
+def _unwrapped(mech: np.void, q: np.ndarray) -> np.ndarray:
+    """q without a loop's wraps (so it interpolates)."""
+    steps = np.array([moved(mech, a, b) for a, b in itertools.pairwise(q)])
+    return q[0] + np.concatenate(([0.0], np.cumsum(steps)))
 
 
 def port_given(result: VirtualResult, window_s: float) -> np.ndarray:
@@ -325,20 +333,53 @@ def port_given(result: VirtualResult, window_s: float) -> np.ndarray:
     return np.cumsum(given)
 
 
-def push_figures(seconds: float = 6.0, sim_hz: float | None = None) -> dict[str, Any]:
-    """V3.4: the train's energy against the work of the rendered finger (from the log), the
-    port's energy balance, and the free ride after the last touch against the independent
-    reference (shared/reference_avar.py) started from the haptic side's state there."""
-    scene, result = push_run(seconds, sim_hz)
+def balance(scene: SceneConfig, result: VirtualResult) -> dict[str, Any]:
+    """V3.4's energy figures of a pushed mechanism: its energy change against the rendered
+    finger's work (of the largest work), against its own Q_eff dq (exact but for RK4), the
+    most energy the device gave the hand beyond what it took, and when the finger let go."""
     t = result.ticks
     work = finger_work(scene, result)
     gained = t["avar_energy"] - t["avar_energy"][0]
     scale = float(np.max(np.abs(work)))
     touched = np.flatnonzero((t["god_env_key"] >= 0).any(axis=1))
+    port = port_given(result, scene.safety.passivity_window_s)
+    world = result.world
+    assert world.train is not None
+    # the sim's mirror after its last step, against the loop's at the instant it stands for:
+    # a step covers the period after the tick it was taken at (its state leads by a period)
+    mech = mechanism_record(scene)[0]
+    sim_q = world.train.state[0]
+    loop_q = np.interp(world.time + world.period, t["t"], _unwrapped(mech, t["avar_s"]))
+    per_s = sum(result.stage_ns.values()) / 1e9 / result.sim_s
+    return {
+        "sim_hz": scene.sim_rate_hz,
+        "cost_ms_per_sim_s": 1e3 * per_s,
+        "tick_us": result.stage_ns["tick"] / 1e3 / len(t),
+        "mirror_error": float(abs(moved(mech, float(loop_q), sim_q))),
+        "work_j": float(work[-1]), "max_work_j": scale,
+        "work_energy_error": float(np.max(np.abs(gained - work)) / max(scale, 1e-300)),
+        "exact_accounting_j": float(np.max(np.abs(gained - t["avar_work"]))),
+        "port_given_max_j": float(port.max()),
+        "touch_ticks": int(touched.size),
+        "release": int(touched[-1]) + 1 if touched.size else 0,
+        "max_rate": float(np.max(np.abs(t["avar_sd"]))),
+        "events": int(t["avar_events"].max()),
+        "singular": int(t["avar_singular"].max()),
+        "faults": int(t["fault"].max()), "pops": int(t["god_pops"][-1]),
+    }  # fmt: skip
+
+
+def push_figures(seconds: float = 6.0, sim_hz: float | None = None) -> dict[str, Any]:
+    """V3.4 on coaster_loop (`balance`), and the free ride after the last touch against the
+    independent reference (shared/reference_avar.py) started from the haptic side's state
+    there: the track-point error."""
+    scene, result = mechanism_run(PUSH_SCENE, PUSH_USER, seconds, sim_hz)
+    t = result.ticks
+    out = {"scene": PUSH_SCENE, **balance(scene, result)}
     cars = scene.cars[0]
     track = scene.tracks[0]
     loop = Ellipse(*track.semi_axes, track.center, cars.mass, cars.inertia, scene.gravity)
-    release = int(touched[-1]) + 1
+    release = out["release"]
     end = min(len(t) - 1, release + round(RELEASE_S / DT))
     times = t["t"][release : end + 1]
     points, _ = ellipse_train(
@@ -347,19 +388,37 @@ def push_figures(seconds: float = 6.0, sim_hz: float | None = None) -> dict[str,
     )  # fmt: skip
     table = tabulate(scene.track_spec)[0]
     ours = np.array([track_point(table, s)[:2] for s in t["avar_s"][release : end + 1]])
-    port = port_given(result, scene.safety.passivity_window_s)
-    return {
-        "scene": PUSH_SCENE, "sim_hz": scene.sim_rate_hz, "seconds": seconds,
-        "work_j": float(work[-1]), "max_work_j": scale,
-        "work_energy_error": float(np.max(np.abs(gained - work)) / scale),
-        "exact_accounting_j": float(np.max(np.abs(gained - t["avar_work"]))),
-        "port_given_max_j": float(port.max()),
-        "touch_ticks": int(touched.size), "release_s": float(t["t"][release]),
-        "free_ride_s": float(times[-1] - times[0]),
-        "free_ride_error_um": float(1e6 * np.max(np.hypot(*(ours - points).T))),
-        "max_speed": float(np.max(np.abs(t["avar_sd"]))),
-        "faults": int(t["fault"].max()), "pops": int(t["god_pops"][-1]),
-    }  # fmt: skip
+    out["free_s"] = float(times[-1] - times[0])
+    out["free_error_um"] = float(1e6 * np.max(np.hypot(*(ours - points).T)))
+    return out
+
+
+def crank_flick_figures(seconds: float = 4.0, sim_hz: float | None = None) -> dict[str, Any]:
+    """V3.6 in the loop on `crank` (`balance`), the dead centres it turned through after the
+    flick, and its free spin against the reference: on a table the kinetic energy holds, so
+    phi' = sqrt(2 E / M(phi)) with M from finite differences of the closed-form positions
+    (shared/reference_avar.py crank_mass), relative error."""
+    scene, result = mechanism_run(CRANK_SCENE, CRANK_USER, seconds, sim_hz)
+    t = result.ticks
+    out = {"scene": CRANK_SCENE, **balance(scene, result)}
+    release = out["release"]
+    phi = t["avar_s"][release:]
+    rate = t["avar_sd"][release:]
+    c = scene.crank
+    assert c is not None
+    masses = (c.crank_mass, c.rod_mass, c.slider_mass)
+    m0 = crank_reference_mass(c.crank_length, c.rod_length, *masses, float(phi[0]))
+    kinetic = 0.5 * m0 * float(rate[0]) ** 2
+    ref = np.array(
+        [
+            np.sqrt(2 * kinetic / crank_reference_mass(c.crank_length, c.rod_length, *masses, p))
+            for p in phi
+        ]
+    )
+    out["free_s"] = float(t["t"][-1] - t["t"][release])
+    out["free_rate_error"] = float(np.max(np.abs(np.abs(rate) - ref) / ref))
+    out["dead_centres"] = int(np.sum(np.diff(np.floor(phi / np.pi)) != 0))
+    return out
 
 
 @njit(cache=True)
@@ -396,6 +455,7 @@ def report() -> dict[str, Any]:
         "valley": valley_figures(),
         "crank": crank_figures(),
         "push": push_figures(),
+        "crank_flick": crank_flick_figures(),
         "step_cost": step_cost(),
     }
 

@@ -231,6 +231,7 @@ TICK_DTYPE = np.dtype(
         ("avar_energy", F8),  # the train's energy, J
         ("avar_work", F8),  # the finger's work on the train so far, J
         ("avar_events", np.int32),  # kinks crossed and bumper hits so far
+        ("avar_singular", np.int32),  # steps whose M_q was regularised so far (a singular J)
     ]
 )
 

@@ -487,6 +487,48 @@ class CarsConfig:
         within(self.restitution, (0.0, 1.0), "restitution")
 
 
+@dataclass(frozen=True)
+class CrankConfig:
+    """A slider-crank driven by one animation variable (shared/crank.py, docs/avars.md): a
+    crank of `crank_length` about `pivot`, a rod of `rod_length` to a slider on the pivot's
+    horizontal line, uniform bars of `width` (their rounding) and a box slider; its avar the
+    crank angle (an immersion) or the slider position (singular at the dead centres: refused
+    unless `allow_singular`)."""
+
+    material: str
+    pivot: Vec2 = (0.0, 0.0)
+    crank_length: float = 0.02
+    rod_length: float = 0.06
+    crank_mass: float = 0.02
+    rod_mass: float = 0.03
+    slider_mass: float = 0.05
+    width: float = 0.003  # m: the bars' rounding radius
+    slider_size: Vec2 = (0.016, 0.01)
+    driver: Literal["crank_angle", "slider_position"] = "crank_angle"
+    allow_singular: bool = False
+    initial_q: float = 0.0  # rad (crank angle) or m (slider position, from the pivot)
+    initial_rate: float = 0.0
+
+    def __post_init__(self) -> None:
+        within_all(self.pivot, (-WORLD_M, WORLD_M), "pivot", "m")
+        within(self.crank_length, (1e-4, TRACK_SIZE_M), "crank_length", "m")
+        require(
+            self.crank_length < self.rod_length <= TRACK_SIZE_M,
+            "rod_length",
+            f"must exceed crank_length ({self.crank_length:g} m) and be <= {TRACK_SIZE_M:g} m",
+        )
+        for key in ("crank_mass", "rod_mass", "slider_mass"):
+            within(getattr(self, key), MASS_RANGE_KG, key, "kg")
+        within(self.width, (0.0, TRACK_SIZE_M), "width", "m")
+        within_all(self.slider_size, (1e-4, TRACK_SIZE_M), "slider_size", "m")
+        within(self.initial_rate, (-SPEED_M_PER_S, SPEED_M_PER_S), "initial_rate")
+        if self.driver == "slider_position":
+            stroke = (self.rod_length - self.crank_length, self.rod_length + self.crank_length)
+            within(self.initial_q, stroke, "initial_q", "m (the slider's stroke)")
+        else:
+            within(self.initial_q, (-ANGLE_RAD, ANGLE_RAD), "initial_q", "rad")
+
+
 MAX_MEMBRANE_NODES = 33  # 32 segments: half the local shapes an update carries
 
 
@@ -819,6 +861,7 @@ class SceneConfig:
     deformables: tuple[DeformableSpec, ...] = ()
     tracks: tuple[TrackConfig, ...] = ()
     cars: tuple[CarsConfig, ...] = ()
+    crank: CrankConfig | None = None
     rendering: RenderingSpec = field(default_factory=RenderingSpec)
     space: SpaceSpec = field(default_factory=SpaceSpec)
     safety: SafetySpec = field(default_factory=SafetySpec)
@@ -918,6 +961,8 @@ class SceneConfig:
             self._check_god_object()
         if self.tracks or self.cars:
             self._check_train()
+        if self.crank is not None:
+            self._check_crank(self.crank)
 
     def _check_train(self) -> None:
         """One train on one track (one avar per scene in this build), pushed by a god-object
@@ -929,16 +974,7 @@ class SceneConfig:
         require(len(self.cars) == 1, "cars", "a scene has one train of cars on its track")
         track, cars = self.tracks[0], self.cars[0]
         require(cars.track == track.name, "cars[0].track", f"no track named {cars.track!r}")
-        require(
-            cars.material in self.materials,
-            "cars[0].material",
-            f"unknown material {cars.material!r}",
-        )
-        require(
-            self.rendering.method == "god_object",
-            "cars",
-            "a train is pushed by the god_object method's finger (rendering.method)",
-        )
+        self._check_mechanism("cars", "cars[0].material", cars.material, "a train")
         try:
             tabulate(self.track_spec)
         except ValueError as exc:
@@ -952,6 +988,31 @@ class SceneConfig:
             within(
                 cars.initial_s, (tail, length), "cars[0].initial_s", "m (the train on the track)"
             )
+
+    def _check_mechanism(self, key: str, material_key: str, material: str, what: str) -> None:
+        """A mechanism's material exists, and the god-object's finger pushes it."""
+        require(material in self.materials, material_key, f"unknown material {material!r}")
+        require(
+            self.rendering.method == "god_object",
+            key,
+            f"{what} is pushed by the god_object method's finger (rendering.method)",
+        )
+
+    def _check_crank(self, crank: CrankConfig) -> None:
+        """One mechanism per scene, pushed by the god-object; a singular avar only if
+        allowed (shared/crank.py check_conditioning)."""
+        from haptic_local_model.shared.crank import CrankDriver, check_conditioning, crank_record
+
+        require(not self.cars, "crank", "a scene has one mechanism: a train or a crank")
+        self._check_mechanism("crank", "crank.material", crank.material, "a crank")
+        record = crank_record(
+            crank.crank_length, crank.rod_length, crank.crank_mass, crank.rod_mass,
+            crank.slider_mass, self.gravity, CrankDriver[crank.driver.upper()], crank.pivot,
+        )  # fmt: skip
+        try:
+            check_conditioning(record, crank.allow_singular, "driver")
+        except ValueError as exc:
+            raise ValueError(f"crank.{exc}") from None
 
     @property
     def track_spec(self) -> Any:

@@ -51,7 +51,8 @@ CRANK_DTYPE = np.dtype(
         ("rod_length", np.float64),  # l > r, m
         ("mass", np.float64, (N_COORDS,)),  # diag M over theta
         ("gravity_force", np.float64, (N_COORDS,)),  # M g over theta, N (and 0 N m)
-        ("floor", np.float64),  # M_q's regularisation (1e-6 of its largest over the domain)
+        ("floor", np.float64),  # M_q's regularisation (1e-6 of its median over the domain)
+        ("pivot", np.float64, (2,)),  # the crank's pivot (world); the slider runs on its x axis
         ("jac", np.float64, (N_COORDS,)),  # scratch: J at the last evaluation
         ("bias", np.float64, (N_COORDS,)),  # scratch: Jd
         ("force", np.float64, (N_COORDS,)),  # scratch: tau
@@ -67,6 +68,7 @@ def crank_record(
     slider_mass: float,
     gravity: tuple[float, float],
     driver: CrankDriver,
+    pivot: tuple[float, float] = (0.0, 0.0),
 ) -> np.ndarray:
     """CRANK_DTYPE[1], its floor from the conditioning sweep."""
     if not 0.0 < crank_length < rod_length:
@@ -78,6 +80,7 @@ def crank_record(
     c = np.zeros(1, dtype=CRANK_DTYPE)
     r = c[0]
     r["driver"] = int(driver)
+    r["pivot"] = pivot
     r["crank_length"] = crank_length
     r["rod_length"] = rod_length
     i_c = crank_mass * crank_length**2 / 12.0
@@ -205,15 +208,62 @@ def crank_jacobian(c, q):
 
 
 @njit(cache=True)
-def crank_rate(c, q, qd, torque):
-    """q'' (eq 5.1) under gravity and a torque on the crank: (q'', singular)."""
+def crank_rate(c, q, qd, q_ext):
+    """q'' (eq 5.1) under gravity and the generalised force q_ext (along q: a torque on the
+    crank when it drives): (q'', singular)."""
     clipped = crank_jacobian(c, q)
     for i in range(N_COORDS):
         c.force[i] = c.gravity_force[i]
         c.bias[i] *= qd * qd
-    c.force[2] += torque
-    qdd, _, singular = mass_weighted_rate(c.jac, c.bias, c.mass, c.force, N_COORDS, c.floor)
-    return qdd, singular or clipped
+    qdd, m_q, singular = mass_weighted_rate(c.jac, c.bias, c.mass, c.force, N_COORDS, c.floor)
+    return qdd + q_ext / m_q, singular or clipped
+
+
+@njit(cache=True)
+def crank_mass(c, q):
+    """M_q = J^T M J at q (as regularised in the step)."""
+    crank_jacobian(c, q)
+    m_q = 0.0
+    for i in range(N_COORDS):
+        m_q += c.jac[i] * c.mass[i] * c.jac[i]
+    return m_q + c.floor if m_q < c.floor else m_q
+
+
+@njit(cache=True)
+def crank_angle(c, q):
+    """phi at q."""
+    return q if c.driver == CrankDriver.CRANK_ANGLE else slider_angle(c, q)
+
+
+@njit(cache=True)
+def crank_body_pose(c, q, k):
+    """Body k's frame at q: 0 the crank (at the pivot, along it), 1 the rod (at the crank's
+    tip A, along it to the slider), 2 the slider (at the rod's end, unturned)."""
+    phi = crank_angle(c, q)
+    r = c.crank_length
+    px = c.pivot[0]
+    py = c.pivot[1]
+    if k == 0:
+        return px, py, phi
+    sn = math.sin(phi)
+    cs = math.cos(phi)
+    if k == 1:
+        return px + r * cs, py + r * sn, -math.asin(r * sn / c.rod_length)
+    w = math.sqrt(c.rod_length**2 - (r * sn) ** 2)
+    return px + r * cs + w, py, 0.0
+
+
+@njit(cache=True)
+def crank_body_rates(c, q, k):
+    """Body k's frame velocity and angular velocity per unit q' (from J: A = 2 x the crank's
+    centre)."""
+    crank_jacobian(c, q)
+    j = c.jac
+    if k == 0:
+        return 0.0, 0.0, j[2]
+    if k == 1:
+        return 2.0 * j[0], 2.0 * j[1], j[5]
+    return j[6], 0.0, 0.0
 
 
 @njit(cache=True)
@@ -223,7 +273,7 @@ def crank_energy(c, q, qd):
     m_q = 0.0
     for i in range(N_COORDS):
         m_q += c.jac[i] * c.mass[i] * c.jac[i]
-    phi = q if c.driver == CrankDriver.CRANK_ANGLE else slider_angle(c, q)
+    phi = crank_angle(c, q)
     r = c.crank_length
     w = math.sqrt(c.rod_length**2 - (r * math.sin(phi)) ** 2)
     theta0 = 0.5 * r * math.cos(phi)
@@ -236,14 +286,14 @@ def crank_energy(c, q, qd):
 
 
 @njit(cache=True)
-def crank_step(c, st, torque, dt):
-    """One RK4 step of dt with the crank torque held; a flagged evaluation counts once."""
+def crank_step(c, st, q_ext, dt):
+    """One RK4 step of dt with the generalised force held; a flagged step counts once."""
     q = st.s
     qd = st.sd
-    a1, f1 = crank_rate(c, q, qd, torque)
-    a2, f2 = crank_rate(c, q + 0.5 * dt * qd, qd + 0.5 * dt * a1, torque)
-    a3, f3 = crank_rate(c, q + 0.5 * dt * (qd + 0.5 * dt * a1), qd + 0.5 * dt * a2, torque)
-    a4, f4 = crank_rate(c, q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, torque)
+    a1, f1 = crank_rate(c, q, qd, q_ext)
+    a2, f2 = crank_rate(c, q + 0.5 * dt * qd, qd + 0.5 * dt * a1, q_ext)
+    a3, f3 = crank_rate(c, q + 0.5 * dt * (qd + 0.5 * dt * a1), qd + 0.5 * dt * a2, q_ext)
+    a4, f4 = crank_rate(c, q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, q_ext)
     st.s = q + dt / 6.0 * (
         qd + 2.0 * (qd + 0.5 * dt * a1) + 2.0 * (qd + 0.5 * dt * a2) + qd + dt * a3
     )

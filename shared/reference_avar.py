@@ -10,6 +10,9 @@ DOP853 integrates at rtol 1e-11.
   (u_k' = s' / |p_u(u_k)|) and the common s'; the equation is the Lagrangian
   1/2 sum (m_k + I_k kappa_k^2) s'^2 - V in arc length, with kappa and kappa' in closed form
   in u. The cars' starting u_k come from inverting the arc length by `quad` + `brentq`.
+- `crank_reference_mass`: a slider-crank's M(phi) = sum m |dp/dphi|^2 + I (dtheta/dphi)^2 of
+  its uniform crank and rod and point slider, by central differences of the closed-form
+  positions (none of shared/crank.py's Jacobians).
 - `ellipse_car_seed_form`: seed 003's eq 8 as printed, q'' = J+ [M^-1 (tau - g) - Jd q'],
   with the unweighted left inverse J+ = (J^T J)^-1 J^T over theta = (x, y, psi): the
   documented wrong form, kept so a test shows it fails V3.1.
@@ -18,6 +21,7 @@ DOP853 integrates at rtol 1e-11.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -94,8 +98,17 @@ def ellipse_car(e: Ellipse, sd0: float, t_eval: FloatArray) -> tuple[FloatArray,
         force = e.mass * (e.gravity[0] * p_u[0] + e.gravity[1] * p_u[1])  # -dV/du
         return [ud, (force - 0.5 * dmass_u * ud * ud) / mass_u]
 
-    ud0 = sd0 / e.a  # |p_u(0)| = a
-    sol = solve_ivp(rates, (0.0, t_eval[-1]), [0.0, ud0], "DOP853", t_eval, rtol=RTOL, atol=ATOL)
+    return _from_bottom(e, rates, sd0, t_eval)
+
+
+def _from_bottom(
+    e: Ellipse, rates: Any, sd0: float, t_eval: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """One car's (u, u') equation from the bottom at speed sd0 (|p_u(0)| = a) by DOP853:
+    its track points and its energy."""
+    sol = solve_ivp(
+        rates, (0.0, t_eval[-1]), [0.0, sd0 / e.a], "DOP853", t_eval, rtol=RTOL, atol=ATOL
+    )
     u, ud = sol.y
     rho, _, _ = e._rho(u)
     psi_u, _ = e.heading_rates(u)
@@ -151,11 +164,30 @@ def ellipse_car_seed_form(
         accel = np.array([e.gravity[0], e.gravity[1], 0.0])  # M^-1 (tau - g) with tau = 0
         return [ud, float(jac @ (accel - jd) / (jac @ jac))]
 
-    sol = solve_ivp(
-        rates, (0.0, t_eval[-1]), [0.0, sd0 / e.a], "DOP853", t_eval, rtol=RTOL, atol=ATOL
-    )
-    u, ud = sol.y
-    rho, _, _ = e._rho(u)
-    psi_u, _ = e.heading_rates(u)
-    energy = 0.5 * (e.mass * rho + e.inertia * psi_u**2) * ud**2 + e.potential(u)
-    return e.point(u), energy
+    return _from_bottom(e, rates, sd0, t_eval)
+
+
+def crank_reference_mass(
+    crank_length: float,
+    rod_length: float,
+    crank_mass: float,
+    rod_mass: float,
+    slider_mass: float,
+    phi: float,
+    h: float = 1e-6,
+) -> float:
+    """M(phi) of a slider-crank (module docstring)."""
+    r, rod = crank_length, rod_length
+
+    def bodies(p: float) -> FloatArray:
+        tip = np.array([r * np.cos(p), r * np.sin(p)])
+        slider = np.array([tip[0] + np.sqrt(rod**2 - tip[1] ** 2), 0.0])
+        rod_angle = np.arctan2(slider[1] - tip[1], slider[0] - tip[0])
+        return np.array([*(tip / 2), p, *((tip + slider) / 2), rod_angle, slider[0]])
+
+    rate = (bodies(phi + h) - bodies(phi - h)) / (2 * h)
+    mass = np.array([
+        crank_mass, crank_mass, crank_mass * r**2 / 12, rod_mass, rod_mass,
+        rod_mass * rod**2 / 12, slider_mass,
+    ])  # fmt: skip
+    return float(np.sum(mass * rate**2))

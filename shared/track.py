@@ -296,13 +296,19 @@ def _hermite(v0, d0, v1, d1, h, u):
     )
 
 
-@njit(cache=True)
-def track_point(tr, s):
-    """(x, y, psi, kappa, kappa') of the track at arc length s (wrapped or clamped)."""
+@njit(cache=True, inline="always")
+def _locate(tr, s):
+    """The knot interval i of s (wrapped or clamped), its length h and s's place u in it."""
     s = wrap_s(tr, s)
     i = knot_interval(tr, s)
     h = tr.s[i + 1] - tr.s[i]
-    u = (s - tr.s[i]) / h if h > 0.0 else 0.0
+    return i, h, (s - tr.s[i]) / h if h > 0.0 else 0.0
+
+
+@njit(cache=True)
+def track_point(tr, s):
+    """(x, y, psi, kappa, kappa') of the track at arc length s (wrapped or clamped)."""
+    i, h, u = _locate(tr, s)
     j = i + 1
     x = _hermite(tr.x[i], math.cos(tr.psi[i]), tr.x[j], math.cos(tr.psi[j]), h, u)
     y = _hermite(tr.y[i], math.sin(tr.psi[i]), tr.y[j], math.sin(tr.psi[j]), h, u)
@@ -313,10 +319,7 @@ def track_point(tr, s):
 @njit(cache=True)
 def track_heading(tr, s):
     """(psi, kappa, kappa') at s: track_point without the position (the dynamics' share)."""
-    s = wrap_s(tr, s)
-    i = knot_interval(tr, s)
-    h = tr.s[i + 1] - tr.s[i]
-    u = (s - tr.s[i]) / h if h > 0.0 else 0.0
+    i, h, u = _locate(tr, s)
     j = i + 1
     psi = _hermite(tr.psi[i], tr.kappa[i], tr.psi[j], tr.kappa[j], h, u)
     kappa = _hermite(tr.kappa[i], tr.dkappa[i], tr.kappa[j], tr.dkappa[j], h, u)

@@ -23,7 +23,11 @@ from haptic_local_model.shared.net.config import NetworkConfig
 from haptic_local_model.shared.net.transport import keys, newest_payload, open_session
 from haptic_local_model.shared.protocol.codes import Method
 from haptic_local_model.shared.protocol.proxy import ProxyState, ShapeImpulses, decode_proxy
-from haptic_local_model.shared.protocol.static import STATIC_PERIOD_S, encode_static
+from haptic_local_model.shared.protocol.static import (
+    STATIC_PERIOD_S,
+    encode_static,
+    has_mechanism,
+)
 from haptic_local_model.shared.protocol.update import MessageError, stamp_publication
 from haptic_local_model.shared.timing import SampleWindow, wait_until
 from haptic_local_model.sim_server.pacing import PhaseLock
@@ -143,8 +147,8 @@ class SimServer:
         # room for the proxy states of a stalled step or two: each carries impulses
         sub = session.declare_subscriber(k.proxy, zenoh.handlers.RingChannel(PROXY_RING))
         # a train's tables, latched: re-published every STATIC_PERIOD_S for late joiners
-        static = session.declare_publisher(k.static) if self.scene.cars else None
-        static_bytes = encode_static(self.scene) if self.scene.cars else b""
+        static = session.declare_publisher(k.static) if has_mechanism(self.scene) else None
+        static_bytes = encode_static(self.scene) if static is not None else b""
         static_due = 0
         period_ns = round(1e9 / self.scene.sim_rate_hz)
         # the first step and local model load the kernels (about a second on a busy machine):

@@ -113,8 +113,9 @@ class SimWorld:
             mem.every = max(1, round(scene.sim_rate_hz / string.publish_hz))
             self.membranes.append(mem)
             first_key += string.nodes - 1
-        # the train's cars (kinematic; their keys after the strings' segments)
-        self.train = SimTrain(scene, self.space, self._register_car) if scene.cars else None
+        # a train's cars or a crank's bodies (kinematic; their keys after the strings')
+        mechanism = bool(scene.cars) or scene.crank is not None
+        self.train = SimTrain(scene, self.space, self._register_car) if mechanism else None
         self._setup_tool_chain()
         self.space.step(0.0)  # pymunk's checks of the bodies added (a zero step moves nothing)
         self.tool = self._tool_record()

@@ -83,7 +83,7 @@ TICK_FIELDS_SINCE_0_2 = {
     "god_blend",  # 0.6: its two-proxy blend
     "god_env_arm",  # 0.7: the arms of its pushes (impulses, DESIGN-WAVE2 C4)
     *("avar_cars", "avar_static_id", "avar_s", "avar_sd", "avar_force"),  # 0.8: a train
-    *("avar_energy", "avar_work", "avar_events"),
+    *("avar_energy", "avar_work", "avar_events", "avar_singular"),
 }
 
 GOLDEN_07 = Path(__file__).parent / "golden" / "logs-0.7"

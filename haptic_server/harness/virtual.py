@@ -34,7 +34,7 @@ from haptic_local_model.shared.config import (
     scene_text,
 )
 from haptic_local_model.shared.protocol.codes import Method, Reason
-from haptic_local_model.shared.protocol.proxy import ShapeImpulses
+from haptic_local_model.shared.protocol.proxy import ShapeImpulses, TrainState
 from haptic_local_model.sim_server.world import SimWorld, ToolTarget
 from haptic_local_model.sim_server.world import warm_kernels as warm_sim_kernels
 
@@ -170,7 +170,9 @@ def _install_own(engine: HapticEngine, raw: bytes, refused: dict[str, int]) -> i
 def _target(engine: HapticEngine, coupled: bool, ticks: np.ndarray | None = None) -> ToolTarget:
     """The proxy state the real sim would receive: it holds its tool (fresh = False) while
     the haptic side is in (or ramping to or from) its safe state; under god_object, with the
-    impulses on shapes over `ticks` (tick rows: those since the sim's last step)."""
+    impulses on shapes over `ticks` (tick rows: those since the sim's last step); with the
+    haptic side's mechanism state at this tick (a scene with one: the sim starts its step
+    from it, as from a proxy state of age 0)."""
     q, qd = engine.proxy_pose()
     pose, twist = engine.device_world_pose()
     r = engine.row[0]
@@ -182,7 +184,7 @@ def _target(engine: HapticEngine, coupled: bool, ticks: np.ndarray | None = None
         )
     return ToolTarget(
         q=q, qd=qd, device_pose=pose, device_twist=twist, coupled_to_device=coupled, fresh=fresh,
-        impulses=impulses,
+        impulses=impulses, train=TrainState.of_row(r),
     )  # fmt: skip
 
 

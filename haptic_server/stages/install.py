@@ -11,6 +11,7 @@ from numba import njit
 
 from haptic_local_model.haptic_server.stages.finger import install_finger_shapes
 from haptic_local_model.haptic_server.stages.plausible import check_plausible
+from haptic_local_model.shared.mechanism import body_count
 from haptic_local_model.shared.protocol.codes import Method, Reason
 from haptic_local_model.shared.protocol.layout import (
     DEFAULT_CLOCK_SKEW_MS,
@@ -69,9 +70,9 @@ def accept_update(buf, nbytes, age_s, model, data, install):
         return Reason.DOF_CHANGE
     tm = model[0].train
     if u.has_avars != tm.enabled or (
-        tm.enabled == 1 and (u.avar_static_id != tm.static_id or u.avar_cars != tm.train.n_cars)
+        tm.enabled == 1 and (u.avar_static_id != tm.static_id or u.avar_cars != body_count(tm.mech))
     ):
-        return Reason.STATIC  # another train, or a train where the scene has none
+        return Reason.STATIC  # another mechanism, or one where the scene has none
     if env.enabled == 1:
         live = ins.ready == 1 and not new_epoch and not resync and model[0].slots[0].valid == 1
         code = check_plausible(u, model[0].slots[0], live, env)

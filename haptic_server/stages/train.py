@@ -1,5 +1,7 @@
-"""A train of cars in the haptic loop (seed 003 §4; DESIGN-WAVE2 §5): its animation variable
-integrated at the tick's rate, pushed by the god-object's finger.
+"""A mechanism driven by an animation variable in the haptic loop (seed 003 §4; DESIGN-WAVE2
+§5): a train of cars on a track, or a slider-crank (shared/mechanism.py), its avar integrated
+at the tick's rate, pushed by the god-object's finger. The train's words below hold for the
+crank with "body" for "car".
 
 The haptic side is authoritative for the train while its proxy states are fresh (the sim
 poses its cars from them, sim_server/train.py). Each tick, around the god-object's step:
@@ -26,110 +28,101 @@ import math
 import numpy as np
 from numba import njit
 
-from haptic_local_model.shared.avar import (
-    AVAR_DTYPE,
-    TRAIN_DTYPE,
-    contact_jacobian,
-    train_energy,
-    train_mass,
-    train_record,
-    train_step,
-)
+from haptic_local_model.shared.avar import AVAR_DTYPE
 from haptic_local_model.shared.config import SceneConfig
+from haptic_local_model.shared.mechanism import (
+    MECHANISM_DTYPE,
+    body_count,
+    body_pose,
+    energy,
+    mass,
+    mechanism_record,
+    moved,
+    point_rate,
+    step,
+    turn_between,
+)
 from haptic_local_model.shared.protocol.static import static_id
 from haptic_local_model.shared.shapes import Motion
-from haptic_local_model.shared.track import TRACK_DTYPE, tabulate, track_point
 
 F8 = np.float64
 I8 = np.int64
 
-#: The scene's train, static (MODEL_DTYPE's `train`; a zero record: none).
+#: The scene's mechanism, static (MODEL_DTYPE's `train`; kind NONE: none).
 TRAIN_MODEL_DTYPE = np.dtype(
     [
         ("enabled", I8),
         ("static_id", I8),  # shared/protocol/static.py: an update must name this one
-        ("track", TRACK_DTYPE),
-        ("train", TRAIN_DTYPE),
+        ("mech", MECHANISM_DTYPE),
     ]
 )
 
-#: The train's state and this tick's results (DATA_DTYPE's `train`).
+#: The mechanism's state and this tick's results (DATA_DTYPE's `train`).
 TRAIN_DATA_DTYPE = np.dtype(
     [
-        ("state", AVAR_DTYPE),  # s, s' and the event counters
-        ("predicted", AVAR_DTYPE),  # s* of this tick (scratch)
-        ("force", F8),  # Q_eff of this tick, N
-        ("work", F8),  # the finger's work on the train so far, J
-        ("energy", F8),  # the train's energy after this tick, J
+        ("state", AVAR_DTYPE),  # q, q' and the event counters
+        ("predicted", AVAR_DTYPE),  # q* of this tick (scratch)
+        ("force", F8),  # Q_eff of this tick, N or N m
+        ("work", F8),  # the finger's work on the mechanism so far, J
+        ("energy", F8),  # its energy after this tick, J
     ]
 )
 
 
 def train_model(scene: SceneConfig) -> np.ndarray:
-    """TRAIN_MODEL_DTYPE[1] of a scene (disabled without a train)."""
+    """TRAIN_MODEL_DTYPE[1] of a scene (disabled without a mechanism)."""
     rec = np.zeros(1, TRAIN_MODEL_DTYPE)
-    if not scene.cars:
-        rec[0]["static_id"] = -1
-        return rec
-    cars = scene.cars[0]
-    r = rec[0]
-    r["enabled"] = 1
-    r["static_id"] = static_id(scene)
-    r["track"] = tabulate(scene.track_spec)[0]
-    r["train"] = train_record(
-        cars.count, cars.spacing_m, cars.mass, cars.inertia, scene.gravity, cars.restitution
-    )[0]
+    rec[0]["static_id"] = static_id(scene)
+    rec[0]["mech"] = mechanism_record(scene)[0]
+    rec[0]["enabled"] = 1 if rec[0]["static_id"] >= 0 else 0
     return rec
 
 
 @njit(cache=True)
 def restart_train(tm, td, s, sd):
-    """The train at (s, s') (a re-initialisation: the sim's state), the work count afresh."""
+    """The mechanism at (q, q') (a re-initialisation: the sim's state), the work afresh."""
     if tm.enabled == 0:
         return
     td.state.s = s
     td.state.sd = sd
     td.work = 0.0
     td.force = 0.0
-    td.energy = train_energy(tm.track, tm.train, s, sd)
+    td.energy = energy(tm.mech, s, sd)
 
 
 @njit(cache=True)
 def _place_cars(tm, td, god, dt):
-    """Each car's pose at the tick's start and the chord twist to its predicted pose."""
-    st = td.state
-    p = td.predicted
-    for k in range(tm.train.n_cars):
-        back = k * tm.train.spacing
-        x0, y0, psi0, _, _ = track_point(tm.track, st.s - back)
-        x1, y1, psi1, _, _ = track_point(tm.track, p.s - back)
-        turn = psi1 - psi0
-        turn -= 2.0 * math.pi * round(turn / (2.0 * math.pi))  # a loop's heading wraps
+    """Each body's pose at the tick's start and the chord twist to its predicted pose."""
+    q0 = td.state.s
+    q1 = td.predicted.s
+    for k in range(body_count(tm.mech)):
+        x0, y0, a0 = body_pose(tm.mech, q0, k)
+        x1, y1, a1 = body_pose(tm.mech, q1, k)
         god.car_pose[k, 0] = x0
         god.car_pose[k, 1] = y0
-        god.car_pose[k, 2] = psi0
+        god.car_pose[k, 2] = a0
         god.car_twist[k, 0] = (x1 - x0) / dt
         god.car_twist[k, 1] = (y1 - y0) / dt
-        god.car_twist[k, 2] = turn / dt
+        god.car_twist[k, 2] = turn_between(a0, a1) / dt  # a loop's heading wraps
 
 
 @njit(cache=True)
 def train_begin(tm, td, god, blend, dt):
-    """Step 1 (module docstring): the free prediction and the cars' poses over the tick, for
-    the god-object (`god`) and a two-proxy blend's old proxy (`blend.a`)."""
+    """Step 1 (module docstring): the free prediction and the bodies' poses over the tick,
+    for the god-object (`god`) and a two-proxy blend's old proxy (`blend.a`)."""
     if tm.enabled == 0:
         return
     p = td.predicted
     p.s = td.state.s
     p.sd = td.state.sd
-    train_step(tm.track, tm.train, p, 0.0, dt)
+    step(tm.mech, p, 0.0, dt)
     _place_cars(tm, td, god, dt)
     _place_cars(tm, td, blend.a, dt)
 
 
 @njit(cache=True)
 def _car_of(shapes, n_shapes, key):
-    """The car a shape key belongs to (-1: a world shape, or none)."""
+    """The body a shape key belongs to (-1: a world shape, or none)."""
     for k in range(n_shapes):
         if shapes[k].key == key:
             return shapes[k].owner if shapes[k].motion == Motion.TRACK else -1
@@ -138,11 +131,11 @@ def _car_of(shapes, n_shapes, key):
 
 @njit(cache=True)
 def train_end(tm, td, gp, blend, shapes, n_shapes, dt):
-    """Step 3 (module docstring): the pushes on cars as the implicit generalised force, the
-    tick's step under it; the row's fields are `fill_train_row`'s."""
+    """Step 3 (module docstring): the pushes on the mechanism's bodies as the implicit
+    generalised force, the tick's step under it; the row's fields are `fill_train_row`'s."""
     if tm.enabled == 0:
         return
-    p = td.predicted
+    q_star = td.predicted.s
     q = 0.0
     stiffness = 0.0
     for j in range(2):
@@ -153,9 +146,7 @@ def train_end(tm, td, gp, blend, shapes, n_shapes, dt):
             continue
         fx = blend.env_force[j, 0]
         fy = blend.env_force[j, 1]
-        jx, jy = contact_jacobian(
-            tm.track, tm.train, p.s, car, blend.env_point[j, 0], blend.env_point[j, 1]
-        )
+        jx, jy = point_rate(tm.mech, q_star, car, blend.env_point[j, 0], blend.env_point[j, 1])
         q += fx * jx + fy * jy
         size = math.hypot(fx, fy)
         if size > 0.0:
@@ -163,17 +154,14 @@ def train_end(tm, td, gp, blend, shapes, n_shapes, dt):
             ny = fy / size
             along = nx * jx + ny * jy
             stiffness += (nx * nx * gp.stiffness[0] + ny * ny * gp.stiffness[1]) * along * along
-    m_q = train_mass(tm.track, tm.train, p.s)
+    m_q = mass(tm.mech, q_star)
     q_eff = q * m_q / (m_q + dt * dt * stiffness)
     st = td.state
-    s0 = st.s
-    train_step(tm.track, tm.train, st, q_eff, dt)
-    moved = st.s - s0
-    if tm.track.closed == 1:
-        moved -= tm.track.length * round(moved / tm.track.length)
+    q0 = st.s
+    step(tm.mech, st, q_eff, dt)
     td.force = q_eff
-    td.work += q_eff * moved
-    td.energy = train_energy(tm.track, tm.train, st.s, st.sd)
+    td.work += q_eff * moved(tm.mech, q0, st.s)
+    td.energy = energy(tm.mech, st.s, st.sd)
 
 
 @njit(cache=True)
@@ -182,7 +170,7 @@ def fill_train_row(tm, td, r):
     if tm.enabled == 0:
         return
     st = td.state
-    r.avar_cars = tm.train.n_cars
+    r.avar_cars = body_count(tm.mech)
     r.avar_static_id = tm.static_id
     r.avar_s = st.s
     r.avar_sd = st.sd
@@ -190,3 +178,4 @@ def fill_train_row(tm, td, r):
     r.avar_energy = td.energy
     r.avar_work = td.work
     r.avar_events = st.kinks + st.bumps
+    r.avar_singular = st.singular

@@ -33,8 +33,13 @@ ID_MASK = (1 << 63) - 1
 
 
 def description(scene: SceneConfig) -> dict[str, Any]:
-    """The scene's train as plain data: its track, its cars' static part, gravity (none for
-    a scene without a train)."""
+    """The scene's mechanism as plain data: a train's track and its cars' static part, or a
+    crank's, and gravity (none for a scene without one)."""
+    if scene.crank is not None:
+        crank = dataclasses.asdict(scene.crank)
+        for moving in ("initial_q", "initial_rate", "material"):
+            crank.pop(moving)
+        return {"crank": crank, "gravity": list(scene.gravity)}
     if not scene.cars:
         return {}
     cars = dataclasses.asdict(scene.cars[0])
@@ -58,9 +63,13 @@ def id_of(desc: dict[str, Any]) -> int:
 
 
 def static_id(scene: SceneConfig) -> int:
-    """The static id of the scene's train (-1: the scene has none)."""
+    """The static id of the scene's mechanism (-1: the scene has none)."""
     desc = description(scene)
     return id_of(desc) if desc else -1
+
+
+def has_mechanism(scene: SceneConfig) -> bool:
+    return bool(scene.cars) or scene.crank is not None
 
 
 def encode_static(scene: SceneConfig) -> bytes:
