@@ -366,6 +366,8 @@ def _static_receiver(block: SharedBlock, static_id: int) -> Any:
             )
         except MessageError as exc:
             problem = f"a malformed static message: {exc}"
+        except Exception as exc:  # a hostile payload (JSON nested past the stack)
+            problem = f"a malformed static message: {type(exc).__name__}"
         if not problem:
             ctl[C_STATIC_OK] += 1
             return

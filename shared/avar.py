@@ -44,6 +44,7 @@ from haptic_local_model.shared.track import knot_point, track_heading, track_poi
 MAX_CARS = 8
 MAX_EVENTS = 8  # events met within one step; beyond, the step is clamped (counted)
 NUDGE_M = 1.0e-12  # past an event, so the next lookup reads the side the train moves into
+SAME_EVENT_M = 1.0e-9  # kinks that cars reach within this of each other are crossed together
 
 
 TRAIN_DTYPE = np.dtype(
@@ -214,12 +215,14 @@ def next_event(tr, train, s0, s1):
 
 
 @njit(cache=True)
-def time_to(distance, v0, a0, h):
-    """The time within [0, h] at which s0 + v0 t + a0 t^2 / 2 has moved `distance` along the
-    motion (the event's time, to O(h^3))."""
-    v = abs(v0)
-    a = a0 if v0 >= 0.0 else -a0
-    if abs(a) * h < 1e-9 * max(v, 1e-12):
+def time_to(distance, v0, a0, h, forward):
+    """The time within [0, h] at which s0 + v0 t + a0 t^2 / 2 has moved `distance` in the
+    event's direction (`forward`: increasing s), even if it first moved the other way (a
+    train just bounced off a bumper, pulled back into it within the step): the event's
+    time, to O(h^3)."""
+    v = v0 if forward else -v0
+    a = a0 if forward else -a0
+    if abs(a) * h < 1e-9 * max(abs(v), 1e-12):
         t = distance / v if v > 0.0 else h
     else:
         disc = v * v + 2.0 * a * distance
@@ -227,26 +230,50 @@ def time_to(distance, v0, a0, h):
     return min(max(t, 0.0), h)
 
 
+@njit(cache=True, inline="always")
+def _kink_at(tr, s_car):
+    """The kink a car at arc length s_car is on (within SAME_EVENT_M), -1 if none."""
+    for j in range(tr.n_kinks):
+        gap = tr.kink_s[j] - s_car
+        if tr.closed == 1:
+            gap -= tr.length * round(gap / tr.length)
+        if abs(gap) <= SAME_EVENT_M:
+            return j
+    return -1
+
+
 @njit(cache=True)
-def kink_projection(tr, train, s, sd, kink, car, forward):
-    """s'+ of the plastic projection as car `car` crosses kink `kink` (module docstring), and
-    the energy it takes (J)."""
-    before = tr.kink_before[kink] if forward else tr.kink_after[kink]
-    after = tr.kink_after[kink] if forward else tr.kink_before[kink]
-    _, _, psi_a, kappa_a, _ = knot_point(tr, before)
-    _, _, psi_b, kappa_b, _ = knot_point(tr, after)
-    rest = 0.0
+def cross_kinks(tr, train, st, at, sd, forward):
+    """s' after the cars on kinks with the lead car at `at` cross them: the plastic
+    projection s'+ = (J+^T M J+)^-1 J+^T M J- s'- of the whole train at once (two cars may
+    reach two kinks together; projecting them one by one is not the same), J- and J+ a
+    crossing car's tangent and curvature at its kink's two knots, the rest's where they are.
+    Counted in st, with the energy it takes (never negative: Cauchy-Schwarz in M)."""
+    num = 0.0
+    den = 0.0
+    m_before = 0.0
     for k in range(train.n_cars):
-        if k != car:
-            _, kappa, _ = track_heading(tr, s - k * train.spacing)
-            rest += train.mass[k] + train.inertia[k] * kappa * kappa
-    m = train.mass[car]
-    inertia = train.inertia[car]
-    num = rest + m * math.cos(psi_b - psi_a) + inertia * kappa_b * kappa_a
-    den = rest + m + inertia * kappa_b * kappa_b
+        m = train.mass[k]
+        inertia = train.inertia[k]
+        j = _kink_at(tr, at - k * train.spacing)
+        if j < 0:
+            _, kappa, _ = track_heading(tr, at - k * train.spacing)
+            own = m + inertia * kappa * kappa
+            num += own
+            den += own
+            m_before += own
+            continue
+        before = tr.kink_before[j] if forward else tr.kink_after[j]
+        after = tr.kink_after[j] if forward else tr.kink_before[j]
+        _, _, psi_a, kappa_a, _ = knot_point(tr, before)
+        _, _, psi_b, kappa_b, _ = knot_point(tr, after)
+        num += m * math.cos(psi_b - psi_a) + inertia * kappa_b * kappa_a
+        den += m + inertia * kappa_b * kappa_b
+        m_before += m + inertia * kappa_a * kappa_a
+        st.kinks += 1
     sd_after = sd * num / den
-    m_before = rest + m + inertia * kappa_a * kappa_a
-    return sd_after, 0.5 * m_before * sd * sd - 0.5 * den * sd_after * sd_after
+    st.plastic_loss += 0.5 * m_before * sd * sd - 0.5 * den * sd_after * sd_after
+    return sd_after
 
 
 @njit(cache=True)
@@ -258,7 +285,7 @@ def train_step(tr, train, st, q_ext, dt):
     left = dt
     for _ in range(MAX_EVENTS):
         s1, sd1 = rk4(tr, train, s, sd, q_ext, left)
-        dist, kind, index = next_event(tr, train, s, s1)
+        dist, kind, _ = next_event(tr, train, s, s1)
         if kind == 0:
             s = s1
             sd = sd1
@@ -266,20 +293,15 @@ def train_step(tr, train, st, q_ext, dt):
             break
         forward = s1 >= s
         a0 = train_accel(tr, train, s, sd, q_ext)
-        t = time_to(dist, sd, a0, left)
+        t = time_to(dist, sd, a0, left, forward)
         _, sd = rk4(tr, train, s, sd, q_ext, t)
         left -= t
-        if kind == 1:  # just past the kink, on the side the train moves into
-            s = s + dist + NUDGE_M if forward else s - dist - NUDGE_M
+        at = s + dist if forward else s - dist
+        if kind == 1:  # just past the kink(s), on the side the train moves into
+            s = at + NUDGE_M if forward else at - NUDGE_M
+            sd = cross_kinks(tr, train, st, at, sd, forward)
         else:  # just inside the stop
-            s = s + dist - NUDGE_M if forward else s - dist + NUDGE_M
-        if kind == 1:
-            sd, loss = kink_projection(
-                tr, train, s, sd, index // MAX_CARS, index % MAX_CARS, forward
-            )
-            st.kinks += 1
-            st.plastic_loss += loss
-        else:
+            s = at - NUDGE_M if forward else at + NUDGE_M
             st.bumps += 1
             st.bumper_loss += (
                 0.5 * train_mass(tr, train, s) * sd * sd * (1.0 - train.restitution**2)

@@ -298,8 +298,9 @@ def crank_step(c, st, q_ext, dt):
         qd + 2.0 * (qd + 0.5 * dt * a1) + 2.0 * (qd + 0.5 * dt * a2) + qd + dt * a3
     )
     st.sd = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-    st.sdd = a4
     flagged = f1 or f2 or f3 or f4
+    if c.driver == CrankDriver.CRANK_ANGLE:  # the angle on [0, 2 pi): it turns for ever
+        st.s = st.s % (2.0 * math.pi)
     if c.driver == CrankDriver.SLIDER_POSITION:
         lo = c.rod_length - c.crank_length
         hi = c.rod_length + c.crank_length
@@ -309,3 +310,4 @@ def crank_step(c, st, q_ext, dt):
             flagged = True
     if flagged:
         st.singular += 1
+    st.sdd, _ = crank_rate(c, st.s, st.sd, q_ext)

@@ -82,7 +82,9 @@ def initial_state(scene: SceneConfig) -> tuple[float, float]:
     if scene.cars:
         return scene.cars[0].initial_s, scene.cars[0].initial_speed
     if scene.crank is not None:
-        return scene.crank.initial_q, scene.crank.initial_rate
+        c = scene.crank
+        q = c.initial_q % (2.0 * math.pi) if c.driver == "crank_angle" else c.initial_q
+        return q, c.initial_rate
     return 0.0, 0.0
 
 
@@ -140,10 +142,12 @@ def energy(mc, q, qd):
 
 @njit(cache=True)
 def moved(mc, q0, q1):
-    """q1 - q0, on a loop the short way round."""
+    """q1 - q0, the short way round a loop (a closed track; a crank's angle on [0, 2 pi))."""
     d = q1 - q0
     if mc.kind == MechanismKind.TRAIN and mc.track.closed == 1:
         d -= mc.track.length * round(d / mc.track.length)
+    elif mc.kind == MechanismKind.CRANK and mc.crank.driver == CrankDriver.CRANK_ANGLE:
+        d = turn_between(q0, q1)
     return d
 
 

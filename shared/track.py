@@ -13,7 +13,9 @@ kappa'. It is built from segments laid end to end from a start pose:
   corner; a car crossing it loses energy by the plastic projection, DESIGN-WAVE2 §5 (i));
 
 or it is one closed ``ellipse`` (centre, semi-axes a, b), s = 0 at its lowest point, run
-counter-clockwise. A closed segment track must end where it starts, with its heading.
+counter-clockwise. A closed segment track must end where it starts, with its heading; a
+kink first or last in it is the corner at its seam (s = length = 0). An open track's kinks
+lie between two pieces.
 
 The table samples (x, y, psi, kappa, kappa', kappa'') at knots no farther apart than
 KNOT_SPACING_M, every segment's ends included: two knots share an s at each join, one per
@@ -217,8 +219,15 @@ def tabulate(spec: TrackSpec) -> np.ndarray:
         pieces: list[np.ndarray] = []
         x, y, psi, s0, count = spec.start[0], spec.start[1], spec.heading, 0.0, 0
         pending_kink = False
-        for seg in spec.segments:
+        seam_kink = False  # a closed track's corner where it ends and begins again
+        for i, seg in enumerate(spec.segments):
             if seg.kind == SegmentKind.KINK:
+                if count == 0 or i == len(spec.segments) - 1:
+                    if not spec.closed:
+                        raise ValueError(
+                            f"segment {i} (kink): an open track's kink must lie between two pieces"
+                        )
+                    seam_kink = True
                 psi += seg.turn
                 pending_kink = True
                 continue
@@ -240,6 +249,8 @@ def tabulate(spec: TrackSpec) -> np.ndarray:
                     "a closed track must end at its start with its heading: it ends "
                     f"{gap * 1e3:.3g} mm away, turned {turn * 360.0:.6g} deg"
                 )
+            if seam_kink:  # its last knot before, its first after (s = length = 0)
+                kinks.append((s0, count - 1, 0))
     if len(knots) > MAX_KNOTS:
         raise ValueError(
             f"the track needs {len(knots)} knots at {KNOT_SPACING_M * 1e3} mm; at most {MAX_KNOTS} "

@@ -46,6 +46,7 @@ from haptic_local_model.shared.crank import (
     check_conditioning,
     crank_jacobian,
     crank_record,
+    crank_step,
 )
 from haptic_local_model.shared.track import (
     MAX_KNOTS,
@@ -282,3 +283,71 @@ def test_every_car_count_up_to_the_maximum_rides_the_loop() -> None:
         assert np.all(np.isfinite(r.s)) and np.ptp(r.energy) / abs(r.energy[0]) < 1e-6
     with pytest.raises(ValueError, match=f"1..{MAX_CARS} cars"):
         train_record(MAX_CARS + 1, SPACING, 0.05, 2e-6, GRAVITY)
+
+
+def octagon(side: float = 0.02) -> TrackSpec:
+    """A closed regular octagon of lines and kinks of pi/4, the last kink at its seam."""
+    segments: tuple[Segment, ...] = ()
+    for _ in range(8):
+        segments += (Segment.line(side), Segment.kink(math.pi / 4))
+    return TrackSpec(segments=segments, closed=True)
+
+
+def test_a_closed_polylines_seam_is_a_kink_like_the_others() -> None:
+    """V3.5 on a loop: one car round an octagon without gravity loses cos^2(pi/4) of its
+    energy at each of its 8 corners, the seam's (s = length = 0) included: after a lap its
+    speed is cos(pi/4)^8 = 1/16 of what it was."""
+    table = tabulate(octagon())[0]
+    assert table["n_kinks"] == 8 and table["kink_s"][7] == pytest.approx(table["length"])
+    train = train_record(1, 0.0, 0.05, 2e-6, (0.0, 0.0))[0]
+    st = avar_state(0.01, 1.0)[0]  # mid first side
+    while st["kinks"] < 8:
+        train_step(table, train, st, 0.0, DT)
+    assert st["sd"] == pytest.approx(math.cos(math.pi / 4) ** 8, rel=1e-12)
+
+
+def test_two_cars_on_two_kinks_at_once_are_projected_together() -> None:
+    """Two cars a side apart on the octagon reach two corners together: the train's
+    projection is the joint one, s'+ = cos(pi/4) s'- (one by one it would be
+    ((1 + cos(pi/4)) / 2)^2, 3 % more)."""
+    table = tabulate(octagon())[0]
+    train = train_record(2, 0.02, 0.05, 2e-6, (0.0, 0.0))[0]
+    st = avar_state(0.03, 1.0)[0]
+    while st["kinks"] < 2:
+        train_step(table, train, st, 0.0, DT)
+    assert st["kinks"] == 2
+    assert st["sd"] == pytest.approx(math.cos(math.pi / 4), rel=1e-12)
+    assert st["plastic_loss"] == pytest.approx(0.5 * 0.1 * (1 - 0.5), rel=1e-9)
+
+
+def test_an_open_tracks_kink_lies_between_two_pieces() -> None:
+    with pytest.raises(ValueError, match="segment 1 \\(kink\\): an open track's kink"):
+        tabulate(TrackSpec(segments=(Segment.line(0.1), Segment.kink(0.3))))
+
+
+def test_a_train_resting_on_a_bumper_stays_there_and_never_gains() -> None:
+    """A train pressed by gravity into an open track's end bumper bounces ever lower (each
+    return at e v, its time 2 e v / a): it settles there, within its track, energy never
+    rising, never NaN."""
+    spec = TrackSpec(segments=(Segment.line(0.1),), heading=-0.3)
+    table = tabulate(spec)[0]
+    train = train_record(2, SPACING, LOOP.mass, LOOP.inertia, GRAVITY, restitution=0.5)[0]
+    st = avar_state(0.1 - 1e-3, 0.05)[0]
+    energy = train_energy(table, train, st["s"], st["sd"])
+    for _ in range(2000):
+        train_step(table, train, st, 0.0, DT)
+        now = train_energy(table, train, st["s"], st["sd"])
+        assert now <= energy + 1e-12 and SPACING <= st["s"] <= 0.1
+        energy = now
+    assert st["bumps"] >= 3 and abs(st["sd"]) < 1e-3
+
+
+def test_a_cranks_angle_stays_on_one_turn_however_long_it_spins() -> None:
+    """The crank angle is kept on [0, 2 pi): a crank spinning for minutes stays within the
+    wire's bounds (an unwrapped angle passed 100 rad in 9 s and every update was refused)."""
+    c = crank_record(**CRANK, gravity=(0.0, 0.0), driver=CrankDriver.CRANK_ANGLE)[0]
+    st = avar_state(0.1, 40.0)[0]
+    for _ in range(5000):
+        crank_step(c, st, 0.0, DT)
+        assert 0.0 <= st["s"] < 2 * math.pi
+    assert st["singular"] == 0

@@ -268,10 +268,11 @@ def test_the_coaster_runs_in_real_time_over_zenoh_and_replays_exactly(tmp_path: 
 
 def test_a_released_god_object_is_no_runaway_but_one_carried_off_is() -> None:
     """The runaway guard's god-object rule (haptic_server/stages/safety.py): a proxy that
-    lands on the hand within the tick, even by a path around a corner (at most twice its
-    distance), is not running away (the 'swing' hand pressed 7 mm into a car of
-    coaster_clothoid, the car slid on, and the proxy's 4.9 m/s tripped the guard); one that
-    moves away from where the hand is keeps its whole speed."""
+    lands on the hand within the tick, or nearer it by a path around a corner, is not
+    running away (the 'swing' hand pressed 7 mm into a car of coaster_clothoid, the car slid
+    on, and the proxy's 4.9 m/s tripped the guard), nor one that follows the hand at its
+    distance; one carried away from the hand counts at the rate its distance opens, however
+    deep it was pressed."""
     from haptic_local_model.haptic_server.model import DATA_DTYPE
     from haptic_local_model.haptic_server.stages.safety import _away_from_hand
 
@@ -281,8 +282,48 @@ def test_a_released_god_object_is_no_runaway_but_one_carried_off_is() -> None:
     d["god"]["finger_now"] = (0.007, 0.0)
     d["state"]["q"][:2] = (0.007, 0.0)  # it moved 7 mm onto the hand: 7 m/s
     assert _away_from_hand(d, 7.0, 0.0) == (0.0, 0.0)
-    d["state"]["q"][:2] = (0.0035, 0.0035)  # around a corner, 9.9 mm of path for 7 mm
-    assert _away_from_hand(d, 3.5, 3.5) == (0.0, 0.0)
+    d["god"]["finger_now"] = (0.00681, 0.00375)  # coaster_clothoid's tick 735, p0 at 0
+    d["state"]["q"][:2] = (0.0015, -0.0017)  # round the car's corner: 7.77 -> 7.62 mm
+    assert _away_from_hand(d, 1.5, -1.7) == (0.0, 0.0)
     d["god"]["finger_now"] = (0.0, 0.0)
     d["state"]["q"][:2] = (0.007, 0.0)  # from the hand, carried 7 mm off
     assert _away_from_hand(d, 7.0, 0.0) == pytest.approx((7.0, 0.0))
+    d["god"]["finger_now"] = (0.0, -0.005)  # pressed 5 mm, then carried 10 mm up
+    d["state"]["q"][:2] = (0.0, 0.010)
+    assert _away_from_hand(d, 0.0, 10.0) == pytest.approx((0.0, 10.0))
+    d["god"]["finger_now"] = (0.010, 0.0)  # a free proxy following a fast hand: 10 m/s
+    d["state"]["q"][:2] = (0.010, 0.0)
+    assert _away_from_hand(d, 10.0, 0.0) == (0.0, 0.0)
+
+
+def test_the_io_process_counts_static_messages_and_survives_hostile_ones() -> None:
+    """The sidecar's subscriber (haptic_server/sidecar.py): this scene's static message is
+    counted; another scene's, a malformed one and JSON nested past Python's stack are
+    refused, counted and told once per reason, and never raise out of the callback."""
+    from types import SimpleNamespace
+    from typing import Any
+
+    from haptic_local_model.haptic_server.mailbox import C_STATIC_BAD, C_STATIC_OK, N_CTL
+    from haptic_local_model.haptic_server.sidecar import _static_receiver
+    from haptic_local_model.shared.protocol.static import (
+        STATIC_HEADER,
+        STATIC_MAGIC,
+        STATIC_VERSION,
+    )
+
+    events: list[tuple[str, str]] = []
+    block: Any = SimpleNamespace(
+        ctl=np.zeros(N_CTL, np.int64),
+        post_event=lambda tick, kind, text: events.append((kind, text)),
+    )
+    scene = load_scene("coaster_loop")
+    receive = _static_receiver(block, static_id(scene))
+
+    def sample(raw: bytes) -> Any:
+        return SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: raw))
+
+    nested = STATIC_HEADER.pack(STATIC_MAGIC, STATIC_VERSION, 0) + b"[" * 60_000
+    for raw in (encode_static(scene), encode_static(load_scene("crank")), b"junk", nested, nested):
+        receive(sample(raw))
+    assert block.ctl[C_STATIC_OK] == 1 and block.ctl[C_STATIC_BAD] == 4
+    assert len(events) == 3 and all(kind == "static" for kind, _ in events), events

@@ -39,9 +39,9 @@ class Fault(IntEnum):
 class Reason(IntEnum):
     """An update's verdict: 0 installed, else why it was rejected (stable: logs keep them).
 
-    1-15 and 25-27 come from the validating parser, 16-18 from the order check at install,
-    19-21 from the time check at install (the receiver's clock against the update's times),
-    22-24 and 28 from the plausibility check against the scene
+    1-15 and 25-27 come from the validating parser, 16-18 and 28 from the order and scene
+    checks at install, 19-21 from the time check at install (the receiver's clock against
+    the update's times), 22-24 from the plausibility check against the scene
     (haptic_server/stages/plausible.py)."""
 
     OK = 0
