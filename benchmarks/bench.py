@@ -37,6 +37,7 @@ from haptic_local_model.benchmarks.coaster import (
     crank_flick_figures,
     mechanism_run,
     push_figures,
+    wheel_push_figures,
 )
 from haptic_local_model.benchmarks.front import plot as plot_front
 from haptic_local_model.benchmarks.front import points as front_points
@@ -115,7 +116,8 @@ def accuracy_runs(seconds: float, quick: bool) -> list[dict[str, Any]]:
 
 def mechanism_runs(quick: bool) -> list[dict[str, Any]]:
     """The mechanisms driven by an animation variable (docs/avars.md) at each sim rate: the
-    coaster shoved along its loop (6 s) and the crank flicked round (4 s), with the twin
+    coaster shoved along its loop (6 s), the crank flicked round and the Ferris wheel pushed
+    (4 s each), with the twin
     pantograph: the energy against the rendered finger's work, the free motion after the
     last touch against the independent reference, the sim's mirror, the cost."""
     sims = (60.0,) if quick else SIM_RATES
@@ -124,8 +126,10 @@ def mechanism_runs(quick: bool) -> list[dict[str, Any]]:
     for sim_hz in tqdm(sims, desc="mechanism runs", leave=False):
         coaster = push_figures(sim_hz=sim_hz)
         crank = crank_flick_figures(sim_hz=sim_hz)
+        wheel = wheel_push_figures(sim_hz=sim_hz)
         rows.append({**coaster, "free_error": f"{coaster['free_error_um']:.2g} um"})
         rows.append({**crank, "free_error": f"{crank['free_rate_error']:.2g} of phi'"})
+        rows.append({**wheel, "free_error": f"{wheel['free_rate_error']:.2g} of q'"})
     return rows
 
 
@@ -361,7 +365,7 @@ def write_report(
             f"| {r.get('steady_drift_mm', nan):.3f} | {r.get('max_drift_mm', nan):.2f} | {r.get('reference_rms_mm', nan):.3f} "
             f"| {r.get('peak_over_fk', nan):.2f} | {r.get('settle_s', nan):.2f} | {r.get('contact_losses', nan):.0f} | {r.get('port_energy_j', nan):.4f} |"
         )  # fmt: skip
-    lines += ["", "Mechanisms driven by an animation variable (docs/avars.md; twin pantograph, haptic 1000 Hz; the coaster 6 s, the crank 4 s). The loop integrates the avar, so the rendering is the same at every sim rate; the sim's mirror is its state after its last step against the loop's at that instant (m or rad):", "",
+    lines += ["", "Mechanisms driven by an animation variable (docs/avars.md; twin pantograph, haptic 1000 Hz; the coaster 6 s, the crank and the wheel 4 s). The loop integrates the avar, so the rendering is the same at every sim rate; the sim's mirror is its state after its last step against the loop's at that instant (m or rad):", "",
               "| scene | sim Hz | cost ms / sim s | tick us | energy vs finger's work | free motion vs reference | sim mirror | port J given | dead centres / flagged |",
               "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in mechanisms or []:

@@ -278,6 +278,7 @@ def crank_figures(seconds: float = 5.0) -> dict[str, Any]:
 
 PUSH_SCENE, PUSH_DEVICE, PUSH_USER = "coaster_loop", "twin_pantograph", "push_car"
 CRANK_SCENE, CRANK_USER = "crank", "flick_crank"
+WHEEL_SCENE, WHEEL_USER = "ferris_wheel", "push_gondola"
 RELEASE_S = 3.0  # the free motion after the finger's last touch compared with a reference
 
 
@@ -421,6 +422,23 @@ def crank_flick_figures(seconds: float = 4.0, sim_hz: float | None = None) -> di
     return out
 
 
+def wheel_push_figures(seconds: float = 4.0, sim_hz: float | None = None) -> dict[str, Any]:
+    """A geared tree in the loop on `ferris_wheel` (`balance`): how far the wheel turned, and
+    its free spin after the last touch against the closed form: balanced, with the gondolas
+    level (their gear cancels the arms'), M_q is constant and no force turns it, so q' holds
+    (relative error)."""
+    scene, result = mechanism_run(WHEEL_SCENE, WHEEL_USER, seconds, sim_hz)
+    t = result.ticks
+    out = {"scene": WHEEL_SCENE, **balance(scene, result)}
+    release = out["release"]
+    rate = t["avar_sd"][release:]
+    mech = mechanism_record(scene)[0]
+    out["turned_rad"] = float(np.ptp(_unwrapped(mech, t["avar_s"])))
+    out["free_s"] = float(t["t"][-1] - t["t"][release])
+    out["free_rate_error"] = float(np.max(np.abs(rate - rate[0])) / abs(rate[0]))
+    return out
+
+
 @njit(cache=True)
 def _steps(table, train, st, n):
     for _ in range(n):
@@ -456,6 +474,7 @@ def report() -> dict[str, Any]:
         "crank": crank_figures(),
         "push": push_figures(),
         "crank_flick": crank_flick_figures(),
+        "wheel_push": wheel_push_figures(),
         "step_cost": step_cost(),
     }
 

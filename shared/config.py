@@ -529,6 +529,44 @@ class CrankConfig:
             within(self.initial_q, (-ANGLE_RAD, ANGLE_RAD), "initial_q", "rad")
 
 
+@dataclass(frozen=True)
+class AvarTreeConfig:
+    """A tree linkage driven by one animation variable through gears (shared/avar_tree.py,
+    docs/avars.md): link i on the tip of link parents[i] (-1 the base), its joint angle
+    offsets[i] + gears[i] q; gears are whole numbers (a turn of q brings the tree back)."""
+
+    material: str
+    lengths: tuple[float, ...]
+    masses: tuple[float, ...]
+    inertias: tuple[float, ...]  # about each link's COM, kg m^2
+    com_offsets: tuple[Vec2, ...]  # COM in the link frame, m
+    parents: tuple[int, ...]
+    gears: tuple[int, ...]
+    offsets: tuple[float, ...]  # rad
+    base: Vec2 = (0.0, 0.0)
+    width: float = 0.003  # m: the links' rounding radius
+    initial_q: float = 0.0  # rad
+    initial_rate: float = 0.0  # rad/s
+
+    def __post_init__(self) -> None:
+        n = len(self.lengths)
+        require(1 <= n <= MAX_TRAIN, "lengths", f"a geared tree has 1..{MAX_TRAIN} links, got {n}")
+        for key in ("masses", "inertias", "com_offsets", "parents", "gears", "offsets"):
+            require(len(getattr(self, key)) == n, key, f"needs {n} entries, one per link")
+        for i, up in enumerate(self.parents):
+            require(-1 <= up < i, "parents", f"link {i} hangs from {up}: -1 or an earlier link")
+        require(any(self.gears), "gears", "the animation variable must turn some link")
+        within_all(self.gears, (-100, 100), "gears")
+        within_all(self.lengths, LINK_LENGTH_RANGE_M, "lengths", "m")
+        within_all(self.masses, MASS_RANGE_KG, "masses", "kg")
+        within_all(self.inertias, INERTIA_RANGE_KGM2, "inertias", "kg m^2")
+        within_all(self.offsets, (-ANGLE_RAD, ANGLE_RAD), "offsets", "rad")
+        within_all(self.base, (-WORLD_M, WORLD_M), "base", "m")
+        within(self.width, (0.0, TRACK_SIZE_M), "width", "m")
+        within(self.initial_q, (-ANGLE_RAD, ANGLE_RAD), "initial_q", "rad")
+        within(self.initial_rate, (-SPEED_M_PER_S, SPEED_M_PER_S), "initial_rate", "rad/s")
+
+
 MAX_MEMBRANE_NODES = 33  # 32 segments: half the local shapes an update carries
 
 
@@ -862,6 +900,7 @@ class SceneConfig:
     tracks: tuple[TrackConfig, ...] = ()
     cars: tuple[CarsConfig, ...] = ()
     crank: CrankConfig | None = None
+    avar_tree: AvarTreeConfig | None = None
     rendering: RenderingSpec = field(default_factory=RenderingSpec)
     space: SpaceSpec = field(default_factory=SpaceSpec)
     safety: SafetySpec = field(default_factory=SafetySpec)
@@ -963,6 +1002,12 @@ class SceneConfig:
             self._check_train()
         if self.crank is not None:
             self._check_crank(self.crank)
+        if self.avar_tree is not None:
+            mechanisms = bool(self.cars) + (self.crank is not None)
+            require(not mechanisms, "avar_tree", "a scene has one mechanism")
+            self._check_mechanism(
+                "avar_tree", "avar_tree.material", self.avar_tree.material, "a geared tree"
+            )
 
     def _check_train(self) -> None:
         """One train on one track (one avar per scene in this build), pushed by a god-object

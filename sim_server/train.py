@@ -76,6 +76,9 @@ def _shapes(scene: SceneConfig, body: pymunk.Body, k: int) -> pymunk.Shape:
     its pivot, the rod from the crank's tip, the slider's box."""
     if scene.cars:
         return pymunk.Poly.create_box(body, scene.cars[0].size, radius=0.0)
+    if scene.avar_tree is not None:
+        a = scene.avar_tree
+        return pymunk.Segment(body, (0.0, 0.0), (a.lengths[k], 0.0), a.width)
     c = scene.crank
     assert c is not None
     if k == 2:
@@ -98,7 +101,9 @@ class SimTrain:
         r["mech"] = mechanism_record(scene)[0]
         r["state"]["s"], r["state"]["sd"] = initial_state(scene)
         self.n_cars = int(body_count(r["mech"]))
-        material = scene.cars[0].material if scene.cars else scene.crank.material  # type: ignore[union-attr]
+        owner = scene.cars[0] if scene.cars else scene.crank or scene.avar_tree
+        assert owner is not None
+        material = owner.material
         mat = scene.materials[material]
         self.owner: dict[pymunk.Shape, int] = {}  # the body of each of its shapes
         self.bodies: list[pymunk.Body] = []

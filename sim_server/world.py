@@ -114,7 +114,7 @@ class SimWorld:
             self.membranes.append(mem)
             first_key += string.nodes - 1
         # a train's cars or a crank's bodies (kinematic; their keys after the strings')
-        mechanism = bool(scene.cars) or scene.crank is not None
+        mechanism = bool(scene.cars) or scene.crank is not None or scene.avar_tree is not None
         self.train = SimTrain(scene, self.space, self._register_car) if mechanism else None
         self._setup_tool_chain()
         self.space.step(0.0)  # pymunk's checks of the bodies added (a zero step moves nothing)

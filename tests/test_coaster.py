@@ -19,7 +19,11 @@ import numpy as np
 import pytest
 from conftest import haptic_run, write_network_file
 
-from haptic_local_model.benchmarks.coaster import crank_flick_figures, push_figures
+from haptic_local_model.benchmarks.coaster import (
+    crank_flick_figures,
+    push_figures,
+    wheel_push_figures,
+)
 from haptic_local_model.device_models.registry import load_device
 from haptic_local_model.haptic_server.engine import HapticEngine
 from haptic_local_model.haptic_server.harness.replay import replay
@@ -82,6 +86,18 @@ def test_v3_6_a_flicked_crank_turns_through_its_dead_centres_unflagged() -> None
     assert figures["exact_accounting_j"] < 1e-8, figures
     assert figures["port_given_max_j"] <= PORT_GIVEN_J, figures
     assert figures["free_s"] >= 3.0 and figures["free_rate_error"] < 1e-6, figures
+
+
+def test_a_pushed_ferris_wheel_turns_as_one_geared_tree() -> None:
+    """ferris_wheel (a tree of arms and level gondolas on one avar through gears): the finger
+    pushes the lowest gondola and the wheel turns on; its energy is the rendered finger's
+    work, and balanced, its free spin holds q' (M_q constant, no torque)."""
+    figures = wheel_push_figures()
+    assert figures["touch_ticks"] > 5 and figures["turned_rad"] > math.pi, figures
+    assert figures["singular"] == 0 and figures["faults"] == 0, figures
+    assert figures["work_energy_error"] <= WORK_ENERGY, figures
+    assert figures["port_given_max_j"] <= PORT_GIVEN_J, figures
+    assert figures["free_s"] >= 2.5 and figures["free_rate_error"] < 1e-9, figures
 
 
 def test_a_crank_driven_by_its_slider_is_refused_unless_allowed_and_then_flagged() -> None:

@@ -35,6 +35,11 @@ ID_MASK = (1 << 63) - 1
 def description(scene: SceneConfig) -> dict[str, Any]:
     """The scene's mechanism as plain data: a train's track and its cars' static part, or a
     crank's, and gravity (none for a scene without one)."""
+    if scene.avar_tree is not None:
+        tree = dataclasses.asdict(scene.avar_tree)
+        for moving in ("initial_q", "initial_rate", "material"):
+            tree.pop(moving)
+        return {"avar_tree": tree, "gravity": list(scene.gravity)}
     if scene.crank is not None:
         crank = dataclasses.asdict(scene.crank)
         for moving in ("initial_q", "initial_rate", "material"):
@@ -69,7 +74,7 @@ def static_id(scene: SceneConfig) -> int:
 
 
 def has_mechanism(scene: SceneConfig) -> bool:
-    return bool(scene.cars) or scene.crank is not None
+    return bool(scene.cars) or scene.crank is not None or scene.avar_tree is not None
 
 
 def encode_static(scene: SceneConfig) -> bytes:
