@@ -134,7 +134,6 @@ def ride(
     table = tabulate(spec)[0]
     train = train_record(n_cars, SPACING, LOOP.mass, LOOP.inertia, GRAVITY)[0]
     st = avar_state(s0, sd0)[0]
-    st["sdd"] = train_accel(table, train, s0, sd0, 0.0)
     n = round(seconds / DT) + 1
     out = Ride(
         np.arange(n) * DT,
@@ -151,7 +150,8 @@ def ride(
         out.s[i] = st["s"]
         out.sd[i] = st["sd"]
         out.energy[i] = train_energy(table, train, st["s"], st["sd"])
-        out.force[i] = track_force(table, train, st["s"], st["sd"], st["sdd"], rider, 0.0, 0.0)
+        sdd = train_accel(table, train, st["s"], st["sd"], 0.0)
+        out.force[i] = track_force(table, train, st["s"], st["sd"], sdd, rider, 0.0, 0.0)
         out.point[i] = track_point(table, st["s"])[:2]
     return out
 

@@ -62,7 +62,6 @@ AVAR_DTYPE = np.dtype(
     [
         ("s", np.float64),  # m, the lead car's arc length (on [0, length) for a loop)
         ("sd", np.float64),  # m/s
-        ("sdd", np.float64),  # m/s^2 at the end of the last step (with its Q)
         ("kinks", np.int64),  # kinks crossed by a car so far
         ("bumps", np.int64),  # end-bumper hits so far
         ("capped", np.int64),  # steps that met more than MAX_EVENTS events
@@ -316,7 +315,6 @@ def train_step(tr, train, st, q_ext, dt):
             sd = 0.0
     st.s = wrap_s(tr, s) if tr.closed == 1 else s
     st.sd = sd
-    st.sdd = train_accel(tr, train, st.s, sd, q_ext)
 
 
 @njit(cache=True)

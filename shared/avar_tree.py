@@ -172,7 +172,6 @@ def tree_step(t, st, q_ext, dt):
     if f1 or f2 or f3 or f4:
         st.singular += 1
     st.s = st.s % (2.0 * math.pi)
-    st.sdd, _ = tree_rate(t, st.s, st.sd, q_ext)
 
 
 @njit(cache=True)

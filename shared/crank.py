@@ -310,4 +310,3 @@ def crank_step(c, st, q_ext, dt):
             flagged = True
     if flagged:
         st.singular += 1
-    st.sdd, _ = crank_rate(c, st.s, st.sd, q_ext)

@@ -24,7 +24,6 @@ from haptic_local_model.shared.config import SceneConfig
 from haptic_local_model.shared.mechanism import (
     MAX_BODIES,
     MECHANISM_DTYPE,
-    MechanismKind,
     body_count,
     body_pose,
     initial_state,
@@ -117,7 +116,6 @@ class SimTrain:
             self.owner[shape] = k
             self.bodies.append(body)
             r["body"][k] = body_ptr(body)
-        self.kind = MechanismKind(int(r["mech"]["kind"]))
         self.place()
 
     def place(self) -> None:
