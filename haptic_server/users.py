@@ -85,6 +85,9 @@ def hand_wrench(user, t, pose, twist, out):
             s = (t - wp[k, 0]) / (wp[k + 1, 0] - wp[k, 0])
             target = wp[k, c + 1] + s * (wp[k + 1, c + 1] - wp[k, c + 1])
         out[c] = _pull(u, c, target, pose, twist)
+        if u.wrench[c] != 0.0:  # a hand that presses while it holds (a grasp's squeeze)
+            f = out[c] + u.wrench[c]
+            out[c] = min(u.max_wrench[c], max(-u.max_wrench[c], f))
 
 
 @njit(cache=True, inline="always")
