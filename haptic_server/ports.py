@@ -1,0 +1,237 @@
+"""Two ports on one co-simulated world, on a virtual clock (DESIGN-WAVE2 §2 C3, §6).
+
+Each port is a simulated device, its device-to-world map and its simulated user (the hand
+that holds the device); both devices couple to their tools in one co-simulation
+(`haptic_server/stages/cosim.py`). A tick, in one compiled call for both ports: each
+hand on its device's true state, each device's reading mapped to the world, the
+co-simulation, each command mapped back, clipped at the device's limits and held over the
+device's physics. No sim process and no wire: this is the 1 kHz local model of a grasp and
+its devices, run as fast as it computes (`python -m haptic_local_model.benchmarks.grasp`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from haptic_local_model.device_models.base import SENSOR_DTYPE, SimulatedDevice
+from haptic_local_model.device_models.common import refill_noise
+from haptic_local_model.device_models.kernels import (
+    device_advance,
+    device_command,
+    device_noise_ready,
+    device_read,
+    device_sense_hand,
+    device_true_state,
+)
+from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.device_models.world_map import (
+    MAP_DTYPE,
+    DeviceWorldMap,
+    map_command_to_device,
+    map_rate_step,
+    map_sensors_to_world,
+)
+from haptic_local_model.haptic_server.stages.cosim import (
+    MAX_COSIM_BODIES,
+    MAX_COSIM_DOF,
+    cosim_order,
+    cosim_records,
+    cosim_tick,
+)
+from haptic_local_model.haptic_server.users import USER_DTYPE, hand_wrench, user_record
+from haptic_local_model.shared.config import UserConfig, load_user
+from haptic_local_model.shared.port_config import MAX_PORTS, PortSceneConfig
+
+F8 = np.float64
+I8 = np.int64
+
+#: The I/O of both ports: what the devices read, the world frame, the hands, the maps.
+PORT_IO_DTYPE = np.dtype(
+    [
+        ("t", F8),
+        ("sensors", SENSOR_DTYPE, (MAX_PORTS,)),  # device frame
+        ("world", SENSOR_DTYPE, (MAX_PORTS,)),  # the same reading in the world frame
+        ("hand", F8, (MAX_PORTS, 3)),  # each hand's true wrench on its device
+        ("out", F8, (MAX_PORTS, 3)),  # each device's command, device frame
+        ("limits", F8, (MAX_PORTS, 3)),  # each device's max_wrench, device frame
+        ("users", USER_DTYPE, (MAX_PORTS,)),
+        ("maps", MAP_DTYPE, (MAX_PORTS,)),
+    ]
+)
+
+#: One tick of a port run (world frame).
+PORT_ROW_DTYPE = np.dtype(
+    [
+        ("t", F8),
+        ("q", F8, (MAX_COSIM_DOF,)),
+        ("qd", F8, (MAX_COSIM_DOF,)),
+        ("device_pose", F8, (MAX_PORTS, 3)),  # measured
+        ("device_twist", F8, (MAX_PORTS, 3)),
+        ("hand_wrench", F8, (MAX_PORTS, 3)),  # device frame (scale 1 maps: the world's)
+        ("command", F8, (MAX_PORTS, 3)),
+        ("body_force", F8, (MAX_COSIM_BODIES, 3)),  # contact wrench on each body
+        ("n_contacts", I8),
+        ("penetration", F8),
+        ("invalid", I8),
+        ("singular", I8),
+        ("device_fault", I8, (MAX_PORTS,)),
+    ]
+)
+
+
+@njit(cache=True)
+def _port_in(cd, io, p, dev):
+    """Port p's hand on its device, then the device's reading in the world frame."""
+    users = io.users[p : p + 1]
+    u = users[0]
+    device_true_state(dev, u.device_pose, u.device_twist)
+    hand_wrench(users, io.t - u.start_s, u.device_pose, u.device_twist, io.hand[p])
+    device_sense_hand(dev, io.hand[p])
+    device_read(dev, io.sensors[p : p + 1])
+    map_sensors_to_world(io.maps[p : p + 1], io.sensors[p : p + 1], io.world[p : p + 1])
+    for c in range(3):
+        cd.device_pose[p, c] = io.world[p].pose[c]
+        cd.device_twist[p, c] = io.world[p].twist[c]
+
+
+@njit(cache=True)
+def _port_out(cd, io, p, dev):
+    """Port p's command to its device, clipped at its limits, and the device's physics."""
+    maps = io.maps[p : p + 1]
+    map_command_to_device(maps, cd.command[p], io.limits[p], io.out[p])
+    device_command(dev, io.out[p])
+    device_advance(dev, cd.dt, io.hand[p])
+    map_rate_step(maps, io.sensors[p].pose, cd.dt)
+
+
+@njit(cache=True)
+def _row(cd, io, r):
+    r.t = io.t
+    for a in range(MAX_COSIM_DOF):
+        r.q[a] = cd.q[a]
+        r.qd[a] = cd.qd[a]
+    for p in range(MAX_PORTS):
+        r.device_fault[p] = io.sensors[p].fault
+        for c in range(3):
+            r.device_pose[p, c] = cd.device_pose[p, c]
+            r.device_twist[p, c] = cd.device_twist[p, c]
+            r.hand_wrench[p, c] = io.hand[p, c]
+            r.command[p, c] = cd.command[p, c]
+    for e in range(MAX_COSIM_BODIES):
+        for c in range(3):
+            r.body_force[e, c] = cd.body_force[e, c]
+    r.n_contacts = cd.n_contacts
+    r.penetration = cd.penetration
+    r.invalid = cd.invalid
+    r.singular = cd.singular
+
+
+@njit(cache=True)
+def run_port_ticks(cosim, data, io, dev0, dev1, rows, start, stop):
+    """Ticks start..stop-1, row k into rows[k]. Returns the first tick not run: stop, or
+    earlier when a device's noise block needs a refill (the caller refills and calls
+    again)."""
+    cd = data[0]
+    s = io[0]
+    for k in range(start, stop):
+        if not device_noise_ready(dev0, cd.dt) or not device_noise_ready(dev1, cd.dt):
+            return k
+        _port_in(cd, s, 0, dev0)
+        _port_in(cd, s, 1, dev1)
+        cosim_tick(cosim, data)
+        _port_out(cd, s, 0, dev0)
+        _port_out(cd, s, 1, dev1)
+        _row(cd, s, rows[k])
+        s.t += cd.dt
+    return stop
+
+
+@dataclass
+class PortResult:
+    """What a port run produced."""
+
+    rows: np.ndarray  # PORT_ROW_DTYPE, one per tick
+    model: np.ndarray  # the co-simulation's COSIM_DTYPE record
+    order: list[str]  # the co-simulated bodies in q's order
+    wall_s: float
+
+    def body(self, name: str) -> int:
+        """The index of a co-simulated body (its q columns are 3 i .. 3 i + 2)."""
+        return self.order.index(name)
+
+
+class PortRun:
+    """A port scene with its devices and users, ready to run (one tick or many)."""
+
+    def __init__(
+        self,
+        scene: PortSceneConfig,
+        devices: list[SimulatedDevice] | None = None,
+        users: list[UserConfig] | None = None,
+    ) -> None:
+        self.scene = scene
+        self.devices = devices or [load_simulated_device(p.device) for p in scene.ports]
+        self.users = users or [load_user(p.user) for p in scene.ports]
+        maps = [getattr(d, "world_map", None) or DeviceWorldMap.identity() for d in self.devices]
+        io = np.zeros(1, PORT_IO_DTYPE)
+        self.io = io
+        limits = []
+        for p, (dev, wm) in enumerate(zip(self.devices, maps, strict=True)):
+            io[0]["maps"][p] = wm.record[0]
+            scale = io[0]["maps"][p]["scale"] * io[0]["maps"][p]["force_scale"]
+            io[0]["limits"][p] = dev.limits().max_wrench
+            limits.append(tuple(io[0]["limits"][p] / scale))
+        self.model, self.data = cosim_records(scene, limits)
+        self.order = cosim_order(scene)
+        for p, port in enumerate(scene.ports):
+            self._place(p, port.device_start)
+
+    def _place(self, p: int, start: tuple[float, float, float]) -> None:
+        """Device p at rest at its start pose, its map putting it where the coupling is
+        in equilibrium with its hand's constant push, its hand's script starting there."""
+        dev = self.devices[p]
+        dev.reset(np.array(start, F8))
+        user = user_record(self.users[p])
+        pose = np.zeros(3)
+        twist = np.zeros(3)
+        dev.true_state(pose, twist)
+        u = user[0]
+        u["start_pose"] = pose
+        u["start_s"] = 0.0
+        io = self.io[0]
+        io["users"][p] = u
+        wm = io["maps"][p]
+        tool = self.data[0]["q"][3 * self.model[0]["port_tool"][p] :][:3]
+        kc = self.model[0]["coupling_stiffness"][p]
+        push = np.asarray(self.users[p].wrench, F8) / (wm["force_scale"] * wm["scale"])
+        stretch = np.divide(push, kc, out=np.zeros(3), where=kc > 0)
+        wm["offset"] = tool + stretch - wm["scale"] * pose
+        io["maps"][p] = wm
+
+    def run(self, duration_s: float) -> PortResult:
+        """Run `duration_s` of virtual time; every tick's row."""
+        n = round(duration_s * self.scene.haptic_rate_hz)
+        rows = np.zeros(n, PORT_ROW_DTYPE)
+        entered = time.perf_counter()
+        k = 0
+        d0, d1 = self.devices
+        while k < n:
+            k = run_port_ticks(self.model, self.data, self.io, d0.records, d1.records, rows, k, n)
+            if k < n:
+                for dev in self.devices:
+                    refill_noise(dev.noise, dev.records, float(self.data[0]["dt"]))
+        return PortResult(rows, self.model, self.order, time.perf_counter() - entered)
+
+
+def run_ports(
+    scene: PortSceneConfig,
+    duration_s: float,
+    devices: list[SimulatedDevice] | None = None,
+    users: list[UserConfig] | None = None,
+) -> PortResult:
+    """A port scene's run on the virtual clock (module docstring)."""
+    return PortRun(scene, devices, users).run(duration_s)

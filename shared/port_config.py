@@ -1,0 +1,154 @@
+"""Scenes of several ports on one co-simulated world (DESIGN-WAVE2 §2 C3, §6).
+
+A port is a device, its map onto the world, a simulated user and the tool the device holds.
+A port scene declares P = 2 ports and the free bodies the haptic side integrates at 1 kHz
+with the tools (`haptic_server/stages/cosim.py`): the tools themselves, the grasped object,
+and static walls. Files live in `configs/ports/`; keys are checked as a scene's are, and an
+error names the file and the key.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from haptic_local_model.shared.config import (
+    FRICTION_RANGE,
+    BodySpec,
+    Vec2,
+    Vec3,
+    load_dataclass,
+    read_toml,
+    require,
+    resolve,
+    within,
+    within_all,
+)
+
+MAX_PORTS = 2  # this wave's ports (DESIGN-WAVE2 C3: P <= 2)
+MAX_COSIM_BODIES = 4  # co-simulated free bodies: the tools and the objects
+MAX_STATIC_BODIES = 4  # static walls, floors and posts
+
+
+@dataclass(frozen=True)
+class CosimContact:
+    """Every co-simulated contact (seed 001 eq 8, DESIGN-WAVE2 §6): penalty k, b along the
+    normal, a stick spring of ratio * k capped at mu f_n along the tangent."""
+
+    stiffness_n_per_m: float = 15000.0
+    damping_ns_per_m: float = 30.0
+    friction: float = 0.5
+    friction_stiffness_ratio: float = 1.0
+
+    def __post_init__(self) -> None:
+        within(self.stiffness_n_per_m, (1.0, 1e7), "stiffness_n_per_m", "N/m")
+        within(self.damping_ns_per_m, (0.0, 1e4), "damping_ns_per_m", "N s/m")
+        within(self.friction, FRICTION_RANGE, "friction")
+        within(self.friction_stiffness_ratio, (0.0, 10.0), "friction_stiffness_ratio")
+
+
+@dataclass(frozen=True)
+class PortSpec:
+    """One device on the world: the tool body it holds (a dynamic body of the scene), its
+    simulated user and device (names or paths, overridable on the command line), and the
+    virtual coupling between the device and the tool."""
+
+    name: str
+    tool: str
+    user: str
+    device: str = "maglev"
+    coupling_stiffness: Vec3 = (2000.0, 2000.0, 0.5)  # N/m, N/m, N m/rad
+    coupling_damping: Vec3 = (40.0, 40.0, 0.01)  # N s/m, N s/m, N m s/rad
+    # where the device starts, device frame (a lift starts low to use the device's range)
+    device_start: Vec3 = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        require(bool(self.name), "name", "must not be empty")
+        within_all(self.device_start, (-1.0, 1.0), "device_start")
+        within_all(self.coupling_stiffness, (0.0, 1e6), "coupling_stiffness")
+        within_all(self.coupling_damping, (0.0, 1e4), "coupling_damping")
+
+
+@dataclass(frozen=True)
+class PortSceneConfig:
+    """Two ports and the bodies co-simulated with their tools."""
+
+    name: str
+    description: str = ""
+    gravity: Vec2 = (0.0, -9.81)
+    haptic_rate_hz: float = 1000.0
+    contact: CosimContact = field(default_factory=CosimContact)
+    ports: tuple[PortSpec, ...] = ()
+    bodies: tuple[BodySpec, ...] = ()
+
+    def __post_init__(self) -> None:
+        within_all(self.gravity, (-100.0, 100.0), "gravity", "m/s^2")
+        within(self.haptic_rate_hz, (100.0, 20000.0), "haptic_rate_hz", "Hz")
+        require(
+            len(self.ports) == MAX_PORTS,
+            "ports",
+            f"declares {len(self.ports)} ports; this build co-simulates exactly {MAX_PORTS}",
+        )
+        names = [b.name for b in self.bodies]
+        require(len(set(names)) == len(names), "bodies", "body names must be unique")
+        dynamic = self.dynamic_bodies
+        static = [b for b in self.bodies if b.kind == "static"]
+        require(
+            len(dynamic) <= MAX_COSIM_BODIES,
+            "bodies",
+            f"{len(dynamic)} dynamic bodies; at most {MAX_COSIM_BODIES} are co-simulated",
+        )
+        require(
+            len(static) <= MAX_STATIC_BODIES,
+            "bodies",
+            f"{len(static)} static bodies; at most {MAX_STATIC_BODIES}",
+        )
+        for i, b in enumerate(self.bodies):
+            require(
+                b.kind != "kinematic",
+                f"bodies[{i}].kind",
+                "kinematic bodies are not co-simulated (static or dynamic)",
+            )
+            require(
+                b.shape != "segment" or b.kind == "static",
+                f"bodies[{i}].shape",
+                "a co-simulated body is a box or a circle",
+            )
+        tools = [p.tool for p in self.ports]
+        require(len(set(tools)) == len(tools), "ports", "two ports hold the same tool")
+        for i, p in enumerate(self.ports):
+            require(
+                p.tool in [b.name for b in dynamic],
+                f"ports[{i}].tool",
+                f"{p.tool!r} is not a dynamic body of the scene",
+            )
+        require(len(dynamic) > len(tools), "bodies", "needs an object besides the tools")
+
+    @property
+    def dynamic_bodies(self) -> list[BodySpec]:
+        return [b for b in self.bodies if b.kind == "dynamic"]
+
+    @property
+    def static_bodies(self) -> list[BodySpec]:
+        return [b for b in self.bodies if b.kind == "static"]
+
+    def body(self, name: str) -> BodySpec:
+        return next(b for b in self.bodies if b.name == name)
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.haptic_rate_hz
+
+    def squeeze_frequency_hz(self) -> float:
+        """The stiffest co-simulated mode: the lightest body between two contacts,
+        sqrt(2 k / m) / 2 pi (DESIGN-WAVE2 §6)."""
+        lightest = min(b.mass for b in self.dynamic_bodies)
+        return math.sqrt(2.0 * self.contact.stiffness_n_per_m / lightest) / (2.0 * math.pi)
+
+
+def load_port_scene(name_or_path: str) -> PortSceneConfig:
+    """A port scene by name (`configs/ports/<name>.toml`) or path."""
+    path = resolve("ports", name_or_path)
+    data: dict[str, Any] = read_toml(path)
+    return load_dataclass(PortSceneConfig, data, str(path))
