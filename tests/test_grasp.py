@@ -101,13 +101,28 @@ def test_a_collision_between_free_bodies_conserves_momentum(scene):
     assert np.max(np.abs(momentum() - before)) < 1e-14
 
 
-def test_a_device_pose_that_is_not_finite_sends_zero_force(scene):
+def test_a_reading_that_is_not_finite_cuts_its_port_only_for_that_tick(scene):
+    """Device 0 reads NaN for one tick: its command is zero and counted, the other port and
+    the bodies go on finite, and the next finite reading couples again."""
     model, data = cosim_records(scene, LIMITS)
-    data[0]["device_pose"][0, 0] = math.nan
+    d = data[0]
+    for p in range(2):
+        d["device_pose"][p] = d["q"][3 * p : 3 * p + 3]
+        d["device_pose"][p, 0] += 0.001 if p == 0 else -0.001  # a 2 N squeeze
+    for _ in range(20):
+        cosim_tick(model, data)
+    good = d["device_pose"][0].copy()
+    d["device_pose"][0, 0] = math.nan
     cosim_tick(model, data)
-    assert np.all(data[0]["command"][0] == 0.0)
-    assert data[0]["invalid"] >= 1
-    assert np.all(np.isfinite(data[0]["command"]))
+    assert np.all(d["command"][0] == 0.0)
+    assert d["invalid"] == 1
+    assert np.all(np.isfinite(d["q"])) and np.all(np.isfinite(d["qd"]))
+    assert abs(d["command"][1, 0]) > 1.0  # the other port still squeezes
+    d["device_pose"][0] = good
+    cosim_tick(model, data)
+    assert abs(d["command"][0, 0]) > 1.0
+    assert d["invalid"] == 1 and d["singular"] == 0
+    assert np.all(np.isfinite(d["stick"]))
 
 
 def test_commands_stay_within_the_ports_limits(scene):
@@ -191,11 +206,14 @@ def test_v4_4_stiff_contacts_on_light_boxes_stay_finite_and_come_to_rest(scene):
             assert cell["drop_m"] > 0.005, cell
 
 
-def test_v4_5_the_box_follows_a_twist(scene):
+def test_v4_5_the_box_follows_the_pads_through_a_twist(scene):
+    """The box turns with the pads that grip it (to 0.02 rad, every tick); the hands'
+    intended angle is not met (docs/grasp.md): the squeeze's couple stretches their
+    springs, and that error is bounded here so a change in it shows."""
     r = twist(scene)
     assert r["error_max_rad"] <= 0.02
     assert r["contact_losses"] == 0
-    assert r["final_angle_rad"] > 0.4
+    assert 0.0 < r["final_error_vs_intended_rad"] < 0.2
 
 
 @pytest.mark.parametrize(
@@ -207,7 +225,7 @@ def test_any_shipped_device_on_either_port_holds_the_box(scene, devices):
     res = run_ports(sc, 1.0, users=squeeze_users(sc, 2.0))
     r = res.rows
     y = pose_of(res, "box")[:, 1]
-    assert np.all(np.isfinite(r["q"])) and np.all(np.isfinite(r["command"]))
+    assert r["invalid"][-1] == 0 and r["singular"][-1] == 0
     assert abs(y[-1] - y[200]) < 5e-5
     for p, dev in enumerate(res_devices(sc)):
         assert np.all(np.abs(r["command"][:, p]) <= np.asarray(dev) + 1e-12)

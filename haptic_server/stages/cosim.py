@@ -10,7 +10,9 @@ The extended configuration q = (q_tool_0, q_tool_1, q_object, ...) holds free ri
    (vertex owner, penetrated shape, vertex). Normals rotate with the bodies. Tool-object
    contacts have both sides in q: their rows are n^T (J_o - J_t).
 2. Each port's virtual coupling between its device (pose and twist in the world frame) and
-   its tool: K_c (x_h - x_t) + B_c (xd_h - xd_t) on the tool, the opposite on the device.
+   its tool: K_c (x_h - x_t) + B_c (xd_h - xd_t) on the tool, the opposite on the device
+   (K_c here is the coupling's stiffness; the contacts' is k). A port whose reading is not
+   finite couples nothing that tick and commands zero; the other port goes on.
 3. One linearly implicit step over the whole of q in the contact and coupling springs
    (seed 000 eq 21 as `stages/proxy.py` takes it):
    (D + dt B + dt^2 K) dqd = dt (f - dt K qd + dt K_c xd_h + (B_c + dt K_c) dt a_h),
@@ -79,7 +81,10 @@ COSIM_DATA_DTYPE = np.dtype(
         ("device_twist", F8, (MAX_PORTS, 3)),
         ("prev_device_twist", F8, (MAX_PORTS, 3)),
         ("device_next", F8, (MAX_PORTS, 6)),  # pose, twist predicted over the step
-        ("primed", I8),  # prev_device_twist holds a reading
+        ("port_cut", I8, (MAX_PORTS,)),  # this tick's reading was not finite: no coupling
+        ("q_before", F8, (MAX_COSIM_DOF,)),
+        ("qd_before", F8, (MAX_COSIM_DOF,)),
+        ("primed", I8, (MAX_PORTS,)),  # prev_device_twist holds a reading
         ("command", F8, (MAX_PORTS, 3)),  # output: world frame, clipped
         ("body_force", F8, (MAX_COSIM_BODIES, 3)),  # contact wrench on each body (about COM)
         ("n_contacts", I8),
@@ -356,6 +361,8 @@ def all_contacts(m, d):
                 continue
             if o >= MAX_COSIM_BODIES and t >= MAX_COSIM_BODIES:
                 continue
+            if t < o and m.n_vert[o] == 1 and m.n_vert[t] == 1:
+                continue  # two discs meet once: their centres, either way round
             contacts_of(m, d, o, t)
 
 
@@ -366,12 +373,26 @@ def couple_ports(m, d):
     dt = d.dt
     for p in range(m.n_ports):
         a0 = 3 * m.port_tool[p]
+        d.port_cut[p] = 0
+        for c in range(3):
+            if not (math.isfinite(d.device_pose[p, c]) and math.isfinite(d.device_twist[p, c])):
+                d.port_cut[p] = 1
+        if d.port_cut[p] == 1:
+            # a reading that is not finite couples nothing this tick (the other port and the
+            # bodies go on); the next finite reading starts the prediction afresh
+            d.invalid += 1
+            d.primed[p] = 0
+            for c in range(3):
+                d.prev_device_twist[p, c] = 0.0
+                d.device_next[p, c] = d.q[a0 + c]
+                d.device_next[p, c + 3] = d.qd[a0 + c]
+            continue
         for c in range(3):
             a = a0 + c
             kc = m.coupling_stiffness[p, c]
             bc = m.coupling_damping[p, c]
             vh = d.device_twist[p, c]
-            acc = (vh - d.prev_device_twist[p, c]) / dt if d.primed == 1 else 0.0
+            acc = (vh - d.prev_device_twist[p, c]) / dt if d.primed[p] == 1 else 0.0
             d.prev_device_twist[p, c] = vh
             d.f[a] += kc * (d.device_pose[p, c] - d.q[a]) + bc * (vh - d.qd[a])
             d.k[a, a] += kc
@@ -379,7 +400,7 @@ def couple_ports(m, d):
             d.extra[a] += dt * kc * vh + (bc + dt * kc) * dt * acc
             d.device_next[p, c + 3] = vh + dt * acc
             d.device_next[p, c] = d.device_pose[p, c] + dt * (vh + dt * acc)
-    d.primed = 1
+        d.primed[p] = 1
 
 
 @njit(cache=True)
@@ -400,9 +421,9 @@ def _clear(m, d):
 
 @njit(cache=True)
 def step_bodies(m, d):
-    """The linearly implicit step of q (module docstring, step 3); a system that does not
-    factor (it cannot, for positive masses, unless the state is not finite) holds the
-    bodies and is counted."""
+    """The linearly implicit step of q (module docstring, step 3). A system that does not
+    factor, or a step that is not finite, holds the bodies where they were, at rest, and is
+    counted (`singular`): a bad state never stays in q."""
     dt = d.dt
     n = 3 * m.n_bodies
     for i in range(m.n_bodies):
@@ -416,15 +437,22 @@ def step_bodies(m, d):
         d.rhs[a] = dt * v
         i = a // 3
         d.system[a, a] += m.inertia[i] if a % 3 == 2 else m.mass[i]
-    if not cholesky_inplace(d.system, n, d.chol):
+    for a in range(n):
+        d.q_before[a] = d.q[a]
+        d.qd_before[a] = d.qd[a]
+    ok = cholesky_inplace(d.system, n, d.chol)
+    if ok:
+        cholesky_solve(d.chol, n, d.rhs, d.dqd)
+        for a in range(n):
+            d.qd[a] += d.dqd[a]
+            d.q[a] += dt * d.qd[a]
+            if not (math.isfinite(d.q[a]) and math.isfinite(d.qd[a])):
+                ok = False
+    if not ok:
         d.singular += 1
         for a in range(n):
+            d.q[a] = d.q_before[a]
             d.qd[a] = 0.0
-        return
-    cholesky_solve(d.chol, n, d.rhs, d.dqd)
-    for a in range(n):
-        d.qd[a] += d.dqd[a]
-        d.q[a] += dt * d.qd[a]
 
 
 @njit(cache=True)
@@ -436,7 +464,7 @@ def port_commands(m, d):
     60 mm/s lift at 2 kN/m)."""
     for p in range(m.n_ports):
         a0 = 3 * m.port_tool[p]
-        bad = False
+        bad = d.port_cut[p] == 1
         for c in range(3):
             a = a0 + c
             u = m.coupling_stiffness[p, c] * (d.q[a] - d.device_next[p, c])
@@ -446,7 +474,8 @@ def port_commands(m, d):
             lim = m.max_wrench[p, c]
             d.command[p, c] = min(lim, max(-lim, u))
         if bad:
-            d.invalid += 1
+            if d.port_cut[p] == 0:
+                d.invalid += 1
             for c in range(3):
                 d.command[p, c] = 0.0
 
