@@ -152,3 +152,58 @@ def load_port_scene(name_or_path: str) -> PortSceneConfig:
     path = resolve("ports", name_or_path)
     data: dict[str, Any] = read_toml(path)
     return load_dataclass(PortSceneConfig, data, str(path))
+
+
+@dataclass(frozen=True)
+class FingerSpec:
+    """A finger of two revolute phalanges hanging from the palm's front edge: capsules of
+    the given radius along each phalanx (DESIGN-WAVE2 §7)."""
+
+    lengths: Vec2 = (0.02, 0.015)  # m
+    masses: Vec2 = (0.005, 0.004)  # kg
+    inertias: Vec2 = (2.0e-7, 1.0e-7)  # kg m^2 about each phalanx's centre
+    radius: float = 0.004  # m
+    rest: Vec2 = (0.0, 0.0)  # rad: the joint angles the glove reads at the start
+
+    def __post_init__(self) -> None:
+        within_all(self.lengths, (1e-3, 0.2), "lengths", "m")
+        within_all(self.masses, (1e-4, 1.0), "masses", "kg")
+        within_all(self.inertias, (1e-10, 1e-2), "inertias", "kg m^2")
+        within(self.radius, (1e-4, 0.05), "radius", "m")
+
+
+@dataclass(frozen=True)
+class HandSpec:
+    """The mass-spring hand (DESIGN-WAVE2 §7): a palm box (x, y, theta) with fingers of two
+    phalanges, coupled to the tracked palm and to the glove's joint angles by springs with
+    the corrected signs, the drives solved implicitly (`haptic_server/stages/hand.py`)."""
+
+    palm_size: Vec2 = (0.04, 0.015)  # m: the fingers hang from the middle of the front edge
+    palm_mass: float = 0.2
+    palm_inertia: float = 3.0e-5
+    fingers: tuple[FingerSpec, ...] = (FingerSpec(rest=(0.3, 0.2)), FingerSpec(rest=(-0.3, -0.2)))
+    palm_spring: Vec3 = (500.0, 500.0, 0.5)  # k_t, k_t, k_theta
+    palm_damping: Vec3 = (20.0, 20.0, 0.01)
+    joint_spring: float = 0.2  # k_j, N m/rad
+    joint_damping: float = 1.0e-4  # d_j, N m s/rad
+    damping: str = "relative"  # relative: b (v_t - v_s); absolute: -b v_s (seed 002's)
+    glove: str = "unilateral"  # none | bilateral | unilateral
+
+    def __post_init__(self) -> None:
+        within(self.palm_mass, (1e-3, 10.0), "palm_mass", "kg")
+        within(self.palm_inertia, (1e-9, 1.0), "palm_inertia", "kg m^2")
+        require(1 <= len(self.fingers) <= 4, "fingers", "1 to 4 fingers")
+        within_all(self.palm_spring, (0.0, 1e6), "palm_spring")
+        within_all(self.palm_damping, (0.0, 1e4), "palm_damping")
+        within(self.joint_spring, (0.0, 1e4), "joint_spring", "N m/rad")
+        within(self.joint_damping, (0.0, 1e2), "joint_damping", "N m s/rad")
+        require(self.damping in ("relative", "absolute"), "damping", "relative or absolute")
+        require(
+            self.glove in ("none", "bilateral", "unilateral"),
+            "glove",
+            "none, bilateral or unilateral",
+        )
+
+    @property
+    def dof(self) -> int:
+        return 3 + 2 * len(self.fingers)

@@ -1,0 +1,231 @@
+"""The mass-spring hand (DESIGN-WAVE2 §7) against closed forms, on a tracked hand given
+as a script (haptic_server/stages/hand.py), at 1 kHz:
+
+- V5.1 free-space tracking (palm 0.2 kg, k_t 500 N/m, b_t 20 N s/m, the brief's two
+  fingers): a 1 Hz, 20 mm sine's separation amplitude against |m s^2 / (m s^2 + b s + k)|
+  20 mm with m the whole hand's mass (the fingers ride on the palm); a 50 mm/s ramp's
+  steady separation with relative damping (0) and with absolute damping (b v / k = 2 mm);
+- V5.2 a palm pressed 5 mm into a wall (its flat underside on a floor, two corner
+  contacts of k each): separation against d 2k / (k_t + 2k), the palm spring's force
+  against the wall's contact force;
+- V5.3 the joint drives at 1, 10 and 100 times the explicit limit 4 I / dt^2 of the
+  lightest phalanx (I about its joint), the glove stepping 0.3 rad and then holding: finite,
+  and the hand's energy (kinetic + drives) never rising after the step;
+- V5.4 a fingertip swept at 1 m/s across a 2 mm post, 1000 placements along the finger:
+  how many the post passes through (its centre reaching the capsule's core), the deepest
+  penetration, and the same with seed 004's emulation (the proxy stepped every 3 ticks),
+  at the shipped 15 kN/m contacts and at 60 kN/m. `largest_command_step_n` is the largest
+  change of the palm's command from one proxy step to the next (per 3 ms for the
+  emulation, which does not model the seed's 1 kHz force from a stale proxy).
+
+    python -m haptic_local_model.benchmarks.hand [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+
+import numpy as np
+
+from haptic_local_model.haptic_server.stages.hand import (
+    hand_energy,
+    hand_records,
+    hand_tick,
+    run_tracked,
+)
+from haptic_local_model.shared.kinematics import MAX_DOF
+from haptic_local_model.shared.port_config import FingerSpec, HandSpec
+
+DT = 0.001
+CONTACT = (15000.0, 30.0, 0.5, 15000.0)  # k, b, mu, k_t of every hand contact
+LIMITS = (50.0, 50.0, 5.0)
+
+
+def hand_mass(spec: HandSpec) -> float:
+    return spec.palm_mass + sum(sum(f.masses) for f in spec.fingers)
+
+
+def track(spec, walls, targets, rates, dt=DT, contact=CONTACT):
+    """Run the hand on a script; (q, command, contact) rows."""
+    chain, model, data = hand_records(spec, walls, contact, tuple(targets[0, :3]), LIMITS, dt)
+    data[0]["q"][: spec.dof] = targets[0, : spec.dof]
+    n = len(targets)
+    q = np.zeros((n, MAX_DOF))
+    cmd = np.zeros((n, 3))
+    contact = np.zeros((n, 3))
+    run_tracked(chain, model, data, targets, rates, q, cmd, contact)
+    return q, cmd, contact
+
+
+def _script(spec: HandSpec, n: int) -> tuple[np.ndarray, np.ndarray]:
+    targets = np.zeros((n, MAX_DOF))
+    targets[:, 3 : spec.dof] = [a for f in spec.fingers for a in f.rest]
+    return targets, np.zeros((n, MAX_DOF))
+
+
+def free_space(spec: HandSpec | None = None) -> dict:
+    """V5.1 (module docstring)."""
+    spec = spec or HandSpec()
+    amp, w = 0.02, 2 * math.pi
+    n = 6000
+    t = np.arange(n) * DT
+    targets, rates = _script(spec, n)
+    targets[:, 0] = amp * np.sin(w * t)
+    rates[:, 0] = amp * w * np.cos(w * t)
+    q, _, _ = track(spec, [], targets, rates)
+    sep = amp * np.sin(w * (t + DT)) - q[:, 0]
+    measured = (sep[n // 2 :].max() - sep[n // 2 :].min()) / 2
+    m = hand_mass(spec)
+    k, b = spec.palm_spring[0], spec.palm_damping[0]
+    s = 1j * w
+    expected = abs(m * s**2 / (m * s**2 + b * s + k)) * amp
+    ramp = {}
+    for damping in ("relative", "absolute"):
+        sp = dataclasses.replace(spec, damping=damping)
+        targets, rates = _script(sp, 3000)
+        targets[:, 0] = 0.05 * t[:3000]
+        rates[:, 0] = 0.05
+        q, _, _ = track(sp, [], targets, rates)
+        ramp[damping] = float(0.05 * (t[2999] + DT) - q[2999, 0])
+    return {
+        "sine_expected_m": expected,
+        "sine_measured_m": float(measured),
+        "sine_error_fraction": float(measured / expected - 1.0),
+        "ramp_relative_m": ramp["relative"],
+        "ramp_absolute_m": ramp["absolute"],
+        "ramp_absolute_expected_m": b * 0.05 / k,
+    }
+
+
+def press(spec: HandSpec | None = None, depth_m: float = 0.005) -> dict:
+    """V5.2 (module docstring): the floor's top at the palm's underside."""
+    spec = spec or HandSpec(fingers=(FingerSpec(rest=(0.6, 0.4)), FingerSpec(rest=(0.9, 0.4))))
+    h = spec.palm_size[1]
+    floor = (np.array([(-0.1, -0.01), (0.1, -0.01), (0.1, 0.01), (-0.1, 0.01)]), 0.0,
+             (0.0, -h / 2 - 0.01, 0.0))  # fmt: skip
+    n = 3000
+    targets, rates = _script(spec, n)
+    targets[:, 1] = -depth_m * np.minimum(1.0, np.arange(n) / 500)
+    rates[:500, 1] = -depth_m / (500 * DT)
+    q, _, contact = track(spec, [floor], targets, rates)
+    sep = float(q[-1, 1] - targets[-1, 1])  # the proxy stays above the tracked palm
+    k = CONTACT[0]
+    k_t = spec.palm_spring[1]
+    expected = depth_m * 2 * k / (k_t + 2 * k)
+    spring = k_t * (targets[-1, 1] - q[-1, 1])  # the palm spring's pull on the palm, y
+    return {
+        "separation_m": sep,
+        "expected_m": expected,
+        "separation_error_fraction": sep / expected - 1.0,
+        "spring_force_n": float(-spring),
+        "wall_force_n": float(contact[-1, 1]),
+        "force_error_fraction": float(contact[-1, 1] / -spring - 1.0),
+    }
+
+
+def implicit_sweep(factors: tuple[float, ...] = (1.0, 10.0, 100.0)) -> list[dict]:
+    """V5.3 (module docstring)."""
+    base = HandSpec()
+    f0 = base.fingers[0]
+    # the lightest phalanx about its joint: the fingertip's
+    inertia = f0.inertias[1] + f0.masses[1] * (f0.lengths[1] / 2) ** 2
+    limit = 4 * inertia / DT**2
+    out = []
+    for factor in factors:
+        spec = dataclasses.replace(base, joint_spring=factor * limit, joint_damping=1e-6)
+        chain, model, data = hand_records(spec, [], CONTACT, (0.0, 0.0, 0.0), LIMITS, DT)
+        d = data[0]
+        d["target"][3 : spec.dof] += 0.3
+        energy = []
+        for _ in range(2000):
+            hand_tick(chain, model, data)
+            energy.append(hand_energy(chain, model, data))
+        e = np.array(energy)
+        rises = np.diff(e)
+        out.append(
+            {
+                "factor": factor,
+                "k_j": factor * limit,
+                "finite": bool(np.all(np.isfinite(d["q"]))),
+                "largest_rise_j": float(rises.max()),
+                "energy_first_j": float(e[0]),
+                "energy_last_j": float(e[-1]),
+            }
+        )
+    return out
+
+
+def post_sweeps(
+    trials: int = 1000, every: int = 1, seed: int = 4, stiffness: float = CONTACT[0]
+) -> dict:
+    """V5.4 (module docstring): one straight finger; the tracked palm sweeps +y at 1 m/s
+    for 60 mm, the post (a 1 mm disc) somewhere along the finger, 20 mm ahead. `every` = 3
+    steps the proxy every third tick over 3 ms (the seed's 300 Hz hand), the tracked hand
+    sampled then."""
+    rng = np.random.default_rng(seed)
+    finger = FingerSpec(rest=(0.0, 0.0))
+    spec = HandSpec(fingers=(finger,))
+    reach = spec.palm_size[0] / 2 + sum(finger.lengths)
+    n = 80 // every
+    dt = DT * every
+    t = np.arange(n) * dt
+    through = 0
+    deepest = 0.0
+    jump = 0.0
+    for _ in range(trials):
+        x = rng.uniform(spec.palm_size[0] / 2 + 0.004, reach - 0.002)
+        post = (np.zeros((1, 2)), 0.001, (float(x), 0.02 + rng.uniform(0, 0.001), 0.0))
+        targets, rates = _script(spec, n)
+        targets[:, 1] = np.minimum(1.0 * t, 0.06)
+        rates[:, 1] = np.where(t < 0.06, 1.0, 0.0)
+        law = (stiffness, *CONTACT[1:3], stiffness)
+        _, cmd, contact = track(spec, [post], targets, rates, dt, law)
+        depth = float(contact[:, 2].max())
+        deepest = max(deepest, depth)
+        if depth >= finger.radius + 0.001:
+            through += 1
+        jump = max(jump, float(np.max(np.abs(np.diff(cmd[:, 1])))))
+    return {
+        "trials": trials,
+        "contact_n_per_m": stiffness,
+        "proxy_step_ms": dt * 1e3,
+        "passed_through": through,
+        "deepest_m": deepest,
+        "combined_radius_m": finger.radius + 0.001,
+        "largest_command_step_n": jump,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--json", help="write every figure to this file")
+    args = ap.parse_args(argv)
+    figures = {
+        "V5.1 free-space tracking": free_space(),
+        "V5.2 press a wall": press(),
+        "V5.3 implicit drives": implicit_sweep(),
+        "V5.4 post, 1 kHz proxy": post_sweeps(),
+        "V5.4 post, seed 004 emulation (proxy every 3 ticks)": post_sweeps(every=3),
+        "V5.4 post, 1 kHz, contacts at 60 kN/m": post_sweeps(stiffness=60000.0),
+        "V5.4 post, seed 004 emulation, contacts at 60 kN/m": post_sweeps(
+            every=3, stiffness=60000.0
+        ),
+    }
+    for name, value in figures.items():
+        print(f"\n{name}")
+        rows = value if isinstance(value, list) else [value]
+        for row in rows:
+            print("  " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
+                                   for k, v in row.items()))  # fmt: skip
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(figures, f, indent=2)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,612 @@
+"""The mass-spring hand at 1 kHz (DESIGN-WAVE2 §7; seed 004 §4.2-4.4, Borst & Indugula).
+
+The proxy hand is a tree chain (shared/kinematics.py): the palm (prismatic x, prismatic y,
+revolute theta; the palm's frame at its centre, its link reaching the middle of its front
+edge) and fingers of two revolute phalanges each (parent(phalanx 1) = palm, parent(phalanx
+2) = phalanx 1), q of d = 3 + 2F. D(q), G(q) and C(q, qd) qd are computed every tick from the
+hand's own table, so no frozen-D error. The tracked hand (the palm's pose from the port's
+device, the finger angles from a glove) pulls the proxy by springs with the corrected signs:
+
+    F = k_t (p_t - p_s) + b_t (v_t - v_s),   tau_theta = k_theta wrap(theta_t - theta_s) + ...,
+    tau_j = k_j (alpha_t,j - alpha_s,j) + d_j (omega_t,j - omega_s,j)
+
+(seed 004's eqs 4.2-4.3 have the spring terms reversed: they push the proxy away). With
+`absolute` damping the damper acts on the proxy's own rates (-b v_s, seed 002's): a ramp is
+then followed b v / k behind. Contacts of the palm box and the phalanx capsules with static
+walls and posts are the co-simulation's (penalty, stick-spring friction), at the point on the
+link (its Jacobian from the tree). Drives and contacts enter one linearly implicit
+theta-step, with the tracked motion over the step (velocity v_t, acceleration a_t):
+
+    (D + th dt B + th^2 dt^2 K) dqd = dt (tau - G - C qd - th dt K qd)
+                                       + th dt (K (v_t + th dt a_t) + B_rel a_t),
+    q += dt (qd + th dqd),
+
+so a 5 g phalanx on a k_j far above the explicit limit 4 I / dt^2 is stable. th = 0.6 (the
+model's `theta`): th = 1 (Euler, the co-simulation's step) lags a tracked motion by O(dt),
+and V5.1's separation, 1/64 of the motion it tracks, came out 5 % small at 1 kHz; th = 1/2
+(the trapezoid, no numerical damping) blew up with the explicit C(q, qd) qd of fingers
+driven at 100 times the explicit limit, and th = 0.55 let their energy rise by 0.43 J
+(benchmarks/hand.py, V5.3). At 0.6 V5.1 is 0.95 % small and no energy rises.
+
+Outputs: the palm's command (the reaction of the palm spring over the step, what the port's
+device renders, clipped at its limits, zero if not finite) and the glove's joint torques,
+-tau_j, gated for a unilateral (tendon) glove: applied only when they resist flexion
+(the ungated torques are kept beside them).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from haptic_local_model.shared.kinematics import (
+    MAX_DOF,
+    PRISMATIC_X,
+    PRISMATIC_Y,
+    REVOLUTE,
+    chain_record,
+    link_frames,
+    mass_matrix_and_gravity,
+    point_jacobian,
+    point_velocity,
+    velocity_product_torque_into,
+)
+from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
+from haptic_local_model.shared.port_config import HandSpec
+from haptic_local_model.shared.shapes import MAX_VERTICES, vertex_signed_distance
+
+F8 = np.float64
+I8 = np.int64
+MAX_WALLS = 4
+PALM = 2  # the palm's link (after its prismatic x and y)
+GLOVES = {"none": 0, "bilateral": 1, "unilateral": 2}
+CORIOLIS_STEP = 1.0e-6
+MAX_TURN = 0.05  # rad: the most a joint may turn in one sub-step
+MAX_SUBSTEPS = 64
+
+HAND_DTYPE = np.dtype(
+    [
+        ("dof", I8),
+        ("palm_vertices", F8, (4, 2)),  # the palm box, palm frame
+        ("radius", F8, (MAX_DOF,)),  # each phalanx's capsule radius
+        ("spring", F8, (MAX_DOF,)),  # k per coordinate: palm k_t, k_t, k_theta; joints k_j
+        ("damper", F8, (MAX_DOF,)),
+        ("relative", I8),  # 1: b (v_t - v_s); 0: -b v_s
+        ("glove", I8),  # GLOVES
+        ("flexion", F8, (MAX_DOF,)),  # +-1: the sign of each joint's flexion
+        ("n_walls", I8),
+        ("wall_vertices", F8, (MAX_WALLS, MAX_VERTICES, 2)),
+        ("wall_n_vert", I8, (MAX_WALLS,)),
+        ("wall_rounding", F8, (MAX_WALLS,)),
+        ("wall_pose", F8, (MAX_WALLS, 3)),
+        ("stiffness", F8),
+        ("damping", F8),
+        ("friction", F8),
+        ("tangential_stiffness", F8),
+        ("gravity", F8, (2,)),
+        ("max_wrench", F8, (3,)),
+        ("theta", F8),  # the step's implicitness: 1/2 trapezoidal ... 1 Euler
+    ]
+)
+
+HAND_DATA_DTYPE = np.dtype(
+    [
+        ("dt", F8),
+        ("q", F8, (MAX_DOF,)),
+        ("qd", F8, (MAX_DOF,)),
+        ("target", F8, (MAX_DOF,)),  # input: tracked palm pose, glove angles
+        ("target_rate", F8, (MAX_DOF,)),
+        ("prev_target_rate", F8, (MAX_DOF,)),
+        ("target_next", F8, (MAX_DOF, 2)),  # predicted over the step: position, rate
+        ("drive_now", F8, (MAX_DOF,)),  # each drive's force at the step's start
+        ("h", F8),  # the sub-step: dt / n_sub
+        ("n_sub", I8),  # this tick's sub-steps
+        ("substepped", I8),  # ticks that needed more than one
+        ("target_acc", F8, (MAX_DOF,)),
+        ("target_live", F8, (MAX_DOF,)),  # the tracked hand at the sub-step's start
+        ("rate_live", F8, (MAX_DOF,)),
+        ("cut", I8, (MAX_DOF,)),  # this tick's tracked value was not finite
+        ("q_tick", F8, (MAX_DOF,)),  # the state at the tick's start (a retry restores it)
+        ("qd_tick", F8, (MAX_DOF,)),
+        ("stick_tick", F8, (MAX_DOF, MAX_WALLS, 2, MAX_VERTICES)),
+        ("touching_tick", I8, (MAX_DOF, MAX_WALLS, 2, MAX_VERTICES)),
+        ("command_sum", F8, (3,)),
+        ("glove_sum", F8, (MAX_DOF,)),
+        ("turn", F8),  # the largest joint turn of one sub-step, rad
+        ("primed", I8, (MAX_DOF,)),
+        ("stick", F8, (MAX_DOF, MAX_WALLS, 2, MAX_VERTICES)),
+        ("touching", I8, (MAX_DOF, MAX_WALLS, 2, MAX_VERTICES)),
+        ("command", F8, (3,)),  # output: the palm's device, world frame
+        ("glove_torque", F8, (MAX_DOF,)),  # output: on the user's joints (gated)
+        ("glove_ungated", F8, (MAX_DOF,)),
+        ("contact_force", F8, (2,)),  # the walls' total force on the hand
+        ("n_contacts", I8),
+        ("penetration", F8),
+        ("invalid", I8),
+        ("singular", I8),
+        # scratch
+        ("mass", F8, (MAX_DOF, MAX_DOF)),
+        ("gravity_q", F8, (MAX_DOF,)),
+        ("coriolis", F8, (MAX_DOF,)),
+        ("f", F8, (MAX_DOF,)),
+        ("k", F8, (MAX_DOF, MAX_DOF)),
+        ("b", F8, (MAX_DOF, MAX_DOF)),
+        ("extra", F8, (MAX_DOF,)),
+        ("system", F8, (MAX_DOF, MAX_DOF)),
+        ("chol", F8, (MAX_DOF, MAX_DOF)),
+        ("rhs", F8, (MAX_DOF,)),
+        ("dqd", F8, (MAX_DOF,)),
+        ("q_before", F8, (MAX_DOF,)),
+        ("frame_pos", F8, (MAX_DOF, 2)),
+        ("frame_angle", F8, (MAX_DOF,)),
+        ("jac", F8, (3, MAX_DOF)),
+        ("grav", F8, (MAX_DOF,)),
+        ("d_plus", F8, (MAX_DOF, MAX_DOF)),
+        ("d_minus", F8, (MAX_DOF, MAX_DOF)),
+        ("qq", F8, (MAX_DOF,)),
+        ("pose_w", F8, (3,)),
+        ("core", F8, (MAX_VERTICES, 2)),
+        ("jn", F8, (MAX_DOF,)),
+        ("jt", F8, (MAX_DOF,)),
+        ("hit", F8, (5,)),  # point x, y, depth, normal x, y (pushing the hand out)
+    ]
+)
+
+
+def hand_chain(spec: HandSpec) -> np.ndarray:
+    """The hand's tree as a CHAIN_DTYPE[1]: palm x, y, theta, then each finger's phalanges."""
+    types = [PRISMATIC_X, PRISMATIC_Y, REVOLUTE]
+    lengths = [0.0, 0.0, spec.palm_size[0] / 2]
+    masses = [0.0, 0.0, spec.palm_mass]
+    inertias = [0.0, 0.0, spec.palm_inertia]
+    com = [(0.0, 0.0)] * 3
+    parents = [-1, 0, 1]
+    for finger in spec.fingers:
+        for j in range(2):
+            types.append(REVOLUTE)
+            lengths.append(finger.lengths[j])
+            masses.append(finger.masses[j])
+            inertias.append(finger.inertias[j])
+            com.append((finger.lengths[j] / 2, 0.0))
+            parents.append(PALM if j == 0 else len(parents) - 1)
+    return chain_record(
+        np.array(types, I8),
+        np.array(lengths),
+        np.zeros(2),
+        0.0,
+        np.array(masses),
+        np.array(inertias),
+        np.array(com),
+        np.array(parents, I8),
+    )
+
+
+def hand_records(
+    spec: HandSpec,
+    walls: list[tuple[np.ndarray, float, tuple[float, float, float]]],
+    contact: tuple[float, float, float, float],
+    palm_pose: tuple[float, float, float],
+    max_wrench: tuple[float, float, float],
+    dt: float,
+    theta: float = 0.6,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(chain, model, data) of a hand at `palm_pose` with its fingers at their rest angles,
+    the tracked hand there too. walls: (core vertices, rounding, pose) each; contact:
+    (stiffness, damping, friction, tangential stiffness)."""
+    chain = hand_chain(spec)
+    model = np.zeros(1, HAND_DTYPE)
+    data = np.zeros(1, HAND_DATA_DTYPE)
+    m = model[0]
+    d = data[0]
+    n = spec.dof
+    m["dof"] = n
+    w, h = spec.palm_size
+    m["palm_vertices"] = [(-w / 2, -h / 2), (w / 2, -h / 2), (w / 2, h / 2), (-w / 2, h / 2)]
+    m["spring"][:3] = spec.palm_spring
+    m["damper"][:3] = spec.palm_damping
+    m["relative"] = 1 if spec.damping == "relative" else 0
+    m["glove"] = GLOVES[spec.glove]
+    rest = [a for f in spec.fingers for a in f.rest]
+    for i, finger in enumerate(spec.fingers):
+        for j in range(2):
+            a = 3 + 2 * i + j
+            m["radius"][a] = finger.radius
+            m["spring"][a] = spec.joint_spring
+            m["damper"][a] = spec.joint_damping
+            m["flexion"][a] = -1.0 if finger.rest[0] < 0 else 1.0
+    if len(walls) > MAX_WALLS:
+        raise ValueError(f"walls: at most {MAX_WALLS}")
+    m["n_walls"] = len(walls)
+    for k, (vertices, rounding, pose) in enumerate(walls):
+        m["wall_vertices"][k, : len(vertices)] = vertices
+        m["wall_n_vert"][k] = len(vertices)
+        m["wall_rounding"][k] = rounding
+        m["wall_pose"][k] = pose
+    m["stiffness"], m["damping"], m["friction"], m["tangential_stiffness"] = contact
+    m["max_wrench"] = max_wrench
+    m["theta"] = theta
+    d["dt"] = dt
+    d["q"][:n] = (*palm_pose, *rest)
+    d["target"][:n] = d["q"][:n]
+    return chain, model, data
+
+
+@njit(cache=True)
+def hand_contact(chain, m, d, link, wall, side, v):
+    """The contact in d.hit on `link` (key: wall, side, vertex): penalty, stick-spring
+    friction, its generalised force and its stiffness for the implicit step."""
+    c = chain[0]
+    n = m.dof
+    px = d.hit[0]
+    py = d.hit[1]
+    depth = d.hit[2]
+    nx = d.hit[3]
+    ny = d.hit[4]
+    tx = -ny
+    ty = nx
+    vx, vy = point_velocity(c, d.frame_pos, link, px, py, d.qd)
+    vn = nx * vx + ny * vy
+    vt = tx * vx + ty * vy
+    f_n = m.stiffness * depth - m.damping * vn
+    if f_n < 0.0:
+        f_n = 0.0
+    if d.touching[link, wall, side, v] == 0:
+        d.stick[link, wall, side, v] = 0.0
+    d.touching[link, wall, side, v] = 1
+    d.stick[link, wall, side, v] += vt * d.h
+    k_t = m.tangential_stiffness
+    f_t = -k_t * d.stick[link, wall, side, v] - m.damping * vt
+    limit = m.friction * f_n
+    sticking = True
+    if abs(f_t) > limit:
+        f_t = limit if f_t > 0.0 else -limit
+        d.stick[link, wall, side, v] = -f_t / k_t if k_t > 0.0 else 0.0
+        sticking = False
+    fx = f_n * nx + f_t * tx
+    fy = f_n * ny + f_t * ty
+    d.contact_force[0] += fx
+    d.contact_force[1] += fy
+    d.n_contacts += 1
+    if depth > d.penetration:
+        d.penetration = depth
+    point_jacobian(c, d.frame_pos, n, link, px, py, d.jac)
+    for a in range(n):
+        d.f[a] += d.jac[0, a] * fx + d.jac[1, a] * fy
+        d.jn[a] = nx * d.jac[0, a] + ny * d.jac[1, a]
+        d.jt[a] = tx * d.jac[0, a] + ty * d.jac[1, a]
+    if f_n <= 0.0:
+        return
+    kt = k_t if sticking else 0.0
+    bt = m.damping if sticking else 0.0
+    for a in range(n):
+        for b in range(n):
+            d.k[a, b] += m.stiffness * d.jn[a] * d.jn[b] + kt * d.jt[a] * d.jt[b]
+            d.b[a, b] += m.damping * d.jn[a] * d.jn[b] + bt * d.jt[a] * d.jt[b]
+
+
+@njit(cache=True)
+def _wall_pose(m, d, wall):
+    for c in range(3):
+        d.pose_w[c] = m.wall_pose[wall, c]
+
+
+@njit(cache=True)
+def _link_pose(d, link):
+    d.pose_w[0] = d.frame_pos[link, 0]
+    d.pose_w[1] = d.frame_pos[link, 1]
+    d.pose_w[2] = d.frame_angle[link]
+
+
+@njit(cache=True)
+def link_wall_contacts(chain, m, d, link, wall, n_core, rounding):
+    """Side 0: the link's core vertices in the wall; side 1: the wall's vertices in the
+    link's rounded core."""
+    ca = math.cos(d.frame_angle[link])
+    sa = math.sin(d.frame_angle[link])
+    ox = d.frame_pos[link, 0]
+    oy = d.frame_pos[link, 1]
+    rw = m.wall_rounding[wall]
+    _wall_pose(m, d, wall)
+    for v in range(n_core):
+        wx = ox + ca * d.core[v, 0] - sa * d.core[v, 1]
+        wy = oy + sa * d.core[v, 0] + ca * d.core[v, 1]
+        phi, nx, ny = vertex_signed_distance(
+            m.wall_vertices[wall], m.wall_n_vert[wall], rw, d.pose_w, wx, wy, rounding
+        )
+        if phi >= 0.0:
+            d.touching[link, wall, 0, v] = 0
+            continue
+        d.hit[0] = wx - rounding * nx
+        d.hit[1] = wy - rounding * ny
+        d.hit[2] = -phi
+        d.hit[3] = nx
+        d.hit[4] = ny
+        hand_contact(chain, m, d, link, wall, 0, v)
+    _link_pose(d, link)
+    cw = math.cos(m.wall_pose[wall, 2])
+    sw = math.sin(m.wall_pose[wall, 2])
+    for v in range(m.wall_n_vert[wall]):
+        bx = m.wall_vertices[wall, v, 0]
+        by = m.wall_vertices[wall, v, 1]
+        wx = m.wall_pose[wall, 0] + cw * bx - sw * by
+        wy = m.wall_pose[wall, 1] + sw * bx + cw * by
+        phi, nx, ny = vertex_signed_distance(d.core, n_core, rounding, d.pose_w, wx, wy, rw)
+        if phi >= 0.0:
+            d.touching[link, wall, 1, v] = 0
+            continue
+        d.hit[0] = wx - rw * nx
+        d.hit[1] = wy - rw * ny
+        d.hit[2] = -phi
+        d.hit[3] = -nx
+        d.hit[4] = -ny
+        hand_contact(chain, m, d, link, wall, 1, v)
+
+
+@njit(cache=True)
+def hand_contacts(chain, m, d):
+    """Every shaped link (the palm, the phalanges) against every wall."""
+    c = chain[0]
+    for link in range(PALM, m.dof):
+        if link == PALM:
+            n_core = 4
+            rounding = 0.0
+            for v in range(4):
+                d.core[v, 0] = m.palm_vertices[v, 0]
+                d.core[v, 1] = m.palm_vertices[v, 1]
+        else:
+            n_core = 2
+            rounding = m.radius[link]
+            d.core[0, 0] = 0.0
+            d.core[0, 1] = 0.0
+            d.core[1, 0] = c.lengths[link]
+            d.core[1, 1] = 0.0
+        for wall in range(m.n_walls):
+            link_wall_contacts(chain, m, d, link, wall, n_core, rounding)
+
+
+@njit(cache=True)
+def tracked_inputs(m, d):
+    """This tick's tracked hand: a value that is not finite cuts its drive for the tick
+    (counted; the next finite one starts the prediction afresh); the tracked acceleration
+    over the last tick."""
+    dt = d.dt
+    for a in range(m.dof):
+        vt = d.target_rate[a]
+        d.cut[a] = 0
+        if not (math.isfinite(d.target[a]) and math.isfinite(vt)):
+            d.invalid += 1
+            d.cut[a] = 1
+            d.prev_target_rate[a] = 0.0
+            d.primed[a] = 0
+            continue
+        d.target_acc[a] = (vt - d.prev_target_rate[a]) / dt if d.primed[a] == 1 else 0.0
+        d.prev_target_rate[a] = vt
+        d.primed[a] = 1
+
+
+@njit(cache=True)
+def drives(m, d):
+    """The palm and joint springs toward the tracked hand at the sub-step's start, with its
+    motion predicted over the sub-step (module docstring)."""
+    h = d.h
+    th = m.theta
+    for a in range(m.dof):
+        if d.cut[a] == 1:
+            d.drive_now[a] = 0.0
+            d.target_next[a, 0] = d.q[a]
+            d.target_next[a, 1] = d.qd[a] if m.relative == 1 else 0.0
+            continue
+        k = m.spring[a]
+        b = m.damper[a]
+        vt = d.rate_live[a]
+        acc = d.target_acc[a]
+        err = d.target_live[a] - d.q[a]
+        if a == PALM:
+            err = math.atan2(math.sin(err), math.cos(err))
+        rate = vt if m.relative == 1 else 0.0
+        d.drive_now[a] = k * err + b * (rate - d.qd[a])
+        d.f[a] += d.drive_now[a]
+        d.k[a, a] += k
+        d.b[a, a] += b
+        # the step takes theta of the tracked motion's change in force over the step
+        d.extra[a] += th * (k * h * (vt + th * h * acc) + (b * h * acc if m.relative == 1 else 0.0))
+        d.target_next[a, 0] = d.q[a] + err + h * (vt + th * h * acc)
+        d.target_next[a, 1] = vt + h * acc
+
+
+@njit(cache=True)
+def hand_dynamics(chain, m, d):
+    """D(q), G(q) and C(q, qd) qd of the hand at this tick's q."""
+    work = (d.frame_pos, d.frame_angle, d.jac)
+    mass_matrix_and_gravity(chain, m.gravity, d.q, work, d.mass, d.gravity_q)
+    scratch = (d.frame_pos, d.frame_angle, d.jac, d.grav, d.d_plus, d.d_minus, d.qq)
+    velocity_product_torque_into(chain, d.q, d.qd, CORIOLIS_STEP, scratch, d.coriolis)
+    link_frames(chain[0], d.q, m.dof, d.frame_pos, d.frame_angle)
+
+
+@njit(cache=True)
+def hand_step(m, d):
+    """The linearly implicit step over d.h (module docstring); a step that is not finite
+    holds the hand at rest where it was (counted)."""
+    dt = d.h
+    n = m.dof
+    th = m.theta
+    for a in range(n):
+        v = d.f[a] - d.gravity_q[a] - d.coriolis[a] + d.extra[a]
+        for b in range(n):
+            v -= th * dt * d.k[a, b] * d.qd[b]
+            d.system[a, b] = d.mass[a, b] + th * dt * d.b[a, b] + th * th * dt * dt * d.k[a, b]
+        d.rhs[a] = dt * v
+        d.q_before[a] = d.q[a]
+    ok = cholesky_inplace(d.system, n, d.chol)
+    if ok:
+        cholesky_solve(d.chol, n, d.rhs, d.dqd)
+        for a in range(n):
+            d.q[a] += dt * (d.qd[a] + th * d.dqd[a])
+            d.qd[a] += d.dqd[a]
+            if not (math.isfinite(d.q[a]) and math.isfinite(d.qd[a])):
+                ok = False
+    if not ok:
+        d.singular += 1
+        for a in range(n):
+            d.q[a] = d.q_before[a]
+            d.qd[a] = 0.0
+
+
+@njit(cache=True)
+def substep_outputs(m, d):
+    """Add this sub-step's palm command (the reaction of the force the step took) and glove
+    torques (likewise) to the tick's sums."""
+    th = m.theta
+    for a in range(m.dof):
+        rate = d.target_next[a, 1] if m.relative == 1 else 0.0
+        f = m.spring[a] * (d.target_next[a, 0] - d.q[a]) + m.damper[a] * (rate - d.qd[a])
+        u = -((1.0 - th) * d.drive_now[a] + th * f)
+        if a < 3:
+            d.command_sum[a] += u
+        else:
+            d.glove_sum[a] += u
+
+
+@njit(cache=True)
+def hand_outputs(m, d):
+    """The palm's command (the sub-steps' mean, clipped, zero if not finite) and the glove's
+    torques on the user (likewise, gated for a unilateral glove)."""
+    bad = False
+    for a in range(3):
+        u = d.command_sum[a] / d.n_sub
+        if not math.isfinite(u):
+            bad = True
+        d.command[a] = min(m.max_wrench[a], max(-m.max_wrench[a], u))
+    if bad:
+        d.invalid += 1
+        for a in range(3):
+            d.command[a] = 0.0
+    for a in range(3, m.dof):
+        user = d.glove_sum[a] / d.n_sub
+        if not math.isfinite(user):
+            user = 0.0
+        d.glove_ungated[a] = user
+        if m.glove == 0 or (m.glove == 2 and m.flexion[a] * user > 0.0):
+            user = 0.0  # a tendon glove only holds a finger back from flexing
+        d.glove_torque[a] = user
+
+
+@njit(cache=True)
+def _save_tick(m, d):
+    for a in range(m.dof):
+        d.q_tick[a] = d.q[a]
+        d.qd_tick[a] = d.qd[a]
+    d.stick_tick[:] = d.stick
+    d.touching_tick[:] = d.touching
+
+
+@njit(cache=True)
+def _restore_tick(m, d):
+    for a in range(m.dof):
+        d.q[a] = d.q_tick[a]
+        d.qd[a] = d.qd_tick[a]
+    d.stick[:] = d.stick_tick
+    d.touching[:] = d.touching_tick
+
+
+@njit(cache=True)
+def substeps(chain, m, d, n_sub):
+    """The tick as n_sub sub-steps of dt / n_sub, the tracked hand moved along its rate and
+    acceleration between them; the largest joint turn of one sub-step into d.turn."""
+    n = m.dof
+    h = d.dt / n_sub
+    d.h = h
+    d.n_sub = n_sub
+    d.turn = 0.0
+    for a in range(3):
+        d.command_sum[a] = 0.0
+    for a in range(n):
+        d.glove_sum[a] = 0.0
+    for sub in range(n_sub):
+        tau = sub * h
+        for a in range(n):
+            d.target_live[a] = d.target[a] + tau * (d.target_rate[a] + 0.5 * tau * d.target_acc[a])
+            d.rate_live[a] = d.target_rate[a] + tau * d.target_acc[a]
+            d.f[a] = 0.0
+            d.extra[a] = 0.0
+            d.q_before[a] = d.q[a]
+            for b in range(n):
+                d.k[a, b] = 0.0
+                d.b[a, b] = 0.0
+        d.contact_force[0] = 0.0
+        d.contact_force[1] = 0.0
+        d.n_contacts = 0
+        d.penetration = 0.0
+        hand_dynamics(chain, m, d)
+        hand_contacts(chain, m, d)
+        drives(m, d)
+        hand_step(m, d)
+        substep_outputs(m, d)
+        for a in range(PALM, n):
+            turn = abs(d.q[a] - d.q_before[a])
+            if not turn <= d.turn:
+                d.turn = turn
+
+
+@njit(cache=True)
+def hand_tick(chain, model, data):
+    """One tick of the hand: data.target / target_rate hold the tracked palm pose and the
+    glove's angles (and their rates); data.command and data.glove_torque are left.
+
+    A light phalanx struck by a stiff contact can turn by a radian in one 1 ms step, where
+    the step's linearisation (of the contact normals, of D(q), of the explicit C(q, qd) qd)
+    no longer holds and the finger whirls (V5.4 blew up so at 60 kN/m). A tick whose
+    sub-step turns any joint by more than MAX_TURN is therefore run again from its start in
+    4, then 16, then 64 sub-steps."""
+    m = model[0]
+    d = data[0]
+    tracked_inputs(m, d)
+    _save_tick(m, d)
+    n_sub = 1
+    while True:
+        substeps(chain, m, d, n_sub)
+        if d.turn <= MAX_TURN or n_sub >= MAX_SUBSTEPS:
+            break
+        _restore_tick(m, d)
+        n_sub *= 4
+    if n_sub > 1:
+        d.substepped += 1
+    hand_outputs(m, d)
+
+
+def hand_energy(chain: np.ndarray, model: np.ndarray, data: np.ndarray) -> float:
+    """The proxy hand's kinetic energy plus its drives' spring energy toward the targets."""
+    m = model[0]
+    d = data[0]
+    n = int(m["dof"])
+    mass = np.zeros((MAX_DOF, MAX_DOF))
+    grav = np.zeros(MAX_DOF)
+    work = (np.zeros((MAX_DOF, 2)), np.zeros(MAX_DOF), np.zeros((3, MAX_DOF)))
+    mass_matrix_and_gravity(chain, np.zeros(2), d["q"], work, mass, grav)
+    qd = d["qd"][:n]
+    err = d["target"][:n] - d["q"][:n]
+    return float(0.5 * qd @ mass[:n, :n] @ qd + 0.5 * np.sum(m["spring"][:n] * err**2))
+
+
+@njit(cache=True)
+def run_tracked(chain, model, data, targets, rates, rows_q, rows_command, rows_contact):
+    """Ticks k = 0 .. len(targets) - 1 with the tracked hand at targets[k] (its rates at
+    rates[k]) at the step's start; after each, q, the palm's command and the walls' force
+    on the hand into the rows."""
+    d = data[0]
+    n = model[0].dof
+    for k in range(targets.shape[0]):
+        for a in range(n):
+            d.target[a] = targets[k, a]
+            d.target_rate[a] = rates[k, a]
+        hand_tick(chain, model, data)
+        for a in range(n):
+            rows_q[k, a] = d.q[a]
+        for c in range(3):
+            rows_command[k, c] = d.command[c]
+        rows_contact[k, 0] = d.contact_force[0]
+        rows_contact[k, 1] = d.contact_force[1]
+        rows_contact[k, 2] = d.penetration
