@@ -6,14 +6,15 @@ as a script (haptic_server/stages/hand.py), at 1 kHz:
   20 mm with m the whole hand's mass (the fingers ride on the palm); a 50 mm/s ramp's
   steady separation with relative damping (0) and with absolute damping (b v / k = 2 mm);
 - V5.2 a palm pressed 5 mm into a wall (its flat underside on a floor, two corner
-  contacts of k each): separation against d 2k / (k_t + 2k), the palm spring's force
-  against the wall's contact force;
+  contacts of k each): separation against d 2k / (k_t + 2k), and the palm spring's force
+  against the wall's contact force (a static balance: any integrator meets it at rest);
 - V5.3 the joint drives at 1, 10 and 100 times the explicit limit 4 I / dt^2 of the
-  lightest phalanx (I about its joint), the glove stepping 0.3 rad and then holding: finite,
-  and the hand's energy (kinetic + drives) never rising after the step;
+  lightest phalanx (I about its joint), the glove stepping 0.3 rad and then holding: no step
+  held for not being finite, and the hand's energy (kinetic + drives) never rising after the
+  step; the same at theta 0.55 and 0.5 (not shipped), for comparison;
 - V5.4 a fingertip swept at 1 m/s across a 2 mm post, 1000 placements along the finger:
-  how many the post passes through (its centre reaching the capsule's core), the deepest
-  penetration, and the same with seed 004's emulation (the proxy stepped every 3 ticks),
+  how many the post passes through (its centre crossing a phalanx's core line within the
+  phalanx), the deepest penetration, and the same with seed 004's emulation (the proxy stepped every 3 ticks),
   at the shipped 15 kN/m contacts and at 60 kN/m. `largest_command_step_n` is the largest
   change of the palm's command from one proxy step to the next (per 3 ms for the
   emulation, which does not model the seed's 1 kHz force from a stale proxy).
@@ -32,12 +33,13 @@ import sys
 import numpy as np
 
 from haptic_local_model.haptic_server.stages.hand import (
+    hand_chain,
     hand_energy,
     hand_records,
     hand_tick,
     run_tracked,
 )
-from haptic_local_model.shared.kinematics import MAX_DOF
+from haptic_local_model.shared.kinematics import MAX_DOF, link_frames
 from haptic_local_model.shared.port_config import FingerSpec, HandSpec
 
 DT = 0.001
@@ -127,8 +129,10 @@ def press(spec: HandSpec | None = None, depth_m: float = 0.005) -> dict:
     }
 
 
-def implicit_sweep(factors: tuple[float, ...] = (1.0, 10.0, 100.0)) -> list[dict]:
-    """V5.3 (module docstring)."""
+def implicit_sweep(
+    factors: tuple[float, ...] = (1.0, 10.0, 100.0), theta: float = 0.6
+) -> list[dict]:
+    """V5.3 (module docstring): `theta` is the step's (hand.py; 0.6 ships)."""
     base = HandSpec()
     f0 = base.fingers[0]
     # the lightest phalanx about its joint: the fingertip's
@@ -137,7 +141,7 @@ def implicit_sweep(factors: tuple[float, ...] = (1.0, 10.0, 100.0)) -> list[dict
     out = []
     for factor in factors:
         spec = dataclasses.replace(base, joint_spring=factor * limit, joint_damping=1e-6)
-        chain, model, data = hand_records(spec, [], CONTACT, (0.0, 0.0, 0.0), LIMITS, DT)
+        chain, model, data = hand_records(spec, [], CONTACT, (0.0, 0.0, 0.0), LIMITS, DT, theta)
         d = data[0]
         d["target"][3 : spec.dof] += 0.3
         energy = []
@@ -145,13 +149,14 @@ def implicit_sweep(factors: tuple[float, ...] = (1.0, 10.0, 100.0)) -> list[dict
             hand_tick(chain, model, data)
             energy.append(hand_energy(chain, model, data))
         e = np.array(energy)
-        rises = np.diff(e)
         out.append(
             {
+                "theta": theta,
                 "factor": factor,
                 "k_j": factor * limit,
-                "finite": bool(np.all(np.isfinite(d["q"]))),
-                "largest_rise_j": float(rises.max()),
+                "held_steps": int(d["singular"]),  # steps that were not finite
+                "substepped_ticks": int(d["substepped"]),
+                "largest_rise_j": float(np.diff(e).max()),
                 "energy_first_j": float(e[0]),
                 "energy_last_j": float(e[-1]),
             }
@@ -159,16 +164,41 @@ def implicit_sweep(factors: tuple[float, ...] = (1.0, 10.0, 100.0)) -> list[dict
     return out
 
 
+def _crossed(chain: np.ndarray, q: np.ndarray, post: tuple[float, float], dof: int) -> bool:
+    """Whether the post's centre went from one side of a phalanx's core line to the other
+    between two ticks while within the phalanx's length: a pass-through, which the
+    penetration depth (measured to the core segment, unsigned) cannot see."""
+    c = chain[0]
+    pos = np.zeros((MAX_DOF, 2))
+    ang = np.zeros(MAX_DOF)
+    last: dict[int, float] = {}
+    for row in q:
+        link_frames(c, row, dof, pos, ang)
+        for link in range(3, dof):
+            dx = post[0] - pos[link, 0]
+            dy = post[1] - pos[link, 1]
+            along = math.cos(ang[link]) * dx + math.sin(ang[link]) * dy
+            side = -math.sin(ang[link]) * dx + math.cos(ang[link]) * dy
+            if 0.0 <= along <= c["lengths"][link]:
+                if link in last and last[link] * side < 0.0:
+                    return True
+                last[link] = side
+            else:
+                last.pop(link, None)
+    return False
+
+
 def post_sweeps(
     trials: int = 1000, every: int = 1, seed: int = 4, stiffness: float = CONTACT[0]
 ) -> dict:
     """V5.4 (module docstring): one straight finger; the tracked palm sweeps +y at 1 m/s
-    for 60 mm, the post (a 1 mm disc) somewhere along the finger, 20 mm ahead. `every` = 3
-    steps the proxy every third tick over 3 ms (the seed's 300 Hz hand), the tracked hand
-    sampled then."""
+    throughout (80 mm), the post (a 1 mm disc) somewhere along the finger, 20 mm ahead.
+    `every` = 3 steps the proxy every third tick over 3 ms (the seed's 300 Hz hand), the
+    tracked hand sampled then."""
     rng = np.random.default_rng(seed)
     finger = FingerSpec(rest=(0.0, 0.0))
     spec = HandSpec(fingers=(finger,))
+    chain = hand_chain(spec)
     reach = spec.palm_size[0] / 2 + sum(finger.lengths)
     n = 80 // every
     dt = DT * every
@@ -178,15 +208,15 @@ def post_sweeps(
     jump = 0.0
     for _ in range(trials):
         x = rng.uniform(spec.palm_size[0] / 2 + 0.004, reach - 0.002)
-        post = (np.zeros((1, 2)), 0.001, (float(x), 0.02 + rng.uniform(0, 0.001), 0.0))
+        y = 0.02 + rng.uniform(0, 0.001)
+        post = (np.zeros((1, 2)), 0.001, (float(x), float(y), 0.0))
         targets, rates = _script(spec, n)
-        targets[:, 1] = np.minimum(1.0 * t, 0.06)
-        rates[:, 1] = np.where(t < 0.06, 1.0, 0.0)
+        targets[:, 1] = t
+        rates[:, 1] = 1.0
         law = (stiffness, *CONTACT[1:3], stiffness)
-        _, cmd, contact = track(spec, [post], targets, rates, dt, law)
-        depth = float(contact[:, 2].max())
-        deepest = max(deepest, depth)
-        if depth >= finger.radius + 0.001:
+        q, cmd, contact = track(spec, [post], targets, rates, dt, law)
+        deepest = max(deepest, float(contact[:, 2].max()))
+        if _crossed(chain, q, (float(x), float(y)), spec.dof):
             through += 1
         jump = max(jump, float(np.max(np.abs(np.diff(cmd[:, 1])))))
     return {
@@ -208,6 +238,8 @@ def main(argv: list[str] | None = None) -> int:
         "V5.1 free-space tracking": free_space(),
         "V5.2 press a wall": press(),
         "V5.3 implicit drives": implicit_sweep(),
+        "V5.3 with theta 0.55 and 0.5 (not shipped)": implicit_sweep((100.0,), 0.55)
+        + implicit_sweep((100.0,), 0.5),
         "V5.4 post, 1 kHz proxy": post_sweeps(),
         "V5.4 post, seed 004 emulation (proxy every 3 ticks)": post_sweeps(every=3),
         "V5.4 post, 1 kHz, contacts at 60 kN/m": post_sweeps(stiffness=60000.0),

@@ -164,12 +164,14 @@ class FingerSpec:
     inertias: Vec2 = (2.0e-7, 1.0e-7)  # kg m^2 about each phalanx's centre
     radius: float = 0.004  # m
     rest: Vec2 = (0.0, 0.0)  # rad: the joint angles the glove reads at the start
+    flexion: float = 1.0  # +1: a positive joint angle closes the finger; -1: a mirrored one
 
     def __post_init__(self) -> None:
         within_all(self.lengths, (1e-3, 0.2), "lengths", "m")
         within_all(self.masses, (1e-4, 1.0), "masses", "kg")
         within_all(self.inertias, (1e-10, 1e-2), "inertias", "kg m^2")
         within(self.radius, (1e-4, 0.05), "radius", "m")
+        require(self.flexion in (-1.0, 1.0), "flexion", "must be 1 or -1")
 
 
 @dataclass(frozen=True)
@@ -181,13 +183,17 @@ class HandSpec:
     palm_size: Vec2 = (0.04, 0.015)  # m: the fingers hang from the middle of the front edge
     palm_mass: float = 0.2
     palm_inertia: float = 3.0e-5
-    fingers: tuple[FingerSpec, ...] = (FingerSpec(rest=(0.3, 0.2)), FingerSpec(rest=(-0.3, -0.2)))
+    fingers: tuple[FingerSpec, ...] = (
+        FingerSpec(rest=(0.3, 0.2)),
+        FingerSpec(rest=(-0.3, -0.2), flexion=-1.0),
+    )
     palm_spring: Vec3 = (500.0, 500.0, 0.5)  # k_t, k_t, k_theta
     palm_damping: Vec3 = (20.0, 20.0, 0.01)
     joint_spring: float = 0.2  # k_j, N m/rad
     joint_damping: float = 1.0e-4  # d_j, N m s/rad
     damping: str = "relative"  # relative: b (v_t - v_s); absolute: -b v_s (seed 002's)
     glove: str = "unilateral"  # none | bilateral | unilateral
+    glove_max_torque: float = 0.3  # N m: the glove's actuators' limit per joint
 
     def __post_init__(self) -> None:
         within(self.palm_mass, (1e-3, 10.0), "palm_mass", "kg")
@@ -198,6 +204,7 @@ class HandSpec:
         within(self.joint_spring, (0.0, 1e4), "joint_spring", "N m/rad")
         within(self.joint_damping, (0.0, 1e2), "joint_damping", "N m s/rad")
         require(self.damping in ("relative", "absolute"), "damping", "relative or absolute")
+        within(self.glove_max_torque, (1e-4, 10.0), "glove_max_torque", "N m")
         require(
             self.glove in ("none", "bilateral", "unilateral"),
             "glove",

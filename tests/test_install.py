@@ -134,6 +134,7 @@ BAD_CALLS = {
     "haptic-bench": ("--out", "x", "--no-such-option"),
     "haptic-stability": ("--rates", "fast"),
     "haptic-pointer": ("--events", "missing.jsonl"),
+    "haptic-ports": ("--scene", "missing.toml"),
 }
 
 

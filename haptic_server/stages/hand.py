@@ -18,15 +18,16 @@ link (its Jacobian from the tree). Drives and contacts enter one linearly implic
 theta-step, with the tracked motion over the step (velocity v_t, acceleration a_t):
 
     (D + th dt B + th^2 dt^2 K) dqd = dt (tau - G - C qd - th dt K qd)
-                                       + th dt (K (v_t + th dt a_t) + B_rel a_t),
+                                       + th dt^2 (K (v_t + dt a_t / 2) + B_rel a_t),
     q += dt (qd + th dqd),
 
 so a 5 g phalanx on a k_j far above the explicit limit 4 I / dt^2 is stable. th = 0.6 (the
 model's `theta`): th = 1 (Euler, the co-simulation's step) lags a tracked motion by O(dt),
 and V5.1's separation, 1/64 of the motion it tracks, came out 5 % small at 1 kHz; th = 1/2
 (the trapezoid, no numerical damping) blew up with the explicit C(q, qd) qd of fingers
-driven at 100 times the explicit limit, and th = 0.55 let their energy rise by 0.43 J
-(benchmarks/hand.py, V5.3). At 0.6 V5.1 is 0.95 % small and no energy rises.
+driven at 100 times the explicit limit, and, with the sub-steps below, still lets their
+energy rise by 0.28 J in one tick (benchmarks/hand.py, V5.3, reports th = 0.5 and 0.55
+beside 0.6). At 0.6 V5.1 is 0.93 % small and no energy rises.
 
 Outputs: the palm's command (the reaction of the palm spring over the step, what the port's
 device renders, clipped at its limits, zero if not finite) and the glove's joint torques,
@@ -88,6 +89,7 @@ HAND_DTYPE = np.dtype(
         ("gravity", F8, (2,)),
         ("max_wrench", F8, (3,)),
         ("theta", F8),  # the step's implicitness: 1/2 trapezoidal ... 1 Euler
+        ("glove_limit", F8),  # N m: the glove's torque is clipped here
     ]
 )
 
@@ -114,7 +116,8 @@ HAND_DATA_DTYPE = np.dtype(
         ("touching_tick", I8, (MAX_DOF, MAX_WALLS, 2, MAX_VERTICES)),
         ("command_sum", F8, (3,)),
         ("glove_sum", F8, (MAX_DOF,)),
-        ("turn", F8),  # the largest joint turn of one sub-step, rad
+        ("turn", F8),  # the largest joint turn of one sub-step, rad (inf: a step failed)
+        ("singular_tick", I8),
         ("primed", I8, (MAX_DOF,)),
         ("stick", F8, (MAX_DOF, MAX_WALLS, 2, MAX_VERTICES)),
         ("touching", I8, (MAX_DOF, MAX_WALLS, 2, MAX_VERTICES)),
@@ -191,6 +194,7 @@ def hand_records(
     max_wrench: tuple[float, float, float],
     dt: float,
     theta: float = 0.6,
+    gravity: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(chain, model, data) of a hand at `palm_pose` with its fingers at their rest angles,
     the tracked hand there too. walls: (core vertices, rounding, pose) each; contact:
@@ -215,7 +219,7 @@ def hand_records(
             m["radius"][a] = finger.radius
             m["spring"][a] = spec.joint_spring
             m["damper"][a] = spec.joint_damping
-            m["flexion"][a] = -1.0 if finger.rest[0] < 0 else 1.0
+            m["flexion"][a] = finger.flexion
     if len(walls) > MAX_WALLS:
         raise ValueError(f"walls: at most {MAX_WALLS}")
     m["n_walls"] = len(walls)
@@ -227,6 +231,8 @@ def hand_records(
     m["stiffness"], m["damping"], m["friction"], m["tangential_stiffness"] = contact
     m["max_wrench"] = max_wrench
     m["theta"] = theta
+    m["glove_limit"] = spec.glove_max_torque
+    m["gravity"] = gravity
     d["dt"] = dt
     d["q"][:n] = (*palm_pose, *rest)
     d["target"][:n] = d["q"][:n]
@@ -266,8 +272,8 @@ def hand_contact(chain, m, d, link, wall, side, v):
         sticking = False
     fx = f_n * nx + f_t * tx
     fy = f_n * ny + f_t * ty
-    d.contact_force[0] += fx
-    d.contact_force[1] += fy
+    d.contact_force[0] += fx / d.n_sub  # the tick's mean over its sub-steps
+    d.contact_force[1] += fy / d.n_sub
     d.n_contacts += 1
     if depth > d.penetration:
         d.penetration = depth
@@ -411,8 +417,11 @@ def drives(m, d):
         d.k[a, a] += k
         d.b[a, a] += b
         # the step takes theta of the tracked motion's change in force over the step
-        d.extra[a] += th * (k * h * (vt + th * h * acc) + (b * h * acc if m.relative == 1 else 0.0))
-        d.target_next[a, 0] = d.q[a] + err + h * (vt + th * h * acc)
+        # the tracked hand moves h (v + h a / 2) over the sub-step (target_live's path)
+        d.extra[a] += th * (
+            k * h * (vt + 0.5 * h * acc) + (b * h * acc if m.relative == 1 else 0.0)
+        )
+        d.target_next[a, 0] = d.q[a] + err + h * (vt + 0.5 * h * acc)
         d.target_next[a, 1] = vt + h * acc
 
 
@@ -453,6 +462,7 @@ def hand_step(m, d):
         for a in range(n):
             d.q[a] = d.q_before[a]
             d.qd[a] = 0.0
+    return ok
 
 
 @njit(cache=True)
@@ -461,6 +471,8 @@ def substep_outputs(m, d):
     torques (likewise) to the tick's sums."""
     th = m.theta
     for a in range(m.dof):
+        if d.cut[a] == 1:
+            continue  # a cut drive renders nothing
         rate = d.target_next[a, 1] if m.relative == 1 else 0.0
         f = m.spring[a] * (d.target_next[a, 0] - d.q[a]) + m.damper[a] * (rate - d.qd[a])
         u = -((1.0 - th) * d.drive_now[a] + th * f)
@@ -487,7 +499,9 @@ def hand_outputs(m, d):
     for a in range(3, m.dof):
         user = d.glove_sum[a] / d.n_sub
         if not math.isfinite(user):
+            d.invalid += 1
             user = 0.0
+        user = min(m.glove_limit, max(-m.glove_limit, user))
         d.glove_ungated[a] = user
         if m.glove == 0 or (m.glove == 2 and m.flexion[a] * user > 0.0):
             user = 0.0  # a tendon glove only holds a finger back from flexing
@@ -501,6 +515,7 @@ def _save_tick(m, d):
         d.qd_tick[a] = d.qd[a]
     d.stick_tick[:] = d.stick
     d.touching_tick[:] = d.touching
+    d.singular_tick = d.singular
 
 
 @njit(cache=True)
@@ -510,6 +525,7 @@ def _restore_tick(m, d):
         d.qd[a] = d.qd_tick[a]
     d.stick[:] = d.stick_tick
     d.touching[:] = d.touching_tick
+    d.singular = d.singular_tick
 
 
 @njit(cache=True)
@@ -525,6 +541,9 @@ def substeps(chain, m, d, n_sub):
         d.command_sum[a] = 0.0
     for a in range(n):
         d.glove_sum[a] = 0.0
+    d.contact_force[0] = 0.0
+    d.contact_force[1] = 0.0
+    d.penetration = 0.0  # the deepest over the tick's sub-steps
     for sub in range(n_sub):
         tau = sub * h
         for a in range(n):
@@ -536,14 +555,12 @@ def substeps(chain, m, d, n_sub):
             for b in range(n):
                 d.k[a, b] = 0.0
                 d.b[a, b] = 0.0
-        d.contact_force[0] = 0.0
-        d.contact_force[1] = 0.0
         d.n_contacts = 0
-        d.penetration = 0.0
         hand_dynamics(chain, m, d)
         hand_contacts(chain, m, d)
         drives(m, d)
-        hand_step(m, d)
+        if not hand_step(m, d):
+            d.turn = math.inf  # a failed step asks for sub-steps too
         substep_outputs(m, d)
         for a in range(PALM, n):
             turn = abs(d.q[a] - d.q_before[a])
@@ -578,7 +595,8 @@ def hand_tick(chain, model, data):
 
 
 def hand_energy(chain: np.ndarray, model: np.ndarray, data: np.ndarray) -> float:
-    """The proxy hand's kinetic energy plus its drives' spring energy toward the targets."""
+    """The proxy hand's kinetic energy plus its drives' spring energy toward the targets
+    (the palm's angle wrapped; no gravity: the V5 cases have none)."""
     m = model[0]
     d = data[0]
     n = int(m["dof"])
@@ -588,6 +606,7 @@ def hand_energy(chain: np.ndarray, model: np.ndarray, data: np.ndarray) -> float
     mass_matrix_and_gravity(chain, np.zeros(2), d["q"], work, mass, grav)
     qd = d["qd"][:n]
     err = d["target"][:n] - d["q"][:n]
+    err[PALM] = math.atan2(math.sin(err[PALM]), math.cos(err[PALM]))
     return float(0.5 * qd @ mass[:n, :n] @ qd + 0.5 * np.sum(m["spring"][:n] * err**2))
 
 

@@ -1,0 +1,231 @@
+"""`haptic-ports`: a port scene (two devices on one co-simulated world, docs/grasp.md) on
+the virtual clock, its MCAP log, and the log's bit-exact replay.
+
+    haptic-ports --scene grasp_vertical --device maglev --device twin_pantograph \\
+        --duration 5 --log runs/grasp.mcap
+    haptic-ports --replay runs/grasp.mcap
+
+The log holds every tick's row (`/ports/tick`, ros1 with a ros1msg schema generated from
+PORT_ROW_DTYPE, like the haptic server's `/haptic/tick`) and, as metadata, the port scene's
+text, the devices' limits and the users. It is written to a temporary file beside the
+target and renamed when complete, so a log that exists is whole. The replay rebuilds the
+co-simulation from the metadata, feeds it each tick's logged device readings (world frame)
+and compares every output of the tick with the logged row, bit for bit: the log holds all
+the co-simulation's inputs, and the co-simulation is a function of them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from mcap.writer import Writer
+
+from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.log import _iter_messages, read_metadata, ros1msg_schema
+from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE, PortRun
+from haptic_local_model.haptic_server.stages.cosim import cosim_records, cosim_tick
+from haptic_local_model.shared import __version__
+from haptic_local_model.shared.cli import EXIT_CONFIG, add_version, log_file, run_main, seconds
+from haptic_local_model.shared.config import (
+    ConfigError,
+    load_config_text,
+    load_user,
+    resolve,
+    shipped,
+)
+from haptic_local_model.shared.port_config import PortSceneConfig, load_port_scene
+
+PORT_TICK_TOPIC = "/ports/tick"
+PORT_TICK_SCHEMA = "haptic_server/PortTick"
+#: the row fields a replay recomputes (the rest are its inputs or the devices' own)
+REPLAYED = ("q", "qd", "command", "body_force", "n_contacts", "penetration", "invalid", "singular")
+
+
+def write_port_log(path: Path, rows: np.ndarray, metadata: dict[str, dict[str, str]]) -> None:
+    """Every row and the metadata, into a temporary file renamed to `path` when whole."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    part = path.with_name(path.name + ".part")
+    with part.open("wb") as fh:
+        writer = Writer(fh)
+        writer.start(profile="", library=f"haptic-local-model {__version__}")
+        schema = writer.register_schema(
+            name=PORT_TICK_SCHEMA, encoding="ros1msg", data=ros1msg_schema(PORT_ROW_DTYPE).encode()
+        )
+        channel = writer.register_channel(
+            PORT_TICK_TOPIC, message_encoding="ros1", schema_id=schema
+        )
+        for name, data in metadata.items():
+            writer.add_metadata(name, data)
+        for k, row in enumerate(rows):
+            t_ns = round(float(row["t"]) * 1e9)
+            writer.add_message(channel, log_time=t_ns, data=row.tobytes(), publish_time=t_ns,
+                               sequence=k)  # fmt: skip
+        writer.finish()
+    os.replace(part, path)
+
+
+def read_port_log(path: Path) -> tuple[np.ndarray, dict[str, dict[str, str]]]:
+    """The rows and metadata of a port log; a file that is not one is refused by name."""
+    if not path.is_file():
+        raise ConfigError(str(path), "log", "no such file")
+    chunks = []
+    schema_text = None
+    try:
+        for topic, data, schema in _iter_messages(path):
+            if topic == PORT_TICK_TOPIC:
+                chunks.append(data)
+                schema_text = schema.data.decode() if schema else None
+        metadata = read_metadata(path)
+    except Exception as exc:  # not MCAP at all
+        raise ConfigError(str(path), "log", f"not a readable MCAP file ({exc})") from None
+    if not chunks:
+        raise ConfigError(str(path), PORT_TICK_TOPIC, "no port ticks: not a haptic-ports log")
+    if schema_text != ros1msg_schema(PORT_ROW_DTYPE):
+        raise ConfigError(str(path), PORT_TICK_SCHEMA, "rows of another layout (another release)")
+    if "configs" not in metadata or "limits" not in metadata:
+        raise ConfigError(str(path), "metadata", "the scene or the limits are missing")
+    return np.frombuffer(b"".join(chunks), PORT_ROW_DTYPE), metadata
+
+
+def replay_rows(
+    scene: PortSceneConfig, limits: list[tuple[float, float, float]], rows: np.ndarray
+) -> tuple[int, int | None]:
+    """Re-run the co-simulation on the rows' device readings; (ticks compared, the first
+    tick whose outputs differ in any bit, or None)."""
+    model, data = cosim_records(scene, limits)
+    d = data[0]
+    for k, row in enumerate(rows):
+        d["device_pose"] = row["device_pose"]
+        d["device_twist"] = row["device_twist"]
+        cosim_tick(model, data)
+        for name in REPLAYED:
+            if np.asarray(d[name]).tobytes() != np.asarray(row[name]).tobytes():
+                return k + 1, k
+    return len(rows), None
+
+
+def replay_log(path: Path) -> tuple[int, int | None]:
+    rows, metadata = read_port_log(path)
+    scene = load_config_text(
+        PortSceneConfig, metadata["configs"]["ports"], f"{path} (its port scene)"
+    )
+    limits: list[tuple[float, float, float]] = [
+        (float(a), float(b), float(c)) for a, b, c in json.loads(metadata["limits"]["max_wrench"])
+    ]
+    return replay_rows(scene, limits, rows)
+
+
+def _summary(run: PortRun, rows: np.ndarray, wall_s: float) -> list[str]:
+    last = rows[-min(len(rows), 1000) :]
+    lines = [
+        f"{len(rows)} ticks, {rows['t'][-1] + float(run.data[0]['dt']):.3f} s in {wall_s:.2f} s "
+        f"of wall time",
+    ]
+    for p, port in enumerate(run.scene.ports):
+        cmd = last["command"][:, p, :2]
+        lines.append(
+            f"port {port.name} ({run.devices[p].name}, {run.users[p].name}): mean command over "
+            f"the last second ({cmd[:, 0].mean():+.3f}, {cmd[:, 1].mean():+.3f}) N"
+        )
+    for i, name in enumerate(run.order):
+        q = rows["q"][:, 3 * i : 3 * i + 3]
+        dx, dy, turn = (q[-1, 0] - q[0, 0]) * 1e3, (q[-1, 1] - q[0, 1]) * 1e3, q[-1, 2] - q[0, 2]
+        lines.append(f"{name}: moved ({dx:+.3f}, {dy:+.3f}) mm, turned {turn:+.4f} rad")
+    lines.append(
+        f"contacts at the end {rows['n_contacts'][-1]}, commands not finite (zeroed) "
+        f"{rows['invalid'][-1]}, steps held {rows['singular'][-1]}"
+    )
+    return lines
+
+
+def run_ports_cli(args: argparse.Namespace) -> int:
+    path = resolve("ports", args.scene)
+    scene = load_port_scene(args.scene)
+    devices = _per_port(args.device, [p.device for p in scene.ports], "--device")
+    users = _per_port(args.user, [p.user for p in scene.ports], "--user")
+    sim = [load_simulated_device(name) for name in devices]
+    user_configs = [load_user(name) for name in users]
+    run = PortRun(scene, sim, user_configs)
+    entered = time.perf_counter()
+    result = run.run(args.duration)
+    wall = time.perf_counter() - entered
+    print("\n".join(_summary(run, result.rows, wall)))
+    if args.log is not None:
+        limits = [list(map(float, run.model[0]["max_wrench"][p])) for p in range(len(sim))]
+        metadata = {
+            "configs": {
+                "ports": path.read_text(),
+                "devices": json.dumps(devices),
+                "users": json.dumps(users),
+            },
+            "limits": {"max_wrench": json.dumps(limits)},
+            "run": {"version": __version__, "duration_s": str(args.duration)},
+        }
+        write_port_log(args.log, result.rows, metadata)
+        print(f"log: {args.log}")
+    return 0
+
+
+def _per_port(given: list[str] | None, defaults: list[str], flag: str) -> list[str]:
+    """One name for both ports, one per port, or the scene's."""
+    if not given:
+        return defaults
+    if len(given) == 1:
+        return given * len(defaults)
+    if len(given) != len(defaults):
+        raise ConfigError(
+            flag, flag, f"give one, or one per port ({len(defaults)}), not {len(given)}"
+        )
+    return given
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="haptic-ports", description=__doc__.split("\n\n")[0])
+    add_version(parser)
+    parser.add_argument(
+        "--scene", default="grasp_vertical", help="port scene in configs/ports or a path"
+    )
+    parser.add_argument(
+        "--device", action="append", help="a device for both ports, or give it twice (one per port)"
+    )
+    parser.add_argument("--user", action="append", help="a user for both ports, or give it twice")
+    parser.add_argument("--duration", type=seconds, default=5.0, help="virtual seconds (default 5)")
+    parser.add_argument("--log", type=log_file, default=None, metavar="OUT.mcap")
+    parser.add_argument(
+        "--replay",
+        type=Path,
+        default=None,
+        metavar="LOG.mcap",
+        help="re-run a log's co-simulation and compare it bit for bit",
+    )
+    parser.add_argument("--list", action="store_true", help="the shipped port scenes")
+    args = parser.parse_args(argv)
+    if args.list:
+        for name, text in shipped("ports").items():
+            print(f"{name}  {text}")
+        return 0
+    if args.replay is not None:
+        return run_main(lambda: _replay(args.replay))
+    return run_main(lambda: run_ports_cli(args))
+
+
+def _replay(path: Path) -> int:
+    ticks, first = replay_log(path)
+    if first is None:
+        print(f"replayed {ticks} ticks of {path}: bit-exact")
+        return 0
+    print(f"replay of {path} differs from the log at tick {first}", file=sys.stderr)
+    return 1
+
+
+__all__ = ["EXIT_CONFIG", "main", "read_port_log", "replay_rows", "write_port_log"]
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,64 @@
+"""`haptic-ports`: a port scene on the virtual clock, its MCAP log and the log's bit-exact
+replay (haptic_server/ports_cli.py)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from haptic_local_model.haptic_server.log import LogWriter
+from haptic_local_model.haptic_server.ports_cli import main, read_port_log, replay_rows
+from haptic_local_model.shared.config import ConfigError
+from haptic_local_model.shared.port_config import load_port_scene
+
+
+@pytest.fixture(scope="module")
+def logged(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("ports") / "grasp.mcap"
+    code = main(["--duration", "1", "--device", "maglev", "--device", "twin_pantograph",
+                 "--log", str(path)])  # fmt: skip
+    assert code == 0
+    return path
+
+
+def test_a_port_run_logs_every_tick_and_replays_bit_for_bit(logged, capsys):
+    rows, metadata = read_port_log(logged)
+    assert len(rows) == 1000
+    assert np.all(rows["n_contacts"] == 4)
+    assert '"maglev", "twin_pantograph"' in metadata["configs"]["devices"]
+    assert not list(logged.parent.glob("*.part"))  # renamed when whole
+    assert main(["--replay", str(logged)]) == 0
+    assert "replayed 1000 ticks" in capsys.readouterr().out
+
+
+def test_the_replay_finds_a_row_that_is_not_the_co_simulations(logged):
+    """One bit of one logged body's position changed at tick 500: the replay stops there."""
+    rows, _ = read_port_log(logged)
+    rows = rows.copy()
+    q = rows["q"]
+    q[500, 6] = np.nextafter(q[500, 6], np.inf)
+    rows["q"] = q
+    scene = load_port_scene("grasp_vertical")
+    limits = [(50.0, 50.0, 6.0), (10.0, 4.5, 0.25)]
+    assert replay_rows(scene, limits, rows) == (501, 500)
+
+
+def test_a_log_that_is_not_a_port_log_is_refused_by_name(tmp_path, capsys):
+    other = tmp_path / "haptic.mcap"
+    writer = LogWriter(other)
+    writer.close()
+    assert main(["--replay", str(other)]) == 2
+    err = capsys.readouterr().err
+    assert "haptic.mcap" in err and "/ports/tick" in err
+    (tmp_path / "junk.mcap").write_bytes(b"not mcap at all")
+    with pytest.raises(ConfigError, match=r"junk\.mcap"):
+        read_port_log(tmp_path / "junk.mcap")
+
+
+def test_three_devices_for_two_ports_is_a_usage_error(capsys):
+    code = main(["--duration", "0.01", "--device", "maglev", "--device", "maglev",
+                 "--device", "maglev"])  # fmt: skip
+    assert code == 2
+    assert "--device" in capsys.readouterr().err
