@@ -32,6 +32,7 @@ import sys
 
 import numpy as np
 
+from haptic_local_model.benchmarks.grasp import _from_frame, _to_frame, window_means
 from haptic_local_model.haptic_server.stages.hand import (
     hand_chain,
     hand_energy,
@@ -39,6 +40,7 @@ from haptic_local_model.haptic_server.stages.hand import (
     hand_tick,
     run_tracked,
 )
+from haptic_local_model.haptic_server.stages.hand_grasp import grasp_records, run_grasp
 from haptic_local_model.shared.kinematics import MAX_DOF, link_frames
 from haptic_local_model.shared.port_config import FingerSpec, HandSpec
 
@@ -230,6 +232,59 @@ def post_sweeps(
     }
 
 
+def two_hands_hold(duration_s: float = 5.2, settle_s: float = 0.2, squeeze_n: float = 2.0) -> dict:
+    """V5.5 (module docstring): two of the brief's hands, palms facing across the 40 x 20 mm,
+    0.1 kg box (the left hand turned -90 degrees, its fingers hanging below the box; the
+    right +90, its fingers above), each tracked palm held squeeze / k_t inside the box's
+    face and raised by what its palm spring carries (the hand and half the box), g = 9.81,
+    5 s: V4.1's acceptance (slip of each box corner along its palm's face, from the poses;
+    the box's force balance in 100 ms means; contact losses)."""
+    spec = HandSpec()
+    g = 9.81
+    box_size, box_mass = (0.04, 0.02), 0.1
+    k_t = spec.palm_spring[0]
+    half = spec.palm_size[1] / 2
+    lift = (hand_mass(spec) + box_mass / 2) * g / k_t
+    chains, hms, hds = [], [], []
+    for side in (-1.0, 1.0):
+        x = side * (box_size[0] / 2 + half)
+        pose = (x, 0.0, side * math.pi / 2)
+        chain, model, data = hand_records(spec, [], CONTACT, pose, LIMITS, DT, 0.6, (0.0, -g))
+        data[0]["target"][0] = x - side * squeeze_n / k_t
+        data[0]["target"][1] = lift
+        chains.append(chain)
+        hms.append(model)
+        hds.append(data)
+    gm, gd = grasp_records([spec.dof, spec.dof], box_size, box_mass, (0.0, 0.0, 0.0), CONTACT,
+                           (0.0, -g), DT, 0.6)  # fmt: skip
+    n = round(duration_s / DT)
+    out = np.zeros((n, 19))
+    run_grasp(tuple(chains), tuple(hms), tuple(hds), gm, gd, out)
+    t = np.arange(1, n + 1) * DT
+    k0 = round(settle_s / DT)
+    box = out[:, 0:3]
+    balance = window_means(t, out[:, 3:5] + np.array([0.0, -box_mass * g]), settle_s, duration_s)
+    slip = []
+    for palm in (out[:, 6:9], out[:, 9:12]):
+        for cx in (-box_size[0] / 2, box_size[0] / 2):
+            for cy in (-box_size[1] / 2, box_size[1] / 2):
+                world = _from_frame(box[k0:], np.array([cx, cy]))
+                local = _to_frame(palm[k0:], world)
+                if abs(local[0, 1] - half) > 5e-4:
+                    continue  # not on this palm's face
+                slip.append(float(np.max(np.abs(local[:, 0] - local[0, 0]))))
+    return {
+        "contacts_tracked": len(slip),
+        "slip_max_m": max(slip) if slip else float("nan"),
+        "balance_max_fraction": float(np.max(np.linalg.norm(balance, axis=1)) / (box_mass * g)),
+        "contact_losses": int(np.sum(out[k0:, 12] < out[k0, 12])),
+        "contacts_at_hold": int(out[k0, 12]),
+        "box_drop_m": float(box[k0, 1] - box[-1, 1]),
+        "held_steps": int(gd[0]["singular"]),
+        "squeeze_n": float(np.median(np.abs(out[k0:, 13]))),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", help="write every figure to this file")
@@ -241,6 +296,7 @@ def main(argv: list[str] | None = None) -> int:
         "V5.3 with theta 0.55 and 0.5 (not shipped)": implicit_sweep((100.0,), 0.55)
         + implicit_sweep((100.0,), 0.5),
         "V5.4 post, 1 kHz proxy": post_sweeps(),
+        "V5.5 two hands hold the box": two_hands_hold(),
         "V5.4 post, seed 004 emulation (proxy every 3 ticks)": post_sweeps(every=3),
         "V5.4 post, 1 kHz, contacts at 60 kN/m": post_sweeps(stiffness=60000.0),
         "V5.4 post, seed 004 emulation, contacts at 60 kN/m": post_sweeps(

@@ -18,6 +18,7 @@ from haptic_local_model.benchmarks.hand import (
     implicit_sweep,
     post_sweeps,
     press,
+    two_hands_hold,
 )
 from haptic_local_model.haptic_server.stages.hand import hand_chain, hand_records, hand_tick
 from haptic_local_model.shared.config import ConfigError, load_config_text
@@ -140,3 +141,18 @@ def test_a_bad_hand_table_names_its_key():
 def test_a_finger_spec_is_a_dataclass_the_loader_takes():
     spec = load_config_text(HandSpec, "[[fingers]]\nlengths = [0.03, 0.02]", "hand.toml")
     assert spec.fingers == (dataclasses.replace(FingerSpec(), lengths=(0.03, 0.02)),)
+
+
+def test_v5_5_two_hands_hold_the_box_as_in_v4_1():
+    r = two_hands_hold()
+    assert r["contacts_tracked"] == 4 and r["contacts_at_hold"] == 4
+    assert r["slip_max_m"] <= 0.1e-3
+    assert r["balance_max_fraction"] <= 0.01
+    assert r["contact_losses"] == 0 and r["held_steps"] == 0
+    assert abs(r["box_drop_m"]) < 1e-5
+
+
+def test_two_hands_squeezing_below_the_cone_let_the_box_fall():
+    """0.4 N a side holds 2 mu N = 0.4 N of the box's 0.98 N: it slides out of the grip."""
+    r = two_hands_hold(duration_s=0.5, squeeze_n=0.4)
+    assert r["box_drop_m"] > 0.005

@@ -509,7 +509,7 @@ def hand_outputs(m, d):
 
 
 @njit(cache=True)
-def _save_tick(m, d):
+def save_tick(m, d):
     for a in range(m.dof):
         d.q_tick[a] = d.q[a]
         d.qd_tick[a] = d.qd[a]
@@ -519,7 +519,7 @@ def _save_tick(m, d):
 
 
 @njit(cache=True)
-def _restore_tick(m, d):
+def restore_tick(m, d):
     for a in range(m.dof):
         d.q[a] = d.q_tick[a]
         d.qd[a] = d.qd_tick[a]
@@ -529,43 +529,62 @@ def _restore_tick(m, d):
 
 
 @njit(cache=True)
-def substeps(chain, m, d, n_sub):
-    """The tick as n_sub sub-steps of dt / n_sub, the tracked hand moved along its rate and
-    acceleration between them; the largest joint turn of one sub-step into d.turn."""
-    n = m.dof
-    h = d.dt / n_sub
-    d.h = h
+def begin_substeps(m, d, n_sub):
+    """The tick's sums and extremes start over for n_sub sub-steps of dt / n_sub."""
+    d.h = d.dt / n_sub
     d.n_sub = n_sub
     d.turn = 0.0
     for a in range(3):
         d.command_sum[a] = 0.0
-    for a in range(n):
+    for a in range(m.dof):
         d.glove_sum[a] = 0.0
     d.contact_force[0] = 0.0
     d.contact_force[1] = 0.0
     d.penetration = 0.0  # the deepest over the tick's sub-steps
+
+
+@njit(cache=True)
+def prepare_substep(chain, m, d, sub):
+    """Sub-step `sub`'s forces on the hand: the tracked hand moved along its rate and
+    acceleration to the sub-step's start, D, G, C qd, the walls' contacts, the drives."""
+    n = m.dof
+    tau = sub * d.h
+    for a in range(n):
+        d.target_live[a] = d.target[a] + tau * (d.target_rate[a] + 0.5 * tau * d.target_acc[a])
+        d.rate_live[a] = d.target_rate[a] + tau * d.target_acc[a]
+        d.f[a] = 0.0
+        d.extra[a] = 0.0
+        d.q_before[a] = d.q[a]
+        for b in range(n):
+            d.k[a, b] = 0.0
+            d.b[a, b] = 0.0
+    d.n_contacts = 0
+    hand_dynamics(chain, m, d)
+    hand_contacts(chain, m, d)
+    drives(m, d)
+
+
+@njit(cache=True)
+def finish_substep(m, d):
+    """The sub-step's outputs into the tick's sums; its largest joint turn into d.turn."""
+    substep_outputs(m, d)
+    for a in range(PALM, m.dof):
+        turn = abs(d.q[a] - d.q_before[a])
+        if not turn <= d.turn:
+            d.turn = turn
+
+
+@njit(cache=True)
+def substeps(chain, m, d, n_sub):
+    """The tick as n_sub sub-steps of dt / n_sub; the largest joint turn of one sub-step
+    into d.turn (inf if a step failed)."""
+    begin_substeps(m, d, n_sub)
     for sub in range(n_sub):
-        tau = sub * h
-        for a in range(n):
-            d.target_live[a] = d.target[a] + tau * (d.target_rate[a] + 0.5 * tau * d.target_acc[a])
-            d.rate_live[a] = d.target_rate[a] + tau * d.target_acc[a]
-            d.f[a] = 0.0
-            d.extra[a] = 0.0
-            d.q_before[a] = d.q[a]
-            for b in range(n):
-                d.k[a, b] = 0.0
-                d.b[a, b] = 0.0
-        d.n_contacts = 0
-        hand_dynamics(chain, m, d)
-        hand_contacts(chain, m, d)
-        drives(m, d)
-        if not hand_step(m, d):
+        prepare_substep(chain, m, d, sub)
+        ok = hand_step(m, d)
+        finish_substep(m, d)
+        if not ok:
             d.turn = math.inf  # a failed step asks for sub-steps too
-        substep_outputs(m, d)
-        for a in range(PALM, n):
-            turn = abs(d.q[a] - d.q_before[a])
-            if not turn <= d.turn:
-                d.turn = turn
 
 
 @njit(cache=True)
@@ -581,13 +600,13 @@ def hand_tick(chain, model, data):
     m = model[0]
     d = data[0]
     tracked_inputs(m, d)
-    _save_tick(m, d)
+    save_tick(m, d)
     n_sub = 1
     while True:
         substeps(chain, m, d, n_sub)
         if d.turn <= MAX_TURN or n_sub >= MAX_SUBSTEPS:
             break
-        _restore_tick(m, d)
+        restore_tick(m, d)
         n_sub *= 4
     if n_sub > 1:
         d.substepped += 1

@@ -1,0 +1,419 @@
+"""Two mass-spring hands holding one box, in one implicit step (DESIGN-WAVE2 §7, V5.5).
+
+Each hand is `stages/hand.py`'s: its tracked palm and glove, its drives, D(q), G(q), C qd and
+its walls' contacts, computed by that module's kernels into its own record. This module
+adds what couples them: a free box (x, y, theta; D exact), the contacts of every shaped
+link of either hand with the box (both sides in q: the rows are n^T (J_link - J_box)), and
+one linearly implicit theta-step over the whole of q = (q_hand_0, q_hand_1, q_box), so the
+squeeze is as implicit as each hand's own drives. A tick whose sub-step turns any joint of
+either hand by more than the hands' MAX_TURN, or fails, runs again in 4, 16, 64 sub-steps.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from haptic_local_model.haptic_server.stages.hand import (
+    MAX_SUBSTEPS,
+    MAX_TURN,
+    PALM,
+    begin_substeps,
+    finish_substep,
+    hand_outputs,
+    prepare_substep,
+    restore_tick,
+    save_tick,
+    tracked_inputs,
+)
+from haptic_local_model.shared.kinematics import MAX_DOF, point_jacobian, point_velocity
+from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
+from haptic_local_model.shared.shapes import vertex_signed_distance
+
+F8 = np.float64
+I8 = np.int64
+MAX_HANDS = 2
+MAX_SYS = MAX_HANDS * MAX_DOF + 3
+ROWS = MAX_DOF + 3  # one contact's columns: a hand's and the box's
+
+GRASP_DTYPE = np.dtype(
+    [
+        ("n_hands", I8),
+        ("offset", I8, (MAX_HANDS,)),  # each hand's first column in q
+        ("box", I8),  # the box's first column
+        ("n", I8),
+        ("box_mass", F8),
+        ("box_inertia", F8),
+        ("box_vertices", F8, (4, 2)),
+        ("gravity", F8, (2,)),
+        ("stiffness", F8),
+        ("damping", F8),
+        ("friction", F8),
+        ("tangential_stiffness", F8),
+        ("theta", F8),
+    ]
+)
+
+GRASP_DATA_DTYPE = np.dtype(
+    [
+        ("dt", F8),
+        ("h", F8),
+        ("n_sub", I8),
+        ("q_box", F8, (3,)),
+        ("qd_box", F8, (3,)),
+        ("box_tick", F8, (6,)),
+        ("box_before", F8, (3,)),
+        ("f_box", F8, (3,)),
+        ("box_force", F8, (3,)),  # the hands' mean force and torque on the box this tick
+        ("n_contacts", I8),  # hand-box contacts, the tick's last sub-step
+        ("stick", F8, (MAX_HANDS, MAX_DOF, 2, 4)),
+        ("touching", I8, (MAX_HANDS, MAX_DOF, 2, 4)),
+        ("stick_tick", F8, (MAX_HANDS, MAX_DOF, 2, 4)),
+        ("touching_tick", I8, (MAX_HANDS, MAX_DOF, 2, 4)),
+        ("singular", I8),
+        ("singular_tick", I8),
+        ("turn", F8),
+        ("kg", F8, (MAX_SYS, MAX_SYS)),  # the hand-box contacts' stiffness, all of q
+        ("bg", F8, (MAX_SYS, MAX_SYS)),
+        ("system", F8, (MAX_SYS, MAX_SYS)),
+        ("chol", F8, (MAX_SYS, MAX_SYS)),
+        ("rhs", F8, (MAX_SYS,)),
+        ("dqd", F8, (MAX_SYS,)),
+        ("qd_all", F8, (MAX_SYS,)),
+        ("cols", I8, (ROWS,)),
+        ("jn", F8, (ROWS,)),
+        ("jt", F8, (ROWS,)),
+        ("hit", F8, (5,)),
+        ("pose_b", F8, (3,)),
+        ("pose_l", F8, (3,)),
+        ("core", F8, (4, 2)),
+    ]
+)
+
+
+def grasp_records(
+    hand_dofs: list[int],
+    box_size: tuple[float, float],
+    box_mass: float,
+    box_pose: tuple[float, float, float],
+    contact: tuple[float, float, float, float],
+    gravity: tuple[float, float],
+    dt: float,
+    theta: float = 0.6,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The coupling's model and data: the hands (of these dofs, in this order) and the box;
+    contact: (stiffness, damping, friction, tangential stiffness)."""
+    model = np.zeros(1, GRASP_DTYPE)
+    data = np.zeros(1, GRASP_DATA_DTYPE)
+    m = model[0]
+    m["n_hands"] = len(hand_dofs)
+    m["offset"][: len(hand_dofs)] = np.cumsum([0, *hand_dofs[:-1]])
+    m["box"] = sum(hand_dofs)
+    m["n"] = m["box"] + 3
+    w, h = box_size
+    m["box_mass"] = box_mass
+    m["box_inertia"] = box_mass * (w * w + h * h) / 12.0
+    m["box_vertices"] = [(-w / 2, -h / 2), (w / 2, -h / 2), (w / 2, h / 2), (-w / 2, h / 2)]
+    m["gravity"] = gravity
+    m["stiffness"], m["damping"], m["friction"], m["tangential_stiffness"] = contact
+    m["theta"] = theta
+    data[0]["dt"] = dt
+    data[0]["q_box"] = box_pose
+    return model, data
+
+
+@njit(cache=True)
+def _link_core(chain, hm, hd, gd, link):
+    """A shaped link's core into gd.core (its frame): vertex count and rounding."""
+    if link == PALM:
+        for v in range(4):
+            gd.core[v, 0] = hm.palm_vertices[v, 0]
+            gd.core[v, 1] = hm.palm_vertices[v, 1]
+        return 4, 0.0
+    gd.core[0, 0] = 0.0
+    gd.core[0, 1] = 0.0
+    gd.core[1, 0] = chain[0].lengths[link]
+    gd.core[1, 1] = 0.0
+    return 2, hm.radius[link]
+
+
+@njit(cache=True)
+def box_contact(chain, hm, hd, gm, gd, hand, key):
+    """The contact in gd.hit (point, depth, the normal pushing the hand out of the box)
+    between a hand's link and the box, key = (link, side, vertex): penalty, stick-spring
+    friction, the forces on both, and the stiffness of its rows n^T (J_link - J_box) over
+    all of q."""
+    link, side, v = key
+    c = chain[0]
+    px = gd.hit[0]
+    py = gd.hit[1]
+    depth = gd.hit[2]
+    nx = gd.hit[3]
+    ny = gd.hit[4]
+    tx = -ny
+    ty = nx
+    vhx, vhy = point_velocity(c, hd.frame_pos, link, px, py, hd.qd)
+    rx = px - gd.q_box[0]
+    ry = py - gd.q_box[1]
+    w = gd.qd_box[2]
+    rvx = vhx - (gd.qd_box[0] - w * ry)
+    rvy = vhy - (gd.qd_box[1] + w * rx)
+    vn = nx * rvx + ny * rvy
+    vt = tx * rvx + ty * rvy
+    f_n = gm.stiffness * depth - gm.damping * vn
+    if f_n < 0.0:
+        f_n = 0.0
+    if gd.touching[hand, link, side, v] == 0:
+        gd.stick[hand, link, side, v] = 0.0
+    gd.touching[hand, link, side, v] = 1
+    gd.stick[hand, link, side, v] += vt * gd.h
+    k_t = gm.tangential_stiffness
+    f_t = -k_t * gd.stick[hand, link, side, v] - gm.damping * vt
+    limit = gm.friction * f_n
+    sticking = True
+    if abs(f_t) > limit:
+        f_t = limit if f_t > 0.0 else -limit
+        gd.stick[hand, link, side, v] = -f_t / k_t if k_t > 0.0 else 0.0
+        sticking = False
+    fx = f_n * nx + f_t * tx
+    fy = f_n * ny + f_t * ty
+    n = hm.dof
+    point_jacobian(c, hd.frame_pos, n, link, px, py, hd.jac)
+    o = gm.offset[hand]
+    for a in range(n):
+        hd.f[a] += hd.jac[0, a] * fx + hd.jac[1, a] * fy
+        gd.cols[a] = o + a
+        gd.jn[a] = nx * hd.jac[0, a] + ny * hd.jac[1, a]
+        gd.jt[a] = tx * hd.jac[0, a] + ty * hd.jac[1, a]
+    torque = rx * fy - ry * fx
+    gd.f_box[0] -= fx
+    gd.f_box[1] -= fy
+    gd.f_box[2] -= torque
+    gd.box_force[0] -= fx / gd.n_sub
+    gd.box_force[1] -= fy / gd.n_sub
+    gd.box_force[2] -= torque / gd.n_sub
+    b0 = gm.box
+    for k in range(3):
+        gd.cols[n + k] = b0 + k
+    gd.jn[n] = -nx
+    gd.jn[n + 1] = -ny
+    gd.jn[n + 2] = -(rx * ny - ry * nx)
+    gd.jt[n] = -tx
+    gd.jt[n + 1] = -ty
+    gd.jt[n + 2] = -(rx * ty - ry * tx)
+    gd.n_contacts += 1
+    if f_n > 0.0:
+        _stiffen(gm, gd, n + 3, k_t if sticking else 0.0, gm.damping if sticking else 0.0)
+
+
+@njit(cache=True)
+def _stiffen(gm, gd, count, kt, bt):
+    for i in range(count):
+        a = gd.cols[i]
+        for j in range(count):
+            b = gd.cols[j]
+            nn = gd.jn[i] * gd.jn[j]
+            tt = gd.jt[i] * gd.jt[j]
+            gd.kg[a, b] += gm.stiffness * nn + kt * tt
+            gd.bg[a, b] += gm.damping * nn + bt * tt
+
+
+@njit(cache=True)
+def link_box_contacts(chain, hm, hd, gm, gd, hand, link):
+    """Side 0: the link's core vertices in the box; side 1: the box's corners in the link's
+    rounded core."""
+    n_core, rounding = _link_core(chain, hm, hd, gd, link)
+    for k in range(3):
+        gd.pose_b[k] = gd.q_box[k]
+    ca = math.cos(hd.frame_angle[link])
+    sa = math.sin(hd.frame_angle[link])
+    ox = hd.frame_pos[link, 0]
+    oy = hd.frame_pos[link, 1]
+    for v in range(n_core):
+        wx = ox + ca * gd.core[v, 0] - sa * gd.core[v, 1]
+        wy = oy + sa * gd.core[v, 0] + ca * gd.core[v, 1]
+        phi, nx, ny = vertex_signed_distance(gm.box_vertices, 4, 0.0, gd.pose_b, wx, wy, rounding)
+        if phi >= 0.0:
+            gd.touching[hand, link, 0, v] = 0
+            continue
+        gd.hit[0] = wx - rounding * nx
+        gd.hit[1] = wy - rounding * ny
+        gd.hit[2] = -phi
+        gd.hit[3] = nx
+        gd.hit[4] = ny
+        box_contact(chain, hm, hd, gm, gd, hand, (link, 0, v))
+    gd.pose_l[0] = ox
+    gd.pose_l[1] = oy
+    gd.pose_l[2] = hd.frame_angle[link]
+    cb = math.cos(gd.q_box[2])
+    sb = math.sin(gd.q_box[2])
+    for v in range(4):
+        bx = gm.box_vertices[v, 0]
+        by = gm.box_vertices[v, 1]
+        wx = gd.q_box[0] + cb * bx - sb * by
+        wy = gd.q_box[1] + sb * bx + cb * by
+        phi, nx, ny = vertex_signed_distance(gd.core, n_core, rounding, gd.pose_l, wx, wy, 0.0)
+        if phi >= 0.0:
+            gd.touching[hand, link, 1, v] = 0
+            continue
+        gd.hit[0] = wx
+        gd.hit[1] = wy
+        gd.hit[2] = -phi
+        gd.hit[3] = -nx
+        gd.hit[4] = -ny
+        box_contact(chain, hm, hd, gm, gd, hand, (link, 1, v))
+
+
+@njit(cache=True)
+def solve_all(hms, hds, gm, gd):
+    """The theta-step over q = (hands, box): each hand's block from its own record (drives,
+    walls, D, G, C qd), the box's, and the hand-box contacts' over all of q. A step that is
+    not finite holds everything where it was, at rest (counted); returns whether it held."""
+    n = gm.n
+    h = gd.h
+    th = gm.theta
+    for i in range(n):
+        for j in range(n):
+            gd.system[i, j] = th * h * gd.bg[i, j] + th * th * h * h * gd.kg[i, j]
+    for i in range(gm.n_hands):
+        hm = hms[i][0]
+        hd = hds[i][0]
+        o = gm.offset[i]
+        for a in range(hm.dof):
+            v = hd.f[a] - hd.gravity_q[a] - hd.coriolis[a] + hd.extra[a]
+            for b in range(hm.dof):
+                v -= th * h * hd.k[a, b] * hd.qd[b]
+                gd.system[o + a, o + b] += hd.mass[a, b] + th * h * hd.b[a, b]
+                gd.system[o + a, o + b] += th * th * h * h * hd.k[a, b]
+            gd.rhs[o + a] = h * v
+            gd.qd_all[o + a] = hd.qd[a]
+    b0 = gm.box
+    for k in range(3):
+        mass = gm.box_inertia if k == 2 else gm.box_mass
+        grav = gm.gravity[k] * gm.box_mass if k < 2 else 0.0
+        gd.system[b0 + k, b0 + k] += mass
+        gd.rhs[b0 + k] = h * (gd.f_box[k] + grav)
+        gd.qd_all[b0 + k] = gd.qd_box[k]
+        gd.box_before[k] = gd.q_box[k]
+    for i in range(n):
+        v = 0.0
+        for j in range(n):
+            v += gd.kg[i, j] * gd.qd_all[j]
+        gd.rhs[i] -= h * th * h * v
+    ok = cholesky_inplace(gd.system, n, gd.chol)
+    if ok:
+        cholesky_solve(gd.chol, n, gd.rhs, gd.dqd)
+        for i in range(n):
+            if not math.isfinite(gd.dqd[i]):
+                ok = False
+    if not ok:
+        gd.singular += 1
+        for k in range(3):
+            gd.qd_box[k] = 0.0
+        for i in range(gm.n_hands):
+            hd = hds[i][0]
+            for a in range(hms[i][0].dof):
+                hd.qd[a] = 0.0
+        return False
+    for i in range(gm.n_hands):
+        hd = hds[i][0]
+        o = gm.offset[i]
+        for a in range(hms[i][0].dof):
+            hd.q[a] += h * (hd.qd[a] + th * gd.dqd[o + a])
+            hd.qd[a] += gd.dqd[o + a]
+    for k in range(3):
+        gd.q_box[k] += h * (gd.qd_box[k] + th * gd.dqd[b0 + k])
+        gd.qd_box[k] += gd.dqd[b0 + k]
+    return True
+
+
+@njit(cache=True)
+def grasp_substeps(chains, hms, hds, gm, gd, n_sub):
+    """The tick in n_sub sub-steps; the largest joint turn of either hand into gd.turn."""
+    gd.h = gd.dt / n_sub
+    gd.n_sub = n_sub
+    gd.turn = 0.0
+    for k in range(3):
+        gd.box_force[k] = 0.0
+    for i in range(gm.n_hands):
+        begin_substeps(hms[i][0], hds[i][0], n_sub)
+    n = gm.n
+    for sub in range(n_sub):
+        for i in range(n):
+            for j in range(n):
+                gd.kg[i, j] = 0.0
+                gd.bg[i, j] = 0.0
+        for k in range(3):
+            gd.f_box[k] = 0.0
+        gd.n_contacts = 0
+        for i in range(gm.n_hands):
+            hm = hms[i][0]
+            hd = hds[i][0]
+            prepare_substep(chains[i], hm, hd, sub)
+            for link in range(PALM, hm.dof):
+                link_box_contacts(chains[i], hm, hd, gm, gd, i, link)
+        ok = solve_all(hms, hds, gm, gd)
+        for i in range(gm.n_hands):
+            hd = hds[i][0]
+            finish_substep(hms[i][0], hd)
+            if not hd.turn <= gd.turn:
+                gd.turn = hd.turn
+        if not ok:
+            gd.turn = math.inf
+
+
+@njit(cache=True)
+def grasp_tick(chains, hms, hds, gmodel, gdata):
+    """One tick of both hands and the box: each hand's tracked palm and glove in its record
+    (target, target_rate); each hand's command and glove torques are left in its record,
+    the hands' force on the box in gdata.box_force."""
+    gm = gmodel[0]
+    gd = gdata[0]
+    for i in range(gm.n_hands):
+        tracked_inputs(hms[i][0], hds[i][0])
+        save_tick(hms[i][0], hds[i][0])
+    for k in range(3):
+        gd.box_tick[k] = gd.q_box[k]
+        gd.box_tick[k + 3] = gd.qd_box[k]
+    gd.stick_tick[:] = gd.stick
+    gd.touching_tick[:] = gd.touching
+    gd.singular_tick = gd.singular
+    n_sub = 1
+    while True:
+        grasp_substeps(chains, hms, hds, gm, gd, n_sub)
+        if gd.turn <= MAX_TURN or n_sub >= MAX_SUBSTEPS:
+            break
+        for i in range(gm.n_hands):
+            restore_tick(hms[i][0], hds[i][0])
+        for k in range(3):
+            gd.q_box[k] = gd.box_tick[k]
+            gd.qd_box[k] = gd.box_tick[k + 3]
+        gd.stick[:] = gd.stick_tick
+        gd.touching[:] = gd.touching_tick
+        gd.singular = gd.singular_tick
+        n_sub *= 4
+    for i in range(gm.n_hands):
+        hd = hds[i][0]
+        if n_sub > 1:
+            hd.substepped += 1
+        hand_outputs(hms[i][0], hd)
+
+
+@njit(cache=True)
+def run_grasp(chains, hms, hds, gmodel, gdata, out):
+    """Ticks k = 0 .. len(out) - 1 with the tracked hands where their records hold them;
+    out[k] = box pose (3), the hands' force on the box (3), palm 0 and palm 1 poses (3 each),
+    hand-box contacts (1), palm 0 and palm 1 commands (3 each)."""
+    gd = gdata[0]
+    for k in range(out.shape[0]):
+        grasp_tick(chains, hms, hds, gmodel, gdata)
+        for c in range(3):
+            out[k, c] = gd.q_box[c]
+            out[k, 3 + c] = gd.box_force[c]
+            out[k, 6 + c] = hds[0][0].q[c]
+            out[k, 9 + c] = hds[1][0].q[c]
+            out[k, 13 + c] = hds[0][0].command[c]
+            out[k, 16 + c] = hds[1][0].command[c]
+        out[k, 12] = gd.n_contacts
