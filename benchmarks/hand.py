@@ -12,6 +12,8 @@ as a script (haptic_server/stages/hand.py), at 1 kHz:
   lightest phalanx (I about its joint), the glove stepping 0.3 rad and then holding: no step
   held for not being finite, and the hand's energy (kinetic + drives) never rising after the
   step; the same at theta 0.55 and 0.5 (not shipped), for comparison;
+- V5.5 two hands hold the box (`haptic_server/stages/hand_grasp.py`: both hands and the
+  box in one theta-step) as in V4.1, scripted and without noise (`two_hands_hold`);
 - V5.4 a fingertip swept at 1 m/s across a 2 mm post, 1000 placements along the finger:
   how many the post passes through (its centre crossing a phalanx's core line within the
   phalanx), the deepest penetration, and the same with seed 004's emulation (the proxy stepped every 3 ticks),
@@ -232,42 +234,53 @@ def post_sweeps(
     }
 
 
-def two_hands_hold(duration_s: float = 5.2, settle_s: float = 0.2, squeeze_n: float = 2.0) -> dict:
-    """V5.5 (module docstring): two of the brief's hands, palms facing across the 40 x 20 mm,
-    0.1 kg box (the left hand turned -90 degrees, its fingers hanging below the box; the
-    right +90, its fingers above), each tracked palm held squeeze / k_t inside the box's
-    face and raised by what its palm spring carries (the hand and half the box), g = 9.81,
-    5 s: V4.1's acceptance (slip of each box corner along its palm's face, from the poses;
-    the box's force balance in 100 ms means; contact losses)."""
+BOX_SIZE = (0.04, 0.02)
+BOX_MASS = 0.1
+
+
+def two_hands(squeeze_n: float, g: float) -> tuple[tuple, tuple, tuple, np.ndarray, np.ndarray]:
+    """Two of the brief's hands, palms facing across the 40 x 20 mm, 0.1 kg box (the left
+    hand turned -90 degrees, its fingers hanging below the box; the right +90, its fingers
+    above), each tracked palm held `squeeze_n` / k_t inside the box's face and raised by
+    what its palm spring carries (the hand and half the box). (chains, models, datas,
+    coupling model, coupling data)."""
     spec = HandSpec()
-    g = 9.81
-    box_size, box_mass = (0.04, 0.02), 0.1
     k_t = spec.palm_spring[0]
     half = spec.palm_size[1] / 2
-    lift = (hand_mass(spec) + box_mass / 2) * g / k_t
-    chains, hms, hds = [], [], []
+    lift = (hand_mass(spec) + BOX_MASS / 2) * g / k_t
+    hands = []
     for side in (-1.0, 1.0):
-        x = side * (box_size[0] / 2 + half)
+        x = side * (BOX_SIZE[0] / 2 + half)
         pose = (x, 0.0, side * math.pi / 2)
         chain, model, data = hand_records(spec, [], CONTACT, pose, LIMITS, DT, 0.6, (0.0, -g))
         data[0]["target"][0] = x - side * squeeze_n / k_t
         data[0]["target"][1] = lift
-        chains.append(chain)
-        hms.append(model)
-        hds.append(data)
-    gm, gd = grasp_records([spec.dof, spec.dof], box_size, box_mass, (0.0, 0.0, 0.0), CONTACT,
-                           (0.0, -g), DT, 0.6)  # fmt: skip
+        hands.append((chain, model, data))
+    gm, gd = grasp_records(hands, BOX_SIZE, BOX_MASS, (0.0, 0.0, 0.0), CONTACT)
+    chains, models, datas = zip(*hands, strict=True)
+    return tuple(chains), tuple(models), tuple(datas), gm, gd
+
+
+def two_hands_hold(duration_s: float = 5.2, settle_s: float = 0.2, squeeze_n: float = 2.0) -> dict:
+    """V5.5 (module docstring): `two_hands`, g = 9.81, the tracked hands still for 5 s:
+    V4.1's slip (each box corner along its palm's face, from the poses), balance (the box's
+    contact force + m g in 100 ms means: its m a) and contact losses (fewer hand-box
+    contacts than at the hold's start). The hands are scripted and noise-free, and there is
+    no device, so V4.1's transparency check has nothing to compare."""
+    g = 9.81
+    chains, models, datas, gm, gd = two_hands(squeeze_n, g)
+    half = HandSpec().palm_size[1] / 2
     n = round(duration_s / DT)
     out = np.zeros((n, 19))
-    run_grasp(tuple(chains), tuple(hms), tuple(hds), gm, gd, out)
+    run_grasp(chains, models, datas, gm, gd, out)
     t = np.arange(1, n + 1) * DT
     k0 = round(settle_s / DT)
     box = out[:, 0:3]
-    balance = window_means(t, out[:, 3:5] + np.array([0.0, -box_mass * g]), settle_s, duration_s)
+    balance = window_means(t, out[:, 3:5] + np.array([0.0, -BOX_MASS * g]), settle_s, duration_s)
     slip = []
     for palm in (out[:, 6:9], out[:, 9:12]):
-        for cx in (-box_size[0] / 2, box_size[0] / 2):
-            for cy in (-box_size[1] / 2, box_size[1] / 2):
+        for cx in (-BOX_SIZE[0] / 2, BOX_SIZE[0] / 2):
+            for cy in (-BOX_SIZE[1] / 2, BOX_SIZE[1] / 2):
                 world = _from_frame(box[k0:], np.array([cx, cy]))
                 local = _to_frame(palm[k0:], world)
                 if abs(local[0, 1] - half) > 5e-4:
@@ -276,13 +289,34 @@ def two_hands_hold(duration_s: float = 5.2, settle_s: float = 0.2, squeeze_n: fl
     return {
         "contacts_tracked": len(slip),
         "slip_max_m": max(slip) if slip else float("nan"),
-        "balance_max_fraction": float(np.max(np.linalg.norm(balance, axis=1)) / (box_mass * g)),
+        "balance_max_fraction": float(np.max(np.linalg.norm(balance, axis=1)) / (BOX_MASS * g)),
         "contact_losses": int(np.sum(out[k0:, 12] < out[k0, 12])),
         "contacts_at_hold": int(out[k0, 12]),
         "box_drop_m": float(box[k0, 1] - box[-1, 1]),
         "held_steps": int(gd[0]["singular"]),
-        "squeeze_n": float(np.median(np.abs(out[k0:, 13]))),
+        "squeeze_n": [
+            float(np.median(np.abs(out[k0:, 13]))),
+            float(np.median(np.abs(out[k0:, 16]))),
+        ],
     }
+
+
+def two_hands_twist(dy_m: float = 0.002, duration_s: float = 1.0) -> dict:
+    """g = 0: the right tracked palm `dy_m` up, the left as far down, the squeeze 2 N: the
+    box must turn counter-clockwise with the line through the palms (a wrong sign of the
+    box's contact torque would turn it the other way). The palms keep their own angle (their
+    springs hold it), so past a few millimetres the box sits on corners and leaves the line."""
+    chains, models, datas, gm, gd = two_hands(2.0, 0.0)
+    datas[0][0]["target"][1] -= dy_m
+    datas[1][0]["target"][1] += dy_m
+    n = round(duration_s / DT)
+    out = np.zeros((n, 19))
+    run_grasp(chains, models, datas, gm, gd, out)
+    left = out[-1, 6:9]
+    right = out[-1, 9:12]
+    line = math.atan2(right[1] - left[1], right[0] - left[0])
+    return {"box_angle_rad": float(out[-1, 2]), "palm_line_rad": line,
+            "held_steps": int(gd[0]["singular"])}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:

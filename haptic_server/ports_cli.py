@@ -27,7 +27,12 @@ import numpy as np
 from mcap.writer import Writer
 
 from haptic_local_model.device_models.registry import load_simulated_device
-from haptic_local_model.haptic_server.log import _iter_messages, read_metadata, ros1msg_schema
+from haptic_local_model.haptic_server.log import (
+    _iter_messages,
+    is_indexed,
+    read_metadata,
+    ros1msg_schema,
+)
 from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE, PortRun
 from haptic_local_model.haptic_server.stages.cosim import cosim_records, cosim_tick
 from haptic_local_model.shared import __version__
@@ -39,7 +44,7 @@ from haptic_local_model.shared.config import (
     resolve,
     shipped,
 )
-from haptic_local_model.shared.port_config import PortSceneConfig, load_port_scene
+from haptic_local_model.shared.port_config import PortSceneConfig
 
 PORT_TICK_TOPIC = "/ports/tick"
 PORT_TICK_SCHEMA = "haptic_server/PortTick"
@@ -48,49 +53,73 @@ REPLAYED = ("q", "qd", "command", "body_force", "n_contacts", "penetration", "in
 
 
 def write_port_log(path: Path, rows: np.ndarray, metadata: dict[str, dict[str, str]]) -> None:
-    """Every row and the metadata, into a temporary file renamed to `path` when whole."""
+    """Every row and the metadata, into a temporary file renamed to `path` when whole (and
+    removed if the writing fails)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     part = path.with_name(path.name + ".part")
-    with part.open("wb") as fh:
-        writer = Writer(fh)
-        writer.start(profile="", library=f"haptic-local-model {__version__}")
-        schema = writer.register_schema(
-            name=PORT_TICK_SCHEMA, encoding="ros1msg", data=ros1msg_schema(PORT_ROW_DTYPE).encode()
-        )
-        channel = writer.register_channel(
-            PORT_TICK_TOPIC, message_encoding="ros1", schema_id=schema
-        )
-        for name, data in metadata.items():
-            writer.add_metadata(name, data)
-        for k, row in enumerate(rows):
-            t_ns = round(float(row["t"]) * 1e9)
-            writer.add_message(channel, log_time=t_ns, data=row.tobytes(), publish_time=t_ns,
-                               sequence=k)  # fmt: skip
-        writer.finish()
-    os.replace(part, path)
+    try:
+        with part.open("wb") as fh:
+            writer = Writer(fh)
+            writer.start(profile="", library=f"haptic-local-model {__version__}")
+            schema = writer.register_schema(
+                name=PORT_TICK_SCHEMA,
+                encoding="ros1msg",
+                data=ros1msg_schema(PORT_ROW_DTYPE).encode(),
+            )
+            channel = writer.register_channel(
+                PORT_TICK_TOPIC, message_encoding="ros1", schema_id=schema
+            )
+            for name, data in metadata.items():
+                writer.add_metadata(name, data)
+            for k, row in enumerate(rows):
+                t_ns = round(float(row["t"]) * 1e9)
+                writer.add_message(channel, log_time=t_ns, data=row.tobytes(),
+                                   publish_time=t_ns, sequence=k)  # fmt: skip
+            writer.finish()
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(part, path)
+    except BaseException:
+        part.unlink(missing_ok=True)
+        raise
+
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def read_port_log(path: Path) -> tuple[np.ndarray, dict[str, dict[str, str]]]:
-    """The rows and metadata of a port log; a file that is not one is refused by name."""
+    """The rows and metadata of a whole port log; a file that is not one, or is cut short,
+    is refused by name."""
     if not path.is_file():
         raise ConfigError(str(path), "log", "no such file")
+    with path.open("rb") as fh:
+        if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise ConfigError(str(path), "log", "not an MCAP file")
+    if not is_indexed(path):
+        raise ConfigError(str(path), "log", "cut short (no summary): the run did not finish it")
     chunks = []
     schema_text = None
-    try:
-        for topic, data, schema in _iter_messages(path):
-            if topic == PORT_TICK_TOPIC:
-                chunks.append(data)
-                schema_text = schema.data.decode() if schema else None
-        metadata = read_metadata(path)
-    except Exception as exc:  # not MCAP at all
-        raise ConfigError(str(path), "log", f"not a readable MCAP file ({exc})") from None
+    for topic, data, schema in _iter_messages(path):
+        if topic == PORT_TICK_TOPIC:
+            chunks.append(data)
+            schema_text = schema.data.decode() if schema else None
+    metadata = read_metadata(path)
     if not chunks:
         raise ConfigError(str(path), PORT_TICK_TOPIC, "no port ticks: not a haptic-ports log")
     if schema_text != ros1msg_schema(PORT_ROW_DTYPE):
         raise ConfigError(str(path), PORT_TICK_SCHEMA, "rows of another layout (another release)")
-    if "configs" not in metadata or "limits" not in metadata:
-        raise ConfigError(str(path), "metadata", "the scene or the limits are missing")
-    return np.frombuffer(b"".join(chunks), PORT_ROW_DTYPE), metadata
+    if any(len(c) != PORT_ROW_DTYPE.itemsize for c in chunks):
+        raise ConfigError(str(path), PORT_TICK_TOPIC, "a row of the wrong size")
+    rows = np.frombuffer(b"".join(chunks), PORT_ROW_DTYPE)
+    try:
+        expected = int(metadata["run"]["ticks"])
+    except (KeyError, ValueError):
+        raise ConfigError(str(path), "run.ticks", "missing: not a whole haptic-ports log") from None
+    if "ports" not in metadata.get("configs", {}):
+        raise ConfigError(str(path), "configs.ports", "the port scene is missing")
+    if len(rows) != expected:
+        raise ConfigError(str(path), "run.ticks", f"{len(rows)} ticks logged, {expected} run")
+    return rows, metadata
 
 
 def replay_rows(
@@ -115,14 +144,24 @@ def replay_log(path: Path) -> tuple[int, int | None]:
     scene = load_config_text(
         PortSceneConfig, metadata["configs"]["ports"], f"{path} (its port scene)"
     )
-    limits: list[tuple[float, float, float]] = [
-        (float(a), float(b), float(c)) for a, b, c in json.loads(metadata["limits"]["max_wrench"])
-    ]
+    try:
+        limits: list[tuple[float, float, float]] = [
+            (float(a), float(b), float(c))
+            for a, b, c in json.loads(metadata["limits"]["max_wrench"])
+        ]
+    except (KeyError, ValueError, TypeError):
+        raise ConfigError(
+            str(path), "limits.max_wrench", "missing or not 3 numbers a port"
+        ) from None
+    if len(limits) != len(scene.ports):
+        raise ConfigError(
+            str(path), "limits.max_wrench", f"{len(limits)} limits for {len(scene.ports)} ports"
+        )
     return replay_rows(scene, limits, rows)
 
 
 def _summary(run: PortRun, rows: np.ndarray, wall_s: float) -> list[str]:
-    last = rows[-min(len(rows), 1000) :]
+    last = rows[-min(len(rows), round(run.scene.haptic_rate_hz)) :]
     lines = [
         f"{len(rows)} ticks, {rows['t'][-1] + float(run.data[0]['dt']):.3f} s in {wall_s:.2f} s "
         f"of wall time",
@@ -146,7 +185,12 @@ def _summary(run: PortRun, rows: np.ndarray, wall_s: float) -> list[str]:
 
 def run_ports_cli(args: argparse.Namespace) -> int:
     path = resolve("ports", args.scene)
-    scene = load_port_scene(args.scene)
+    if not path.is_file():
+        raise ConfigError(str(path), "scene", "no such file")
+    text = path.read_text()  # read once: the log holds the scene the run ran
+    scene = load_config_text(PortSceneConfig, text, str(path))
+    if round(args.duration * scene.haptic_rate_hz) < 1:
+        raise ConfigError("--duration", "--duration", "shorter than one tick")
     devices = _per_port(args.device, [p.device for p in scene.ports], "--device")
     users = _per_port(args.user, [p.user for p in scene.ports], "--user")
     sim = [load_simulated_device(name) for name in devices]
@@ -160,12 +204,16 @@ def run_ports_cli(args: argparse.Namespace) -> int:
         limits = [list(map(float, run.model[0]["max_wrench"][p])) for p in range(len(sim))]
         metadata = {
             "configs": {
-                "ports": path.read_text(),
+                "ports": text,
                 "devices": json.dumps(devices),
                 "users": json.dumps(users),
             },
             "limits": {"max_wrench": json.dumps(limits)},
-            "run": {"version": __version__, "duration_s": str(args.duration)},
+            "run": {
+                "version": __version__,
+                "duration_s": str(args.duration),
+                "ticks": str(len(result.rows)),
+            },
         }
         write_port_log(args.log, result.rows, metadata)
         print(f"log: {args.log}")

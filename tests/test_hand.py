@@ -19,6 +19,7 @@ from haptic_local_model.benchmarks.hand import (
     post_sweeps,
     press,
     two_hands_hold,
+    two_hands_twist,
 )
 from haptic_local_model.haptic_server.stages.hand import hand_chain, hand_records, hand_tick
 from haptic_local_model.shared.config import ConfigError, load_config_text
@@ -156,3 +157,10 @@ def test_two_hands_squeezing_below_the_cone_let_the_box_fall():
     """0.4 N a side holds 2 mu N = 0.4 N of the box's 0.98 N: it slides out of the grip."""
     r = two_hands_hold(duration_s=0.5, squeeze_n=0.4)
     assert r["box_drop_m"] > 0.005
+
+
+def test_two_hands_twist_the_box_with_the_line_through_their_palms():
+    r = two_hands_twist()
+    assert r["held_steps"] == 0
+    assert r["box_angle_rad"] > 0.03
+    assert r["box_angle_rad"] == pytest.approx(r["palm_line_rad"], abs=0.002)

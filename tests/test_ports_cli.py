@@ -3,13 +3,19 @@ replay (haptic_server/ports_cli.py)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from haptic_local_model.haptic_server.log import LogWriter
-from haptic_local_model.haptic_server.ports_cli import main, read_port_log, replay_rows
+from haptic_local_model.haptic_server.ports_cli import (
+    main,
+    read_port_log,
+    replay_rows,
+    write_port_log,
+)
 from haptic_local_model.shared.config import ConfigError
 from haptic_local_model.shared.port_config import load_port_scene
 
@@ -35,14 +41,51 @@ def test_a_port_run_logs_every_tick_and_replays_bit_for_bit(logged, capsys):
 
 def test_the_replay_finds_a_row_that_is_not_the_co_simulations(logged):
     """One bit of one logged body's position changed at tick 500: the replay stops there."""
-    rows, _ = read_port_log(logged)
+    rows, metadata = read_port_log(logged)
     rows = rows.copy()
     q = rows["q"]
     q[500, 6] = np.nextafter(q[500, 6], np.inf)
     rows["q"] = q
     scene = load_port_scene("grasp_vertical")
-    limits = [(50.0, 50.0, 6.0), (10.0, 4.5, 0.25)]
+    limits = [tuple(v) for v in json.loads(metadata["limits"]["max_wrench"])]
     assert replay_rows(scene, limits, rows) == (501, 500)
+
+
+def test_haptic_ports_exits_1_on_a_log_that_differs(logged, tmp_path, capsys):
+    rows, metadata = read_port_log(logged)
+    rows = rows.copy()
+    rows["command"][700, 1, 0] += 1e-9
+    tampered = tmp_path / "tampered.mcap"
+    write_port_log(tampered, rows, metadata)
+    assert main(["--replay", str(tampered)]) == 1
+    assert "tick 700" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("change", "key"),
+    [
+        (lambda md: md["limits"].update(max_wrench="[1, 2"), "limits.max_wrench"),
+        (lambda md: md["limits"].update(max_wrench="[[1, 2, 3]]"), "limits.max_wrench"),
+        (lambda md: md["run"].update(ticks="999"), "run.ticks"),
+        (lambda md: md["configs"].pop("ports"), "configs.ports"),
+    ],
+)
+def test_a_log_with_bad_metadata_is_refused_by_name(logged, tmp_path, capsys, change, key):
+    rows, metadata = read_port_log(logged)
+    metadata = {k: dict(v) for k, v in metadata.items()}
+    change(metadata)
+    bad = tmp_path / "bad.mcap"
+    write_port_log(bad, rows, metadata)
+    assert main(["--replay", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "bad.mcap" in err and key in err
+
+
+def test_a_log_cut_short_is_refused(logged, tmp_path, capsys):
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(logged.read_bytes()[: logged.stat().st_size // 2])
+    assert main(["--replay", str(cut)]) == 2
+    assert "cut short" in capsys.readouterr().err
 
 
 def test_a_log_that_is_not_a_port_log_is_refused_by_name(tmp_path, capsys):

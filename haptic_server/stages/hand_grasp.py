@@ -94,32 +94,40 @@ GRASP_DATA_DTYPE = np.dtype(
 
 
 def grasp_records(
-    hand_dofs: list[int],
+    hands: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
     box_size: tuple[float, float],
     box_mass: float,
     box_pose: tuple[float, float, float],
     contact: tuple[float, float, float, float],
-    gravity: tuple[float, float],
-    dt: float,
-    theta: float = 0.6,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The coupling's model and data: the hands (of these dofs, in this order) and the box;
-    contact: (stiffness, damping, friction, tangential stiffness)."""
+    """The coupling's model and data for these hands (each `hand_records`' (chain, model,
+    data), in this order) and the box; contact: (stiffness, damping, friction, tangential
+    stiffness). The step's dt, theta and gravity are the hands' own, which must agree."""
+    models = [h[1][0] for h in hands]
+    datas = [h[2][0] for h in hands]
+    for key, values in (
+        ("theta", [float(m["theta"]) for m in models]),
+        ("dt", [float(d["dt"]) for d in datas]),
+        ("gravity", [tuple(m["gravity"]) for m in models]),
+    ):
+        if len(set(values)) != 1:
+            raise ValueError(f"{key}: the hands differ ({values})")
+    dofs = [int(m["dof"]) for m in models]
     model = np.zeros(1, GRASP_DTYPE)
     data = np.zeros(1, GRASP_DATA_DTYPE)
     m = model[0]
-    m["n_hands"] = len(hand_dofs)
-    m["offset"][: len(hand_dofs)] = np.cumsum([0, *hand_dofs[:-1]])
-    m["box"] = sum(hand_dofs)
+    m["n_hands"] = len(dofs)
+    m["offset"][: len(dofs)] = np.cumsum([0, *dofs[:-1]])
+    m["box"] = sum(dofs)
     m["n"] = m["box"] + 3
     w, h = box_size
     m["box_mass"] = box_mass
     m["box_inertia"] = box_mass * (w * w + h * h) / 12.0
     m["box_vertices"] = [(-w / 2, -h / 2), (w / 2, -h / 2), (w / 2, h / 2), (-w / 2, h / 2)]
-    m["gravity"] = gravity
+    m["gravity"] = models[0]["gravity"]
     m["stiffness"], m["damping"], m["friction"], m["tangential_stiffness"] = contact
-    m["theta"] = theta
-    data[0]["dt"] = dt
+    m["theta"] = models[0]["theta"]
+    data[0]["dt"] = datas[0]["dt"]
     data[0]["q_box"] = box_pose
     return model, data
 
@@ -314,6 +322,7 @@ def solve_all(hms, hds, gm, gd):
             gd.qd_box[k] = 0.0
         for i in range(gm.n_hands):
             hd = hds[i][0]
+            hd.singular += 1
             for a in range(hms[i][0].dof):
                 hd.qd[a] = 0.0
         return False
@@ -331,7 +340,8 @@ def solve_all(hms, hds, gm, gd):
 
 @njit(cache=True)
 def grasp_substeps(chains, hms, hds, gm, gd, n_sub):
-    """The tick in n_sub sub-steps; the largest joint turn of either hand into gd.turn."""
+    """The tick in n_sub sub-steps; the largest turn of one sub-step, of any joint of
+    either hand or of the box, into gd.turn (inf if a step failed)."""
     gd.h = gd.dt / n_sub
     gd.n_sub = n_sub
     gd.turn = 0.0
@@ -360,6 +370,9 @@ def grasp_substeps(chains, hms, hds, gm, gd, n_sub):
             finish_substep(hms[i][0], hd)
             if not hd.turn <= gd.turn:
                 gd.turn = hd.turn
+        box_turn = abs(gd.q_box[2] - gd.box_before[2])
+        if not box_turn <= gd.turn:
+            gd.turn = box_turn
         if not ok:
             gd.turn = math.inf
 
