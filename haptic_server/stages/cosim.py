@@ -261,6 +261,26 @@ def _stiffen(d, kn, kt, bn, bt):
 
 
 @njit(cache=True)
+def penalty_friction(m, depth, vn, vt, stick, h):
+    """Seed 001 eq 8 at one contact point: the normal force k delta - b v_n (>= 0) and the
+    stick spring's tangential force -k_t s - b v_t capped at mu f_n, s the stick's deflection
+    carried on by v_t h. m holds stiffness, damping, friction and tangential_stiffness (the
+    co-simulation's, a hand's or the hands' coupling's model). Returns (f_n, f_t, the new
+    deflection, whether it sticks)."""
+    f_n = m.stiffness * depth - m.damping * vn
+    if f_n < 0.0:
+        f_n = 0.0
+    stick += vt * h
+    k_t = m.tangential_stiffness
+    f_t = -k_t * stick - m.damping * vt
+    limit = m.friction * f_n
+    if abs(f_t) > limit:
+        f_t = limit if f_t > 0.0 else -limit
+        return f_n, f_t, (-f_t / k_t if k_t > 0.0 else 0.0), False
+    return f_n, f_t, stick, True
+
+
+@njit(cache=True)
 def contact(m, d, o, t, v):
     """One penetrating vertex v of element o in element t (its point, depth and normal in
     d.hit): penalty, stick-spring friction, the force on both, and their stiffness for the
@@ -279,21 +299,11 @@ def contact(m, d, o, t, v):
     rvy = voy - vty
     vn = nx * rvx + ny * rvy
     vt = tx * rvx + ty * rvy
-    f_n = m.stiffness * depth - m.damping * vn
-    if f_n < 0.0:
-        f_n = 0.0
     if d.touching[o, t, v] == 0:
         d.stick[o, t, v] = 0.0
     d.touching[o, t, v] = 1
-    d.stick[o, t, v] += vt * dt
+    f_n, f_t, d.stick[o, t, v], sticking = penalty_friction(m, depth, vn, vt, d.stick[o, t, v], dt)
     k_t = m.tangential_stiffness
-    f_t = -k_t * d.stick[o, t, v] - m.damping * vt
-    limit = m.friction * f_n
-    sticking = True
-    if abs(f_t) > limit:
-        f_t = limit if f_t > 0.0 else -limit
-        d.stick[o, t, v] = -f_t / k_t if k_t > 0.0 else 0.0
-        sticking = False
     fx = f_n * nx + f_t * tx
     fy = f_n * ny + f_t * ty
     _apply(d, o, px, py, fx, fy)

@@ -42,6 +42,7 @@ import math
 import numpy as np
 from numba import njit
 
+from haptic_local_model.haptic_server.stages.cosim import penalty_friction
 from haptic_local_model.shared.kinematics import (
     MAX_DOF,
     PRISMATIC_X,
@@ -255,21 +256,12 @@ def hand_contact(chain, m, d, link, wall, side, v):
     vx, vy = point_velocity(c, d.frame_pos, link, px, py, d.qd)
     vn = nx * vx + ny * vy
     vt = tx * vx + ty * vy
-    f_n = m.stiffness * depth - m.damping * vn
-    if f_n < 0.0:
-        f_n = 0.0
-    if d.touching[link, wall, side, v] == 0:
-        d.stick[link, wall, side, v] = 0.0
-    d.touching[link, wall, side, v] = 1
-    d.stick[link, wall, side, v] += vt * d.h
+    key = (link, wall, side, v)
+    if d.touching[key] == 0:
+        d.stick[key] = 0.0
+    d.touching[key] = 1
+    f_n, f_t, d.stick[key], sticking = penalty_friction(m, depth, vn, vt, d.stick[key], d.h)
     k_t = m.tangential_stiffness
-    f_t = -k_t * d.stick[link, wall, side, v] - m.damping * vt
-    limit = m.friction * f_n
-    sticking = True
-    if abs(f_t) > limit:
-        f_t = limit if f_t > 0.0 else -limit
-        d.stick[link, wall, side, v] = -f_t / k_t if k_t > 0.0 else 0.0
-        sticking = False
     fx = f_n * nx + f_t * tx
     fy = f_n * ny + f_t * ty
     d.contact_force[0] += fx / d.n_sub  # the tick's mean over its sub-steps

@@ -16,6 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
+from haptic_local_model.haptic_server.stages.cosim import penalty_friction
 from haptic_local_model.haptic_server.stages.hand import (
     MAX_SUBSTEPS,
     MAX_TURN,
@@ -170,21 +171,12 @@ def box_contact(chain, hm, hd, gm, gd, hand, key):
     rvy = vhy - (gd.qd_box[1] + w * rx)
     vn = nx * rvx + ny * rvy
     vt = tx * rvx + ty * rvy
-    f_n = gm.stiffness * depth - gm.damping * vn
-    if f_n < 0.0:
-        f_n = 0.0
-    if gd.touching[hand, link, side, v] == 0:
-        gd.stick[hand, link, side, v] = 0.0
-    gd.touching[hand, link, side, v] = 1
-    gd.stick[hand, link, side, v] += vt * gd.h
+    at = (hand, link, side, v)
+    if gd.touching[at] == 0:
+        gd.stick[at] = 0.0
+    gd.touching[at] = 1
+    f_n, f_t, gd.stick[at], sticking = penalty_friction(gm, depth, vn, vt, gd.stick[at], gd.h)
     k_t = gm.tangential_stiffness
-    f_t = -k_t * gd.stick[hand, link, side, v] - gm.damping * vt
-    limit = gm.friction * f_n
-    sticking = True
-    if abs(f_t) > limit:
-        f_t = limit if f_t > 0.0 else -limit
-        gd.stick[hand, link, side, v] = -f_t / k_t if k_t > 0.0 else 0.0
-        sticking = False
     fx = f_n * nx + f_t * tx
     fy = f_n * ny + f_t * ty
     n = hm.dof
