@@ -91,7 +91,7 @@ def window_means(t: np.ndarray, x: np.ndarray, t0: float, t1: float) -> np.ndarr
     return np.array([x[(t >= a) & (t < a + WINDOW_S)].mean(axis=0) for a in edges])
 
 
-def _to_frame(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
+def to_frame(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """World points (n x 2) into the frames of poses (n x 3)."""
     c = np.cos(pose[:, 2])
     s = np.sin(pose[:, 2])
@@ -100,7 +100,7 @@ def _to_frame(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=1)
 
 
-def _from_frame(pose: np.ndarray, local: np.ndarray) -> np.ndarray:
+def from_frame(pose: np.ndarray, local: np.ndarray) -> np.ndarray:
     c = np.cos(pose[:, 2])
     s = np.sin(pose[:, 2])
     return np.stack(
@@ -127,8 +127,8 @@ def contact_slip(result: PortResult, scene: PortSceneConfig, k0: int) -> dict[st
         pad = scene.body(port.tool)
         pad_pose = pose_of(result, port.tool)[k0:]
         for cx, cy in corners:
-            world = _from_frame(box_pose, np.array([cx, cy]))
-            local = _to_frame(pad_pose, world)
+            world = from_frame(box_pose, np.array([cx, cy]))
+            local = to_frame(pad_pose, world)
             if abs(abs(local[0, 0]) - pad.size[0] / 2) > 5e-4:
                 continue  # not on this pad's face
             out[f"{port.name} ({cx * 1e3:+.0f}, {cy * 1e3:+.0f}) mm"] = float(

@@ -34,7 +34,7 @@ import sys
 
 import numpy as np
 
-from haptic_local_model.benchmarks.grasp import _from_frame, _to_frame, window_means
+from haptic_local_model.benchmarks.grasp import from_frame, to_frame, window_means
 from haptic_local_model.haptic_server.stages.hand import (
     hand_chain,
     hand_energy,
@@ -281,8 +281,8 @@ def two_hands_hold(duration_s: float = 5.2, settle_s: float = 0.2, squeeze_n: fl
     for palm in (out[:, 6:9], out[:, 9:12]):
         for cx in (-BOX_SIZE[0] / 2, BOX_SIZE[0] / 2):
             for cy in (-BOX_SIZE[1] / 2, BOX_SIZE[1] / 2):
-                world = _from_frame(box[k0:], np.array([cx, cy]))
-                local = _to_frame(palm[k0:], world)
+                world = from_frame(box[k0:], np.array([cx, cy]))
+                local = to_frame(palm[k0:], world)
                 if abs(local[0, 1] - half) > 5e-4:
                     continue  # not on this palm's face
                 slip.append(float(np.max(np.abs(local[:, 0] - local[0, 0]))))

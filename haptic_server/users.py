@@ -85,13 +85,13 @@ def hand_wrench(user, t, pose, twist, out):
             s = (t - wp[k, 0]) / (wp[k + 1, 0] - wp[k, 0])
             target = wp[k, c + 1] + s * (wp[k + 1, c + 1] - wp[k, c + 1])
         out[c] = _pull(u, c, target, pose, twist)
-        if u.wrench[c] != 0.0:  # a hand that presses while it holds (a grasp's squeeze)
-            f = out[c] + u.wrench[c]
-            out[c] = min(u.max_wrench[c], max(-u.max_wrench[c], f))
 
 
 @njit(cache=True, inline="always")
 def _pull(u, c, target, pose, twist):
-    """The hand's spring-damper toward start + target on axis c, clipped at its limit."""
+    """The hand's spring-damper toward start + target on axis c, with its constant push
+    (`wrench`: a hand that presses while it holds, a grasp's squeeze), clipped at its limit."""
     f = u.stiffness[c] * (u.start_pose[c] + target - pose[c]) - u.damping[c] * twist[c]
+    if u.wrench[c] != 0.0:  # a hand with no push keeps the bits it always had (-0.0)
+        f += u.wrench[c]
     return min(u.max_wrench[c], max(-u.max_wrench[c], f))

@@ -1163,8 +1163,8 @@ class UserConfig:
 
     name: str
     kind: Literal["constant_wrench", "waypoints", "pointer"]
-    # N, N, N m: constant_wrench's wrench; with waypoints, a constant push added to the
-    # springs (a hand that squeezes along x while it holds its height: stiffness 0 on x)
+    # N, N, N m: constant_wrench's wrench; with waypoints or a pointer, a constant push added
+    # to the springs (a hand that squeezes along x while it holds its height: stiffness 0 on x)
     wrench: Vec3 = (0.0, 0.0, 0.0)
     stiffness: Vec3 = (200.0, 200.0, 0.5)  # hand grip stiffness (waypoints)
     damping: Vec3 = (10.0, 10.0, 0.02)

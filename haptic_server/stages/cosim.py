@@ -244,20 +244,23 @@ def _rows(d, o, t, px, py, nx, ny):
 
 
 @njit(cache=True)
-def _stiffen(d, kn, kt, bn, bt):
-    """K += kn jn jn^T + kt jt jt^T, B += bn jn jn^T + bt jt jt^T over the contact's cols."""
-    for i in range(6):
-        a = d.cols[i]
+def add_rows(kmat, bmat, cols, jn, jt, count, gains):
+    """A contact's stiffness and damping over its columns (cols[:count]; -1: a wall's):
+    K += kn jn jn^T + kt jt jt^T, B += bn jn jn^T + bt jt jt^T, gains = (kn, kt, bn, bt).
+    Every co-simulation's contacts (the tools', a hand's, the hands' on a box) add theirs so."""
+    kn, kt, bn, bt = gains
+    for i in range(count):
+        a = cols[i]
         if a < 0:
             continue
-        for j in range(6):
-            b = d.cols[j]
+        for j in range(count):
+            b = cols[j]
             if b < 0:
                 continue
-            nn = d.jn[i] * d.jn[j]
-            tt = d.jt[i] * d.jt[j]
-            d.k[a, b] += kn * nn + kt * tt
-            d.b[a, b] += bn * nn + bt * tt
+            nn = jn[i] * jn[j]
+            tt = jt[i] * jt[j]
+            kmat[a, b] += kn * nn + kt * tt
+            bmat[a, b] += bn * nn + bt * tt
 
 
 @njit(cache=True)
@@ -316,9 +319,9 @@ def contact(m, d, o, t, v):
         # a sliding contact's friction is mu f_n whatever the tangential speed: neither its
         # stick spring nor its damping is in the implicit step (they would brake the slide)
         if sticking:
-            _stiffen(d, m.stiffness, k_t, m.damping, m.damping)
+            add_rows(d.k, d.b, d.cols, d.jn, d.jt, 6, (m.stiffness, k_t, m.damping, m.damping))
         else:
-            _stiffen(d, m.stiffness, 0.0, m.damping, 0.0)
+            add_rows(d.k, d.b, d.cols, d.jn, d.jt, 6, (m.stiffness, 0.0, m.damping, 0.0))
 
 
 @njit(cache=True)

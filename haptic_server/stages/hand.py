@@ -42,14 +42,13 @@ import math
 import numpy as np
 from numba import njit
 
-from haptic_local_model.haptic_server.stages.cosim import penalty_friction
+from haptic_local_model.haptic_server.stages.cosim import add_rows, penalty_friction
 from haptic_local_model.shared.kinematics import (
     MAX_DOF,
     PRISMATIC_X,
     PRISMATIC_Y,
     REVOLUTE,
     chain_record,
-    link_frames,
     mass_matrix_and_gravity,
     point_jacobian,
     point_velocity,
@@ -151,7 +150,9 @@ HAND_DATA_DTYPE = np.dtype(
         ("d_minus", F8, (MAX_DOF, MAX_DOF)),
         ("qq", F8, (MAX_DOF,)),
         ("pose_w", F8, (3,)),
+        ("pose_l", F8, (3,)),  # a link's pose (its frame), for its core
         ("core", F8, (MAX_VERTICES, 2)),
+        ("cols", I8, (MAX_DOF,)),  # 0 .. dof - 1: a contact's columns (all of the hand's)
         ("jn", F8, (MAX_DOF,)),
         ("jt", F8, (MAX_DOF,)),
         ("hit", F8, (5,)),  # point x, y, depth, normal x, y (pushing the hand out)
@@ -235,6 +236,7 @@ def hand_records(
     m["glove_limit"] = spec.glove_max_torque
     m["gravity"] = gravity
     d["dt"] = dt
+    d["cols"] = np.arange(MAX_DOF)
     d["q"][:n] = (*palm_pose, *rest)
     d["target"][:n] = d["q"][:n]
     return chain, model, data
@@ -278,88 +280,94 @@ def hand_contact(chain, m, d, link, wall, side, v):
         return
     kt = k_t if sticking else 0.0
     bt = m.damping if sticking else 0.0
-    for a in range(n):
-        for b in range(n):
-            d.k[a, b] += m.stiffness * d.jn[a] * d.jn[b] + kt * d.jt[a] * d.jt[b]
-            d.b[a, b] += m.damping * d.jn[a] * d.jn[b] + bt * d.jt[a] * d.jt[b]
+    add_rows(d.k, d.b, d.cols, d.jn, d.jt, n, (m.stiffness, kt, m.damping, bt))
 
 
 @njit(cache=True)
-def _wall_pose(m, d, wall):
-    for c in range(3):
-        d.pose_w[c] = m.wall_pose[wall, c]
+def link_core(chain, m, d, link):
+    """A shaped link's core into d.core (its frame): the palm's box or a phalanx's segment.
+    Returns the vertex count and the rounding (a phalanx's capsule radius)."""
+    if link == PALM:
+        for v in range(4):
+            d.core[v, 0] = m.palm_vertices[v, 0]
+            d.core[v, 1] = m.palm_vertices[v, 1]
+        return 4, 0.0
+    d.core[0, 0] = 0.0
+    d.core[0, 1] = 0.0
+    d.core[1, 0] = chain[0].lengths[link]
+    d.core[1, 1] = 0.0
+    return 2, m.radius[link]
 
 
 @njit(cache=True)
-def _link_pose(d, link):
-    d.pose_w[0] = d.frame_pos[link, 0]
-    d.pose_w[1] = d.frame_pos[link, 1]
-    d.pose_w[2] = d.frame_angle[link]
+def link_vertex_hit(d, link, v, rounding, shape, n_shape, shape_rounding, pose):
+    """Vertex v of the link's core (d.core, rounded by `rounding`) against a rounded shape
+    at `pose`: whether it goes in; if so d.hit holds the point on the link, the depth and
+    the normal pushing the link out."""
+    ca = math.cos(d.frame_angle[link])
+    sa = math.sin(d.frame_angle[link])
+    wx = d.frame_pos[link, 0] + ca * d.core[v, 0] - sa * d.core[v, 1]
+    wy = d.frame_pos[link, 1] + sa * d.core[v, 0] + ca * d.core[v, 1]
+    phi, nx, ny = vertex_signed_distance(shape, n_shape, shape_rounding, pose, wx, wy, rounding)
+    if phi >= 0.0:
+        return False
+    d.hit[0] = wx - rounding * nx
+    d.hit[1] = wy - rounding * ny
+    d.hit[2] = -phi
+    d.hit[3] = nx
+    d.hit[4] = ny
+    return True
+
+
+@njit(cache=True)
+def shape_vertex_hit(d, link, n_core, rounding, shape, v, shape_rounding, pose):
+    """Vertex v of a rounded shape at `pose` against the link's rounded core (d.core):
+    whether it goes in; if so d.hit holds the point on the shape's surface, the depth and
+    the normal pushing the link out."""
+    cs = math.cos(pose[2])
+    sn = math.sin(pose[2])
+    wx = pose[0] + cs * shape[v, 0] - sn * shape[v, 1]
+    wy = pose[1] + sn * shape[v, 0] + cs * shape[v, 1]
+    d.pose_l[0] = d.frame_pos[link, 0]
+    d.pose_l[1] = d.frame_pos[link, 1]
+    d.pose_l[2] = d.frame_angle[link]
+    phi, nx, ny = vertex_signed_distance(d.core, n_core, rounding, d.pose_l, wx, wy, shape_rounding)
+    if phi >= 0.0:
+        return False
+    d.hit[0] = wx - shape_rounding * nx
+    d.hit[1] = wy - shape_rounding * ny
+    d.hit[2] = -phi
+    d.hit[3] = -nx
+    d.hit[4] = -ny
+    return True
 
 
 @njit(cache=True)
 def link_wall_contacts(chain, m, d, link, wall, n_core, rounding):
     """Side 0: the link's core vertices in the wall; side 1: the wall's vertices in the
     link's rounded core."""
-    ca = math.cos(d.frame_angle[link])
-    sa = math.sin(d.frame_angle[link])
-    ox = d.frame_pos[link, 0]
-    oy = d.frame_pos[link, 1]
+    for c in range(3):
+        d.pose_w[c] = m.wall_pose[wall, c]
+    shape = m.wall_vertices[wall]
+    n_shape = m.wall_n_vert[wall]
     rw = m.wall_rounding[wall]
-    _wall_pose(m, d, wall)
     for v in range(n_core):
-        wx = ox + ca * d.core[v, 0] - sa * d.core[v, 1]
-        wy = oy + sa * d.core[v, 0] + ca * d.core[v, 1]
-        phi, nx, ny = vertex_signed_distance(
-            m.wall_vertices[wall], m.wall_n_vert[wall], rw, d.pose_w, wx, wy, rounding
-        )
-        if phi >= 0.0:
+        if link_vertex_hit(d, link, v, rounding, shape, n_shape, rw, d.pose_w):
+            hand_contact(chain, m, d, link, wall, 0, v)
+        else:
             d.touching[link, wall, 0, v] = 0
-            continue
-        d.hit[0] = wx - rounding * nx
-        d.hit[1] = wy - rounding * ny
-        d.hit[2] = -phi
-        d.hit[3] = nx
-        d.hit[4] = ny
-        hand_contact(chain, m, d, link, wall, 0, v)
-    _link_pose(d, link)
-    cw = math.cos(m.wall_pose[wall, 2])
-    sw = math.sin(m.wall_pose[wall, 2])
-    for v in range(m.wall_n_vert[wall]):
-        bx = m.wall_vertices[wall, v, 0]
-        by = m.wall_vertices[wall, v, 1]
-        wx = m.wall_pose[wall, 0] + cw * bx - sw * by
-        wy = m.wall_pose[wall, 1] + sw * bx + cw * by
-        phi, nx, ny = vertex_signed_distance(d.core, n_core, rounding, d.pose_w, wx, wy, rw)
-        if phi >= 0.0:
+    for v in range(n_shape):
+        if shape_vertex_hit(d, link, n_core, rounding, shape, v, rw, d.pose_w):
+            hand_contact(chain, m, d, link, wall, 1, v)
+        else:
             d.touching[link, wall, 1, v] = 0
-            continue
-        d.hit[0] = wx - rw * nx
-        d.hit[1] = wy - rw * ny
-        d.hit[2] = -phi
-        d.hit[3] = -nx
-        d.hit[4] = -ny
-        hand_contact(chain, m, d, link, wall, 1, v)
 
 
 @njit(cache=True)
 def hand_contacts(chain, m, d):
     """Every shaped link (the palm, the phalanges) against every wall."""
-    c = chain[0]
     for link in range(PALM, m.dof):
-        if link == PALM:
-            n_core = 4
-            rounding = 0.0
-            for v in range(4):
-                d.core[v, 0] = m.palm_vertices[v, 0]
-                d.core[v, 1] = m.palm_vertices[v, 1]
-        else:
-            n_core = 2
-            rounding = m.radius[link]
-            d.core[0, 0] = 0.0
-            d.core[0, 1] = 0.0
-            d.core[1, 0] = c.lengths[link]
-            d.core[1, 1] = 0.0
+        n_core, rounding = link_core(chain, m, d, link)
         for wall in range(m.n_walls):
             link_wall_contacts(chain, m, d, link, wall, n_core, rounding)
 
@@ -420,11 +428,11 @@ def drives(m, d):
 @njit(cache=True)
 def hand_dynamics(chain, m, d):
     """D(q), G(q) and C(q, qd) qd of the hand at this tick's q."""
-    work = (d.frame_pos, d.frame_angle, d.jac)
-    mass_matrix_and_gravity(chain, m.gravity, d.q, work, d.mass, d.gravity_q)
     scratch = (d.frame_pos, d.frame_angle, d.jac, d.grav, d.d_plus, d.d_minus, d.qq)
     velocity_product_torque_into(chain, d.q, d.qd, CORIOLIS_STEP, scratch, d.coriolis)
-    link_frames(chain[0], d.q, m.dof, d.frame_pos, d.frame_angle)
+    # last: it leaves the link frames at q (the finite differences above moved them)
+    work = (d.frame_pos, d.frame_angle, d.jac)
+    mass_matrix_and_gravity(chain, m.gravity, d.q, work, d.mass, d.gravity_q)
 
 
 @njit(cache=True)

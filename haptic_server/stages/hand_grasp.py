@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-from haptic_local_model.haptic_server.stages.cosim import penalty_friction
+from haptic_local_model.haptic_server.stages.cosim import add_rows, penalty_friction
 from haptic_local_model.haptic_server.stages.hand import (
     MAX_SUBSTEPS,
     MAX_TURN,
@@ -24,14 +24,16 @@ from haptic_local_model.haptic_server.stages.hand import (
     begin_substeps,
     finish_substep,
     hand_outputs,
+    link_core,
+    link_vertex_hit,
     prepare_substep,
     restore_tick,
     save_tick,
+    shape_vertex_hit,
     tracked_inputs,
 )
 from haptic_local_model.shared.kinematics import MAX_DOF, point_jacobian, point_velocity
 from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
-from haptic_local_model.shared.shapes import vertex_signed_distance
 
 F8 = np.float64
 I8 = np.int64
@@ -86,10 +88,7 @@ GRASP_DATA_DTYPE = np.dtype(
         ("cols", I8, (ROWS,)),
         ("jn", F8, (ROWS,)),
         ("jt", F8, (ROWS,)),
-        ("hit", F8, (5,)),
         ("pose_b", F8, (3,)),
-        ("pose_l", F8, (3,)),
-        ("core", F8, (4, 2)),
     ]
 )
 
@@ -134,33 +133,18 @@ def grasp_records(
 
 
 @njit(cache=True)
-def _link_core(chain, hm, hd, gd, link):
-    """A shaped link's core into gd.core (its frame): vertex count and rounding."""
-    if link == PALM:
-        for v in range(4):
-            gd.core[v, 0] = hm.palm_vertices[v, 0]
-            gd.core[v, 1] = hm.palm_vertices[v, 1]
-        return 4, 0.0
-    gd.core[0, 0] = 0.0
-    gd.core[0, 1] = 0.0
-    gd.core[1, 0] = chain[0].lengths[link]
-    gd.core[1, 1] = 0.0
-    return 2, hm.radius[link]
-
-
-@njit(cache=True)
 def box_contact(chain, hm, hd, gm, gd, hand, key):
-    """The contact in gd.hit (point, depth, the normal pushing the hand out of the box)
+    """The contact in hd.hit (point, depth, the normal pushing the hand out of the box)
     between a hand's link and the box, key = (link, side, vertex): penalty, stick-spring
     friction, the forces on both, and the stiffness of its rows n^T (J_link - J_box) over
     all of q."""
     link, side, v = key
     c = chain[0]
-    px = gd.hit[0]
-    py = gd.hit[1]
-    depth = gd.hit[2]
-    nx = gd.hit[3]
-    ny = gd.hit[4]
+    px = hd.hit[0]
+    py = hd.hit[1]
+    depth = hd.hit[2]
+    nx = hd.hit[3]
+    ny = hd.hit[4]
     tx = -ny
     ty = nx
     vhx, vhy = point_velocity(c, hd.frame_pos, link, px, py, hd.qd)
@@ -205,65 +189,29 @@ def box_contact(chain, hm, hd, gm, gd, hand, key):
     gd.jt[n + 2] = -(rx * ty - ry * tx)
     gd.n_contacts += 1
     if f_n > 0.0:
-        _stiffen(gm, gd, n + 3, k_t if sticking else 0.0, gm.damping if sticking else 0.0)
-
-
-@njit(cache=True)
-def _stiffen(gm, gd, count, kt, bt):
-    for i in range(count):
-        a = gd.cols[i]
-        for j in range(count):
-            b = gd.cols[j]
-            nn = gd.jn[i] * gd.jn[j]
-            tt = gd.jt[i] * gd.jt[j]
-            gd.kg[a, b] += gm.stiffness * nn + kt * tt
-            gd.bg[a, b] += gm.damping * nn + bt * tt
+        kt = k_t if sticking else 0.0
+        bt = gm.damping if sticking else 0.0
+        add_rows(gd.kg, gd.bg, gd.cols, gd.jn, gd.jt, n + 3, (gm.stiffness, kt, gm.damping, bt))
 
 
 @njit(cache=True)
 def link_box_contacts(chain, hm, hd, gm, gd, hand, link):
     """Side 0: the link's core vertices in the box; side 1: the box's corners in the link's
     rounded core."""
-    n_core, rounding = _link_core(chain, hm, hd, gd, link)
+    n_core, rounding = link_core(chain, hm, hd, link)
     for k in range(3):
         gd.pose_b[k] = gd.q_box[k]
-    ca = math.cos(hd.frame_angle[link])
-    sa = math.sin(hd.frame_angle[link])
-    ox = hd.frame_pos[link, 0]
-    oy = hd.frame_pos[link, 1]
+    box = gm.box_vertices
     for v in range(n_core):
-        wx = ox + ca * gd.core[v, 0] - sa * gd.core[v, 1]
-        wy = oy + sa * gd.core[v, 0] + ca * gd.core[v, 1]
-        phi, nx, ny = vertex_signed_distance(gm.box_vertices, 4, 0.0, gd.pose_b, wx, wy, rounding)
-        if phi >= 0.0:
+        if link_vertex_hit(hd, link, v, rounding, box, 4, 0.0, gd.pose_b):
+            box_contact(chain, hm, hd, gm, gd, hand, (link, 0, v))
+        else:
             gd.touching[hand, link, 0, v] = 0
-            continue
-        gd.hit[0] = wx - rounding * nx
-        gd.hit[1] = wy - rounding * ny
-        gd.hit[2] = -phi
-        gd.hit[3] = nx
-        gd.hit[4] = ny
-        box_contact(chain, hm, hd, gm, gd, hand, (link, 0, v))
-    gd.pose_l[0] = ox
-    gd.pose_l[1] = oy
-    gd.pose_l[2] = hd.frame_angle[link]
-    cb = math.cos(gd.q_box[2])
-    sb = math.sin(gd.q_box[2])
     for v in range(4):
-        bx = gm.box_vertices[v, 0]
-        by = gm.box_vertices[v, 1]
-        wx = gd.q_box[0] + cb * bx - sb * by
-        wy = gd.q_box[1] + sb * bx + cb * by
-        phi, nx, ny = vertex_signed_distance(gd.core, n_core, rounding, gd.pose_l, wx, wy, 0.0)
-        if phi >= 0.0:
+        if shape_vertex_hit(hd, link, n_core, rounding, box, v, 0.0, gd.pose_b):
+            box_contact(chain, hm, hd, gm, gd, hand, (link, 1, v))
+        else:
             gd.touching[hand, link, 1, v] = 0
-            continue
-        gd.hit[0] = wx
-        gd.hit[1] = wy
-        gd.hit[2] = -phi
-        gd.hit[3] = -nx
-        gd.hit[4] = -ny
-        box_contact(chain, hm, hd, gm, gd, hand, (link, 1, v))
 
 
 @njit(cache=True)
