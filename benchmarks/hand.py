@@ -8,6 +8,9 @@ as a script (haptic_server/stages/hand.py), at 1 kHz:
 - V5.2 a palm pressed 5 mm into a wall (its flat underside on a floor, two corner
   contacts of k each): separation against d 2k / (k_t + 2k), and the palm spring's force
   against the wall's contact force (a static balance: any integrator meets it at rest);
+  and a fingertip pressed on a frictionless 2 mm post: the joints' deflections against
+  -tau / k_j of the post's torques (a static balance too), and the resting force and
+  pose against scipy's static equilibrium of the same springs and contact;
 - V5.3 the joint drives at 1, 10 and 100 times the explicit limit 4 I / dt^2 of the
   lightest phalanx (I about its joint), the glove stepping 0.3 rad and then holding: no step
   held for not being finite, and the hand's energy (kinetic + drives) never rising after the
@@ -31,8 +34,10 @@ import dataclasses
 import json
 import math
 import sys
+from typing import Any
 
 import numpy as np
+from scipy import optimize
 
 from haptic_local_model.benchmarks.grasp import from_frame, to_frame, window_means
 from haptic_local_model.haptic_server.stages.hand import (
@@ -43,7 +48,7 @@ from haptic_local_model.haptic_server.stages.hand import (
     run_tracked,
 )
 from haptic_local_model.haptic_server.stages.hand_grasp import grasp_records, run_grasp
-from haptic_local_model.shared.kinematics import MAX_DOF, link_frames
+from haptic_local_model.shared.kinematics import MAX_DOF, link_frames, point_jacobian
 from haptic_local_model.shared.port_config import FingerSpec, HandSpec
 
 DT = 0.001
@@ -130,6 +135,90 @@ def press(spec: HandSpec | None = None, depth_m: float = 0.005) -> dict:
         "spring_force_n": float(-spring),
         "wall_force_n": float(contact[-1, 1]),
         "force_error_fraction": float(contact[-1, 1] / -spring - 1.0),
+    }
+
+
+def _frames(chain: np.ndarray, q: np.ndarray, dof: int):
+    pos, ang = np.zeros((MAX_DOF, 2)), np.zeros(MAX_DOF)
+    link_frames(chain[0], q, dof, pos, ang)
+    return pos, ang
+
+
+def fingertip_press(flex_rad: float = 0.02, post_radius_m: float = 0.001) -> dict:
+    """V5.2's fingertip press: a frictionless post touches the distal phalanx's pad (80 %
+    along it) on its path of flexion; the glove flexes the distal joint `flex_rad` further,
+    ramped, and the palm is tracked where it is. At rest: each joint's deflection against
+    the torque the post's force puts on it, dalpha = tau / k_j (the brief's check, a static
+    balance), and the resting pose and force against an independent reference, the static
+    equilibrium of the drives' springs and the pad's penalty contact solved by scipy."""
+    spec = HandSpec(fingers=(FingerSpec(rest=(0.3, 0.4)),))
+    dof, link = spec.dof, 4  # the distal phalanx
+    finger = spec.fingers[0]
+    length, r = finger.lengths[1], finger.radius
+    chain = hand_chain(spec)
+    q0 = np.zeros(MAX_DOF)
+    q0[3:dof] = finger.rest
+    pos, ang = _frames(chain, q0, dof)
+    along = np.array([math.cos(ang[link]), math.sin(ang[link])])
+    flexing = np.array([-along[1], along[0]])  # where the pad goes as the joint flexes
+    post = pos[link] + 0.8 * length * along + (r + post_radius_m) * flexing
+    wall = (np.zeros((1, 2)), post_radius_m, (post[0], post[1], 0.0))
+    k = CONTACT[0]
+    contact = (k, CONTACT[1], 0.0, CONTACT[3])  # frictionless: the reference has no friction
+    n = 3000
+    targets, rates = _script(spec, n)
+    targets[:, link] += flex_rad * np.minimum(1.0, np.arange(n) / 500)
+    rates[:500, link] = flex_rad / (500 * DT)
+    chain, model, data = hand_records(spec, [wall], contact, (0.0, 0.0, 0.0), LIMITS, DT)
+    q = np.zeros((n, MAX_DOF))
+    run_tracked(chain, model, data, targets, rates, q, np.zeros((n, 3)), np.zeros((n, 3)))
+    springs = np.array([*spec.palm_spring, spec.joint_spring, spec.joint_spring])
+    target = targets[-1, :dof]
+
+    def pad_contact(qq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The post's force on the pad at qq and the 2 x dof Jacobian of where it acts."""
+        full = np.zeros(MAX_DOF)
+        full[:dof] = qq
+        p, a = _frames(chain, full, dof)
+        axis = np.array([math.cos(a[link]), math.sin(a[link])])
+        core = p[link] + np.clip((post - p[link]) @ axis, 0.0, length) * axis
+        gap = post - core
+        out = gap / np.linalg.norm(gap)  # from the core to the post's centre
+        depth = max(0.0, r + post_radius_m - float(np.linalg.norm(gap)))
+        point = post - post_radius_m * out
+        jac = np.zeros((3, MAX_DOF))
+        point_jacobian(chain[0], p, dof, link, point[0], point[1], jac)
+        return -k * depth * out, jac[:2, :dof]
+
+    def balance(qq: np.ndarray) -> np.ndarray:
+        f, jac = pad_contact(qq)
+        return springs * (target - qq) + jac.T @ f
+
+    reference = optimize.fsolve(balance, target)
+    ref_force, _ = pad_contact(reference)
+    final = q[-1, :dof]
+    force = data[0]["contact_force"][:2].copy()
+    _, jac = pad_contact(final)
+    tau = jac.T @ force  # the post's torque on each joint: it opens them, dalpha = -tau / k_j
+    deflection = target[3:] - final[3:]
+    ref_deflection = target[3:] - reference[3:]
+    return {
+        "flex_rad": flex_rad,
+        "post_force_n": float(np.linalg.norm(force)),
+        "reference_force_n": float(np.linalg.norm(ref_force)),
+        "force_error_fraction": float(
+            np.linalg.norm(force - ref_force) / np.linalg.norm(ref_force)
+        ),
+        "reference_residual": float(np.abs(balance(reference)).max()),
+        "deflection_rad": [float(a) for a in deflection],
+        "reference_deflection_rad": [float(a) for a in ref_deflection],
+        "tau_over_k_error_fraction": float(
+            np.abs(-deflection * spec.joint_spring / tau[3:] - 1.0).max()
+        ),
+        "settled_cycle_rad": float(np.abs(q[-10:, :dof] - final).max()),  # a tick-to-tick chatter
+        "reference_deflection_error_fraction": float(
+            np.abs(deflection / ref_deflection - 1.0).max()
+        ),
     }
 
 
@@ -323,9 +412,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", help="write every figure to this file")
     args = ap.parse_args(argv)
-    figures = {
+    figures: dict[str, Any] = {
         "V5.1 free-space tracking": free_space(),
         "V5.2 press a wall": press(),
+        "V5.2 fingertip press": fingertip_press(),
         "V5.3 implicit drives": implicit_sweep(),
         "V5.3 with theta 0.55 and 0.5 (not shipped)": implicit_sweep((100.0,), 0.55)
         + implicit_sweep((100.0,), 0.5),

@@ -14,6 +14,7 @@ from haptic_local_model.benchmarks.hand import (
     CONTACT,
     LIMITS,
     _crossed,
+    fingertip_press,
     free_space,
     implicit_sweep,
     post_sweeps,
@@ -38,6 +39,21 @@ def test_v5_2_a_palm_pressed_into_a_floor_settles_at_the_series_springs_closed_f
     r = press()
     assert abs(r["separation_error_fraction"]) <= 0.01
     assert abs(r["force_error_fraction"]) <= 0.01
+
+
+def test_v5_2_a_fingertip_pressed_on_a_post_deflects_its_joints_by_tau_over_k():
+    """The post's force and the resting joints against scipy's static equilibrium of the
+    same springs and contact; the joints' deflections against -tau / k_j; and no tick-to-tick
+    chatter at rest (with contacts at theta of the step, a 4 g phalanx on a 15 kN/m post
+    flipped in and out of contact every tick, 8e-5 rad, twice the mean force each time in)."""
+    for flex in (0.005, 0.02, 0.05):
+        r = fingertip_press(flex)
+        assert r["reference_residual"] < 1e-9
+        assert r["force_error_fraction"] <= 1e-6, r
+        assert r["reference_deflection_error_fraction"] <= 1e-6, r
+        assert r["tau_over_k_error_fraction"] <= 0.01, r
+        assert r["settled_cycle_rad"] <= 1e-12, r
+        assert min(r["deflection_rad"]) > 0.0, r  # the post holds both joints back
 
 
 def test_v5_3_drives_far_above_the_explicit_limit_only_lose_energy():

@@ -27,7 +27,11 @@ and V5.1's separation, 1/64 of the motion it tracks, came out 5 % small at 1 kHz
 (the trapezoid, no numerical damping) blew up with the explicit C(q, qd) qd of fingers
 driven at 100 times the explicit limit, and, with the sub-steps below, still lets their
 energy rise by 0.28 J in one tick (benchmarks/hand.py, V5.3, reports th = 0.5 and 0.55
-beside 0.6). At 0.6 V5.1 is 0.93 % small and no energy rises.
+beside 0.6). At 0.6 V5.1 is 0.93 % small and no energy rises. The contacts' K and B are
+taken at the step's end instead (their gains over th: dt K_c qd on the right, dt B_c +
+th dt^2 K_c in the matrix): at th of the step a stiff mode's error turns over by
+-(1 - th) / th per step, and a 4 g phalanx resting on a 15 kN/m post flipped out of contact
+and back every tick (V5.2's fingertip press, benchmarks/hand.py).
 
 Outputs: the palm's command (the reaction of the palm spring over the step, what the port's
 device renders, clipped at its limits, zero if not finite) and the glove's joint torques,
@@ -280,7 +284,9 @@ def hand_contact(chain, m, d, link, wall, side, v):
         return
     kt = k_t if sticking else 0.0
     bt = m.damping if sticking else 0.0
-    add_rows(d.k, d.b, d.cols, d.jn, d.jt, n, (m.stiffness, kt, m.damping, bt))
+    # at the step's end, not at theta of it (module docstring): gains over theta
+    s = 1.0 / m.theta
+    add_rows(d.k, d.b, d.cols, d.jn, d.jt, n, (s * m.stiffness, s * kt, s * m.damping, s * bt))
 
 
 @njit(cache=True)

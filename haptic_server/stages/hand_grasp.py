@@ -191,7 +191,9 @@ def box_contact(chain, hm, hd, gm, gd, hand, key):
     if f_n > 0.0:
         kt = k_t if sticking else 0.0
         bt = gm.damping if sticking else 0.0
-        add_rows(gd.kg, gd.bg, gd.cols, gd.jn, gd.jt, n + 3, (gm.stiffness, kt, gm.damping, bt))
+        s = 1.0 / gm.theta  # at the step's end, as a hand's own contacts (hand.py)
+        gains = (s * gm.stiffness, s * kt, s * gm.damping, s * bt)
+        add_rows(gd.kg, gd.bg, gd.cols, gd.jn, gd.jt, n + 3, gains)
 
 
 @njit(cache=True)
