@@ -55,6 +55,15 @@ REPLAYED = ("q", "qd", "command", "body_force", "n_contacts", "penetration", "in
 def write_port_log(path: Path, rows: np.ndarray, metadata: dict[str, dict[str, str]]) -> None:
     """Every row and the metadata, into a temporary file renamed to `path` when whole (and
     removed if the writing fails)."""
+    write_rows_log(path, rows, PORT_TICK_TOPIC, PORT_TICK_SCHEMA, metadata)
+
+
+def write_rows_log(
+    path: Path, rows: np.ndarray, topic: str, schema_name: str, metadata: dict[str, dict[str, str]]
+) -> None:
+    """Rows of a record dtype (one message each on `topic`, a ros1msg schema from the dtype)
+    and the metadata, into a temporary file renamed to `path` when whole (removed if the
+    writing fails)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     part = path.with_name(path.name + ".part")
     try:
@@ -62,13 +71,9 @@ def write_port_log(path: Path, rows: np.ndarray, metadata: dict[str, dict[str, s
             writer = Writer(fh)
             writer.start(profile="", library=f"haptic-local-model {__version__}")
             schema = writer.register_schema(
-                name=PORT_TICK_SCHEMA,
-                encoding="ros1msg",
-                data=ros1msg_schema(PORT_ROW_DTYPE).encode(),
+                name=schema_name, encoding="ros1msg", data=ros1msg_schema(rows.dtype).encode()
             )
-            channel = writer.register_channel(
-                PORT_TICK_TOPIC, message_encoding="ros1", schema_id=schema
-            )
+            channel = writer.register_channel(topic, message_encoding="ros1", schema_id=schema)
             for name, data in metadata.items():
                 writer.add_metadata(name, data)
             for k, row in enumerate(rows):
@@ -272,7 +277,14 @@ def _replay(path: Path) -> int:
     return 1
 
 
-__all__ = ["EXIT_CONFIG", "main", "read_port_log", "replay_rows", "write_port_log"]
+__all__ = [
+    "EXIT_CONFIG",
+    "main",
+    "read_port_log",
+    "replay_rows",
+    "write_port_log",
+    "write_rows_log",
+]
 
 
 if __name__ == "__main__":

@@ -29,7 +29,7 @@ from haptic_local_model.shared.protocol.static import (
     has_mechanism,
 )
 from haptic_local_model.shared.protocol.update import MessageError, stamp_publication
-from haptic_local_model.shared.timing import SampleWindow, wait_until
+from haptic_local_model.shared.timing import SampleWindow, rate_per_second, wait_until
 from haptic_local_model.sim_server.pacing import PhaseLock
 from haptic_local_model.sim_server.proxy_check import ProxyCheck
 from haptic_local_model.sim_server.world import SimWorld, ToolTarget, warm_kernels
@@ -213,20 +213,9 @@ class SimServer:
             "proxies_implausible": self.check.refused,
             "step_ms": self.step_ms.percentiles(50, 99),
             "interval_ms": self.interval_ms.percentiles(50, 99),
-            "step_rate_hz": _rate_per_second(self.interval_ms.values()),
+            "step_rate_hz": rate_per_second(self.interval_ms.values()),
             "update_bytes": self.stats.update_bytes,
             "update_bytes_max": self.stats.update_bytes_max,
             "tool_q": np.asarray(q).tolist(),
             "epoch": self.epoch,
         }
-
-
-def _rate_per_second(intervals_ms: np.ndarray) -> dict[str, float]:
-    """Steps started in each whole second of the run (the phase lock moves single steps by
-    up to a haptic period, so intervals alternate, 16 / 17 ms at 60 Hz): median and least."""
-    if intervals_ms.size == 0:
-        return {"p50": 0.0, "min": 0.0}
-    counts = np.bincount((np.cumsum(intervals_ms) // 1000.0).astype(np.int64))[:-1]
-    if counts.size == 0:  # less than a second
-        return {"p50": 1e3 * intervals_ms.size / float(intervals_ms.sum()), "min": 0.0}
-    return {"p50": float(np.median(counts)), "min": float(counts.min())}
