@@ -135,6 +135,9 @@ BAD_CALLS = {
     "haptic-stability": ("--rates", "fast"),
     "haptic-pointer": ("--events", "missing.jsonl"),
     "haptic-ports": ("--scene", "missing.toml"),
+    "haptic-router": ("--network", "missing.toml"),
+    "haptic-world": ("--scene", "missing.toml"),
+    "haptic-station": ("--port", "left", "--scene", "missing.toml"),
 }
 
 

@@ -19,12 +19,20 @@ from functools import partial
 from pathlib import Path
 from typing import TextIO
 
-from haptic_local_model.device_models.registry import installed_models, load_device
+from haptic_local_model.device_models.registry import (
+    installed_models,
+    load_device,
+    load_simulated_device,
+)
 from haptic_local_model.haptic_server.engine import HapticEngine
 from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
 from haptic_local_model.haptic_server.mailbox import compile_loop_kernels
 from haptic_local_model.haptic_server.realtime import compile_realtime_kernels
+from haptic_local_model.haptic_server.shared_world import SharedWorld
+from haptic_local_model.haptic_server.station import Station
 from haptic_local_model.shared.config import load_scene, load_user
+from haptic_local_model.shared.net.stations import load_station_network
+from haptic_local_model.shared.port_config import load_port_scene
 
 #: (scene, user, seconds) run with the ideal device: every rendering stage and the sim
 SCENE_RUNS = (
@@ -64,6 +72,16 @@ def _loop_kernels() -> None:
         compile_realtime_kernels(engine)
 
 
+def _station_kernels() -> None:
+    """The shared world's tick and a station's, per device model (docs/stations.md)."""
+    scene = load_port_scene("grasp_vertical")
+    network = load_station_network("stations_loopback", "world")
+    SharedWorld(scene, network, 1).warm()
+    for config in built_in_models():
+        device = load_simulated_device(config)
+        Station(scene, network, "left", device, load_user("squeeze_left_2n"), 1).warm()
+
+
 def warm_groups() -> list[tuple[str, Callable[[], None]]]:
     """What warm_all compiles, in groups: (a description, the call that compiles it). The
     first scene compiles most of the sim and the rendering stages, the others what they add."""
@@ -81,6 +99,7 @@ def warm_groups() -> list[tuple[str, Callable[[], None]]]:
     groups.append(
         (f"real-time loop kernels: {len(built_in_models())} device models", _loop_kernels)
     )
+    groups.append(("shared world and station kernels", _station_kernels))
     return groups
 
 

@@ -1,0 +1,312 @@
+"""The shared world of a port scene, served to haptic stations over a Zenoh router
+(docs/stations.md): the co-simulated object and every port's tool, at the haptic rate.
+
+Each tick (wall-clock paced): take each port's newest DeviceState (a malformed one is
+refused and counted), decide each port's state, feed the co-simulation
+(haptic_server/stages/cosim.py) each port's device, run it, publish each port's ToolState.
+
+A port is, in turn:
+- HELD: its station is silent (none yet, or none for `world_watchdog_ms`). Its tool stays
+  coupled to an anchor where its device was last, at rest: the tool keeps squeezing as it
+  did, so the other ports keep the object. ToolStates say HELD, and the station ramps to
+  its safe state.
+- INDEXING: its station is back (or new) but still in its safe state. Every tick the world
+  re-indexes it (offset = anchor - device), so the device, wherever its user left it, maps
+  onto the anchor: the tool in the station's frame is then where the device is plus the
+  coupling's stretch at the anchor, and the station ramps in the force it left with. Its
+  tool stays on the anchor.
+- COUPLED: the station renders the coupling (not safe). The offset is fixed; the fed pose
+  blends from the anchor to the device over `safe_ramp_ms` (as the station's own ramp), and
+  the anchor follows the fed pose.
+Offsets are added per axis (x, y and the angle): a rejoining device's turn about its own
+origin is not composed with the anchor's (documented limit).
+
+Every tick's row (PORT_ROW_DTYPE, the device poses as fed) stays in memory; `--log` writes
+them as a `haptic-ports` log, which `haptic-ports --replay` re-runs bit for bit.
+"""
+
+from __future__ import annotations
+
+import gc
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zenoh
+from numba import njit
+
+from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.device_models.world_map import DeviceWorldMap
+from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE
+from haptic_local_model.haptic_server.stages.cosim import (
+    MAX_COSIM_BODIES,
+    MAX_COSIM_DOF,
+    cosim_order,
+    cosim_records,
+    cosim_tick,
+)
+from haptic_local_model.shared.config import load_user
+from haptic_local_model.shared.net.stations import (
+    StationNetworkConfig,
+    client_config,
+    port_keys,
+)
+from haptic_local_model.shared.net.transport import newest_payload
+from haptic_local_model.shared.port_config import MAX_PORTS, PortSceneConfig
+from haptic_local_model.shared.protocol.station import (
+    HELD,
+    DeviceState,
+    ToolState,
+    Vec3,
+    decode_device,
+    encode_tool,
+    vec3,
+)
+from haptic_local_model.shared.protocol.update import MessageError
+from haptic_local_model.shared.timing import (
+    SampleWindow,
+    rate_per_second,
+    try_realtime_priority,
+    wait_until,
+)
+
+DEVICE_RING = 64
+SPIN_NS = 100_000
+HELD_STATE, INDEXING, COUPLED = "held", "indexing", "coupled"
+
+
+@njit(cache=True)
+def world_row(cd, row, t):
+    """The co-simulation's tick into a PORT_ROW_DTYPE row (hand wrench and faults: 0, the
+    world does not see them)."""
+    row.t = t
+    for a in range(MAX_COSIM_DOF):
+        row.q[a] = cd.q[a]
+        row.qd[a] = cd.qd[a]
+    for p in range(MAX_PORTS):
+        for c in range(3):
+            row.device_pose[p, c] = cd.device_pose[p, c]
+            row.device_twist[p, c] = cd.device_twist[p, c]
+            row.command[p, c] = cd.command[p, c]
+    for e in range(MAX_COSIM_BODIES):
+        for c in range(3):
+            row.body_force[e, c] = cd.body_force[e, c]
+    row.n_contacts = cd.n_contacts
+    row.penetration = cd.penetration
+    row.invalid = cd.invalid
+    row.singular = cd.singular
+
+
+@dataclass
+class PortState:
+    """What the world knows of one port's station."""
+
+    state: str = HELD_STATE
+    anchor: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    start: np.ndarray = field(default_factory=lambda: np.zeros(3))  # the anchor at coupling
+    blend: float = 0.0
+    last: DeviceState | None = None
+    rx_ns: int = 0
+    received: int = 0
+    rejected: int = 0
+    stale: int = 0  # older than the newest (another station's epoch, out of order)
+    reasons: dict[str, int] = field(default_factory=dict)
+
+
+class SharedWorld:
+    """The world's records and ports, ready to run (module docstring)."""
+
+    def __init__(self, scene: PortSceneConfig, network: StationNetworkConfig, max_rows: int):
+        self.scene, self.network = scene, network
+        self.order = cosim_order(scene)
+        self.limits: list[Vec3] = []
+        for port in scene.ports:  # the scene's devices' limits, in the world frame
+            dev = load_simulated_device(port.device)
+            wm = getattr(dev, "world_map", None) or DeviceWorldMap.identity()
+            scale = wm.record[0]["scale"] * wm.record[0]["force_scale"]
+            self.limits.append(vec3(np.array(dev.limits().max_wrench) / scale))
+        self.model, self.data = cosim_records(scene, self.limits)
+        self.ports = [PortState() for _ in scene.ports]
+        m, d = self.model[0], self.data[0]
+        for p, port in enumerate(scene.ports):
+            # the anchor squeezes as the scene's user pushes: the object is held at the start
+            tool = d["q"][3 * int(m["port_tool"][p]) :][:3]
+            push = np.array(load_user(port.user).wrench, np.float64)
+            k = m["coupling_stiffness"][p]
+            stretch = np.divide(push, k, out=np.zeros(3), where=k > 0)
+            self.ports[p].anchor = tool + stretch
+        self.rows = np.zeros(max_rows, PORT_ROW_DTYPE)
+        self.n_rows = 0
+        self.events: list[dict[str, Any]] = []
+        self.epoch = time.time_ns()
+        self.late_us = SampleWindow(100_000)
+        self.work_us = SampleWindow(100_000)
+        self.interval_ms = SampleWindow(1_000_000)
+        self.overruns = 0
+        self.worst_late = (0, 0)  # ns, tick
+        self._stop = False
+
+    def request_stop(self, *_: object) -> None:
+        self._stop = True
+
+    def _take(self, p: int, sub: Any, now_ns: int) -> None:
+        ps = self.ports[p]
+        for raw in newest_payload(sub):
+            try:
+                m = decode_device(raw, p)
+            except MessageError as exc:
+                ps.rejected += 1
+                ps.reasons[exc.reason] = ps.reasons.get(exc.reason, 0) + 1
+                continue
+            if ps.last is not None and m.epoch == ps.last.epoch and m.seq <= ps.last.seq:
+                ps.stale += 1
+                continue
+            ps.last, ps.rx_ns = m, now_ns
+            ps.received += 1
+
+    def _port(self, p: int, now_ns: int, t: float) -> None:
+        """Port p's state this tick and the device pose and twist it feeds (module docstring)."""
+        ps = self.ports[p]
+        d = self.data[0]
+        m = ps.last
+        silent = m is None or (now_ns - ps.rx_ns) / 1e6 > self.network.world_watchdog_ms
+        if silent or m is None or m.cut:
+            new = HELD_STATE
+        elif m.safe:
+            new = INDEXING
+        else:
+            new = COUPLED if ps.state != HELD_STATE else INDEXING
+        if new != ps.state:
+            self.events.append({"t": round(t, 6), "port": self.scene.ports[p].name,
+                                "from": ps.state, "to": new})  # fmt: skip
+            if new == COUPLED:
+                ps.start = ps.anchor.copy()
+                ps.blend = 0.0
+            ps.state = new
+        if new == COUPLED and m is not None:
+            age = (now_ns - ps.rx_ns) / 1e9
+            live = np.array(m.pose) + ps.offset + np.array(m.twist) * age
+            ps.blend = min(1.0, ps.blend + float(d["dt"]) / (self.network.safe_ramp_ms / 1e3))
+            ps.anchor = ps.start + ps.blend * (live - ps.start)
+            d["device_pose"][p] = ps.anchor
+            d["device_twist"][p] = ps.blend * np.array(m.twist)
+            return
+        if new == INDEXING and m is not None:
+            ps.offset = ps.anchor - np.array(m.pose)
+        d["device_pose"][p] = ps.anchor
+        d["device_twist"][p] = 0.0
+
+    def _publish(self, p: int, pub: Any, seq: int) -> None:
+        ps = self.ports[p]
+        m, d = self.model[0], self.data[0]
+        i = 3 * int(m["port_tool"][p])
+        tool = d["q"][i : i + 3] - ps.offset
+        tool[2] = math.atan2(math.sin(tool[2]), math.cos(tool[2]))
+        obj = d["q"][3 * len(self.scene.ports) :][:3] if len(self.order) > len(self.ports) else tool
+        pub.put(encode_tool(ToolState(
+            p, self.epoch, seq, time.time_ns(), vec3(tool),
+            vec3(d["qd"][i : i + 3]),
+            vec3(m["coupling_stiffness"][p]),
+            vec3(m["coupling_damping"][p]), vec3(obj),
+            HELD if ps.state == HELD_STATE else 0,
+        )))  # fmt: skip
+
+    def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
+        session = zenoh.open(client_config(self.network.world))
+        subs, pubs = [], []
+        for port in self.scene.ports:
+            device_key, tool_key = port_keys(self.network.namespace, port.name)
+            subs.append(
+                session.declare_subscriber(device_key, zenoh.handlers.RingChannel(DEVICE_RING))
+            )
+            pubs.append(session.declare_publisher(
+                tool_key, congestion_control=zenoh.CongestionControl.DROP, express=True
+            ))  # fmt: skip
+        period_ns = round(float(self.data[0]["dt"]) * 1e9)
+        self.warm()
+        gc.collect()
+        gc.freeze()
+        # after the warm-up: a loop compiling at SCHED_FIFO starved the others for seconds
+        try_realtime_priority()
+        if ready is not None:
+            ready()
+        start = time.perf_counter_ns()
+        end = start + int(duration_s * 1e9) if duration_s else None
+        deadline = last = start
+        seq = 0
+        t = 0.0
+        try:
+            while not self._stop:
+                now = wait_until(deadline, SPIN_NS)
+                late = now - deadline
+                if late > period_ns:
+                    self.overruns += 1
+                    deadline = now
+                if seq:
+                    self.interval_ms.add((now - last) / 1e6)
+                last = now
+                for p in range(len(self.ports)):
+                    self._take(p, subs[p], now)
+                    self._port(p, now, t)
+                cosim_tick(self.model, self.data)
+                for p in range(len(self.ports)):
+                    self._publish(p, pubs[p], seq)
+                row = self.rows[self.n_rows % len(self.rows)]
+                world_row(self.data[0], row, t)
+                self.n_rows += 1
+                self.late_us.add(late / 1e3)
+                if late > self.worst_late[0]:
+                    self.worst_late = (late, seq)
+                self.work_us.add((time.perf_counter_ns() - now) / 1e3)
+                seq += 1
+                t += float(self.data[0]["dt"])
+                deadline += period_ns
+                if end is not None and now >= end:
+                    break
+        finally:
+            session.close()
+        return self.summary()
+
+    def warm(self) -> None:
+        model, data = cosim_records(self.scene, self.limits)
+        cosim_tick(model, data)
+        world_row(data[0], np.zeros(1, PORT_ROW_DTYPE)[0], 0.0)
+
+    def logged_rows(self) -> np.ndarray:
+        n, cap = self.n_rows, len(self.rows)
+        if n <= cap:
+            return self.rows[:n].copy()
+        k = n % cap
+        return np.concatenate([self.rows[k:], self.rows[:k]])
+
+    def summary(self) -> dict[str, Any]:
+        rows = self.logged_rows()
+        out: dict[str, Any] = {
+            "ticks": self.n_rows,
+            "tick_rate_hz": rate_per_second(self.interval_ms.values()),
+            "late_us": self.late_us.percentiles(50, 99, 99.9),
+            "work_us": self.work_us.percentiles(50, 99, 99.9),
+            "overruns": self.overruns,
+            "latest_tick": {"late_ms": self.worst_late[0] / 1e6, "tick": self.worst_late[1]},
+            "events": self.events,
+            "epoch": self.epoch,
+            "ports": {},
+        }
+        for p, port in enumerate(self.scene.ports):
+            ps = self.ports[p]
+            out["ports"][port.name] = {
+                "state": ps.state, "received": ps.received, "rejected": ps.rejected,
+                "stale": ps.stale, "rejected_by_reason": dict(ps.reasons),
+            }  # fmt: skip
+        for i, name in enumerate(self.order):
+            if len(rows):
+                q = rows["q"][:, 3 * i : 3 * i + 3]
+                out.setdefault("bodies", {})[name] = {
+                    "start": q[0].tolist(), "end": q[-1].tolist(),
+                    "lowest_y": float(q[:, 1].min()),
+                }  # fmt: skip
+        out["steps_held"] = int(self.data[0]["singular"])
+        return out

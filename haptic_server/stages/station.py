@@ -1,0 +1,174 @@
+"""One haptic station's tick (docs/stations.md): its device coupled to its tool in a shared
+world that another process co-simulates.
+
+The world sends the port's tool (pose and twist in this station's frame) and the coupling's
+gains; every tick the station renders the coupling against its own device at once, the
+tool carried on by its twist since it arrived:
+
+    F = K (x_tool + v_tool age - x_dev) + B (v_tool - v_dev)      (world frame)
+
+mapped to the device, clipped at its limits. Without a fresh tool state (none for the
+watchdog's period, or the world says it holds the port) the command ramps over `ramp_s` to
+the safe state, damping on the handle's own motion; it ramps back the same way when tool
+states return. A reading that is not finite renders the safe state's zero for the tick;
+a command that is not finite is zeroed and counted. No I/O: the loop (haptic_server/station.py)
+feeds the tool state and its age and publishes the device state this leaves in `world`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from haptic_local_model.device_models.base import SENSOR_DTYPE
+from haptic_local_model.device_models.kernels import (
+    device_advance,
+    device_command,
+    device_read,
+    device_sense_hand,
+    device_true_state,
+)
+from haptic_local_model.device_models.world_map import (
+    MAP_DTYPE,
+    map_command_to_device,
+    map_rate_step,
+    map_sensors_to_world,
+)
+from haptic_local_model.haptic_server.users import USER_DTYPE, hand_wrench
+
+F8 = np.float64
+I8 = np.int64
+
+STATION_DTYPE = np.dtype(
+    [
+        ("dt", F8),
+        ("t", F8),
+        ("watchdog_s", F8),
+        ("ramp_s", F8),
+        ("limits", F8, (3,)),  # the device's max_wrench, device frame
+        ("safe_damping", F8, (3,)),  # device frame
+        # the newest tool state: set by the loop
+        ("have_tool", I8),
+        ("held", I8),  # the world holds this port (it lost us, or re-indexes us)
+        ("tool_age", F8),  # s since it arrived
+        ("tool_pose", F8, (3,)),
+        ("tool_twist", F8, (3,)),
+        ("stiffness", F8, (3,)),
+        ("damping", F8, (3,)),
+        # the tick's state and outputs
+        ("fresh", I8),
+        ("gain", F8),  # 0: the safe state, 1: the coupling
+        ("coupling", F8, (3,)),  # world frame, before the ramp
+        ("spring", F8, (3,)),  # its stiffness part K (x_tool - x_dev)
+        ("out", F8, (3,)),  # device frame: what the device is commanded
+        ("cut", I8),  # this tick's reading was not finite
+        ("invalid", I8),  # commands that were not finite (zeroed), all told
+        ("sensors", SENSOR_DTYPE, (1,)),
+        ("world", SENSOR_DTYPE, (1,)),
+        ("hand", F8, (3,)),
+        ("user", USER_DTYPE, (1,)),
+        ("map", MAP_DTYPE, (1,)),
+        ("scratch", F8, (3,)),
+    ]
+)
+
+#: One station tick as logged (world frame unless said).
+STATION_ROW_DTYPE = np.dtype(
+    [
+        ("t", F8),
+        ("wall_ns", I8),  # the loop's clock at the tick's start
+        ("late_us", F8),  # after its deadline
+        ("work_us", F8),  # the compiled tick, the decode and the publish
+        ("pose", F8, (3,)),
+        ("twist", F8, (3,)),
+        ("hand", F8, (3,)),  # the user's wrench on the device, device frame
+        ("coupling", F8, (3,)),
+        ("spring", F8, (3,)),
+        ("out", F8, (3,)),  # device frame
+        ("tool_pose", F8, (3,)),
+        ("tool_age", F8),
+        ("gain", F8),
+        ("fresh", I8),
+        ("held", I8),
+        ("cut", I8),
+        ("invalid", I8),
+        ("received", I8),  # tool states taken, all told
+        ("rejected", I8),  # tool states refused (malformed), all told
+        ("fault", I8),  # the device's fault bits
+    ]
+)
+
+
+@njit(cache=True)
+def _wrap(a):
+    return math.atan2(math.sin(a), math.cos(a))
+
+
+@njit(cache=True)
+def station_tick(station, dev):
+    """One tick (module docstring)."""
+    s = station[0]
+    u = s.user[0]
+    device_true_state(dev, u.device_pose, u.device_twist)
+    hand_wrench(s.user, s.t - u.start_s, u.device_pose, u.device_twist, s.hand)
+    device_sense_hand(dev, s.hand)
+    device_read(dev, s.sensors)
+    map_sensors_to_world(s.map, s.sensors, s.world)
+    w = s.world[0]
+    sen = s.sensors[0]
+    s.cut = 0
+    for c in range(3):
+        if not (math.isfinite(w.pose[c]) and math.isfinite(w.twist[c])):
+            s.cut = 1
+    s.fresh = 1 if s.have_tool == 1 and s.held == 0 and s.tool_age < s.watchdog_s else 0
+    step = s.dt / s.ramp_s
+    s.gain = min(1.0, s.gain + step) if s.fresh == 1 else max(0.0, s.gain - step)
+    for c in range(3):
+        s.coupling[c] = 0.0
+        s.spring[c] = 0.0
+        if s.cut == 0 and s.have_tool == 1:
+            err = s.tool_pose[c] + s.tool_twist[c] * s.tool_age - w.pose[c]
+            if c == 2:
+                err = _wrap(err)
+            s.spring[c] = s.stiffness[c] * err
+            s.coupling[c] = s.spring[c] + s.damping[c] * (s.tool_twist[c] - w.twist[c])
+    map_command_to_device(s.map, s.coupling, s.limits, s.scratch)
+    bad = False
+    for c in range(3):
+        safe = -s.safe_damping[c] * sen.twist[c] if s.cut == 0 else 0.0
+        v = s.gain * s.scratch[c] + (1.0 - s.gain) * safe
+        if not math.isfinite(v):
+            bad = True
+        s.out[c] = min(s.limits[c], max(-s.limits[c], v))
+    if bad:
+        s.invalid += 1
+        for c in range(3):
+            s.out[c] = 0.0
+    device_command(dev, s.out)
+    device_advance(dev, s.dt, s.hand)
+    map_rate_step(s.map, sen.pose, s.dt)
+    s.t += s.dt
+
+
+@njit(cache=True)
+def station_row(station, row, fault):
+    s = station[0]
+    w = s.world[0]
+    row.t = s.t - s.dt
+    for c in range(3):
+        row.pose[c] = w.pose[c]
+        row.twist[c] = w.twist[c]
+        row.hand[c] = s.hand[c]
+        row.coupling[c] = s.coupling[c]
+        row.spring[c] = s.spring[c]
+        row.out[c] = s.out[c]
+        row.tool_pose[c] = s.tool_pose[c]
+    row.tool_age = s.tool_age
+    row.gain = s.gain
+    row.fresh = s.fresh
+    row.held = s.held
+    row.cut = s.cut
+    row.invalid = s.invalid
+    row.fault = fault

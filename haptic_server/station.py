@@ -1,0 +1,269 @@
+"""A haptic station: one port's device and user, coupled to its tool in a shared world that
+`haptic-world` co-simulates, over a Zenoh router (docs/stations.md).
+
+Each tick (wall-clock paced at the scene's haptic rate): take the newest ToolState (a
+malformed one is refused and counted), run the compiled tick (haptic_server/stages/station.py:
+the device, its user, the coupling rendered against the tool carried on by its twist, the
+watchdog's ramp to the safe state), publish the device's state. The rows stay in memory and
+are written to MCAP when the run ends (`--log`: a temporary file renamed when whole).
+"""
+
+from __future__ import annotations
+
+import gc
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from haptic_local_model.device_models.base import SimulatedDevice
+from haptic_local_model.device_models.common import refill_noise
+from haptic_local_model.device_models.kernels import noise_ready
+from haptic_local_model.device_models.world_map import DeviceWorldMap
+from haptic_local_model.haptic_server.stages.cosim import cosim_records
+from haptic_local_model.haptic_server.stages.station import (
+    STATION_DTYPE,
+    STATION_ROW_DTYPE,
+    station_row,
+    station_tick,
+)
+from haptic_local_model.haptic_server.users import user_record
+from haptic_local_model.shared.config import UserConfig
+from haptic_local_model.shared.net.stations import (
+    StationNetworkConfig,
+    client_config,
+    port_keys,
+)
+from haptic_local_model.shared.net.transport import newest_payload
+from haptic_local_model.shared.port_config import PortSceneConfig
+from haptic_local_model.shared.protocol.station import (
+    CUT,
+    SAFE,
+    DeviceState,
+    decode_tool,
+    encode_device,
+    vec3,
+)
+from haptic_local_model.shared.protocol.update import MessageError
+from haptic_local_model.shared.timing import (
+    SampleWindow,
+    rate_per_second,
+    try_realtime_priority,
+    wait_until,
+)
+
+TOOL_RING = 64  # tool states kept between two ticks: a stalled tick's worth and more
+SPIN_NS = 100_000  # the wait's last 0.1 ms spins (several loops share two cores)
+MAX_LOG_S = 600.0  # the rows of at most this long stay in memory (--log: --duration <= this)
+
+
+@dataclass
+class StationCounters:
+    received: int = 0
+    rejected: int = 0
+    overruns: int = 0
+    refills: int = 0
+    safe_entries: int = 0  # times the ramp reached the safe state
+    reasons: dict[str, int] = field(default_factory=dict)
+
+
+class Station:
+    """One station's records, ready to run (module docstring)."""
+
+    def __init__(
+        self,
+        scene: PortSceneConfig,
+        network: StationNetworkConfig,
+        port: str,
+        device: SimulatedDevice,
+        user: UserConfig,
+        max_rows: int,
+    ) -> None:
+        names = [p.name for p in scene.ports]
+        if port not in names:
+            raise ValueError(f"port: {port!r} is not one of the scene's ({', '.join(names)})")
+        self.scene, self.network, self.port, self.device = scene, network, port, device
+        self.index = names.index(port)
+        self.user = user
+        spec = scene.ports[self.index]
+        st = np.zeros(1, STATION_DTYPE)
+        s = st[0]
+        s["dt"] = scene.period_s
+        s["watchdog_s"] = network.watchdog_ms / 1e3
+        s["ramp_s"] = network.safe_ramp_ms / 1e3
+        s["limits"] = device.limits().max_wrench
+        s["safe_damping"] = device.rendering.safe_damping
+        s["stiffness"] = spec.coupling_stiffness
+        s["damping"] = spec.coupling_damping
+        wm = getattr(device, "world_map", None) or DeviceWorldMap.identity()
+        s["map"][0] = wm.record[0]
+        self.station = st
+        self._place(spec.device_start)
+        self.rows = np.zeros(max_rows, STATION_ROW_DTYPE)
+        self.n_rows = 0
+        self.counters = StationCounters()
+        self.late_us = SampleWindow(100_000)
+        self.work_us = SampleWindow(100_000)
+        self.interval_ms = SampleWindow(1_000_000)
+        self.epoch = time.time_ns()
+        self._stop = False
+
+    def _place(self, start: tuple[float, float, float]) -> None:
+        """The device at rest at its start, mapped onto its tool (the world re-indexes it
+        when it joins, so this only makes the log's frame the world's at the start)."""
+        dev = self.device
+        dev.reset(np.array(start, np.float64))
+        pose, twist = np.zeros(3), np.zeros(3)
+        dev.true_state(pose, twist)
+        s = self.station[0]
+        u = user_record(self.user)[0]
+        u["start_pose"] = pose
+        s["user"][0] = u
+        _, data = cosim_records(self.scene, [(1.0, 1.0, 1.0)] * len(self.scene.ports))
+        tool = data[0]["q"][3 * self.index : 3 * self.index + 3]
+        wm = s["map"][0]
+        wm["offset"] = tool - wm["scale"] * pose
+        s["map"][0] = wm
+        s["tool_pose"] = tool
+
+    def request_stop(self, *_: object) -> None:
+        self._stop = True
+
+    def _take_tools(self, sub: Any, now_ns: int) -> None:
+        """The newest valid ToolState waiting, into the record; the rest counted."""
+        newest = None
+        for raw in newest_payload(sub):
+            try:
+                newest = decode_tool(raw, self.index)
+            except MessageError as exc:
+                self.counters.rejected += 1
+                self.counters.reasons[exc.reason] = self.counters.reasons.get(exc.reason, 0) + 1
+                continue
+            self.counters.received += 1
+        s = self.station[0]
+        if newest is not None:
+            s["have_tool"] = 1
+            s["held"] = 1 if newest.held else 0
+            s["tool_pose"] = newest.pose
+            s["tool_twist"] = newest.twist
+            s["stiffness"] = newest.stiffness
+            s["damping"] = newest.damping
+            self._tool_ns = now_ns
+        if s["have_tool"] == 1:
+            s["tool_age"] = (now_ns - self._tool_ns) / 1e9
+
+    def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
+        device_key, tool_key = port_keys(self.network.namespace, self.port)
+        session = zenoh.open(client_config(self.network.station(self.port)))
+        sub = session.declare_subscriber(tool_key, zenoh.handlers.RingChannel(TOOL_RING))
+        pub = session.declare_publisher(
+            device_key, congestion_control=zenoh.CongestionControl.DROP, express=True
+        )
+        self._tool_ns = 0
+        st, dev = self.station, self.device.records
+        dt = float(st[0]["dt"])
+        period_ns = round(dt * 1e9)
+        self.warm()
+        gc.collect()
+        gc.freeze()
+        # after the warm-up: a loop compiling at SCHED_FIFO starved the others for seconds
+        try_realtime_priority()
+        if ready is not None:
+            ready()
+        start = time.perf_counter_ns()
+        end = start + int(duration_s * 1e9) if duration_s else None
+        deadline = start
+        last = start
+        seq = 0
+        was_safe = True
+        try:
+            while not self._stop:
+                now = wait_until(deadline, SPIN_NS)
+                late_ns = now - deadline
+                if late_ns > period_ns:
+                    self.counters.overruns += 1
+                    deadline = now
+                self.interval_ms.add((now - last) / 1e6) if seq else None
+                last = now
+                if not noise_ready(dev, dt):
+                    refill_noise(self.device.noise, dev, dt)
+                    self.counters.refills += 1
+                self._take_tools(sub, now)
+                station_tick(st, dev)
+                s = st[0]
+                w = s["world"][0]
+                flags = (SAFE if s["fresh"] == 0 else 0) | (CUT if s["cut"] == 1 else 0)
+                pose = (0.0, 0.0, 0.0) if s["cut"] else vec3(w["pose"])
+                twist = (0.0, 0.0, 0.0) if s["cut"] else vec3(w["twist"])
+                pub.put(encode_device(DeviceState(
+                    self.index, self.epoch, seq, time.time_ns(), pose, twist, flags
+                )))  # fmt: skip
+                safe = s["gain"] == 0.0
+                if safe and not was_safe:
+                    self.counters.safe_entries += 1
+                was_safe = safe
+                work_ns = time.perf_counter_ns() - now
+                self._row(now, late_ns, work_ns)
+                seq += 1
+                deadline += period_ns
+                if end is not None and now >= end:
+                    break
+        finally:
+            session.close()
+        return self.summary()
+
+    def _row(self, now_ns: int, late_ns: int, work_ns: int) -> None:
+        self.late_us.add(late_ns / 1e3)
+        self.work_us.add(work_ns / 1e3)
+        row = self.rows[self.n_rows % len(self.rows) : self.n_rows % len(self.rows) + 1]
+        s = self.station[0]
+        station_row(self.station, row[0], int(s["sensors"][0]["fault"]))
+        row[0]["wall_ns"] = now_ns
+        row[0]["late_us"] = late_ns / 1e3
+        row[0]["work_us"] = work_ns / 1e3
+        row[0]["received"] = self.counters.received
+        row[0]["rejected"] = self.counters.rejected
+        self.n_rows += 1
+
+    def warm(self) -> None:
+        """Compile (or load) the tick on spare records before the loop."""
+        spare = self.station.copy()
+        self.device.noise.refill()
+        records = self.device.records
+        station_tick(spare, records)
+        station_row(spare, np.zeros(1, STATION_ROW_DTYPE)[0], 0)
+        self._place(self.scene.ports[self.index].device_start)
+
+    def logged_rows(self) -> np.ndarray:
+        """The rows kept, in order (the last len(rows) ticks if the run was longer)."""
+        n, cap = self.n_rows, len(self.rows)
+        if n <= cap:
+            return self.rows[:n].copy()
+        k = n % cap
+        return np.concatenate([self.rows[k:], self.rows[:k]])
+
+    def summary(self) -> dict[str, Any]:
+        rows = self.logged_rows()
+        c = self.counters
+        return {
+            "port": self.port,
+            "device": self.device.name,
+            "user": self.user.name,
+            "ticks": self.n_rows,
+            "tick_rate_hz": rate_per_second(self.interval_ms.values()),
+            "late_us": self.late_us.percentiles(50, 99, 99.9),
+            "work_us": self.work_us.percentiles(50, 99, 99.9),
+            "overruns": c.overruns,
+            "noise_refills": c.refills,
+            "tool_states_received": c.received,
+            "tool_states_rejected": c.rejected,
+            "rejected_by_reason": dict(c.reasons),
+            "safe_entries": c.safe_entries,
+            "commands_invalid": int(self.station[0]["invalid"]),
+            "mean_command_last_s": (
+                rows["out"][-min(len(rows), 1000) :].mean(axis=0).tolist() if len(rows) else []
+            ),
+            "epoch": self.epoch,
+        }

@@ -1,0 +1,192 @@
+"""The console scripts of a shared world served to haptic stations (docs/stations.md):
+
+    haptic-router  --network stations_loopback
+    haptic-world   --network stations_loopback --scene grasp_vertical [--log world.mcap]
+    haptic-station --network stations_loopback --scene grasp_vertical --port left \\
+                   [--device maglev] [--user squeeze_left_2n] [--log left.mcap]
+
+Each runs until SIGTERM or SIGINT (or --duration), then writes its log (a temporary file
+renamed when whole) and its summary (--json), and prints one JSON line per event on stdout
+(`ready`, `done`). The world's log is a `haptic-ports` log: `haptic-ports --replay` re-runs
+it bit for bit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.ports_cli import write_port_log, write_rows_log
+from haptic_local_model.haptic_server.shared_world import SharedWorld
+from haptic_local_model.haptic_server.station import MAX_LOG_S, Station
+from haptic_local_model.shared import __version__
+from haptic_local_model.shared.cli import add_version, emit, log_file, run_main, seconds
+from haptic_local_model.shared.config import ConfigError, load_config_text, load_user, resolve
+from haptic_local_model.shared.net.stations import load_station_network, router_config
+from haptic_local_model.shared.port_config import PortSceneConfig
+
+STATION_TICK_TOPIC = "/station/tick"
+STATION_TICK_SCHEMA = "haptic_server/StationTick"
+
+
+def _common(parser: argparse.ArgumentParser, scene: bool = True) -> None:
+    add_version(parser)
+    parser.add_argument(
+        "--network", default="stations_loopback", help="station network in configs/network"
+    )
+    if scene:
+        parser.add_argument(
+            "--scene", default="grasp_vertical", help="port scene in configs/ports or a path"
+        )
+        parser.add_argument(
+            "--duration", type=seconds, default=None, help="seconds (default: until stopped)"
+        )
+        parser.add_argument(
+            "--log",
+            type=log_file,
+            default=None,
+            metavar="OUT.mcap",
+            help=f"every tick's row (needs --duration <= {MAX_LOG_S:g})",
+        )
+        parser.add_argument("--json", type=Path, default=None, help="write the summary here")
+
+
+def _scene(name: str) -> tuple[PortSceneConfig, str]:
+    path = resolve("ports", name)
+    if not path.is_file():
+        raise ConfigError(str(path), "scene", "no such file")
+    text = path.read_text()
+    return load_config_text(PortSceneConfig, text, str(path)), text
+
+
+def _rows_for(args: argparse.Namespace, rate_hz: float) -> int:
+    if args.log is not None and (args.duration is None or args.duration > MAX_LOG_S):
+        raise ConfigError("--log", "--duration", f"a logged run needs --duration <= {MAX_LOG_S:g}")
+    span = min(args.duration or MAX_LOG_S, MAX_LOG_S) + 1.0
+    return round(span * rate_hz)
+
+
+def _stop_on_signals(obj: Any) -> None:
+    signal.signal(signal.SIGTERM, obj.request_stop)
+    signal.signal(signal.SIGINT, obj.request_stop)
+
+
+def _finish(prog: str, summary: dict[str, Any], path: Path | None) -> None:
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(summary, indent=2))
+    emit("done", prog=prog, summary=summary)
+
+
+def router_main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="haptic-router", description="The stations' Zenoh router")
+    _common(parser, scene=False)
+    args = parser.parse_args(argv)
+
+    def body() -> int:
+        network = load_station_network(args.network, "router")
+        try:
+            session = zenoh.open(router_config(network))
+        except zenoh.ZError as exc:  # e.g. the address is taken
+            print(f"haptic-router: cannot listen on {list(network.router.listen)}: {exc}",
+                  file=sys.stderr)  # fmt: skip
+            return 1
+        done = threading.Event()
+        signal.signal(signal.SIGTERM, lambda *_: done.set())
+        signal.signal(signal.SIGINT, lambda *_: done.set())
+        emit("ready", prog="haptic-router", listen=list(network.router.listen))
+        try:
+            while not done.wait(0.5):
+                pass
+        finally:
+            session.close()
+        emit("done", prog="haptic-router")
+        return 0
+
+    return run_main(body)
+
+
+def world_main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="haptic-world", description="The stations' shared world")
+    _common(parser)
+    args = parser.parse_args(argv)
+
+    def body() -> int:
+        network = load_station_network(args.network, "world")
+        scene, text = _scene(args.scene)
+        world = SharedWorld(scene, network, _rows_for(args, scene.haptic_rate_hz))
+        _stop_on_signals(world)
+        summary = world.run(args.duration, ready=lambda: emit("ready", prog="haptic-world"))
+        if args.log is not None:
+            rows = world.logged_rows()
+            write_port_log(args.log, rows, {
+                "configs": {"ports": text,
+                            "devices": json.dumps([p.device for p in scene.ports]),
+                            "users": json.dumps([p.user for p in scene.ports])},
+                "limits": {"max_wrench": json.dumps([list(v) for v in world.limits])},
+                "run": {"version": __version__, "ticks": str(len(rows)), "kind": "haptic-world",
+                        "events": json.dumps(world.events)},
+            })  # fmt: skip
+        _finish("haptic-world", summary, args.json)
+        return 0
+
+    return run_main(body)
+
+
+def station_main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="haptic-station", description="A port's haptic station")
+    _common(parser)
+    parser.add_argument("--port", required=True, help="the scene's port this station drives")
+    parser.add_argument("--device", default=None, help="a simulated device (default: the port's)")
+    parser.add_argument("--user", default=None, help="a simulated user (default: the port's)")
+    args = parser.parse_args(argv)
+
+    def body() -> int:
+        network = load_station_network(args.network, args.port)
+        scene, text = _scene(args.scene)
+        spec = next((p for p in scene.ports if p.name == args.port), None)
+        if spec is None:
+            names = ", ".join(p.name for p in scene.ports)
+            raise ConfigError(args.scene, "--port", f"{args.port!r} is not a port ({names})")
+        device = load_simulated_device(args.device or spec.device)
+        user = load_user(args.user or spec.user)
+        rows = _rows_for(args, scene.haptic_rate_hz)
+        station = Station(scene, network, args.port, device, user, rows)
+        _stop_on_signals(station)
+        summary = station.run(args.duration, ready=lambda: emit("ready", prog="haptic-station"))
+        if args.log is not None:
+            logged = station.logged_rows()
+            write_rows_log(args.log, logged, STATION_TICK_TOPIC, STATION_TICK_SCHEMA, {
+                "configs": {"ports": text, "port": args.port, "device": device.name,
+                            "user": user.name},
+                "run": {"version": __version__, "ticks": str(len(logged)),
+                        "kind": "haptic-station"},
+            })  # fmt: skip
+        _finish("haptic-station", summary, args.json)
+        return 0
+
+    return run_main(body)
+
+
+ROLES = {"router": router_main, "world": world_main, "station": station_main}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m haptic_local_model.haptic_server.stations_cli ROLE ...` (the tests)."""
+    args = sys.argv[1:] if argv is None else argv
+    if not args or args[0] not in ROLES:
+        print(f"usage: stations_cli {{{','.join(ROLES)}}} ...", file=sys.stderr)
+        return 2
+    return ROLES[args[0]](args[1:])
+
+
+if __name__ == "__main__":
+    sys.exit(main())

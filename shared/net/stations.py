@@ -1,0 +1,219 @@
+"""The network of a shared world and its haptic stations (docs/stations.md).
+
+Three roles meet through one Zenoh router (Zenoh's own router mode, `haptic-router`):
+the world (`haptic-world`, the co-simulated object and every port's tool) and one haptic
+station per port (`haptic-station`, a device and its user), each a Zenoh client of the
+router, on the same host or others. The router authenticates every client (usrpwd) and its
+access control, default deny, lets each through only its own flows:
+
+- the world may publish every port's ToolState and follow every port's DeviceState;
+- the station of port P may publish P's DeviceState and follow P's ToolState, nothing else
+  (not another port's device, not another port's tool).
+
+Keys: `<ns>/port/<P>/device` (station -> world), `<ns>/port/<P>/tool` (world -> station).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from haptic_local_model.shared.config import (
+    ConfigError,
+    load_dataclass,
+    read_toml,
+    require,
+    resolve,
+    within,
+)
+from haptic_local_model.shared.net.config import (
+    SAFE_RAMP_MS_RANGE,
+    WATCHDOG_MS_RANGE,
+    EndpointSpec,
+    _read_users,
+)
+from haptic_local_model.shared.net.security import zenoh_keys
+
+PORT_NAME_CHARS = set("abcdefghijklmnopqrstuvwxyz0123456789_-")
+
+
+def port_keys(namespace: str, port: str) -> tuple[str, str]:
+    """(device key, tool key) of a port."""
+    return f"{namespace}/port/{port}/device", f"{namespace}/port/{port}/tool"
+
+
+@dataclass(frozen=True)
+class StationNetworkConfig:
+    """Where the router listens, who may be the world and which station drives which port,
+    and the endpoints of each role (files relative to the config)."""
+
+    namespace: str = "haptic/stations"
+    watchdog_ms: float = 100.0  # a station with no ToolState for this long goes safe
+    safe_ramp_ms: float = 40.0  # its force ramps to the safe state (and back) over this
+    # the world holds a port whose DeviceState is this old, and re-indexes it when it returns
+    world_watchdog_ms: float = 100.0
+    router: EndpointSpec = field(default_factory=EndpointSpec)
+    world_user: str = "world"
+    station_users: dict[str, str] = field(default_factory=dict)  # port -> user
+    world: EndpointSpec = field(default_factory=EndpointSpec)
+    stations: dict[str, EndpointSpec] = field(default_factory=dict)  # port -> endpoints
+    # a router without authentication lets anyone drive the ports: refused unless set
+    unauthenticated_insecure: bool = False
+
+    def __post_init__(self) -> None:
+        require(
+            bool(self.namespace) and "*" not in self.namespace, "namespace", "must be a plain key"
+        )
+        within(self.watchdog_ms, WATCHDOG_MS_RANGE, "watchdog_ms", "ms")
+        within(self.world_watchdog_ms, WATCHDOG_MS_RANGE, "world_watchdog_ms", "ms")
+        within(self.safe_ramp_ms, SAFE_RAMP_MS_RANGE, "safe_ramp_ms", "ms")
+        require(bool(self.router.listen), "router.listen", "the router must listen somewhere")
+        require(bool(self.world.connect), "world.connect", "the world must connect to the router")
+        for port, spec in self.stations.items():
+            require(set(port) <= PORT_NAME_CHARS, f"stations.{port}", "not a plain port name")
+            require(bool(spec.connect), f"stations.{port}.connect", "must connect to the router")
+        authenticated = bool(self.router.users_file)
+        require(
+            authenticated or self.unauthenticated_insecure,
+            "router.users_file",
+            "the router accepts anyone: set users_file, or, knowingly, "
+            "unauthenticated_insecure = true",
+        )
+        if not authenticated:
+            return
+        require(self.world.user == self.world_user, "world.user", f"must be {self.world_user!r}")
+        for port, spec in self.stations.items():
+            require(port in self.station_users, f"station_users.{port}", "no user drives it")
+            require(
+                spec.user == self.station_users[port],
+                f"stations.{port}.user",
+                f"must be {self.station_users[port]!r}, the user station_users gives port {port}",
+            )
+        users = list(self.station_users.values())
+        require(len(set(users)) == len(users), "station_users", "one user per port")
+        require(self.world_user not in users, "station_users", "the world's user drives no port")
+
+    def station(self, port: str) -> EndpointSpec:
+        if port not in self.stations:
+            known = ", ".join(sorted(self.stations))
+            raise ValueError(f"stations.{port}: no such station (known: {known})")
+        return self.stations[port]
+
+
+def access_control(config: StationNetworkConfig, ports: list[str]) -> dict[str, Any]:
+    """The router's table (module docstring): default deny, then each role's own flows.
+    A router forwards a put it received (ingress from the sender) to a subscriber (egress to
+    it) and a subscriber's declaration the other way, so each flow is allowed both ways."""
+    ns = config.namespace
+    rules: list[dict[str, Any]] = []
+    subjects: list[dict[str, Any]] = [{"id": "world", "usernames": [config.world_user]}]
+    policies: list[dict[str, Any]] = []
+
+    def allow(rule_id: str, message: str, flow: str, key: str) -> str:
+        rules.append({"id": rule_id, "messages": [message], "flows": [flow],
+                      "permission": "allow", "key_exprs": [key]})  # fmt: skip
+        return rule_id
+
+    world_rules = [
+        allow("world_puts_tools", "put", "ingress", f"{ns}/port/*/tool"),
+        allow("world_follows_devices", "declare_subscriber", "ingress", f"{ns}/port/*/device"),
+        allow("devices_to_world", "put", "egress", f"{ns}/port/*/device"),
+        allow("tools_followed", "declare_subscriber", "egress", f"{ns}/port/*/tool"),
+    ]
+    policies.append({"id": "world_drives", "subjects": ["world"], "rules": world_rules})
+    for port in ports:
+        device, tool = port_keys(ns, port)
+        subjects.append({"id": f"station_{port}", "usernames": [config.station_users[port]]})
+        mine = [
+            allow(f"{port}_puts_device", "put", "ingress", device),
+            allow(f"{port}_follows_tool", "declare_subscriber", "ingress", tool),
+            allow(f"{port}_tool_to_station", "put", "egress", tool),
+            allow(f"{port}_device_followed", "declare_subscriber", "egress", device),
+        ]
+        policies.append({"id": f"station_{port}_drives", "subjects": [f"station_{port}"],
+                         "rules": mine})  # fmt: skip
+    return {"enabled": True, "default_permission": "deny", "rules": rules,
+            "subjects": subjects, "policies": policies}  # fmt: skip
+
+
+def _base(mode: str, endpoints: EndpointSpec) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/gossip/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps(list(endpoints.listen)))
+    conf.insert_json5("connect/endpoints", json.dumps(list(endpoints.connect)))
+    for key, text in zenoh_keys(endpoints, None).items():
+        try:
+            conf.insert_json5(key, text)
+        except zenoh.ZError as exc:
+            raise ValueError(f"zenoh.{key}: {exc}") from None
+    return conf
+
+
+def router_config(config: StationNetworkConfig) -> zenoh.Config:
+    """Zenoh's router mode on router.listen, with the stations' access control."""
+    conf = _base("router", config.router)
+    if config.router.users_file:
+        acl = access_control(config, sorted(config.station_users))
+        conf.insert_json5("access_control", json.dumps(acl))
+    return conf
+
+
+def client_config(endpoints: EndpointSpec) -> zenoh.Config:
+    """A client of the router (the world or a station): all its traffic goes through it."""
+    return _base("client", endpoints)
+
+
+def load_station_network(name_or_path: str, role: str) -> StationNetworkConfig:
+    """Load a station network; its files made absolute (relative to the config's folder).
+    `role` ("router", "world" or a port's name) names the files that must exist here: a
+    host needs only its own."""
+    path = resolve("network", name_or_path)
+    raw = read_toml(path)
+    config: StationNetworkConfig = load_dataclass(StationNetworkConfig, raw, str(path))
+
+    def absolute(spec: EndpointSpec) -> EndpointSpec:
+        def one(file: str) -> str:
+            return str((path.parent / file).resolve()) if file else file
+
+        return dataclasses.replace(
+            spec, password_file=one(spec.password_file), users_file=one(spec.users_file)
+        )
+
+    config = dataclasses.replace(
+        config,
+        router=absolute(config.router),
+        world=absolute(config.world),
+        stations={p: absolute(s) for p, s in config.stations.items()},
+    )
+    if role == "router":
+        key, spec = "router", config.router
+    elif role == "world":
+        key, spec = "world", config.world
+    elif role in config.stations:
+        key, spec = f"stations.{role}", config.stations[role]
+    else:
+        known = ", ".join(["router", "world", *sorted(config.stations)])
+        raise ConfigError(str(path), "stations", f"no role {role!r} (known: {known})")
+    for name, file in spec.files().items():
+        if not Path(file).is_file():
+            raise ConfigError(str(path), f"{key}.{name}", f"file not found: {file}")
+    if role == "router" and config.router.users_file:
+        users = _read_users(config.router.users_file, str(path))
+        for user in [config.world_user, *config.station_users.values()]:
+            if user not in users:
+                raise ConfigError(
+                    str(path), "router.users_file", f"user {user!r} is not in {spec.users_file}"
+                )
+    try:
+        router_config(config) if role == "router" else client_config(spec)
+    except ValueError as exc:
+        sub, _, problem = str(exc).partition(": ")
+        raise ConfigError(str(path), f"{key}.{sub}", problem) from None
+    return config

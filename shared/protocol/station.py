@@ -1,0 +1,156 @@
+"""The two messages between a shared world and its haptic stations (docs/stations.md).
+
+- DeviceState `HSDV` v1, station -> world, every station tick on `<ns>/port/<name>/device`:
+  the station's device pose and twist in its world frame (after its device-to-world map),
+  whether the station is in its safe state, and whether its reading was not finite.
+- ToolState `HSTL` v1, world -> station, every world tick on `<ns>/port/<name>/tool`: the
+  port's tool pose and twist in the station's frame (the world re-indexes a station that
+  joins, so its device meets its tool where the tool is), the coupling's stiffness and
+  damping, the co-simulated object's pose (for views and logs) and whether the world holds
+  the port (its station was lost).
+
+Both are fixed-size little-endian records. A decode checks the magic, version, size, port
+and that every number is finite and in range, and raises MessageError naming the field:
+a malformed message is rejected and counted, never used.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from haptic_local_model.shared.protocol.update import MessageError
+
+DEVICE_MAGIC = b"HSDV"
+TOOL_MAGIC = b"HSTL"
+STATION_VERSION = 1
+#: the most ports a world serves (shared/port_config.py: MAX_PORTS is 2 in this wave)
+MAX_STATION_PORTS = 16
+#: poses beyond this many metres, rates beyond this many m/s or rad/s: not a device's
+POSE_LIMIT_M = 100.0
+TWIST_LIMIT = 1000.0
+GAIN_LIMIT = 1.0e7  # N/m, N s/m
+
+_HEAD = struct.Struct("<4sHHQQq")  # magic, version, port, epoch, seq, publish time (ns)
+_DEVICE = struct.Struct("<4sHHQQq6dI")
+_TOOL = struct.Struct("<4sHHQQq15dI")
+
+SAFE = 1  # DeviceState flags: the station renders its safe state
+CUT = 2  # its device's reading was not finite this tick
+HELD = 1  # ToolState flags: the world holds the port's anchor (its station is lost)
+
+
+@dataclass(frozen=True)
+class DeviceState:
+    port: int
+    epoch: int  # the station's start (ns): a restarted station is a new one
+    seq: int
+    publish_time_ns: int
+    pose: tuple[float, float, float]  # world frame: x, y (m), angle (rad)
+    twist: tuple[float, float, float]
+    flags: int = 0
+
+    @property
+    def safe(self) -> bool:
+        return bool(self.flags & SAFE)
+
+    @property
+    def cut(self) -> bool:
+        return bool(self.flags & CUT)
+
+
+@dataclass(frozen=True)
+class ToolState:
+    port: int
+    epoch: int  # the world's start (ns)
+    seq: int
+    publish_time_ns: int
+    pose: tuple[float, float, float]  # the station's frame
+    twist: tuple[float, float, float]
+    stiffness: tuple[float, float, float]
+    damping: tuple[float, float, float]
+    object_pose: tuple[float, float, float]  # the co-simulated object, world frame
+    flags: int = 0
+
+    @property
+    def held(self) -> bool:
+        return bool(self.flags & HELD)
+
+
+def encode_device(m: DeviceState) -> bytes:
+    return _DEVICE.pack(
+        DEVICE_MAGIC, STATION_VERSION, m.port, m.epoch, m.seq, m.publish_time_ns,
+        *m.pose, *m.twist, m.flags,
+    )  # fmt: skip
+
+
+def encode_tool(m: ToolState) -> bytes:
+    return _TOOL.pack(
+        TOOL_MAGIC, STATION_VERSION, m.port, m.epoch, m.seq, m.publish_time_ns,
+        *m.pose, *m.twist, *m.stiffness, *m.damping, *m.object_pose, m.flags,
+    )  # fmt: skip
+
+
+def _head(raw: bytes, magic: bytes, layout: struct.Struct, what: str, port: int) -> tuple:
+    if len(raw) < _HEAD.size:
+        raise MessageError("size", f"{what}: {len(raw)} bytes, shorter than its header")
+    got_magic, version, got_port = _HEAD.unpack_from(raw)[:3]
+    if got_magic != magic:
+        raise MessageError("magic", f"{what}.magic: {got_magic!r}, expected {magic!r}")
+    if version != STATION_VERSION:
+        raise MessageError(
+            "version", f"{what}.version: {version}, this build reads {STATION_VERSION}"
+        )
+    if len(raw) != layout.size:
+        raise MessageError("size", f"{what}: {len(raw)} bytes, expected {layout.size}")
+    if got_port != port:
+        raise MessageError("port", f"{what}.port: {got_port} on port {port}'s key")
+    return layout.unpack(raw)
+
+
+def _numbers(values: tuple, names: tuple[str, ...], limit: float, what: str) -> None:
+    for name, v in zip(names, values, strict=True):
+        if not math.isfinite(v) or abs(v) > limit:
+            raise MessageError("value", f"{what}.{name}: {v!r} is not finite or beyond {limit:g}")
+
+
+AXES = ("x", "y", "angle")
+
+
+def decode_device(raw: bytes, port: int) -> DeviceState:
+    """A DeviceState received on port `port`'s key (module docstring)."""
+    f = _head(raw, DEVICE_MAGIC, _DEVICE, "DeviceState", port)
+    pose, twist = f[6:9], f[9:12]
+    _numbers(pose, tuple(f"pose.{a}" for a in AXES), POSE_LIMIT_M, "DeviceState")
+    _numbers(twist, tuple(f"twist.{a}" for a in AXES), TWIST_LIMIT, "DeviceState")
+    if f[12] & ~(SAFE | CUT):
+        raise MessageError("flags", f"DeviceState.flags: unknown bits {f[12]:#x}")
+    return DeviceState(f[2], f[3], f[4], f[5], pose, twist, f[12])
+
+
+def decode_tool(raw: bytes, port: int) -> ToolState:
+    """A ToolState received on port `port`'s key (module docstring)."""
+    f = _head(raw, TOOL_MAGIC, _TOOL, "ToolState", port)
+    pose, twist, k, b, obj = f[6:9], f[9:12], f[12:15], f[15:18], f[18:21]
+    _numbers(pose + obj, tuple(f"{w}.{a}" for w in ("pose", "object_pose") for a in AXES),
+             POSE_LIMIT_M, "ToolState")  # fmt: skip
+    _numbers(twist, tuple(f"twist.{a}" for a in AXES), TWIST_LIMIT, "ToolState")
+    _numbers(k + b, tuple(f"{w}.{a}" for w in ("stiffness", "damping") for a in AXES),
+             GAIN_LIMIT, "ToolState")  # fmt: skip
+    if min(k + b) < 0.0:
+        raise MessageError("value", "ToolState.stiffness/damping: negative")
+    if f[21] & ~HELD:
+        raise MessageError("flags", f"ToolState.flags: unknown bits {f[21]:#x}")
+    return ToolState(f[2], f[3], f[4], f[5], pose, twist, k, b, obj, f[21])
+
+
+Vec3 = tuple[float, float, float]
+
+
+def vec3(values: np.ndarray | tuple[float, ...] | list[float]) -> Vec3:
+    """Three numbers as the messages' (x, y, angle) tuple."""
+    x, y, a = (float(v) for v in values)
+    return (x, y, a)
