@@ -7,22 +7,25 @@ station's link cut and restored).
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
 import signal
 import sys
 import time
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import numpy as np
 import pytest
 import zenoh
-from conftest import ServerProcess
-from test_two_hosts import _ip, netns_unavailable
 
+from haptic_local_model.benchmarks import stations
+from haptic_local_model.benchmarks.stations import (
+    after,
+    largest_step,
+    netns_unavailable,
+    ramp_bound,
+    station_rows,
+)
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.haptic_server.ports_cli import read_port_log, replay_log
 from haptic_local_model.haptic_server.stages.station import STATION_ROW_DTYPE
@@ -226,32 +229,6 @@ def test_the_router_lets_a_station_drive_only_its_own_port(
     assert got["left"] >= 10 and got["right"] == 0, got
 
 
-def _rows(path: Path) -> np.ndarray:
-    from haptic_local_model.haptic_server.log import _iter_messages
-
-    chunks = [data for topic, data, _ in _iter_messages(path) if topic == "/station/tick"]
-    return np.frombuffer(b"".join(chunks), STATION_ROW_DTYPE)
-
-
-def _after(rows: np.ndarray, t_ns: int) -> int:
-    return int(np.searchsorted(rows["wall_ns"], t_ns))
-
-
-def _largest_step(rows: np.ndarray, a: int, b: int) -> float:
-    """The largest change from one tick to the next of the coupling's spring force as
-    rendered (ramp included), over ticks a..b: a re-index that missed, or a force switched
-    on at once, steps it by newtons. (The whole command also carries the damping of the
-    devices' noisy twist: 0.14 N a tick at the median on the maglev, 0.76 N at most.)"""
-    rendered = rows["spring"][a:b, :2] * rows["gain"][a:b, None]
-    return float(np.abs(np.diff(rendered, axis=0)).max())
-
-
-def _ramp_bound(rows: np.ndarray, a: int, b: int, steady: float) -> float:
-    """What a ramp over 40 ticks can step the spring force by, the spring's own change
-    (the steady figure) on top."""
-    return float(np.abs(rows["spring"][a:b, :2]).max()) / 40 + steady + 0.01
-
-
 @pytest.mark.processes
 def test_a_killed_station_leaves_the_box_held_and_a_late_one_joins_without_a_jump(
     tmp_path: Path, start_server: Any
@@ -288,14 +265,14 @@ def test_a_killed_station_leaves_the_box_held_and_a_late_one_joins_without_a_jum
     assert [e["to"] for e in lefts][:5] == ["indexing", "coupled", "held", "indexing", "coupled"]
     box = summary["bodies"]["box"]
     assert box["lowest_y"] > box["start"][1] - 0.003, box  # held: the coupling's sag only
-    r = _rows(right_log)
-    k = _after(r, killed)
+    r = station_rows(right_log)
+    k = after(r, killed)
     assert r["fresh"][k : k + 3000].all() and r["gain"][k : k + 3000].min() == 1.0
-    lr = _rows(late_log)
+    lr = station_rows(late_log)
     back = int(np.argmax(lr["fresh"] == 1))
-    steady = _largest_step(r, k - 1000, k)
-    jump = _largest_step(lr, back, back + 200)
-    assert jump <= _ramp_bound(lr, back, back + 200, steady), (jump, steady)
+    steady = largest_step(r, k - 1000, k)
+    jump = largest_step(lr, back, back + 200)
+    assert jump <= ramp_bound(lr, back, back + 200, steady), (jump, steady)
     pushed = lr["out"][back + 500 : back + 1500, 0].mean()
     assert pushed == pytest.approx(-2.0, abs=0.1)  # the left hand's 2 N squeeze, held
     ticks, first = replay_log(world_log)
@@ -305,167 +282,34 @@ def test_a_killed_station_leaves_the_box_held_and_a_late_one_joins_without_a_jum
           f"{(box['lowest_y'] - box['start'][1]) * 1e3:+.2f} mm")  # fmt: skip
 
 
-class ThreeHosts:
-    """The world's namespace joined to each station's by its own veth pair: a context
-    manager that kills every process started in them by its pid and deletes them, however
-    the block ends."""
-
-    def __init__(self, tag: str = "") -> None:
-        tag = tag or f"{os.getpid() % 100000}"
-        self.world_ns = f"hlm{tag}w"
-        self.station_ns = {"left": f"hlm{tag}l", "right": f"hlm{tag}r"}
-        self.links = {p: (f"hlm{tag}w{p[0]}", f"hlm{tag}s{p[0]}") for p in ("left", "right")}
-        self.processes: list[ServerProcess] = []
-        self.namespaces: list[str] = []
-        self.veths: list[str] = []
-
-    def __enter__(self) -> ThreeHosts:
-        try:
-            for ns in (self.world_ns, *self.station_ns.values()):
-                _ip("netns", "add", ns)
-                self.namespaces.append(ns)
-            for n, (port, (w_if, s_if)) in enumerate(self.links.items(), 1):
-                _ip("link", "add", w_if, "type", "veth", "peer", "name", s_if)
-                self.veths.append(w_if)
-                for ns, dev, host in ((self.world_ns, w_if, 1), (self.station_ns[port], s_if, 2)):
-                    _ip("link", "set", dev, "netns", ns)
-                    _ip("-n", ns, "addr", "add", f"10.214.{n}.{host}/30", "dev", dev)
-                    _ip("-n", ns, "link", "set", dev, "up")
-                    _ip("-n", ns, "link", "set", "lo", "up")
-        except BaseException:
-            self.cleanup()
-            raise
-        return self
-
-    def __exit__(
-        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.cleanup()
-
-    def start(self, ns: str, argv: list[str]) -> ServerProcess:
-        p = ServerProcess(["ip", "netns", "exec", ns, *argv])
-        self.processes.append(p)
-        return p
-
-    def set_link(self, port: str, up: bool) -> None:
-        _ip("-n", self.station_ns[port], "link", "set", self.links[port][1],
-            "up" if up else "down")  # fmt: skip
-
-    def cleanup(self) -> None:
-        for p in self.processes:
-            if p.proc.poll() is None:
-                p.stop(signal.SIGTERM, timeout=STOP_S)
-        for ns in self.namespaces:
-            for pid in _ip("netns", "pids", ns, check=False).stdout.split():
-                with contextlib.suppress(ProcessLookupError):
-                    os.kill(int(pid), signal.SIGKILL)
-            _ip("netns", "del", ns, check=False)
-        for dev in self.veths:
-            _ip("link", "del", dev, check=False)
-
-    def leftovers(self) -> list[str]:
-        names = _ip("netns", "list").stdout.split()
-        out = [ns for ns in (self.world_ns, *self.station_ns.values()) if ns in names]
-        out += [d for d in self.veths if _ip("link", "show", d, check=False).returncode == 0]
-        return out + [f"pid {p.proc.pid}" for p in self.processes if p.proc.poll() is None]
-
-
-@pytest.fixture
-def three_hosts() -> Any:
-    reason = netns_unavailable()
-    if reason:
-        pytest.skip(reason)
-    with ThreeHosts() as hosts:
-        yield hosts
-    assert not hosts.leftovers()
-
-
 RUN_S = 24.0  # the stations' run: >= 20 s
 CUT_AFTER_S = 8.0
 CUT_S = 3.0
 
 
 @pytest.mark.processes
-def test_three_hosts_hold_the_box_and_a_cut_station_goes_safe_and_resumes(
-    tmp_path: Path, three_hosts: ThreeHosts
-) -> None:
-    """DONE-WHEN 3 of issue 18: the world and the router on one namespace, a station on each
-    of two others, grasp_vertical for RUN_S: both devices at 1 kHz, the box held; the left
-    station's link cut for CUT_S: its device safe within the ramp of its watchdog, the
-    right station rendering throughout and the box kept; the link restored: the left
-    station resumes without a force jump."""
-    net = "stations_three_hosts"
-    config = load_station_network(net, "world")
-    h = three_hosts
-    router = h.start(h.world_ns, [*CLI, "router", "--network", net])
-    router.wait_ready(READY_S)
-    world_log, world_json = tmp_path / "world.mcap", tmp_path / "world.json"
-    world_args = [
-        "--duration",
-        str(RUN_S + 6.0),
-        "--log",
-        str(world_log),
-        "--json",
-        str(world_json),
-    ]
-    world = h.start(h.world_ns, [*CLI, "world", "--network", net, *world_args])
-    world.wait_ready(READY_S)
-    logs = {p: tmp_path / f"{p}.mcap" for p in ("left", "right")}
-    jsons = {p: tmp_path / f"{p}.json" for p in ("left", "right")}
-    stations = {}
-    for p in ("left", "right"):
-        args = [
-            "--port",
-            p,
-            "--duration",
-            str(RUN_S),
-            "--log",
-            str(logs[p]),
-            "--json",
-            str(jsons[p]),
-        ]
-        stations[p] = h.start(h.station_ns[p], [*CLI, "station", "--network", net, *args])
-    for s in stations.values():
-        s.wait_ready(READY_S)
-    time.sleep(CUT_AFTER_S)
-    cut = time.perf_counter_ns()
-    h.set_link("left", False)
-    time.sleep(CUT_S)
-    h.set_link("left", True)
-    restored = time.perf_counter_ns()
-    for p in (*stations.values(), world):
-        assert p.proc.wait(RUN_S + STOP_S) == 0
-    summaries = {p: json.loads(jsons[p].read_text()) for p in stations}
-    rows = {p: _rows(logs[p]) for p in stations}
-    for s in summaries.values():  # both devices at 1 kHz for >= 20 s
-        assert s["ticks"] >= 0.98 * RUN_S * 1000, s
-        assert s["tick_rate_hz"]["p50"] >= 990, s
-    ws = json.loads(world_json.read_text())
-    box = ws["bodies"]["box"]
-    assert box["lowest_y"] > box["start"][1] - 0.003, box
-    left, right = rows["left"], rows["right"]
-    c = _after(left, cut)
-    wd = c + int(np.argmax(left["fresh"][c:] == 0))
-    safe = wd + int(np.argmax(left["gain"][wd:] == 0.0))
-    watchdog_ms = (left["wall_ns"][wd] - left["wall_ns"][c]) / 1e6
-    safe_ms = (left["wall_ns"][safe] - left["wall_ns"][wd]) / 1e6
-    assert watchdog_ms <= config.watchdog_ms + 20.0, watchdog_ms
-    assert safe_ms <= 50.0, safe_ms
-    r0, r1 = _after(right, cut), _after(right, restored)
-    assert right["fresh"][r0:r1].all() and right["gain"][r0:r1].min() == 1.0
-    b = _after(left, restored)
-    back = b + int(np.argmax(left["fresh"][b:] == 1))
-    resumed_ms = (left["wall_ns"][back] - restored) / 1e6
-    steady = _largest_step(left, c - 2000, c)
-    jump = _largest_step(left, back, back + 200)
-    assert jump <= _ramp_bound(left, back, back + 200, steady), (jump, steady)
-    before = left["out"][c - 500 : c, :2].mean(axis=0)
-    after = left["out"][back + 500 : back + 1500, :2].mean(axis=0)
-    assert np.abs(after - before).max() <= 0.1, (before, after)
-    rates = [summaries[p]["tick_rate_hz"] for p in ("left", "right")]
-    print(
-        f"\nthree hosts: {rates} ticks/s; left safe {safe_ms:.1f} ms after its watchdog "
-        f"({watchdog_ms:.1f} ms after the cut); resumed {resumed_ms:.0f} ms after the link "
-        f"came back, largest step {jump * 1e3:.1f} mN a tick (steady {steady * 1e3:.1f}); "
-        f"box lowest {(box['lowest_y'] - box['start'][1]) * 1e3:+.2f} mm"
-    )
+def test_three_hosts_hold_the_box_and_a_cut_station_goes_safe_and_resumes(tmp_path: Path) -> None:
+    """Issue 18's three-namespace case (benchmarks/stations.py): the world and the router on
+    one namespace, a station on each of two others, grasp_vertical for RUN_S: both devices at
+    1 kHz, the box held; the left station's link cut for CUT_S: its device safe within 50 ms
+    of its watchdog, the right station rendering throughout and the box kept; the link
+    restored: the left station resumes without a force jump, at the squeeze it left with."""
+    reason = netns_unavailable()
+    if reason:
+        pytest.skip(reason)
+    f = stations.run(RUN_S, CUT_AFTER_S, CUT_S, tmp_path)
+    assert f["left_over"] == [] and set(f["exit_codes"].values()) == {0}, f
+    for p in ("left", "right"):  # both devices at 1 kHz for >= 20 s
+        assert f[p]["ticks"] >= 0.98 * RUN_S * 1000, f[p]
+        assert f[p]["tick_rate_hz"]["p50"] >= 990, f[p]
+    assert f["box_sank_m"] < 0.003, f  # held: the couplings' sag only (about 1 mm)
+    c = f["cut"]
+    watchdog_ms = load_station_network("stations_three_hosts", "world").watchdog_ms
+    assert c["watchdog_after_cut_ms"] <= watchdog_ms + 20.0, c
+    assert c["safe_after_watchdog_ms"] <= 50.0, c
+    assert c["other_rendered_through"], c
+    assert c["largest_step_after_n"] <= c["step_bound_n"], c
+    assert np.abs(np.subtract(c["command_after_n"], c["command_before_n"])).max() <= 0.1, c
+    ticks, first = replay_log(Path(f["world_log"]))
+    assert first is None and ticks == f["world"]["ticks"]
+    print(f"\nthree hosts: {json.dumps(f)}")
