@@ -19,7 +19,8 @@ The port scene `grasp_vertical` (configs/ports/) with its simulated devices and 
   whether the box is held, and whether the kinetic energy at rest grows;
 - V4.5 twist (g = 0): the hands move 10 mm in opposite y; the box's angle against the line
   through the pads' centres (the pads turn freely: no angular coupling);
-- the cost of one tick of both ports (the co-simulation and two device models).
+- the cost of one tick of both ports (the co-simulation and two device models), for every
+  shipped port scene (grasp_clutter: 64 shapes).
 
     python -m haptic_local_model.benchmarks.grasp [--json out.json]
 """
@@ -46,7 +47,7 @@ from haptic_local_model.haptic_server.ports import (
     run_ports,
 )
 from haptic_local_model.haptic_server.stages.cosim import kinetic_energy
-from haptic_local_model.shared.config import UserConfig, load_user
+from haptic_local_model.shared.config import UserConfig, load_user, shipped
 from haptic_local_model.shared.port_config import PortSceneConfig, load_port_scene
 
 SCENE = "grasp_vertical"
@@ -375,7 +376,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     scene = load_port_scene(SCENE)
     load_simulated_device("maglev")  # fail early on a broken install
-    figures = {
+    figures: dict[str, Any] = {
         "V4.1 hold": hold(scene),
         "V4.2 below the cone": [
             below_cone(scene, devices)
@@ -388,8 +389,9 @@ def main(argv: list[str] | None = None) -> int:
         "V4.3 lift and carry": lift(scene),
         "V4.5 twist": twist(scene),
         "V4.4 stability map": stability_map(scene),
-        "tick cost": tick_cost(scene),
     }
+    for name in sorted(shipped("ports")):  # every shipped port scene, the 64-shape one too
+        figures[f"tick cost, {name}"] = tick_cost(load_port_scene(name))
     _print(figures)
     if args.json:
         with open(args.json, "w") as f:

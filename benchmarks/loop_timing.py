@@ -13,8 +13,14 @@ vCPU now and then): the three runs are repeated `--repeat` times, interleaved, a
 targets are judged on the median of each figure over the repetitions. From the log of each
 logging run it also splits work per tick into the ticks that installed an update and the rest.
 
+With --stations, instead: a shared world and its two stations (docs/stations.md:
+haptic-router, haptic-world, two haptic-station processes) on loopback, for every shipped
+port scene (grasp_clutter: two ports and 64 shapes), interleaved: each process's tick rate,
+lateness and work per tick, the world's work p99 judged against 25 % of the period.
+
     python -m haptic_local_model.benchmarks.loop_timing [--rate 1000 4000 10000] [--seconds 20] [--repeat 3]
                                      [--scene testbed] [--user U] [--json out.json]
+    python -m haptic_local_model.benchmarks.loop_timing --stations [--seconds 20] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -33,9 +39,11 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from haptic_local_model.benchmarks.stations import loopback_run
 from haptic_local_model.haptic_server.live_view import ViewAddress
 from haptic_local_model.haptic_server.log import read_ticks
 from haptic_local_model.shared.clock import monotonic_ns, wait_until_ns
+from haptic_local_model.shared.config import shipped
 from haptic_local_model.shared.timing import spin_for, try_realtime_priority
 
 
@@ -244,7 +252,13 @@ def main(argv: list[str] | None = None) -> int:
         "--view", action="store_true",
         help="also the system with its live view open in a headless browser (interleaved)",
     )  # fmt: skip
+    parser.add_argument(
+        "--stations", action="store_true",
+        help="instead: a shared world and two stations on loopback, every shipped port scene",
+    )  # fmt: skip
     args = parser.parse_args(argv)
+    if args.stations:
+        return stations_timing(args.seconds, args.repeat, args.json)
     configs = (*CONFIGS, VIEW_CONFIG) if args.view else CONFIGS
     if args.bare_only:
         realtime = try_realtime_priority()
@@ -282,6 +296,44 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=2))
+    return 0
+
+
+def stations_timing(seconds: float, repeat: int, out: Path | None) -> int:
+    """The shared world and its two stations (docs/stations.md) on loopback, for every
+    shipped port scene (grasp_clutter: 64 shapes), `repeat` times interleaved: each
+    process's tick rate, lateness and work per tick (the compiled tick and the Python around
+    it: decoding, publishing), the world's judged against 25 % of the period."""
+    runs: dict[str, list[dict[str, Any]]] = {name: [] for name in sorted(shipped("ports"))}
+    for _ in range(repeat):
+        for scene in runs:
+            with tempfile.TemporaryDirectory() as tmp:
+                runs[scene].append(loopback_run(scene, seconds, Path(tmp)))
+    columns = ("Hz p50", "min", "lat p99", "work p50", "p99", "p99.9", "max")
+    print(f"\n=== shared world + 2 stations, loopback, {repeat} x {seconds:g} s")
+    print(f"{'run':<34}" + "".join(f"{c:>10}" for c in columns))
+    medians: dict[str, dict[str, float]] = {}
+    for scene, rs in runs.items():
+        for i, r in enumerate(rs):
+            for who in ("world", "left", "right"):
+                s = r[who]
+                values = (s["tick_rate_hz"]["p50"], s["tick_rate_hz"]["min"], s["late_us"]["p99"],
+                          s["work_us"]["p50"], s["work_us"]["p99"], s["work_us"]["p99_9"],
+                          s["work_us"]["max"])  # fmt: skip
+                print(f"{scene + ' #' + str(i + 1) + ' ' + who:<34}"
+                      + "".join(f"{v:>10.1f}" for v in values))  # fmt: skip
+        medians[scene] = {
+            who: float(np.median([r[who]["work_us"]["p99"] for r in rs]))
+            for who in ("world", "left", "right")
+        }
+    budget = 0.25 * 1e6 / 1000.0
+    for scene, m in medians.items():
+        ok = "met" if m["world"] <= budget else "MISSED"
+        print(f"{scene}: world work p99 {m['world']:.0f} us (median of {repeat}), budget "
+              f"{budget:.0f} us: {ok}; stations {m['left']:.0f} / {m['right']:.0f} us")  # fmt: skip
+    if out:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps({"runs": runs, "work_p99_medians_us": medians}, indent=2))
     return 0
 
 

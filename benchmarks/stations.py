@@ -40,6 +40,8 @@ import numpy as np
 from haptic_local_model.haptic_server.log import _iter_messages
 from haptic_local_model.haptic_server.stages.station import STATION_ROW_DTYPE
 from haptic_local_model.haptic_server.stations_cli import STATION_TICK_TOPIC
+from haptic_local_model.shared.config import resolve
+from haptic_local_model.shared.net.config import free_loopback_port
 
 CLI = [sys.executable, "-m", "haptic_local_model.haptic_server.stations_cli"]
 NETWORK = "stations_three_hosts"
@@ -166,6 +168,45 @@ class ThreeHosts:
         out = [ns for ns in (self.world_ns, *self.station_ns.values()) if ns in names]
         out += [d for d in self.veths if ip("link", "show", d, check=False).returncode == 0]
         return out + [f"pid {p.proc.pid}" for p in self.processes if p.proc.poll() is None]
+
+
+def loopback_network(folder: Path) -> str:
+    """The shipped loopback station network on a free port of its own (a copy in folder)."""
+    shipped = resolve("network", "stations_loopback")
+    credentials = str(shipped.parent.parent / "credentials")
+    path = folder / "stations.toml"
+    text = shipped.read_text().replace("../credentials", credentials)
+    path.write_text(text.replace(":7460", f":{free_loopback_port()}"))
+    return str(path)
+
+
+def loopback_run(scene: str, seconds: float, folder: Path) -> dict[str, Any]:
+    """The router, the world and both stations on this host's loopback for `seconds`, no
+    logs: the world's summary and each station's (benchmarks/loop_timing.py --stations)."""
+    net = ["--network", loopback_network(folder)]
+    started: list[Process] = []
+    try:
+        for argv in ([*CLI, "router", *net],
+                     [*CLI, "world", *net, "--scene", scene, "--duration", str(seconds + 60.0),
+                      "--json", str(folder / "world.json")]):  # fmt: skip
+            started.append(Process(argv))
+            started[-1].wait_ready()
+        for p in PORTS:
+            started.append(Process([*CLI, "station", *net, "--scene", scene, "--port", p,
+                                    "--duration", str(seconds),
+                                    "--json", str(folder / f"{p}.json")]))  # fmt: skip
+        for s in started[2:]:
+            s.wait_ready()
+        for s in started[2:]:
+            s.proc.wait(seconds + STOP_S)
+        started[1].stop()  # the world: its summary covers the stations' run
+    finally:
+        for s in started:
+            s.stop()
+    out = {"world": json.loads((folder / "world.json").read_text())}
+    for p in PORTS:
+        out[p] = json.loads((folder / f"{p}.json").read_text())
+    return out
 
 
 def station_rows(path: Path) -> np.ndarray:

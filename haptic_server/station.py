@@ -217,14 +217,14 @@ class Station:
     def _row(self, now_ns: int, late_ns: int, work_ns: int) -> None:
         self.late_us.add(late_ns / 1e3)
         self.work_us.add(work_ns / 1e3)
-        row = self.rows[self.n_rows % len(self.rows) : self.n_rows % len(self.rows) + 1]
-        s = self.station[0]
-        station_row(self.station, row[0], int(s["sensors"][0]["fault"]))
-        row[0]["wall_ns"] = now_ns
-        row[0]["late_us"] = late_ns / 1e3
-        row[0]["work_us"] = work_ns / 1e3
-        row[0]["received"] = self.counters.received
-        row[0]["rejected"] = self.counters.rejected
+        k = self.n_rows % len(self.rows)
+        station_row(self.station, self.rows, k, self.station[0]["sensors"][0]["fault"])
+        row = self.rows[k]
+        row["wall_ns"] = now_ns
+        row["late_us"] = late_ns / 1e3
+        row["work_us"] = work_ns / 1e3
+        row["received"] = self.counters.received
+        row["rejected"] = self.counters.rejected
         self.n_rows += 1
 
     def warm(self) -> None:
@@ -233,7 +233,7 @@ class Station:
         self.device.noise.refill()
         records = self.device.records
         station_tick(spare, records)
-        station_row(spare, np.zeros(1, STATION_ROW_DTYPE)[0], 0)
+        station_row(spare, np.zeros(1, STATION_ROW_DTYPE), 0, 0)
         self._place(self.scene.ports[self.index].device_start)
 
     def logged_rows(self) -> np.ndarray:

@@ -28,7 +28,8 @@ from haptic_local_model.shared.config import (
 
 MAX_PORTS = 2  # this wave's ports (DESIGN-WAVE2 C3: P <= 2)
 MAX_COSIM_BODIES = 4  # co-simulated free bodies: the tools and the objects
-MAX_STATIC_BODIES = 4  # static walls, floors and posts
+# static walls, floors and posts: with a box and two pads, 64 shapes (DESIGN-WAVE2 §8)
+MAX_STATIC_BODIES = 61
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from haptic_local_model.benchmarks import stations
 from haptic_local_model.benchmarks.stations import (
     after,
     largest_step,
+    loopback_network,
     netns_unavailable,
     ramp_bound,
     station_rows,
@@ -31,7 +32,6 @@ from haptic_local_model.haptic_server.ports_cli import read_port_log, replay_log
 from haptic_local_model.haptic_server.stages.station import STATION_ROW_DTYPE
 from haptic_local_model.haptic_server.station import Station
 from haptic_local_model.shared.config import ConfigError, load_user, resolve
-from haptic_local_model.shared.net.config import free_loopback_port
 from haptic_local_model.shared.net.stations import (
     access_control,
     client_config,
@@ -146,7 +146,7 @@ def _ticks(st: Station, n: int, age_of: Any) -> np.ndarray:
         s[0]["have_tool"] = 0 if age is None else 1
         s[0]["tool_age"] = 0.0 if age is None else age
         station_tick(s, st.device.records)
-        station_row(s, rows[k], 0)
+        station_row(s, rows, k, 0)
     return rows
 
 
@@ -205,15 +205,6 @@ def _router_only_acl_check(network: str) -> dict[str, int]:
     left.close()
     world.close()
     return got
-
-
-def loopback_network(folder: Path) -> str:
-    """The shipped loopback station network on a free port of its own (a copy in folder)."""
-    shipped = resolve("network", "stations_loopback")
-    text = shipped.read_text().replace("../credentials", str(shipped.parent.parent / "credentials"))
-    path = folder / "stations.toml"
-    path.write_text(text.replace(":7460", f":{free_loopback_port()}"))
-    return str(path)
 
 
 @pytest.mark.processes

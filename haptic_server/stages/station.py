@@ -153,8 +153,10 @@ def station_tick(station, dev):
 
 
 @njit(cache=True)
-def station_row(station, row, fault):
+def station_row(station, rows, k, fault):
+    """The tick into rows[k] (arrays and an index: a call with records costs more)."""
     s = station[0]
+    row = rows[k]
     w = s.world[0]
     row.t = s.t - s.dt
     for c in range(3):
