@@ -220,6 +220,13 @@ def after(rows: np.ndarray, t_ns: int) -> int:
     return int(np.searchsorted(rows["wall_ns"], t_ns))
 
 
+def first(mask: np.ndarray, what: str) -> int:
+    """The first index where mask holds; an error naming it if it never does."""
+    if not mask.any():
+        raise RuntimeError(f"never happened: {what}")
+    return int(np.argmax(mask))
+
+
 def largest_step(rows: np.ndarray, a: int, b: int) -> float:
     """The largest change from one tick to the next of the coupling's spring force as
     rendered (ramp included) over ticks a..b: a re-index that missed, or a force switched on
@@ -239,10 +246,10 @@ def cut_figures(left: np.ndarray, right: np.ndarray, cut: int, restored: int) ->
     """The cut station's (left) watchdog, safe state, return and force steps; the other's
     rendering through the cut (module docstring)."""
     c = after(left, cut)
-    wd = c + int(np.argmax(left["fresh"][c:] == 0))
-    safe = wd + int(np.argmax(left["gain"][wd:] == 0.0))
+    wd = c + first(left["fresh"][c:] == 0, "the cut station's watchdog")
+    safe = wd + first(left["gain"][wd:] == 0.0, "the cut station's safe state")
     b = after(left, restored)
-    back = b + int(np.argmax(left["fresh"][b:] == 1))
+    back = b + first(left["fresh"][b:] == 1, "the cut station's return")
     steady = largest_step(left, c - STEADY_WINDOW, c)
     r0, r1 = after(right, cut), after(right, restored)
     return {

@@ -10,14 +10,19 @@ A port is, in turn:
   coupled to an anchor where its device was last, at rest: the tool keeps squeezing as it
   did, so the other ports keep the object. ToolStates say HELD, and the station ramps to
   its safe state.
-- INDEXING: its station is back (or new) but still in its safe state. Every tick the world
-  re-indexes it (offset = anchor - device), so the device, wherever its user left it, maps
-  onto the anchor: the tool in the station's frame is then where the device is plus the
-  coupling's stretch at the anchor, and the station ramps in the force it left with. Its
-  tool stays on the anchor.
-- COUPLED: the station renders the coupling (not safe). The offset is fixed; the fed pose
+- INDEXING: its station is back (or new) and says SAFE (it is not rendering the world's
+  coupling). Every tick the world re-indexes it (offset = anchor - device), so the device,
+  wherever its user left it, maps onto the anchor: the tool in the station's frame is then
+  where the device is plus the coupling's stretch at the anchor, and the station ramps in
+  the force it left with. Its tool stays on the anchor. A HELD port goes on only through
+  INDEXING: a station that comes back still rendering (its SAFE never reached the world) is
+  held until it says SAFE, so it is never re-indexed under its own force.
+- COUPLED: the station renders the coupling (not SAFE). The offset is fixed; the fed pose
   blends from the anchor to the device over `safe_ramp_ms` (as the station's own ramp), and
-  the anchor follows the fed pose.
+  the anchor follows the fed pose. A device's pose is carried on by its twist for at most
+  EXTRAPOLATE_S; when the port leaves COUPLED its anchor is where the device was last seen.
+Messages: within a station's epoch each must be newer than the last; another epoch is taken
+only once the present one is silent (a restarted station, not two on one port).
 Offsets are added per axis (x, y and the angle): a rejoining device's turn about its own
 origin is not composed with the anchor's (documented limit).
 
@@ -50,7 +55,7 @@ from haptic_local_model.haptic_server.stages.cosim import (
 from haptic_local_model.shared.config import load_user
 from haptic_local_model.shared.net.stations import (
     StationNetworkConfig,
-    client_config,
+    open_client,
     port_keys,
 )
 from haptic_local_model.shared.net.transport import newest_payload
@@ -74,16 +79,20 @@ from haptic_local_model.shared.timing import (
 
 DEVICE_RING = 64
 SPIN_NS = 100_000
+EXTRAPOLATE_S = 0.005  # as the station's (haptic_server/station.py)
+MAX_EVENTS = 10_000  # port state changes kept for the summary and the log
 HELD_STATE, INDEXING, COUPLED = "held", "indexing", "coupled"
 
 
 @njit(cache=True)
-def world_row(data, rows, k, t):
+def world_row(data, rows, k, t, lowest):
     """The co-simulation's tick into rows[k] (PORT_ROW_DTYPE; hand wrench and faults: 0, the
-    world does not see them). Arrays and an index, not records: a call with records costs
-    about 5 us more from Python."""
+    world does not see them), and each body's lowest height so far into `lowest`. Arrays
+    and an index, not records: a call with records costs about 5 us more from Python."""
     cd = data[0]
     row = rows[k]
+    for e in range(MAX_COSIM_BODIES):
+        lowest[e] = min(lowest[e], cd.q[3 * e + 1])
     row.t = t
     for a in range(MAX_COSIM_DOF):
         row.q[a] = cd.q[a]
@@ -142,8 +151,12 @@ class SharedWorld:
             stretch = np.divide(push, k, out=np.zeros(3), where=k > 0)
             self.ports[p].anchor = tool + stretch
         self.rows = np.zeros(max_rows, PORT_ROW_DTYPE)
+        self.rows.view(np.uint8)[:] = 0  # every page touched now, not in the loop
         self.n_rows = 0
+        self.start_q = self.data[0]["q"].copy()
+        self.lowest = np.full(MAX_COSIM_BODIES, np.inf)  # each body's lowest y, whole run
         self.events: list[dict[str, Any]] = []
+        self.events_dropped = 0
         self.epoch = time.time_ns()
         self.late_us = SampleWindow(100_000)
         self.work_us = SampleWindow(100_000)
@@ -155,43 +168,64 @@ class SharedWorld:
     def request_stop(self, *_: object) -> None:
         self._stop = True
 
+    def _refuse(self, ps: PortState, reason: str) -> None:
+        ps.rejected += 1
+        ps.reasons[reason] = ps.reasons.get(reason, 0) + 1
+
     def _take(self, p: int, sub: Any, now_ns: int) -> None:
+        """Port p's newest valid DeviceState. Within the station's epoch a message must be
+        newer than the last taken; another epoch (a restarted station, or a second one on
+        the port) is taken only once the present one has been silent for the watchdog."""
         ps = self.ports[p]
         for raw in newest_payload(sub):
             try:
                 m = decode_device(raw, p)
             except MessageError as exc:
-                ps.rejected += 1
-                ps.reasons[exc.reason] = ps.reasons.get(exc.reason, 0) + 1
+                self._refuse(ps, exc.reason)
                 continue
-            if ps.last is not None and m.epoch == ps.last.epoch and m.seq <= ps.last.seq:
-                ps.stale += 1
+            last = ps.last
+            if last is not None and m.epoch == last.epoch and m.seq <= last.seq:
+                self._refuse(ps, "stale")
+                continue
+            if last is not None and m.epoch != last.epoch and not self._silent(ps, now_ns):
+                self._refuse(ps, "other_epoch")
                 continue
             ps.last, ps.rx_ns = m, now_ns
             ps.received += 1
+
+    def _silent(self, ps: PortState, now_ns: int) -> bool:
+        return ps.last is None or (now_ns - ps.rx_ns) / 1e6 > self.network.world_watchdog_ms
+
+    def _live(self, ps: PortState, m: DeviceState, age_s: float) -> np.ndarray:
+        """The station's device in the world: re-indexed, carried on by its twist for at
+        most EXTRAPOLATE_S (an old reading is not carried on into a guess)."""
+        return np.array(m.pose) + ps.offset + np.array(m.twist) * min(age_s, EXTRAPOLATE_S)
 
     def _port(self, p: int, now_ns: int, t: float) -> None:
         """Port p's state this tick and the device pose and twist it feeds (module docstring)."""
         ps = self.ports[p]
         d = self.data[0]
         m = ps.last
-        silent = m is None or (now_ns - ps.rx_ns) / 1e6 > self.network.world_watchdog_ms
-        if silent or m is None or m.cut:
+        if self._silent(ps, now_ns) or m is None or m.cut:
             new = HELD_STATE
         elif m.safe:
             new = INDEXING
-        else:
-            new = COUPLED if ps.state != HELD_STATE else INDEXING
+        else:  # rendering: coupled, unless it comes from HELD (it must go safe first)
+            new = HELD_STATE if ps.state == HELD_STATE else COUPLED
         if new != ps.state:
-            self.events.append({"t": round(t, 6), "port": self.scene.ports[p].name,
-                                "from": ps.state, "to": new})  # fmt: skip
+            if ps.state == COUPLED and m is not None:  # held where it was last seen
+                ps.anchor = ps.start + ps.blend * (self._live(ps, m, 0.0) - ps.start)
+            if len(self.events) < MAX_EVENTS:
+                self.events.append({"t": round(t, 6), "port": self.scene.ports[p].name,
+                                    "from": ps.state, "to": new})  # fmt: skip
+            else:
+                self.events_dropped += 1
             if new == COUPLED:
                 ps.start = ps.anchor.copy()
                 ps.blend = 0.0
             ps.state = new
         if new == COUPLED and m is not None:
-            age = (now_ns - ps.rx_ns) / 1e9
-            live = np.array(m.pose) + ps.offset + np.array(m.twist) * age
+            live = self._live(ps, m, (now_ns - ps.rx_ns) / 1e9)
             ps.blend = min(1.0, ps.blend + float(d["dt"]) / (self.network.safe_ramp_ms / 1e3))
             ps.anchor = ps.start + ps.blend * (live - ps.start)
             d["device_pose"][p] = ps.anchor
@@ -218,7 +252,7 @@ class SharedWorld:
         )))  # fmt: skip
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
-        session = zenoh.open(client_config(self.network.world))
+        session = open_client(self.network.world)
         subs, pubs = [], []
         for port in self.scene.ports:
             device_key, tool_key = port_keys(self.network.namespace, port.name)
@@ -257,7 +291,7 @@ class SharedWorld:
                 cosim_tick(self.model, self.data)
                 for p in range(len(self.ports)):
                     self._publish(p, pubs[p], seq)
-                world_row(self.data, self.rows, self.n_rows % len(self.rows), t)
+                world_row(self.data, self.rows, self.n_rows % len(self.rows), t, self.lowest)
                 self.n_rows += 1
                 self.late_us.add(late / 1e3)
                 if late > self.worst_late[0]:
@@ -275,7 +309,7 @@ class SharedWorld:
     def warm(self) -> None:
         model, data = cosim_records(self.scene, self.limits)
         cosim_tick(model, data)
-        world_row(data, np.zeros(1, PORT_ROW_DTYPE), 0, 0.0)
+        world_row(data, np.zeros(1, PORT_ROW_DTYPE), 0, 0.0, np.zeros(MAX_COSIM_BODIES))
 
     def logged_rows(self) -> np.ndarray:
         n, cap = self.n_rows, len(self.rows)
@@ -285,7 +319,6 @@ class SharedWorld:
         return np.concatenate([self.rows[k:], self.rows[:k]])
 
     def summary(self) -> dict[str, Any]:
-        rows = self.logged_rows()
         out: dict[str, Any] = {
             "ticks": self.n_rows,
             "tick_rate_hz": rate_per_second(self.interval_ms.values()),
@@ -294,6 +327,7 @@ class SharedWorld:
             "overruns": self.overruns,
             "latest_tick": {"late_ms": self.worst_late[0] / 1e6, "tick": self.worst_late[1]},
             "events": self.events,
+            "events_dropped": self.events_dropped,
             "epoch": self.epoch,
             "ports": {},
         }
@@ -303,12 +337,11 @@ class SharedWorld:
                 "state": ps.state, "received": ps.received, "rejected": ps.rejected,
                 "stale": ps.stale, "rejected_by_reason": dict(ps.reasons),
             }  # fmt: skip
-        for i, name in enumerate(self.order):
-            if len(rows):
-                q = rows["q"][:, 3 * i : 3 * i + 3]
-                out.setdefault("bodies", {})[name] = {
-                    "start": q[0].tolist(), "end": q[-1].tolist(),
-                    "lowest_y": float(q[:, 1].min()),
-                }  # fmt: skip
+        for i, name in enumerate(self.order):  # over the whole run (not only the rows kept)
+            out.setdefault("bodies", {})[name] = {
+                "start": self.start_q[3 * i : 3 * i + 3].tolist(),
+                "end": self.data[0]["q"][3 * i : 3 * i + 3].tolist(),
+                "lowest_y": float(self.lowest[i]),
+            }  # fmt: skip
         out["steps_held"] = int(self.data[0]["singular"])
         return out

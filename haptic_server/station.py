@@ -33,7 +33,7 @@ from haptic_local_model.haptic_server.users import user_record
 from haptic_local_model.shared.config import UserConfig
 from haptic_local_model.shared.net.stations import (
     StationNetworkConfig,
-    client_config,
+    open_client,
     port_keys,
 )
 from haptic_local_model.shared.net.transport import newest_payload
@@ -42,6 +42,7 @@ from haptic_local_model.shared.protocol.station import (
     CUT,
     SAFE,
     DeviceState,
+    ToolState,
     decode_tool,
     encode_device,
     vec3,
@@ -57,6 +58,10 @@ from haptic_local_model.shared.timing import (
 TOOL_RING = 64  # tool states kept between two ticks: a stalled tick's worth and more
 SPIN_NS = 100_000  # the wait's last 0.1 ms spins (several loops share two cores)
 MAX_LOG_S = 600.0  # the rows of at most this long stay in memory (--log: --duration <= this)
+RING_S = 60.0  # without --log: the last this long (the summary's figures)
+#: the tool is carried on by its twist for at most this long: a few of the world's periods
+#: and a network hop; an older tool state is rendered where it was (DeviceState likewise)
+EXTRAPOLATE_S = 0.005
 
 
 @dataclass
@@ -97,12 +102,18 @@ class Station:
         s["safe_damping"] = device.rendering.safe_damping
         s["stiffness"] = spec.coupling_stiffness
         s["damping"] = spec.coupling_damping
+        s["max_stiffness"] = spec.coupling_stiffness
+        s["max_damping"] = spec.coupling_damping
+        s["extrapolate_s"] = EXTRAPOLATE_S
         wm = getattr(device, "world_map", None) or DeviceWorldMap.identity()
         s["map"][0] = wm.record[0]
         self.station = st
         self._place(spec.device_start)
         self.rows = np.zeros(max_rows, STATION_ROW_DTYPE)
+        self.rows.view(np.uint8)[:] = 0  # every page touched now, not in the loop
         self.n_rows = 0
+        self._tool_ns = 0
+        self._last_tool: ToolState | None = None
         self.counters = StationCounters()
         self.late_us = SampleWindow(100_000)
         self.work_us = SampleWindow(100_000)
@@ -131,19 +142,35 @@ class Station:
     def request_stop(self, *_: object) -> None:
         self._stop = True
 
+    def _refuse(self, reason: str) -> None:
+        self.counters.rejected += 1
+        self.counters.reasons[reason] = self.counters.reasons.get(reason, 0) + 1
+
     def _take_tools(self, sub: Any, now_ns: int) -> None:
-        """The newest valid ToolState waiting, into the record; the rest counted."""
+        """The newest valid ToolState waiting, into the record; the rest counted. Within the
+        world's epoch a message must be newer than the last taken; another epoch (a world
+        restarted, or a second one) is taken only once the present one's are stale."""
         newest = None
+        s = self.station[0]
         for raw in newest_payload(sub):
             try:
-                newest = decode_tool(raw, self.index)
+                m = decode_tool(raw, self.index)
             except MessageError as exc:
-                self.counters.rejected += 1
-                self.counters.reasons[exc.reason] = self.counters.reasons.get(exc.reason, 0) + 1
+                self._refuse(exc.reason)
                 continue
+            last = newest or self._last_tool
+            if last is not None:
+                if m.epoch == last.epoch and m.seq <= last.seq:
+                    self._refuse("stale")
+                    continue
+                current = now_ns - self._tool_ns < s["watchdog_s"] * 1e9
+                if m.epoch != last.epoch and current and newest is None:
+                    self._refuse("other_epoch")
+                    continue
+            newest = m
             self.counters.received += 1
-        s = self.station[0]
         if newest is not None:
+            self._last_tool = newest
             s["have_tool"] = 1
             s["held"] = 1 if newest.held else 0
             s["tool_pose"] = newest.pose
@@ -156,12 +183,11 @@ class Station:
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         device_key, tool_key = port_keys(self.network.namespace, self.port)
-        session = zenoh.open(client_config(self.network.station(self.port)))
+        session = open_client(self.network.station(self.port))
         sub = session.declare_subscriber(tool_key, zenoh.handlers.RingChannel(TOOL_RING))
         pub = session.declare_publisher(
             device_key, congestion_control=zenoh.CongestionControl.DROP, express=True
         )
-        self._tool_ns = 0
         st, dev = self.station, self.device.records
         dt = float(st[0]["dt"])
         period_ns = round(dt * 1e9)

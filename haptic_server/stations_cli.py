@@ -26,9 +26,16 @@ import zenoh
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.haptic_server.ports_cli import write_port_log, write_rows_log
 from haptic_local_model.haptic_server.shared_world import SharedWorld
-from haptic_local_model.haptic_server.station import MAX_LOG_S, Station
+from haptic_local_model.haptic_server.station import MAX_LOG_S, RING_S, Station
 from haptic_local_model.shared import __version__
-from haptic_local_model.shared.cli import add_version, emit, log_file, run_main, seconds
+from haptic_local_model.shared.cli import (
+    add_version,
+    emit,
+    log_file,
+    run_main,
+    seconds,
+    write_summary,
+)
 from haptic_local_model.shared.config import ConfigError, load_config_text, load_user, resolve
 from haptic_local_model.shared.net.stations import load_station_network, router_config
 from haptic_local_model.shared.port_config import PortSceneConfig
@@ -68,10 +75,11 @@ def _scene(name: str) -> tuple[PortSceneConfig, str]:
 
 
 def _rows_for(args: argparse.Namespace, rate_hz: float) -> int:
+    """Rows for the whole run when logged, else a ring of the last RING_S seconds."""
     if args.log is not None and (args.duration is None or args.duration > MAX_LOG_S):
         raise ConfigError("--log", "--duration", f"a logged run needs --duration <= {MAX_LOG_S:g}")
-    span = min(args.duration or MAX_LOG_S, MAX_LOG_S) + 1.0
-    return round(span * rate_hz)
+    span = args.duration if args.log is not None else min(args.duration or RING_S, RING_S)
+    return round((span + 1.0) * rate_hz)
 
 
 def _stop_on_signals(obj: Any) -> None:
@@ -80,9 +88,7 @@ def _stop_on_signals(obj: Any) -> None:
 
 
 def _finish(prog: str, summary: dict[str, Any], path: Path | None) -> None:
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(summary, indent=2))
+    write_summary(path, summary, prog)
     emit("done", prog=prog, summary=summary)
 
 
@@ -124,7 +130,11 @@ def world_main(argv: list[str] | None = None) -> int:
         scene, text = _scene(args.scene)
         world = SharedWorld(scene, network, _rows_for(args, scene.haptic_rate_hz))
         _stop_on_signals(world)
-        summary = world.run(args.duration, ready=lambda: emit("ready", prog="haptic-world"))
+        try:
+            summary = world.run(args.duration, ready=lambda: emit("ready", prog="haptic-world"))
+        except ConnectionError as exc:
+            print(f"haptic-world: {exc}", file=sys.stderr)
+            return 1
         if args.log is not None:
             rows = world.logged_rows()
             write_port_log(args.log, rows, {
@@ -161,7 +171,11 @@ def station_main(argv: list[str] | None = None) -> int:
         rows = _rows_for(args, scene.haptic_rate_hz)
         station = Station(scene, network, args.port, device, user, rows)
         _stop_on_signals(station)
-        summary = station.run(args.duration, ready=lambda: emit("ready", prog="haptic-station"))
+        try:
+            summary = station.run(args.duration, ready=lambda: emit("ready", prog="haptic-station"))
+        except ConnectionError as exc:
+            print(f"haptic-station: {exc}", file=sys.stderr)
+            return 1
         if args.log is not None:
             logged = station.logged_rows()
             write_rows_log(args.log, logged, STATION_TICK_TOPIC, STATION_TICK_SCHEMA, {

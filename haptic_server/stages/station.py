@@ -2,17 +2,20 @@
 world that another process co-simulates.
 
 The world sends the port's tool (pose and twist in this station's frame) and the coupling's
-gains; every tick the station renders the coupling against its own device at once, the
-tool carried on by its twist since it arrived:
+gains (each at most the station's own scene's: a world cannot make a station stiffer than
+its own file says); every tick the station renders the coupling against its own device at
+once, the tool carried on by its twist since it arrived, for at most `extrapolate_s` (an old
+tool state is not carried on into a guess):
 
-    F = K (x_tool + v_tool age - x_dev) + B (v_tool - v_dev)      (world frame)
+    F = K (x_tool + v_tool min(age, extrapolate_s) - x_dev) + B (v_tool - v_dev)   (world)
 
 mapped to the device, clipped at its limits. Without a fresh tool state (none for the
 watchdog's period, or the world says it holds the port) the command ramps over `ramp_s` to
 the safe state, damping on the handle's own motion; it ramps back the same way when tool
-states return. A reading that is not finite renders the safe state's zero for the tick;
-a command that is not finite is zeroed and counted. No I/O: the loop (haptic_server/station.py)
-feeds the tool state and its age and publishes the device state this leaves in `world`.
+states return. A reading that is not finite renders zero for the tick; a coupling or a
+command that is not finite (checked before the clip: a clip turns NaN into a limit) is
+zeroed and counted. No I/O: the loop (haptic_server/station.py) feeds the tool state and its
+age and publishes the device state this leaves in `world`.
 """
 
 from __future__ import annotations
@@ -47,6 +50,9 @@ STATION_DTYPE = np.dtype(
         ("t", F8),
         ("watchdog_s", F8),
         ("ramp_s", F8),
+        ("extrapolate_s", F8),  # the tool is carried on by its twist for at most this long
+        ("max_stiffness", F8, (3,)),  # the station's own scene's coupling: received gains
+        ("max_damping", F8, (3,)),  # are clamped to these
         ("limits", F8, (3,)),  # the device's max_wrench, device frame
         ("safe_damping", F8, (3,)),  # device frame
         # the newest tool state: set by the loop
@@ -125,22 +131,28 @@ def station_tick(station, dev):
     s.fresh = 1 if s.have_tool == 1 and s.held == 0 and s.tool_age < s.watchdog_s else 0
     step = s.dt / s.ramp_s
     s.gain = min(1.0, s.gain + step) if s.fresh == 1 else max(0.0, s.gain - step)
+    ahead = min(s.tool_age, s.extrapolate_s)
+    bad = False
     for c in range(3):
         s.coupling[c] = 0.0
         s.spring[c] = 0.0
         if s.cut == 0 and s.have_tool == 1:
-            err = s.tool_pose[c] + s.tool_twist[c] * s.tool_age - w.pose[c]
+            k = min(s.stiffness[c], s.max_stiffness[c])
+            b = min(s.damping[c], s.max_damping[c])
+            err = s.tool_pose[c] + s.tool_twist[c] * ahead - w.pose[c]
             if c == 2:
                 err = _wrap(err)
-            s.spring[c] = s.stiffness[c] * err
-            s.coupling[c] = s.spring[c] + s.damping[c] * (s.tool_twist[c] - w.twist[c])
+            s.spring[c] = k * err
+            s.coupling[c] = s.spring[c] + b * (s.tool_twist[c] - w.twist[c])
+            if not math.isfinite(s.coupling[c]):
+                bad = True
     map_command_to_device(s.map, s.coupling, s.limits, s.scratch)
-    bad = False
     for c in range(3):
         safe = -s.safe_damping[c] * sen.twist[c] if s.cut == 0 else 0.0
         v = s.gain * s.scratch[c] + (1.0 - s.gain) * safe
         if not math.isfinite(v):
             bad = True
+            v = 0.0
         s.out[c] = min(s.limits[c], max(-s.limits[c], v))
     if bad:
         s.invalid += 1

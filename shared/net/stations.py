@@ -170,6 +170,17 @@ def client_config(endpoints: EndpointSpec) -> zenoh.Config:
     return _base("client", endpoints)
 
 
+def open_client(endpoints: EndpointSpec) -> zenoh.Session:
+    """A client session with the router; ConnectionError naming its endpoints if it cannot
+    be reached (or refuses the credentials)."""
+    try:
+        return zenoh.open(client_config(endpoints))
+    except zenoh.ZError as exc:
+        raise ConnectionError(
+            f"cannot reach the router at {list(endpoints.connect)}: {exc}"
+        ) from None
+
+
 def load_station_network(name_or_path: str, role: str) -> StationNetworkConfig:
     """Load a station network; its files made absolute (relative to the config's folder).
     `role` ("router", "world" or a port's name) names the files that must exist here: a

@@ -2,7 +2,9 @@
 
 - DeviceState `HSDV` v1, station -> world, every station tick on `<ns>/port/<name>/device`:
   the station's device pose and twist in its world frame (after its device-to-world map),
-  whether the station is in its safe state, and whether its reading was not finite.
+  whether it is SAFE (not rendering the world's coupling: its watchdog fired or the world
+  holds it, and its command ramps to, or is at, the safe state), and whether its reading
+  was not finite.
 - ToolState `HSTL` v1, world -> station, every world tick on `<ns>/port/<name>/tool`: the
   port's tool pose and twist in the station's frame (the world re-indexes a station that
   joins, so its device meets its tool where the tool is), the coupling's stiffness and
@@ -27,8 +29,6 @@ from haptic_local_model.shared.protocol.update import MessageError
 DEVICE_MAGIC = b"HSDV"
 TOOL_MAGIC = b"HSTL"
 STATION_VERSION = 1
-#: the most ports a world serves (shared/port_config.py: MAX_PORTS is 2 in this wave)
-MAX_STATION_PORTS = 16
 #: poses beyond this many metres, rates beyond this many m/s or rad/s: not a device's
 POSE_LIMIT_M = 100.0
 TWIST_LIMIT = 1000.0
@@ -38,7 +38,7 @@ _HEAD = struct.Struct("<4sHHQQq")  # magic, version, port, epoch, seq, publish t
 _DEVICE = struct.Struct("<4sHHQQq6dI")
 _TOOL = struct.Struct("<4sHHQQq15dI")
 
-SAFE = 1  # DeviceState flags: the station renders its safe state
+SAFE = 1  # DeviceState flags: not rendering the world's coupling (ramping to the safe state)
 CUT = 2  # its device's reading was not finite this tick
 HELD = 1  # ToolState flags: the world holds the port's anchor (its station is lost)
 
