@@ -32,7 +32,6 @@ them as a `haptic-ports` log, which `haptic-ports --replay` re-runs bit for bit.
 
 from __future__ import annotations
 
-import gc
 import math
 import time
 from dataclasses import dataclass, field
@@ -70,12 +69,7 @@ from haptic_local_model.shared.protocol.station import (
     vec3,
 )
 from haptic_local_model.shared.protocol.update import MessageError
-from haptic_local_model.shared.timing import (
-    SampleWindow,
-    rate_per_second,
-    try_realtime_priority,
-    wait_until,
-)
+from haptic_local_model.shared.timing import Pacer, SampleWindow, enter_loop
 
 DEVICE_RING = 64
 SPIN_NS = 100_000
@@ -158,11 +152,8 @@ class SharedWorld:
         self.events: list[dict[str, Any]] = []
         self.events_dropped = 0
         self.epoch = time.time_ns()
-        self.late_us = SampleWindow(100_000)
         self.work_us = SampleWindow(100_000)
-        self.interval_ms = SampleWindow(1_000_000)
-        self.overruns = 0
-        self.worst_late = (0, 0)  # ns, tick
+        self.pacer = Pacer(round(float(self.data[0]["dt"]) * 1e9), SPIN_NS, None)
         self._stop = False
 
     def request_stop(self, *_: object) -> None:
@@ -262,29 +253,15 @@ class SharedWorld:
             pubs.append(session.declare_publisher(
                 tool_key, congestion_control=zenoh.CongestionControl.DROP, express=True
             ))  # fmt: skip
-        period_ns = round(float(self.data[0]["dt"]) * 1e9)
-        self.warm()
-        gc.collect()
-        gc.freeze()
-        # after the warm-up: a loop compiling at SCHED_FIFO starved the others for seconds
-        try_realtime_priority()
-        if ready is not None:
-            ready()
-        start = time.perf_counter_ns()
-        end = start + int(duration_s * 1e9) if duration_s else None
-        deadline = last = start
+        pacer = Pacer(round(float(self.data[0]["dt"]) * 1e9), SPIN_NS, duration_s)
+        self.pacer = pacer
+        enter_loop(self.warm, ready)
+        pacer.start()
         seq = 0
         t = 0.0
         try:
             while not self._stop:
-                now = wait_until(deadline, SPIN_NS)
-                late = now - deadline
-                if late > period_ns:
-                    self.overruns += 1
-                    deadline = now
-                if seq:
-                    self.interval_ms.add((now - last) / 1e6)
-                last = now
+                now = pacer.wait()
                 for p in range(len(self.ports)):
                     self._take(p, subs[p], now)
                     self._port(p, now, t)
@@ -293,14 +270,10 @@ class SharedWorld:
                     self._publish(p, pubs[p], seq)
                 world_row(self.data, self.rows, self.n_rows % len(self.rows), t, self.lowest)
                 self.n_rows += 1
-                self.late_us.add(late / 1e3)
-                if late > self.worst_late[0]:
-                    self.worst_late = (late, seq)
                 self.work_us.add((time.perf_counter_ns() - now) / 1e3)
                 seq += 1
                 t += float(self.data[0]["dt"])
-                deadline += period_ns
-                if end is not None and now >= end:
+                if not pacer.next():
                     break
         finally:
             session.close()
@@ -321,11 +294,8 @@ class SharedWorld:
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "ticks": self.n_rows,
-            "tick_rate_hz": rate_per_second(self.interval_ms.values()),
-            "late_us": self.late_us.percentiles(50, 99, 99.9),
+            **self.pacer.figures(),
             "work_us": self.work_us.percentiles(50, 99, 99.9),
-            "overruns": self.overruns,
-            "latest_tick": {"late_ms": self.worst_late[0] / 1e6, "tick": self.worst_late[1]},
             "events": self.events,
             "events_dropped": self.events_dropped,
             "epoch": self.epoch,

@@ -10,7 +10,6 @@ are written to MCAP when the run ends (`--log`: a temporary file renamed when wh
 
 from __future__ import annotations
 
-import gc
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -48,12 +47,7 @@ from haptic_local_model.shared.protocol.station import (
     vec3,
 )
 from haptic_local_model.shared.protocol.update import MessageError
-from haptic_local_model.shared.timing import (
-    SampleWindow,
-    rate_per_second,
-    try_realtime_priority,
-    wait_until,
-)
+from haptic_local_model.shared.timing import Pacer, SampleWindow, enter_loop
 
 TOOL_RING = 64  # tool states kept between two ticks: a stalled tick's worth and more
 SPIN_NS = 100_000  # the wait's last 0.1 ms spins (several loops share two cores)
@@ -68,7 +62,6 @@ EXTRAPOLATE_S = 0.005
 class StationCounters:
     received: int = 0
     rejected: int = 0
-    overruns: int = 0
     refills: int = 0
     safe_entries: int = 0  # times the ramp reached the safe state
     reasons: dict[str, int] = field(default_factory=dict)
@@ -115,9 +108,8 @@ class Station:
         self._tool_ns = 0
         self._last_tool: ToolState | None = None
         self.counters = StationCounters()
-        self.late_us = SampleWindow(100_000)
         self.work_us = SampleWindow(100_000)
-        self.interval_ms = SampleWindow(1_000_000)
+        self.pacer = Pacer(round(scene.period_s * 1e9), SPIN_NS, None)
         self.epoch = time.time_ns()
         self._stop = False
 
@@ -190,29 +182,15 @@ class Station:
         )
         st, dev = self.station, self.device.records
         dt = float(st[0]["dt"])
-        period_ns = round(dt * 1e9)
-        self.warm()
-        gc.collect()
-        gc.freeze()
-        # after the warm-up: a loop compiling at SCHED_FIFO starved the others for seconds
-        try_realtime_priority()
-        if ready is not None:
-            ready()
-        start = time.perf_counter_ns()
-        end = start + int(duration_s * 1e9) if duration_s else None
-        deadline = start
-        last = start
+        pacer = Pacer(round(dt * 1e9), SPIN_NS, duration_s)
+        self.pacer = pacer
+        enter_loop(self.warm, ready)
+        pacer.start()
         seq = 0
         was_safe = True
         try:
             while not self._stop:
-                now = wait_until(deadline, SPIN_NS)
-                late_ns = now - deadline
-                if late_ns > period_ns:
-                    self.counters.overruns += 1
-                    deadline = now
-                self.interval_ms.add((now - last) / 1e6) if seq else None
-                last = now
+                now = pacer.wait()
                 if not noise_ready(dev, dt):
                     refill_noise(self.device.noise, dev, dt)
                     self.counters.refills += 1
@@ -230,18 +208,15 @@ class Station:
                 if safe and not was_safe:
                     self.counters.safe_entries += 1
                 was_safe = safe
-                work_ns = time.perf_counter_ns() - now
-                self._row(now, late_ns, work_ns)
+                self._row(now, pacer.late_ns, time.perf_counter_ns() - now)
                 seq += 1
-                deadline += period_ns
-                if end is not None and now >= end:
+                if not pacer.next():
                     break
         finally:
             session.close()
         return self.summary()
 
     def _row(self, now_ns: int, late_ns: int, work_ns: int) -> None:
-        self.late_us.add(late_ns / 1e3)
         self.work_us.add(work_ns / 1e3)
         k = self.n_rows % len(self.rows)
         station_row(self.station, self.rows, k, self.station[0]["sensors"][0]["fault"])
@@ -278,10 +253,8 @@ class Station:
             "device": self.device.name,
             "user": self.user.name,
             "ticks": self.n_rows,
-            "tick_rate_hz": rate_per_second(self.interval_ms.values()),
-            "late_us": self.late_us.percentiles(50, 99, 99.9),
+            **self.pacer.figures(),
             "work_us": self.work_us.percentiles(50, 99, 99.9),
-            "overruns": c.overruns,
             "noise_refills": c.refills,
             "tool_states_received": c.received,
             "tool_states_rejected": c.rejected,

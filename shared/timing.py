@@ -7,9 +7,12 @@ perf_counter_ns gives p50 lateness < 1 us on these VMs, where a plain sleep give
 from __future__ import annotations
 
 import contextlib
+import gc
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -145,3 +148,65 @@ def rate_per_second(intervals_ms: np.ndarray) -> dict[str, float]:
     if counts.size == 0:  # less than a second
         return {"p50": 1e3 * intervals_ms.size / float(intervals_ms.sum()), "min": 0.0}
     return {"p50": float(np.median(counts)), "min": float(counts.min())}
+
+
+class Pacer:
+    """A loop paced by the wall clock (the shared world's and a station's): `wait` sleeps to
+    the next deadline, then spins its last spin_ns; a tick later than a whole period starts
+    the deadlines afresh from now (counted as an overrun). It keeps the tick intervals (for
+    rate_per_second) and the lateness."""
+
+    def __init__(self, period_ns: int, spin_ns: int, duration_s: float | None) -> None:
+        self.period_ns, self.spin_ns, self.duration_s = period_ns, spin_ns, duration_s
+        self.intervals_ms = SampleWindow(1_000_000)
+        self.late_us = SampleWindow(100_000)
+        self.overruns = 0
+        self.ticks = 0
+        self.late_ns = 0
+        self.worst = (0, 0)  # the latest tick: ns late, its index
+
+    def start(self) -> None:
+        self.deadline = self.last = time.perf_counter_ns()
+        self.end = self.deadline + int(self.duration_s * 1e9) if self.duration_s else None
+
+    def wait(self) -> int:
+        """Until this tick's deadline; the clock then."""
+        now = wait_until(self.deadline, self.spin_ns)
+        self.late_ns = now - self.deadline
+        if self.late_ns > self.period_ns:
+            self.overruns += 1
+            self.deadline = now
+        if self.ticks:
+            self.intervals_ms.add((now - self.last) / 1e6)
+        self.last = now
+        self.late_us.add(self.late_ns / 1e3)
+        if self.late_ns > self.worst[0]:
+            self.worst = (self.late_ns, self.ticks)
+        return now
+
+    def next(self) -> bool:
+        """The tick is done: whether the loop goes on (its duration not yet over)."""
+        self.ticks += 1
+        self.deadline += self.period_ns
+        return self.end is None or self.last < self.end
+
+    def figures(self) -> dict[str, Any]:
+        return {
+            "tick_rate_hz": rate_per_second(self.intervals_ms.values()),
+            "late_us": self.late_us.percentiles(50, 99, 99.9),
+            "overruns": self.overruns,
+            "latest_tick": {"late_ms": self.worst[0] / 1e6, "tick": self.worst[1]},
+        }
+
+
+def enter_loop(warm: Callable[[], None], ready: Callable[[], None] | None) -> None:
+    """Before a real-time loop's first tick: compile (or load) its kernels, collect and
+    freeze what lives as long as the process (a full collection then no longer stalls a
+    tick), take SCHED_FIFO after the warm-up (a loop compiling at it starved the others for
+    seconds), then say ready."""
+    warm()
+    gc.collect()
+    gc.freeze()
+    try_realtime_priority()
+    if ready is not None:
+        ready()

@@ -12,9 +12,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import shutil
 import signal
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -27,6 +25,8 @@ import pytest
 from conftest import ServerProcess
 from mcap.reader import make_reader
 
+from haptic_local_model.benchmarks.stations import ip as _ip
+from haptic_local_model.benchmarks.stations import netns_unavailable
 from haptic_local_model.haptic_server.log import EVENT_TOPIC, TICK_TOPIC, UPDATE_TOPIC, read_ticks
 from haptic_local_model.haptic_server.model import TICK_DTYPE
 from haptic_local_model.shared.config import load_scene
@@ -54,26 +54,6 @@ WATCHDOG_TOL_S = 0.025  # a tick, the clamped dt of a stall (loop time lags wall
 RAMP_TOL_S = 0.01  # the ramp advances by the dt of each tick: a tick and rounding
 STOP_TIMEOUT_S = 30.0
 HUNG_STOP_TIMEOUT_S = 2.0
-IP_TIMEOUT_S = 10.0
-
-
-def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        ["ip", *args], capture_output=True, text=True, timeout=IP_TIMEOUT_S, check=check
-    )
-
-
-def netns_unavailable() -> str:
-    """Why this machine cannot run the test ('' if it can)."""
-    if os.geteuid() != 0:
-        return "needs root to create network namespaces"
-    if shutil.which("ip") is None:
-        return "iproute2 `ip` not installed"
-    try:
-        _ip("netns", "list")
-    except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as exc:
-        return f"`ip netns` unavailable: {exc}"
-    return ""
 
 
 class TwoHosts:
