@@ -62,10 +62,9 @@ from haptic_local_model.shared.port_config import MAX_PORTS, PortSceneConfig
 from haptic_local_model.shared.protocol.station import (
     HELD,
     DeviceState,
-    ToolState,
     Vec3,
     decode_device,
-    encode_tool,
+    tool_record,
     vec3,
 )
 from haptic_local_model.shared.protocol.update import MessageError
@@ -144,6 +143,15 @@ class SharedWorld:
             k = m["coupling_stiffness"][p]
             stretch = np.divide(push, k, out=np.zeros(3), where=k > 0)
             self.ports[p].anchor = tool + stretch
+        self.epoch = time.time_ns()
+        self._tool_records = []
+        for p in range(len(scene.ports)):
+            rec = tool_record(p, self.epoch)
+            rec["stiffness"] = m["coupling_stiffness"][p]
+            rec["damping"] = m["coupling_damping"][p]
+            self._tool_records.append(rec)
+        # the first body that is not a tool (the tools come first), else the first tool
+        self._object = 3 * len(scene.ports) if len(self.order) > len(scene.ports) else 0
         self.rows = np.zeros(max_rows, PORT_ROW_DTYPE)
         self.rows.view(np.uint8)[:] = 0  # every page touched now, not in the loop
         self.n_rows = 0
@@ -151,7 +159,6 @@ class SharedWorld:
         self.lowest = np.full(MAX_COSIM_BODIES, np.inf)  # each body's lowest y, whole run
         self.events: list[dict[str, Any]] = []
         self.events_dropped = 0
-        self.epoch = time.time_ns()
         self.work_us = SampleWindow(100_000)
         self.pacer = Pacer(round(float(self.data[0]["dt"]) * 1e9), SPIN_NS, None)
         self._stop = False
@@ -228,19 +235,19 @@ class SharedWorld:
         d["device_twist"][p] = 0.0
 
     def _publish(self, p: int, pub: Any, seq: int) -> None:
+        """Port p's ToolState: its record filled in place (shared/protocol/station.py)."""
         ps = self.ports[p]
         m, d = self.model[0], self.data[0]
         i = 3 * int(m["port_tool"][p])
-        tool = d["q"][i : i + 3] - ps.offset
-        tool[2] = math.atan2(math.sin(tool[2]), math.cos(tool[2]))
-        obj = d["q"][3 * len(self.scene.ports) :][:3] if len(self.order) > len(self.ports) else tool
-        pub.put(encode_tool(ToolState(
-            p, self.epoch, seq, time.time_ns(), vec3(tool),
-            vec3(d["qd"][i : i + 3]),
-            vec3(m["coupling_stiffness"][p]),
-            vec3(m["coupling_damping"][p]), vec3(obj),
-            HELD if ps.state == HELD_STATE else 0,
-        )))  # fmt: skip
+        r = self._tool_records[p][0]
+        r["seq"] = seq
+        r["publish_time_ns"] = time.time_ns()
+        r["pose"] = d["q"][i : i + 3] - ps.offset
+        r["pose"][2] = math.atan2(math.sin(r["pose"][2]), math.cos(r["pose"][2]))
+        r["twist"] = d["qd"][i : i + 3]
+        r["object_pose"] = d["q"][self._object : self._object + 3]
+        r["flags"] = HELD if ps.state == HELD_STATE else 0
+        pub.put(self._tool_records[p].tobytes())
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         session = open_client(self.network.world)

@@ -51,6 +51,7 @@ from haptic_local_model.shared.protocol.station import (
     decode_tool,
     encode_device,
     encode_tool,
+    tool_record,
 )
 from haptic_local_model.shared.protocol.update import MessageError
 
@@ -87,6 +88,11 @@ def test_messages_round_trip_and_malformed_ones_are_refused_by_field() -> None:
         with pytest.raises(MessageError) as err:
             decode_tool(bad, 1)
         assert err.value.reason == reason, err.value
+    rec = tool_record(1, t.epoch)  # the world's in-place encoding: the same bytes
+    for name in ("seq", "publish_time_ns", "pose", "twist", "stiffness", "damping",
+                 "object_pose", "flags"):  # fmt: skip
+        rec[name] = getattr(t, name)
+    assert rec.tobytes() == raw
     with pytest.raises(MessageError, match=r"DeviceState\.twist\.y"):
         decode_device(encode_device(DeviceState(0, 0, 0, 0, (0, 0, 0), (0, 1e9, 0))), 0)
     with pytest.raises(MessageError, match="negative"):
