@@ -47,8 +47,12 @@ from haptic_local_model.haptic_server.ports import (
     run_ports,
 )
 from haptic_local_model.haptic_server.stages.cosim import kinetic_energy
-from haptic_local_model.shared.config import UserConfig, load_user, shipped
-from haptic_local_model.shared.port_config import PortSceneConfig, load_port_scene
+from haptic_local_model.shared.config import UserConfig, load_user
+from haptic_local_model.shared.port_config import (
+    PortSceneConfig,
+    load_port_scene,
+    shipped_port_scenes,
+)
 
 SCENE = "grasp_vertical"
 WINDOW_S = 0.1  # the brief's 100 ms means
@@ -390,7 +394,7 @@ def main(argv: list[str] | None = None) -> int:
         "V4.5 twist": twist(scene),
         "V4.4 stability map": stability_map(scene),
     }
-    for name in sorted(shipped("ports")):  # every shipped port scene, the 64-shape one too
+    for name in shipped_port_scenes(hands=False):  # every two-port scene, the 64-shape one too
         figures[f"tick cost, {name}"] = tick_cost(load_port_scene(name))
     _print(figures)
     if args.json:

@@ -15,6 +15,9 @@ as a script (haptic_server/stages/hand.py), at 1 kHz:
   lightest phalanx (I about its joint), the glove stepping 0.3 rad and then holding: no step
   held for not being finite, and the hand's energy (kinetic + drives) never rising after the
   step; the same at theta 0.55 and 0.5 (not shipped), for comparison;
+- a hand scene's port (hand_press: the palm driven by a simulated device, the fingers by a
+  glove script): the device's command against the wall's force on the hand at rest, and the
+  cost of a tick, on the ideal device, the twin pantograph and the maglev;
 - V5.5 two hands hold the box (`haptic_server/stages/hand_grasp.py`: both hands and the
   box in one theta-step) as in V4.1, scripted and without noise (`two_hands_hold`);
 - V5.4 a fingertip swept at 1 m/s across a 2 mm post, 1000 placements along the finger:
@@ -34,12 +37,20 @@ import dataclasses
 import json
 import math
 import sys
+import time
 from typing import Any
 
 import numpy as np
 from scipy import optimize
 
 from haptic_local_model.benchmarks.grasp import from_frame, to_frame, window_means
+from haptic_local_model.device_models.common import refill_noise
+from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.hand_ports import (
+    HAND_ROW_DTYPE,
+    HandPortRun,
+    run_hand_port_ticks,
+)
 from haptic_local_model.haptic_server.stages.hand import (
     hand_chain,
     hand_energy,
@@ -49,7 +60,12 @@ from haptic_local_model.haptic_server.stages.hand import (
 )
 from haptic_local_model.haptic_server.stages.hand_grasp import grasp_records, run_grasp
 from haptic_local_model.shared.kinematics import MAX_DOF, link_frames, point_jacobian
-from haptic_local_model.shared.port_config import FingerSpec, HandSpec
+from haptic_local_model.shared.port_config import (
+    FingerSpec,
+    HandSpec,
+    load_hand_scene,
+    shipped_port_scenes,
+)
 
 DT = 0.001
 CONTACT = (15000.0, 30.0, 0.5, 15000.0)  # k, b, mu, k_t of every hand contact
@@ -408,6 +424,42 @@ def two_hands_twist(dy_m: float = 0.002, duration_s: float = 1.0) -> dict:
             "held_steps": int(gd[0]["singular"])}  # fmt: skip
 
 
+def hand_port(scene_name: str, device: str, seconds: float = 2.6) -> dict:
+    """A hand scene's port (haptic_server/hand_ports.py) on a simulated device: while the
+    palm rests on the wall (1.1-1.4 s of hand_press), the device's command against the
+    wall's force on the hand (100 ms means: the transparency of the palm's coupling), the
+    tracked palm's separation against F / k_t; and each tick's cost, timed from Python
+    around its compiled call (the device model, the glove, the hand)."""
+    run = HandPortRun(load_hand_scene(scene_name), load_simulated_device(device))
+    n = round(seconds * run.scene.haptic_rate_hz)
+    rows = np.zeros(n, HAND_ROW_DTYPE)
+    args = (run.chain, run.model, run.data, run.io, run.device.records, rows)
+    run_hand_port_ticks(*args, 0, 0)  # compile
+    ns = np.zeros(n)
+    for k in range(n):
+        t0 = time.perf_counter_ns()
+        if run_hand_port_ticks(*args, k, k + 1) == k:  # the noise block ran out: refill
+            refill_noise(run.device.noise, run.device.records, run.scene.period_s)
+            t0 = time.perf_counter_ns()
+            run_hand_port_ticks(*args, k, k + 1)
+        ns[k] = time.perf_counter_ns() - t0
+    w = rows[1100:1400]
+    wall = w["contact_force"].mean(axis=0)
+    command = w["command"][:, :2].mean(axis=0)
+    sep = float((w["target"][:, 0] - w["q"][:, 0]).mean())
+    return {
+        "scene": scene_name,
+        "device": device,
+        "wall_force_n": wall.tolist(),
+        "command_n": command.tolist(),
+        "transparency_error_fraction": float(np.abs(command - wall).max() / np.abs(wall).max()),
+        "separation_error_fraction": sep / (-wall[0] / run.spec.palm_spring[0]) - 1.0,
+        "steps_held": int(rows["singular"][-1]),
+        "tick_p50_us": float(np.percentile(ns, 50) / 1e3),
+        "tick_p99_us": float(np.percentile(ns, 99) / 1e3),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", help="write every figure to this file")
@@ -416,6 +468,11 @@ def main(argv: list[str] | None = None) -> int:
         "V5.1 free-space tracking": free_space(),
         "V5.2 press a wall": press(),
         "V5.2 fingertip press": fingertip_press(),
+        "hand scenes: a device drives the palm": [
+            hand_port(name, device)
+            for name in shipped_port_scenes(hands=True)
+            for device in ("ideal", "twin_pantograph", "maglev")
+        ],
         "V5.3 implicit drives": implicit_sweep(),
         "V5.3 with theta 0.55 and 0.5 (not shipped)": implicit_sweep((100.0,), 0.55)
         + implicit_sweep((100.0,), 0.5),

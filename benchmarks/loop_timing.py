@@ -43,7 +43,7 @@ from haptic_local_model.benchmarks.stations import loopback_run
 from haptic_local_model.haptic_server.live_view import ViewAddress
 from haptic_local_model.haptic_server.log import read_ticks
 from haptic_local_model.shared.clock import monotonic_ns, wait_until_ns
-from haptic_local_model.shared.config import shipped
+from haptic_local_model.shared.port_config import shipped_port_scenes
 from haptic_local_model.shared.timing import spin_for, try_realtime_priority
 
 
@@ -304,7 +304,8 @@ def stations_timing(seconds: float, repeat: int, out: Path | None) -> int:
     shipped port scene (grasp_clutter: 64 shapes), `repeat` times interleaved: each
     process's tick rate, lateness and work per tick (the compiled tick and the Python around
     it: decoding, publishing), the world's judged against 25 % of the period."""
-    runs: dict[str, list[dict[str, Any]]] = {name: [] for name in sorted(shipped("ports"))}
+    scenes = shipped_port_scenes(hands=False)  # the hand scenes have no stations (yet)
+    runs: dict[str, list[dict[str, Any]]] = {name: [] for name in scenes}
     for _ in range(repeat):
         for scene in runs:
             with tempfile.TemporaryDirectory() as tmp:

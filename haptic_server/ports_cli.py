@@ -27,6 +27,11 @@ import numpy as np
 from mcap.writer import Writer
 
 from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.hand_ports import (
+    HAND_ROW_DTYPE,
+    HandPortRun,
+    replay_hand_rows,
+)
 from haptic_local_model.haptic_server.log import (
     _iter_messages,
     is_indexed,
@@ -41,13 +46,16 @@ from haptic_local_model.shared.config import (
     ConfigError,
     load_config_text,
     load_user,
+    parse_toml_text,
     resolve,
     shipped,
 )
-from haptic_local_model.shared.port_config import PortSceneConfig
+from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig, is_hand_scene
 
 PORT_TICK_TOPIC = "/ports/tick"
 PORT_TICK_SCHEMA = "haptic_server/PortTick"
+HAND_TICK_TOPIC = "/ports/hand_tick"
+HAND_TICK_SCHEMA = "haptic_server/HandPortTick"
 #: the row fields a replay recomputes (the rest are its inputs or the devices' own)
 REPLAYED = ("q", "qd", "command", "body_force", "n_contacts", "penetration", "invalid", "singular")
 
@@ -92,9 +100,13 @@ def write_rows_log(
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
-def read_port_log(path: Path) -> tuple[np.ndarray, dict[str, dict[str, str]]]:
-    """The rows and metadata of a whole port log; a file that is not one, or is cut short,
-    is refused by name."""
+def read_port_log(
+    path: Path,
+    topic: str = PORT_TICK_TOPIC,
+    dtype: np.dtype = PORT_ROW_DTYPE,
+) -> tuple[np.ndarray, dict[str, dict[str, str]]]:
+    """The rows (on `topic`, of `dtype`) and metadata of a whole port log; a file that is
+    not one, or is cut short, is refused by name."""
     if not path.is_file():
         raise ConfigError(str(path), "log", "no such file")
     with path.open("rb") as fh:
@@ -104,18 +116,18 @@ def read_port_log(path: Path) -> tuple[np.ndarray, dict[str, dict[str, str]]]:
         raise ConfigError(str(path), "log", "cut short (no summary): the run did not finish it")
     chunks = []
     schema_text = None
-    for topic, data, schema in _iter_messages(path):
-        if topic == PORT_TICK_TOPIC:
+    for name, data, schema in _iter_messages(path):
+        if name == topic:
             chunks.append(data)
             schema_text = schema.data.decode() if schema else None
     metadata = read_metadata(path)
     if not chunks:
-        raise ConfigError(str(path), PORT_TICK_TOPIC, "no port ticks: not a haptic-ports log")
-    if schema_text != ros1msg_schema(PORT_ROW_DTYPE):
-        raise ConfigError(str(path), PORT_TICK_SCHEMA, "rows of another layout (another release)")
-    if any(len(c) != PORT_ROW_DTYPE.itemsize for c in chunks):
-        raise ConfigError(str(path), PORT_TICK_TOPIC, "a row of the wrong size")
-    rows = np.frombuffer(b"".join(chunks), PORT_ROW_DTYPE)
+        raise ConfigError(str(path), topic, "no port ticks: not a haptic-ports log")
+    if schema_text != ros1msg_schema(dtype):
+        raise ConfigError(str(path), topic, "rows of another layout (another release)")
+    if any(len(c) != dtype.itemsize for c in chunks):
+        raise ConfigError(str(path), topic, "a row of the wrong size")
+    rows = np.frombuffer(b"".join(chunks), dtype)
     try:
         expected = int(metadata["run"]["ticks"])
     except (KeyError, ValueError):
@@ -144,13 +156,9 @@ def replay_rows(
     return len(rows), None
 
 
-def replay_log(path: Path) -> tuple[int, int | None]:
-    rows, metadata = read_port_log(path)
-    scene = load_config_text(
-        PortSceneConfig, metadata["configs"]["ports"], f"{path} (its port scene)"
-    )
+def _limits(path: Path, metadata: dict[str, dict[str, str]]) -> list[tuple[float, float, float]]:
     try:
-        limits: list[tuple[float, float, float]] = [
+        return [
             (float(a), float(b), float(c))
             for a, b, c in json.loads(metadata["limits"]["max_wrench"])
         ]
@@ -158,11 +166,65 @@ def replay_log(path: Path) -> tuple[int, int | None]:
         raise ConfigError(
             str(path), "limits.max_wrench", "missing or not 3 numbers a port"
         ) from None
+
+
+def replay_log(path: Path) -> tuple[int, int | None]:
+    """Re-run a port log (two ports on a co-simulated box, or a hand scene's port)."""
+    metadata = read_metadata(path) if path.is_file() else {}
+    if metadata.get("run", {}).get("kind") == "hand":
+        rows, metadata = read_port_log(path, HAND_TICK_TOPIC, HAND_ROW_DTYPE)
+        hand_scene = load_config_text(
+            HandSceneConfig, metadata["configs"]["ports"], f"{path} (its hand scene)"
+        )
+        limits = _limits(path, metadata)
+        if len(limits) != 1:
+            raise ConfigError(str(path), "limits.max_wrench", f"{len(limits)} limits for 1 port")
+        return replay_hand_rows(hand_scene, limits[0], rows)
+    rows, metadata = read_port_log(path)
+    scene = load_config_text(
+        PortSceneConfig, metadata["configs"]["ports"], f"{path} (its port scene)"
+    )
+    limits = _limits(path, metadata)
     if len(limits) != len(scene.ports):
         raise ConfigError(
             str(path), "limits.max_wrench", f"{len(limits)} limits for {len(scene.ports)} ports"
         )
     return replay_rows(scene, limits, rows)
+
+
+def run_hands_cli(args: argparse.Namespace, text: str, source: str) -> int:
+    """A hand scene (one port, a mass-spring hand): run, summary, log."""
+    scene = load_config_text(HandSceneConfig, text, source)
+    if round(args.duration * scene.haptic_rate_hz) < 1:
+        raise ConfigError("--duration", "--duration", "shorter than one tick")
+    devices = _per_port(args.device, [p.device for p in scene.ports], "--device")
+    users = _per_port(args.user, [p.user for p in scene.ports], "--user")
+    user = load_user(users[0])
+    try:
+        run = HandPortRun(scene, load_simulated_device(devices[0]), user)
+    except ValueError as exc:  # the glove's script against the hand
+        key, _, problem = str(exc).partition(": ")
+        raise ConfigError(users[0], key, problem) from None
+    result = run.run(args.duration)
+    rows = result.rows
+    last = rows[-min(len(rows), round(scene.haptic_rate_hz)) :]
+    print(f"{len(rows)} ticks in {result.wall_s:.2f} s of wall time; port {scene.ports[0].name} "
+          f"({run.device.name}, {user.name}): mean command over the last second "
+          f"({last['command'][:, 0].mean():+.3f}, {last['command'][:, 1].mean():+.3f}) N, the "
+          f"walls' force on the hand ({last['contact_force'][:, 0].mean():+.3f}, "
+          f"{last['contact_force'][:, 1].mean():+.3f}) N; steps held {rows['singular'][-1]}, "
+          f"commands not finite {rows['invalid'][-1]}")  # fmt: skip
+    if args.log is not None:
+        limits = [list(map(float, run.model[0]["max_wrench"]))]
+        write_rows_log(args.log, rows, HAND_TICK_TOPIC, HAND_TICK_SCHEMA, {
+            "configs": {"ports": text, "devices": json.dumps(devices),
+                        "users": json.dumps(users)},
+            "limits": {"max_wrench": json.dumps(limits)},
+            "run": {"version": __version__, "duration_s": str(args.duration),
+                    "ticks": str(len(rows)), "kind": "hand"},
+        })  # fmt: skip
+        print(f"log: {args.log}")
+    return 0
 
 
 def _summary(run: PortRun, rows: np.ndarray, wall_s: float) -> list[str]:
@@ -193,6 +255,8 @@ def run_ports_cli(args: argparse.Namespace) -> int:
     if not path.is_file():
         raise ConfigError(str(path), "scene", "no such file")
     text = path.read_text()  # read once: the log holds the scene the run ran
+    if is_hand_scene(parse_toml_text(text, str(path))):
+        return run_hands_cli(args, text, str(path))
     scene = load_config_text(PortSceneConfig, text, str(path))
     if round(args.duration * scene.haptic_rate_hz) < 1:
         raise ConfigError("--duration", "--duration", "shorter than one tick")

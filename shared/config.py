@@ -1170,6 +1170,9 @@ class UserConfig:
     damping: Vec3 = (10.0, 10.0, 0.02)
     waypoints: tuple[tuple[float, float, float, float], ...] = ()
     max_wrench: Vec3 = (20.0, 20.0, 1.0)  # a hand pushes no harder than this
+    # a glove's joint angles for a hand scene (docs/grasp.md): (t_s, a_1, a_2, ...) rad, one
+    # per phalanx in the hand's order, linear in between, held after the last
+    finger_angles: tuple[tuple[float, ...], ...] = ()
 
     def __post_init__(self) -> None:
         if self.kind == "waypoints":
@@ -1183,6 +1186,12 @@ class UserConfig:
             within(value, (-limit, limit), f"wrench[{i}]")
         within_all(self.stiffness, (0.0, 1e6), "stiffness")
         within_all(self.damping, (0.0, 1e4), "damping")
+        times = [row[0] if row else 0.0 for row in self.finger_angles]
+        require(times == sorted(times), "finger_angles", "times must be increasing")
+        for i, row in enumerate(self.finger_angles):
+            require(len(row) >= 2, f"finger_angles[{i}]", "t and at least one angle")
+            within(row[0], (0.0, 1e6), f"finger_angles[{i}][0]", "s")
+            within_all(row[1:], (-ANGLE_RAD, ANGLE_RAD), f"finger_angles[{i}][1:]", "rad")
         for i, (t, dx, dy, dtheta) in enumerate(self.waypoints):
             within(t, (0.0, 1e6), f"waypoints[{i}][0]", "s")
             within_all((dx, dy), (-WORLD_M, WORLD_M), f"waypoints[{i}][1:3]", "m")

@@ -22,6 +22,7 @@ from haptic_local_model.shared.config import (
     read_toml,
     require,
     resolve,
+    shipped,
     within,
     within_all,
 )
@@ -215,3 +216,68 @@ class HandSpec:
     @property
     def dof(self) -> int:
         return 3 + 2 * len(self.fingers)
+
+
+#: a hand scene's static walls, floors and posts (haptic_server/stages/hand.py: MAX_WALLS)
+MAX_HAND_WALLS = 4
+
+
+@dataclass(frozen=True)
+class HandTable(HandSpec):
+    """A hand of a hand scene: HandSpec's keys and the name a port's `tool` gives."""
+
+    name: str = "hand"
+
+
+@dataclass(frozen=True)
+class HandSceneConfig:
+    """One port whose tool is a mass-spring hand (DESIGN-WAVE2 §7, `configs/ports/hand_*`):
+    the port's device drives the tracked palm, its user's `finger_angles` the glove; the
+    hand's palm command goes to the device. Static walls and posts only."""
+
+    name: str
+    description: str = ""
+    gravity: Vec2 = (0.0, 0.0)
+    haptic_rate_hz: float = 1000.0
+    contact: CosimContact = field(default_factory=CosimContact)
+    ports: tuple[PortSpec, ...] = ()
+    hands: tuple[HandTable, ...] = ()
+    bodies: tuple[BodySpec, ...] = ()
+
+    def __post_init__(self) -> None:
+        within_all(self.gravity, (-100.0, 100.0), "gravity", "m/s^2")
+        within(self.haptic_rate_hz, (100.0, 20000.0), "haptic_rate_hz", "Hz")
+        require(len(self.ports) == 1, "ports", "a hand scene has one port (two: not built)")
+        require(len(self.hands) == 1, "hands", "a hand scene has one hand")
+        require(
+            self.ports[0].tool == self.hands[0].name,
+            "ports[0].tool",
+            f"{self.ports[0].tool!r} is not the scene's hand ({self.hands[0].name!r})",
+        )
+        require(len(self.bodies) <= MAX_HAND_WALLS, "bodies", f"at most {MAX_HAND_WALLS}")
+        for i, b in enumerate(self.bodies):
+            require(b.kind == "static", f"bodies[{i}].kind", "a hand scene's bodies are static")
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.haptic_rate_hz
+
+
+def is_hand_scene(data: dict[str, Any]) -> bool:
+    """A port scene's table declares hands: a hand scene."""
+    return "hands" in data
+
+
+def load_hand_scene(name_or_path: str) -> HandSceneConfig:
+    """A hand scene by name (`configs/ports/<name>.toml`) or path."""
+    path = resolve("ports", name_or_path)
+    return load_dataclass(HandSceneConfig, read_toml(path), str(path))
+
+
+def shipped_port_scenes(hands: bool) -> list[str]:
+    """The shipped port scenes with hands (hands=True) or with two co-simulated tools."""
+    return sorted(
+        name
+        for name in shipped("ports")
+        if is_hand_scene(read_toml(resolve("ports", name))) == hands
+    )

@@ -25,6 +25,7 @@ from haptic_local_model.device_models.registry import (
     load_simulated_device,
 )
 from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.hand_ports import HandPortRun
 from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
 from haptic_local_model.haptic_server.mailbox import compile_loop_kernels
 from haptic_local_model.haptic_server.realtime import compile_realtime_kernels
@@ -32,7 +33,7 @@ from haptic_local_model.haptic_server.shared_world import SharedWorld
 from haptic_local_model.haptic_server.station import Station
 from haptic_local_model.shared.config import load_scene, load_user
 from haptic_local_model.shared.net.stations import load_station_network
-from haptic_local_model.shared.port_config import load_port_scene
+from haptic_local_model.shared.port_config import load_hand_scene, load_port_scene
 
 #: (scene, user, seconds) run with the ideal device: every rendering stage and the sim
 SCENE_RUNS = (
@@ -82,6 +83,12 @@ def _station_kernels() -> None:
         Station(scene, network, "left", device, load_user("squeeze_left_2n"), 1).warm()
 
 
+def _hand_port_kernels() -> None:
+    """A hand scene's port, per device model (docs/grasp.md)."""
+    for config in built_in_models():
+        HandPortRun(load_hand_scene("hand_press"), load_simulated_device(config)).run(0.002)
+
+
 def warm_groups() -> list[tuple[str, Callable[[], None]]]:
     """What warm_all compiles, in groups: (a description, the call that compiles it). The
     first scene compiles most of the sim and the rendering stages, the others what they add."""
@@ -100,6 +107,7 @@ def warm_groups() -> list[tuple[str, Callable[[], None]]]:
         (f"real-time loop kernels: {len(built_in_models())} device models", _loop_kernels)
     )
     groups.append(("shared world and station kernels", _station_kernels))
+    groups.append(("hand scene port kernels", _hand_port_kernels))
     return groups
 
 

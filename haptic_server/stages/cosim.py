@@ -111,7 +111,7 @@ COSIM_DATA_DTYPE = np.dtype(
 )
 
 
-def _core(body: object) -> tuple[np.ndarray, float]:
+def body_core(body: object) -> tuple[np.ndarray, float]:
     """A body's core vertices (counter-clockwise, about its origin) and rounding."""
     shape = body.shape  # type: ignore[attr-defined]
     if shape == "box":
@@ -170,7 +170,7 @@ def cosim_order(scene: PortSceneConfig) -> list[str]:
 
 
 def _set_core(m: np.void, e: int, body: object) -> None:
-    v, rounding = _core(body)
+    v, rounding = body_core(body)
     m["n_vert"][e] = len(v)
     m["vertices"][e, : len(v)] = v
     m["rounding"][e] = rounding

@@ -1,0 +1,280 @@
+"""A hand scene's port (DESIGN-WAVE2 §7, docs/grasp.md): the mass-spring hand driven by a
+simulated device and glove, on a virtual clock.
+
+Each tick, in one compiled call: the user's hand on the device's true state; the device's
+reading mapped to the world is the tracked palm (pose and twist: a reading that is not
+finite cuts the palm's drives for the tick, haptic_server/stages/hand.py); the user's
+`finger_angles` are the glove's (interpolated, with their slopes as rates); the hand's tick;
+the palm's command mapped back to the device, clipped at its limits, and the device's
+physics. The glove's torques (gated for a tendon glove) are logged: the simulated glove has
+no actuators of its own.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from haptic_local_model.device_models.base import SENSOR_DTYPE, SimulatedDevice
+from haptic_local_model.device_models.common import refill_noise
+from haptic_local_model.device_models.kernels import (
+    device_advance,
+    device_command,
+    device_noise_ready,
+    device_read,
+    device_sense_hand,
+    device_true_state,
+)
+from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.device_models.world_map import (
+    MAP_DTYPE,
+    DeviceWorldMap,
+    map_command_to_device,
+    map_rate_step,
+    map_sensors_to_world,
+)
+from haptic_local_model.haptic_server.stages.cosim import body_core
+from haptic_local_model.haptic_server.stages.hand import hand_records, hand_tick
+from haptic_local_model.haptic_server.users import USER_DTYPE, hand_wrench, user_record
+from haptic_local_model.shared.config import UserConfig, load_user
+from haptic_local_model.shared.kinematics import MAX_DOF
+from haptic_local_model.shared.port_config import HandSceneConfig
+from haptic_local_model.shared.protocol.station import vec3
+
+F8 = np.float64
+I8 = np.int64
+MAX_GLOVE_ROWS = 64  # a glove script's rows (as a user's waypoints)
+
+HAND_IO_DTYPE = np.dtype(
+    [
+        ("t", F8),
+        ("sensors", SENSOR_DTYPE, (1,)),
+        ("world", SENSOR_DTYPE, (1,)),
+        ("hand", F8, (3,)),  # the user's wrench on the device
+        ("out", F8, (3,)),  # the device's command, device frame
+        ("limits", F8, (3,)),
+        ("user", USER_DTYPE, (1,)),
+        ("map", MAP_DTYPE, (1,)),
+        ("glove", F8, (MAX_GLOVE_ROWS, MAX_DOF - 2)),  # the script: t, then the angles
+        ("n_glove", I8),
+    ]
+)
+
+#: One tick of a hand scene (world frame unless said).
+HAND_ROW_DTYPE = np.dtype(
+    [
+        ("t", F8),
+        ("target", F8, (MAX_DOF,)),  # the tracked hand: the device's palm, the glove
+        ("target_rate", F8, (MAX_DOF,)),
+        ("q", F8, (MAX_DOF,)),
+        ("qd", F8, (MAX_DOF,)),
+        ("command", F8, (3,)),  # the palm's, world frame
+        ("out", F8, (3,)),  # the device's, device frame
+        ("hand_wrench", F8, (3,)),  # the user's on the device, device frame
+        ("glove_torque", F8, (MAX_DOF,)),
+        ("glove_ungated", F8, (MAX_DOF,)),
+        ("contact_force", F8, (2,)),
+        ("penetration", F8),
+        ("n_contacts", I8),
+        ("invalid", I8),
+        ("singular", I8),
+        ("device_fault", I8),
+    ]
+)
+#: the row fields a replay recomputes from the logged targets
+HAND_REPLAYED = ("q", "qd", "command", "glove_torque", "glove_ungated", "contact_force",
+                 "penetration", "n_contacts", "invalid", "singular")  # fmt: skip
+
+
+@njit(cache=True)
+def glove_at(script, rows, t, n, out_angle, out_rate):
+    """The glove's n angles at t from the script's first `rows` rows (t, a_1, ..., a_n):
+    linear in between, held after the last (rate 0), the first before it."""
+    if rows == 0:
+        return
+    if t <= script[0, 0] or rows == 1:
+        k = 0 if t <= script[0, 0] else rows - 1
+        for j in range(n):
+            out_angle[j] = script[k, 1 + j]
+            out_rate[j] = 0.0
+        return
+    for k in range(rows - 1):
+        t0 = script[k, 0]
+        t1 = script[k + 1, 0]
+        if t < t1 and t1 > t0:
+            f = (t - t0) / (t1 - t0)
+            for j in range(n):
+                a0 = script[k, 1 + j]
+                a1 = script[k + 1, 1 + j]
+                out_angle[j] = a0 + f * (a1 - a0)
+                out_rate[j] = (a1 - a0) / (t1 - t0)
+            return
+    for j in range(n):
+        out_angle[j] = script[rows - 1, 1 + j]
+        out_rate[j] = 0.0
+
+
+@njit(cache=True)
+def _row(d, io, r):
+    r.t = io.t
+    for a in range(MAX_DOF):
+        r.target[a] = d.target[a]
+        r.target_rate[a] = d.target_rate[a]
+        r.q[a] = d.q[a]
+        r.qd[a] = d.qd[a]
+        r.glove_torque[a] = d.glove_torque[a]
+        r.glove_ungated[a] = d.glove_ungated[a]
+    for c in range(3):
+        r.command[c] = d.command[c]
+        r.out[c] = io.out[c]
+        r.hand_wrench[c] = io.hand[c]
+    r.contact_force[0] = d.contact_force[0]
+    r.contact_force[1] = d.contact_force[1]
+    r.penetration = d.penetration
+    r.n_contacts = d.n_contacts
+    r.invalid = d.invalid
+    r.singular = d.singular
+    r.device_fault = io.sensors[0].fault
+
+
+@njit(cache=True)
+def run_hand_port_ticks(chain, model, data, io, dev, rows, start, stop):
+    """Ticks start..stop-1 (module docstring), row k into rows[k]. Returns the first tick
+    not run: stop, or earlier when the device's noise block needs a refill."""
+    d = data[0]
+    s = io[0]
+    u = s.user[0]
+    n = model[0].dof
+    for k in range(start, stop):
+        if not device_noise_ready(dev, d.dt):
+            return k
+        device_true_state(dev, u.device_pose, u.device_twist)
+        hand_wrench(s.user, s.t - u.start_s, u.device_pose, u.device_twist, s.hand)
+        device_sense_hand(dev, s.hand)
+        device_read(dev, s.sensors)
+        map_sensors_to_world(s.map, s.sensors, s.world)
+        for c in range(3):
+            d.target[c] = s.world[0].pose[c]
+            d.target_rate[c] = s.world[0].twist[c]
+        glove_at(s.glove, s.n_glove, s.t, n - 3, d.target[3:n], d.target_rate[3:n])
+        hand_tick(chain, model, data)
+        map_command_to_device(s.map, d.command, s.limits, s.out)
+        device_command(dev, s.out)
+        device_advance(dev, d.dt, s.hand)
+        map_rate_step(s.map, s.sensors[0].pose, d.dt)
+        _row(d, s, rows[k])
+        s.t += d.dt
+    return stop
+
+
+def _walls(scene: HandSceneConfig) -> list[tuple[np.ndarray, float, tuple[float, float, float]]]:
+    out = []
+    for b in scene.bodies:
+        v, rounding = body_core(b)
+        out.append((v, rounding, (b.position[0], b.position[1], b.angle)))
+    return out
+
+
+def glove_script(user: UserConfig, rest: list[float]) -> np.ndarray:
+    """The user's finger_angles as rows (t, a_1, ..., a_n) for the hand's n joints; without
+    any, the fingers' rest angles held."""
+    if not user.finger_angles:
+        return np.array([[0.0, *rest]], F8)
+    if len(user.finger_angles) > MAX_GLOVE_ROWS:
+        raise ValueError(f"finger_angles: at most {MAX_GLOVE_ROWS} rows")
+    rows = np.array(user.finger_angles, F8)
+    if rows.shape[1] != 1 + len(rest):
+        raise ValueError(
+            f"finger_angles: {rows.shape[1] - 1} angles a row, the hand has {len(rest)} joints"
+        )
+    return rows
+
+
+@dataclass
+class HandPortResult:
+    rows: np.ndarray
+    wall_s: float
+
+
+class HandPortRun:
+    """A hand scene with its device and user, ready to run."""
+
+    def __init__(
+        self,
+        scene: HandSceneConfig,
+        device: SimulatedDevice | None = None,
+        user: UserConfig | None = None,
+    ) -> None:
+        self.scene = scene
+        port = scene.ports[0]
+        self.device = device or load_simulated_device(port.device)
+        self.user = user or load_user(port.user)
+        self.spec = scene.hands[0]
+        wm = getattr(self.device, "world_map", None) or DeviceWorldMap.identity()
+        io = np.zeros(1, HAND_IO_DTYPE)
+        io[0]["map"][0] = wm.record[0]
+        io[0]["limits"] = self.device.limits().max_wrench
+        scale = io[0]["map"][0]["scale"] * io[0]["map"][0]["force_scale"]
+        world_limits = vec3(io[0]["limits"] / scale)
+        self.io = io
+        c = scene.contact
+        contact = (c.stiffness_n_per_m, c.damping_ns_per_m, c.friction,
+                   c.friction_stiffness_ratio * c.stiffness_n_per_m)  # fmt: skip
+        rest = [a for f in self.spec.fingers for a in f.rest]
+        self.glove = glove_script(self.user, rest)
+        io[0]["glove"][: len(self.glove), : self.glove.shape[1]] = self.glove
+        io[0]["n_glove"] = len(self.glove)
+        self.chain, self.model, self.data = hand_records(
+            self.spec, _walls(scene), contact, (0.0, 0.0, 0.0), world_limits, scene.period_s,
+            gravity=scene.gravity,
+        )  # fmt: skip
+        self._place(port.device_start)
+
+    def _place(self, start: tuple[float, float, float]) -> None:
+        """The device at rest at its start, mapped onto the palm (at the world's origin)."""
+        self.device.reset(np.array(start, F8))
+        pose, twist = np.zeros(3), np.zeros(3)
+        self.device.true_state(pose, twist)
+        u = user_record(self.user)[0]
+        u["start_pose"] = pose
+        s = self.io[0]
+        s["user"][0] = u
+        wm = s["map"][0]
+        wm["offset"] = -wm["scale"] * pose
+        s["map"][0] = wm
+
+    def run(self, duration_s: float) -> HandPortResult:
+        n = round(duration_s * self.scene.haptic_rate_hz)
+        rows = np.zeros(n, HAND_ROW_DTYPE)
+        entered = time.perf_counter()
+        dev = self.device
+        k = 0
+        while k < n:
+            k = run_hand_port_ticks(self.chain, self.model, self.data, self.io, dev.records,
+                                    rows, k, n)  # fmt: skip
+            if k < n:
+                refill_noise(dev.noise, dev.records, self.scene.period_s)
+        return HandPortResult(rows, time.perf_counter() - entered)
+
+
+def replay_hand_rows(scene: HandSceneConfig, limits: tuple[float, float, float],
+                     rows: np.ndarray) -> tuple[int, int | None]:  # fmt: skip
+    """Re-run the hand on the rows' tracked hand (the device's palm, the glove); (ticks
+    compared, the first tick whose outputs differ in any bit, or None)."""
+    c = scene.contact
+    contact = (c.stiffness_n_per_m, c.damping_ns_per_m, c.friction,
+               c.friction_stiffness_ratio * c.stiffness_n_per_m)  # fmt: skip
+    chain, model, data = hand_records(scene.hands[0], _walls(scene), contact, (0.0, 0.0, 0.0),
+                                      limits, scene.period_s, gravity=scene.gravity)  # fmt: skip
+    d = data[0]
+    for k, row in enumerate(rows):
+        d["target"] = row["target"]
+        d["target_rate"] = row["target_rate"]
+        hand_tick(chain, model, data)
+        for name in HAND_REPLAYED:
+            if np.asarray(d[name]).tobytes() != np.asarray(row[name]).tobytes():
+                return k + 1, k
+    return len(rows), None
