@@ -16,8 +16,8 @@ as a script (haptic_server/stages/hand.py), at 1 kHz:
   held for not being finite, and the hand's energy (kinetic + drives) never rising after the
   step; the same at theta 0.55 and 0.5 (not shipped), for comparison;
 - a hand scene's port (hand_press: the palm driven by a simulated device, the fingers by a
-  glove script): the device's command against the wall's force on the hand at rest, and the
-  cost of a tick, on the ideal device, the twin pantograph and the maglev;
+  glove script): what the user's hand holds against at rest against the wall's force on
+  the hand, and the cost of a tick, on the ideal device, the twin pantograph and the maglev;
 - V5.5 two hands hold the box (`haptic_server/stages/hand_grasp.py`: both hands and the
   box in one theta-step) as in V4.1, scripted and without noise (`two_hands_hold`);
 - V5.4 a fingertip swept at 1 m/s across a 2 mm post, 1000 placements along the finger:
@@ -426,8 +426,9 @@ def two_hands_twist(dy_m: float = 0.002, duration_s: float = 1.0) -> dict:
 
 def hand_port(scene_name: str, device: str, seconds: float = 2.6) -> dict:
     """A hand scene's port (haptic_server/hand_ports.py) on a simulated device: while the
-    palm rests on the wall (1.1-1.4 s of hand_press), the device's command against the
-    wall's force on the hand (100 ms means: the transparency of the palm's coupling), the
+    palm rests on the wall (1.1-1.4 s of hand_press), what the user's hand holds against
+    (its wrench on the device) against the wall's force on the hand mapped to the device
+    (100 ms means: the transparency through the palm spring, the map and the device), the
     tracked palm's separation against F / k_t; and each tick's cost, timed from Python
     around its compiled call (the device model, the glove, the hand)."""
     run = HandPortRun(load_hand_scene(scene_name), load_simulated_device(device))
@@ -445,14 +446,18 @@ def hand_port(scene_name: str, device: str, seconds: float = 2.6) -> dict:
         ns[k] = time.perf_counter_ns() - t0
     w = rows[1100:1400]
     wall = w["contact_force"].mean(axis=0)
-    command = w["command"][:, :2].mean(axis=0)
+    m = run.io[0]["map"][0]
+    wall_at_device = m["force_scale"] * m["scale"][:2] * wall
+    felt = -w["hand_wrench"][:, :2].mean(axis=0)  # what the user's hand holds against
     sep = float((w["target"][:, 0] - w["q"][:, 0]).mean())
     return {
         "scene": scene_name,
         "device": device,
         "wall_force_n": wall.tolist(),
-        "command_n": command.tolist(),
-        "transparency_error_fraction": float(np.abs(command - wall).max() / np.abs(wall).max()),
+        "felt_n": felt.tolist(),
+        "transparency_error_fraction": float(
+            np.abs(felt - wall_at_device).max() / np.abs(wall_at_device).max()
+        ),
         "separation_error_fraction": sep / (-wall[0] / run.spec.palm_spring[0]) - 1.0,
         "steps_held": int(rows["singular"][-1]),
         "tick_p50_us": float(np.percentile(ns, 50) / 1e3),

@@ -95,8 +95,8 @@ def glove_at(script, rows, t, n, out_angle, out_rate):
     linear in between, held after the last (rate 0), the first before it."""
     if rows == 0:
         return
-    if t <= script[0, 0] or rows == 1:
-        k = 0 if t <= script[0, 0] else rows - 1
+    if t < script[0, 0] or rows == 1:
+        k = 0 if t < script[0, 0] else rows - 1
         for j in range(n):
             out_angle[j] = script[k, 1 + j]
             out_rate[j] = 0.0
@@ -104,7 +104,7 @@ def glove_at(script, rows, t, n, out_angle, out_rate):
     for k in range(rows - 1):
         t0 = script[k, 0]
         t1 = script[k + 1, 0]
-        if t < t1 and t1 > t0:
+        if t0 <= t < t1:
             f = (t - t0) / (t1 - t0)
             for j in range(n):
                 a0 = script[k, 1 + j]

@@ -1,5 +1,6 @@
-"""`haptic-ports`: a port scene (two devices on one co-simulated world, docs/grasp.md) on
-the virtual clock, its MCAP log, and the log's bit-exact replay.
+"""`haptic-ports`: a port scene (two devices on one co-simulated world, or a hand scene: a
+mass-spring hand whose palm a device drives; docs/grasp.md) on the virtual clock, its MCAP
+log, and the log's bit-exact replay.
 
     haptic-ports --scene grasp_vertical --device maglev --device twin_pantograph \\
         --duration 5 --log runs/grasp.mcap
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -158,20 +160,27 @@ def replay_rows(
 
 def _limits(path: Path, metadata: dict[str, dict[str, str]]) -> list[tuple[float, float, float]]:
     try:
-        return [
+        limits = [
             (float(a), float(b), float(c))
             for a, b, c in json.loads(metadata["limits"]["max_wrench"])
         ]
     except (KeyError, ValueError, TypeError):
+        limits = []
+    if not limits or not all(math.isfinite(v) and v > 0.0 for lim in limits for v in lim):
         raise ConfigError(
-            str(path), "limits.max_wrench", "missing or not 3 numbers a port"
-        ) from None
+            str(path), "limits.max_wrench", "missing, or not 3 positive numbers a port"
+        )
+    return limits
 
 
 def replay_log(path: Path) -> tuple[int, int | None]:
     """Re-run a port log (two ports on a co-simulated box, or a hand scene's port)."""
-    metadata = read_metadata(path) if path.is_file() else {}
-    if metadata.get("run", {}).get("kind") == "hand":
+    hand = (
+        path.is_file()
+        and is_indexed(path)
+        and any(topic == HAND_TICK_TOPIC for topic, _, _ in _iter_messages(path))
+    )
+    if hand:
         rows, metadata = read_port_log(path, HAND_TICK_TOPIC, HAND_ROW_DTYPE)
         hand_scene = load_config_text(
             HandSceneConfig, metadata["configs"]["ports"], f"{path} (its hand scene)"
@@ -200,11 +209,14 @@ def run_hands_cli(args: argparse.Namespace, text: str, source: str) -> int:
     devices = _per_port(args.device, [p.device for p in scene.ports], "--device")
     users = _per_port(args.user, [p.user for p in scene.ports], "--user")
     user = load_user(users[0])
+    device = load_simulated_device(devices[0])
     try:
-        run = HandPortRun(scene, load_simulated_device(devices[0]), user)
+        run = HandPortRun(scene, device, user)
+    except ConfigError:
+        raise
     except ValueError as exc:  # the glove's script against the hand
         key, _, problem = str(exc).partition(": ")
-        raise ConfigError(users[0], key, problem) from None
+        raise ConfigError(str(resolve("users", users[0])), key, problem) from None
     result = run.run(args.duration)
     rows = result.rows
     last = rows[-min(len(rows), round(scene.haptic_rate_hz)) :]
@@ -213,7 +225,7 @@ def run_hands_cli(args: argparse.Namespace, text: str, source: str) -> int:
           f"({last['command'][:, 0].mean():+.3f}, {last['command'][:, 1].mean():+.3f}) N, the "
           f"walls' force on the hand ({last['contact_force'][:, 0].mean():+.3f}, "
           f"{last['contact_force'][:, 1].mean():+.3f}) N; steps held {rows['singular'][-1]}, "
-          f"commands not finite {rows['invalid'][-1]}")  # fmt: skip
+          f"readings or commands not finite {rows['invalid'][-1]}")  # fmt: skip
     if args.log is not None:
         limits = [list(map(float, run.model[0]["max_wrench"]))]
         write_rows_log(args.log, rows, HAND_TICK_TOPIC, HAND_TICK_SCHEMA, {

@@ -36,9 +36,15 @@ from haptic_local_model.shared.cli import (
     seconds,
     write_summary,
 )
-from haptic_local_model.shared.config import ConfigError, load_config_text, load_user, resolve
+from haptic_local_model.shared.config import (
+    ConfigError,
+    load_config_text,
+    load_user,
+    parse_toml_text,
+    resolve,
+)
 from haptic_local_model.shared.net.stations import load_station_network, router_config
-from haptic_local_model.shared.port_config import PortSceneConfig
+from haptic_local_model.shared.port_config import PortSceneConfig, is_hand_scene
 
 STATION_TICK_TOPIC = "/station/tick"
 STATION_TICK_SCHEMA = "haptic_server/StationTick"
@@ -71,6 +77,10 @@ def _scene(name: str) -> tuple[PortSceneConfig, str]:
     if not path.is_file():
         raise ConfigError(str(path), "scene", "no such file")
     text = path.read_text()
+    if is_hand_scene(parse_toml_text(text, str(path))):
+        raise ConfigError(
+            str(path), "hands", "a hand scene has no stations: run it with haptic-ports"
+        )
     return load_config_text(PortSceneConfig, text, str(path)), text
 
 

@@ -1187,7 +1187,9 @@ class UserConfig:
         within_all(self.stiffness, (0.0, 1e6), "stiffness")
         within_all(self.damping, (0.0, 1e4), "damping")
         times = [row[0] if row else 0.0 for row in self.finger_angles]
-        require(times == sorted(times), "finger_angles", "times must be increasing")
+        require(times == sorted(times), "finger_angles", "times must not decrease")
+        widths = {len(row) for row in self.finger_angles}
+        require(len(widths) <= 1, "finger_angles", "every row needs as many angles")
         for i, row in enumerate(self.finger_angles):
             require(len(row) >= 2, f"finger_angles[{i}]", "t and at least one angle")
             within(row[0], (0.0, 1e6), f"finger_angles[{i}][0]", "s")

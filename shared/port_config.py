@@ -173,6 +173,7 @@ class FingerSpec:
         within_all(self.masses, (1e-4, 1.0), "masses", "kg")
         within_all(self.inertias, (1e-10, 1e-2), "inertias", "kg m^2")
         within(self.radius, (1e-4, 0.05), "radius", "m")
+        within_all(self.rest, (-math.pi, math.pi), "rest", "rad")
         require(self.flexion in (-1.0, 1.0), "flexion", "must be 1 or -1")
 
 
@@ -198,6 +199,7 @@ class HandSpec:
     glove_max_torque: float = 0.3  # N m: the glove's actuators' limit per joint
 
     def __post_init__(self) -> None:
+        within_all(self.palm_size, (1e-3, 0.5), "palm_size", "m")
         within(self.palm_mass, (1e-3, 10.0), "palm_mass", "kg")
         within(self.palm_inertia, (1e-9, 1.0), "palm_inertia", "kg m^2")
         require(1 <= len(self.fingers) <= 4, "fingers", "1 to 4 fingers")
@@ -233,7 +235,8 @@ class HandTable(HandSpec):
 class HandSceneConfig:
     """One port whose tool is a mass-spring hand (DESIGN-WAVE2 §7, `configs/ports/hand_*`):
     the port's device drives the tracked palm, its user's `finger_angles` the glove; the
-    hand's palm command goes to the device. Static walls and posts only."""
+    hand's palm command goes to the device. Static walls and posts only. The hand's palm
+    springs are the port's coupling: the port's coupling_* keys are not used."""
 
     name: str
     description: str = ""
