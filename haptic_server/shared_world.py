@@ -51,6 +51,7 @@ from haptic_local_model.haptic_server.stages.cosim import (
     cosim_records,
     cosim_tick,
 )
+from haptic_local_model.haptic_server.station import rows_in_order
 from haptic_local_model.shared.config import load_user
 from haptic_local_model.shared.net.stations import (
     StationNetworkConfig,
@@ -292,11 +293,7 @@ class SharedWorld:
         world_row(data, np.zeros(1, PORT_ROW_DTYPE), 0, 0.0, np.zeros(MAX_COSIM_BODIES))
 
     def logged_rows(self) -> np.ndarray:
-        n, cap = self.n_rows, len(self.rows)
-        if n <= cap:
-            return self.rows[:n].copy()
-        k = n % cap
-        return np.concatenate([self.rows[k:], self.rows[:k]])
+        return rows_in_order(self.rows, self.n_rows)
 
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {

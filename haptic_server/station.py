@@ -58,6 +58,16 @@ RING_S = 60.0  # without --log: the last this long (the summary's figures)
 EXTRAPOLATE_S = 0.005
 
 
+def rows_in_order(rows: np.ndarray, written: int) -> np.ndarray:
+    """A ring of rows, `written` of them written in turn: those kept, oldest first (the
+    last len(rows) if more were written). The station's and the shared world's logs."""
+    cap = len(rows)
+    if written <= cap:
+        return rows[:written].copy()
+    k = written % cap
+    return np.concatenate([rows[k:], rows[:k]])
+
+
 @dataclass
 class StationCounters:
     received: int = 0
@@ -238,12 +248,7 @@ class Station:
         self._place(self.scene.ports[self.index].device_start)
 
     def logged_rows(self) -> np.ndarray:
-        """The rows kept, in order (the last len(rows) ticks if the run was longer)."""
-        n, cap = self.n_rows, len(self.rows)
-        if n <= cap:
-            return self.rows[:n].copy()
-        k = n % cap
-        return np.concatenate([self.rows[k:], self.rows[:k]])
+        return rows_in_order(self.rows, self.n_rows)
 
     def summary(self) -> dict[str, Any]:
         rows = self.logged_rows()
