@@ -178,6 +178,21 @@ def _walls(scene: HandSceneConfig) -> list[tuple[np.ndarray, float, tuple[float,
     return out
 
 
+def port_hand_records(
+    scene: HandSceneConfig, limits: tuple[float, float, float]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The hand's (chain, model, data) at the world's origin, its palm's rates a device's
+    estimate (not differenced: haptic_server/stages/hand.py, `measured_palm`); `limits`:
+    the device's, world frame. The run's and the replay's."""
+    c = scene.contact
+    contact = (c.stiffness_n_per_m, c.damping_ns_per_m, c.friction,
+               c.friction_stiffness_ratio * c.stiffness_n_per_m)  # fmt: skip
+    chain, model, data = hand_records(scene.hands[0], _walls(scene), contact, (0.0, 0.0, 0.0),
+                                      limits, scene.period_s, gravity=scene.gravity)  # fmt: skip
+    model[0]["measured_palm"] = 1
+    return chain, model, data
+
+
 def glove_script(user: UserConfig, rest: list[float]) -> np.ndarray:
     """The user's finger_angles as rows (t, a_1, ..., a_n) for the hand's n joints; without
     any, the fingers' rest angles held."""
@@ -220,17 +235,11 @@ class HandPortRun:
         scale = io[0]["map"][0]["scale"] * io[0]["map"][0]["force_scale"]
         world_limits = vec3(io[0]["limits"] / scale)
         self.io = io
-        c = scene.contact
-        contact = (c.stiffness_n_per_m, c.damping_ns_per_m, c.friction,
-                   c.friction_stiffness_ratio * c.stiffness_n_per_m)  # fmt: skip
         rest = [a for f in self.spec.fingers for a in f.rest]
         self.glove = glove_script(self.user, rest)
         io[0]["glove"][: len(self.glove), : self.glove.shape[1]] = self.glove
         io[0]["n_glove"] = len(self.glove)
-        self.chain, self.model, self.data = hand_records(
-            self.spec, _walls(scene), contact, (0.0, 0.0, 0.0), world_limits, scene.period_s,
-            gravity=scene.gravity,
-        )  # fmt: skip
+        self.chain, self.model, self.data = port_hand_records(scene, world_limits)
         self._place(port.device_start)
 
     def _place(self, start: tuple[float, float, float]) -> None:
@@ -264,11 +273,7 @@ def replay_hand_rows(scene: HandSceneConfig, limits: tuple[float, float, float],
                      rows: np.ndarray) -> tuple[int, int | None]:  # fmt: skip
     """Re-run the hand on the rows' tracked hand (the device's palm, the glove); (ticks
     compared, the first tick whose outputs differ in any bit, or None)."""
-    c = scene.contact
-    contact = (c.stiffness_n_per_m, c.damping_ns_per_m, c.friction,
-               c.friction_stiffness_ratio * c.stiffness_n_per_m)  # fmt: skip
-    chain, model, data = hand_records(scene.hands[0], _walls(scene), contact, (0.0, 0.0, 0.0),
-                                      limits, scene.period_s, gravity=scene.gravity)  # fmt: skip
+    chain, model, data = port_hand_records(scene, limits)
     d = data[0]
     for k, row in enumerate(rows):
         d["target"] = row["target"]

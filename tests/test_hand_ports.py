@@ -64,6 +64,21 @@ def test_the_device_renders_the_wall_through_the_hand(pressed) -> None:
     assert separation == pytest.approx(-wall[0] / run.spec.palm_spring[0], rel=0.01)
 
 
+def test_a_devices_estimated_rates_are_not_differenced_into_the_palms_acceleration() -> None:
+    """The palm's tracked rates are the maglev's twist estimate: differenced by 1 / dt they
+    carried its noise into the command. Not differenced, the command's noise at rest halves
+    (the same seeded noise, the flag off and on)."""
+    spread = {}
+    for measured in (0, 1):
+        run = HandPortRun(load_hand_scene(SCENE), load_simulated_device("maglev"))
+        run.model[0]["measured_palm"] = measured
+        rows = run.run(1.5).rows
+        spread[measured] = float(rows["command"][PRESS, 0].std())
+        if measured:
+            assert np.all(run.data[0]["target_acc"][:3] == 0.0)
+    assert spread[1] < 0.7 * spread[0], spread
+
+
 def test_a_tendon_glove_only_holds_a_finger_back(pressed) -> None:
     """Unilateral glove: each joint's torque on the user is applied only when it resists
     flexion (flexion sign times torque <= 0), and then is the ungated torque itself."""

@@ -93,6 +93,9 @@ HAND_DTYPE = np.dtype(
         ("gravity", F8, (2,)),
         ("max_wrench", F8, (3,)),
         ("theta", F8),  # the step's implicitness: 1/2 trapezoidal ... 1 Euler
+        # 1: the palm's rates are a device's estimate (noisy): not differenced into an
+        # acceleration (by 1 / dt it would carry the estimate's noise into the command)
+        ("measured_palm", I8),
         ("glove_limit", F8),  # N m: the glove's torque is clipped here
     ]
 )
@@ -393,7 +396,8 @@ def tracked_inputs(m, d):
             d.prev_target_rate[a] = 0.0
             d.primed[a] = 0
             continue
-        d.target_acc[a] = (vt - d.prev_target_rate[a]) / dt if d.primed[a] == 1 else 0.0
+        differenced = d.primed[a] == 1 and not (m.measured_palm == 1 and a < 3)
+        d.target_acc[a] = (vt - d.prev_target_rate[a]) / dt if differenced else 0.0
         d.prev_target_rate[a] = vt
         d.primed[a] = 1
 
