@@ -89,6 +89,11 @@ def _hand_port_kernels() -> None:
         HandPortRun(load_hand_scene("hand_press"), load_simulated_device(config)).run(0.002)
 
 
+def _port_kernels() -> None:
+    _station_kernels()
+    _hand_port_kernels()
+
+
 def warm_groups() -> list[tuple[str, Callable[[], None]]]:
     """What warm_all compiles, in groups: (a description, the call that compiles it). The
     first scene compiles most of the sim and the rendering stages, the others what they add."""
@@ -106,8 +111,7 @@ def warm_groups() -> list[tuple[str, Callable[[], None]]]:
     groups.append(
         (f"real-time loop kernels: {len(built_in_models())} device models", _loop_kernels)
     )
-    groups.append(("shared world and station kernels", _station_kernels))
-    groups.append(("hand scene port kernels", _hand_port_kernels))
+    groups.append(("port kernels: the shared world, a station, a hand scene", _port_kernels))
     return groups
 
 
