@@ -166,12 +166,13 @@ def map_sensors_to_world(world_map, sensors, world_sensors):
 @njit(cache=True)
 def map_command_to_device(world_map, world_wrench, device_limits, device_wrench):
     """The world-frame command as the device wrench, clipped at the device's own limits (the
-    world-frame limits already bound it; this clip only removes round-off)."""
+    world-frame limits already bound it; this clip only removes round-off). A value that is
+    not finite gives 0 on its axis: a clip alone would turn NaN into a full-limit force."""
     m = world_map[0]
     for c in range(3):
         v = m.force_scale * m.scale[c] * world_wrench[c]
         lim = device_limits[c]
-        device_wrench[c] = min(lim, max(-lim, v))
+        device_wrench[c] = min(lim, max(-lim, v)) if math.isfinite(v) else 0.0
 
 
 # ------------------------------------------------------------------------------ the map

@@ -21,24 +21,17 @@ from numba import njit
 from haptic_local_model.device_models.base import SENSOR_DTYPE, SimulatedDevice
 from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import (
-    device_advance,
-    device_command,
     device_noise_ready,
-    device_read,
-    device_sense_hand,
-    device_true_state,
 )
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import (
     MAP_DTYPE,
     DeviceWorldMap,
-    map_command_to_device,
-    map_rate_step,
-    map_sensors_to_world,
 )
 from haptic_local_model.haptic_server.stages.cosim import body_core
 from haptic_local_model.haptic_server.stages.hand import hand_records, hand_tick
-from haptic_local_model.haptic_server.users import USER_DTYPE, hand_wrench, user_record
+from haptic_local_model.haptic_server.stages.port_io import drive_device, read_device
+from haptic_local_model.haptic_server.users import USER_DTYPE, user_record
 from haptic_local_model.shared.config import UserConfig, load_user
 from haptic_local_model.shared.kinematics import MAX_DOF
 from haptic_local_model.shared.port_config import HandSceneConfig
@@ -146,25 +139,17 @@ def run_hand_port_ticks(chain, model, data, io, dev, rows, start, stop):
     not run: stop, or earlier when the device's noise block needs a refill."""
     d = data[0]
     s = io[0]
-    u = s.user[0]
     n = model[0].dof
     for k in range(start, stop):
         if not device_noise_ready(dev, d.dt):
             return k
-        device_true_state(dev, u.device_pose, u.device_twist)
-        hand_wrench(s.user, s.t - u.start_s, u.device_pose, u.device_twist, s.hand)
-        device_sense_hand(dev, s.hand)
-        device_read(dev, s.sensors)
-        map_sensors_to_world(s.map, s.sensors, s.world)
+        read_device(s.user, s.t, dev, s.hand, s.sensors, s.map, s.world)
         for c in range(3):
             d.target[c] = s.world[0].pose[c]
             d.target_rate[c] = s.world[0].twist[c]
         glove_at(s.glove, s.n_glove, s.t, n - 3, d.target[3:n], d.target_rate[3:n])
         hand_tick(chain, model, data)
-        map_command_to_device(s.map, d.command, s.limits, s.out)
-        device_command(dev, s.out)
-        device_advance(dev, d.dt, s.hand)
-        map_rate_step(s.map, s.sensors[0].pose, d.dt)
+        drive_device(s.map, d.command, s.limits, s.out, dev, d.dt, s.hand, s.sensors)
         _row(d, s, rows[k])
         s.t += d.dt
     return stop

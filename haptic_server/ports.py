@@ -20,20 +20,12 @@ from numba import njit
 from haptic_local_model.device_models.base import SENSOR_DTYPE, SimulatedDevice
 from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import (
-    device_advance,
-    device_command,
     device_noise_ready,
-    device_read,
-    device_sense_hand,
-    device_true_state,
 )
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import (
     MAP_DTYPE,
     DeviceWorldMap,
-    map_command_to_device,
-    map_rate_step,
-    map_sensors_to_world,
 )
 from haptic_local_model.haptic_server.stages.cosim import (
     MAX_COSIM_BODIES,
@@ -42,7 +34,8 @@ from haptic_local_model.haptic_server.stages.cosim import (
     cosim_records,
     cosim_tick,
 )
-from haptic_local_model.haptic_server.users import USER_DTYPE, hand_wrench, user_record
+from haptic_local_model.haptic_server.stages.port_io import drive_device, read_device
+from haptic_local_model.haptic_server.users import USER_DTYPE, user_record
 from haptic_local_model.shared.config import UserConfig, load_user
 from haptic_local_model.shared.port_config import MAX_PORTS, PortSceneConfig
 
@@ -86,13 +79,8 @@ PORT_ROW_DTYPE = np.dtype(
 @njit(cache=True)
 def _port_in(cd, io, p, dev):
     """Port p's hand on its device, then the device's reading in the world frame."""
-    users = io.users[p : p + 1]
-    u = users[0]
-    device_true_state(dev, u.device_pose, u.device_twist)
-    hand_wrench(users, io.t - u.start_s, u.device_pose, u.device_twist, io.hand[p])
-    device_sense_hand(dev, io.hand[p])
-    device_read(dev, io.sensors[p : p + 1])
-    map_sensors_to_world(io.maps[p : p + 1], io.sensors[p : p + 1], io.world[p : p + 1])
+    read_device(io.users[p : p + 1], io.t, dev, io.hand[p], io.sensors[p : p + 1],
+                io.maps[p : p + 1], io.world[p : p + 1])  # fmt: skip
     for c in range(3):
         cd.device_pose[p, c] = io.world[p].pose[c]
         cd.device_twist[p, c] = io.world[p].twist[c]
@@ -101,11 +89,8 @@ def _port_in(cd, io, p, dev):
 @njit(cache=True)
 def _port_out(cd, io, p, dev):
     """Port p's command to its device, clipped at its limits, and the device's physics."""
-    maps = io.maps[p : p + 1]
-    map_command_to_device(maps, cd.command[p], io.limits[p], io.out[p])
-    device_command(dev, io.out[p])
-    device_advance(dev, cd.dt, io.hand[p])
-    map_rate_step(maps, io.sensors[p].pose, cd.dt)
+    drive_device(io.maps[p : p + 1], cd.command[p], io.limits[p], io.out[p], dev, cd.dt,
+                 io.hand[p], io.sensors[p : p + 1])  # fmt: skip
 
 
 @njit(cache=True)

@@ -92,9 +92,17 @@ def _rows_for(args: argparse.Namespace, rate_hz: float) -> int:
     return round((span + 1.0) * rate_hz)
 
 
-def _stop_on_signals(obj: Any) -> None:
-    signal.signal(signal.SIGTERM, obj.request_stop)
-    signal.signal(signal.SIGINT, obj.request_stop)
+def _run_loop(prog: str, loop: Any, duration_s: float | None) -> dict[str, Any] | None:
+    """Run the world's or a station's loop until SIGTERM, SIGINT or its duration; its
+    summary, or None (said in one line) if the router cannot be reached."""
+    signal.signal(signal.SIGTERM, loop.request_stop)
+    signal.signal(signal.SIGINT, loop.request_stop)
+    try:
+        summary: dict[str, Any] = loop.run(duration_s, ready=lambda: emit("ready", prog=prog))
+    except ConnectionError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return None
+    return summary
 
 
 def _finish(prog: str, summary: dict[str, Any], path: Path | None) -> None:
@@ -139,11 +147,8 @@ def world_main(argv: list[str] | None = None) -> int:
         network = load_station_network(args.network, "world")
         scene, text = _scene(args.scene)
         world = SharedWorld(scene, network, _rows_for(args, scene.haptic_rate_hz))
-        _stop_on_signals(world)
-        try:
-            summary = world.run(args.duration, ready=lambda: emit("ready", prog="haptic-world"))
-        except ConnectionError as exc:
-            print(f"haptic-world: {exc}", file=sys.stderr)
+        summary = _run_loop("haptic-world", world, args.duration)
+        if summary is None:
             return 1
         if args.log is not None:
             rows = world.logged_rows()
@@ -180,11 +185,8 @@ def station_main(argv: list[str] | None = None) -> int:
         user = load_user(args.user or spec.user)
         rows = _rows_for(args, scene.haptic_rate_hz)
         station = Station(scene, network, args.port, device, user, rows)
-        _stop_on_signals(station)
-        try:
-            summary = station.run(args.duration, ready=lambda: emit("ready", prog="haptic-station"))
-        except ConnectionError as exc:
-            print(f"haptic-station: {exc}", file=sys.stderr)
+        summary = _run_loop("haptic-station", station, args.duration)
+        if summary is None:
             return 1
         if args.log is not None:
             logged = station.logged_rows()

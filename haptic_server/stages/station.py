@@ -13,9 +13,9 @@ mapped to the device, clipped at its limits. Without a fresh tool state (none fo
 watchdog's period, or the world says it holds the port) the command ramps over `ramp_s` to
 the safe state, damping on the handle's own motion; it ramps back the same way when tool
 states return. A reading that is not finite renders zero for the tick; a coupling or a
-command that is not finite (checked before the clip: a clip turns NaN into a limit) is
-zeroed and counted. No I/O: the loop (haptic_server/station.py) feeds the tool state and its
-age and publishes the device state this leaves in `world`.
+command that is not finite is zeroed and counted. No I/O: the loop
+(haptic_server/station.py) feeds the tool state and its age and publishes the device state
+this leaves in `world`.
 """
 
 from __future__ import annotations
@@ -29,17 +29,14 @@ from haptic_local_model.device_models.base import SENSOR_DTYPE
 from haptic_local_model.device_models.kernels import (
     device_advance,
     device_command,
-    device_read,
-    device_sense_hand,
-    device_true_state,
 )
 from haptic_local_model.device_models.world_map import (
     MAP_DTYPE,
     map_command_to_device,
     map_rate_step,
-    map_sensors_to_world,
 )
-from haptic_local_model.haptic_server.users import USER_DTYPE, hand_wrench
+from haptic_local_model.haptic_server.stages.port_io import read_device
+from haptic_local_model.haptic_server.users import USER_DTYPE
 
 F8 = np.float64
 I8 = np.int64
@@ -116,12 +113,7 @@ def _wrap(a):
 def station_tick(station, dev):
     """One tick (module docstring)."""
     s = station[0]
-    u = s.user[0]
-    device_true_state(dev, u.device_pose, u.device_twist)
-    hand_wrench(s.user, s.t - u.start_s, u.device_pose, u.device_twist, s.hand)
-    device_sense_hand(dev, s.hand)
-    device_read(dev, s.sensors)
-    map_sensors_to_world(s.map, s.sensors, s.world)
+    read_device(s.user, s.t, dev, s.hand, s.sensors, s.map, s.world)
     w = s.world[0]
     sen = s.sensors[0]
     s.cut = 0
