@@ -14,6 +14,7 @@ import pytest
 from haptic_local_model.benchmarks.grasp import (
     SCENE,
     below_cone,
+    fit_weights,
     hold,
     lift,
     pose_of,
@@ -176,14 +177,25 @@ def test_v4_1_a_2n_squeeze_holds_the_box(scene):
     assert h["faults"] == 0
 
 
-@pytest.mark.parametrize("devices", [("ideal", "ideal"), ("maglev", "maglev")])
+@pytest.mark.parametrize(
+    "devices", [("ideal", "ideal"), ("maglev", "maglev"), ("twin_pantograph", "twin_pantograph")]
+)
 def test_v4_2_below_the_cone_the_box_slides_at_g_minus_2_mu_n_over_m(scene, devices):
-    """V4.2 against the squeeze the pads measured (to 5 %); on ideal devices the squeeze
-    is the hands' 0.8 N and the nominal 1.81 m/s^2 holds to 5 % as well."""
+    """V4.2: a grip that starts as it slides meets the nominal 1.81 m/s^2 to 5 % on every
+    device, and the sliding friction against the squeeze the pads measured (along their
+    normals, weighted as the fit weighs the window) to 1 %: it is mu N while it slides."""
     r = below_cone(scene, devices)
-    assert abs(r["error_vs_measured_squeeze"]) <= 0.05
-    if devices[0] == "ideal":
-        assert abs(r["error_fraction"]) <= 0.05
+    assert abs(r["error_fraction"]) <= 0.05
+    assert abs(r["error_vs_measured_squeeze"]) <= 0.01
+    assert r["squeeze_measured_n"] == pytest.approx(0.8, rel=0.01)
+
+
+def test_the_fit_weights_are_what_a_quadratic_fit_reports_of_an_acceleration():
+    t = np.arange(20, 121) * 1e-3
+    a = 2.0 + np.sin(40.0 * t)
+    y = np.cumsum(np.cumsum(a) * 1e-3) * 1e-3
+    assert fit_weights(t) @ a == pytest.approx(2.0 * np.polyfit(t, y, 2)[0], rel=1e-9)
+    assert fit_weights(t) @ a != pytest.approx(a.mean(), rel=1e-3)
 
 
 def test_v4_3_lift_and_carry(scene):
