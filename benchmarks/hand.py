@@ -19,7 +19,9 @@ as a script (haptic_server/stages/hand.py), at 1 kHz:
   glove script): what the user's hand holds against at rest against the wall's force on
   the hand, and the cost of a tick, on the ideal device, the twin pantograph and the maglev;
 - V5.5 two hands hold the box (`haptic_server/stages/hand_grasp.py`: both hands and the
-  box in one theta-step) as in V4.1, scripted and without noise (`two_hands_hold`);
+  box in one theta-step) as in V4.1, scripted and without noise (`two_hands_hold`), and
+  in the `hand_grasp` scene with each palm driven by a simulated device (`hand_grasp_port`:
+  V4.1's acceptance with its transparency check, and the tick's cost);
 - V5.4 a fingertip swept at 1 m/s across a 2 mm post, 1000 placements along the finger:
   how many the post passes through (its centre crossing a phalanx's core line within the
   phalanx), the deepest penetration, and the same with seed 004's emulation (the proxy stepped every 3 ticks),
@@ -46,6 +48,10 @@ from scipy import optimize
 from haptic_local_model.benchmarks.grasp import from_frame, to_frame, window_means
 from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.hand_grasp_ports import (
+    HAND_GRASP_ROW_DTYPE,
+    HandGraspRun,
+)
 from haptic_local_model.haptic_server.hand_ports import (
     HAND_ROW_DTYPE,
     HandPortRun,
@@ -366,6 +372,22 @@ def two_hands(squeeze_n: float, g: float) -> tuple[tuple, tuple, tuple, np.ndarr
     return tuple(chains), tuple(models), tuple(datas), gm, gd
 
 
+def palm_slip(
+    box: np.ndarray, palms: tuple[np.ndarray, ...], size: tuple[float, float], half: float
+) -> list[float]:
+    """For each box corner on a palm's face (its frame's y = half) at the first tick: how
+    far that material point moved along the face from then on, the largest (m)."""
+    slip = []
+    for palm in palms:
+        for cx in (-size[0] / 2, size[0] / 2):
+            for cy in (-size[1] / 2, size[1] / 2):
+                local = to_frame(palm, from_frame(box, np.array([cx, cy])))
+                if abs(local[0, 1] - half) > 5e-4:
+                    continue  # not on this palm's face
+                slip.append(float(np.max(np.abs(local[:, 0] - local[0, 0]))))
+    return slip
+
+
 def two_hands_hold(duration_s: float = 5.2, settle_s: float = 0.2, squeeze_n: float = 2.0) -> dict:
     """V5.5 (module docstring): `two_hands`, g = 9.81, the tracked hands still for 5 s:
     V4.1's slip (each box corner along its palm's face, from the poses), balance (the box's
@@ -382,15 +404,7 @@ def two_hands_hold(duration_s: float = 5.2, settle_s: float = 0.2, squeeze_n: fl
     k0 = round(settle_s / DT)
     box = out[:, 0:3]
     balance = window_means(t, out[:, 3:5] + np.array([0.0, -BOX_MASS * g]), settle_s, duration_s)
-    slip = []
-    for palm in (out[:, 6:9], out[:, 9:12]):
-        for cx in (-BOX_SIZE[0] / 2, BOX_SIZE[0] / 2):
-            for cy in (-BOX_SIZE[1] / 2, BOX_SIZE[1] / 2):
-                world = from_frame(box[k0:], np.array([cx, cy]))
-                local = to_frame(palm[k0:], world)
-                if abs(local[0, 1] - half) > 5e-4:
-                    continue  # not on this palm's face
-                slip.append(float(np.max(np.abs(local[:, 0] - local[0, 0]))))
+    slip = palm_slip(box[k0:], (out[k0:, 6:9], out[k0:, 9:12]), BOX_SIZE, half)
     return {
         "contacts_tracked": len(slip),
         "slip_max_m": max(slip) if slip else float("nan"),
@@ -465,6 +479,58 @@ def hand_port(scene_name: str, device: str, seconds: float = 2.6) -> dict:
     }
 
 
+def hand_grasp_port(
+    devices: tuple[str, str], duration_s: float = 5.2, settle_s: float = 0.2
+) -> dict:
+    """V5.5 with devices: `hand_grasp` (haptic_server/hand_grasp_ports.py), each palm
+    driven by its simulated device (sensor noise on), each user squeezing 2 N and carrying
+    its hand and half the box, g = 9.81, 5 s: V4.1's slip, balance (the box's contact force
+    + m g, 100 ms means: its m a), contact losses, and transparency (each device's command
+    against its user's wrench on it, 100 ms means: what the user feels against what the
+    user pushes); each tick's cost, timed from Python around its compiled call (two device
+    models, two gloves, both hands and the box)."""
+    scene = load_hand_scene("hand_grasp")
+    run = HandGraspRun(scene, [load_simulated_device(d) for d in devices])
+    n = round(duration_s * scene.haptic_rate_hz)
+    rows = np.zeros(n, HAND_GRASP_ROW_DTYPE)
+    run.ticks(rows, 0, 1)  # compile
+    ns = np.zeros(n)
+    for k in range(1, n):
+        t0 = time.perf_counter_ns()
+        run.ticks(rows, k, k + 1)
+        ns[k] = time.perf_counter_ns() - t0
+    box = scene.box
+    assert box is not None
+    t = rows["t"]
+    k0 = round(settle_s * scene.haptic_rate_hz)
+    g = abs(scene.gravity[1])
+    weight = box.mass * np.array(scene.gravity)
+    balance = window_means(t, rows["box_force"][:, :2] + weight, settle_s, duration_s)
+    half = scene.hands[0].palm_size[1] / 2
+    palms = tuple(rows["q"][k0:, p, :3] for p in range(2))
+    slip = palm_slip(rows["box_q"][k0:], palms, box.size, half)
+    felt = rows["command"][:, :, :2] + rows["hand_wrench"][:, :, :2]
+    transparency = [
+        float(np.max(np.linalg.norm(window_means(t, felt[:, p], settle_s, duration_s), axis=1)))
+        for p in range(2)
+    ]
+    return {
+        "devices": "+".join(devices),
+        "contacts_tracked": len(slip),
+        "slip_max_m": max(slip) if slip else float("nan"),
+        "balance_max_fraction": float(np.max(np.linalg.norm(balance, axis=1)) / (box.mass * g)),
+        "contact_losses": int(np.sum(rows["n_contacts"][k0:] < rows["n_contacts"][k0])),
+        "contacts_at_hold": int(rows["n_contacts"][k0]),
+        "box_drop_m": float(rows["box_q"][k0, 1] - rows["box_q"][-1, 1]),
+        "transparency_max_n": max(transparency),
+        "squeeze_n": float(np.median(np.abs(rows["command"][k0:, :, 0]))),
+        "steps_held": int(rows["singular"][-1]),
+        "not_finite": int(rows["invalid"][-1].sum()),
+        "tick_p50_us": float(np.percentile(ns[1:], 50) / 1e3),
+        "tick_p99_us": float(np.percentile(ns[1:], 99) / 1e3),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", help="write every figure to this file")
@@ -476,7 +542,17 @@ def main(argv: list[str] | None = None) -> int:
         "hand scenes: a device drives the palm": [
             hand_port(name, device)
             for name in shipped_port_scenes(hands=True)
+            if len(load_hand_scene(name).ports) == 1
             for device in ("ideal", "twin_pantograph", "maglev")
+        ],
+        "V5.5 hand_grasp: two devices drive the hands": [
+            hand_grasp_port(devices)
+            for devices in (
+                ("maglev", "maglev"),
+                ("twin_pantograph", "twin_pantograph"),
+                ("ideal", "ideal"),
+                ("maglev", "twin_pantograph"),
+            )
         ],
         "V5.3 implicit drives": implicit_sweep(),
         "V5.3 with theta 0.55 and 0.5 (not shipped)": implicit_sweep((100.0,), 0.55)

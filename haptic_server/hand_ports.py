@@ -34,7 +34,7 @@ from haptic_local_model.haptic_server.stages.port_io import drive_device, read_d
 from haptic_local_model.haptic_server.users import USER_DTYPE, user_record
 from haptic_local_model.shared.config import UserConfig, load_user
 from haptic_local_model.shared.kinematics import MAX_DOF
-from haptic_local_model.shared.port_config import HandSceneConfig
+from haptic_local_model.shared.port_config import HandSceneConfig, HandTable
 from haptic_local_model.shared.protocol.station import vec3
 
 F8 = np.float64
@@ -134,22 +134,35 @@ def _row(d, io, r):
 
 
 @njit(cache=True)
+def track_hand(m, d, s, dev):
+    """The user's hand on the device's true state; the device's world-mapped reading is
+    the tracked palm (pose, twist as the rate), the glove script the fingers."""
+    n = m.dof
+    read_device(s.user, s.t, dev, s.hand, s.sensors, s.map, s.world)
+    for c in range(3):
+        d.target[c] = s.world[0].pose[c]
+        d.target_rate[c] = s.world[0].twist[c]
+    glove_at(s.glove, s.n_glove, s.t, n - 3, d.target[3:n], d.target_rate[3:n])
+
+
+@njit(cache=True)
+def drive_hand(d, s, dev):
+    """The palm's command to the device, mapped, clipped at its limits; its physics."""
+    drive_device(s.map, d.command, s.limits, s.out, dev, d.dt, s.hand, s.sensors)
+
+
+@njit(cache=True)
 def run_hand_port_ticks(chain, model, data, io, dev, rows, start, stop):
     """Ticks start..stop-1 (module docstring), row k into rows[k]. Returns the first tick
     not run: stop, or earlier when the device's noise block needs a refill."""
     d = data[0]
     s = io[0]
-    n = model[0].dof
     for k in range(start, stop):
         if not device_noise_ready(dev, d.dt):
             return k
-        read_device(s.user, s.t, dev, s.hand, s.sensors, s.map, s.world)
-        for c in range(3):
-            d.target[c] = s.world[0].pose[c]
-            d.target_rate[c] = s.world[0].twist[c]
-        glove_at(s.glove, s.n_glove, s.t, n - 3, d.target[3:n], d.target_rate[3:n])
+        track_hand(model[0], d, s, dev)
         hand_tick(chain, model, data)
-        drive_device(s.map, d.command, s.limits, s.out, dev, d.dt, s.hand, s.sensors)
+        drive_hand(d, s, dev)
         _row(d, s, rows[k])
         s.t += d.dt
     return stop
@@ -157,22 +170,27 @@ def run_hand_port_ticks(chain, model, data, io, dev, rows, start, stop):
 
 def _walls(scene: HandSceneConfig) -> list[tuple[np.ndarray, float, tuple[float, float, float]]]:
     out = []
-    for b in scene.bodies:
+    for b in scene.walls:
         v, rounding = body_core(b)
         out.append((v, rounding, (b.position[0], b.position[1], b.angle)))
     return out
 
 
+def scene_contact(scene: HandSceneConfig) -> tuple[float, float, float, float]:
+    """(stiffness, damping, friction, tangential stiffness) of every contact of the scene."""
+    c = scene.contact
+    return (c.stiffness_n_per_m, c.damping_ns_per_m, c.friction,
+            c.friction_stiffness_ratio * c.stiffness_n_per_m)  # fmt: skip
+
+
 def port_hand_records(
-    scene: HandSceneConfig, limits: tuple[float, float, float]
+    scene: HandSceneConfig, limits: tuple[float, float, float], p: int = 0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The hand's (chain, model, data) at the world's origin, its palm's rates a device's
+    """Port p's hand's (chain, model, data) at its pose, its palm's rates a device's
     estimate (not differenced: haptic_server/stages/hand.py, `measured_palm`); `limits`:
     the device's, world frame. The run's and the replay's."""
-    c = scene.contact
-    contact = (c.stiffness_n_per_m, c.damping_ns_per_m, c.friction,
-               c.friction_stiffness_ratio * c.stiffness_n_per_m)  # fmt: skip
-    chain, model, data = hand_records(scene.hands[0], _walls(scene), contact, (0.0, 0.0, 0.0),
+    spec = scene.hand_of(p)
+    chain, model, data = hand_records(spec, _walls(scene), scene_contact(scene), spec.pose,
                                       limits, scene.period_s, gravity=scene.gravity)  # fmt: skip
     model[0]["measured_palm"] = 1
     return chain, model, data
@@ -199,6 +217,46 @@ class HandPortResult:
     wall_s: float
 
 
+def port_io(
+    s: np.ndarray, device: SimulatedDevice, user: UserConfig, spec: HandTable
+) -> tuple[float, float, float]:
+    """Fill a port's HAND_IO_DTYPE record `s` for this device, user and hand (map, limits,
+    the glove's script); the device's limits in the world frame."""
+    wm = getattr(device, "world_map", None) or DeviceWorldMap.identity()
+    s["map"][0] = wm.record[0]
+    s["limits"] = device.limits().max_wrench
+    rest = [a for f in spec.fingers for a in f.rest]
+    glove = glove_script(user, rest)
+    s["glove"][: len(glove), : glove.shape[1]] = glove
+    s["n_glove"] = len(glove)
+    scale = s["map"][0]["scale"] * s["map"][0]["force_scale"]
+    return vec3(s["limits"] / scale)
+
+
+def place_device(
+    s: np.ndarray,
+    device: SimulatedDevice,
+    user: UserConfig,
+    spec: HandTable,
+    start: tuple[float, float, float],
+) -> None:
+    """The device at rest at `start`, its map putting it where the palm's springs are in
+    equilibrium with its hand's constant push at the palm's pose (the tracked palm inside
+    the grasp by push / k), its user's script starting there."""
+    device.reset(np.array(start, F8))
+    pose, twist = np.zeros(3), np.zeros(3)
+    device.true_state(pose, twist)
+    u = user_record(user)[0]
+    u["start_pose"] = pose
+    s["user"][0] = u
+    wm = s["map"][0]
+    push = np.asarray(user.wrench, F8) / (wm["force_scale"] * wm["scale"])
+    k = np.asarray(spec.palm_spring, F8)
+    stretch = np.divide(push, k, out=np.zeros(3), where=k > 0)
+    wm["offset"] = np.asarray(spec.pose, F8) + stretch - wm["scale"] * pose
+    s["map"][0] = wm
+
+
 class HandPortRun:
     """A hand scene with its device and user, ready to run."""
 
@@ -212,33 +270,11 @@ class HandPortRun:
         port = scene.ports[0]
         self.device = device or load_simulated_device(port.device)
         self.user = user or load_user(port.user)
-        self.spec = scene.hands[0]
-        wm = getattr(self.device, "world_map", None) or DeviceWorldMap.identity()
-        io = np.zeros(1, HAND_IO_DTYPE)
-        io[0]["map"][0] = wm.record[0]
-        io[0]["limits"] = self.device.limits().max_wrench
-        scale = io[0]["map"][0]["scale"] * io[0]["map"][0]["force_scale"]
-        world_limits = vec3(io[0]["limits"] / scale)
-        self.io = io
-        rest = [a for f in self.spec.fingers for a in f.rest]
-        self.glove = glove_script(self.user, rest)
-        io[0]["glove"][: len(self.glove), : self.glove.shape[1]] = self.glove
-        io[0]["n_glove"] = len(self.glove)
+        self.spec = scene.hand_of(0)
+        self.io = np.zeros(1, HAND_IO_DTYPE)
+        world_limits = port_io(self.io[0], self.device, self.user, self.spec)
         self.chain, self.model, self.data = port_hand_records(scene, world_limits)
-        self._place(port.device_start)
-
-    def _place(self, start: tuple[float, float, float]) -> None:
-        """The device at rest at its start, mapped onto the palm (at the world's origin)."""
-        self.device.reset(np.array(start, F8))
-        pose, twist = np.zeros(3), np.zeros(3)
-        self.device.true_state(pose, twist)
-        u = user_record(self.user)[0]
-        u["start_pose"] = pose
-        s = self.io[0]
-        s["user"][0] = u
-        wm = s["map"][0]
-        wm["offset"] = -wm["scale"] * pose
-        s["map"][0] = wm
+        place_device(self.io[0], self.device, self.user, self.spec, port.device_start)
 
     def run(self, duration_s: float) -> HandPortResult:
         n = round(duration_s * self.scene.haptic_rate_hz)

@@ -29,6 +29,11 @@ import numpy as np
 from mcap.writer import Writer
 
 from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.hand_grasp_ports import (
+    HAND_GRASP_ROW_DTYPE,
+    HandGraspRun,
+    replay_hand_grasp_rows,
+)
 from haptic_local_model.haptic_server.hand_ports import (
     HAND_ROW_DTYPE,
     HandPortRun,
@@ -58,6 +63,8 @@ PORT_TICK_TOPIC = "/ports/tick"
 PORT_TICK_SCHEMA = "haptic_server/PortTick"
 HAND_TICK_TOPIC = "/ports/hand_tick"
 HAND_TICK_SCHEMA = "haptic_server/HandPortTick"
+HAND_GRASP_TOPIC = "/ports/hand_grasp_tick"
+HAND_GRASP_SCHEMA = "haptic_server/HandGraspTick"
 #: the row fields a replay recomputes (the rest are its inputs or the devices' own)
 REPLAYED = ("q", "qd", "command", "body_force", "n_contacts", "penetration", "invalid", "singular")
 
@@ -174,21 +181,28 @@ def _limits(path: Path, metadata: dict[str, dict[str, str]]) -> list[tuple[float
 
 
 def replay_log(path: Path) -> tuple[int, int | None]:
-    """Re-run a port log (two ports on a co-simulated box, or a hand scene's port)."""
-    hand = (
-        path.is_file()
-        and is_indexed(path)
-        and any(topic == HAND_TICK_TOPIC for topic, _, _ in _iter_messages(path))
+    """Re-run a port log (two ports on a co-simulated box, a hand scene's port, or two
+    hands on a box), told by its topic."""
+    topics = (
+        {topic for topic, _, _ in _iter_messages(path)}
+        if path.is_file() and is_indexed(path)
+        else set()
     )
-    if hand:
-        rows, metadata = read_port_log(path, HAND_TICK_TOPIC, HAND_ROW_DTYPE)
+    for topic, dtype, ports, replay in (
+        (HAND_TICK_TOPIC, HAND_ROW_DTYPE, 1, lambda sc, lim, r: replay_hand_rows(sc, lim[0], r)),
+        (HAND_GRASP_TOPIC, HAND_GRASP_ROW_DTYPE, 2, replay_hand_grasp_rows),
+    ):
+        if topic not in topics:
+            continue
+        rows, metadata = read_port_log(path, topic, dtype)
         hand_scene = load_config_text(
             HandSceneConfig, metadata["configs"]["ports"], f"{path} (its hand scene)"
         )
         limits = _limits(path, metadata)
-        if len(limits) != 1:
-            raise ConfigError(str(path), "limits.max_wrench", f"{len(limits)} limits for 1 port")
-        return replay_hand_rows(hand_scene, limits[0], rows)
+        if len(limits) != ports or len(hand_scene.ports) != ports:
+            found = f"{len(limits)} limits for {len(hand_scene.ports)} ports"
+            raise ConfigError(str(path), "limits.max_wrench", found)
+        return replay(hand_scene, limits, rows)
     rows, metadata = read_port_log(path)
     scene = load_config_text(
         PortSceneConfig, metadata["configs"]["ports"], f"{path} (its port scene)"
@@ -202,33 +216,37 @@ def replay_log(path: Path) -> tuple[int, int | None]:
 
 
 def run_hands_cli(args: argparse.Namespace, text: str, source: str) -> int:
-    """A hand scene (one port, a mass-spring hand): run, summary, log."""
+    """A hand scene (one port and a mass-spring hand, or two hands on a box): run,
+    summary, log."""
     scene = load_config_text(HandSceneConfig, text, source)
     if round(args.duration * scene.haptic_rate_hz) < 1:
         raise ConfigError("--duration", "--duration", "shorter than one tick")
     devices = _per_port(args.device, [p.device for p in scene.ports], "--device")
     users = _per_port(args.user, [p.user for p in scene.ports], "--user")
-    user = load_user(users[0])
-    device = load_simulated_device(devices[0])
+    user_configs = [load_user(name) for name in users]
+    sim = [load_simulated_device(name) for name in devices]
     try:
-        run = HandPortRun(scene, device, user)
+        run: HandPortRun | HandGraspRun = (
+            HandPortRun(scene, sim[0], user_configs[0])
+            if len(scene.ports) == 1
+            else HandGraspRun(scene, sim, user_configs)
+        )
     except ConfigError:
         raise
-    except ValueError as exc:  # the glove's script against the hand
+    except ValueError as exc:  # a glove's script against its hand
         key, _, problem = str(exc).partition(": ")
-        raise ConfigError(str(resolve("users", users[0])), key, problem) from None
+        raise ConfigError(str(resolve("users", ",".join(users))), key, problem) from None
     result = run.run(args.duration)
     rows = result.rows
-    last = rows[-min(len(rows), round(scene.haptic_rate_hz)) :]
-    print(f"{len(rows)} ticks in {result.wall_s:.2f} s of wall time; port {scene.ports[0].name} "
-          f"({run.device.name}, {user.name}): mean command over the last second "
-          f"({last['command'][:, 0].mean():+.3f}, {last['command'][:, 1].mean():+.3f}) N, the "
-          f"walls' force on the hand ({last['contact_force'][:, 0].mean():+.3f}, "
-          f"{last['contact_force'][:, 1].mean():+.3f}) N; steps held {rows['singular'][-1]}, "
-          f"readings or commands not finite {rows['invalid'][-1]}")  # fmt: skip
+    print("\n".join(_hands_summary(scene, run, rows, result.wall_s, users)))
     if args.log is not None:
-        limits = [list(map(float, run.model[0]["max_wrench"]))]
-        write_rows_log(args.log, rows, HAND_TICK_TOPIC, HAND_TICK_SCHEMA, {
+        if isinstance(run, HandPortRun):
+            limits = [list(map(float, run.model[0]["max_wrench"]))]
+            topic, schema = HAND_TICK_TOPIC, HAND_TICK_SCHEMA
+        else:
+            limits = [list(map(float, m[0]["max_wrench"])) for m in run.models]
+            topic, schema = HAND_GRASP_TOPIC, HAND_GRASP_SCHEMA
+        write_rows_log(args.log, rows, topic, schema, {
             "configs": {"ports": text, "devices": json.dumps(devices),
                         "users": json.dumps(users)},
             "limits": {"max_wrench": json.dumps(limits)},
@@ -237,6 +255,36 @@ def run_hands_cli(args: argparse.Namespace, text: str, source: str) -> int:
         })  # fmt: skip
         print(f"log: {args.log}")
     return 0
+
+
+def _hands_summary(scene: HandSceneConfig, run: HandPortRun | HandGraspRun, rows: np.ndarray,
+                   wall_s: float, users: list[str]) -> list[str]:  # fmt: skip
+    last = rows[-min(len(rows), round(scene.haptic_rate_hz)) :]
+    lines = [f"{len(rows)} ticks in {wall_s:.2f} s of wall time"]
+    if isinstance(run, HandPortRun):
+        cmd, wall = last["command"][:, :2], last["contact_force"]
+        lines.append(
+            f"port {scene.ports[0].name} ({run.device.name}, {users[0]}): mean command over "
+            f"the last second ({cmd[:, 0].mean():+.3f}, {cmd[:, 1].mean():+.3f}) N, the walls' "
+            f"force on the hand ({wall[:, 0].mean():+.3f}, {wall[:, 1].mean():+.3f}) N"
+        )
+        lines.append(f"steps held {rows['singular'][-1]}, readings or commands not finite "
+                     f"{rows['invalid'][-1]}")  # fmt: skip
+        return lines
+    for p, port in enumerate(scene.ports):
+        cmd = last["command"][:, p, :2]
+        lines.append(
+            f"port {port.name} ({run.devices[p].name}, {users[p]}): mean command over the "
+            f"last second ({cmd[:, 0].mean():+.3f}, {cmd[:, 1].mean():+.3f}) N; readings or "
+            f"commands not finite {rows['invalid'][-1, p]}"
+        )
+    q = rows["box_q"]
+    lines.append(
+        f"box: moved ({(q[-1, 0] - q[0, 0]) * 1e3:+.3f}, {(q[-1, 1] - q[0, 1]) * 1e3:+.3f}) mm, "
+        f"turned {q[-1, 2] - q[0, 2]:+.4f} rad; hand-box contacts at the end "
+        f"{rows['n_contacts'][-1]}, steps held {rows['singular'][-1]}"
+    )
+    return lines
 
 
 def _summary(run: PortRun, rows: np.ndarray, wall_s: float) -> list[str]:

@@ -226,17 +226,26 @@ MAX_HAND_WALLS = 4
 
 @dataclass(frozen=True)
 class HandTable(HandSpec):
-    """A hand of a hand scene: HandSpec's keys and the name a port's `tool` gives."""
+    """A hand of a hand scene: HandSpec's keys, the name a port's `tool` gives, and where
+    its palm starts (x, y, theta in the world; its fingers at their rest angles)."""
 
     name: str = "hand"
+    pose: Vec3 = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        within_all(self.pose[:2], (-1.0, 1.0), "pose[0:2]", "m")
+        within(self.pose[2], (-2.0 * math.pi, 2.0 * math.pi), "pose[2]", "rad")
 
 
 @dataclass(frozen=True)
 class HandSceneConfig:
-    """One port whose tool is a mass-spring hand (DESIGN-WAVE2 §7, `configs/ports/hand_*`):
-    the port's device drives the tracked palm, its user's `finger_angles` the glove; the
-    hand's palm command goes to the device. Static walls and posts only. The hand's palm
-    springs are the port's coupling: the port's coupling_* keys are not used."""
+    """One or two ports whose tools are mass-spring hands (DESIGN-WAVE2 §7,
+    `configs/ports/hand_*`): each port's device drives its hand's tracked palm, its user's
+    `finger_angles` the glove; the hand's palm command goes to the device. Static walls and
+    posts; with two hands, one free box they hold (`hand_grasp`: both hands and the box in
+    one implicit step, haptic_server/stages/hand_grasp.py). A hand's palm springs are its
+    port's coupling: the port's coupling_* keys are not used."""
 
     name: str
     description: str = ""
@@ -250,20 +259,44 @@ class HandSceneConfig:
     def __post_init__(self) -> None:
         within_all(self.gravity, (-100.0, 100.0), "gravity", "m/s^2")
         within(self.haptic_rate_hz, (100.0, 20000.0), "haptic_rate_hz", "Hz")
-        require(len(self.ports) == 1, "ports", "a hand scene has one port (two: not built)")
-        require(len(self.hands) == 1, "hands", "a hand scene has one hand")
+        require(1 <= len(self.ports) <= MAX_PORTS, "ports", f"a hand scene has 1 to {MAX_PORTS}")
+        require(len(self.hands) == len(self.ports), "hands", "a hand scene has one hand a port")
+        names = [h.name for h in self.hands]
+        require(len(set(names)) == len(names), "hands", "two hands of one name")
+        for i, port in enumerate(self.ports):
+            require(port.tool in names, f"ports[{i}].tool", f"{port.tool!r} is none of {names}")
         require(
-            self.ports[0].tool == self.hands[0].name,
-            "ports[0].tool",
-            f"{self.ports[0].tool!r} is not the scene's hand ({self.hands[0].name!r})",
+            len({p.tool for p in self.ports}) == len(self.ports),
+            "ports",
+            "two ports hold one hand",
         )
-        require(len(self.bodies) <= MAX_HAND_WALLS, "bodies", f"at most {MAX_HAND_WALLS}")
-        for i, b in enumerate(self.bodies):
-            require(b.kind == "static", f"bodies[{i}].kind", "a hand scene's bodies are static")
+        walls = [b for b in self.bodies if b.kind == "static"]
+        free = [(i, b) for i, b in enumerate(self.bodies) if b.kind != "static"]
+        require(len(walls) <= MAX_HAND_WALLS, "bodies", f"at most {MAX_HAND_WALLS} static")
+        for i, b in free:
+            require(b.kind == "dynamic" and b.shape == "box", f"bodies[{i}]",
+                    "a hand scene's free body is a dynamic box")  # fmt: skip
+        if len(self.ports) == 2:
+            require(len(free) == 1, "bodies", "two hands hold one dynamic box (it is missing)")
+        else:
+            require(not free, "bodies", "one hand: static bodies only (a box needs two hands)")
 
     @property
     def period_s(self) -> float:
         return 1.0 / self.haptic_rate_hz
+
+    def hand_of(self, p: int) -> HandTable:
+        """Port p's hand."""
+        return next(h for h in self.hands if h.name == self.ports[p].tool)
+
+    @property
+    def walls(self) -> tuple[BodySpec, ...]:
+        return tuple(b for b in self.bodies if b.kind == "static")
+
+    @property
+    def box(self) -> BodySpec | None:
+        """The box two hands hold, if any."""
+        return next((b for b in self.bodies if b.kind != "static"), None)
 
 
 def is_hand_scene(data: dict[str, Any]) -> bool:

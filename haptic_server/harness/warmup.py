@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import os
 import sys
 import time
@@ -25,6 +26,7 @@ from haptic_local_model.device_models.registry import (
     load_simulated_device,
 )
 from haptic_local_model.haptic_server.engine import HapticEngine
+from haptic_local_model.haptic_server.hand_grasp_ports import HandGraspRun
 from haptic_local_model.haptic_server.hand_ports import HandPortRun
 from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
 from haptic_local_model.haptic_server.mailbox import compile_loop_kernels
@@ -84,9 +86,14 @@ def _station_kernels() -> None:
 
 
 def _hand_port_kernels() -> None:
-    """A hand scene's port, per device model (docs/grasp.md)."""
-    for config in built_in_models():
+    """A hand scene's port per device model, and two hands on a box per pair of them
+    (docs/grasp.md)."""
+    models = built_in_models()
+    for config in models:
         HandPortRun(load_hand_scene("hand_press"), load_simulated_device(config)).run(0.002)
+    grasp = load_hand_scene("hand_grasp")
+    for pair in itertools.product(models, repeat=2):
+        HandGraspRun(grasp, [load_simulated_device(c) for c in pair]).run(0.002)
 
 
 def _port_kernels() -> None:
@@ -111,7 +118,7 @@ def warm_groups() -> list[tuple[str, Callable[[], None]]]:
     groups.append(
         (f"real-time loop kernels: {len(built_in_models())} device models", _loop_kernels)
     )
-    groups.append(("port kernels: the shared world, a station, a hand scene", _port_kernels))
+    groups.append(("port kernels: the shared world, a station, the hand scenes", _port_kernels))
     return groups
 
 

@@ -1,0 +1,213 @@
+"""Two hands in ports holding one box (`hand_grasp`; DESIGN-WAVE2 §7 V5.5 with devices,
+docs/grasp.md), on a virtual clock.
+
+Each port is a simulated device, its map, its user (the hand holding the device and
+wearing the glove) and a mass-spring hand. Each tick, in one compiled call: each user's
+hand on its device's true state; each device's world-mapped reading is its hand's tracked
+palm, each user's `finger_angles` its glove (`hand_ports.track_hand`); both hands and the
+box in one implicit step (`stages/hand_grasp.grasp_tick`); each palm's command mapped back
+to its device, clipped at its limits, and the device's physics. The log replays bit for bit
+from the tracked hands it records.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from haptic_local_model.device_models.base import SimulatedDevice
+from haptic_local_model.device_models.common import refill_noise
+from haptic_local_model.device_models.kernels import device_noise_ready
+from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.hand_ports import (
+    HAND_IO_DTYPE,
+    drive_hand,
+    place_device,
+    port_hand_records,
+    port_io,
+    scene_contact,
+    track_hand,
+)
+from haptic_local_model.haptic_server.stages.hand_grasp import (
+    MAX_HANDS,
+    grasp_records,
+    grasp_tick,
+)
+from haptic_local_model.shared.config import UserConfig, load_user
+from haptic_local_model.shared.kinematics import MAX_DOF
+from haptic_local_model.shared.port_config import HandSceneConfig
+
+F8 = np.float64
+I8 = np.int64
+
+#: One tick of two hands on one box (world frame unless said); per hand, in port order.
+HAND_GRASP_ROW_DTYPE = np.dtype(
+    [
+        ("t", F8),
+        ("target", F8, (MAX_HANDS, MAX_DOF)),  # the tracked hands: the devices, the gloves
+        ("target_rate", F8, (MAX_HANDS, MAX_DOF)),
+        ("q", F8, (MAX_HANDS, MAX_DOF)),
+        ("qd", F8, (MAX_HANDS, MAX_DOF)),
+        ("command", F8, (MAX_HANDS, 3)),  # each palm's, world frame
+        ("out", F8, (MAX_HANDS, 3)),  # each device's, device frame
+        ("hand_wrench", F8, (MAX_HANDS, 3)),  # each user's on its device, device frame
+        ("glove_torque", F8, (MAX_HANDS, MAX_DOF)),
+        ("glove_ungated", F8, (MAX_HANDS, MAX_DOF)),
+        ("wall_force", F8, (MAX_HANDS, 2)),  # the static walls' on each hand
+        ("invalid", I8, (MAX_HANDS,)),
+        ("device_fault", I8, (MAX_HANDS,)),
+        ("box_q", F8, (3,)),
+        ("box_qd", F8, (3,)),
+        ("box_force", F8, (3,)),  # the hands' mean force and torque on the box
+        ("n_contacts", I8),  # hand-box contacts
+        ("singular", I8),  # steps held (not finite after the sub-steps), the grasp's
+    ]
+)
+#: the row fields a replay recomputes from the logged tracked hands
+HAND_GRASP_REPLAYED = ("q", "qd", "command", "glove_torque", "glove_ungated", "wall_force",
+                       "invalid", "box_q", "box_qd", "box_force", "n_contacts",
+                       "singular")  # fmt: skip
+
+
+@njit(cache=True)
+def _row(hds, gd, io, r):
+    r.t = io[0].t
+    for i in range(MAX_HANDS):
+        d = hds[i][0]
+        s = io[i]
+        for a in range(MAX_DOF):
+            r.target[i, a] = d.target[a]
+            r.target_rate[i, a] = d.target_rate[a]
+            r.q[i, a] = d.q[a]
+            r.qd[i, a] = d.qd[a]
+            r.glove_torque[i, a] = d.glove_torque[a]
+            r.glove_ungated[i, a] = d.glove_ungated[a]
+        for c in range(3):
+            r.command[i, c] = d.command[c]
+            r.out[i, c] = s.out[c]
+            r.hand_wrench[i, c] = s.hand[c]
+        r.wall_force[i, 0] = d.contact_force[0]
+        r.wall_force[i, 1] = d.contact_force[1]
+        r.invalid[i] = d.invalid
+        r.device_fault[i] = s.sensors[0].fault
+    for c in range(3):
+        r.box_q[c] = gd.q_box[c]
+        r.box_qd[c] = gd.qd_box[c]
+        r.box_force[c] = gd.box_force[c]
+    r.n_contacts = gd.n_contacts
+    r.singular = gd.singular
+
+
+@njit(cache=True)
+def run_hand_grasp_ticks(grasp, io, devices, rows, start, stop):
+    """Ticks start..stop-1 (module docstring), row k into rows[k]; grasp: (chains, models,
+    datas, grasp model, grasp data) as `grasp_port_records` makes them; devices: both
+    devices' records. Returns the first tick not run: stop, or earlier when a device's
+    noise block needs a refill."""
+    chains, hms, hds, gmodel, gdata = grasp
+    dev0, dev1 = devices
+    gd = gdata[0]
+    dt = gd.dt
+    for k in range(start, stop):
+        if not device_noise_ready(dev0, dt) or not device_noise_ready(dev1, dt):
+            return k
+        track_hand(hms[0][0], hds[0][0], io[0], dev0)
+        track_hand(hms[1][0], hds[1][0], io[1], dev1)
+        grasp_tick(chains, hms, hds, gmodel, gdata)
+        drive_hand(hds[0][0], io[0], dev0)
+        drive_hand(hds[1][0], io[1], dev1)
+        _row(hds, gd, io, rows[k])
+        io[0].t += dt
+        io[1].t += dt
+    return stop
+
+
+def grasp_port_records(
+    scene: HandSceneConfig, limits: list[tuple[float, float, float]]
+) -> tuple[tuple, tuple, tuple, np.ndarray, np.ndarray]:
+    """Both hands (each at its pose, its device's world-frame `limits`) and the box:
+    (chains, models, datas, grasp model, grasp data). The run's and the replay's."""
+    box = scene.box
+    if box is None or len(scene.ports) != MAX_HANDS:
+        raise ValueError(f"{scene.name}: not a two-hand scene with a box")
+    hands = [port_hand_records(scene, limits[p], p) for p in range(MAX_HANDS)]
+    gm, gd = grasp_records(hands, box.size, box.mass, (*box.position, box.angle),
+                           scene_contact(scene))  # fmt: skip
+    chains, models, datas = zip(*hands, strict=True)
+    return tuple(chains), tuple(models), tuple(datas), gm, gd
+
+
+@dataclass
+class HandGraspResult:
+    rows: np.ndarray
+    wall_s: float
+
+
+class HandGraspRun:
+    """A two-hand scene with its devices and users, ready to run."""
+
+    def __init__(
+        self,
+        scene: HandSceneConfig,
+        devices: list[SimulatedDevice] | None = None,
+        users: list[UserConfig] | None = None,
+    ) -> None:
+        self.scene = scene
+        self.devices = devices or [load_simulated_device(p.device) for p in scene.ports]
+        self.users = users or [load_user(p.user) for p in scene.ports]
+        self.specs = [scene.hand_of(p) for p in range(len(scene.ports))]
+        self.io = np.zeros(MAX_HANDS, HAND_IO_DTYPE)
+        self.limits = [
+            port_io(self.io[p], dev, user, spec)
+            for p, (dev, user, spec) in enumerate(
+                zip(self.devices, self.users, self.specs, strict=True)
+            )
+        ]
+        self.chains, self.models, self.datas, self.gmodel, self.gdata = grasp_port_records(
+            scene, self.limits
+        )
+        for p, port in enumerate(scene.ports):
+            place_device(self.io[p], self.devices[p], self.users[p], self.specs[p],
+                         port.device_start)  # fmt: skip
+
+    def ticks(self, rows: np.ndarray, start: int, stop: int) -> int:
+        """Ticks start..stop-1 into rows (refilling the devices' noise as they need)."""
+        k = start
+        d0, d1 = self.devices
+        while k < stop:
+            grasp = (self.chains, self.models, self.datas, self.gmodel, self.gdata)
+            k = run_hand_grasp_ticks(grasp, self.io, (d0.records, d1.records), rows, k, stop)
+            if k < stop:
+                for dev in self.devices:
+                    refill_noise(dev.noise, dev.records, self.scene.period_s)
+        return stop
+
+    def run(self, duration_s: float) -> HandGraspResult:
+        n = round(duration_s * self.scene.haptic_rate_hz)
+        rows = np.zeros(n, HAND_GRASP_ROW_DTYPE)
+        entered = time.perf_counter()
+        self.ticks(rows, 0, n)
+        return HandGraspResult(rows, time.perf_counter() - entered)
+
+
+def replay_hand_grasp_rows(
+    scene: HandSceneConfig, limits: list[tuple[float, float, float]], rows: np.ndarray
+) -> tuple[int, int | None]:
+    """Re-run both hands and the box on the rows' tracked hands; (ticks compared, the first
+    tick whose outputs differ in any bit, or None)."""
+    chains, models, datas, gm, gd = grasp_port_records(scene, limits)
+    out = np.zeros(1, HAND_GRASP_ROW_DTYPE)
+    io = np.zeros(MAX_HANDS, HAND_IO_DTYPE)
+    for k, row in enumerate(rows):
+        for i in range(MAX_HANDS):
+            datas[i][0]["target"] = row["target"][i]
+            datas[i][0]["target_rate"] = row["target_rate"][i]
+        grasp_tick(chains, models, datas, gm, gd)
+        _row(datas, gd[0], io, out[0])
+        for name in HAND_GRASP_REPLAYED:
+            if out[0][name].tobytes() != np.asarray(row[name]).tobytes():
+                return k + 1, k
+    return len(rows), None

@@ -1,0 +1,146 @@
+"""Two hands in ports holding one box (`hand_grasp`, haptic_server/hand_grasp_ports.py,
+docs/grasp.md): each palm driven by its simulated device, both hands and the box in one
+implicit step, each palm's command to its device; V5.5 with devices; the log and its
+bit-exact replay through `haptic-ports`; scenes that are not two hands on a box."""
+
+from __future__ import annotations
+
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from haptic_local_model.benchmarks.hand import hand_grasp_port, hand_mass
+from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.hand_grasp_ports import (
+    HAND_GRASP_ROW_DTYPE,
+    HandGraspRun,
+    replay_hand_grasp_rows,
+)
+from haptic_local_model.haptic_server.ports_cli import (
+    HAND_GRASP_SCHEMA,
+    HAND_GRASP_TOPIC,
+    main,
+    read_port_log,
+    write_rows_log,
+)
+from haptic_local_model.shared.config import ConfigError, resolve
+from haptic_local_model.shared.port_config import load_hand_scene
+
+SCENE = "hand_grasp"
+DEVICES = ("ideal", "twin_pantograph", "maglev")
+
+
+@pytest.mark.parametrize("devices", list(itertools.product(DEVICES, repeat=2)))
+def test_any_shipped_device_on_either_hand_holds_the_box(devices) -> None:
+    """1 s of hand_grasp on every pair of shipped devices: the box stays (50 µm), both
+    palms keep both hand-box contacts, and each device renders what its user pushes: 2 N of
+    squeeze and the hand and half the box carried, (0.218 + 0.05) kg g (100 ms means, to
+    2 %), its command within its limits every tick."""
+    scene = load_hand_scene(SCENE)
+    run = HandGraspRun(scene, [load_simulated_device(d) for d in devices])
+    rows = run.run(1.0).rows
+    box = rows["box_q"]
+    assert np.isfinite(rows["q"]).all() and rows["singular"][-1] == 0
+    assert np.abs(box[200:, :2] - box[200, :2]).max() < 5e-5, devices
+    assert rows["n_contacts"][200:].min() == 4, devices
+    g = abs(scene.gravity[1])
+    carried = (hand_mass(scene.hands[0]) + scene.box.mass / 2) * g
+    for p, dev in enumerate(run.devices):
+        tail = rows["command"][-100:, p, :2].mean(axis=0)
+        side = 1.0 if p == 1 else -1.0  # each palm is pushed back out of the grip
+        np.testing.assert_allclose(tail, [side * 2.0, -carried], rtol=0.02, err_msg=str(devices))
+        limits = np.asarray(dev.limits().max_wrench)
+        assert np.all(np.abs(rows["out"][:, p]) <= limits + 1e-12), devices
+
+
+def test_v5_5_two_device_driven_hands_hold_the_box_as_in_v4_1() -> None:
+    """V5.5 with maglevs (sensor noise on), 5 s: V4.1's slip, balance and contact losses,
+    and its transparency check (each device's command against its user's wrench, 100 ms
+    means)."""
+    r = hand_grasp_port(("maglev", "maglev"))
+    assert r["contacts_tracked"] == 4
+    assert r["slip_max_m"] <= 0.1e-3
+    assert r["balance_max_fraction"] <= 0.01
+    assert r["contact_losses"] == 0
+    assert r["transparency_max_n"] <= 0.02
+    assert r["squeeze_n"] == pytest.approx(2.0, rel=0.01)
+    assert r["steps_held"] == 0 and r["not_finite"] == 0
+
+
+def test_a_reading_that_is_not_finite_cuts_that_palms_drive_and_the_other_holds() -> None:
+    """One device's reading not finite for 5 ticks: that palm's drive along x is cut (its
+    command 0 there), nothing else is not finite, the other palm keeps squeezing, and the
+    drive is back afterwards."""
+    run = HandGraspRun(load_hand_scene(SCENE), [load_simulated_device("ideal")] * 2)
+    rows = np.zeros(800, HAND_GRASP_ROW_DTYPE)
+    run.ticks(rows, 0, 500)
+    offset = run.io[0]["map"][0]["offset"].copy()
+    run.io[0]["map"][0]["offset"][0] = np.nan
+    run.ticks(rows, 500, 505)
+    run.io[0]["map"][0]["offset"] = offset
+    run.ticks(rows, 505, 800)
+    assert np.all(rows["command"][500:505, 0, 0] == 0.0)
+    assert abs(rows["command"][499, 0, 0]) > 1.5
+    assert np.all(np.abs(rows["command"][500:505, 1, 0]) > 1.5)
+    assert np.isfinite(rows["q"]).all() and np.isfinite(rows["command"]).all()
+    assert abs(rows["command"][799, 0, 0]) > 1.5
+    assert rows["n_contacts"][799] == 4
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "key"),
+    [
+        ('[[bodies]]\nname = "box"\nkind = "dynamic"', '[[bodies]]\nname = "box"\nkind = "static"',
+         "bodies"),
+        ('tool = "right_hand"', 'tool = "left_hand"', "ports"),
+        ('tool = "right_hand"', 'tool = "a_hand"', "ports[1].tool"),
+        ('shape = "box"\nsize = [0.04, 0.02]', 'shape = "circle"\nradius = 0.01', "bodies[0]"),
+    ],
+)  # fmt: skip
+def test_a_two_hand_scene_names_what_is_wrong(tmp_path: Path, old, new, key) -> None:
+    text = resolve("ports", SCENE).read_text()
+    assert old in text
+    bad = tmp_path / "bad_grasp.toml"
+    bad.write_text(text.replace(old, new, 1))
+    with pytest.raises(ConfigError) as err:
+        load_hand_scene(str(bad))
+    assert err.value.key == key
+
+
+def test_one_hand_cannot_hold_a_box(tmp_path: Path) -> None:
+    text = resolve("ports", "hand_press").read_text()
+    bad = tmp_path / "one_hand_box.toml"
+    bad.write_text(text + '\n[[bodies]]\nname = "box"\nkind = "dynamic"\nshape = "box"\n'
+                   "size = [0.04, 0.02]\nposition = [0.0, 0.05]\nmaterial = \"pad\"\n")  # fmt: skip
+    with pytest.raises(ConfigError) as err:
+        load_hand_scene(str(bad))
+    assert err.value.key == "bodies"
+
+
+@pytest.fixture(scope="module")
+def grasp_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("grasp") / "grasp.mcap"
+    assert main(["--scene", SCENE, "--duration", "1", "--device", "maglev",
+                 "--device", "twin_pantograph", "--log", str(path)]) == 0  # fmt: skip
+    return path
+
+
+def test_a_two_hand_run_logs_every_tick_and_replays_bit_for_bit(grasp_log, tmp_path, capsys):
+    rows, metadata = read_port_log(grasp_log, HAND_GRASP_TOPIC, HAND_GRASP_ROW_DTYPE)
+    assert len(rows) == 1000 and json.loads(metadata["configs"]["devices"]) == [
+        "maglev", "twin_pantograph",
+    ]  # fmt: skip
+    assert main(["--replay", str(grasp_log)]) == 0
+    assert "replayed 1000 ticks" in capsys.readouterr().out
+    limits = [tuple(map(float, v)) for v in json.loads(metadata["limits"]["max_wrench"])]
+    tampered = rows.copy()
+    box = tampered["box_q"]
+    box[600, 1] = np.nextafter(box[600, 1], np.inf)  # one bit of the box's height
+    tampered["box_q"] = box
+    assert replay_hand_grasp_rows(load_hand_scene(SCENE), limits, tampered) == (601, 600)
+    bad = tmp_path / "tampered.mcap"
+    write_rows_log(bad, tampered, HAND_GRASP_TOPIC, HAND_GRASP_SCHEMA, metadata)
+    assert main(["--replay", str(bad)]) == 1
