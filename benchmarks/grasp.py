@@ -290,29 +290,45 @@ def lift(scene: PortSceneConfig, height_m: float = 0.03, ramp_s: float = 0.5) ->
     }
 
 
+TWIST_DEVICES = ("twin_pantograph", "twin_pantograph")
+
+
 def twist(
-    scene: PortSceneConfig, dy_m: float = 0.01, ramp_s: float = 1.0, squeeze_n: float = 2.0
+    scene: PortSceneConfig,
+    dy_m: float = 0.01,
+    ramp_s: float = 1.0,
+    squeeze_n: float = 2.0,
+    devices: tuple[str, str] = TWIST_DEVICES,
 ) -> dict:
     """V4.5 (module docstring): g = 0, no angular coupling (the pads turn with the box's
     faces). Each hand holds its device by springs on x and y (2 kN/m) and squeezes through
-    them: its target is `squeeze_n` / 2 kN/m inside the box along the grip line (the line
-    through both hands), so its push turns with the grip as a hand's does. The hands move
-    10 mm in opposite y along the arc of a rigid grip (x = r (1 - cos theta) inward, r the
-    pad's distance from the box's centre), in 20 waypoints over 1 s; the hands' line is at
-    theta = asin(y / r) by construction. The box's angle is compared, every tick, with the
-    hands' line (the brief's V4.5) and with the line through the pads' centres.
+    them: its target is inside the box along the grip line (the line through both hands) by
+    `squeeze_n` times the compliance in series (its spring, the device's coupling, the pad's
+    two contacts), so its push turns with the grip as a hand's does. The hands move 10 mm in
+    opposite y along the arc of a rigid grip (a circle of radius r - inset about the box's
+    centre, r the pad's distance from it), in 20 waypoints over 1 s; the hands' line is at
+    theta = asin(y / (r - inset)) by construction. The box's angle is compared, every tick,
+    with the hands' line (the brief's V4.5) and with the line through the pads' centres.
+
+    On twin pantographs: the pads travel 10.5 mm, and a maglev's rate control engages past
+    80 % of its 12.5 mm half-range (10 mm), moving its map's offset under the grip (the
+    case on maglevs is reported beside it).
 
     A constant push along x instead (the shipped squeeze users, `twist_fixed_push`) does
     work as the grip turns: its couple turns the box past the hands (the brief's
     "off-centre squeeze" failure mode, physical), which that case reports."""
-    return _twist(scene, dy_m, ramp_s, squeeze_n, along_grip=True)
+    return _twist(scene_with(scene, devices), dy_m, ramp_s, squeeze_n, along_grip=True)
 
 
 def twist_fixed_push(
-    scene: PortSceneConfig, dy_m: float = 0.01, ramp_s: float = 1.0, squeeze_n: float = 2.0
+    scene: PortSceneConfig,
+    dy_m: float = 0.01,
+    ramp_s: float = 1.0,
+    squeeze_n: float = 2.0,
+    devices: tuple[str, str] = TWIST_DEVICES,
 ) -> dict:
     """V4.5 with each hand's push a constant force along x (`twist`'s docstring)."""
-    return _twist(scene, dy_m, ramp_s, squeeze_n, along_grip=False)
+    return _twist(scene_with(scene, devices), dy_m, ramp_s, squeeze_n, along_grip=False)
 
 
 def _twist(
@@ -342,7 +358,7 @@ def _twist(
     for side in (-1.0, 1.0):  # left goes down and right, right up and left
         script = [(0.0, -side * inset, 0.0, 0.0), (t0, -side * inset, 0.0, 0.0)]
         for s in np.linspace(0.0, 1.0, 21)[1:]:
-            theta = math.asin(s * dy_m / radius)
+            theta = math.asin(s * dy_m / (radius - inset))  # the hand itself moves dy
             dx = -side * (radius - (radius - inset) * math.cos(theta))
             script.append(
                 (t0 + s * ramp_s, float(dx), side * (radius - inset) * math.sin(theta), 0.0)
@@ -367,9 +383,10 @@ def _twist(
     pads_line = np.arctan2(right[:, 1] - left[:, 1], right[:, 0] - left[:, 0])
     angle = pose_of(res, "box")[:, 2]
     k0 = round(t0 / sc.period_s)
-    intended = math.asin(dy_m / radius)
+    intended = math.asin(dy_m / (radius - inset))
     return {
         "push": "along the grip" if along_grip else "along x",
+        "devices": "+".join(p.device for p in sc.ports),
         "intended_rad": intended,
         "final_angle_rad": float(angle[-1]),
         "error_max_vs_hands_rad": float(np.max(np.abs(angle[k0:] - hands_line[k0:]))),
@@ -481,6 +498,9 @@ def main(argv: list[str] | None = None) -> int:
         "V4.3 lift and carry": lift(scene),
         "V4.5 twist": twist(scene),
         "V4.5 twist, each push a constant force along x": twist_fixed_push(scene),
+        "V4.5 twist on maglevs (their rate control engages past 10 mm)": twist(
+            scene, devices=("maglev", "maglev")
+        ),
         "V4.4 stability map": stability_map(scene),
     }
     for name in shipped_port_scenes(hands=False):  # every two-port scene, the 64-shape one too

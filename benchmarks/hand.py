@@ -485,9 +485,9 @@ def hand_grasp_port(
     """V5.5 with devices: `hand_grasp` (haptic_server/hand_grasp_ports.py), each palm
     driven by its simulated device (sensor noise on), each user squeezing 2 N and carrying
     its hand and half the box, g = 9.81, 5 s: V4.1's slip, balance (the box's contact force
-    + m g, 100 ms means: its m a), contact losses, and transparency (each device's command
-    against its user's wrench on it, 100 ms means: what the user feels against what the
-    user pushes); each tick's cost, timed from Python around its compiled call (two device
+    + m g, 100 ms means: its m a), contact losses, and transparency (what each device
+    renders against its user's wrench on it, both in the device's frame, 100 ms means: what
+    the user feels against what the user pushes); each tick's cost, timed from Python around its compiled call (two device
     models, two gloves, both hands and the box)."""
     scene = load_hand_scene("hand_grasp")
     run = HandGraspRun(scene, [load_simulated_device(d) for d in devices])
@@ -509,7 +509,7 @@ def hand_grasp_port(
     half = scene.hands[0].palm_size[1] / 2
     palms = tuple(rows["q"][k0:, p, :3] for p in range(2))
     slip = palm_slip(rows["box_q"][k0:], palms, box.size, half)
-    felt = rows["command"][:, :, :2] + rows["hand_wrench"][:, :, :2]
+    felt = rows["out"][:, :, :2] + rows["hand_wrench"][:, :, :2]  # both device frame
     transparency = [
         float(np.max(np.linalg.norm(window_means(t, felt[:, p], settle_s, duration_s), axis=1)))
         for p in range(2)

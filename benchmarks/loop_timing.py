@@ -43,7 +43,7 @@ from haptic_local_model.benchmarks.stations import loopback_run
 from haptic_local_model.haptic_server.live_view import ViewAddress
 from haptic_local_model.haptic_server.log import read_ticks
 from haptic_local_model.shared.clock import monotonic_ns, wait_until_ns
-from haptic_local_model.shared.port_config import shipped_port_scenes
+from haptic_local_model.shared.port_config import shipped_station_scenes
 from haptic_local_model.shared.timing import spin_for, try_realtime_priority
 
 
@@ -301,10 +301,10 @@ def main(argv: list[str] | None = None) -> int:
 
 def stations_timing(seconds: float, repeat: int, out: Path | None) -> int:
     """The shared world and its two stations (docs/stations.md) on loopback, for every
-    shipped port scene (grasp_clutter: 64 shapes), `repeat` times interleaved: each
+    shipped scene they serve (grasp_clutter: 64 shapes; hand_grasp: two hands), `repeat` times interleaved: each
     process's tick rate, lateness and work per tick (the compiled tick and the Python around
     it: decoding, publishing), the world's judged against 25 % of the period."""
-    scenes = shipped_port_scenes(hands=False)  # the hand scenes have no stations (yet)
+    scenes = shipped_station_scenes()  # hand_grasp too (one hand has no stations)
     runs: dict[str, list[dict[str, Any]]] = {name: [] for name in scenes}
     for _ in range(repeat):
         for scene in runs:

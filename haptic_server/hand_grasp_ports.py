@@ -73,7 +73,8 @@ HAND_GRASP_REPLAYED = ("q", "qd", "command", "glove_torque", "glove_ungated", "w
 
 
 @njit(cache=True)
-def _row(hds, gd, io, r):
+def hand_grasp_row(hds, gd, io, r):
+    """The tick's outputs into the row r (io: each port's device I/O; io[0].t the time)."""
     r.t = io[0].t
     for i in range(MAX_HANDS):
         d = hds[i][0]
@@ -119,7 +120,7 @@ def run_hand_grasp_ticks(grasp, io, devices, rows, start, stop):
         grasp_tick(chains, hms, hds, gmodel, gdata)
         drive_hand(hds[0][0], io[0], dev0)
         drive_hand(hds[1][0], io[1], dev1)
-        _row(hds, gd, io, rows[k])
+        hand_grasp_row(hds, gd, io, rows[k])
         io[0].t += dt
         io[1].t += dt
     return stop
@@ -206,7 +207,7 @@ def replay_hand_grasp_rows(
             datas[i][0]["target"] = row["target"][i]
             datas[i][0]["target_rate"] = row["target_rate"][i]
         grasp_tick(chains, models, datas, gm, gd)
-        _row(datas, gd[0], io, out[0])
+        hand_grasp_row(datas, gd[0], io, out[0])
         for name in HAND_GRASP_REPLAYED:
             if out[0][name].tobytes() != np.asarray(row[name]).tobytes():
                 return k + 1, k

@@ -32,7 +32,7 @@ from haptic_local_model.haptic_server.stages.cosim import body_core
 from haptic_local_model.haptic_server.stages.hand import hand_records, hand_tick
 from haptic_local_model.haptic_server.stages.port_io import drive_device, read_device
 from haptic_local_model.haptic_server.users import USER_DTYPE, user_record
-from haptic_local_model.shared.config import UserConfig, load_user
+from haptic_local_model.shared.config import ConfigError, UserConfig, load_user, resolve
 from haptic_local_model.shared.kinematics import MAX_DOF
 from haptic_local_model.shared.port_config import HandSceneConfig, HandTable
 from haptic_local_model.shared.protocol.station import vec3
@@ -209,6 +209,22 @@ def glove_script(user: UserConfig, rest: list[float]) -> np.ndarray:
             f"finger_angles: {rows.shape[1] - 1} angles a row, the hand has {len(rest)} joints"
         )
     return rows
+
+
+def load_glove_users(scene: HandSceneConfig, names: list[str]) -> list[UserConfig]:
+    """Each port's user by name, its glove script checked against its port's hand; a
+    script that does not fit is named by the user's file and key."""
+    users = []
+    for p, name in enumerate(names):
+        user = load_user(name)
+        rest = [a for f in scene.hand_of(p).fingers for a in f.rest]
+        try:
+            glove_script(user, rest)
+        except ValueError as exc:
+            key, _, problem = str(exc).partition(": ")
+            raise ConfigError(str(resolve("users", name)), key, problem) from None
+        users.append(user)
+    return users
 
 
 @dataclass

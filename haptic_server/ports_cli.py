@@ -37,6 +37,7 @@ from haptic_local_model.haptic_server.hand_grasp_ports import (
 from haptic_local_model.haptic_server.hand_ports import (
     HAND_ROW_DTYPE,
     HandPortRun,
+    load_glove_users,
     replay_hand_rows,
 )
 from haptic_local_model.haptic_server.log import (
@@ -223,19 +224,13 @@ def run_hands_cli(args: argparse.Namespace, text: str, source: str) -> int:
         raise ConfigError("--duration", "--duration", "shorter than one tick")
     devices = _per_port(args.device, [p.device for p in scene.ports], "--device")
     users = _per_port(args.user, [p.user for p in scene.ports], "--user")
-    user_configs = [load_user(name) for name in users]
+    user_configs = load_glove_users(scene, users)
     sim = [load_simulated_device(name) for name in devices]
-    try:
-        run: HandPortRun | HandGraspRun = (
-            HandPortRun(scene, sim[0], user_configs[0])
-            if len(scene.ports) == 1
-            else HandGraspRun(scene, sim, user_configs)
-        )
-    except ConfigError:
-        raise
-    except ValueError as exc:  # a glove's script against its hand
-        key, _, problem = str(exc).partition(": ")
-        raise ConfigError(str(resolve("users", ",".join(users))), key, problem) from None
+    run: HandPortRun | HandGraspRun = (
+        HandPortRun(scene, sim[0], user_configs[0])
+        if len(scene.ports) == 1
+        else HandGraspRun(scene, sim, user_configs)
+    )
     result = run.run(args.duration)
     rows = result.rows
     print("\n".join(_hands_summary(scene, run, rows, result.wall_s, users)))

@@ -1,9 +1,11 @@
 """The shared world of a port scene, served to haptic stations over a Zenoh router
-(docs/stations.md): the co-simulated object and every port's tool, at the haptic rate.
+(docs/stations.md): the co-simulated object and every port's tool (or two mass-spring hands
+and the box they hold), at the haptic rate.
 
 Each tick (wall-clock paced): take each port's newest DeviceState (a malformed one is
-refused and counted), decide each port's state, feed the co-simulation
-(haptic_server/stages/cosim.py) each port's device, run it, publish each port's ToolState.
+refused and counted), decide each port's state, feed the world's engine
+(haptic_server/world_engines.py: the co-simulation, or the hands) each port's device, run
+it, publish each port's ToolState.
 
 A port is, in turn:
 - HELD: its station is silent (none yet, or none for `world_watchdog_ms`). Its tool stays
@@ -26,8 +28,9 @@ only once the present one is silent (a restarted station, not two on one port).
 Offsets are added per axis (x, y and the angle): a rejoining device's turn about its own
 origin is not composed with the anchor's (documented limit).
 
-Every tick's row (PORT_ROW_DTYPE, the device poses as fed) stays in memory; `--log` writes
-them as a `haptic-ports` log, which `haptic-ports --replay` re-runs bit for bit.
+Every tick's row (the engine's: PORT_ROW_DTYPE, or HAND_GRASP_ROW_DTYPE; the devices as
+fed) stays in memory; `--log` writes them as a `haptic-ports` log, which `haptic-ports
+--replay` re-runs bit for bit.
 """
 
 from __future__ import annotations
@@ -39,19 +42,14 @@ from typing import Any
 
 import numpy as np
 import zenoh
-from numba import njit
 
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import DeviceWorldMap
-from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE
-from haptic_local_model.haptic_server.stages.cosim import (
-    MAX_COSIM_BODIES,
-    MAX_COSIM_DOF,
-    cosim_order,
-    cosim_records,
-    cosim_tick,
-)
 from haptic_local_model.haptic_server.station import rows_in_order
+from haptic_local_model.haptic_server.world_engines import (
+    port_gains,
+    world_engine,
+)
 from haptic_local_model.shared.config import load_user
 from haptic_local_model.shared.net.stations import (
     StationNetworkConfig,
@@ -59,7 +57,7 @@ from haptic_local_model.shared.net.stations import (
     port_keys,
 )
 from haptic_local_model.shared.net.transport import newest_payload
-from haptic_local_model.shared.port_config import MAX_PORTS, PortSceneConfig
+from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
 from haptic_local_model.shared.protocol.station import (
     HELD,
     DeviceState,
@@ -76,33 +74,7 @@ SPIN_NS = 100_000
 EXTRAPOLATE_S = 0.005  # as the station's (haptic_server/station.py)
 MAX_EVENTS = 10_000  # port state changes kept for the summary and the log
 HELD_STATE, INDEXING, COUPLED = "held", "indexing", "coupled"
-
-
-@njit(cache=True)
-def world_row(data, rows, k, t, lowest):
-    """The co-simulation's tick into rows[k] (PORT_ROW_DTYPE; hand wrench and faults: 0, the
-    world does not see them), and each body's lowest height so far into `lowest`. Arrays
-    and an index, not records: a call with records costs about 5 us more from Python."""
-    cd = data[0]
-    row = rows[k]
-    for e in range(MAX_COSIM_BODIES):
-        lowest[e] = min(lowest[e], cd.q[3 * e + 1])
-    row.t = t
-    for a in range(MAX_COSIM_DOF):
-        row.q[a] = cd.q[a]
-        row.qd[a] = cd.qd[a]
-    for p in range(MAX_PORTS):
-        for c in range(3):
-            row.device_pose[p, c] = cd.device_pose[p, c]
-            row.device_twist[p, c] = cd.device_twist[p, c]
-            row.command[p, c] = cd.command[p, c]
-    for e in range(MAX_COSIM_BODIES):
-        for c in range(3):
-            row.body_force[e, c] = cd.body_force[e, c]
-    row.n_contacts = cd.n_contacts
-    row.penetration = cd.penetration
-    row.invalid = cd.invalid
-    row.singular = cd.singular
+ZERO3 = np.zeros(3)
 
 
 @dataclass
@@ -125,43 +97,43 @@ class PortState:
 class SharedWorld:
     """The world's records and ports, ready to run (module docstring)."""
 
-    def __init__(self, scene: PortSceneConfig, network: StationNetworkConfig, max_rows: int):
+    def __init__(
+        self,
+        scene: PortSceneConfig | HandSceneConfig,
+        network: StationNetworkConfig,
+        max_rows: int,
+    ) -> None:
         self.scene, self.network = scene, network
-        self.order = cosim_order(scene)
         self.limits: list[Vec3] = []
         for port in scene.ports:  # the scene's devices' limits, in the world frame
             dev = load_simulated_device(port.device)
             wm = getattr(dev, "world_map", None) or DeviceWorldMap.identity()
             scale = wm.record[0]["scale"] * wm.record[0]["force_scale"]
             self.limits.append(vec3(np.array(dev.limits().max_wrench) / scale))
-        self.model, self.data = cosim_records(scene, self.limits)
+        users = [load_user(port.user) for port in scene.ports]
+        self.engine = world_engine(scene, self.limits, users)
+        self.order = self.engine.names
         self.ports = [PortState() for _ in scene.ports]
-        m, d = self.model[0], self.data[0]
-        for p, port in enumerate(scene.ports):
-            # the anchor squeezes as the scene's user pushes: the object is held at the start
-            tool = d["q"][3 * int(m["port_tool"][p]) :][:3]
-            push = np.array(load_user(port.user).wrench, np.float64)
-            k = m["coupling_stiffness"][p]
-            stretch = np.divide(push, k, out=np.zeros(3), where=k > 0)
-            self.ports[p].anchor = tool + stretch
         self.epoch = time.time_ns()
         self._tool_records = []
-        for p in range(len(scene.ports)):
+        for p, user in enumerate(users):
+            # the anchor squeezes as the scene's user pushes: the object is held at the start
+            k, b = (np.array(v, np.float64) for v in port_gains(scene, p))
+            push = np.array(user.wrench, np.float64)
+            stretch = np.divide(push, k, out=np.zeros(3), where=k > 0)
+            self.ports[p].anchor = self.engine.tool(p)[0] + stretch
             rec = tool_record(p, self.epoch)
-            rec["stiffness"] = m["coupling_stiffness"][p]
-            rec["damping"] = m["coupling_damping"][p]
+            rec["stiffness"] = k
+            rec["damping"] = b
             self._tool_records.append(rec)
-        # the first body that is not a tool (the tools come first), else the first tool
-        self._object = 3 * len(scene.ports) if len(self.order) > len(scene.ports) else 0
-        self.rows = np.zeros(max_rows, PORT_ROW_DTYPE)
+        self.rows = np.zeros(max_rows, self.engine.rows_dtype)
         self.rows.view(np.uint8)[:] = 0  # every page touched now, not in the loop
         self.n_rows = 0
-        self.start_q = self.data[0]["q"].copy()
-        self.lowest = np.full(MAX_COSIM_BODIES, np.inf)  # each body's lowest y, whole run
+        self.start_q = self.engine.poses()
         self.events: list[dict[str, Any]] = []
         self.events_dropped = 0
         self.work_us = SampleWindow(100_000)
-        self.pacer = Pacer(round(float(self.data[0]["dt"]) * 1e9), SPIN_NS, None)
+        self.pacer = Pacer(round(self.engine.dt * 1e9), SPIN_NS, None)
         self._stop = False
 
     def request_stop(self, *_: object) -> None:
@@ -203,7 +175,6 @@ class SharedWorld:
     def _port(self, p: int, now_ns: int, t: float) -> None:
         """Port p's state this tick and the device pose and twist it feeds (module docstring)."""
         ps = self.ports[p]
-        d = self.data[0]
         m = ps.last
         if self._silent(ps, now_ns) or m is None or m.cut:
             new = HELD_STATE
@@ -225,28 +196,25 @@ class SharedWorld:
             ps.state = new
         if new == COUPLED and m is not None:
             live = self._live(ps, m, (now_ns - ps.rx_ns) / 1e9)
-            ps.blend = min(1.0, ps.blend + float(d["dt"]) / (self.network.safe_ramp_ms / 1e3))
+            ps.blend = min(1.0, ps.blend + self.engine.dt / (self.network.safe_ramp_ms / 1e3))
             ps.anchor = ps.start + ps.blend * (live - ps.start)
-            d["device_pose"][p] = ps.anchor
-            d["device_twist"][p] = ps.blend * np.array(m.twist)
+            self.engine.feed(p, ps.anchor, ps.blend * np.array(m.twist))
             return
         if new == INDEXING and m is not None:
             ps.offset = ps.anchor - np.array(m.pose)
-        d["device_pose"][p] = ps.anchor
-        d["device_twist"][p] = 0.0
+        self.engine.feed(p, ps.anchor, ZERO3)
 
     def _publish(self, p: int, pub: Any, seq: int) -> None:
         """Port p's ToolState: its record filled in place (shared/protocol/station.py)."""
         ps = self.ports[p]
-        m, d = self.model[0], self.data[0]
-        i = 3 * int(m["port_tool"][p])
+        pose, twist = self.engine.tool(p)
         r = self._tool_records[p][0]
         r["seq"] = seq
         r["publish_time_ns"] = time.time_ns()
-        r["pose"] = d["q"][i : i + 3] - ps.offset
+        r["pose"] = pose - ps.offset
         r["pose"][2] = math.atan2(math.sin(r["pose"][2]), math.cos(r["pose"][2]))
-        r["twist"] = d["qd"][i : i + 3]
-        r["object_pose"] = d["q"][self._object : self._object + 3]
+        r["twist"] = twist
+        r["object_pose"] = self.engine.object_pose()
         r["flags"] = HELD if ps.state == HELD_STATE else 0
         pub.put(self._tool_records[p].tobytes())
 
@@ -261,7 +229,7 @@ class SharedWorld:
             pubs.append(session.declare_publisher(
                 tool_key, congestion_control=zenoh.CongestionControl.DROP, express=True
             ))  # fmt: skip
-        pacer = Pacer(round(float(self.data[0]["dt"]) * 1e9), SPIN_NS, duration_s)
+        pacer = Pacer(round(self.engine.dt * 1e9), SPIN_NS, duration_s)
         self.pacer = pacer
         enter_loop(self.warm, ready)
         pacer.start()
@@ -273,14 +241,14 @@ class SharedWorld:
                 for p in range(len(self.ports)):
                     self._take(p, subs[p], now)
                     self._port(p, now, t)
-                cosim_tick(self.model, self.data)
+                self.engine.tick(t)
                 for p in range(len(self.ports)):
                     self._publish(p, pubs[p], seq)
-                world_row(self.data, self.rows, self.n_rows % len(self.rows), t, self.lowest)
+                self.engine.row(self.rows, self.n_rows % len(self.rows), t)
                 self.n_rows += 1
                 self.work_us.add((time.perf_counter_ns() - now) / 1e3)
                 seq += 1
-                t += float(self.data[0]["dt"])
+                t += self.engine.dt
                 if not pacer.next():
                     break
         finally:
@@ -288,9 +256,7 @@ class SharedWorld:
         return self.summary()
 
     def warm(self) -> None:
-        model, data = cosim_records(self.scene, self.limits)
-        cosim_tick(model, data)
-        world_row(data, np.zeros(1, PORT_ROW_DTYPE), 0, 0.0, np.zeros(MAX_COSIM_BODIES))
+        self.engine.warm()
 
     def logged_rows(self) -> np.ndarray:
         return rows_in_order(self.rows, self.n_rows)
@@ -311,11 +277,12 @@ class SharedWorld:
                 "state": ps.state, "received": ps.received, "rejected": ps.rejected,
                 "stale": ps.stale, "rejected_by_reason": dict(ps.reasons),
             }  # fmt: skip
+        end = self.engine.poses()
         for i, name in enumerate(self.order):  # over the whole run (not only the rows kept)
             out.setdefault("bodies", {})[name] = {
-                "start": self.start_q[3 * i : 3 * i + 3].tolist(),
-                "end": self.data[0]["q"][3 * i : 3 * i + 3].tolist(),
-                "lowest_y": float(self.lowest[i]),
+                "start": self.start_q[i].tolist(),
+                "end": end[i].tolist(),
+                "lowest_y": float(self.engine.lowest[i]),
             }  # fmt: skip
-        out["steps_held"] = int(self.data[0]["singular"])
+        out["steps_held"] = self.engine.steps_held()
         return out

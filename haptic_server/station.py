@@ -21,7 +21,6 @@ from haptic_local_model.device_models.base import SimulatedDevice
 from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import noise_ready
 from haptic_local_model.device_models.world_map import DeviceWorldMap
-from haptic_local_model.haptic_server.stages.cosim import cosim_records
 from haptic_local_model.haptic_server.stages.station import (
     STATION_DTYPE,
     STATION_ROW_DTYPE,
@@ -29,6 +28,7 @@ from haptic_local_model.haptic_server.stages.station import (
     station_tick,
 )
 from haptic_local_model.haptic_server.users import user_record
+from haptic_local_model.haptic_server.world_engines import port_gains, tool_start
 from haptic_local_model.shared.config import UserConfig
 from haptic_local_model.shared.net.stations import (
     StationNetworkConfig,
@@ -36,7 +36,7 @@ from haptic_local_model.shared.net.stations import (
     port_keys,
 )
 from haptic_local_model.shared.net.transport import newest_payload
-from haptic_local_model.shared.port_config import PortSceneConfig
+from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
 from haptic_local_model.shared.protocol.station import (
     CUT,
     SAFE,
@@ -82,7 +82,7 @@ class Station:
 
     def __init__(
         self,
-        scene: PortSceneConfig,
+        scene: PortSceneConfig | HandSceneConfig,
         network: StationNetworkConfig,
         port: str,
         device: SimulatedDevice,
@@ -96,6 +96,7 @@ class Station:
         self.index = names.index(port)
         self.user = user
         spec = scene.ports[self.index]
+        stiffness, damping = port_gains(scene, self.index)
         st = np.zeros(1, STATION_DTYPE)
         s = st[0]
         s["dt"] = scene.period_s
@@ -103,10 +104,10 @@ class Station:
         s["ramp_s"] = network.safe_ramp_ms / 1e3
         s["limits"] = device.limits().max_wrench
         s["safe_damping"] = device.rendering.safe_damping
-        s["stiffness"] = spec.coupling_stiffness
-        s["damping"] = spec.coupling_damping
-        s["max_stiffness"] = spec.coupling_stiffness
-        s["max_damping"] = spec.coupling_damping
+        s["stiffness"] = stiffness
+        s["damping"] = damping
+        s["max_stiffness"] = stiffness
+        s["max_damping"] = damping
         s["extrapolate_s"] = EXTRAPOLATE_S
         wm = getattr(device, "world_map", None) or DeviceWorldMap.identity()
         s["map"][0] = wm.record[0]
@@ -134,8 +135,7 @@ class Station:
         u = user_record(self.user)[0]
         u["start_pose"] = pose
         s["user"][0] = u
-        _, data = cosim_records(self.scene, [(1.0, 1.0, 1.0)] * len(self.scene.ports))
-        tool = data[0]["q"][3 * self.index : 3 * self.index + 3]
+        tool = tool_start(self.scene, self.index)
         wm = s["map"][0]
         wm["offset"] = tool - wm["scale"] * pose
         s["map"][0] = wm

@@ -24,7 +24,14 @@ from typing import Any
 import zenoh
 
 from haptic_local_model.device_models.registry import load_simulated_device
-from haptic_local_model.haptic_server.ports_cli import write_port_log, write_rows_log
+from haptic_local_model.haptic_server.hand_ports import load_glove_users
+from haptic_local_model.haptic_server.ports_cli import (
+    HAND_GRASP_SCHEMA,
+    HAND_GRASP_TOPIC,
+    PORT_TICK_SCHEMA,
+    PORT_TICK_TOPIC,
+    write_rows_log,
+)
 from haptic_local_model.haptic_server.shared_world import SharedWorld
 from haptic_local_model.haptic_server.station import MAX_LOG_S, RING_S, Station
 from haptic_local_model.shared import __version__
@@ -44,7 +51,7 @@ from haptic_local_model.shared.config import (
     resolve,
 )
 from haptic_local_model.shared.net.stations import load_station_network, router_config
-from haptic_local_model.shared.port_config import PortSceneConfig, is_hand_scene
+from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig, is_hand_scene
 
 STATION_TICK_TOPIC = "/station/tick"
 STATION_TICK_SCHEMA = "haptic_server/StationTick"
@@ -72,15 +79,19 @@ def _common(parser: argparse.ArgumentParser, scene: bool = True) -> None:
         parser.add_argument("--json", type=Path, default=None, help="write the summary here")
 
 
-def _scene(name: str) -> tuple[PortSceneConfig, str]:
+def _scene(name: str) -> tuple[PortSceneConfig | HandSceneConfig, str]:
+    """A port scene, or a hand scene of two hands on a box (`hand_grasp`)."""
     path = resolve("ports", name)
     if not path.is_file():
         raise ConfigError(str(path), "scene", "no such file")
     text = path.read_text()
     if is_hand_scene(parse_toml_text(text, str(path))):
-        raise ConfigError(
-            str(path), "hands", "a hand scene has no stations: run it with haptic-ports"
-        )
+        hands = load_config_text(HandSceneConfig, text, str(path))
+        if len(hands.ports) != 2:
+            raise ConfigError(str(path), "ports", "one hand has no stations: run it with "
+                              "haptic-ports (two hands on a box have: hand_grasp)")  # fmt: skip
+        load_glove_users(hands, [p.user for p in hands.ports])  # the world's gloves
+        return hands, text
     return load_config_text(PortSceneConfig, text, str(path)), text
 
 
@@ -152,7 +163,12 @@ def world_main(argv: list[str] | None = None) -> int:
             return 1
         if args.log is not None:
             rows = world.logged_rows()
-            write_port_log(args.log, rows, {
+            hands = isinstance(scene, HandSceneConfig)
+            topic, schema = (
+                (HAND_GRASP_TOPIC, HAND_GRASP_SCHEMA) if hands
+                else (PORT_TICK_TOPIC, PORT_TICK_SCHEMA)
+            )  # fmt: skip
+            write_rows_log(args.log, rows, topic, schema, {
                 "configs": {"ports": text,
                             "devices": json.dumps([p.device for p in scene.ports]),
                             "users": json.dumps([p.user for p in scene.ports])},

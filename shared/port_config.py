@@ -277,7 +277,9 @@ class HandSceneConfig:
             require(b.kind == "dynamic" and b.shape == "box", f"bodies[{i}]",
                     "a hand scene's free body is a dynamic box")  # fmt: skip
         if len(self.ports) == 2:
-            require(len(free) == 1, "bodies", "two hands hold one dynamic box (it is missing)")
+            require(len(free) == 1, "bodies", f"two hands hold one dynamic box ({len(free)} here)")
+            require(not walls, "bodies", "two hands on a box: no static bodies (the box would "
+                    "not meet them: not built)")  # fmt: skip
         else:
             require(not free, "bodies", "one hand: static bodies only (a box needs two hands)")
 
@@ -317,3 +319,10 @@ def shipped_port_scenes(hands: bool) -> list[str]:
         for name in shipped("ports")
         if is_hand_scene(read_toml(resolve("ports", name))) == hands
     )
+
+
+def shipped_station_scenes() -> list[str]:
+    """The shipped scenes a shared world serves to stations: every two-tool port scene and
+    every scene of two hands on a box."""
+    hands = [n for n in shipped_port_scenes(hands=True) if len(load_hand_scene(n).ports) == 2]
+    return shipped_port_scenes(hands=False) + hands

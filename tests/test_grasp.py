@@ -236,7 +236,7 @@ def test_a_fixed_push_along_x_turns_the_box_past_the_hands(scene):
     form a couple that turns the box past the hands' line (DESIGN-WAVE2 §6's off-centre
     squeeze, physical), while the box still follows its pads."""
     r = twist_fixed_push(scene)
-    assert r["final_error_vs_hands_rad"] > 0.05
+    assert r["final_error_vs_hands_rad"] > 0.02  # V4.5's tolerance: the couple fails it
     assert r["error_max_vs_pads_rad"] <= 1e-3
     assert r["contact_losses"] == 0
 

@@ -394,6 +394,42 @@ def test_a_killed_station_leaves_the_box_held_and_a_late_one_joins_without_a_jum
           f"{(box['lowest_y'] - box['start'][1]) * 1e3:+.2f} mm")  # fmt: skip
 
 
+@pytest.mark.processes
+def test_two_hands_at_two_stations_hold_the_box(tmp_path: Path, start_server: Any) -> None:
+    """Loopback, `hand_grasp`: the world steps both mass-spring hands and the box, each
+    station renders its palm spring against its own maglev. Both ports couple, the box is
+    held (it sinks no more than the palms' springs let it), each station renders its user's
+    2 N squeeze and the (0.218 + 0.05) kg g it carries, and the world's log (two hands on a
+    box) replays bit for bit."""
+    mod = "haptic_local_model.haptic_server.stations_cli"
+    net = ["--network", loopback_network(tmp_path), "--scene", "hand_grasp"]
+    router = start_server(mod, "router", *net[:2])
+    router.wait_ready(READY_S)
+    world_log, world_json = tmp_path / "world.mcap", tmp_path / "world.json"
+    world = start_server(mod, "world", *net, "--duration", "14", "--log", str(world_log),
+                         "--json", str(world_json))  # fmt: skip
+    world.wait_ready(READY_S)
+    logs = {p: tmp_path / f"{p}.mcap" for p in ("left", "right")}
+    started = [start_server(mod, "station", *net, "--port", p, "--duration", "5", "--log",
+                            str(logs[p])) for p in logs]  # fmt: skip
+    for p in [*started, world]:
+        assert p.proc.wait(STOP_S) == 0
+    summary = json.loads(world_json.read_text())
+    coupled = {e["port"] for e in summary["events"] if e["to"] == "coupled"}
+    assert coupled == {"left", "right"}, summary["events"]
+    box = summary["bodies"]["box"]
+    assert box["lowest_y"] > box["start"][1] - 0.001, box
+    carried = (0.218 + 0.05) * 9.81
+    for side, p in ((-1.0, "left"), (1.0, "right")):
+        r = station_rows(logs[p])
+        k = first(r["fresh"] == 1, f"{p}'s first fresh palm state")
+        assert r["fresh"][k:].mean() > 0.99, p
+        np.testing.assert_allclose(r["out"][-1000:, :2].mean(axis=0), [side * 2.0, -carried],
+                                   atol=0.1, err_msg=p)  # fmt: skip
+    ticks, differs = replay_log(world_log)
+    assert differs is None and ticks == summary["ticks"]
+
+
 RUN_S = 24.0  # the stations' run: >= 20 s
 CUT_AFTER_S = 8.0
 CUT_S = 3.0

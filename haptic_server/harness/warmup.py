@@ -80,6 +80,7 @@ def _station_kernels() -> None:
     scene = load_port_scene("grasp_vertical")
     network = load_station_network("stations_loopback", "world")
     SharedWorld(scene, network, 1).warm()
+    SharedWorld(load_hand_scene("hand_grasp"), network, 1).warm()  # two hands
     for config in built_in_models():
         device = load_simulated_device(config)
         Station(scene, network, "left", device, load_user("squeeze_left_2n"), 1).warm()

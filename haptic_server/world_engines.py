@@ -1,0 +1,216 @@
+"""What a shared world (haptic_server/shared_world.py) integrates at the haptic rate, and
+what a station renders against: a port scene's co-simulation (two tools and the object,
+haptic_server/stages/cosim.py) or two mass-spring hands holding a box (`hand_grasp`,
+haptic_server/stages/hand_grasp.py).
+
+Either way each port's station is coupled to a tool by a spring-damper of the port's gains,
+F = K (x_tool - x_dev) + B (v_tool - v_dev): for a co-simulated tool, its coupling; for a
+hand, its palm spring (the palm's command is the spring's reaction, the same law, with the
+palm as the tool and the device as the tracked palm). The world feeds each port's device
+(as the world takes it) to the engine, ticks it, and publishes each port's tool. A hand's
+glove is the port's scene user's `finger_angles`, evaluated by the world (a station sends
+no glove angles: documented limit).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from haptic_local_model.haptic_server.hand_grasp_ports import (
+    HAND_GRASP_ROW_DTYPE,
+    grasp_port_records,
+    hand_grasp_row,
+)
+from haptic_local_model.haptic_server.hand_ports import HAND_IO_DTYPE, glove_at, glove_script
+from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE
+from haptic_local_model.haptic_server.stages.cosim import (
+    MAX_COSIM_BODIES,
+    MAX_COSIM_DOF,
+    cosim_order,
+    cosim_records,
+    cosim_tick,
+)
+from haptic_local_model.haptic_server.stages.hand_grasp import MAX_HANDS, grasp_tick
+from haptic_local_model.shared.config import UserConfig
+from haptic_local_model.shared.port_config import MAX_PORTS, HandSceneConfig, PortSceneConfig
+from haptic_local_model.shared.protocol.station import Vec3
+
+F8 = np.float64
+
+
+@njit(cache=True)
+def world_row(data, rows, k, t, lowest):
+    """The co-simulation's tick into rows[k] (PORT_ROW_DTYPE; hand wrench and faults: 0, the
+    world does not see them), and each body's lowest height so far into `lowest`. Arrays
+    and an index, not records: a call with records costs about 5 us more from Python."""
+    cd = data[0]
+    row = rows[k]
+    for e in range(MAX_COSIM_BODIES):
+        lowest[e] = min(lowest[e], cd.q[3 * e + 1])
+    row.t = t
+    for a in range(MAX_COSIM_DOF):
+        row.q[a] = cd.q[a]
+        row.qd[a] = cd.qd[a]
+    for p in range(MAX_PORTS):
+        for c in range(3):
+            row.device_pose[p, c] = cd.device_pose[p, c]
+            row.device_twist[p, c] = cd.device_twist[p, c]
+            row.command[p, c] = cd.command[p, c]
+    for e in range(MAX_COSIM_BODIES):
+        for c in range(3):
+            row.body_force[e, c] = cd.body_force[e, c]
+    row.n_contacts = cd.n_contacts
+    row.penetration = cd.penetration
+    row.invalid = cd.invalid
+    row.singular = cd.singular
+
+
+def tool_start(scene: PortSceneConfig | HandSceneConfig, p: int) -> np.ndarray:
+    """Where port p's tool starts in the world: its co-simulated body, or its hand's palm."""
+    if isinstance(scene, HandSceneConfig):
+        return np.array(scene.hand_of(p).pose, F8)
+    _, data = cosim_records(scene, [(1.0, 1.0, 1.0)] * len(scene.ports))
+    return np.array(data[0]["q"][3 * p : 3 * p + 3])
+
+
+def port_gains(scene: PortSceneConfig | HandSceneConfig, p: int) -> tuple[Vec3, Vec3]:
+    """Port p's coupling (stiffness, damping): its co-simulation's, or its palm springs."""
+    if isinstance(scene, HandSceneConfig):
+        hand = scene.hand_of(p)
+        return hand.palm_spring, hand.palm_damping
+    port = scene.ports[p]
+    return port.coupling_stiffness, port.coupling_damping
+
+
+@njit(cache=True)
+def hand_world_row(hds, gdata, io, rows, k, t, lowest):
+    """Both hands' and the box's tick into rows[k] (HAND_GRASP_ROW_DTYPE; the devices'
+    fields 0: the world does not see them), and the palms' and the box's lowest height so
+    far into `lowest`. Arrays and an index, not records (as `world_row`)."""
+    gd = gdata[0]
+    io[0].t = t
+    hand_grasp_row(hds, gd, io, rows[k])
+    for i in range(MAX_HANDS):
+        lowest[i] = min(lowest[i], hds[i][0].q[1])
+    lowest[MAX_HANDS] = min(lowest[MAX_HANDS], gd.q_box[1])
+
+
+class CosimWorld:
+    """A port scene's co-simulation: the tools and the object."""
+
+    rows_dtype = PORT_ROW_DTYPE
+
+    def __init__(self, scene: PortSceneConfig, limits: list[Vec3]) -> None:
+        self.scene, self.limits = scene, limits
+        self.model, self.data = cosim_records(scene, limits)
+        self.names = cosim_order(scene)
+        m, d = self.model[0], self.data[0]
+        self.dt = float(d["dt"])
+        self._tools = [3 * int(m["port_tool"][p]) for p in range(len(scene.ports))]
+        # the first body that is not a tool (the tools come first), else the first tool
+        self._object = 3 * len(scene.ports) if len(self.names) > len(scene.ports) else 0
+        self.lowest = np.full(MAX_COSIM_BODIES, np.inf)
+
+    def feed(self, p: int, pose: np.ndarray, twist: np.ndarray) -> None:
+        self.data[0]["device_pose"][p] = pose
+        self.data[0]["device_twist"][p] = twist
+
+    def tick(self, t: float) -> None:
+        cosim_tick(self.model, self.data)
+
+    def tool(self, p: int) -> tuple[np.ndarray, np.ndarray]:
+        i = self._tools[p]
+        d = self.data[0]
+        return d["q"][i : i + 3], d["qd"][i : i + 3]
+
+    def object_pose(self) -> np.ndarray:
+        return self.data[0]["q"][self._object : self._object + 3]
+
+    def poses(self) -> np.ndarray:
+        """Every body's pose (n x 3), in `names`' order."""
+        return self.data[0]["q"][: 3 * len(self.names)].reshape(-1, 3).copy()
+
+    def row(self, rows: np.ndarray, k: int, t: float) -> None:
+        world_row(self.data, rows, k, t, self.lowest)
+
+    def steps_held(self) -> int:
+        return int(self.data[0]["singular"])
+
+    def warm(self) -> None:
+        model, data = cosim_records(self.scene, self.limits)
+        cosim_tick(model, data)
+        world_row(data, np.zeros(1, PORT_ROW_DTYPE), 0, 0.0, np.zeros(MAX_COSIM_BODIES))
+
+
+class HandGraspWorld:
+    """Two mass-spring hands holding a box (`hand_grasp`); each port's tool is its palm."""
+
+    rows_dtype = HAND_GRASP_ROW_DTYPE
+
+    def __init__(self, scene: HandSceneConfig, limits: list[Vec3], users: list[UserConfig]) -> None:
+        self.scene, self.limits = scene, limits
+        self.grasp = grasp_port_records(scene, limits)
+        self.names = [*(p.tool for p in scene.ports), "box"]
+        self.dt = scene.period_s
+        self._datas = self.grasp[2]
+        self._gd = self.grasp[4]
+        self._io = np.zeros(MAX_HANDS, HAND_IO_DTYPE)  # a world sees no device: zeros
+        self._glove = []
+        for p, user in enumerate(users):
+            spec = scene.hand_of(p)
+            self._glove.append(glove_script(user, [a for f in spec.fingers for a in f.rest]))
+        self.lowest = np.full(len(self.names), np.inf)
+
+    def feed(self, p: int, pose: np.ndarray, twist: np.ndarray) -> None:
+        d = self._datas[p][0]
+        d["target"][:3] = pose
+        d["target_rate"][:3] = twist
+
+    def tick(self, t: float) -> None:
+        for p, script in enumerate(self._glove):
+            d = self._datas[p][0]
+            n = int(self.grasp[1][p][0]["dof"])
+            glove_at(script, len(script), t, n - 3, d["target"][3:n], d["target_rate"][3:n])
+        grasp_tick(*self.grasp)
+
+    def tool(self, p: int) -> tuple[np.ndarray, np.ndarray]:
+        d = self._datas[p][0]
+        return d["q"][:3], d["qd"][:3]
+
+    def object_pose(self) -> np.ndarray:
+        return self._gd[0]["q_box"]
+
+    def poses(self) -> np.ndarray:
+        return np.array([*(d[0]["q"][:3] for d in self._datas), self._gd[0]["q_box"]])
+
+    def row(self, rows: np.ndarray, k: int, t: float) -> None:
+        hand_world_row(self._datas, self._gd, self._io, rows, k, t, self.lowest)
+
+    def steps_held(self) -> int:
+        return int(self._gd[0]["singular"])
+
+    def warm(self) -> None:
+        grasp = grasp_port_records(self.scene, self.limits)
+        grasp_tick(*grasp)
+        rows = np.zeros(1, HAND_GRASP_ROW_DTYPE)
+        hand_world_row(grasp[2], grasp[4], self._io.copy(), rows, 0, 0.0, np.zeros(3))
+        d = grasp[2][0][0]
+        glove_at(self._glove[0], len(self._glove[0]), 0.0, 1, d["target"][3:4],
+                 d["target_rate"][3:4])  # fmt: skip
+
+
+WorldEngine = CosimWorld | HandGraspWorld
+
+
+def world_engine(
+    scene: PortSceneConfig | HandSceneConfig, limits: list[Vec3], users: list[UserConfig]
+) -> Any:
+    """The engine a shared world runs for this scene."""
+    if isinstance(scene, HandSceneConfig):
+        if len(scene.ports) != MAX_HANDS:
+            raise ValueError("a shared world of hands needs two hands on a box (hand_grasp)")
+        return HandGraspWorld(scene, limits, users)
+    return CosimWorld(scene, limits)
