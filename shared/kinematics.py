@@ -92,6 +92,12 @@ def chain_record(
     return rec
 
 
+@njit(cache=True)
+def wrap_angle(angle):
+    """angle on (-pi, pi]: a difference of two angles taken the short way round."""
+    return math.atan2(math.sin(angle), math.cos(angle))
+
+
 @njit(cache=True, inline="always")
 def ancestry(parents, link):
     """The joints that move `link` (it and its ancestors) as a bit mask; -1: none. A parent

@@ -103,6 +103,27 @@ def test_a_collision_between_free_bodies_conserves_momentum(scene):
     assert np.max(np.abs(momentum() - before)) < 1e-14
 
 
+def test_a_device_angle_a_whole_turn_away_couples_as_the_same_angle(scene):
+    """A device reporting its angle on another turn (wrapped at +-pi, or a whole turn on)
+    is coupled the short way round: the tools, the box and the commands are those of the
+    same reading on the tool's own turn (an unwrapped difference would pull 2 pi K)."""
+    runs = []
+    for turn in (0.0, 2.0 * math.pi, -4.0 * math.pi):
+        model, data = cosim_records(scene, LIMITS)
+        d = data[0]
+        for p in range(2):
+            d["device_pose"][p] = d["q"][3 * p : 3 * p + 3]
+            d["device_pose"][p, 0] += 0.001 if p == 0 else -0.001
+            d["device_pose"][p, 2] += 0.02 + turn
+        for _ in range(50):
+            cosim_tick(model, data)
+        runs.append((d["q"].copy(), d["command"].copy()))
+    for q, command in runs[1:]:
+        np.testing.assert_allclose(q, runs[0][0], atol=1e-9)
+        np.testing.assert_allclose(command, runs[0][1], atol=1e-6)
+    assert abs(runs[0][1][0, 2]) > 1e-4  # the 0.02 rad does pull
+
+
 def test_a_reading_that_is_not_finite_cuts_its_port_only_for_that_tick(scene):
     """Device 0 reads NaN for one tick: its command is zero and counted, the other port and
     the bodies go on finite, and the next finite reading couples again."""

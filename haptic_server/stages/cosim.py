@@ -33,6 +33,7 @@ import math
 import numpy as np
 from numba import njit
 
+from haptic_local_model.shared.kinematics import wrap_angle
 from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
 from haptic_local_model.shared.port_config import (
     MAX_COSIM_BODIES,
@@ -407,12 +408,15 @@ def couple_ports(m, d):
             vh = d.device_twist[p, c]
             acc = (vh - d.prev_device_twist[p, c]) / dt if d.primed[p] == 1 else 0.0
             d.prev_device_twist[p, c] = vh
-            d.f[a] += kc * (d.device_pose[p, c] - d.q[a]) + bc * (vh - d.qd[a])
+            pose = d.device_pose[p, c]
+            if c == 2:  # the device's angle on the turn nearest the tool's: no 2 pi step
+                pose = d.q[a] + wrap_angle(pose - d.q[a])
+            d.f[a] += kc * (pose - d.q[a]) + bc * (vh - d.qd[a])
             d.k[a, a] += kc
             d.b[a, a] += bc
             d.extra[a] += dt * kc * vh + (bc + dt * kc) * dt * acc
             d.device_next[p, c + 3] = vh + dt * acc
-            d.device_next[p, c] = d.device_pose[p, c] + dt * (vh + dt * acc)
+            d.device_next[p, c] = pose + dt * (vh + dt * acc)
         d.primed[p] = 1
 
 

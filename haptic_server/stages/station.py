@@ -37,6 +37,7 @@ from haptic_local_model.device_models.world_map import (
 )
 from haptic_local_model.haptic_server.stages.port_io import read_device
 from haptic_local_model.haptic_server.users import USER_DTYPE
+from haptic_local_model.shared.kinematics import wrap_angle
 
 F8 = np.float64
 I8 = np.int64
@@ -105,11 +106,6 @@ STATION_ROW_DTYPE = np.dtype(
 
 
 @njit(cache=True)
-def _wrap(a):
-    return math.atan2(math.sin(a), math.cos(a))
-
-
-@njit(cache=True)
 def station_tick(station, dev):
     """One tick (module docstring)."""
     s = station[0]
@@ -133,7 +129,7 @@ def station_tick(station, dev):
             b = min(s.damping[c], s.max_damping[c])
             err = s.tool_pose[c] + s.tool_twist[c] * ahead - w.pose[c]
             if c == 2:
-                err = _wrap(err)
+                err = wrap_angle(err)
             s.spring[c] = k * err
             s.coupling[c] = s.spring[c] + b * (s.tool_twist[c] - w.twist[c])
             if not math.isfinite(s.coupling[c]):
