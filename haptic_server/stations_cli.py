@@ -91,6 +91,10 @@ def _scene(name: str) -> tuple[PortSceneConfig | HandSceneConfig, str]:
             raise ConfigError(str(path), "ports", "one hand has no stations: run it with "
                               "haptic-ports (two hands on a box have: hand_grasp)")  # fmt: skip
         load_glove_users(hands, [p.user for p in hands.ports])  # the world's gloves
+        for i, hand in enumerate(hands.hands):
+            if hand.damping != "relative":  # a station renders B (v_palm - v_device)
+                raise ConfigError(str(path), f"hands[{i}].damping", "at stations a palm's "
+                                  "damping is relative (the station's coupling law)")  # fmt: skip
         return hands, text
     return load_config_text(PortSceneConfig, text, str(path)), text
 

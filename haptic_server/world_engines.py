@@ -98,6 +98,20 @@ def hand_world_row(hds, gdata, io, rows, k, t, lowest):
     lowest[MAX_HANDS] = min(lowest[MAX_HANDS], gd.q_box[1])
 
 
+@njit(cache=True)
+def hand_world_tick(grasp, io, t):
+    """Each hand's glove at t (its port's script in io[p]) into its tracked fingers, then
+    both hands and the box (grasp: `grasp_port_records`' tuple); the palms' tracked poses
+    are fed before."""
+    chains, hms, hds, gmodel, gdata = grasp
+    for i in range(MAX_HANDS):
+        d = hds[i][0]
+        n = hms[i][0].dof
+        s = io[i]
+        glove_at(s.glove, s.n_glove, t, n - 3, d.target[3:n], d.target_rate[3:n])
+    grasp_tick(chains, hms, hds, gmodel, gdata)
+
+
 class CosimWorld:
     """A port scene's co-simulation: the tools and the object."""
 
@@ -157,11 +171,14 @@ class HandGraspWorld:
         self.dt = scene.period_s
         self._datas = self.grasp[2]
         self._gd = self.grasp[4]
-        self._io = np.zeros(MAX_HANDS, HAND_IO_DTYPE)  # a world sees no device: zeros
-        self._glove = []
+        # a world sees no device (those fields stay 0); each hand's glove script is its
+        # port's scene user's
+        self._io = np.zeros(MAX_HANDS, HAND_IO_DTYPE)
         for p, user in enumerate(users):
             spec = scene.hand_of(p)
-            self._glove.append(glove_script(user, [a for f in spec.fingers for a in f.rest]))
+            script = glove_script(user, [a for f in spec.fingers for a in f.rest])
+            self._io[p]["glove"][: len(script), : script.shape[1]] = script
+            self._io[p]["n_glove"] = len(script)
         self.lowest = np.full(len(self.names), np.inf)
 
     def feed(self, p: int, pose: np.ndarray, twist: np.ndarray) -> None:
@@ -170,11 +187,7 @@ class HandGraspWorld:
         d["target_rate"][:3] = twist
 
     def tick(self, t: float) -> None:
-        for p, script in enumerate(self._glove):
-            d = self._datas[p][0]
-            n = int(self.grasp[1][p][0]["dof"])
-            glove_at(script, len(script), t, n - 3, d["target"][3:n], d["target_rate"][3:n])
-        grasp_tick(*self.grasp)
+        hand_world_tick(self.grasp, self._io, t)
 
     def tool(self, p: int) -> tuple[np.ndarray, np.ndarray]:
         d = self._datas[p][0]
@@ -194,12 +207,10 @@ class HandGraspWorld:
 
     def warm(self) -> None:
         grasp = grasp_port_records(self.scene, self.limits)
-        grasp_tick(*grasp)
+        io = self._io.copy()
+        hand_world_tick(grasp, io, 0.0)
         rows = np.zeros(1, HAND_GRASP_ROW_DTYPE)
-        hand_world_row(grasp[2], grasp[4], self._io.copy(), rows, 0, 0.0, np.zeros(3))
-        d = grasp[2][0][0]
-        glove_at(self._glove[0], len(self._glove[0]), 0.0, 1, d["target"][3:4],
-                 d["target_rate"][3:4])  # fmt: skip
+        hand_world_row(grasp[2], grasp[4], io, rows, 0, 0.0, np.zeros(3))
 
 
 WorldEngine = CosimWorld | HandGraspWorld

@@ -395,12 +395,14 @@ def test_a_killed_station_leaves_the_box_held_and_a_late_one_joins_without_a_jum
 
 
 @pytest.mark.processes
-def test_two_hands_at_two_stations_hold_the_box(tmp_path: Path, start_server: Any) -> None:
+def test_two_hands_at_two_stations_hold_and_lift_the_box(tmp_path: Path, start_server: Any) -> None:
     """Loopback, `hand_grasp`: the world steps both mass-spring hands and the box, each
-    station renders its palm spring against its own maglev. Both ports couple, the box is
-    held (it sinks no more than the palms' springs let it), each station renders its user's
-    2 N squeeze and the (0.218 + 0.05) kg g it carries, and the world's log (two hands on a
-    box) replays bit for bit."""
+    station renders its palm spring against its own maglev, and each station's user lifts
+    its device 5 mm from 1 s to 2 s. Both ports couple; the box is held and goes up with the
+    devices (so the world takes them: a world ignoring them would leave it where it was);
+    no step is held; at the end each station renders its user's 2 N squeeze and the
+    (0.218 + 0.05) kg g it carries; the world's log (two hands on a box) replays bit for
+    bit."""
     mod = "haptic_local_model.haptic_server.stations_cli"
     net = ["--network", loopback_network(tmp_path), "--scene", "hand_grasp"]
     router = start_server(mod, "router", *net[:2])
@@ -409,21 +411,30 @@ def test_two_hands_at_two_stations_hold_the_box(tmp_path: Path, start_server: An
     world = start_server(mod, "world", *net, "--duration", "14", "--log", str(world_log),
                          "--json", str(world_json))  # fmt: skip
     world.wait_ready(READY_S)
-    logs = {p: tmp_path / f"{p}.mcap" for p in ("left", "right")}
-    started = [start_server(mod, "station", *net, "--port", p, "--duration", "5", "--log",
-                            str(logs[p])) for p in logs]  # fmt: skip
-    for p in [*started, world]:
-        assert p.proc.wait(STOP_S) == 0
+    logs, started = {}, []
+    for p in ("left", "right"):
+        user = tmp_path / f"lift_{p}.toml"
+        text = resolve("users", f"hand_grasp_{p}").read_text()
+        lift = "waypoints = [[1.0, 0.0, 0.0, 0.0], [2.0, 0.0, 0.005, 0.0]]"
+        user.write_text(text.replace("waypoints = [[0.0, 0.0, 0.0, 0.0]]", lift))
+        logs[p] = tmp_path / f"{p}.mcap"
+        started.append(start_server(mod, "station", *net, "--port", p, "--user", str(user),
+                                    "--duration", "5", "--log", str(logs[p])))  # fmt: skip
+    for proc in [*started, world]:
+        assert proc.proc.wait(STOP_S) == 0
     summary = json.loads(world_json.read_text())
     coupled = {e["port"] for e in summary["events"] if e["to"] == "coupled"}
     assert coupled == {"left", "right"}, summary["events"]
+    assert summary["steps_held"] == 0
     box = summary["bodies"]["box"]
     assert box["lowest_y"] > box["start"][1] - 0.001, box
+    assert 0.004 < box["end"][1] - box["start"][1] < 0.006, box  # lifted with the devices
     carried = (0.218 + 0.05) * 9.81
     for side, p in ((-1.0, "left"), (1.0, "right")):
         r = station_rows(logs[p])
         k = first(r["fresh"] == 1, f"{p}'s first fresh palm state")
         assert r["fresh"][k:].mean() > 0.99, p
+        assert r["pose"][-1, 1] - r["pose"][k, 1] > 0.004, p  # its device went up
         np.testing.assert_allclose(r["out"][-1000:, :2].mean(axis=0), [side * 2.0, -carried],
                                    atol=0.1, err_msg=p)  # fmt: skip
     ticks, differs = replay_log(world_log)
