@@ -472,3 +472,21 @@ def test_three_hosts_hold_the_box_and_a_cut_station_goes_safe_and_resumes(tmp_pa
     ticks, differs = replay_log(Path(f["world_log"]))
     assert differs is None and ticks == f["world"]["ticks"]
     print(f"\nthree hosts: {json.dumps(f)}")
+
+
+def test_stations_refuse_one_hand_and_absolute_palm_damping(tmp_path: Path) -> None:
+    """A station renders B (v_palm - v_device): a hand scene whose palm damping is absolute
+    is refused by key, as is a scene of one hand (it has no stations)."""
+    from haptic_local_model.haptic_server.stations_cli import _scene
+
+    text = resolve("ports", "hand_grasp").read_text()
+    bad = tmp_path / "absolute.toml"
+    bad.write_text(text.replace('name = "right_hand"', 'name = "right_hand"\ndamping = "absolute"'))
+    with pytest.raises(ConfigError) as err:
+        _scene(str(bad))
+    assert err.value.key == "hands[1].damping"
+    with pytest.raises(ConfigError) as err:
+        _scene("hand_press")
+    assert err.value.key == "ports"
+    scene, _ = _scene("hand_grasp")
+    assert len(scene.ports) == 2
