@@ -299,6 +299,7 @@ def twist(
     ramp_s: float = 1.0,
     squeeze_n: float = 2.0,
     devices: tuple[str, str] = TWIST_DEVICES,
+    along_grip: bool = True,
 ) -> dict:
     """V4.5 (module docstring): g = 0, no angular coupling (the pads turn with the box's
     faces). Each hand holds its device by springs on x and y (2 kN/m) and squeezes through
@@ -314,21 +315,10 @@ def twist(
     80 % of its 12.5 mm half-range (10 mm), moving its map's offset under the grip (the
     case on maglevs is reported beside it).
 
-    A constant push along x instead (the shipped squeeze users, `twist_fixed_push`) does
+    A constant push along x instead (`along_grip=False`: the shipped squeeze users) does
     work as the grip turns: its couple turns the box past the hands (the brief's
     "off-centre squeeze" failure mode, physical), which that case reports."""
-    return _twist(scene_with(scene, devices), dy_m, ramp_s, squeeze_n, along_grip=True)
-
-
-def twist_fixed_push(
-    scene: PortSceneConfig,
-    dy_m: float = 0.01,
-    ramp_s: float = 1.0,
-    squeeze_n: float = 2.0,
-    devices: tuple[str, str] = TWIST_DEVICES,
-) -> dict:
-    """V4.5 with each hand's push a constant force along x (`twist`'s docstring)."""
-    return _twist(scene_with(scene, devices), dy_m, ramp_s, squeeze_n, along_grip=False)
+    return _twist(scene_with(scene, devices), dy_m, ramp_s, squeeze_n, along_grip)
 
 
 def _twist(
@@ -497,7 +487,7 @@ def main(argv: list[str] | None = None) -> int:
         ],
         "V4.3 lift and carry": lift(scene),
         "V4.5 twist": twist(scene),
-        "V4.5 twist, each push a constant force along x": twist_fixed_push(scene),
+        "V4.5 twist, each push a constant force along x": twist(scene, along_grip=False),
         "V4.5 twist on maglevs (their rate control engages past 10 mm)": twist(
             scene, devices=("maglev", "maglev")
         ),

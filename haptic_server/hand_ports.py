@@ -30,7 +30,11 @@ from haptic_local_model.device_models.world_map import (
 )
 from haptic_local_model.haptic_server.stages.cosim import body_core
 from haptic_local_model.haptic_server.stages.hand import hand_records, hand_tick
-from haptic_local_model.haptic_server.stages.port_io import drive_device, read_device
+from haptic_local_model.haptic_server.stages.port_io import (
+    drive_device,
+    push_stretch,
+    read_device,
+)
 from haptic_local_model.haptic_server.users import USER_DTYPE, user_record
 from haptic_local_model.shared.config import ConfigError, UserConfig, load_user, resolve
 from haptic_local_model.shared.kinematics import MAX_DOF
@@ -266,9 +270,7 @@ def place_device(
     u["start_pose"] = pose
     s["user"][0] = u
     wm = s["map"][0]
-    push = np.asarray(user.wrench, F8) / (wm["force_scale"] * wm["scale"])
-    k = np.asarray(spec.palm_spring, F8)
-    stretch = np.divide(push, k, out=np.zeros(3), where=k > 0)
+    stretch = push_stretch(user.wrench, wm, spec.palm_spring)
     wm["offset"] = np.asarray(spec.pose, F8) + stretch - wm["scale"] * pose
     s["map"][0] = wm
 

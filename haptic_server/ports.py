@@ -34,7 +34,11 @@ from haptic_local_model.haptic_server.stages.cosim import (
     cosim_records,
     cosim_tick,
 )
-from haptic_local_model.haptic_server.stages.port_io import drive_device, read_device
+from haptic_local_model.haptic_server.stages.port_io import (
+    drive_device,
+    push_stretch,
+    read_device,
+)
 from haptic_local_model.haptic_server.users import USER_DTYPE, user_record
 from haptic_local_model.shared.config import UserConfig, load_user
 from haptic_local_model.shared.port_config import MAX_PORTS, PortSceneConfig
@@ -192,9 +196,7 @@ class PortRun:
         wm = io["maps"][p]
         tool = self.data[0]["q"][3 * self.model[0]["port_tool"][p] :][:3]
         kc = self.model[0]["coupling_stiffness"][p]
-        push = np.asarray(self.users[p].wrench, F8) / (wm["force_scale"] * wm["scale"])
-        stretch = np.divide(push, kc, out=np.zeros(3), where=kc > 0)
-        wm["offset"] = tool + stretch - wm["scale"] * pose
+        wm["offset"] = tool + push_stretch(self.users[p].wrench, wm, kc) - wm["scale"] * pose
         io["maps"][p] = wm
 
     def run(self, duration_s: float) -> PortResult:

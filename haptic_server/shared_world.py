@@ -45,6 +45,7 @@ import zenoh
 
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import DeviceWorldMap
+from haptic_local_model.haptic_server.stages.port_io import push_stretch
 from haptic_local_model.haptic_server.station import rows_in_order
 from haptic_local_model.haptic_server.world_engines import (
     port_gains,
@@ -105,12 +106,12 @@ class SharedWorld:
     ) -> None:
         self.scene, self.network = scene, network
         self.limits: list[Vec3] = []
-        scales = []  # each scene device's F_device / F_world
+        maps = []  # each scene device's map onto the world
         for port in scene.ports:  # the scene's devices' limits, in the world frame
             dev = load_simulated_device(port.device)
             wm = getattr(dev, "world_map", None) or DeviceWorldMap.identity()
             scale = wm.record[0]["scale"] * wm.record[0]["force_scale"]
-            scales.append(scale)
+            maps.append(wm.record[0])
             self.limits.append(vec3(np.array(dev.limits().max_wrench) / scale))
         users = [load_user(port.user) for port in scene.ports]
         self.engine = world_engine(scene, self.limits, users)
@@ -121,8 +122,7 @@ class SharedWorld:
         for p, user in enumerate(users):
             # the anchor squeezes as the scene's user pushes: the object is held at the start
             k, b = (np.array(v, np.float64) for v in port_gains(scene, p))
-            push = np.array(user.wrench, np.float64) / scales[p]  # the world's frame
-            stretch = np.divide(push, k, out=np.zeros(3), where=k > 0)
+            stretch = push_stretch(user.wrench, maps[p], k)
             self.ports[p].anchor = self.engine.tool(p)[0] + stretch
             rec = tool_record(p, self.epoch)
             rec["stiffness"] = k

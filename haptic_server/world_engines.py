@@ -14,8 +14,6 @@ no glove angles: documented limit).
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from numba import njit
 
@@ -218,7 +216,7 @@ WorldEngine = CosimWorld | HandGraspWorld
 
 def world_engine(
     scene: PortSceneConfig | HandSceneConfig, limits: list[Vec3], users: list[UserConfig]
-) -> Any:
+) -> WorldEngine:
     """The engine a shared world runs for this scene."""
     if isinstance(scene, HandSceneConfig):
         if len(scene.ports) != MAX_HANDS:

@@ -22,7 +22,6 @@ from haptic_local_model.benchmarks.grasp import (
     squeeze_users,
     stability_map,
     twist,
-    twist_fixed_push,
 )
 from haptic_local_model.haptic_server.ports import run_ports
 from haptic_local_model.haptic_server.stages.cosim import cosim_records, cosim_tick
@@ -256,7 +255,7 @@ def test_a_fixed_push_along_x_turns_the_box_past_the_hands(scene):
     """The same hands pushing a constant 2 N along x instead: as the grip turns, the pushes
     form a couple that turns the box past the hands' line (DESIGN-WAVE2 §6's off-centre
     squeeze, physical), while the box still follows its pads."""
-    r = twist_fixed_push(scene)
+    r = twist(scene, along_grip=False)
     assert r["final_error_vs_hands_rad"] > 0.02  # V4.5's tolerance: the couple fails it
     assert r["error_max_vs_pads_rad"] <= 1e-3
     assert r["contact_losses"] == 0

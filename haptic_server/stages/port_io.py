@@ -6,6 +6,7 @@ reading only; its command blends the coupling with the safe state itself)."""
 
 from __future__ import annotations
 
+import numpy as np
 from numba import njit
 
 from haptic_local_model.device_models.kernels import (
@@ -43,3 +44,12 @@ def drive_device(maps, command, limits, out, dev, dt, hand, sensors):
     device_command(dev, out)
     device_advance(dev, dt, hand)
     map_rate_step(maps, sensors[0].pose, dt)
+
+
+def push_stretch(wrench: object, world_map: np.ndarray, stiffness: object) -> np.ndarray:
+    """How far a spring of `stiffness` (world frame, per axis; 0: none) stretches under a
+    hand's constant `wrench` on its device, mapped to the world by `world_map` (a MAP_DTYPE
+    record): where a port's device starts so its coupling balances its user's push."""
+    push = np.asarray(wrench, np.float64) / (world_map["force_scale"] * world_map["scale"])
+    k = np.asarray(stiffness, np.float64)
+    return np.divide(push, k, out=np.zeros(3), where=k > 0)
