@@ -22,6 +22,10 @@ The port scene `grasp_vertical` (configs/ports/) with its simulated devices and 
 - V4.5 twist (g = 0): the hands move 10 mm in opposite y, squeezing along their grip line;
   the box's angle against the hands' line and the pads' (the pads turn freely: no angular
   coupling); and the same hands pushing along x, whose couple turns the box past them;
+- first touch (g = 0): the pads start 3 mm from the box and the hands close them on it
+  with 2 N; with the simultaneous impulses and with penalty contacts alone: the pads'
+  speed at the touch, how deep the contacts go and whether they bounce (contacts lost
+  after the first touch), each device's largest command against the 2 N;
 - the cost of one tick of both ports (the co-simulation and two device models), for every
   shipped port scene (grasp_clutter: 64 shapes).
 
@@ -437,6 +441,48 @@ def stability_map(
     return out
 
 
+def first_touch(
+    scene: PortSceneConfig,
+    impulses: bool,
+    devices: tuple[str, str] = ("maglev", "maglev"),
+    gap_m: float = 0.003,
+    duration_s: float = 0.3,
+) -> dict:
+    """The grasp's first touch (module docstring), g = 0, the devices' noise on."""
+    bodies = []
+    for b in scene.bodies:
+        if b.name in (p.tool for p in scene.ports):
+            side = -1.0 if b.position[0] < 0 else 1.0
+            b = dataclasses.replace(b, position=(b.position[0] + side * gap_m, b.position[1]))
+        bodies.append(b)
+    sc = scene_with(
+        scene,
+        devices,
+        gravity=(0.0, 0.0),
+        bodies=tuple(bodies),
+        contact=dataclasses.replace(scene.contact, impulses=impulses),
+    )
+    res = run_ports(sc, duration_s, users=squeeze_users(sc, 2.0))
+    r = res.rows
+    touched = np.flatnonzero(r["n_contacts"] > 0)
+    k = int(touched[0]) if touched.size else len(r)
+    after = slice(k, min(len(r), k + round(0.05 * sc.haptic_rate_hz)))
+    tools = [res.body(p.tool) for p in sc.ports]
+    ib = res.body("box")
+    return {
+        "impulses": impulses,
+        "devices": "+".join(devices),
+        "touch_ms": k * sc.period_s * 1e3,
+        "pad_speed_m_per_s": [float(abs(r["qd"][k - 1, 3 * i])) for i in tools],
+        "collisions": int(r["collisions"][-1]),
+        "deepest_m": float(r["penetration"][after].max()),
+        "bounces": int(np.sum(np.diff((r["n_contacts"][k:] > 0).astype(int)) < 0)),
+        "command_peak_n": [float(np.abs(r["command"][after, p, 0]).max()) for p in range(2)],
+        "command_end_n": [float(abs(r["command"][-1, p, 0])) for p in range(2)],
+        "box_speed_max_m_per_s": float(np.abs(r["qd"][k:, 3 * ib]).max()),
+    }
+
+
 def tick_cost(scene: PortSceneConfig, ticks: int = 20000) -> dict:
     """Wall time of one tick of both ports (the co-simulation and two maglev models), each
     tick its own compiled call timed from Python (so the call's own cost is in): p50,
@@ -492,6 +538,11 @@ def main(argv: list[str] | None = None) -> int:
             scene, devices=("maglev", "maglev")
         ),
         "V4.4 stability map": stability_map(scene),
+        "first touch": [
+            first_touch(scene, impulses, devices)
+            for devices in (("maglev", "maglev"), ("twin_pantograph", "twin_pantograph"))
+            for impulses in (True, False)
+        ],
     }
     for name in shipped_port_scenes(hands=False):  # every two-port scene, the 64-shape one too
         figures[f"tick cost, {name}"] = tick_cost(load_port_scene(name))

@@ -76,6 +76,7 @@ PORT_ROW_DTYPE = np.dtype(
         ("invalid", I8),
         ("singular", I8),
         ("device_fault", I8, (MAX_PORTS,)),
+        ("collisions", I8),  # colliding contacts resolved by impulses, since the start
     ]
 )
 
@@ -117,6 +118,7 @@ def _row(cd, io, r):
     r.penetration = cd.penetration
     r.invalid = cd.invalid
     r.singular = cd.singular
+    r.collisions = cd.collisions
 
 
 @njit(cache=True)

@@ -64,6 +64,7 @@ def world_row(data, rows, k, t, lowest):
     row.penetration = cd.penetration
     row.invalid = cd.invalid
     row.singular = cd.singular
+    row.collisions = cd.collisions
 
 
 def tool_start(scene: PortSceneConfig | HandSceneConfig, p: int) -> np.ndarray:

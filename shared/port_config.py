@@ -51,6 +51,23 @@ class CosimContact:
 
 
 @dataclass(frozen=True)
+class PortContact(CosimContact):
+    """A port scene's contacts: besides the penalty and friction, a contact that starts
+    penetrating while approaching faster than collision_speed collides, and a tick's
+    colliding contacts are resolved by simultaneous impulses with restitution e
+    (seed 001 eq 5-6; haptic_server/stages/cosim.py). Hand scenes have penalty contacts only."""
+
+    impulses: bool = True
+    restitution: float = 0.0
+    collision_speed_m_per_s: float = 0.01
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        require(0.0 <= self.restitution <= 1.0, "restitution", "must be in [0, 1]")
+        within(self.collision_speed_m_per_s, (0.0, 10.0), "collision_speed_m_per_s", "m/s")
+
+
+@dataclass(frozen=True)
 class PortSpec:
     """One device on the world: the tool body it holds (a dynamic body of the scene), its
     simulated user and device (names or paths, overridable on the command line), and the
@@ -80,7 +97,7 @@ class PortSceneConfig:
     description: str = ""
     gravity: Vec2 = (0.0, -9.81)
     haptic_rate_hz: float = 1000.0
-    contact: CosimContact = field(default_factory=CosimContact)
+    contact: PortContact = field(default_factory=PortContact)
     ports: tuple[PortSpec, ...] = ()
     bodies: tuple[BodySpec, ...] = ()
 

@@ -24,7 +24,11 @@ from haptic_local_model.benchmarks.grasp import (
     twist,
 )
 from haptic_local_model.haptic_server.ports import run_ports
-from haptic_local_model.haptic_server.stages.cosim import cosim_records, cosim_tick
+from haptic_local_model.haptic_server.stages.cosim import (
+    cosim_records,
+    cosim_tick,
+    kinetic_energy,
+)
 from haptic_local_model.shared.config import BodySpec, ConfigError, load_config_text
 from haptic_local_model.shared.port_config import PortSceneConfig, load_port_scene
 
@@ -102,6 +106,88 @@ def test_a_collision_between_free_bodies_conserves_momentum(scene):
     assert np.max(np.abs(momentum() - before)) < 1e-14
 
 
+def _thrown(scene, speeds, masses=(0.05, 0.05), n=10, **contact):
+    """g = 0, couplings cut; each pad thrown at the box (at rest) with speeds[p] (toward it),
+    placed so that it first penetrates at tick n by 10 nm (the impulse alone meets it: the
+    penalty of 1 um already pushes 0.6 mm/s in the tick). A speed of 0 puts the pad
+    out of reach."""
+    bodies = []
+    for b in scene.bodies:
+        if b.name in ("pad_left", "pad_right"):
+            p = 0 if b.name == "pad_left" else 1
+            side = -1.0 if p == 0 else 1.0
+            gap = n * speeds[p] * 1e-3 - 1e-8 if speeds[p] > 0 else 0.1
+            x = b.position[0] + side * gap
+            b = dataclasses.replace(b, position=(x, 0.0), velocity=(-side * speeds[p], 0.0))
+            b = dataclasses.replace(b, mass=masses[p])
+        bodies.append(b)
+    c = dataclasses.replace(scene.contact, **contact)
+    sc = _free(scene, gravity=(0.0, 0.0), bodies=tuple(bodies), contact=c)
+    model, data = cosim_records(sc, LIMITS)
+    return model, data
+
+
+def test_two_pads_meeting_the_box_in_one_tick_stop_as_one_body(scene):
+    """e = 0: pads of 0.05 and 0.08 kg at 0.3 and 0.1 m/s meet the box (0.1 kg) in one tick.
+    The simultaneous impulses leave all three at the perfectly inelastic closed form
+    (m_A v_A - m_B v_B) / (m_A + m_B + m_O) from that tick, the contacts no deeper than
+    they first touched; penalty contacts alone (impulses off) are still ringing then and
+    sink 0.1 mm."""
+    ma, mb, mo, va, vb = 0.05, 0.08, 0.1, 0.3, 0.1
+    common = (ma * va - mb * vb) / (ma + mb + mo)
+    depth = {}
+    for impulses in (True, False):
+        model, data = _thrown(scene, (va, vb), masses=(ma, mb), impulses=impulses)
+        for _ in range(10):
+            cosim_tick(model, data)
+            assert data[0]["n_contacts"] == 0
+        cosim_tick(model, data)  # the first touch
+        vx = data[0]["qd"][[0, 3, 6]]  # pad_left, pad_right, box
+        deepest = 0.0
+        for _ in range(30):
+            cosim_tick(model, data)
+            deepest = max(deepest, float(data[0]["penetration"]))
+        depth[impulses] = deepest
+        if impulses:
+            assert data[0]["collisions"] == 4  # two box corners into each pad
+            assert vx == pytest.approx(np.full(3, common), rel=1e-3)
+            assert deepest < 1e-7
+        else:
+            assert data[0]["collisions"] == 0
+            assert np.ptp(vx) > 0.1
+            assert deepest > 1e-4
+    print(f"\ndeepest after the first touch: impulses {depth[True] * 1e6:.2f} um, "
+          f"penalty alone {depth[False] * 1e6:.1f} um")  # fmt: skip
+
+
+def test_an_elastic_first_touch_swaps_the_momentum_of_pad_and_box(scene):
+    """e = 1, one pad (0.05 kg, 0.2 m/s) into the box (0.1 kg): they part at the elastic
+    closed form, pad v (m_A - m_O)/(m_A + m_O), box 2 m_A v/(m_A + m_O), and the kinetic
+    energy is kept."""
+    ma, mo, v = 0.05, 0.1, 0.2
+    model, data = _thrown(scene, (v, 0.0), restitution=1.0)
+    before = float(kinetic_energy(model, data[0]["qd"][None])[0])
+    for _ in range(40):
+        cosim_tick(model, data)
+    assert data[0]["collisions"] == 2 and data[0]["n_contacts"] == 0
+    pad, box = data[0]["qd"][0], data[0]["qd"][6]
+    assert pad == pytest.approx(v * (ma - mo) / (ma + mo), rel=2e-3)
+    assert box == pytest.approx(2 * ma * v / (ma + mo), rel=2e-3)
+    after = float(kinetic_energy(model, data[0]["qd"][None])[0])
+    assert after == pytest.approx(before, rel=1e-3)
+
+
+def test_a_slow_first_touch_is_left_to_the_penalty(scene):
+    """Below collision_speed a new contact is not colliding: no impulse, the penalty meets
+    it."""
+    model, data = _thrown(scene, (0.005, 0.0))
+    touched = 0
+    for _ in range(40):
+        cosim_tick(model, data)
+        touched = max(touched, int(data[0]["n_contacts"]))
+    assert data[0]["collisions"] == 0 and touched == 2
+
+
 def test_a_device_angle_a_whole_turn_away_couples_as_the_same_angle(scene):
     """A device reporting its angle on another turn (wrapped at +-pi, or a whole turn on)
     is coupled the short way round: the tools, the box and the commands are those of the
@@ -173,6 +259,8 @@ def test_commands_stay_within_the_ports_limits(scene):
             "ports[0].tool",
         ),
         ("[contact]\nfriction = -1.0", "contact.friction"),
+        ("[contact]\nrestitution = 1.5", "contact.restitution"),
+        ("[contact]\ncollision_speed_m_per_s = -1.0", "contact.collision_speed_m_per_s"),
     ],
 )
 def test_a_bad_port_scene_names_its_key(text, key):

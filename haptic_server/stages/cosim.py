@@ -9,6 +9,16 @@ The extended configuration q = (q_tool_0, q_tool_1, q_object, ...) holds free ri
    and a stick spring k_t capped at mu f_n along the tangent, its deflection kept per
    (vertex owner, penetrated shape, vertex). Normals rotate with the bodies. Tool-object
    contacts have both sides in q: their rows are n^T (J_o - J_t).
+1b. First touch (seed 001 eq 5-6, DESIGN-WAVE2 §6): a contact that starts penetrating this
+   tick while approaching faster than collision_speed collides. All of a tick's colliding
+   contacts are resolved together: lambda >= 0 is the least-squares solution of
+   (R D^-1 R^T) lambda = -(1 + e) v_n (`stages/contacts.py`'s NNLS), R their rows; q-dot
+   takes D^-1 R^T lambda at once. Two pads that meet the box in one tick stop as one body
+   (e = 0), whatever their masses and speeds. A colliding contact's penalty starts the next
+   tick (its depth is at most its approach over one tick). The other contacts' damping
+   forces were taken at the velocity before the impulses: they are moved to the velocity
+   after by -B dq-dot (B their damping; exact for the normal damping and a sticking
+   contact's, while the normal force stays >= 0).
 2. Each port's virtual coupling between its device (pose and twist in the world frame) and
    its tool: K_c (x_h - x_t) + B_c (xd_h - xd_t) on the tool, the opposite on the device
    (K_c here is the coupling's stiffness; the contacts' is k). A port whose reading is not
@@ -33,6 +43,7 @@ import math
 import numpy as np
 from numba import njit
 
+from haptic_local_model.haptic_server.stages.contacts import nnls
 from haptic_local_model.shared.kinematics import wrap_angle
 from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
 from haptic_local_model.shared.port_config import (
@@ -47,6 +58,7 @@ F8 = np.float64
 I8 = np.int64
 N_ELEMENTS = MAX_COSIM_BODIES + MAX_STATIC_BODIES  # bodies first, then the static walls
 MAX_COSIM_DOF = 3 * MAX_COSIM_BODIES
+MAX_COLLISIONS = 16  # colliding contacts resolved in one tick; more: penalty alone
 
 COSIM_DTYPE = np.dtype(
     [
@@ -65,6 +77,9 @@ COSIM_DTYPE = np.dtype(
         ("damping", F8),
         ("friction", F8),
         ("tangential_stiffness", F8),
+        ("impulses", I8),  # 1: colliding contacts resolved by simultaneous impulses
+        ("restitution", F8),  # e
+        ("collision_speed", F8),  # m/s: a new contact approaching faster collides
         ("port_tool", I8, (MAX_PORTS,)),
         ("coupling_stiffness", F8, (MAX_PORTS, 3)),
         ("coupling_damping", F8, (MAX_PORTS, 3)),
@@ -92,6 +107,8 @@ COSIM_DATA_DTYPE = np.dtype(
         ("penetration", F8),  # the deepest this tick, m
         ("invalid", I8),  # commands that were not finite (zero force sent instead)
         ("singular", I8),  # steps whose system did not factor (the bodies held)
+        ("collisions", I8),  # colliding contacts resolved by impulses, since the start
+        ("impulse", F8, (MAX_COSIM_DOF,)),  # this tick's R^T lambda, N s (about each COM)
         ("dt", F8),
         # scratch
         ("f", F8, (MAX_COSIM_DOF,)),
@@ -108,6 +125,18 @@ COSIM_DATA_DTYPE = np.dtype(
         ("cols", I8, (6,)),
         ("jn", F8, (6,)),
         ("jt", F8, (6,)),
+        ("n_colliding", I8),
+        ("coll_rows", F8, (MAX_COLLISIONS, MAX_COSIM_DOF)),  # n^T (J_o - J_t) over q
+        ("coll_target", F8, (MAX_COLLISIONS,)),  # -(1 + e) v_n
+        ("impulse_dqd", F8, (MAX_COSIM_DOF,)),
+        ("nnls_a", F8, (MAX_COLLISIONS, MAX_COLLISIONS)),  # R D^-1 R^T
+        ("nnls_lambda", F8, (MAX_COLLISIONS,)),
+        ("nnls_z", F8, (MAX_COLLISIONS,)),
+        ("nnls_w", F8, (MAX_COLLISIONS,)),
+        ("nnls_passive", I8, (MAX_COLLISIONS,)),
+        ("nnls_m", F8, (MAX_COLLISIONS, MAX_COLLISIONS)),
+        ("nnls_rhs", F8, (MAX_COLLISIONS,)),
+        ("nnls_chol", F8, (MAX_COLLISIONS, MAX_COLLISIONS)),
     ]
 )
 
@@ -155,6 +184,9 @@ def cosim_records(
     m["damping"] = c.damping_ns_per_m
     m["friction"] = c.friction
     m["tangential_stiffness"] = c.friction_stiffness_ratio * c.stiffness_n_per_m
+    m["impulses"] = int(c.impulses)
+    m["restitution"] = c.restitution
+    m["collision_speed"] = c.collision_speed_m_per_s
     for p, port in enumerate(scene.ports):
         m["port_tool"][p] = order.index(port.tool)
         m["coupling_stiffness"][p] = port.coupling_stiffness
@@ -303,8 +335,16 @@ def contact(m, d, o, t, v):
     rvy = voy - vty
     vn = nx * rvx + ny * rvy
     vt = tx * rvx + ty * rvy
+    d.n_contacts += 1
+    if depth > d.penetration:
+        d.penetration = depth
     if d.touching[o, t, v] == 0:
         d.stick[o, t, v] = 0.0
+        d.touching[o, t, v] = 1
+        if m.impulses == 1 and vn < -m.collision_speed and d.n_colliding < MAX_COLLISIONS:
+            # colliding: the impulse meets it this tick (`collide`), its penalty from the next
+            _queue_collision(m, d, o, t, vn)
+            return
     d.touching[o, t, v] = 1
     f_n, f_t, d.stick[o, t, v], sticking = penalty_friction(m, depth, vn, vt, d.stick[o, t, v], dt)
     k_t = m.tangential_stiffness
@@ -312,9 +352,6 @@ def contact(m, d, o, t, v):
     fy = f_n * ny + f_t * ty
     _apply(d, o, px, py, fx, fy)
     _apply(d, t, px, py, -fx, -fy)
-    d.n_contacts += 1
-    if depth > d.penetration:
-        d.penetration = depth
     if f_n > 0.0:
         _rows(d, o, t, px, py, nx, ny)
         # a sliding contact's friction is mu f_n whatever the tangential speed: neither its
@@ -323,6 +360,57 @@ def contact(m, d, o, t, v):
             add_rows(d.k, d.b, d.cols, d.jn, d.jt, 6, (m.stiffness, k_t, m.damping, m.damping))
         else:
             add_rows(d.k, d.b, d.cols, d.jn, d.jt, 6, (m.stiffness, 0.0, m.damping, 0.0))
+
+
+@njit(cache=True)
+def _queue_collision(m, d, o, t, vn):
+    """A contact that starts penetrating while approaching (its point and normal in d.hit):
+    its row n^T (J_o - J_t) over q and its target normal velocity change, for `collide`."""
+    c = d.n_colliding
+    _rows(d, o, t, d.hit[0], d.hit[1], d.hit[3], d.hit[4])
+    for a in range(3 * m.n_bodies):
+        d.coll_rows[c, a] = 0.0
+    for i in range(6):
+        if d.cols[i] >= 0:
+            d.coll_rows[c, d.cols[i]] += d.jn[i]
+    d.coll_target[c] = -(1.0 + m.restitution) * vn
+    d.n_colliding = c + 1
+
+
+@njit(cache=True)
+def collide(m, d):
+    """The tick's colliding contacts resolved together (module docstring, step 1b)."""
+    n = 3 * m.n_bodies
+    k = d.n_colliding
+    for a in range(n):
+        d.impulse[a] = 0.0
+    if k == 0:
+        return
+    for r in range(k):  # R D^-1 R^T (D diagonal)
+        for c in range(k):
+            v = 0.0
+            for a in range(n):
+                i = a // 3
+                inv = 1.0 / (m.inertia[i] if a % 3 == 2 else m.mass[i])
+                v += d.coll_rows[r, a] * inv * d.coll_rows[c, a]
+            d.nnls_a[r, c] = v
+    nnls(d, k)
+    for a in range(n):
+        v = 0.0
+        for c in range(k):
+            v += d.coll_rows[c, a] * d.nnls_lambda[c]
+        i = a // 3
+        d.impulse[a] = v
+        d.impulse_dqd[a] = v / (m.inertia[i] if a % 3 == 2 else m.mass[i])
+    for a in range(n):  # the damping forces taken so far, moved to the velocity after
+        corr = 0.0
+        for b in range(n):
+            corr -= d.b[a, b] * d.impulse_dqd[b]
+        d.f[a] += corr
+        d.body_force[a // 3, a % 3] += corr
+    for a in range(n):
+        d.qd[a] += d.impulse_dqd[a]
+    d.collisions += k
 
 
 @njit(cache=True)
@@ -434,6 +522,7 @@ def _clear(m, d):
             d.body_force[e, c] = 0.0
     d.n_contacts = 0
     d.penetration = 0.0
+    d.n_colliding = 0
 
 
 @njit(cache=True)
@@ -505,6 +594,7 @@ def cosim_tick(model, data):
     d = data[0]
     _clear(m, d)
     all_contacts(m, d)
+    collide(m, d)
     couple_ports(m, d)
     step_bodies(m, d)
     port_commands(m, d)
