@@ -57,6 +57,7 @@ HAND_IO_DTYPE = np.dtype(
         ("map", MAP_DTYPE, (1,)),
         ("glove", F8, (MAX_GLOVE_ROWS, MAX_DOF - 2)),  # the script: t, then the angles
         ("n_glove", I8),
+        ("glove_fed", I8),  # 1: the tracked fingers are fed (a station's glove), not scripted
     ]
 )
 

@@ -7,6 +7,11 @@ refused and counted), decide each port's state, feed the world's engine
 (haptic_server/world_engines.py: the co-simulation, or the hands) each port's device, run
 it, publish each port's ToolState.
 
+A hand's port (`hand_grasp`) takes its station's glove angles as it takes its device's
+pose: blended in from the fingers' angles over the coupling's ramp, held where they were
+when the port leaves COUPLED; until a station sends its glove, the hand's fingers follow
+the scene user's script.
+
 A port is, in turn:
 - HELD: its station is silent (none yet, or none for `world_watchdog_ms`). Its tool stays
   coupled to an anchor where its device was last, at rest: the tool keeps squeezing as it
@@ -87,6 +92,7 @@ class PortState:
     offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
     start: np.ndarray = field(default_factory=lambda: np.zeros(3))  # the anchor at coupling
     blend: float = 0.0
+    glove_start: np.ndarray | None = None  # a hand's glove when its port coupled
     last: DeviceState | None = None
     rx_ns: int = 0
     received: int = 0
@@ -195,12 +201,25 @@ class SharedWorld:
             if new == COUPLED:
                 ps.start = ps.anchor.copy()
                 ps.blend = 0.0
+                ps.glove_start = self.engine.glove(p)
+            elif ps.state == COUPLED and m is not None and m.has_glove:
+                held = self.engine.glove(p)  # a hand's fingers held where its station left them
+                if held is not None:
+                    self.engine.feed_glove(p, held, np.zeros_like(held))
             ps.state = new
         if new == COUPLED and m is not None:
             live = self._live(ps, m, (now_ns - ps.rx_ns) / 1e9)
             ps.blend = min(1.0, ps.blend + self.engine.dt / (self.network.safe_ramp_ms / 1e3))
             ps.anchor = ps.start + ps.blend * (live - ps.start)
             self.engine.feed(p, ps.anchor, ps.blend * np.array(m.twist))
+            if m.has_glove and ps.glove_start is not None:
+                # the station's glove, blended in from the fingers' as they were (as the pose)
+                g0 = ps.glove_start
+                n = len(g0)
+                self.engine.feed_glove(
+                    p, g0 + ps.blend * (np.array(m.glove[:n]) - g0),
+                    ps.blend * np.array(m.glove_rate[:n]),
+                )  # fmt: skip
             return
         if new == INDEXING and m is not None:
             ps.offset = ps.anchor - np.array(m.pose)

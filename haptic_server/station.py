@@ -21,6 +21,7 @@ from haptic_local_model.device_models.base import SimulatedDevice
 from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import noise_ready
 from haptic_local_model.device_models.world_map import DeviceWorldMap
+from haptic_local_model.haptic_server.hand_ports import glove_at, glove_script
 from haptic_local_model.haptic_server.stages.station import (
     STATION_DTYPE,
     STATION_ROW_DTYPE,
@@ -39,6 +40,7 @@ from haptic_local_model.shared.net.transport import newest_payload
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
 from haptic_local_model.shared.protocol.station import (
     CUT,
+    GLOVE,
     SAFE,
     DeviceState,
     ToolState,
@@ -123,6 +125,13 @@ class Station:
         self.pacer = Pacer(round(scene.period_s * 1e9), SPIN_NS, None)
         self.epoch = time.time_ns()
         self._stop = False
+        # a hand's station sends its user's glove (finger_angles on its own clock)
+        self._glove = np.zeros((0, 1))
+        if isinstance(scene, HandSceneConfig):
+            rest = [a for f in scene.hand_of(self.index).fingers for a in f.rest]
+            self._glove = glove_script(user, rest)
+        joints = self._glove.shape[1] - 1
+        self._glove_angle, self._glove_rate = np.zeros(joints), np.zeros(joints)
 
     def _place(self, start: tuple[float, float, float]) -> None:
         """The device at rest at its start, mapped onto its tool (the world re-indexes it
@@ -196,11 +205,13 @@ class Station:
         self.pacer = pacer
         enter_loop(self.warm, ready)
         pacer.start()
+        t0 = -1
         seq = 0
         was_safe = True
         try:
             while not self._stop:
                 now = pacer.wait()
+                t0 = now if t0 < 0 else t0
                 if not noise_ready(dev, dt):
                     refill_noise(self.device.noise, dev, dt)
                     self.counters.refills += 1
@@ -211,8 +222,10 @@ class Station:
                 flags = (SAFE if s["fresh"] == 0 else 0) | (CUT if s["cut"] == 1 else 0)
                 pose = (0.0, 0.0, 0.0) if s["cut"] else vec3(w["pose"])
                 twist = (0.0, 0.0, 0.0) if s["cut"] else vec3(w["twist"])
+                glove, rate = self._glove_at((now - t0) / 1e9)
                 pub.put(encode_device(DeviceState(
-                    self.index, self.epoch, seq, time.time_ns(), pose, twist, flags
+                    self.index, self.epoch, seq, time.time_ns(), pose, twist,
+                    flags | (GLOVE if glove else 0), glove, rate,
                 )))  # fmt: skip
                 safe = s["gain"] == 0.0
                 if safe and not was_safe:
@@ -225,6 +238,14 @@ class Station:
         finally:
             session.close()
         return self.summary()
+
+    def _glove_at(self, t: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """A hand's station: its glove's angles and rates at t (its own clock); else ()."""
+        if len(self._glove) == 0:
+            return (), ()
+        glove_at(self._glove, len(self._glove), t, len(self._glove_angle), self._glove_angle,
+                 self._glove_rate)  # fmt: skip
+        return tuple(self._glove_angle.tolist()), tuple(self._glove_rate.tolist())
 
     def _row(self, now_ns: int, late_ns: int, work_ns: int) -> None:
         self.work_us.add(work_ns / 1e3)

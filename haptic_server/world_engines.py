@@ -8,8 +8,8 @@ F = K (x_tool - x_dev) + B (v_tool - v_dev): for a co-simulated tool, its coupli
 hand, its palm spring (the palm's command is the spring's reaction, the same law, with the
 palm as the tool and the device as the tracked palm). The world feeds each port's device
 (as the world takes it) to the engine, ticks it, and publishes each port's tool. A hand's
-glove is the port's scene user's `finger_angles`, evaluated by the world (a station sends
-no glove angles: documented limit).
+glove is the port's scene user's `finger_angles`, evaluated by the world, until its station
+sends its own (`feed_glove`: a hand's station sends its user's glove with its device).
 """
 
 from __future__ import annotations
@@ -107,7 +107,8 @@ def hand_world_tick(grasp, io, t):
         d = hds[i][0]
         n = hms[i][0].dof
         s = io[i]
-        glove_at(s.glove, s.n_glove, t, n - 3, d.target[3:n], d.target_rate[3:n])
+        if s.glove_fed == 0:  # else its station's, fed before
+            glove_at(s.glove, s.n_glove, t, n - 3, d.target[3:n], d.target_rate[3:n])
     grasp_tick(chains, hms, hds, gmodel, gdata)
 
 
@@ -133,6 +134,12 @@ class CosimWorld:
 
     def tick(self, t: float) -> None:
         cosim_tick(self.model, self.data)
+
+    def glove(self, p: int) -> np.ndarray | None:
+        return None  # a tool has no glove
+
+    def feed_glove(self, p: int, angles: np.ndarray, rates: np.ndarray) -> None:
+        """No glove to feed (a DeviceState's glove is not used)."""
 
     def tool(self, p: int) -> tuple[np.ndarray, np.ndarray]:
         i = self._tools[p]
@@ -187,6 +194,18 @@ class HandGraspWorld:
 
     def tick(self, t: float) -> None:
         hand_world_tick(self.grasp, self._io, t)
+
+    def glove(self, p: int) -> np.ndarray | None:
+        """Hand p's glove angles as the last tick took them."""
+        n = int(self.grasp[1][p][0]["dof"])
+        return np.array(self._datas[p][0]["target"][3:n])
+
+    def feed_glove(self, p: int, angles: np.ndarray, rates: np.ndarray) -> None:
+        """Hand p's glove from now on: these angles and rates, not its script's."""
+        d, n = self._datas[p][0], int(self.grasp[1][p][0]["dof"])
+        d["target"][3:n] = angles[: n - 3]
+        d["target_rate"][3:n] = rates[: n - 3]
+        self._io[p]["glove_fed"] = 1
 
     def tool(self, p: int) -> tuple[np.ndarray, np.ndarray]:
         d = self._datas[p][0]

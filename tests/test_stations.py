@@ -30,7 +30,12 @@ from haptic_local_model.benchmarks.stations import (
     station_rows,
 )
 from haptic_local_model.device_models.registry import load_simulated_device
-from haptic_local_model.haptic_server.ports_cli import read_port_log, replay_log
+from haptic_local_model.haptic_server.hand_grasp_ports import HAND_GRASP_ROW_DTYPE
+from haptic_local_model.haptic_server.ports_cli import (
+    HAND_GRASP_TOPIC,
+    read_port_log,
+    replay_log,
+)
 from haptic_local_model.haptic_server.shared_world import SharedWorld
 from haptic_local_model.haptic_server.stages.station import STATION_ROW_DTYPE
 from haptic_local_model.haptic_server.station import EXTRAPOLATE_S, Station
@@ -44,6 +49,8 @@ from haptic_local_model.shared.net.stations import (
 )
 from haptic_local_model.shared.port_config import load_port_scene
 from haptic_local_model.shared.protocol.station import (
+    GLOVE,
+    MAX_GLOVE_JOINTS,
     SAFE,
     DeviceState,
     ToolState,
@@ -97,6 +104,18 @@ def test_messages_round_trip_and_malformed_ones_are_refused_by_field() -> None:
         decode_device(encode_device(DeviceState(0, 0, 0, 0, (0, 0, 0), (0, 1e9, 0))), 0)
     with pytest.raises(MessageError, match="negative"):
         decode_tool(encode_tool(_tool(0, damping=(-1.0, 0.0, 0.0))), 0)
+    # a hand's station: its glove's angles and rates, padded to MAX_GLOVE_JOINTS
+    g = DeviceState(0, 1, 2, 3, (0, 0, 0), (0, 0, 0), GLOVE, (0.3, 0.2, -0.3, -0.2), (1.0,))
+    back = decode_device(encode_device(g), 0)
+    assert back.has_glove and back.glove[:4] == g.glove and back.glove_rate[:2] == (1.0, 0.0)
+    assert len(back.glove) == MAX_GLOVE_JOINTS and not any(back.glove[4:])
+    nan = dataclasses.replace(g, glove=(0.3, 0.2, float("nan")))
+    with pytest.raises(MessageError, match=r"DeviceState\.glove\[2\]"):
+        decode_device(encode_device(nan), 0)
+    with pytest.raises(MessageError, match=r"DeviceState\.glove_rate\[0\]"):
+        decode_device(encode_device(dataclasses.replace(g, glove_rate=(1e9,))), 0)
+    with pytest.raises(MessageError, match="flags"):
+        decode_device(encode_device(dataclasses.replace(g, flags=8)), 0)
 
 
 def test_the_network_config_names_the_key_that_is_wrong(tmp_path: Path) -> None:
@@ -280,6 +299,53 @@ def test_the_world_holds_a_port_until_its_station_says_safe_and_refuses_old_epoc
     assert ps.last is not None and ps.last.epoch == 8
 
 
+def test_a_hands_station_glove_blends_in_and_is_held_when_it_leaves() -> None:
+    """hand_grasp: until a station sends its glove, a hand's fingers follow the scene
+    user's script (the rest angles); once coupled, the station's angles blend in over the
+    ramp as the device's pose does, its rates scaled alike, and when the station goes
+    silent the fingers are held where they were, at rest. The other hand keeps its script."""
+    from haptic_local_model.haptic_server.stations_cli import _scene
+
+    scene, _ = _scene("hand_grasp")
+    world = SharedWorld(scene, load_station_network("stations_loopback", "world"), 10)
+    eng = world.engine
+    rest = np.array([a for f in scene.hand_of(0).fingers for a in f.rest])
+    eng.tick(0.0)
+    assert np.allclose(eng.glove(0), rest)
+    sent = rest + np.array([0.2, 0.0, -0.1, 0.0])
+    rate = (0.4, 0.0, -0.2, 0.0)
+    now = time.perf_counter_ns()
+
+    def device(seq: int, flags: int) -> bytes:
+        return encode_device(DeviceState(0, 7, seq, 0, (0, 0, 0), (0, 0, 0), flags | GLOVE,
+                                         tuple(sent), rate))  # fmt: skip
+
+    world._take(0, _Ring([device(1, SAFE)]), now)
+    world._port(0, now, 0.0)  # indexing: the script's fingers still
+    eng.tick(0.0)
+    assert world.ports[0].state == "indexing" and np.allclose(eng.glove(0), rest)
+    ramp_ticks = round(world.network.safe_ramp_ms / 1e3 / eng.dt)
+    for k in range(ramp_ticks + 5):
+        tk = now + (k + 1) * 1_000_000
+        world._take(0, _Ring([device(2 + k, 0)]), tk)
+        world._port(0, tk, 0.0)
+        blend = world.ports[0].blend
+        assert np.allclose(eng.glove(0), rest + blend * (sent - rest), atol=1e-12)
+        n = len(rest)
+        fed_rate = eng._datas[0][0]["target_rate"][3 : 3 + n]
+        assert np.allclose(fed_rate, blend * np.array(rate), atol=1e-12)
+        eng.tick(0.0)
+    assert world.ports[0].state == "coupled" and world.ports[0].blend == 1.0
+    assert np.allclose(eng.glove(0), sent)
+    later = now + int(0.5e9)  # silent for the watchdog: held, the fingers where they were
+    world._port(0, later, 0.5)
+    eng.tick(0.5)
+    assert world.ports[0].state == "held" and np.allclose(eng.glove(0), sent)
+    assert not eng._datas[0][0]["target_rate"][3 : 3 + len(rest)].any()
+    right = np.array([a for f in scene.hand_of(1).fingers for a in f.rest])
+    assert np.allclose(eng.glove(1), right)
+
+
 def _router_acl_check(network: str) -> dict[str, int]:
     """What gets through the router: station_left puts on its own device key and on the
     other port's (a world-credentialed subscriber counts both); the world puts on both tool
@@ -398,11 +464,13 @@ def test_a_killed_station_leaves_the_box_held_and_a_late_one_joins_without_a_jum
 def test_two_hands_at_two_stations_hold_and_lift_the_box(tmp_path: Path, start_server: Any) -> None:
     """Loopback, `hand_grasp`: the world steps both mass-spring hands and the box, each
     station renders its palm spring against its own maglev, and each station's user lifts
-    its device 5 mm from 1 s to 2 s. Both ports couple; the box is held and goes up with the
-    devices (so the world takes them: a world ignoring them would leave it where it was);
-    no step is held; at the end each station renders its user's 2 N squeeze and the
-    (0.218 + 0.05) kg g it carries; the world's log (two hands on a box) replays bit for
-    bit."""
+    its device 5 mm from 1 s to 2 s; the left station's glove closes its first finger's
+    proximal joint 0.2 rad from 2.5 s to 3 s (the world's script for it holds the rest
+    angles). Both ports couple; the box is held and goes up with the devices (so the world
+    takes them: a world ignoring them would leave it where it was); the left hand's finger
+    goes to the station's angle, the right's stays; no step is held; at the end each station
+    renders its user's 2 N squeeze and the (0.218 + 0.05) kg g it carries; the world's log
+    (two hands on a box) replays bit for bit."""
     mod = "haptic_local_model.haptic_server.stations_cli"
     net = ["--network", loopback_network(tmp_path), "--scene", "hand_grasp"]
     router = start_server(mod, "router", *net[:2])
@@ -416,6 +484,9 @@ def test_two_hands_at_two_stations_hold_and_lift_the_box(tmp_path: Path, start_s
         user = tmp_path / f"lift_{p}.toml"
         text = resolve("users", f"hand_grasp_{p}").read_text()
         lift = "waypoints = [[1.0, 0.0, 0.0, 0.0], [2.0, 0.0, 0.005, 0.0]]"
+        if p == "left":  # its station's glove: the first joint 0.3 -> 0.5 rad
+            lift += ("\nfinger_angles = [[2.5, 0.3, 0.2, -0.3, -0.2], "
+                     "[3.0, 0.5, 0.2, -0.3, -0.2]]")  # fmt: skip
         user.write_text(text.replace("waypoints = [[0.0, 0.0, 0.0, 0.0]]", lift))
         logs[p] = tmp_path / f"{p}.mcap"
         started.append(start_server(mod, "station", *net, "--port", p, "--user", str(user),
@@ -437,6 +508,11 @@ def test_two_hands_at_two_stations_hold_and_lift_the_box(tmp_path: Path, start_s
         assert r["pose"][-1, 1] - r["pose"][k, 1] > 0.004, p  # its device went up
         np.testing.assert_allclose(r["out"][-1000:, :2].mean(axis=0), [side * 2.0, -carried],
                                    atol=0.1, err_msg=p)  # fmt: skip
+    rows, _ = read_port_log(world_log, HAND_GRASP_TOPIC, HAND_GRASP_ROW_DTYPE)
+    end = rows[-1]
+    assert end["target"][0, 3] == pytest.approx(0.5, abs=1e-9)  # the left station's glove
+    assert end["target"][1, 3] == pytest.approx(0.3, abs=1e-9)  # the right's: its rest
+    assert end["q"][0, 3] == pytest.approx(0.5, abs=0.02)  # the finger went there
     ticks, differs = replay_log(world_log)
     assert differs is None and ticks == summary["ticks"]
 

@@ -1,11 +1,11 @@
 """The two messages between a shared world and its haptic stations (docs/stations.md).
 
-- DeviceState `HSDV` v1, station -> world, every station tick on `<ns>/port/<name>/device`:
+- DeviceState `HSDV` v2, station -> world, every station tick on `<ns>/port/<name>/device`:
   the station's device pose and twist in its world frame (after its device-to-world map),
   whether it is SAFE (not rendering the world's coupling: its watchdog fired or the world
-  holds it, and its command ramps to, or is at, the safe state), and whether its reading
-  was not finite.
-- ToolState `HSTL` v1, world -> station, every world tick on `<ns>/port/<name>/tool`: the
+  holds it, and its command ramps to, or is at, the safe state), whether its reading
+  was not finite, and, at a hand's station (GLOVE), its glove's joint angles and rates.
+- ToolState `HSTL` v2, world -> station, every world tick on `<ns>/port/<name>/tool`: the
   port's tool pose and twist in the station's frame (the world re-indexes a station that
   joins, so its device meets its tool where the tool is), the coupling's stiffness and
   damping, the co-simulated object's pose (for views and logs) and whether the world holds
@@ -28,18 +28,21 @@ from haptic_local_model.shared.protocol.update import MessageError
 
 DEVICE_MAGIC = b"HSDV"
 TOOL_MAGIC = b"HSTL"
-STATION_VERSION = 1
+STATION_VERSION = 2  # 2: DeviceState carries the glove
+MAX_GLOVE_JOINTS = 8  # a hand's at most 4 fingers of two phalanges
+GLOVE_ANGLE_LIMIT = 2.0 * math.pi  # rad
 #: poses beyond this many metres, rates beyond this many m/s or rad/s: not a device's
 POSE_LIMIT_M = 100.0
 TWIST_LIMIT = 1000.0
 GAIN_LIMIT = 1.0e7  # N/m, N s/m
 
 _HEAD = struct.Struct("<4sHHQQq")  # magic, version, port, epoch, seq, publish time (ns)
-_DEVICE = struct.Struct("<4sHHQQq6dI")
+_DEVICE = struct.Struct(f"<4sHHQQq{6 + 2 * MAX_GLOVE_JOINTS}dI")
 _TOOL = struct.Struct("<4sHHQQq15dI")
 
 SAFE = 1  # DeviceState flags: not rendering the world's coupling (ramping to the safe state)
 CUT = 2  # its device's reading was not finite this tick
+GLOVE = 4  # glove and glove_rate hold the station's glove (a hand's station)
 HELD = 1  # ToolState flags: the world holds the port's anchor (its station is lost)
 
 
@@ -52,6 +55,8 @@ class DeviceState:
     pose: tuple[float, float, float]  # world frame: x, y (m), angle (rad)
     twist: tuple[float, float, float]
     flags: int = 0
+    glove: tuple[float, ...] = (0.0,) * MAX_GLOVE_JOINTS  # rad, the hand's joints in order
+    glove_rate: tuple[float, ...] = (0.0,) * MAX_GLOVE_JOINTS  # rad/s
 
     @property
     def safe(self) -> bool:
@@ -60,6 +65,10 @@ class DeviceState:
     @property
     def cut(self) -> bool:
         return bool(self.flags & CUT)
+
+    @property
+    def has_glove(self) -> bool:
+        return bool(self.flags & GLOVE)
 
 
 @dataclass(frozen=True)
@@ -104,10 +113,18 @@ def tool_record(port: int, epoch: int) -> np.ndarray:
 
 
 def encode_device(m: DeviceState) -> bytes:
+    glove, rate = _joints(m.glove, "glove"), _joints(m.glove_rate, "glove_rate")
     return _DEVICE.pack(
         DEVICE_MAGIC, STATION_VERSION, m.port, m.epoch, m.seq, m.publish_time_ns,
-        *m.pose, *m.twist, m.flags,
+        *m.pose, *m.twist, *glove, *rate, m.flags,
     )  # fmt: skip
+
+
+def _joints(values: tuple[float, ...], key: str) -> tuple[float, ...]:
+    """A glove's values padded with zeros to MAX_GLOVE_JOINTS."""
+    if len(values) > MAX_GLOVE_JOINTS:
+        raise ValueError(f"DeviceState.{key}: {len(values)} joints, at most {MAX_GLOVE_JOINTS}")
+    return tuple(values) + (0.0,) * (MAX_GLOVE_JOINTS - len(values))
 
 
 def encode_tool(m: ToolState) -> bytes:
@@ -146,12 +163,15 @@ AXES = ("x", "y", "angle")
 def decode_device(raw: bytes, port: int) -> DeviceState:
     """A DeviceState received on port `port`'s key (module docstring)."""
     f = _head(raw, DEVICE_MAGIC, _DEVICE, "DeviceState", port)
-    pose, twist = f[6:9], f[9:12]
+    j = MAX_GLOVE_JOINTS
+    pose, twist, glove, rate, flags = f[6:9], f[9:12], f[12 : 12 + j], f[12 + j : 12 + 2 * j], f[-1]
     _numbers(pose, tuple(f"pose.{a}" for a in AXES), POSE_LIMIT_M, "DeviceState")
     _numbers(twist, tuple(f"twist.{a}" for a in AXES), TWIST_LIMIT, "DeviceState")
-    if f[12] & ~(SAFE | CUT):
-        raise MessageError("flags", f"DeviceState.flags: unknown bits {f[12]:#x}")
-    return DeviceState(f[2], f[3], f[4], f[5], pose, twist, f[12])
+    _numbers(glove, tuple(f"glove[{i}]" for i in range(j)), GLOVE_ANGLE_LIMIT, "DeviceState")
+    _numbers(rate, tuple(f"glove_rate[{i}]" for i in range(j)), TWIST_LIMIT, "DeviceState")
+    if flags & ~(SAFE | CUT | GLOVE):
+        raise MessageError("flags", f"DeviceState.flags: unknown bits {flags:#x}")
+    return DeviceState(f[2], f[3], f[4], f[5], pose, twist, flags, glove, rate)
 
 
 def decode_tool(raw: bytes, port: int) -> ToolState:
