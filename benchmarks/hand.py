@@ -506,6 +506,10 @@ def hand_grasp_port(
     g = abs(scene.gravity[1])
     weight = box.mass * np.array(scene.gravity)
     balance = window_means(t, rows["box_force"][:, :2] + weight, settle_s, duration_s)
+    # each hand's force on the box over the hold: its squeeze along x, and its share of the
+    # weight along y (the shares are statically indeterminate: friction splits them)
+    hand_force = [rows["hand_box_force"][k0:, p, :2].mean(axis=0).tolist() for p in range(2)]
+    shares = rows["hand_box_force"][k0:, :, :2].sum(axis=1)
     half = scene.hands[0].palm_size[1] / 2
     palms = tuple(rows["q"][k0:, p, :3] for p in range(2))
     slip = palm_slip(rows["box_q"][k0:], palms, box.size, half)
@@ -523,6 +527,8 @@ def hand_grasp_port(
         "contacts_at_hold": int(rows["n_contacts"][k0]),
         "box_drop_m": float(rows["box_q"][k0, 1] - rows["box_q"][-1, 1]),
         "transparency_max_n": max(transparency),
+        "hand_force_n": hand_force,
+        "hand_shares_vs_box_force_n": float(np.abs(shares - rows["box_force"][k0:, :2]).max()),
         "squeeze_n": float(np.median(np.abs(rows["command"][k0:, :, 0]))),
         "steps_held": int(rows["singular"][-1]),
         "not_finite": int(rows["invalid"][-1].sum()),

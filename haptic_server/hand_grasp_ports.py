@@ -62,14 +62,15 @@ HAND_GRASP_ROW_DTYPE = np.dtype(
         ("box_q", F8, (3,)),
         ("box_qd", F8, (3,)),
         ("box_force", F8, (3,)),  # the hands' mean force and torque on the box
+        ("hand_box_force", F8, (MAX_HANDS, 3)),  # each hand's (torque about the box's COM)
         ("n_contacts", I8),  # hand-box contacts
         ("singular", I8),  # steps held (not finite after the sub-steps), the grasp's
     ]
 )
 #: the row fields a replay recomputes from the logged tracked hands
 HAND_GRASP_REPLAYED = ("q", "qd", "command", "glove_torque", "glove_ungated", "wall_force",
-                       "invalid", "box_q", "box_qd", "box_force", "n_contacts",
-                       "singular")  # fmt: skip
+                       "invalid", "box_q", "box_qd", "box_force", "hand_box_force",
+                       "n_contacts", "singular")  # fmt: skip
 
 
 @njit(cache=True)
@@ -98,6 +99,8 @@ def hand_grasp_row(hds, gd, io, r):
         r.box_q[c] = gd.q_box[c]
         r.box_qd[c] = gd.qd_box[c]
         r.box_force[c] = gd.box_force[c]
+        for i in range(MAX_HANDS):
+            r.hand_box_force[i, c] = gd.hand_box_force[i, c]
     r.n_contacts = gd.n_contacts
     r.singular = gd.singular
 

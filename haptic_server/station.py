@@ -266,6 +266,8 @@ class Station:
         records = self.device.records
         station_tick(spare, records)
         station_row(spare, np.zeros(1, STATION_ROW_DTYPE), 0, 0)
+        if len(self._glove):  # a hand's glove, called from the loop: compiled (or loaded) now
+            self._glove_at(0.0)
         self._place(self.scene.ports[self.index].device_start)
 
     def logged_rows(self) -> np.ndarray:

@@ -62,8 +62,15 @@ def test_any_shipped_device_on_either_hand_holds_the_box(devices) -> None:
 def test_v5_5_two_device_driven_hands_hold_the_box_as_in_v4_1() -> None:
     """V5.5 with maglevs (sensor noise on), 5 s: V4.1's slip, balance and contact losses,
     and its transparency check (each device's command against its user's wrench, 100 ms
-    means)."""
+    means). Each hand's force on the box: its user's 2 N squeeze along x, and the two shares
+    of the weight along y summing to m g, each half of it (the split is friction's, so
+    statically indeterminate, but the grasp is symmetric: 0.1 % apart)."""
     r = hand_grasp_port(("maglev", "maglev"))
+    (lx, ly), (rx, ry) = r["hand_force_n"]
+    assert lx == pytest.approx(2.0, rel=0.01) and rx == pytest.approx(-2.0, rel=0.01)
+    assert ly + ry == pytest.approx(0.1 * 9.81, rel=0.01)
+    assert ly == pytest.approx(0.1 * 9.81 / 2, rel=0.02) and ry == pytest.approx(ly, rel=0.02)
+    assert r["hand_shares_vs_box_force_n"] < 1e-12
     assert r["contacts_tracked"] == 4
     assert r["slip_max_m"] <= 0.1e-3
     assert r["balance_max_fraction"] <= 0.01

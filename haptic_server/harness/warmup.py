@@ -84,6 +84,8 @@ def _station_kernels() -> None:
     for config in built_in_models():
         device = load_simulated_device(config)
         Station(scene, network, "left", device, load_user("squeeze_left_2n"), 1).warm()
+    hands, glove_user = load_hand_scene("hand_grasp"), load_user("hand_grasp_left")
+    Station(hands, network, "left", device, glove_user, 1).warm()  # a hand's: its glove
 
 
 def _hand_port_kernels() -> None:

@@ -70,6 +70,7 @@ GRASP_DATA_DTYPE = np.dtype(
         ("box_before", F8, (3,)),
         ("f_box", F8, (3,)),
         ("box_force", F8, (3,)),  # the hands' mean force and torque on the box this tick
+        ("hand_box_force", F8, (MAX_HANDS, 3)),  # each hand's share of box_force
         ("n_contacts", I8),  # hand-box contacts, the tick's last sub-step
         ("stick", F8, (MAX_HANDS, MAX_DOF, 2, 4)),
         ("touching", I8, (MAX_HANDS, MAX_DOF, 2, 4)),
@@ -178,6 +179,9 @@ def box_contact(chain, hm, hd, gm, gd, hand, key):
     gd.box_force[0] -= fx / gd.n_sub
     gd.box_force[1] -= fy / gd.n_sub
     gd.box_force[2] -= torque / gd.n_sub
+    gd.hand_box_force[hand, 0] -= fx / gd.n_sub
+    gd.hand_box_force[hand, 1] -= fy / gd.n_sub
+    gd.hand_box_force[hand, 2] -= torque / gd.n_sub
     b0 = gm.box
     for k in range(3):
         gd.cols[n + k] = b0 + k
@@ -289,6 +293,8 @@ def grasp_substeps(chains, hms, hds, gm, gd, n_sub):
     gd.turn = 0.0
     for k in range(3):
         gd.box_force[k] = 0.0
+        for i in range(MAX_HANDS):
+            gd.hand_box_force[i, k] = 0.0
     for i in range(gm.n_hands):
         begin_substeps(hms[i][0], hds[i][0], n_sub)
     n = gm.n
