@@ -115,6 +115,9 @@ def test_a_reading_that_is_not_finite_cuts_that_palms_drive_and_the_other_holds(
         ('shape = "box"\nsize = [0.04, 0.02]', 'shape = "circle"\nradius = 0.01', "bodies[0]"),
         ('material = "pad"', 'material = "pad"\n\n[[bodies]]\nname = "floor"\nkind = "static"\n'
          'shape = "box"\nsize = [0.2, 0.01]\nposition = [0.0, -0.05]\nmaterial = "wall"', "bodies"),
+        # a hand scene's contacts are penalty contacts: the port scenes' impulse keys are not
+        ("friction_stiffness_ratio = 1.0", "friction_stiffness_ratio = 1.0\nimpulses = true",
+         "contact.impulses"),
     ],
 )  # fmt: skip
 def test_a_two_hand_scene_names_what_is_wrong(tmp_path: Path, old, new, key) -> None:
