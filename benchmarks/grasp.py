@@ -465,7 +465,9 @@ def first_touch(
     res = run_ports(sc, duration_s, users=squeeze_users(sc, 2.0))
     r = res.rows
     touched = np.flatnonzero(r["n_contacts"] > 0)
-    k = int(touched[0]) if touched.size else len(r)
+    if touched.size == 0:
+        raise ValueError(f"first_touch: the pads never touched the box in {duration_s} s")
+    k = int(touched[0])
     after = slice(k, min(len(r), k + round(0.05 * sc.haptic_rate_hz)))
     tools = [res.body(p.tool) for p in sc.ports]
     ib = res.body("box")

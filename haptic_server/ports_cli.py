@@ -67,7 +67,8 @@ HAND_TICK_SCHEMA = "haptic_server/HandPortTick"
 HAND_GRASP_TOPIC = "/ports/hand_grasp_tick"
 HAND_GRASP_SCHEMA = "haptic_server/HandGraspTick"
 #: the row fields a replay recomputes (the rest are its inputs or the devices' own)
-REPLAYED = ("q", "qd", "command", "body_force", "n_contacts", "penetration", "invalid", "singular")
+REPLAYED = ("q", "qd", "command", "body_force", "n_contacts", "penetration", "invalid", "singular",
+            "collisions")  # fmt: skip
 
 
 def write_port_log(path: Path, rows: np.ndarray, metadata: dict[str, dict[str, str]]) -> None:

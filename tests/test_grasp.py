@@ -25,6 +25,7 @@ from haptic_local_model.benchmarks.grasp import (
 )
 from haptic_local_model.haptic_server.ports import run_ports
 from haptic_local_model.haptic_server.stages.cosim import (
+    cosim_order,
     cosim_records,
     cosim_tick,
     kinetic_energy,
@@ -106,17 +107,16 @@ def test_a_collision_between_free_bodies_conserves_momentum(scene):
     assert np.max(np.abs(momentum() - before)) < 1e-14
 
 
-def _thrown(scene, speeds, masses=(0.05, 0.05), n=10, **contact):
+def _thrown(scene, speeds, masses=(0.05, 0.05), n=10, into=0.5, **contact):
     """g = 0, couplings cut; each pad thrown at the box (at rest) with speeds[p] (toward it),
-    placed so that it first penetrates at tick n by 10 nm (the impulse alone meets it: the
-    penalty of 1 um already pushes 0.6 mm/s in the tick). A speed of 0 puts the pad
-    out of reach."""
+    placed so that at tick n it first penetrates by `into` of its approach over a tick (a
+    fraction of v dt, as a collision meets it). A speed of 0 puts the pad out of reach."""
     bodies = []
     for b in scene.bodies:
         if b.name in ("pad_left", "pad_right"):
             p = 0 if b.name == "pad_left" else 1
             side = -1.0 if p == 0 else 1.0
-            gap = n * speeds[p] * 1e-3 - 1e-8 if speeds[p] > 0 else 0.1
+            gap = (n - into) * speeds[p] * 1e-3 if speeds[p] > 0 else 0.1
             x = b.position[0] + side * gap
             b = dataclasses.replace(b, position=(x, 0.0), velocity=(-side * speeds[p], 0.0))
             b = dataclasses.replace(b, mass=masses[p])
@@ -128,36 +128,88 @@ def _thrown(scene, speeds, masses=(0.05, 0.05), n=10, **contact):
 
 
 def test_two_pads_meeting_the_box_in_one_tick_stop_as_one_body(scene):
-    """e = 0: pads of 0.05 and 0.08 kg at 0.3 and 0.1 m/s meet the box (0.1 kg) in one tick.
-    The simultaneous impulses leave all three at the perfectly inelastic closed form
-    (m_A v_A - m_B v_B) / (m_A + m_B + m_O) from that tick, the contacts no deeper than
-    they first touched; penalty contacts alone (impulses off) are still ringing then and
-    sink 0.1 mm."""
+    """e = 0: pads of 0.05 and 0.08 kg at 0.3 and 0.1 m/s meet the box (0.1 kg) in one tick,
+    each half a tick's approach deep. The simultaneous impulses leave all three at the
+    perfectly inelastic closed form (m_A v_A - m_B v_B) / (m_A + m_B + m_O) from that tick,
+    and the depths projected out leave no spring loaded: 200 ticks later they still move as
+    one, the pads on the box's faces. Penalty contacts alone (impulses off) sink 0.2 mm and
+    part the bodies."""
     ma, mb, mo, va, vb = 0.05, 0.08, 0.1, 0.3, 0.1
     common = (ma * va - mb * vb) / (ma + mb + mo)
-    depth = {}
+    figures = {}
     for impulses in (True, False):
         model, data = _thrown(scene, (va, vb), masses=(ma, mb), impulses=impulses)
         for _ in range(10):
             cosim_tick(model, data)
             assert data[0]["n_contacts"] == 0
-        cosim_tick(model, data)  # the first touch
-        vx = data[0]["qd"][[0, 3, 6]]  # pad_left, pad_right, box
-        deepest = 0.0
-        for _ in range(30):
+        vx, faces, deepest = [], [], 0.0
+        for k in range(200):  # from the first touch (its depth: before the projection)
             cosim_tick(model, data)
-            deepest = max(deepest, float(data[0]["penetration"]))
-        depth[impulses] = deepest
+            q = data[0]["q"]
+            vx.append(data[0]["qd"][[0, 3, 6]].copy())  # pad_left, pad_right, box
+            faces.append([q[6] - 0.02 - (q[0] + 0.003), (q[3] - 0.003) - (q[6] + 0.02)])
+            deepest = max(deepest, float(data[0]["penetration"])) if k else 0.0
+        vx, faces = np.array(vx), np.array(faces)
+        figures[impulses] = (deepest, np.ptp(vx[-1]))
         if impulses:
             assert data[0]["collisions"] == 4  # two box corners into each pad
-            assert vx == pytest.approx(np.full(3, common), rel=1e-3)
+            np.testing.assert_allclose(vx, common, rtol=1e-3)  # every tick from the touch
+            assert np.abs(faces).max() < 1e-7  # the pads on the box's faces, not parted
             assert deepest < 1e-7
         else:
             assert data[0]["collisions"] == 0
-            assert np.ptp(vx) > 0.1
+            assert np.ptp(vx[-1]) > 0.01 and faces.max() > 1e-4  # parted
             assert deepest > 1e-4
-    print(f"\ndeepest after the first touch: impulses {depth[True] * 1e6:.2f} um, "
-          f"penalty alone {depth[False] * 1e6:.1f} um")  # fmt: skip
+    print(f"\ndeepest after the first touch, velocity spread at 200 ms: impulses "
+          f"{figures[True][0] * 1e6:.3f} um, {figures[True][1]:.2e} m/s; penalty alone "
+          f"{figures[False][0] * 1e6:.1f} um, {figures[False][1]:.3f} m/s")  # fmt: skip
+
+
+def _landing(scene, name, half_width, vy, w):
+    """g = 0, couplings cut: body `name` turning at w as it lands at vy on a floor, both its
+    lower corners 10 nm in (both colliding in the first tick); after that tick: its columns'
+    velocity, its corners' normal velocities and the two impulses."""
+    floor = BodySpec(name="floor", kind="static", shape="box", material="pad",
+                     size=(0.2, 0.02), position=(0.0, -0.01))  # fmt: skip
+    bodies = []
+    for b in scene.bodies:
+        if b.name == name:
+            y = b.size[1] / 2 - 1e-8
+            b = dataclasses.replace(b, position=(0.0, y), velocity=(0.0, vy), angular_velocity=w)
+        else:  # out of reach
+            b = dataclasses.replace(b, position=(b.position[0] * 4, 0.3))
+        bodies.append(b)
+    sc = _free(scene, gravity=(0.0, 0.0), bodies=(*bodies, floor))
+    model, data = cosim_records(sc, LIMITS)
+    i = 3 * cosim_order(sc).index(name)
+    cosim_tick(model, data)
+    d = data[0]
+    assert d["collisions"] == 2
+    qd = d["qd"][i : i + 3].copy()
+    corners = np.array([qd[1] + qd[2] * x for x in (-half_width, half_width)])
+    return sc.body(name), qd, corners, d["coll_lambda"][:2].copy()
+
+
+def test_a_landing_on_two_corners_solves_the_complementarity_problem(scene):
+    """e = 0: both lower corners land in one tick, approaching at 0.1 and 0.8 m/s. The
+    impulses solve the complementarity problem (neither corner approaches after; a corner
+    with an impulse is at rest on the floor, one without separates), with the body's
+    inertia, not its mass, in D:
+    - a pad (6 x 30 mm) on its end: only the fast corner takes an impulse, 0.8 / (1/m +
+      r^2/I), and the slow one lifts off (a least-squares solution, NNLS, leaves the fast
+      corner approaching at a third of its speed);
+    - the box (40 x 20 mm) flat: both take one and it stops, lambda = (m v +- I w / r) / 2."""
+    pad, qd, corners, lam = _landing(scene, "pad_left", 0.003, -0.45, -0.35 / 0.003)
+    assert np.all(corners >= -1e-9), corners
+    assert np.all((lam <= 1e-12) | (np.abs(corners) < 1e-9)), (lam, corners)
+    r = 0.003
+    assert lam[0] == 0.0 and corners[0] > 0.1  # the slow corner (x = -r) lifts off
+    assert lam[1] == pytest.approx(0.8 / (1 / pad.mass + r * r / pad.moment), rel=1e-9)
+    box, qd, corners, lam = _landing(scene, "box", 0.02, -0.45, 17.5)
+    assert np.abs(qd).max() < 1e-9 and np.abs(corners).max() < 1e-9  # at rest on the floor
+    r, turn = 0.02, box.moment * 17.5 / 0.02
+    np.testing.assert_allclose(lam, [(box.mass * 0.45 + turn) / 2, (box.mass * 0.45 - turn) / 2],
+                               rtol=1e-9)  # fmt: skip
 
 
 def test_an_elastic_first_touch_swaps_the_momentum_of_pad_and_box(scene):

@@ -11,14 +11,17 @@ The extended configuration q = (q_tool_0, q_tool_1, q_object, ...) holds free ri
    contacts have both sides in q: their rows are n^T (J_o - J_t).
 1b. First touch (seed 001 eq 5-6, DESIGN-WAVE2 §6): a contact that starts penetrating this
    tick while approaching faster than collision_speed collides. All of a tick's colliding
-   contacts are resolved together: lambda >= 0 is the least-squares solution of
-   (R D^-1 R^T) lambda = -(1 + e) v_n (`stages/contacts.py`'s NNLS), R their rows; q-dot
-   takes D^-1 R^T lambda at once. Two pads that meet the box in one tick stop as one body
-   (e = 0), whatever their masses and speeds. A colliding contact's penalty starts the next
-   tick (its depth is at most its approach over one tick). The other contacts' damping
-   forces were taken at the velocity before the impulses: they are moved to the velocity
-   after by -B dq-dot (B their damping; exact for the normal damping and a sticking
-   contact's, while the normal force stays >= 0).
+   contacts are resolved together, R their rows, A = R D^-1 R^T: the impulses lambda solve
+   the complementarity problem A lambda - b = w >= 0, lambda >= 0, lambda . w = 0 with
+   b = -(1 + e) v_n (a contact that would separate takes none; projected Gauss-Seidel),
+   and q-dot takes D^-1 R^T lambda at once. The depth a colliding contact reached within
+   its tick is projected out the same way (A mu >= depth: q takes D^-1 R^T mu, which moves
+   no momentum), so no spring is left loaded by the collision to push the bodies apart.
+   Two pads that meet the box in one tick stop as one body (e = 0), whatever their masses
+   and speeds. The contact forces (step 1) are then taken at the velocity the impulses
+   leave: the tick's contacts are found first (`find_contacts`), the impulses applied, then
+   each contact's penalty and friction (`contact_forces`); a colliding contact's from the
+   next tick.
 2. Each port's virtual coupling between its device (pose and twist in the world frame) and
    its tool: K_c (x_h - x_t) + B_c (xd_h - xd_t) on the tool, the opposite on the device
    (K_c here is the coupling's stiffness; the contacts' is k). A port whose reading is not
@@ -43,7 +46,6 @@ import math
 import numpy as np
 from numba import njit
 
-from haptic_local_model.haptic_server.stages.contacts import nnls
 from haptic_local_model.shared.kinematics import wrap_angle
 from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
 from haptic_local_model.shared.port_config import (
@@ -59,6 +61,11 @@ I8 = np.int64
 N_ELEMENTS = MAX_COSIM_BODIES + MAX_STATIC_BODIES  # bodies first, then the static walls
 MAX_COSIM_DOF = 3 * MAX_COSIM_BODIES
 MAX_COLLISIONS = 16  # colliding contacts resolved in one tick; more: penalty alone
+# every penetrating vertex of a tick: each ordered pair with a body, MAX_VERTICES each
+MAX_HITS = (
+    MAX_COSIM_BODIES * (N_ELEMENTS - 1) + MAX_STATIC_BODIES * MAX_COSIM_BODIES
+) * MAX_VERTICES
+LCP_SWEEPS = 200  # projected Gauss-Seidel sweeps at most (it stops when converged)
 
 COSIM_DTYPE = np.dtype(
     [
@@ -125,18 +132,16 @@ COSIM_DATA_DTYPE = np.dtype(
         ("cols", I8, (6,)),
         ("jn", F8, (6,)),
         ("jt", F8, (6,)),
+        ("n_hits", I8),
+        ("hits", F8, (MAX_HITS, 5)),  # point x, y, depth, normal x, y
+        ("hit_of", I8, (MAX_HITS, 4)),  # o, t, v, colliding
         ("n_colliding", I8),
         ("coll_rows", F8, (MAX_COLLISIONS, MAX_COSIM_DOF)),  # n^T (J_o - J_t) over q
         ("coll_target", F8, (MAX_COLLISIONS,)),  # -(1 + e) v_n
-        ("impulse_dqd", F8, (MAX_COSIM_DOF,)),
-        ("nnls_a", F8, (MAX_COLLISIONS, MAX_COLLISIONS)),  # R D^-1 R^T
-        ("nnls_lambda", F8, (MAX_COLLISIONS,)),
-        ("nnls_z", F8, (MAX_COLLISIONS,)),
-        ("nnls_w", F8, (MAX_COLLISIONS,)),
-        ("nnls_passive", I8, (MAX_COLLISIONS,)),
-        ("nnls_m", F8, (MAX_COLLISIONS, MAX_COLLISIONS)),
-        ("nnls_rhs", F8, (MAX_COLLISIONS,)),
-        ("nnls_chol", F8, (MAX_COLLISIONS, MAX_COLLISIONS)),
+        ("coll_depth", F8, (MAX_COLLISIONS,)),
+        ("coll_a", F8, (MAX_COLLISIONS, MAX_COLLISIONS)),  # R D^-1 R^T
+        ("coll_lambda", F8, (MAX_COLLISIONS,)),  # the impulses, N s
+        ("coll_mu", F8, (MAX_COLLISIONS,)),  # the depths' projection (R D^-1 R^T mu = depth)
     ]
 )
 
@@ -317,36 +322,60 @@ def penalty_friction(m, depth, vn, vt, stick, h):
 
 
 @njit(cache=True)
-def contact(m, d, o, t, v):
-    """One penetrating vertex v of element o in element t (its point, depth and normal in
-    d.hit): penalty, stick-spring friction, the force on both, and their stiffness for the
-    implicit step."""
-    dt = d.dt
-    px = d.hit[0]
-    py = d.hit[1]
-    depth = d.hit[2]
-    nx = d.hit[3]
-    ny = d.hit[4]
-    tx = -ny
-    ty = nx
+def _relative_velocity(d, o, t, px, py, nx, ny):
+    """(v_n, v_t) of o's point (px, py) against t's, along the normal and its tangent."""
     vox, voy = _point_velocity(d, o, px, py)
     vtx, vty = _point_velocity(d, t, px, py)
     rvx = vox - vtx
     rvy = voy - vty
-    vn = nx * rvx + ny * rvy
-    vt = tx * rvx + ty * rvy
+    return nx * rvx + ny * rvy, -ny * rvx + nx * rvy
+
+
+@njit(cache=True)
+def _hit(m, d, o, t, v):
+    """A penetrating vertex v of element o in element t (its point, depth and normal in
+    d.hit), kept for `contact_forces`; a new one approaching faster than collision_speed is
+    queued for `collide` instead."""
+    h = d.n_hits  # < MAX_HITS: every ordered pair's vertices at most
+    for c in range(5):
+        d.hits[h, c] = d.hit[c]
+    d.hit_of[h, 0] = o
+    d.hit_of[h, 1] = t
+    d.hit_of[h, 2] = v
+    d.hit_of[h, 3] = 0
+    d.n_hits = h + 1
     d.n_contacts += 1
-    if depth > d.penetration:
-        d.penetration = depth
-    if d.touching[o, t, v] == 0:
-        d.stick[o, t, v] = 0.0
-        d.touching[o, t, v] = 1
-        if m.impulses == 1 and vn < -m.collision_speed and d.n_colliding < MAX_COLLISIONS:
-            # colliding: the impulse meets it this tick (`collide`), its penalty from the next
-            _queue_collision(m, d, o, t, vn)
-            return
+    if d.hit[2] > d.penetration:
+        d.penetration = d.hit[2]
+    if d.touching[o, t, v] == 1:
+        return
+    d.stick[o, t, v] = 0.0
     d.touching[o, t, v] = 1
-    f_n, f_t, d.stick[o, t, v], sticking = penalty_friction(m, depth, vn, vt, d.stick[o, t, v], dt)
+    if m.impulses == 1 and d.n_colliding < MAX_COLLISIONS:
+        vn, _vt = _relative_velocity(d, o, t, d.hit[0], d.hit[1], d.hit[3], d.hit[4])
+        if vn < -m.collision_speed:  # colliding: its impulse this tick, its penalty the next
+            _queue_collision(m, d, o, t, vn)
+            d.hit_of[h, 3] = 1
+
+
+@njit(cache=True)
+def contact(m, d, h):
+    """Hit h at the present velocity: penalty, stick-spring friction, the force on both,
+    and their stiffness for the implicit step."""
+    o = d.hit_of[h, 0]
+    t = d.hit_of[h, 1]
+    v = d.hit_of[h, 2]
+    px = d.hits[h, 0]
+    py = d.hits[h, 1]
+    depth = d.hits[h, 2]
+    nx = d.hits[h, 3]
+    ny = d.hits[h, 4]
+    tx = -ny
+    ty = nx
+    vn, vt = _relative_velocity(d, o, t, px, py, nx, ny)
+    f_n, f_t, d.stick[o, t, v], sticking = penalty_friction(
+        m, depth, vn, vt, d.stick[o, t, v], d.dt
+    )
     k_t = m.tangential_stiffness
     fx = f_n * nx + f_t * tx
     fy = f_n * ny + f_t * ty
@@ -363,6 +392,14 @@ def contact(m, d, o, t, v):
 
 
 @njit(cache=True)
+def contact_forces(m, d):
+    """Every hit's force but a colliding one's (module docstring, step 1)."""
+    for h in range(d.n_hits):
+        if d.hit_of[h, 3] == 0:
+            contact(m, d, h)
+
+
+@njit(cache=True)
 def _queue_collision(m, d, o, t, vn):
     """A contact that starts penetrating while approaching (its point and normal in d.hit):
     its row n^T (J_o - J_t) over q and its target normal velocity change, for `collide`."""
@@ -374,12 +411,36 @@ def _queue_collision(m, d, o, t, vn):
         if d.cols[i] >= 0:
             d.coll_rows[c, d.cols[i]] += d.jn[i]
     d.coll_target[c] = -(1.0 + m.restitution) * vn
+    d.coll_depth[c] = d.hit[2]
     d.n_colliding = c + 1
 
 
 @njit(cache=True)
+def lcp(a, b, x, k):
+    """x >= 0 with w = A x - b >= 0 and x . w = 0 (A = a[:k, :k], symmetric positive
+    semi-definite with a positive diagonal, as R D^-1 R^T is): projected Gauss-Seidel from
+    x = 0, until a sweep moves no x by more than 1e-12 of the largest (or LCP_SWEEPS)."""
+    for i in range(k):
+        x[i] = 0.0
+    for _sweep in range(LCP_SWEEPS):
+        change = 0.0
+        size = 0.0
+        for i in range(k):
+            r = b[i]
+            for j in range(k):
+                r -= a[i, j] * x[j]
+            new = max(0.0, x[i] + r / a[i, i])
+            change = max(change, abs(new - x[i]))
+            x[i] = new
+            size = max(size, new)
+        if change <= 1e-12 * size:
+            return
+
+
+@njit(cache=True)
 def collide(m, d):
-    """The tick's colliding contacts resolved together (module docstring, step 1b)."""
+    """The tick's colliding contacts resolved together (module docstring, step 1b): the
+    impulses into q-dot, the depths they reached projected out of q."""
     n = 3 * m.n_bodies
     k = d.n_colliding
     for a in range(n):
@@ -393,23 +454,20 @@ def collide(m, d):
                 i = a // 3
                 inv = 1.0 / (m.inertia[i] if a % 3 == 2 else m.mass[i])
                 v += d.coll_rows[r, a] * inv * d.coll_rows[c, a]
-            d.nnls_a[r, c] = v
-    nnls(d, k)
+            d.coll_a[r, c] = v
+    lcp(d.coll_a, d.coll_target, d.coll_lambda, k)
+    lcp(d.coll_a, d.coll_depth, d.coll_mu, k)
     for a in range(n):
-        v = 0.0
-        for c in range(k):
-            v += d.coll_rows[c, a] * d.nnls_lambda[c]
         i = a // 3
-        d.impulse[a] = v
-        d.impulse_dqd[a] = v / (m.inertia[i] if a % 3 == 2 else m.mass[i])
-    for a in range(n):  # the damping forces taken so far, moved to the velocity after
-        corr = 0.0
-        for b in range(n):
-            corr -= d.b[a, b] * d.impulse_dqd[b]
-        d.f[a] += corr
-        d.body_force[a // 3, a % 3] += corr
-    for a in range(n):
-        d.qd[a] += d.impulse_dqd[a]
+        inv = 1.0 / (m.inertia[i] if a % 3 == 2 else m.mass[i])
+        p = 0.0
+        s = 0.0
+        for c in range(k):
+            p += d.coll_rows[c, a] * d.coll_lambda[c]
+            s += d.coll_rows[c, a] * d.coll_mu[c]
+        d.impulse[a] = p
+        d.qd[a] += p * inv
+        d.q[a] += s * inv
     d.collisions += k
 
 
@@ -449,12 +507,13 @@ def contacts_of(m, d, o, t):
         d.hit[2] = -phi
         d.hit[3] = nx
         d.hit[4] = ny
-        contact(m, d, o, t, v)
+        _hit(m, d, o, t, v)
 
 
 @njit(cache=True)
 def all_contacts(m, d):
-    """Every ordered pair of present elements, not both walls."""
+    """The tick's contacts found (`_hit`) for every ordered pair of present elements, not
+    both walls."""
     for o in range(N_ELEMENTS):
         if not _present(m, o):
             continue
@@ -523,6 +582,7 @@ def _clear(m, d):
     d.n_contacts = 0
     d.penetration = 0.0
     d.n_colliding = 0
+    d.n_hits = 0
 
 
 @njit(cache=True)
@@ -595,6 +655,7 @@ def cosim_tick(model, data):
     _clear(m, d)
     all_contacts(m, d)
     collide(m, d)
+    contact_forces(m, d)
     couple_ports(m, d)
     step_bodies(m, d)
     port_commands(m, d)
