@@ -19,7 +19,7 @@ The extended configuration q = (q_tool_0, q_tool_1, q_object, ...) holds free ri
    no momentum), so no spring is left loaded by the collision to push the bodies apart.
    Two pads that meet the box in one tick stop as one body (e = 0), whatever their masses
    and speeds. The contact forces (step 1) are then taken at the velocity the impulses
-   leave: the tick's contacts are found first (`find_contacts`), the impulses applied, then
+   leave: the tick's contacts are found first (`all_contacts`), the impulses applied, then
    each contact's penalty and friction (`contact_forces`); a colliding contact's from the
    next tick.
 2. Each port's virtual coupling between its device (pose and twist in the world frame) and
@@ -114,7 +114,8 @@ COSIM_DATA_DTYPE = np.dtype(
         ("penetration", F8),  # the deepest this tick, m
         ("invalid", I8),  # commands that were not finite (zero force sent instead)
         ("singular", I8),  # steps whose system did not factor (the bodies held)
-        ("collisions", I8),  # colliding contacts resolved by impulses, since the start
+        ("collisions", I8),  # colliding contacts since the start (each solved for; a
+        # separating one takes a zero impulse)
         ("impulse", F8, (MAX_COSIM_DOF,)),  # this tick's R^T lambda, N s (about each COM)
         ("dt", F8),
         # scratch
@@ -141,7 +142,7 @@ COSIM_DATA_DTYPE = np.dtype(
         ("coll_depth", F8, (MAX_COLLISIONS,)),
         ("coll_a", F8, (MAX_COLLISIONS, MAX_COLLISIONS)),  # R D^-1 R^T
         ("coll_lambda", F8, (MAX_COLLISIONS,)),  # the impulses, N s
-        ("coll_mu", F8, (MAX_COLLISIONS,)),  # the depths' projection (R D^-1 R^T mu = depth)
+        ("coll_mu", F8, (MAX_COLLISIONS,)),  # the depths' projection: A mu >= depth, mu >= 0
     ]
 )
 
