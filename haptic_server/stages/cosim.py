@@ -116,7 +116,6 @@ COSIM_DATA_DTYPE = np.dtype(
         ("singular", I8),  # steps whose system did not factor (the bodies held)
         ("collisions", I8),  # colliding contacts since the start (each solved for; a
         # separating one takes a zero impulse)
-        ("impulse", F8, (MAX_COSIM_DOF,)),  # this tick's R^T lambda, N s (about each COM)
         ("dt", F8),
         # scratch
         ("f", F8, (MAX_COSIM_DOF,)),
@@ -444,8 +443,6 @@ def collide(m, d):
     impulses into q-dot, the depths they reached projected out of q."""
     n = 3 * m.n_bodies
     k = d.n_colliding
-    for a in range(n):
-        d.impulse[a] = 0.0
     if k == 0:
         return
     for r in range(k):  # R D^-1 R^T (D diagonal)
@@ -466,7 +463,6 @@ def collide(m, d):
         for c in range(k):
             p += d.coll_rows[c, a] * d.coll_lambda[c]
             s += d.coll_rows[c, a] * d.coll_mu[c]
-        d.impulse[a] = p
         d.qd[a] += p * inv
         d.q[a] += s * inv
     d.collisions += k
