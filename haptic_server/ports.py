@@ -33,6 +33,7 @@ from haptic_local_model.haptic_server.stages.cosim import (
     cosim_order,
     cosim_records,
     cosim_tick,
+    sim_bodies_of,
 )
 from haptic_local_model.haptic_server.stages.port_io import (
     drive_device,
@@ -41,7 +42,7 @@ from haptic_local_model.haptic_server.stages.port_io import (
 )
 from haptic_local_model.haptic_server.users import USER_DTYPE, user_record
 from haptic_local_model.shared.config import UserConfig, load_user
-from haptic_local_model.shared.port_config import MAX_PORTS, PortSceneConfig
+from haptic_local_model.shared.port_config import MAX_PORTS, MAX_SIM_BODIES, PortSceneConfig
 
 F8 = np.float64
 I8 = np.int64
@@ -77,6 +78,8 @@ PORT_ROW_DTYPE = np.dtype(
         ("singular", I8),
         ("device_fault", I8, (MAX_PORTS,)),
         ("collisions", I8),  # colliding contacts resolved by impulses, since the start
+        # the sim's bodies as the tick met them (pose, twist): inputs, as the devices are
+        ("sim_bodies", F8, (MAX_SIM_BODIES, 6)),
     ]
 )
 
@@ -99,7 +102,7 @@ def _port_out(cd, io, p, dev):
 
 
 @njit(cache=True)
-def _row(cd, io, r):
+def _row(m, cd, io, r):
     r.t = io.t
     for a in range(MAX_COSIM_DOF):
         r.q[a] = cd.q[a]
@@ -119,6 +122,7 @@ def _row(cd, io, r):
     r.invalid = cd.invalid
     r.singular = cd.singular
     r.collisions = cd.collisions
+    sim_bodies_of(m, cd, r.sim_bodies)
 
 
 @njit(cache=True)
@@ -136,7 +140,7 @@ def run_port_ticks(cosim, data, io, dev0, dev1, rows, start, stop):
         cosim_tick(cosim, data)
         _port_out(cd, s, 0, dev0)
         _port_out(cd, s, 1, dev1)
-        _row(cd, s, rows[k])
+        _row(cosim[0], cd, s, rows[k])
         s.t += cd.dt
     return stop
 

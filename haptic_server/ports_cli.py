@@ -47,7 +47,11 @@ from haptic_local_model.haptic_server.log import (
     ros1msg_schema,
 )
 from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE, PortRun
-from haptic_local_model.haptic_server.stages.cosim import cosim_records, cosim_tick
+from haptic_local_model.haptic_server.stages.cosim import (
+    carry_sim_bodies,
+    cosim_records,
+    cosim_tick,
+)
 from haptic_local_model.shared import __version__
 from haptic_local_model.shared.cli import EXIT_CONFIG, add_version, log_file, run_main, seconds
 from haptic_local_model.shared.config import (
@@ -153,13 +157,16 @@ def read_port_log(
 def replay_rows(
     scene: PortSceneConfig, limits: list[tuple[float, float, float]], rows: np.ndarray
 ) -> tuple[int, int | None]:
-    """Re-run the co-simulation on the rows' device readings; (ticks compared, the first
-    tick whose outputs differ in any bit, or None)."""
+    """Re-run the co-simulation on the rows' device readings (and the sim's bodies as each
+    tick met them); (ticks compared, the first tick whose outputs differ in any bit, or
+    None)."""
     model, data = cosim_records(scene, limits)
     d = data[0]
     for k, row in enumerate(rows):
         d["device_pose"] = row["device_pose"]
         d["device_twist"] = row["device_twist"]
+        if scene.sim_bodies:
+            carry_sim_bodies(model, data, row["sim_bodies"], 0.0)
         cosim_tick(model, data)
         for name in REPLAYED:
             if np.asarray(d[name]).tobytes() != np.asarray(row[name]).tobytes():

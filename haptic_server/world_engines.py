@@ -30,6 +30,7 @@ from haptic_local_model.haptic_server.stages.cosim import (
     cosim_order,
     cosim_records,
     cosim_tick,
+    sim_bodies_of,
 )
 from haptic_local_model.haptic_server.stages.hand_grasp import MAX_HANDS, grasp_tick
 from haptic_local_model.shared.config import UserConfig
@@ -40,7 +41,7 @@ F8 = np.float64
 
 
 @njit(cache=True)
-def world_row(data, rows, k, t, lowest):
+def world_row(model, data, rows, k, t, lowest):
     """The co-simulation's tick into rows[k] (PORT_ROW_DTYPE; hand wrench and faults: 0, the
     world does not see them), and each body's lowest height so far into `lowest`. Arrays
     and an index, not records: a call with records costs about 5 us more from Python."""
@@ -65,6 +66,7 @@ def world_row(data, rows, k, t, lowest):
     row.invalid = cd.invalid
     row.singular = cd.singular
     row.collisions = cd.collisions
+    sim_bodies_of(model[0], cd, row.sim_bodies)
 
 
 def tool_start(scene: PortSceneConfig | HandSceneConfig, p: int) -> np.ndarray:
@@ -154,7 +156,7 @@ class CosimWorld:
         return self.data[0]["q"][: 3 * len(self.names)].reshape(-1, 3).copy()
 
     def row(self, rows: np.ndarray, k: int, t: float) -> None:
-        world_row(self.data, rows, k, t, self.lowest)
+        world_row(self.model, self.data, rows, k, t, self.lowest)
 
     def steps_held(self) -> int:
         return int(self.data[0]["singular"])
@@ -162,7 +164,7 @@ class CosimWorld:
     def warm(self) -> None:
         model, data = cosim_records(self.scene, self.limits)
         cosim_tick(model, data)
-        world_row(data, np.zeros(1, PORT_ROW_DTYPE), 0, 0.0, np.zeros(MAX_COSIM_BODIES))
+        world_row(model, data, np.zeros(1, PORT_ROW_DTYPE), 0, 0.0, np.zeros(MAX_COSIM_BODIES))
 
 
 class HandGraspWorld:

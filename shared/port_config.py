@@ -3,8 +3,11 @@
 A port is a device, its map onto the world, a simulated user and the tool the device holds.
 A port scene declares P = 2 ports and the free bodies the haptic side integrates at 1 kHz
 with the tools (`haptic_server/stages/cosim.py`): the tools themselves, the grasped object,
-and static walls. Files live in `configs/ports/`; keys are checked as a scene's are, and an
-error names the file and the key.
+and static walls. Dynamic bodies named in `sim_bodies` are not co-simulated: the sim steps
+them (`sim-server --mirror`, sim_server/mirror.py), pushed by its mirror of the co-simulated
+bodies, and the haptic side meets them as moving shapes with their twist (DESIGN-WAVE2 §6).
+Files live in `configs/ports/`; keys are checked as a scene's are, and an error names the
+file and the key.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ MAX_PORTS = 2  # this wave's ports (DESIGN-WAVE2 C3: P <= 2)
 MAX_COSIM_BODIES = 4  # co-simulated free bodies: the tools and the objects
 # static walls, floors and posts: with a box and two pads, 64 shapes (DESIGN-WAVE2 §8)
 MAX_STATIC_BODIES = 61
+MAX_SIM_BODIES = 4  # dynamic bodies the sim steps, moving shapes at 1 kHz (with the static)
 
 
 @dataclass(frozen=True)
@@ -100,10 +104,13 @@ class PortSceneConfig:
     contact: PortContact = field(default_factory=PortContact)
     ports: tuple[PortSpec, ...] = ()
     bodies: tuple[BodySpec, ...] = ()
+    # dynamic bodies the sim steps (sim-server --mirror); moving shapes to the co-simulation
+    sim_bodies: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         within_all(self.gravity, (-100.0, 100.0), "gravity", "m/s^2")
         within(self.haptic_rate_hz, (100.0, 20000.0), "haptic_rate_hz", "Hz")
+        self._check_sim_bodies()
         require(
             len(self.ports) == MAX_PORTS,
             "ports",
@@ -112,7 +119,7 @@ class PortSceneConfig:
         names = [b.name for b in self.bodies]
         require(len(set(names)) == len(names), "bodies", "body names must be unique")
         dynamic = self.dynamic_bodies
-        static = [b for b in self.bodies if b.kind == "static"]
+        static = self.static_bodies
         require(
             len(dynamic) <= MAX_COSIM_BODIES,
             "bodies",
@@ -121,7 +128,7 @@ class PortSceneConfig:
         require(
             len(static) <= MAX_STATIC_BODIES,
             "bodies",
-            f"{len(static)} static bodies; at most {MAX_STATIC_BODIES}",
+            f"{len(static)} static bodies and sim bodies; at most {MAX_STATIC_BODIES}",
         )
         for i, b in enumerate(self.bodies):
             require(
@@ -144,13 +151,35 @@ class PortSceneConfig:
             )
         require(len(dynamic) > len(tools), "bodies", "needs an object besides the tools")
 
+    def _check_sim_bodies(self) -> None:
+        sim = self.sim_bodies
+        require(len(set(sim)) == len(sim), "sim_bodies", "names a body twice")
+        require(len(sim) <= MAX_SIM_BODIES, "sim_bodies", f"at most {MAX_SIM_BODIES}")
+        tools = {p.tool for p in self.ports}
+        for i, name in enumerate(sim):
+            body = next((b for b in self.bodies if b.name == name), None)
+            require(body is not None, f"sim_bodies[{i}]", f"{name!r} is no body of the scene")
+            require(
+                body is not None and body.kind == "dynamic",
+                f"sim_bodies[{i}]",
+                f"{name!r} is not a dynamic body",
+            )
+            require(name not in tools, f"sim_bodies[{i}]", f"{name!r} is a port's tool")
+
     @property
     def dynamic_bodies(self) -> list[BodySpec]:
-        return [b for b in self.bodies if b.kind == "dynamic"]
+        """The co-simulated bodies (the sim's bodies are not)."""
+        return [b for b in self.bodies if b.kind == "dynamic" and b.name not in self.sim_bodies]
+
+    @property
+    def sim_body_specs(self) -> list[BodySpec]:
+        """The bodies the sim steps, in `sim_bodies`' order."""
+        return [self.body(name) for name in self.sim_bodies]
 
     @property
     def static_bodies(self) -> list[BodySpec]:
-        return [b for b in self.bodies if b.kind == "static"]
+        """The co-simulation's walls: the static bodies, then the sim's bodies (moving)."""
+        return [b for b in self.bodies if b.kind == "static"] + self.sim_body_specs
 
     def body(self, name: str) -> BodySpec:
         return next(b for b in self.bodies if b.name == name)

@@ -8,7 +8,11 @@ The extended configuration q = (q_tool_0, q_tool_1, q_object, ...) holds free ri
    A contact pushes along the penetrated shape's outward normal with k delta - b v_n >= 0
    and a stick spring k_t capped at mu f_n along the tangent, its deflection kept per
    (vertex owner, penetrated shape, vertex). Normals rotate with the bodies. Tool-object
-   contacts have both sides in q: their rows are n^T (J_o - J_t).
+   contacts have both sides in q: their rows are n^T (J_o - J_t). The sim's bodies
+   (`sim_bodies`) are walls that move: their poses and twists are inputs each tick (from
+   the sim, `carry_sim_bodies`), a contact's velocity takes a wall's point velocity, and a
+   wall's mass is infinite (one-way at the haptic rate: the sim's mirror of the co-simulated
+   bodies pushes them back at the sim's rate, DESIGN-WAVE2 §6).
 1b. First touch (seed 001 eq 5-6, DESIGN-WAVE2 §6): a contact that starts penetrating this
    tick while approaching faster than collision_speed collides. All of a tick's colliding
    contacts are resolved together, R their rows, A = R D^-1 R^T: the impulses lambda solve
@@ -51,6 +55,7 @@ from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
 from haptic_local_model.shared.port_config import (
     MAX_COSIM_BODIES,
     MAX_PORTS,
+    MAX_SIM_BODIES,
     MAX_STATIC_BODIES,
     PortSceneConfig,
 )
@@ -58,7 +63,7 @@ from haptic_local_model.shared.shapes import MAX_VERTICES, vertex_signed_distanc
 
 F8 = np.float64
 I8 = np.int64
-N_ELEMENTS = MAX_COSIM_BODIES + MAX_STATIC_BODIES  # bodies first, then the static walls
+N_ELEMENTS = MAX_COSIM_BODIES + MAX_STATIC_BODIES  # bodies first, then the walls
 MAX_COSIM_DOF = 3 * MAX_COSIM_BODIES
 MAX_COLLISIONS = 16  # colliding contacts resolved in one tick; more: penalty alone
 # every penetrating vertex of a tick: each ordered pair with a body, MAX_VERTICES each
@@ -70,7 +75,8 @@ LCP_SWEEPS = 200  # projected Gauss-Seidel sweeps at most (it stops when converg
 COSIM_DTYPE = np.dtype(
     [
         ("n_bodies", I8),
-        ("n_static", I8),
+        ("n_static", I8),  # walls: the static bodies, then the sim's bodies
+        ("n_sim", I8),  # the last n_sim walls are the sim's bodies (their poses move)
         ("n_ports", I8),
         ("mass", F8, (MAX_COSIM_BODIES,)),
         ("inertia", F8, (MAX_COSIM_BODIES,)),
@@ -78,7 +84,6 @@ COSIM_DTYPE = np.dtype(
         ("vertices", F8, (N_ELEMENTS, MAX_VERTICES, 2)),  # core, body frame about the COM
         ("rounding", F8, (N_ELEMENTS,)),
         ("bound", F8, (N_ELEMENTS,)),  # max |vertex|
-        ("static_pose", F8, (MAX_STATIC_BODIES, 3)),
         ("gravity", F8, (2,)),
         ("stiffness", F8),
         ("damping", F8),
@@ -100,6 +105,8 @@ COSIM_DATA_DTYPE = np.dtype(
         ("qd", F8, (MAX_COSIM_DOF,)),
         ("stick", F8, (N_ELEMENTS, N_ELEMENTS, MAX_VERTICES)),  # tangential deflection, m
         ("touching", I8, (N_ELEMENTS, N_ELEMENTS, MAX_VERTICES)),
+        ("wall_pose", F8, (MAX_STATIC_BODIES, 3)),  # a sim body's: an input each tick
+        ("wall_twist", F8, (MAX_STATIC_BODIES, 3)),  # zero for a static wall
         ("device_pose", F8, (MAX_PORTS, 3)),  # inputs: world frame
         ("device_twist", F8, (MAX_PORTS, 3)),
         ("prev_device_twist", F8, (MAX_PORTS, 3)),
@@ -162,8 +169,9 @@ def cosim_records(
     scene: PortSceneConfig, max_wrench: list[tuple[float, float, float]]
 ) -> tuple[np.ndarray, np.ndarray]:
     """The model and data records of a port scene: the ports' tools first (in port order),
-    then the other dynamic bodies, then the static ones; q at the bodies' initial poses and
-    velocities. `max_wrench` is each port's device limit in the world frame."""
+    then the other dynamic bodies, then the static ones and the sim's (at their start, at
+    rest until the sim moves them); q at the bodies' initial poses and velocities.
+    `max_wrench` is each port's device limit in the world frame."""
     model = np.zeros(1, COSIM_DTYPE)
     data = np.zeros(1, COSIM_DATA_DTYPE)
     m = model[0]
@@ -172,6 +180,7 @@ def cosim_records(
     m["n_bodies"] = len(order)
     statics = scene.static_bodies
     m["n_static"] = len(statics)
+    m["n_sim"] = len(scene.sim_bodies)
     m["n_ports"] = len(scene.ports)
     for i, name in enumerate(order):
         b = scene.body(name)
@@ -182,7 +191,7 @@ def cosim_records(
         d["qd"][3 * i : 3 * i + 3] = (b.velocity[0], b.velocity[1], b.angular_velocity)
     for j, b in enumerate(statics):
         _set_core(m, MAX_COSIM_BODIES + j, b)
-        m["static_pose"][j] = (b.position[0], b.position[1], b.angle)
+        d["wall_pose"][j] = (b.position[0], b.position[1], b.angle)
     m["gravity"] = scene.gravity
     c = scene.contact
     m["stiffness"] = c.stiffness_n_per_m
@@ -217,13 +226,13 @@ def _set_core(m: np.void, e: int, body: object) -> None:
 
 @njit(cache=True)
 def _pose(m, d, e, out):
-    """Element e's pose: a body's from q, a wall's from the model."""
+    """Element e's pose: a body's from q, a wall's from wall_pose."""
     if e < MAX_COSIM_BODIES:
         for c in range(3):
             out[c] = d.q[3 * e + c]
     else:
         for c in range(3):
-            out[c] = m.static_pose[e - MAX_COSIM_BODIES, c]
+            out[c] = d.wall_pose[e - MAX_COSIM_BODIES, c]
 
 
 @njit(cache=True)
@@ -235,9 +244,14 @@ def _present(m, e):
 
 @njit(cache=True)
 def _point_velocity(d, e, px, py):
-    """The velocity of the point (px, py) carried by element e (a wall's is zero)."""
+    """The velocity of the point (px, py) carried by element e (a static wall's is zero)."""
     if e >= MAX_COSIM_BODIES:
-        return 0.0, 0.0
+        j = e - MAX_COSIM_BODIES
+        w = d.wall_twist[j, 2]
+        return (
+            d.wall_twist[j, 0] - w * (py - d.wall_pose[j, 1]),
+            d.wall_twist[j, 1] + w * (px - d.wall_pose[j, 0]),
+        )
     a = 3 * e
     w = d.qd[a + 2]
     return d.qd[a] - w * (py - d.q[a + 1]), d.qd[a + 1] + w * (px - d.q[a])
@@ -388,7 +402,36 @@ def contact(m, d, h):
         if sticking:
             add_rows(d.k, d.b, d.cols, d.jn, d.jt, 6, (m.stiffness, k_t, m.damping, m.damping))
         else:
+            k_t = 0.0
             add_rows(d.k, d.b, d.cols, d.jn, d.jt, 6, (m.stiffness, 0.0, m.damping, 0.0))
+        if m.n_sim > 0:
+            _wall_motion(d, h, m.stiffness, k_t)
+
+
+@njit(cache=True)
+def _wall_motion(d, h, kn, kt):
+    """A moving wall's side of a contact's springs in the implicit step: the step's
+    -dt K q-dot takes the bodies' velocities only (q holds no wall), so a wall moving at
+    v_w adds -dt (kn jn (n . v_w) + kt jt (t . v_w)) with the wall's side's sign (the
+    springs it loads as it moves; as a device's motion in the coupling, `couple_ports`).
+    Without it a box riding a belt is pulled back each tick and rides it in a limit cycle.
+    h: the hit (its rows in d.jn, d.jt, d.cols)."""
+    o = d.hit_of[h, 0]
+    t = d.hit_of[h, 1]
+    nx = d.hits[h, 3]
+    ny = d.hits[h, 4]
+    side = 0 if o >= MAX_COSIM_BODIES else 1
+    e = o if side == 0 else t
+    if e < MAX_COSIM_BODIES:
+        return
+    sign = 1.0 if side == 0 else -1.0
+    vx, vy = _point_velocity(d, e, d.hits[h, 0], d.hits[h, 1])
+    wn = sign * (nx * vx + ny * vy)
+    wt = sign * (-ny * vx + nx * vy)
+    for i in range(6):
+        a = d.cols[i]
+        if a >= 0:
+            d.extra[a] -= d.dt * (kn * d.jn[i] * wn + kt * d.jt[i] * wt)
 
 
 @njit(cache=True)
@@ -641,6 +684,33 @@ def port_commands(m, d):
                 d.invalid += 1
             for c in range(3):
                 d.command[p, c] = 0.0
+
+
+@njit(cache=True)
+def carry_sim_bodies(model, data, sample, age):
+    """The sim's bodies at this tick: sample[j] = (pose, twist) of sim body j (the sim's
+    newest), carried on by its twist for `age` seconds (the caller's bound)."""
+    m = model[0]
+    d = data[0]
+    first = m.n_static - m.n_sim
+    for j in range(m.n_sim):
+        for c in range(3):
+            d.wall_pose[first + j, c] = sample[j, c] + age * sample[j, 3 + c]
+            d.wall_twist[first + j, c] = sample[j, 3 + c]
+
+
+@njit(cache=True)
+def sim_bodies_of(m, d, out):
+    """The sim's bodies as this tick met them (m, d: the records): out[j] = (pose, twist),
+    a row's inputs (zeros past n_sim)."""
+    first = m.n_static - m.n_sim
+    for j in range(MAX_SIM_BODIES):
+        for c in range(6):
+            out[j, c] = 0.0
+    for j in range(m.n_sim):
+        for c in range(3):
+            out[j, c] = d.wall_pose[first + j, c]
+            out[j, 3 + c] = d.wall_twist[first + j, c]
 
 
 @njit(cache=True)
