@@ -80,6 +80,7 @@ PORT_ROW_DTYPE = np.dtype(
         ("collisions", I8),  # colliding contacts resolved by impulses, since the start
         # the sim's bodies as the tick met them (pose, twist): inputs, as the devices are
         ("sim_bodies", F8, (MAX_SIM_BODIES, 6)),
+        ("sim_wrench", F8, (MAX_COSIM_BODIES, 3)),  # the sim's bodies' on each body (input)
     ]
 )
 
@@ -117,6 +118,7 @@ def _row(m, cd, io, r):
     for e in range(MAX_COSIM_BODIES):
         for c in range(3):
             r.body_force[e, c] = cd.body_force[e, c]
+            r.sim_wrench[e, c] = cd.sim_wrench[e, c]
     r.n_contacts = cd.n_contacts
     r.penetration = cd.penetration
     r.invalid = cd.invalid

@@ -167,6 +167,7 @@ def replay_rows(
         d["device_twist"] = row["device_twist"]
         if scene.sim_bodies:
             carry_sim_bodies(model, data, row["sim_bodies"], 0.0)
+            d["sim_wrench"] = row["sim_wrench"]
         cosim_tick(model, data)
         for name in REPLAYED:
             if np.asarray(d[name]).tobytes() != np.asarray(row[name]).tobytes():

@@ -5,7 +5,9 @@ and the box they hold), at the haptic rate.
 Each tick (wall-clock paced): take each port's newest DeviceState (a malformed one is
 refused and counted), decide each port's state, feed the world's engine
 (haptic_server/world_engines.py: the co-simulation, or the hands) each port's device, run
-it, publish each port's ToolState.
+it, publish each port's ToolState. With a sim in the network (`sim-server --mirror`), a port
+scene's world also takes the sim's bodies before the tick and publishes its co-simulated
+bodies to the sim's mirror (haptic_server/sim_link.py).
 
 A hand's port (`hand_grasp`) takes its station's glove angles as it takes its device's
 pose: blended in from the fingers' angles over the coupling's ramp, held where they were
@@ -50,9 +52,11 @@ import zenoh
 
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import DeviceWorldMap
+from haptic_local_model.haptic_server.sim_link import SimLink
 from haptic_local_model.haptic_server.stages.port_io import push_stretch
 from haptic_local_model.haptic_server.station import rows_in_order
 from haptic_local_model.haptic_server.world_engines import (
+    CosimWorld,
     port_gains,
     world_engine,
 )
@@ -143,6 +147,12 @@ class SharedWorld:
         self.work_us = SampleWindow(100_000)
         self.pacer = Pacer(round(self.engine.dt * 1e9), SPIN_NS, None)
         self._stop = False
+        # the sim that mirrors the world (a port scene's, when the network has one)
+        self.sim: SimLink | None = None
+        if isinstance(self.engine, CosimWorld) and network.sim.connect:
+            assert isinstance(scene, PortSceneConfig)
+            e = self.engine
+            self.sim = SimLink(scene, network, e.model, e.data, self.epoch)
 
     def request_stop(self, *_: object) -> None:
         self._stop = True
@@ -250,6 +260,8 @@ class SharedWorld:
             pubs.append(session.declare_publisher(
                 tool_key, congestion_control=zenoh.CongestionControl.DROP, express=True
             ))  # fmt: skip
+        if self.sim is not None:
+            self.sim.open(session)
         pacer = Pacer(round(self.engine.dt * 1e9), SPIN_NS, duration_s)
         self.pacer = pacer
         enter_loop(self.warm, ready)
@@ -262,9 +274,13 @@ class SharedWorld:
                 for p in range(len(self.ports)):
                     self._take(p, subs[p], now)
                     self._port(p, now, t)
+                if self.sim is not None:
+                    self.sim.take(now)
                 self.engine.tick(t)
                 for p in range(len(self.ports)):
                     self._publish(p, pubs[p], seq)
+                if self.sim is not None:
+                    self.sim.publish(seq)
                 self.engine.row(self.rows, self.n_rows % len(self.rows), t)
                 self.n_rows += 1
                 self.work_us.add((time.perf_counter_ns() - now) / 1e3)
@@ -306,4 +322,6 @@ class SharedWorld:
                 "lowest_y": float(self.engine.lowest[i]),
             }  # fmt: skip
         out["steps_held"] = self.engine.steps_held()
+        if self.sim is not None:
+            out["sim"] = self.sim.summary()
         return out

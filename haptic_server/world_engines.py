@@ -27,6 +27,7 @@ from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE
 from haptic_local_model.haptic_server.stages.cosim import (
     MAX_COSIM_BODIES,
     MAX_COSIM_DOF,
+    carry_sim_bodies,
     cosim_order,
     cosim_records,
     cosim_tick,
@@ -34,7 +35,12 @@ from haptic_local_model.haptic_server.stages.cosim import (
 )
 from haptic_local_model.haptic_server.stages.hand_grasp import MAX_HANDS, grasp_tick
 from haptic_local_model.shared.config import UserConfig
-from haptic_local_model.shared.port_config import MAX_PORTS, HandSceneConfig, PortSceneConfig
+from haptic_local_model.shared.port_config import (
+    MAX_PORTS,
+    MAX_SIM_BODIES,
+    HandSceneConfig,
+    PortSceneConfig,
+)
 from haptic_local_model.shared.protocol.station import Vec3
 
 F8 = np.float64
@@ -61,6 +67,7 @@ def world_row(model, data, rows, k, t, lowest):
     for e in range(MAX_COSIM_BODIES):
         for c in range(3):
             row.body_force[e, c] = cd.body_force[e, c]
+            row.sim_wrench[e, c] = cd.sim_wrench[e, c]
     row.n_contacts = cd.n_contacts
     row.penetration = cd.penetration
     row.invalid = cd.invalid
@@ -163,6 +170,7 @@ class CosimWorld:
 
     def warm(self) -> None:
         model, data = cosim_records(self.scene, self.limits)
+        carry_sim_bodies(model, data, np.zeros((MAX_SIM_BODIES, 6)), 0.0)  # a sim's bodies
         cosim_tick(model, data)
         world_row(model, data, np.zeros(1, PORT_ROW_DTYPE), 0, 0.0, np.zeros(MAX_COSIM_BODIES))
 

@@ -104,8 +104,13 @@ class PortSceneConfig:
     contact: PortContact = field(default_factory=PortContact)
     ports: tuple[PortSpec, ...] = ()
     bodies: tuple[BodySpec, ...] = ()
-    # dynamic bodies the sim steps (sim-server --mirror); moving shapes to the co-simulation
+    # dynamic bodies the sim steps (sim-server --mirror), and how they meet the co-simulated
+    # ones: "wrench", the sim's mirror pushes them and their contact wrench on it is applied
+    # in the world (two-way, momentum kept, at the sim's rate), or "shape", obstacles that
+    # move on their own: moving shapes of infinite mass in the co-simulation's contacts at
+    # 1 kHz, which the mirror does not touch (one-way)
     sim_bodies: tuple[str, ...] = ()
+    sim_contact: str = "wrench"
 
     def __post_init__(self) -> None:
         within_all(self.gravity, (-100.0, 100.0), "gravity", "m/s^2")
@@ -153,6 +158,7 @@ class PortSceneConfig:
 
     def _check_sim_bodies(self) -> None:
         sim = self.sim_bodies
+        require(self.sim_contact in ("wrench", "shape"), "sim_contact", "wrench or shape")
         require(len(set(sim)) == len(sim), "sim_bodies", "names a body twice")
         require(len(sim) <= MAX_SIM_BODIES, "sim_bodies", f"at most {MAX_SIM_BODIES}")
         tools = {p.tool for p in self.ports}
@@ -170,6 +176,11 @@ class PortSceneConfig:
     def dynamic_bodies(self) -> list[BodySpec]:
         """The co-simulated bodies (the sim's bodies are not)."""
         return [b for b in self.bodies if b.kind == "dynamic" and b.name not in self.sim_bodies]
+
+    def cosim_order(self) -> list[str]:
+        """The co-simulated bodies in q's order: the tools in port order, then the objects."""
+        tools = [p.tool for p in self.ports]
+        return tools + [b.name for b in self.dynamic_bodies if b.name not in tools]
 
     @property
     def sim_body_specs(self) -> list[BodySpec]:

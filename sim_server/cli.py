@@ -1,4 +1,7 @@
-"""`sim-server`: the pymunk world at 30-60 Hz, publishing the local model over Zenoh."""
+"""`sim-server`: the pymunk world at 30-60 Hz, publishing the local model over Zenoh; or,
+with `--mirror PORT_SCENE`, the sim of a shared world's port scene: it mirrors the world's
+co-simulated bodies and steps the scene's sim_bodies (sim_server/mirror.py,
+docs/stations.md)."""
 
 from __future__ import annotations
 
@@ -39,11 +42,23 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--summary-json", type=Path, default=None)
     parser.add_argument(
+        "--mirror",
+        default=None,
+        metavar="PORT_SCENE",
+        help="mirror a shared world's port scene (configs/ports) and step its sim_bodies; "
+        "--network is then a station network (default stations_loopback)",
+    )
+    parser.add_argument(
+        "--rate", type=float, default=60.0, metavar="HZ", help="--mirror: the sim's rate"
+    )
+    parser.add_argument(
         "--inject-clock-jump", type=clock_jump, default=None, help=argparse.SUPPRESS
     )
     args = parser.parse_args(argv)
 
     def body() -> int:
+        if args.mirror is not None:
+            return _mirror(args)
         from haptic_local_model.sim_server.server import SimServer
 
         scene = load_scene(args.scene)
@@ -62,6 +77,37 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     return run_main(body)
+
+
+def _mirror(args: argparse.Namespace) -> int:
+    from haptic_local_model.shared.config import ConfigError
+    from haptic_local_model.shared.net.stations import load_station_network
+    from haptic_local_model.shared.port_config import load_port_scene
+    from haptic_local_model.sim_server.mirror import Mirror
+
+    if not 10.0 <= args.rate <= 1000.0:
+        raise ConfigError("--rate", "rate", f"{args.rate:g} Hz: a sim runs at 10 to 1000 Hz")
+    # the single-device default network is not a station network: the stations' is
+    network = load_station_network(
+        "stations_loopback" if args.network == "loopback" else args.network, "sim"
+    )
+    scene = load_port_scene(args.mirror)
+    if not scene.sim_bodies:
+        raise ConfigError(args.mirror, "sim_bodies", "empty: the sim has no body to step")
+    mirror = Mirror(scene, network, args.rate)
+    signal.signal(signal.SIGTERM, mirror.request_stop)
+    signal.signal(signal.SIGINT, mirror.request_stop)
+    try:
+        summary = mirror.run(
+            args.duration, ready=lambda: emit("ready", process="sim", epoch=mirror.epoch)
+        )
+    except ConnectionError as exc:
+        print(f"sim-server: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    emit("stopped", process="sim", **summary)
+    if not write_summary(args.summary_json, summary, "sim-server"):
+        return EXIT_FAILED
+    return 0
 
 
 if __name__ == "__main__":

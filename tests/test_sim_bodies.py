@@ -39,7 +39,12 @@ def _with_sim_body(scene: PortSceneConfig, body: BodySpec, gravity) -> PortScene
             b = dataclasses.replace(b, position=(0.5 if "right" in b.name else -0.5, 0.0))
         bodies.append(b)
     return dataclasses.replace(
-        scene, ports=ports, bodies=(*bodies, body), sim_bodies=(body.name,), gravity=gravity
+        scene,
+        ports=ports,
+        bodies=(*bodies, body),
+        sim_bodies=(body.name,),
+        sim_contact="shape",
+        gravity=gravity,
     )
 
 

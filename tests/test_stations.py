@@ -44,6 +44,7 @@ from haptic_local_model.shared.net.stations import (
     access_control,
     client_config,
     load_station_network,
+    mirror_keys,
     port_keys,
     router_config,
 )
@@ -140,10 +141,10 @@ def test_the_network_config_names_the_key_that_is_wrong(tmp_path: Path) -> None:
 
 def test_the_shipped_station_networks_load_for_every_role() -> None:
     for path in sorted(resolve("network", "loopback").parent.glob("stations_*.toml")):
-        for role in ("router", "world", "left", "right"):
+        for role in ("router", "world", "sim", "left", "right"):
             config = load_station_network(str(path), role)
         router_config(config)  # zenoh accepts every key
-        for spec in (config.world, *config.stations.values()):
+        for spec in (config.world, config.sim, *config.stations.values()):
             client_config(spec)
 
 
@@ -350,13 +351,16 @@ def _router_acl_check(network: str) -> dict[str, int]:
     """What gets through the router: station_left puts on its own device key and on the
     other port's (a world-credentialed subscriber counts both); the world puts on both tool
     keys (station_left, subscribed to both, must get only its own); a client presenting
-    another station's name with station_left's password gets no session."""
+    another station's name with station_left's password gets no session. The sim and the
+    world exchange their bodies; the sim puts on a port's device key, the station on the
+    sim's key and follows the world's bodies: none of it gets through."""
     config = load_station_network(network, "world")
     got: dict[str, int] = {}
 
     def count(name: str) -> Any:
-        def seen(_sample: Any) -> None:
-            got[name] = got.get(name, 0) + 1
+        def seen(sample: Any) -> None:
+            key = f"{name}_{sample.payload.to_bytes()[:1].decode()}" if "bodies" in name else name
+            got[key] = got.get(key, 0) + 1
 
         return seen
 
@@ -366,11 +370,17 @@ def _router_acl_check(network: str) -> dict[str, int]:
         sessions.append(world)
         left = zenoh.open(client_config(config.station("left")))
         sessions.append(left)
+        sim = zenoh.open(client_config(config.sim))
+        sessions.append(sim)
         subscribers = []
         for port in ("left", "right"):
             device, tool = port_keys(config.namespace, port)
             subscribers.append(world.declare_subscriber(device, count(f"device_{port}")))
             subscribers.append(left.declare_subscriber(tool, count(f"tool_{port}_at_left")))
+        world_bodies, sim_bodies = mirror_keys(config.namespace)
+        subscribers.append(world.declare_subscriber(sim_bodies, count("sim_bodies_at_world")))
+        subscribers.append(sim.declare_subscriber(world_bodies, count("world_bodies_at_sim")))
+        subscribers.append(left.declare_subscriber(world_bodies, count("world_bodies_at_left")))
         time.sleep(1.0)
         raw = encode_device(DeviceState(0, 1, 1, 1, (0, 0, 0), (0, 0, 0)))
         for _ in range(20):
@@ -378,6 +388,10 @@ def _router_acl_check(network: str) -> dict[str, int]:
                 device, tool = port_keys(config.namespace, port)
                 left.put(device, raw)
                 world.put(tool, b"x")
+            sim.put(port_keys(config.namespace, "right")[0], raw)
+            sim.put(sim_bodies, b"S")
+            left.put(sim_bodies, b"L")
+            world.put(world_bodies, b"W")
             time.sleep(0.01)
         time.sleep(0.5)
         stranger = dataclasses.replace(config.station("left"), user="station_right")
@@ -405,6 +419,10 @@ def test_the_router_lets_a_station_drive_only_its_own_port(
     assert got.get("device_left", 0) >= 10 and got.get("device_right", 0) == 0, got
     assert got.get("tool_left_at_left", 0) >= 10 and got.get("tool_right_at_left", 0) == 0, got
     assert got["stranger_session"] == 0, got
+    assert got.get("sim_bodies_at_world_S", 0) >= 10, got  # the sim's bodies reach the world
+    assert got.get("sim_bodies_at_world_L", 0) == 0, got  # a station cannot pose as the sim
+    assert got.get("world_bodies_at_sim_W", 0) >= 10, got
+    assert got.get("world_bodies_at_left_W", 0) == 0, got  # nor follow the world's bodies
 
 
 @pytest.mark.processes

@@ -10,9 +10,12 @@ The extended configuration q = (q_tool_0, q_tool_1, q_object, ...) holds free ri
    (vertex owner, penetrated shape, vertex). Normals rotate with the bodies. Tool-object
    contacts have both sides in q: their rows are n^T (J_o - J_t). The sim's bodies
    (`sim_bodies`) are walls that move: their poses and twists are inputs each tick (from
-   the sim, `carry_sim_bodies`), a contact's velocity takes a wall's point velocity, and a
-   wall's mass is infinite (one-way at the haptic rate: the sim's mirror of the co-simulated
-   bodies pushes them back at the sim's rate, DESIGN-WAVE2 §6).
+   the sim, `carry_sim_bodies`). With `sim_contact = "shape"` they take part in the
+   contacts: a contact's velocity takes a wall's point velocity, and a wall's mass is
+   infinite (one-way at the haptic rate: the sim's mirror of the co-simulated bodies pushes
+   them back at the sim's rate, DESIGN-WAVE2 §6). With "wrench" they meet nothing here:
+   the sim's contact wrench on its mirror of each body is an input (`sim_wrench`), applied
+   as it is until the next.
 1b. First touch (seed 001 eq 5-6, DESIGN-WAVE2 §6): a contact that starts penetrating this
    tick while approaching faster than collision_speed collides. All of a tick's colliding
    contacts are resolved together, R their rows, A = R D^-1 R^T: the impulses lambda solve
@@ -77,6 +80,7 @@ COSIM_DTYPE = np.dtype(
         ("n_bodies", I8),
         ("n_static", I8),  # walls: the static bodies, then the sim's bodies
         ("n_sim", I8),  # the last n_sim walls are the sim's bodies (their poses move)
+        ("sim_shapes", I8),  # 1: the sim's bodies are contact shapes (sim_contact "shape")
         ("n_ports", I8),
         ("mass", F8, (MAX_COSIM_BODIES,)),
         ("inertia", F8, (MAX_COSIM_BODIES,)),
@@ -107,6 +111,7 @@ COSIM_DATA_DTYPE = np.dtype(
         ("touching", I8, (N_ELEMENTS, N_ELEMENTS, MAX_VERTICES)),
         ("wall_pose", F8, (MAX_STATIC_BODIES, 3)),  # a sim body's: an input each tick
         ("wall_twist", F8, (MAX_STATIC_BODIES, 3)),  # zero for a static wall
+        ("sim_wrench", F8, (MAX_COSIM_BODIES, 3)),  # input: the sim's bodies' on each body
         ("device_pose", F8, (MAX_PORTS, 3)),  # inputs: world frame
         ("device_twist", F8, (MAX_PORTS, 3)),
         ("prev_device_twist", F8, (MAX_PORTS, 3)),
@@ -181,6 +186,7 @@ def cosim_records(
     statics = scene.static_bodies
     m["n_static"] = len(statics)
     m["n_sim"] = len(scene.sim_bodies)
+    m["sim_shapes"] = int(scene.sim_contact == "shape")
     m["n_ports"] = len(scene.ports)
     for i, name in enumerate(order):
         b = scene.body(name)
@@ -212,8 +218,7 @@ def cosim_records(
 
 def cosim_order(scene: PortSceneConfig) -> list[str]:
     """The co-simulated bodies in q's order: the tools in port order, then the objects."""
-    tools = [p.tool for p in scene.ports]
-    return tools + [b.name for b in scene.dynamic_bodies if b.name not in tools]
+    return scene.cosim_order()
 
 
 def _set_core(m: np.void, e: int, body: object) -> None:
@@ -239,7 +244,8 @@ def _pose(m, d, e, out):
 def _present(m, e):
     if e < MAX_COSIM_BODIES:
         return e < m.n_bodies
-    return e - MAX_COSIM_BODIES < m.n_static
+    j = e - MAX_COSIM_BODIES
+    return j < m.n_static - m.n_sim or (j < m.n_static and m.sim_shapes == 1)
 
 
 @njit(cache=True)
@@ -635,6 +641,9 @@ def step_bodies(m, d):
     for i in range(m.n_bodies):
         d.f[3 * i] += m.mass[i] * m.gravity[0]
         d.f[3 * i + 1] += m.mass[i] * m.gravity[1]
+        if m.n_sim > 0:
+            for c in range(3):
+                d.f[3 * i + c] += d.sim_wrench[i, c]
     for a in range(n):
         v = d.f[a] + d.extra[a]
         for b in range(n):

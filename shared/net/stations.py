@@ -8,9 +8,12 @@ access control, default deny, lets each through only its own flows:
 
 - the world may publish every port's ToolState and follow every port's DeviceState;
 - the station of port P may publish P's DeviceState and follow P's ToolState, nothing else
-  (not another port's device, not another port's tool).
+  (not another port's device, not another port's tool);
+- the sim that mirrors the world (`sim-server --mirror`, optional) may publish the sim's
+  bodies and follow the world's, and the world the other way.
 
-Keys: `<ns>/port/<P>/device` (station -> world), `<ns>/port/<P>/tool` (world -> station).
+Keys: `<ns>/port/<P>/device` (station -> world), `<ns>/port/<P>/tool` (world -> station),
+`<ns>/world/bodies` (world -> sim), `<ns>/sim/bodies` (sim -> world).
 """
 
 from __future__ import annotations
@@ -47,6 +50,11 @@ def port_keys(namespace: str, port: str) -> tuple[str, str]:
     return f"{namespace}/port/{port}/device", f"{namespace}/port/{port}/tool"
 
 
+def mirror_keys(namespace: str) -> tuple[str, str]:
+    """(the world's bodies, the sim's bodies): world -> sim, sim -> world."""
+    return f"{namespace}/world/bodies", f"{namespace}/sim/bodies"
+
+
 @dataclass(frozen=True)
 class StationNetworkConfig:
     """Where the router listens, who may be the world and which station drives which port,
@@ -62,6 +70,9 @@ class StationNetworkConfig:
     station_users: dict[str, str] = field(default_factory=dict)  # port -> user
     world: EndpointSpec = field(default_factory=EndpointSpec)
     stations: dict[str, EndpointSpec] = field(default_factory=dict)  # port -> endpoints
+    # the sim that mirrors the world (sim-server --mirror): optional, no connect: none
+    sim_user: str = "sim"
+    sim: EndpointSpec = field(default_factory=EndpointSpec)
     # a router without authentication lets anyone drive the ports: refused unless set
     unauthenticated_insecure: bool = False
 
@@ -97,6 +108,14 @@ class StationNetworkConfig:
         users = list(self.station_users.values())
         require(len(set(users)) == len(users), "station_users", "one user per port")
         require(self.world_user not in users, "station_users", "the world's user drives no port")
+        if self.sim.connect:
+            require("sim" not in self.stations, "stations.sim", "a port named sim: the sim's role")
+            require(self.sim.user == self.sim_user, "sim.user", f"must be {self.sim_user!r}")
+            require(
+                self.sim_user not in [*users, self.world_user],
+                "sim_user",
+                "the sim's user is neither the world's nor a station's",
+            )
 
     def station(self, port: str) -> EndpointSpec:
         if port not in self.stations:
@@ -125,7 +144,23 @@ def access_control(config: StationNetworkConfig, ports: list[str]) -> dict[str, 
         allow("devices_to_world", "put", "egress", f"{ns}/port/*/device"),
         allow("tools_followed", "declare_subscriber", "egress", f"{ns}/port/*/tool"),
     ]
+    world_bodies, sim_bodies = mirror_keys(ns)
+    world_rules += [
+        allow("world_puts_bodies", "put", "ingress", world_bodies),
+        allow("world_follows_sim", "declare_subscriber", "ingress", sim_bodies),
+        allow("sim_bodies_to_world", "put", "egress", sim_bodies),
+        allow("world_bodies_followed", "declare_subscriber", "egress", world_bodies),
+    ]
     policies.append({"id": "world_drives", "subjects": ["world"], "rules": world_rules})
+    if config.sim.connect:
+        subjects.append({"id": "sim", "usernames": [config.sim_user]})
+        sim_rules = [
+            allow("sim_puts_bodies", "put", "ingress", sim_bodies),
+            allow("sim_follows_world", "declare_subscriber", "ingress", world_bodies),
+            allow("world_bodies_to_sim", "put", "egress", world_bodies),
+            allow("sim_bodies_followed", "declare_subscriber", "egress", sim_bodies),
+        ]
+        policies.append({"id": "sim_mirrors", "subjects": ["sim"], "rules": sim_rules})
     for port in ports:
         device, tool = port_keys(ns, port)
         subjects.append({"id": f"station_{port}", "usernames": [config.station_users[port]]})
@@ -201,23 +236,28 @@ def load_station_network(name_or_path: str, role: str) -> StationNetworkConfig:
         config,
         router=absolute(config.router),
         world=absolute(config.world),
+        sim=absolute(config.sim),
         stations={p: absolute(s) for p, s in config.stations.items()},
     )
     if role == "router":
         key, spec = "router", config.router
     elif role == "world":
         key, spec = "world", config.world
+    elif role == "sim" and config.sim.connect:
+        key, spec = "sim", config.sim
     elif role in config.stations:
         key, spec = f"stations.{role}", config.stations[role]
     else:
-        known = ", ".join(["router", "world", *sorted(config.stations)])
+        sim = ["sim"] if config.sim.connect else []
+        known = ", ".join(["router", "world", *sim, *sorted(config.stations)])
         raise ConfigError(str(path), "stations", f"no role {role!r} (known: {known})")
     for name, file in spec.files().items():
         if not Path(file).is_file():
             raise ConfigError(str(path), f"{key}.{name}", f"file not found: {file}")
     if role == "router" and config.router.users_file:
         users = _read_users(config.router.users_file, str(path))
-        for user in [config.world_user, *config.station_users.values()]:
+        sim_user = [config.sim_user] if config.sim.connect else []
+        for user in [config.world_user, *config.station_users.values(), *sim_user]:
             if user not in users:
                 raise ConfigError(
                     str(path), "router.users_file", f"user {user!r} is not in {spec.users_file}"

@@ -10,6 +10,13 @@
   joins, so its device meets its tool where the tool is), the coupling's stiffness and
   damping, the co-simulated object's pose (for views and logs) and whether the world holds
   the port (its station was lost).
+- BodiesState, between the world and the sim that mirrors it (`sim-server --mirror`):
+  `HSWB` world -> sim on `<ns>/world/bodies`, the co-simulated bodies (q's order), every few
+  world ticks; `HSSB` sim -> world on `<ns>/sim/bodies`, the sim's bodies (the scene's
+  `sim_bodies`), every sim step. Each body's pose and twist, world frame; a SimBodies also
+  carries the wrench the sim's bodies put on each mirrored body over its last step (q's
+  order: force, torque about the body's centre), for the world to apply (`sim_contact =
+  "wrench"`).
 
 Both are fixed-size little-endian records. A decode checks the magic, version, size, port
 and that every number is finite and in range, and raises MessageError naming the field:
@@ -39,6 +46,12 @@ GAIN_LIMIT = 1.0e7  # N/m, N s/m
 _HEAD = struct.Struct("<4sHHQQq")  # magic, version, port, epoch, seq, publish time (ns)
 _DEVICE = struct.Struct(f"<4sHHQQq{6 + 2 * MAX_GLOVE_JOINTS}dI")
 _TOOL = struct.Struct("<4sHHQQq15dI")
+WORLD_BODIES_MAGIC = b"HSWB"
+SIM_BODIES_MAGIC = b"HSSB"
+MAX_MESSAGE_BODIES = 8  # a BodiesState's slots (a port scene's co-simulated or sim bodies)
+FORCE_LIMIT = 1.0e4  # N, N m: a wrench beyond it is not a sim's contact
+# magic, version, count, epoch, seq, publish time (ns), pose and twist a slot, a wrench a slot
+_BODIES = struct.Struct(f"<4sHHQQq{9 * MAX_MESSAGE_BODIES}d")
 
 SAFE = 1  # DeviceState flags: not rendering the world's coupling (ramping to the safe state)
 CUT = 2  # its device's reading was not finite this tick
@@ -112,6 +125,73 @@ def tool_record(port: int, epoch: int) -> np.ndarray:
     return rec
 
 
+@dataclass(frozen=True)
+class BodiesState:
+    """Bodies' poses and twists, world frame: the world's co-simulated bodies (HSWB) or the
+    sim's bodies (HSSB)."""
+
+    magic: bytes
+    epoch: int  # the sender's start (ns)
+    seq: int
+    publish_time_ns: int
+    bodies: tuple[tuple[float, ...], ...]  # (x, y, angle, vx, vy, omega) a body
+    # SimBodies: the wrench on each mirrored body (fx, fy, torque), every slot
+    wrench: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),) * MAX_MESSAGE_BODIES
+
+    def array(self) -> np.ndarray:
+        """The bodies as a count x 6 array."""
+        return np.array(self.bodies, np.float64).reshape(-1, 6)
+
+
+BODIES_RECORD = np.dtype(
+    [("magic", "S4"), ("version", "<u2"), ("count", "<u2"), ("epoch", "<u8"), ("seq", "<u8"),
+     ("publish_time_ns", "<i8"), ("bodies", "<f8", (MAX_MESSAGE_BODIES, 6)),
+     ("wrench", "<f8", (MAX_MESSAGE_BODIES, 3))]
+)  # fmt: skip
+
+
+def bodies_record(magic: bytes, count: int, epoch: int) -> np.ndarray:
+    """A BODIES_RECORD[1] of `count` bodies from a sender of `epoch`, its header set (a loop
+    fills `bodies`, seq and the time in place and sends `.tobytes()`)."""
+    if not 0 < count <= MAX_MESSAGE_BODIES:
+        raise ValueError(f"BodiesState: {count} bodies, 1 to {MAX_MESSAGE_BODIES}")
+    rec = np.zeros(1, BODIES_RECORD)
+    rec["magic"], rec["version"], rec["count"], rec["epoch"] = (
+        magic,
+        STATION_VERSION,
+        count,
+        epoch,
+    )
+    return rec
+
+
+def encode_bodies(m: BodiesState) -> bytes:
+    values = m.array()
+    rec = bodies_record(m.magic, len(values), m.epoch)
+    rec["seq"], rec["publish_time_ns"] = m.seq, m.publish_time_ns
+    rec["bodies"][0, : len(values)] = values
+    rec["wrench"][0] = np.array(m.wrench, np.float64).reshape(MAX_MESSAGE_BODIES, 3)
+    return rec.tobytes()
+
+
+def decode_bodies(raw: bytes, magic: bytes, count: int) -> BodiesState:
+    """A BodiesState of `magic` that must carry `count` bodies (the receiver's scene's)."""
+    what = "SimBodies" if magic == SIM_BODIES_MAGIC else "WorldBodies"
+    f = _head(raw, magic, _BODIES, what, None)
+    if f[2] != count:
+        raise MessageError("count", f"{what}.count: {f[2]} bodies, this scene has {count}")
+    bodies = tuple(tuple(f[6 + 6 * i : 12 + 6 * i]) for i in range(count))
+    for i, b in enumerate(bodies):
+        _numbers(b[:3], tuple(f"bodies[{i}].{a}" for a in AXES), POSE_LIMIT_M, what)
+        _numbers(b[3:], tuple(f"bodies[{i}].twist.{a}" for a in AXES), TWIST_LIMIT, what)
+    w0 = 6 + 6 * MAX_MESSAGE_BODIES
+    wrench = tuple((f[w0 + 3 * i], f[w0 + 3 * i + 1], f[w0 + 3 * i + 2])
+                   for i in range(MAX_MESSAGE_BODIES))  # fmt: skip
+    for i, w in enumerate(wrench):
+        _numbers(w, tuple(f"wrench[{i}].{a}" for a in ("fx", "fy", "torque")), FORCE_LIMIT, what)
+    return BodiesState(magic, f[3], f[4], f[5], bodies, wrench)
+
+
 def encode_device(m: DeviceState) -> bytes:
     glove, rate = _joints(m.glove, "glove"), _joints(m.glove_rate, "glove_rate")
     return _DEVICE.pack(
@@ -134,7 +214,7 @@ def encode_tool(m: ToolState) -> bytes:
     )  # fmt: skip
 
 
-def _head(raw: bytes, magic: bytes, layout: struct.Struct, what: str, port: int) -> tuple:
+def _head(raw: bytes, magic: bytes, layout: struct.Struct, what: str, port: int | None) -> tuple:
     if len(raw) < _HEAD.size:
         raise MessageError("size", f"{what}: {len(raw)} bytes, shorter than its header")
     got_magic, version, got_port = _HEAD.unpack_from(raw)[:3]
@@ -146,7 +226,7 @@ def _head(raw: bytes, magic: bytes, layout: struct.Struct, what: str, port: int)
         )
     if len(raw) != layout.size:
         raise MessageError("size", f"{what}: {len(raw)} bytes, expected {layout.size}")
-    if got_port != port:
+    if port is not None and got_port != port:
         raise MessageError("port", f"{what}.port: {got_port} on port {port}'s key")
     return layout.unpack(raw)
 
