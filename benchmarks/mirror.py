@@ -3,10 +3,10 @@ and `sim-server --mirror` on this host's loopback, `grasp_ball` (the box held by
 ports' anchors, no stations: the scene's users squeeze with 2 N; the sim drops a 20 g ball
 onto it). From the world's log and the sim's summary:
 
-- the landing: the impulse the world applied to the box from the sim's wrench over the
+- the landing: the impulse the world applied to the box from the sim's impulses over the
   first 100 ms of contact, against the ball's momentum at impact and its weight over those
   100 ms, m (sqrt(2 g h) + g 0.1 s);
-- resting: the sim's wrench on the box against the ball's weight m g; the devices'
+- resting: the sim's mean force on the box against the ball's weight m g; the devices'
   commands (summed along y) against the weight of everything they hold (box, pads, ball);
   how far the pads sank when the ball came to rest against m g over the couplings' vertical
   stiffness (the ports are held on fixed anchors: the couplings carry the load);

@@ -5,11 +5,13 @@ The world publishes its co-simulated bodies (WorldBodies, `<ns>/world/bodies`) e
 BODIES_EVERY ticks; the sim tracks them with its mirror and steps the scene's `sim_bodies`,
 which the mirror pushes, and publishes them every sim step (SimBodies, `<ns>/sim/bodies`).
 Each world tick the sim's bodies are the newest SimBodies, carried on by their twists for the
-time since it arrived (at most EXTRAPOLATE_S: an old sample is not carried into a guess);
-a sim silent for `world_watchdog_ms` leaves them where they were, at rest. The SimBodies'
-wrench on each co-simulated body (its mean over the sim's last step) is applied every tick
-until the next arrives, for at most EXTRAPOLATE_S: with samples a sim step apart the
-impulse the world applies is the sim's. A malformed
+time since it arrived; past EXTRAPOLATE_S (an old sample is not carried into a guess), or
+with the sim silent for `world_watchdog_ms`, they are held where they were carried, at rest.
+A SimBodies carries the running impulse the sim's bodies have put on each mirrored body; the
+world applies what is new since the last one taken, spread over one sim step
+(`drain_impulse`): every impulse once, none lost with a dropped message, none doubled by
+two taken in one tick. A SimBodies whose mirror follows another world (or none yet) is
+refused (`other_world`). A malformed
 message is refused and counted by reason, never used; within the sim's epoch each must be
 newer than the last taken, and another epoch (a restarted sim) is taken only once the
 present one is silent.
@@ -17,14 +19,17 @@ present one is silent.
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any
 
 import numpy as np
 import zenoh
 
-from haptic_local_model.haptic_server.stages.cosim import carry_sim_bodies
+from haptic_local_model.haptic_server.stages.cosim import (
+    MAX_COSIM_BODIES,
+    carry_sim_bodies,
+    drain_impulse,
+)
 from haptic_local_model.shared.net.stations import StationNetworkConfig, mirror_keys
 from haptic_local_model.shared.net.transport import newest_payload
 from haptic_local_model.shared.port_config import MAX_SIM_BODIES, PortSceneConfig
@@ -53,14 +58,18 @@ class SimLink:
         data: np.ndarray,
         epoch: int,
     ) -> None:
-        self.network, self.model, self.data = network, model, data
+        self.network, self.model, self.data, self.epoch = network, model, data, epoch
         self.n_bodies = int(model[0]["n_bodies"])
         self.n_sim = len(scene.sim_bodies)
-        self.record = bodies_record(WORLD_BODIES_MAGIC, self.n_bodies, epoch)
+        period = BODIES_EVERY * float(data[0]["dt"])
+        self.record = bodies_record(WORLD_BODIES_MAGIC, self.n_bodies, epoch, period)
         self.sample = np.zeros((MAX_SIM_BODIES, 6))  # the sim's bodies at their start
         for j, spec in enumerate(scene.sim_body_specs):
             self.sample[j, :3] = (*spec.position, spec.angle)
-        self.wrench = np.zeros((int(model[0]["n_bodies"]), 3))
+        self.held = True  # the sample is held (at rest), not carried on by its twist
+        self.taken: np.ndarray | None = None  # the sim's running impulse as last taken
+        self.pending = np.zeros((MAX_COSIM_BODIES, 3))  # received, not yet applied (N s)
+        self.rate = np.zeros((MAX_COSIM_BODIES, 3))  # applied per second (N, N m)
         self.last: BodiesState | None = None
         self.rx_ns = 0
         self.received = self.rejected = self.sent = self.lost = 0
@@ -85,6 +94,28 @@ class SimLink:
     def _silent(self, now_ns: int) -> bool:
         return self.last is None or (now_ns - self.rx_ns) / 1e6 > self.network.world_watchdog_ms
 
+    def _install(self, m: BodiesState, now_ns: int) -> None:
+        """A SimBodies taken: its bodies, and the impulse since the last one taken (the first
+        of a sim, or the first after a loss, is the baseline: nothing applied from it)."""
+        impulse = np.array(m.impulse)[: self.n_bodies]
+        if self.taken is not None and self.last is not None and m.epoch == self.last.epoch:
+            self.pending[: self.n_bodies] += impulse - self.taken
+        self.taken = impulse
+        self.rate[:] = self.pending / m.period_s  # the rest over about one sim step
+        self.last, self.rx_ns = m, now_ns
+        self.received += 1
+        self.sample[: self.n_sim] = m.array()
+        self.held = False
+        if len(self.age_ms) < 100_000:
+            self.age_ms.append((time.time_ns() - m.publish_time_ns) / 1e6)
+
+    def _hold(self, age_s: float) -> None:
+        """The sim's bodies held where they were carried to, at rest."""
+        if not self.held:
+            self.sample[:, :3] += self.sample[:, 3:] * min(age_s, EXTRAPOLATE_S)
+            self.sample[:, 3:] = 0.0
+            self.held = True
+
     def take(self, now_ns: int) -> None:
         """The newest valid SimBodies (module docstring), then the sim's bodies this tick."""
         if self._sub is None:
@@ -96,28 +127,24 @@ class SimLink:
                 self._refuse(exc.reason)
                 continue
             last = self.last
-            if last is not None and m.epoch == last.epoch and m.seq <= last.seq:
+            if m.follows != self.epoch:  # its mirror follows no world, or another one
+                self._refuse("other_world")
+            elif last is not None and m.epoch == last.epoch and m.seq <= last.seq:
                 self._refuse("stale")
-                continue
-            if last is not None and m.epoch != last.epoch and not self._silent(now_ns):
+            elif last is not None and m.epoch != last.epoch and not self._silent(now_ns):
                 self._refuse("other_epoch")
-                continue
-            self.last, self.rx_ns = m, now_ns
-            self.received += 1
-            self.sample[: self.n_sim] = m.array()
-            self.wrench[:] = m.wrench[: self.n_bodies]
-            if len(self.age_ms) < 100_000:
-                self.age_ms.append((time.time_ns() - m.publish_time_ns) / 1e6)
+            else:
+                self._install(m, now_ns)
+        age = (now_ns - self.rx_ns) / 1e9
+        if self.last is not None and age > EXTRAPOLATE_S:
+            self._hold(age)  # an old sample is not carried on into a guess
         if self.last is not None and self._silent(now_ns):
+            self._hold(age)
             self.lost += 1
-            self.sample[:, :3] += self.sample[:, 3:] * EXTRAPOLATE_S  # where it was carried
-            self.sample[:, 3:] = 0.0  # held there, at rest
             self.last = None
-        age = (now_ns - self.rx_ns) / 1e9 if self.last is not None else math.inf
-        if age > EXTRAPOLATE_S:  # an old wrench is not applied on and on
-            self.wrench[:] = 0.0
-        self.data[0]["sim_wrench"][: self.n_bodies] = self.wrench
-        carry_sim_bodies(self.model, self.data, self.sample, min(age, EXTRAPOLATE_S))
+            self.taken = None  # a sim heard again starts a new baseline
+        drain_impulse(self.model, self.data, self.pending, self.rate)
+        carry_sim_bodies(self.model, self.data, self.sample, 0.0 if self.held else age)
 
     def publish(self, seq: int) -> None:
         """Every BODIES_EVERY ticks: the co-simulated bodies (q's order) to the sim."""

@@ -31,6 +31,7 @@ from haptic_local_model.haptic_server.stages.cosim import (
     cosim_order,
     cosim_records,
     cosim_tick,
+    drain_impulse,
     sim_bodies_of,
 )
 from haptic_local_model.haptic_server.stages.hand_grasp import MAX_HANDS, grasp_tick
@@ -171,6 +172,7 @@ class CosimWorld:
     def warm(self) -> None:
         model, data = cosim_records(self.scene, self.limits)
         carry_sim_bodies(model, data, np.zeros((MAX_SIM_BODIES, 6)), 0.0)  # a sim's bodies
+        drain_impulse(model, data, np.zeros((MAX_COSIM_BODIES, 3)), np.zeros((MAX_COSIM_BODIES, 3)))
         cosim_tick(model, data)
         world_row(model, data, np.zeros(1, PORT_ROW_DTYPE), 0, 0.0, np.zeros(MAX_COSIM_BODIES))
 

@@ -4,8 +4,10 @@ A port is a device, its map onto the world, a simulated user and the tool the de
 A port scene declares P = 2 ports and the free bodies the haptic side integrates at 1 kHz
 with the tools (`haptic_server/stages/cosim.py`): the tools themselves, the grasped object,
 and static walls. Dynamic bodies named in `sim_bodies` are not co-simulated: the sim steps
-them (`sim-server --mirror`, sim_server/mirror.py), pushed by its mirror of the co-simulated
-bodies, and the haptic side meets them as moving shapes with their twist (DESIGN-WAVE2 §6).
+them (`sim-server --mirror`, sim_server/mirror.py). With `sim_contact = "wrench"` its mirror
+of the co-simulated bodies pushes them and the haptic side takes the impulses they put on
+the mirror; with "shape" they move on their own and the haptic side meets them as moving
+shapes (DESIGN-WAVE2 §6).
 Files live in `configs/ports/`; keys are checked as a scene's are, and an error names the
 file and the key.
 """

@@ -85,8 +85,8 @@ def _mirror(args: argparse.Namespace) -> int:
     from haptic_local_model.shared.port_config import load_port_scene
     from haptic_local_model.sim_server.mirror import Mirror
 
-    if not 10.0 <= args.rate <= 1000.0:
-        raise ConfigError("--rate", "rate", f"{args.rate:g} Hz: a sim runs at 10 to 1000 Hz")
+    if not 30.0 <= args.rate <= 1000.0:  # the world carries a sample for at most 50 ms
+        raise ConfigError("--rate", "rate", f"{args.rate:g} Hz: the mirror runs at 30 to 1000 Hz")
     # the single-device default network is not a station network: the stations' is
     network = load_station_network(
         "stations_loopback" if args.network == "loopback" else args.network, "sim"

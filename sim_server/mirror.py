@@ -11,10 +11,11 @@ rest of the world. It mirrors the co-simulated bodies and steps the scene's `sim
   the sample's age, at most EXTRAPOLATE_S): the mirror pushes the sim's bodies with the
   world's motion, and is never pushed back (the world's bodies have their own dynamics at
   1 kHz: a mirror the sim's bodies could push would count their contact twice);
-- it publishes the sim's bodies (SimBodies, `<ns>/sim/bodies`) and the wrench they put on
-  each mirrored body over the step (the contact impulses pymunk applied, over the step's
-  time; each arbiter's impulse at its contacts' mean point). The world applies the wrench
-  to its body (`sim_contact = "wrench"`: momentum kept, at the sim's rate).
+- it publishes the sim's bodies (SimBodies, `<ns>/sim/bodies`), the world whose samples
+  its mirror follows, and the running impulse the sim's bodies have put on each mirrored
+  body (the contact impulses pymunk applied, each arbiter's at its contacts' mean point).
+  The world applies what is new of it to its body (`sim_contact = "wrench"`: momentum kept,
+  at the sim's rate).
 
 With `sim_contact = "shape"` the world meets the sim's bodies as moving shapes of infinite
 mass at 1 kHz instead (haptic_server/sim_link.py), and the mirror does not touch them: they
@@ -118,7 +119,7 @@ class Mirror:
             b.velocity = spec.velocity
             b.angular_velocity = spec.angular_velocity
         self.epoch = time.time_ns()
-        self.record = bodies_record(SIM_BODIES_MAGIC, len(self.sims), self.epoch)
+        self.record = bodies_record(SIM_BODIES_MAGIC, len(self.sims), self.epoch, self.h)
         self.last: BodiesState | None = None
         self.rx_ns = 0
         self.received = self.rejected = self.lost = self.steps = 0
@@ -126,7 +127,9 @@ class Mirror:
         self.lag_mm = SampleWindow(1_000_000)
         self.touching = [0] * len(self.sims)  # steps each sim body touched a mirrored one
         self._sim_set = set(self.sims)
+        self._mirror_set = set(self.mirrored)
         self.wrench = np.zeros((len(self.mirrored), 3))  # on each mirrored body, this step
+        self.impulse = np.zeros((len(self.mirrored), 3))  # on each, since the start (N s)
         self.pacer = Pacer(round(self.h * 1e9), SPIN_NS, None)
         self._stop = False
 
@@ -190,30 +193,38 @@ class Mirror:
         for _ in range(SUBSTEPS):
             self.space.step(self.h / SUBSTEPS)
             self._impulses()
+        self.impulse += self.wrench
         self.wrench /= self.h
         for j, b in enumerate(self.sims):
-            hits = [a for a in _arbiters(b) if any(s.body in self.mirrored for s in a.shapes)]
-            self.touching[j] += bool(hits)
+            hits: list[bool] = []
+            b.each_arbiter(self._touches, hits)
+            self.touching[j] += any(hits)
         self.steps += 1
 
     def _impulses(self) -> None:
         """The substep's contact impulses of the sim's bodies on each mirrored body (about
-        its centre) into self.wrench. pymunk gives an arbiter's total impulse on its first
-        shape's body, which is not always the body whose arbiters are listed."""
+        its centre) into self.wrench, taken within pymunk's arbiter callback (an arbiter
+        must not be kept past it). pymunk gives an arbiter's total impulse on its first
+        shape's body."""
         for i, b in enumerate(self.mirrored):
-            for a in _arbiters(b):
-                first, second = a.shapes
-                mine = first.body is b
-                if (second.body if mine else first.body) not in self._sim_set:
-                    continue
-                j = a.total_impulse if mine else -a.total_impulse
-                points = a.contact_point_set.points
-                if not points:
-                    continue
-                px = sum(p.point_a.x + p.point_b.x for p in points) / (2 * len(points))
-                py = sum(p.point_a.y + p.point_b.y for p in points) / (2 * len(points))
-                rx, ry = px - b.position.x, py - b.position.y
-                self.wrench[i] += (j.x, j.y, rx * j.y - ry * j.x)
+            b.each_arbiter(self._impulse, b, i)
+
+    def _touches(self, a: pymunk.Arbiter, hits: list[bool]) -> None:
+        hits.append(any(s.body in self._mirror_set for s in a.shapes))
+
+    def _impulse(self, a: pymunk.Arbiter, b: pymunk.Body, i: int) -> None:
+        first, second = a.shapes
+        mine = first.body is b
+        if (second.body if mine else first.body) not in self._sim_set:
+            return
+        j = a.total_impulse if mine else -a.total_impulse
+        points = a.contact_point_set.points
+        if not points:
+            return
+        px = sum(p.point_a.x + p.point_b.x for p in points) / (2 * len(points))
+        py = sum(p.point_a.y + p.point_b.y for p in points) / (2 * len(points))
+        rx, ry = px - b.position.x, py - b.position.y
+        self.wrench[i] += (j.x, j.y, rx * j.y - ry * j.x)
 
     def publish(self, pub: Any, seq: int) -> None:
         r = self.record[0]
@@ -222,7 +233,8 @@ class Mirror:
         for j, b in enumerate(self.sims):
             r["bodies"][j] = (b.position.x, b.position.y, b.angle,
                               b.velocity.x, b.velocity.y, b.angular_velocity)  # fmt: skip
-        r["wrench"][: len(self.mirrored)] = self.wrench
+        r["impulse"][: len(self.mirrored)] = self.impulse
+        r["follows"] = self.last.epoch if self.last is not None else 0
         pub.put(self.record.tobytes())
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
@@ -273,9 +285,3 @@ class Mirror:
                 "steps_touching_mirror": self.touching[j],
             }
         return out
-
-
-def _arbiters(body: pymunk.Body) -> list[pymunk.Arbiter]:
-    out: list[pymunk.Arbiter] = []
-    body.each_arbiter(out.append)
-    return out

@@ -45,16 +45,17 @@ class _Ring:
         return type("Sample", (), {"payload": payload})()
 
 
-def _sim_bodies(seq: int, pose=(0.0, 0.03, 0.0), twist=(0.0, 0.0, 0.0), wrench=None,
-                epoch: int = 5) -> bytes:  # fmt: skip
-    w = [(0.0, 0.0, 0.0)] * MAX_MESSAGE_BODIES
-    if wrench is not None:
-        w[2] = wrench  # the box: q's order is the tools, then the box
-    return encode_bodies(BodiesState(SIM_BODIES_MAGIC, epoch, seq, 0, ((*pose, *twist),), tuple(w)))
+def _sim_bodies(seq: int, pose=(0.0, 0.03, 0.0), twist=(0.0, 0.0, 0.0), impulse=None,
+                epoch: int = 5, follows: int = 0, period: float = 1 / 60) -> bytes:  # fmt: skip
+    j = [(0.0, 0.0, 0.0)] * MAX_MESSAGE_BODIES
+    if impulse is not None:
+        j[2] = impulse  # the box: q's order is the tools, then the box
+    return encode_bodies(BodiesState(SIM_BODIES_MAGIC, epoch, seq, 0, ((*pose, *twist),),
+                                     period, follows, tuple(j)))  # fmt: skip
 
 
 def test_bodies_round_trip_and_malformed_ones_are_refused_by_field() -> None:
-    m = BodiesState(WORLD_BODIES_MAGIC, 3, 4, 5, ((0.1, 0.2, 0.3, 1.0, 2.0, 3.0),) * 3)
+    m = BodiesState(WORLD_BODIES_MAGIC, 3, 4, 5, ((0.1, 0.2, 0.3, 1.0, 2.0, 3.0),) * 3, 0.004)
     back = decode_bodies(encode_bodies(m), WORLD_BODIES_MAGIC, 3)
     assert back == m
     raw = encode_bodies(m)
@@ -67,22 +68,25 @@ def test_bodies_round_trip_and_malformed_ones_are_refused_by_field() -> None:
     with pytest.raises(MessageError) as err:
         decode_bodies(raw[:-8], WORLD_BODIES_MAGIC, 3)
     assert err.value.reason == "size"
-    head = struct.calcsize("<4sHHQQq")
+    head = struct.calcsize("<4sHHQQqQd")
     bad = bytearray(raw)
     struct.pack_into("<d", bad, head + 8 * (6 + 4), math.nan)  # bodies[1].twist.y
     with pytest.raises(MessageError, match=r"bodies\[1\]\.twist\.y"):
         decode_bodies(bytes(bad), WORLD_BODIES_MAGIC, 3)
     bad = bytearray(raw)
-    struct.pack_into("<d", bad, head + 8 * (6 * MAX_MESSAGE_BODIES + 3 * 2 + 1), 1e9)
-    with pytest.raises(MessageError, match=r"wrench\[2\]\.fy"):
+    struct.pack_into("<d", bad, head + 8 * (6 * MAX_MESSAGE_BODIES + 3 * 2 + 1), 1e10)
+    with pytest.raises(MessageError, match=r"impulse\[2\]\.y"):
+        decode_bodies(bytes(bad), WORLD_BODIES_MAGIC, 3)
+    bad = bytearray(raw)
+    struct.pack_into("<d", bad, head - 8, 0.0)  # period_s
+    with pytest.raises(MessageError, match="period_s"):
         decode_bodies(bytes(bad), WORLD_BODIES_MAGIC, 3)
 
 
-def test_the_world_carries_the_sims_bodies_applies_their_wrench_and_refuses_bad_ones() -> None:
+def test_the_world_carries_the_sims_bodies_and_refuses_bad_ones() -> None:
     """The world's side: the newest valid SimBodies, its ball carried on by its twist for
-    the time since it arrived (at most 50 ms), its wrench on the box applied as it is; a
-    stale or malformed one refused by reason; a silent sim leaves the ball at rest and the
-    wrench off."""
+    the time since it arrived, held (at rest) past 50 ms; a stale, malformed, other
+    sim's or other world's refused by reason; a silent sim leaves the ball at rest."""
     scene = load_port_scene("grasp_ball")
     world = SharedWorld(scene, load_station_network("stations_loopback", "world"), 10)
     link = world.sim
@@ -90,30 +94,59 @@ def test_the_world_carries_the_sims_bodies_applies_their_wrench_and_refuses_bad_
     d = world.engine.data[0]
     slot = int(world.engine.model[0]["n_static"]) - 1  # the ball: the last wall
     now = time.perf_counter_ns()
+    me = world.epoch
     link._sub = _Ring([
-        _sim_bodies(2, twist=(0.0, -0.5, 0.0), wrench=(0.1, -0.2, 0.003)),
-        _sim_bodies(1), b"junk", _sim_bodies(3, epoch=6),
+        _sim_bodies(2, twist=(0.0, -0.5, 0.0), follows=me), _sim_bodies(1, follows=me),
+        b"junk", _sim_bodies(3, epoch=6, follows=me), _sim_bodies(4),
     ])  # fmt: skip
     link.take(now)
-    assert link.received == 1 and link.reasons == {"stale": 1, "size": 1, "other_epoch": 1}
+    assert link.received == 1
+    assert link.reasons == {"stale": 1, "size": 1, "other_epoch": 1, "other_world": 1}
     assert list(d["wall_pose"][slot]) == [0.0, 0.03, 0.0]
-    assert list(d["sim_wrench"][2]) == [0.1, -0.2, 0.003] and not d["sim_wrench"][:2].any()
     link._sub = _Ring([])
     link.take(now + 10_000_000)  # 10 ms later: carried on by its twist
     assert d["wall_pose"][slot][1] == pytest.approx(0.03 - 0.5 * 0.01, abs=1e-12)
-    link.take(now + 80_000_000)  # 80 ms: carried no further than 50 ms, the wrench off
-    assert d["wall_pose"][slot][1] == pytest.approx(0.03 - 0.5 * 0.05, abs=1e-12)
-    assert not d["sim_wrench"].any()
-    link.take(now + 200_000_000)  # silent past the watchdog: at rest where it was carried
-    assert link.lost == 1
+    assert d["wall_twist"][slot][1] == -0.5
+    link.take(now + 80_000_000)  # 80 ms: held where it was carried at 50 ms, at rest
     assert d["wall_pose"][slot][1] == pytest.approx(0.03 - 0.5 * 0.05, abs=1e-12)
     assert not d["wall_twist"][slot].any()
+    link.take(now + 200_000_000)  # silent past the watchdog: still there, counted
+    assert link.lost == 1
+    assert d["wall_pose"][slot][1] == pytest.approx(0.03 - 0.5 * 0.05, abs=1e-12)
+
+
+def test_the_world_applies_each_impulse_of_the_sim_once() -> None:
+    """The sim's running impulse on the box, sampled every 1/60 s, taken by the world with
+    jitter: two in one tick, one lost, one late. Every impulse reported after the first
+    (the baseline) is applied once: the force the rows log sums, over the ticks, to the
+    last running impulse less the first, to 1e-12; a resting step's m g h is applied as
+    m g, tick by tick, when the samples come a step apart."""
+    scene = load_port_scene("grasp_ball")
+    world = SharedWorld(scene, load_station_network("stations_loopback", "world"), 10)
+    link = world.sim
+    assert link is not None
+    d = world.engine.data[0]
+    me, h, dt = world.epoch, 1 / 60, 0.001
+    weight = np.array([0.0, -0.2, 0.001])
+    arrivals = {0: [0], 17: [1], 33: [2, 3], 67: [5], 90: [6], 100: [7], 117: [8]}  # 4: lost
+    applied = np.zeros(3)
+    steady = []
+    for tick in range(300):
+        link._sub = _Ring([_sim_bodies(k + 1, impulse=tuple(weight * h * k), follows=me)
+                           for k in arrivals.get(tick, [])])  # fmt: skip
+        link.take(tick * 1_000_000)
+        applied += d["sim_wrench"][2] * dt
+        if 17 <= tick < 33:  # sample 1's step
+            steady.append(d["sim_wrench"][2].copy())
+    assert applied == pytest.approx(weight * h * 8, abs=1e-12)  # samples 1..8 past sample 0
+    assert not d["sim_wrench"].any()  # all of it applied, nothing more
+    assert np.allclose(steady[:16], weight, atol=1e-12)  # its 16 whole ticks at m g
 
 
 def _world_bodies(seq: int, box_y: float, vy: float = 0.0) -> bytes:
     bodies = ((-0.023, 0.0, 0.0, 0.0, 0.0, 0.0), (0.023, 0.0, 0.0, 0.0, 0.0, 0.0),
               (0.0, box_y, 0.0, 0.0, vy, 0.0))  # fmt: skip
-    return encode_bodies(BodiesState(WORLD_BODIES_MAGIC, 1, seq, 0, bodies))
+    return encode_bodies(BodiesState(WORLD_BODIES_MAGIC, 1, seq, 0, bodies, 0.004))
 
 
 def test_the_mirror_carries_the_ball_with_the_worlds_box_and_reports_its_weight() -> None:
@@ -153,11 +186,13 @@ def test_the_sim_drops_a_ball_on_the_held_box_and_the_world_feels_its_weight(
 ) -> None:
     """Router, haptic-world and sim-server --mirror on loopback, grasp_ball, 4 s: the
     sim's 20 g ball lands on the box the two ports hold, and rests. Against closed forms:
-    - the world applies the sim's wrench: resting, m g to 1e-9; over the landing's first
-      100 ms m (sqrt(2 g h) + g 0.1 s) within 11 % (the window's two edges cut a sim step's
-      wrench, m g h = 3.3 mN s of 30);
-    - the devices feel it: their commands sum to the weight of box, pads and ball (1e-4),
-      and the pads sink m g / (the couplings' vertical stiffness) = 49 um (2 %);
+    - the world applies the sim's impulses: resting, m g (1 %: the resting window's edges
+      cut at most a sim step's impulse, m g h, 0.5 % of its 3.4 s); over the landing's first
+      100 ms m (sqrt(2 g h) + g 0.1 s) within 11 % (the window's end and the landing's
+      place within its step cut up to m g h = 3.3 mN s of 30);
+    - the devices feel it: their commands sum to the weight of box, pads and ball (1e-3:
+      the ball's part to 0.5 %, as its wrench), and the pads sink m g / (the couplings'
+      vertical stiffness) = 49 um (2 %);
     - the box stays held: slip <= 0.1 mm (V4.1's bound), and the sim's ball rests on the
       mirror's top (pymunk's 0.1 mm slop);
     - the world's log replays bit for bit with the sim's bodies as inputs."""
@@ -165,12 +200,12 @@ def test_the_sim_drops_a_ball_on_the_held_box_and_the_world_feels_its_weight(
     f = bench.figures(tmp_path, load_port_scene(bench.SCENE))
     assert f["sim_rejected"] == 0 and f["world_sim"]["sim_bodies_rejected"] == 0
     assert f["resting_s"] > 2.0, f
-    assert f["wrench_y_n"] == pytest.approx(f["ball_weight_n"], abs=1e-9), f
+    assert f["wrench_y_n"] == pytest.approx(f["ball_weight_n"], rel=0.01), f
     assert f["landing_impulse_ns"] == pytest.approx(f["landing_impulse_expected_ns"], rel=0.11)
-    assert -f["commands_y_n"] == pytest.approx(f["held_weight_n"], rel=1e-4), f
+    assert -f["commands_y_n"] == pytest.approx(f["held_weight_n"], rel=1e-3), f
     assert f["pads_sank_m"] == pytest.approx(f["pads_sank_expected_m"], rel=0.02), f
     assert f["slip_m"] <= 1e-4, f
-    assert -1.5e-4 <= f["ball_above_mirror_m"] <= 5e-5, f
+    assert -1.05e-4 <= f["ball_above_mirror_m"] <= 0.0, f  # pymunk's slop: 1e-4 deep
     from haptic_local_model.haptic_server.ports_cli import replay_log
 
     compared, differs = replay_log(tmp_path / "world.mcap")

@@ -26,9 +26,11 @@ def scene() -> PortSceneConfig:
     return load_port_scene("grasp_vertical")
 
 
-def _with_sim_body(scene: PortSceneConfig, body: BodySpec, gravity) -> PortSceneConfig:
-    """The scene's couplings cut, its pads put far out of reach (x = -/+0.5 m), and `body`
-    the sim's."""
+def _with_sim_body(
+    scene: PortSceneConfig, body: BodySpec, gravity, walls: tuple[BodySpec, ...] = ()
+) -> PortSceneConfig:
+    """The scene's couplings cut, its pads put far out of reach (x = -/+0.9 m), `walls`
+    added, and `body` the sim's."""
     ports = tuple(
         dataclasses.replace(p, coupling_stiffness=(0.0,) * 3, coupling_damping=(0.0,) * 3)
         for p in scene.ports
@@ -36,12 +38,12 @@ def _with_sim_body(scene: PortSceneConfig, body: BodySpec, gravity) -> PortScene
     bodies = []
     for b in scene.bodies:
         if b.name.startswith("pad"):
-            b = dataclasses.replace(b, position=(0.5 if "right" in b.name else -0.5, 0.0))
+            b = dataclasses.replace(b, position=(0.9 if "right" in b.name else -0.9, 0.0))
         bodies.append(b)
     return dataclasses.replace(
         scene,
         ports=ports,
-        bodies=(*bodies, body),
+        bodies=(*bodies, *walls, body),
         sim_bodies=(body.name,),
         sim_contact="shape",
         gravity=gravity,
@@ -112,6 +114,41 @@ def test_a_wall_moving_into_a_free_box_leaves_it_at_the_wall_s_speed(scene):
     assert data[0]["qd"][box] == pytest.approx(v, abs=1e-9)
     assert data[0]["qd"][box + 1] == pytest.approx(0.0, abs=1e-9)  # through the centre
     assert data[0]["qd"][box + 2] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_wall_pushing_the_box_along_a_floor_meets_its_friction(scene):
+    """The box on a static floor, a sim body (a 30 mm disc: its centre is a vertex pressing
+    into the box, the moving wall's side first in the contact) pushing it along at 0.1 m/s
+    against the floor's friction: the box slides with the disc, steadily. The moving wall's
+    springs in the implicit step (`_wall_motion`) keep it so (without them it rides in a
+    limit cycle)."""
+    v, g = 0.1, 9.81
+    floor = BodySpec(name="floor", kind="static", shape="segment", material="wall",
+                     a=(-0.5, -0.015), b=(0.5, -0.015), radius=0.005)  # fmt: skip
+    disc = BodySpec(name="pusher", kind="dynamic", shape="circle", material="wall",
+                    radius=0.015, position=(-0.2, 0.0), mass=1.0)  # fmt: skip
+    sc = _with_sim_body(scene, disc, (0.0, -g), (floor,))
+    model, data = cosim_records(sc, LIMITS)
+    box = 3 * len(sc.ports)
+    dt = float(data[0]["dt"])
+    x0 = -0.02 - 0.015 + 0.0001  # 0.1 mm into the box's left face
+    vx = []
+    for k in range(600):
+        xd = x0 + v * k * dt
+        carry_sim_bodies(model, data, _sample((xd, 0.0, 0.0), (v, 0.0, 0.0)), 0.0)
+        cosim_tick(model, data)
+        vx.append(float(data[0]["qd"][box]))
+    vx = np.array(vx[300:])
+    assert np.all(vx == pytest.approx(v, rel=1e-3))
+    assert np.ptp(vx) < 1e-6  # steady: no limit cycle
+    # the disc's push is the floor's friction, mu (m g - F_t), F_t the vertical stick force
+    # the disc's contact takes (statically indeterminate, |F_t| <= mu f_n): its depth is
+    # within mu m g / (1 +- mu^2) / k. Without the wall's motion in the step it is 0.13 mm.
+    d = data[0]
+    disc_element = MAX_COSIM_BODIES + int(model[0]["n_static"]) - 1
+    (h,) = [h for h in range(d["n_hits"]) if d["hit_of"][h, 0] == disc_element]
+    mu, k, w = scene.contact.friction, scene.contact.stiffness_n_per_m, 0.1 * g
+    assert mu * w / (1 + mu**2) / k < d["hits"][h, 2] < mu * w / (1 - mu**2) / k
 
 
 def test_the_sim_bodies_are_walls_after_the_static_ones(scene):

@@ -12,10 +12,9 @@ The extended configuration q = (q_tool_0, q_tool_1, q_object, ...) holds free ri
    (`sim_bodies`) are walls that move: their poses and twists are inputs each tick (from
    the sim, `carry_sim_bodies`). With `sim_contact = "shape"` they take part in the
    contacts: a contact's velocity takes a wall's point velocity, and a wall's mass is
-   infinite (one-way at the haptic rate: the sim's mirror of the co-simulated bodies pushes
-   them back at the sim's rate, DESIGN-WAVE2 §6). With "wrench" they meet nothing here:
-   the sim's contact wrench on its mirror of each body is an input (`sim_wrench`), applied
-   as it is until the next.
+   infinite (one-way: they move on their own, the sim's mirror does not touch them). With
+   "wrench" they meet nothing here: the impulses they put on the sim's mirror of each body
+   come in as a force a tick (`sim_wrench`, an input; `drain_impulse`).
 1b. First touch (seed 001 eq 5-6, DESIGN-WAVE2 §6): a contact that starts penetrating this
    tick while approaching faster than collision_speed collides. All of a tick's colliding
    contacts are resolved together, R their rows, A = R D^-1 R^T: the impulses lambda solve
@@ -704,8 +703,26 @@ def carry_sim_bodies(model, data, sample, age):
     first = m.n_static - m.n_sim
     for j in range(m.n_sim):
         for c in range(3):
-            d.wall_pose[first + j, c] = sample[j, c] + age * sample[j, 3 + c]
+            pose = sample[j, c]  # as it is at age 0 (a replay's: bit for bit, -0.0 too)
+            d.wall_pose[first + j, c] = pose + age * sample[j, 3 + c] if age > 0.0 else pose
             d.wall_twist[first + j, c] = sample[j, 3 + c]
+
+
+@njit(cache=True)
+def drain_impulse(model, data, pending, rate):
+    """The sim's impulse on the co-simulated bodies into this tick's sim_wrench: each
+    body's `rate` (N, N m), but no more than what is `pending` (N s, N m s; taken off it):
+    every impulse the sim reports is applied once, over about one sim step."""
+    m = model[0]
+    d = data[0]
+    for i in range(m.n_bodies):
+        for c in range(3):
+            f = rate[i, c]
+            left = pending[i, c]
+            if f * left <= 0.0 or abs(f) * d.dt > abs(left):
+                f = left / d.dt
+            d.sim_wrench[i, c] = f
+            pending[i, c] = left - f * d.dt
 
 
 @njit(cache=True)

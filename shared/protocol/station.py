@@ -13,10 +13,10 @@
 - BodiesState, between the world and the sim that mirrors it (`sim-server --mirror`):
   `HSWB` world -> sim on `<ns>/world/bodies`, the co-simulated bodies (q's order), every few
   world ticks; `HSSB` sim -> world on `<ns>/sim/bodies`, the sim's bodies (the scene's
-  `sim_bodies`), every sim step. Each body's pose and twist, world frame; a SimBodies also
-  carries the wrench the sim's bodies put on each mirrored body over its last step (q's
-  order: force, torque about the body's centre), for the world to apply (`sim_contact =
-  "wrench"`).
+  `sim_bodies`), every sim step. Each body's pose and twist, world frame, and the sender's
+  step; a SimBodies also says which world its mirror follows and carries the running
+  impulse the sim's bodies have put on each mirrored body (q's order), for the world to
+  apply (`sim_contact = "wrench"`).
 
 Both are fixed-size little-endian records. A decode checks the magic, version, size, port
 and that every number is finite and in range, and raises MessageError naming the field:
@@ -49,9 +49,10 @@ _TOOL = struct.Struct("<4sHHQQq15dI")
 WORLD_BODIES_MAGIC = b"HSWB"
 SIM_BODIES_MAGIC = b"HSSB"
 MAX_MESSAGE_BODIES = 8  # a BodiesState's slots (a port scene's co-simulated or sim bodies)
-FORCE_LIMIT = 1.0e4  # N, N m: a wrench beyond it is not a sim's contact
-# magic, version, count, epoch, seq, publish time (ns), pose and twist a slot, a wrench a slot
-_BODIES = struct.Struct(f"<4sHHQQq{9 * MAX_MESSAGE_BODIES}d")
+IMPULSE_LIMIT = 1.0e9  # N s: a running impulse beyond it is not a sim's (a week at 1 kN)
+# magic, version, count, epoch, seq, publish time (ns), follows, period; pose and twist a
+# slot; an impulse a slot
+_BODIES = struct.Struct(f"<4sHHQQqQd{9 * MAX_MESSAGE_BODIES}d")
 
 SAFE = 1  # DeviceState flags: not rendering the world's coupling (ramping to the safe state)
 CUT = 2  # its device's reading was not finite this tick
@@ -128,15 +129,20 @@ def tool_record(port: int, epoch: int) -> np.ndarray:
 @dataclass(frozen=True)
 class BodiesState:
     """Bodies' poses and twists, world frame: the world's co-simulated bodies (HSWB) or the
-    sim's bodies (HSSB)."""
+    sim's bodies (HSSB). A SimBodies also says which world its mirror follows (that world's
+    epoch; 0: none yet) and carries, for each mirrored body, the impulse the sim's bodies
+    have put on it since the sim started (N s, N s, N m s about its centre): a running sum,
+    so a receiver takes the difference from the last it took, and a message lost or two
+    taken in one tick neither lose nor double any of it."""
 
     magic: bytes
     epoch: int  # the sender's start (ns)
     seq: int
     publish_time_ns: int
     bodies: tuple[tuple[float, ...], ...]  # (x, y, angle, vx, vy, omega) a body
-    # SimBodies: the wrench on each mirrored body (fx, fy, torque), every slot
-    wrench: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),) * MAX_MESSAGE_BODIES
+    period_s: float = 0.0  # the sender's step: the sim's period, the world's publishing one
+    follows: int = 0  # SimBodies: the epoch of the world its mirror follows (0: none)
+    impulse: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),) * MAX_MESSAGE_BODIES
 
     def array(self) -> np.ndarray:
         """The bodies as a count x 6 array."""
@@ -145,14 +151,15 @@ class BodiesState:
 
 BODIES_RECORD = np.dtype(
     [("magic", "S4"), ("version", "<u2"), ("count", "<u2"), ("epoch", "<u8"), ("seq", "<u8"),
-     ("publish_time_ns", "<i8"), ("bodies", "<f8", (MAX_MESSAGE_BODIES, 6)),
-     ("wrench", "<f8", (MAX_MESSAGE_BODIES, 3))]
+     ("publish_time_ns", "<i8"), ("follows", "<u8"), ("period_s", "<f8"),
+     ("bodies", "<f8", (MAX_MESSAGE_BODIES, 6)), ("impulse", "<f8", (MAX_MESSAGE_BODIES, 3))]
 )  # fmt: skip
 
 
-def bodies_record(magic: bytes, count: int, epoch: int) -> np.ndarray:
-    """A BODIES_RECORD[1] of `count` bodies from a sender of `epoch`, its header set (a loop
-    fills `bodies`, seq and the time in place and sends `.tobytes()`)."""
+def bodies_record(magic: bytes, count: int, epoch: int, period_s: float) -> np.ndarray:
+    """A BODIES_RECORD[1] of `count` bodies from a sender of `epoch` stepping every
+    `period_s`, its header set (a loop fills `bodies`, seq, the time and, from a sim,
+    `follows` and `impulse` in place and sends `.tobytes()`)."""
     if not 0 < count <= MAX_MESSAGE_BODIES:
         raise ValueError(f"BodiesState: {count} bodies, 1 to {MAX_MESSAGE_BODIES}")
     rec = np.zeros(1, BODIES_RECORD)
@@ -162,15 +169,16 @@ def bodies_record(magic: bytes, count: int, epoch: int) -> np.ndarray:
         count,
         epoch,
     )
+    rec["period_s"] = period_s
     return rec
 
 
 def encode_bodies(m: BodiesState) -> bytes:
     values = m.array()
-    rec = bodies_record(m.magic, len(values), m.epoch)
-    rec["seq"], rec["publish_time_ns"] = m.seq, m.publish_time_ns
+    rec = bodies_record(m.magic, len(values), m.epoch, m.period_s)
+    rec["seq"], rec["publish_time_ns"], rec["follows"] = m.seq, m.publish_time_ns, m.follows
     rec["bodies"][0, : len(values)] = values
-    rec["wrench"][0] = np.array(m.wrench, np.float64).reshape(MAX_MESSAGE_BODIES, 3)
+    rec["impulse"][0] = np.array(m.impulse, np.float64).reshape(MAX_MESSAGE_BODIES, 3)
     return rec.tobytes()
 
 
@@ -180,16 +188,19 @@ def decode_bodies(raw: bytes, magic: bytes, count: int) -> BodiesState:
     f = _head(raw, magic, _BODIES, what, None)
     if f[2] != count:
         raise MessageError("count", f"{what}.count: {f[2]} bodies, this scene has {count}")
-    bodies = tuple(tuple(f[6 + 6 * i : 12 + 6 * i]) for i in range(count))
+    follows, period = f[6], f[7]
+    if not (math.isfinite(period) and 0.0 < period <= 1.0):
+        raise MessageError("value", f"{what}.period_s: {period!r}, not in (0, 1] s")
+    bodies = tuple(tuple(f[8 + 6 * i : 14 + 6 * i]) for i in range(count))
     for i, b in enumerate(bodies):
         _numbers(b[:3], tuple(f"bodies[{i}].{a}" for a in AXES), POSE_LIMIT_M, what)
         _numbers(b[3:], tuple(f"bodies[{i}].twist.{a}" for a in AXES), TWIST_LIMIT, what)
-    w0 = 6 + 6 * MAX_MESSAGE_BODIES
-    wrench = tuple((f[w0 + 3 * i], f[w0 + 3 * i + 1], f[w0 + 3 * i + 2])
-                   for i in range(MAX_MESSAGE_BODIES))  # fmt: skip
-    for i, w in enumerate(wrench):
-        _numbers(w, tuple(f"wrench[{i}].{a}" for a in ("fx", "fy", "torque")), FORCE_LIMIT, what)
-    return BodiesState(magic, f[3], f[4], f[5], bodies, wrench)
+    w0 = 8 + 6 * MAX_MESSAGE_BODIES
+    impulse = tuple((f[w0 + 3 * i], f[w0 + 3 * i + 1], f[w0 + 3 * i + 2])
+                    for i in range(MAX_MESSAGE_BODIES))  # fmt: skip
+    for i, j in enumerate(impulse):
+        _numbers(j, tuple(f"impulse[{i}].{a}" for a in AXES), IMPULSE_LIMIT, what)
+    return BodiesState(magic, f[3], f[4], f[5], bodies, period, follows, impulse)
 
 
 def encode_device(m: DeviceState) -> bytes:
