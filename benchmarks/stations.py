@@ -31,6 +31,7 @@ import sys
 import tempfile
 import threading
 import time
+import tomllib
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -182,22 +183,26 @@ def loopback_network(folder: Path) -> str:
 
 def loopback_run(scene: str, seconds: float, folder: Path) -> dict[str, Any]:
     """The router, the world and both stations on this host's loopback for `seconds`, no
-    logs: the world's summary and each station's (benchmarks/loop_timing.py --stations)."""
+    logs: the world's summary and each station's (benchmarks/loop_timing.py --stations);
+    for a scene with sim bodies, its sim too (`sim-server --mirror`)."""
     net = ["--network", loopback_network(folder)]
+    sim = [sys.executable, "-m", "haptic_local_model.sim_server.cli", "--mirror", scene, *net]
     started: list[Process] = []
     try:
         for argv in ([*CLI, "router", *net],
                      [*CLI, "world", *net, "--scene", scene, "--duration", str(seconds + 60.0),
-                      "--json", str(folder / "world.json")]):  # fmt: skip
+                      "--json", str(folder / "world.json")],
+                     *([sim] if _has_sim_bodies(scene) else [])):  # fmt: skip
             started.append(Process(argv))
             started[-1].wait_ready()
         for p in PORTS:
             started.append(Process([*CLI, "station", *net, "--scene", scene, "--port", p,
                                     "--duration", str(seconds),
                                     "--json", str(folder / f"{p}.json")]))  # fmt: skip
-        for s in started[2:]:
+        stations = started[-len(PORTS) :]
+        for s in stations:
             s.wait_ready()
-        for s in started[2:]:
+        for s in stations:
             s.proc.wait(seconds + STOP_S)
         started[1].stop()  # the world: its summary covers the stations' run
     finally:
@@ -207,6 +212,11 @@ def loopback_run(scene: str, seconds: float, folder: Path) -> dict[str, Any]:
     for p in PORTS:
         out[p] = json.loads((folder / f"{p}.json").read_text())
     return out
+
+
+def _has_sim_bodies(scene: str) -> bool:
+    text = resolve("ports", scene).read_text()
+    return "sim_bodies" in tomllib.loads(text)
 
 
 def station_rows(path: Path) -> np.ndarray:
