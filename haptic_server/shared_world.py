@@ -147,10 +147,11 @@ class SharedWorld:
         self.work_us = SampleWindow(100_000)
         self.pacer = Pacer(round(self.engine.dt * 1e9), SPIN_NS, None)
         self._stop = False
-        # the sim that mirrors the world (a port scene's, when the network has one)
+        # the sim that mirrors the world: a port scene with sim bodies (a mirror refuses a
+        # scene without), when the network has one
         self.sim: SimLink | None = None
-        if isinstance(self.engine, CosimWorld) and network.sim.connect:
-            assert isinstance(scene, PortSceneConfig)
+        if isinstance(scene, PortSceneConfig) and scene.sim_bodies and network.sim.connect:
+            assert isinstance(self.engine, CosimWorld)
             e = self.engine
             self.sim = SimLink(scene, network, e.model, e.data, self.epoch)
 
