@@ -73,6 +73,7 @@ from haptic_local_model.shared.protocol.station import (
     DeviceState,
     Vec3,
     decode_device,
+    order_refusal,
     tool_record,
     vec3,
 )
@@ -173,12 +174,9 @@ class SharedWorld:
             except MessageError as exc:
                 self._refuse(ps, exc.reason)
                 continue
-            last = ps.last
-            if last is not None and m.epoch == last.epoch and m.seq <= last.seq:
-                self._refuse(ps, "stale")
-                continue
-            if last is not None and m.epoch != last.epoch and not self._silent(ps, now_ns):
-                self._refuse(ps, "other_epoch")
+            why = order_refusal(ps.last, m.epoch, m.seq, self._silent(ps, now_ns))
+            if why is not None:
+                self._refuse(ps, why)
                 continue
             ps.last, ps.rx_ns = m, now_ns
             ps.received += 1

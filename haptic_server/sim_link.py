@@ -39,6 +39,7 @@ from haptic_local_model.shared.protocol.station import (
     BodiesState,
     bodies_record,
     decode_bodies,
+    order_refusal,
 )
 from haptic_local_model.shared.protocol.update import MessageError
 
@@ -126,13 +127,11 @@ class SimLink:
             except MessageError as exc:
                 self._refuse(exc.reason)
                 continue
-            last = self.last
+            why = order_refusal(self.last, m.epoch, m.seq, self._silent(now_ns))
             if m.follows != self.epoch:  # its mirror follows no world, or another one
-                self._refuse("other_world")
-            elif last is not None and m.epoch == last.epoch and m.seq <= last.seq:
-                self._refuse("stale")
-            elif last is not None and m.epoch != last.epoch and not self._silent(now_ns):
-                self._refuse("other_epoch")
+                why = "other_world"
+            if why is not None:
+                self._refuse(why)
             else:
                 self._install(m, now_ns)
         age = (now_ns - self.rx_ns) / 1e9

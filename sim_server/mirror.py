@@ -54,9 +54,11 @@ from haptic_local_model.shared.protocol.station import (
     BodiesState,
     bodies_record,
     decode_bodies,
+    order_refusal,
 )
 from haptic_local_model.shared.protocol.update import MessageError
 from haptic_local_model.shared.timing import Pacer, SampleWindow, enter_loop
+from haptic_local_model.sim_server.world import body_shape
 
 SUBSTEPS = 10  # pymunk steps a sim step: a 60 Hz step in 1.7 ms ones
 EXTRAPOLATE_S = 0.05
@@ -67,13 +69,7 @@ MIRROR_CATEGORY = 0b10  # the mirror's shapes (a "shape" scene's sim bodies pass
 
 
 def _shape(body: pymunk.Body, spec: BodySpec, scene: PortSceneConfig) -> pymunk.Shape:
-    shape: pymunk.Shape
-    if spec.shape == "box":
-        shape = pymunk.Poly.create_box(body, spec.size, radius=0.0)
-    elif spec.shape == "circle":
-        shape = pymunk.Circle(body, spec.radius)
-    else:
-        shape = pymunk.Segment(body, spec.a, spec.b, spec.radius)
+    shape = body_shape(body, spec)
     shape.friction = scene.contact.friction  # every contact takes the scene's [contact]
     shape.elasticity = scene.contact.restitution
     return shape
@@ -158,12 +154,9 @@ class Mirror:
             except MessageError as exc:
                 self._refuse(exc.reason)
                 continue
-            last = self.last
-            if last is not None and m.epoch == last.epoch and m.seq <= last.seq:
-                self._refuse("stale")
-                continue
-            if last is not None and m.epoch != last.epoch and not self._silent(now_ns):
-                self._refuse("other_epoch")
+            why = order_refusal(self.last, m.epoch, m.seq, self._silent(now_ns))
+            if why is not None:
+                self._refuse(why)
                 continue
             self.last, self.rx_ns = m, now_ns
             self.received += 1

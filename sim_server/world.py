@@ -179,13 +179,7 @@ class SimWorld:
         if spec.kind != "static":
             body.velocity = spec.velocity
             body.angular_velocity = spec.angular_velocity
-        shape: pymunk.Shape
-        if spec.shape == "box":
-            shape = pymunk.Poly.create_box(body, spec.size, radius=0.0)
-        elif spec.shape == "circle":
-            shape = pymunk.Circle(body, spec.radius)
-        else:
-            shape = pymunk.Segment(body, spec.a, spec.b, spec.radius)
+        shape = body_shape(body, spec)
         mat = self.scene.materials[spec.material]
         shape.friction = mat.friction
         shape.elasticity = mat.restitution
@@ -460,6 +454,15 @@ class SimWorld:
         """local_model_bytes as the dataclass (tools and tests)."""
         self.local_model_bytes(epoch, seq, publish_time_ns, state_lead_s)
         return update_from_record(self._local.record[0])
+
+
+def body_shape(body: pymunk.Body, spec: BodySpec) -> pymunk.Shape:
+    """A body table's shape on `body`: a box, a circle or a segment (its material not set)."""
+    if spec.shape == "box":
+        return pymunk.Poly.create_box(body, spec.size, radius=0.0)
+    if spec.shape == "circle":
+        return pymunk.Circle(body, spec.radius)
+    return pymunk.Segment(body, spec.a, spec.b, spec.radius)
 
 
 def _configure_space(space: pymunk.Space, scene: SceneConfig) -> None:

@@ -194,3 +194,24 @@ def run_installed(
     return subprocess.run(
         [str(exe), *argv[1:]], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout
     )
+
+
+class Ring:
+    """A subscriber's ring of raw messages, as zenoh's try_recv gives them: a loop's
+    `newest_payload` reads it as it reads a ring-channel subscriber (no network)."""
+
+    def __init__(self, messages: list[bytes]) -> None:
+        self.messages = list(messages)
+
+    def try_recv(self) -> Any:
+        if not self.messages:
+            return None
+        raw = self.messages.pop(0)
+        payload = type("Payload", (), {"to_bytes": lambda _self: raw})()
+        return type("Sample", (), {"payload": payload})()
+
+
+@pytest.fixture
+def ring() -> type[Ring]:
+    """Ring: messages as a subscriber delivers them, for a loop's taking step."""
+    return Ring

@@ -31,20 +31,6 @@ from haptic_local_model.sim_server.mirror import Mirror
 G = 9.81
 
 
-class _Ring:
-    """A subscriber's ring of raw messages, as zenoh's try_recv gives them."""
-
-    def __init__(self, messages: list[bytes]) -> None:
-        self.messages = list(messages)
-
-    def try_recv(self) -> Any:
-        if not self.messages:
-            return None
-        raw = self.messages.pop(0)
-        payload = type("Payload", (), {"to_bytes": lambda _self: raw})()
-        return type("Sample", (), {"payload": payload})()
-
-
 def _sim_bodies(seq: int, pose=(0.0, 0.03, 0.0), twist=(0.0, 0.0, 0.0), impulse=None,
                 epoch: int = 5, follows: int = 0, period: float = 1 / 60) -> bytes:  # fmt: skip
     j = [(0.0, 0.0, 0.0)] * MAX_MESSAGE_BODIES
@@ -83,7 +69,7 @@ def test_bodies_round_trip_and_malformed_ones_are_refused_by_field() -> None:
         decode_bodies(bytes(bad), WORLD_BODIES_MAGIC, 3)
 
 
-def test_the_world_carries_the_sims_bodies_and_refuses_bad_ones() -> None:
+def test_the_world_carries_the_sims_bodies_and_refuses_bad_ones(ring: Any) -> None:
     """The world's side: the newest valid SimBodies, its ball carried on by its twist for
     the time since it arrived, held (at rest) past 50 ms; a stale, malformed, other
     sim's or other world's refused by reason; a silent sim leaves the ball at rest."""
@@ -95,7 +81,7 @@ def test_the_world_carries_the_sims_bodies_and_refuses_bad_ones() -> None:
     slot = int(world.engine.model[0]["n_static"]) - 1  # the ball: the last wall
     now = time.perf_counter_ns()
     me = world.epoch
-    link._sub = _Ring([
+    link._sub = ring([
         _sim_bodies(2, twist=(0.0, -0.5, 0.0), follows=me), _sim_bodies(1, follows=me),
         b"junk", _sim_bodies(3, epoch=6, follows=me), _sim_bodies(4),
     ])  # fmt: skip
@@ -103,7 +89,7 @@ def test_the_world_carries_the_sims_bodies_and_refuses_bad_ones() -> None:
     assert link.received == 1
     assert link.reasons == {"stale": 1, "size": 1, "other_epoch": 1, "other_world": 1}
     assert list(d["wall_pose"][slot]) == [0.0, 0.03, 0.0]
-    link._sub = _Ring([])
+    link._sub = ring([])
     link.take(now + 10_000_000)  # 10 ms later: carried on by its twist
     assert d["wall_pose"][slot][1] == pytest.approx(0.03 - 0.5 * 0.01, abs=1e-12)
     assert d["wall_twist"][slot][1] == -0.5
@@ -115,7 +101,7 @@ def test_the_world_carries_the_sims_bodies_and_refuses_bad_ones() -> None:
     assert d["wall_pose"][slot][1] == pytest.approx(0.03 - 0.5 * 0.05, abs=1e-12)
 
 
-def test_the_world_applies_each_impulse_of_the_sim_once() -> None:
+def test_the_world_applies_each_impulse_of_the_sim_once(ring: Any) -> None:
     """The sim's running impulse on the box, sampled every 1/60 s, taken by the world with
     jitter: two in one tick, one lost, one late. Every impulse reported after the first
     (the baseline) is applied once: the force the rows log sums, over the ticks, to the
@@ -132,7 +118,7 @@ def test_the_world_applies_each_impulse_of_the_sim_once() -> None:
     applied = np.zeros(3)
     steady = []
     for tick in range(300):
-        link._sub = _Ring([_sim_bodies(k + 1, impulse=tuple(weight * h * k), follows=me)
+        link._sub = ring([_sim_bodies(k + 1, impulse=tuple(weight * h * k), follows=me)
                            for k in arrivals.get(tick, [])])  # fmt: skip
         link.take(tick * 1_000_000)
         applied += d["sim_wrench"][2] * dt
@@ -149,7 +135,7 @@ def _world_bodies(seq: int, box_y: float, vy: float = 0.0) -> bytes:
     return encode_bodies(BodiesState(WORLD_BODIES_MAGIC, 1, seq, 0, bodies, 0.004))
 
 
-def test_the_mirror_carries_the_ball_with_the_worlds_box_and_reports_its_weight() -> None:
+def test_the_mirror_carries_the_ball_with_the_worlds_box_and_reports_its_weight(ring: Any) -> None:
     """The sim's side, no network: the world's box held still, the ball lands and rests on
     the mirror: the wrench on the box is the ball's weight, m g down, to 1e-6. The box then
     rises at 0.1 m/s (the world's samples each step): the mirror follows within a step's
@@ -161,7 +147,7 @@ def test_the_mirror_carries_the_ball_with_the_worlds_box_and_reports_its_weight(
     ball = scene.sim_body_specs[0]
     t = 0
     for k in range(60):
-        mirror.take(_Ring([_world_bodies(k + 1, 0.0)]), t)
+        mirror.take(ring([_world_bodies(k + 1, 0.0)]), t)
         mirror.step(t)
         t += round(h * 1e9)
     assert mirror.wrench[2] == pytest.approx((0.0, -ball.mass * G, 0.0), abs=1e-6)
@@ -170,7 +156,7 @@ def test_the_mirror_carries_the_ball_with_the_worlds_box_and_reports_its_weight(
     assert mirror.sims[0].position.y == pytest.approx(top, abs=2e-4)  # within pymunk's slop
     for k in range(60, 90):
         y = 0.1 * (k - 60) * h
-        mirror.take(_Ring([_world_bodies(k + 1, y, 0.1)]), t)
+        mirror.take(ring([_world_bodies(k + 1, y, 0.1)]), t)
         mirror.step(t)
         t += round(h * 1e9)
     assert mirror.mirrored[2].position.y == pytest.approx(0.1 * 30 * h, abs=1e-9)
@@ -213,7 +199,7 @@ def test_the_sim_drops_a_ball_on_the_held_box_and_the_world_feels_its_weight(
     assert np.isfinite(f["lag_mm"]["p99"])
 
 
-def test_a_shape_scenes_sim_bodies_pass_through_the_mirror() -> None:
+def test_a_shape_scenes_sim_bodies_pass_through_the_mirror(ring: Any) -> None:
     """sim_contact = "shape": the sim's bodies are obstacles that move on their own (the
     world meets them one-way at 1 kHz); the mirror does not touch them, so the ball falls
     past the box's mirror to the floor, in free fall until it meets the floor (pymunk's
@@ -225,7 +211,7 @@ def test_a_shape_scenes_sim_bodies_pass_through_the_mirror() -> None:
     ball = mirror.sims[0]
     y0 = ball.position.y
     for k in range(30):  # 0.5 s: it lands on the floor (0.11 m down) after 0.15 s, and settles
-        mirror.take(_Ring([_world_bodies(k + 1, 0.0)]), 0)
+        mirror.take(ring([_world_bodies(k + 1, 0.0)]), 0)
         mirror.step(0)
         if k == 5:  # 0.1 s, 60 substeps of h: past the box's top, untouched; pymunk moves
             # a body by its velocity before gravity changes it: g h^2 n (n - 1) / 2 down

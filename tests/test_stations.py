@@ -251,21 +251,9 @@ def test_an_old_tool_state_is_not_carried_on_and_received_gains_are_capped() -> 
     assert rows["spring"][0, 0] == pytest.approx(k * err)
 
 
-class _Ring:
-    """A subscriber's ring of raw messages, as zenoh's try_recv gives them."""
-
-    def __init__(self, messages: list[bytes]) -> None:
-        self.messages = list(messages)
-
-    def try_recv(self) -> Any:
-        if not self.messages:
-            return None
-        raw = self.messages.pop(0)
-        payload = type("Payload", (), {"to_bytes": lambda _self: raw})()
-        return type("Sample", (), {"payload": payload})()
-
-
-def test_the_world_holds_a_port_until_its_station_says_safe_and_refuses_old_epochs() -> None:
+def test_the_world_holds_a_port_until_its_station_says_safe_and_refuses_old_epochs(
+    ring: Any,
+) -> None:
     scene = load_port_scene(SCENE)
     world = SharedWorld(scene, load_station_network("stations_loopback", "world"), 10)
     now = time.perf_counter_ns()
@@ -274,15 +262,15 @@ def test_the_world_holds_a_port_until_its_station_says_safe_and_refuses_old_epoc
         return encode_device(DeviceState(0, epoch, seq, 0, (x, 0.0, 0.0), (0.3, 0.0, 0.0), flags))
 
     # a station rendering (not SAFE) while the world holds its port: stays held
-    world._take(0, _Ring([device(1)]), now)
+    world._take(0, ring([device(1)]), now)
     world._port(0, now, 0.0)
     assert world.ports[0].state == "held"
     # it says SAFE: re-indexed onto the anchor; then rendering: coupled
     anchor = world.ports[0].anchor.copy()
-    world._take(0, _Ring([device(2, flags=SAFE)]), now)
+    world._take(0, ring([device(2, flags=SAFE)]), now)
     world._port(0, now, 0.0)
     assert world.ports[0].state == "indexing"
-    world._take(0, _Ring([device(3, x=0.001), device(2), device(3, epoch=8)]), now)
+    world._take(0, ring([device(3, x=0.001), device(2), device(3, epoch=8)]), now)
     assert world.ports[0].reasons == {"stale": 1, "other_epoch": 1}
     world._port(0, now, 0.0)
     assert world.ports[0].state == "coupled"
@@ -296,11 +284,11 @@ def test_the_world_holds_a_port_until_its_station_says_safe_and_refuses_old_epoc
     seen = np.array((0.001, 0.0, 0.0)) + ps.offset
     assert np.allclose(ps.anchor, anchor + ps.blend * (seen - anchor), atol=1e-12)
     # a new epoch is taken once the old one is silent (a restarted station)
-    world._take(0, _Ring([device(1, epoch=8, flags=SAFE)]), later)
+    world._take(0, ring([device(1, epoch=8, flags=SAFE)]), later)
     assert ps.last is not None and ps.last.epoch == 8
 
 
-def test_a_hands_station_glove_blends_in_and_is_held_when_it_leaves() -> None:
+def test_a_hands_station_glove_blends_in_and_is_held_when_it_leaves(ring: Any) -> None:
     """hand_grasp: until a station sends its glove, a hand's fingers follow the scene
     user's script (the rest angles); once coupled, the station's angles blend in over the
     ramp as the device's pose does, its rates scaled alike, and when the station goes
@@ -321,14 +309,14 @@ def test_a_hands_station_glove_blends_in_and_is_held_when_it_leaves() -> None:
         return encode_device(DeviceState(0, 7, seq, 0, (0, 0, 0), (0, 0, 0), flags | GLOVE,
                                          tuple(sent), rate))  # fmt: skip
 
-    world._take(0, _Ring([device(1, SAFE)]), now)
+    world._take(0, ring([device(1, SAFE)]), now)
     world._port(0, now, 0.0)  # indexing: the script's fingers still
     eng.tick(0.0)
     assert world.ports[0].state == "indexing" and np.allclose(eng.glove(0), rest)
     ramp_ticks = round(world.network.safe_ramp_ms / 1e3 / eng.dt)
     for k in range(ramp_ticks + 5):
         tk = now + (k + 1) * 1_000_000
-        world._take(0, _Ring([device(2 + k, 0)]), tk)
+        world._take(0, ring([device(2 + k, 0)]), tk)
         world._port(0, tk, 0.0)
         blend = world.ports[0].blend
         assert np.allclose(eng.glove(0), rest + blend * (sent - rest), atol=1e-12)

@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -201,6 +202,20 @@ def decode_bodies(raw: bytes, magic: bytes, count: int) -> BodiesState:
     for i, j in enumerate(impulse):
         _numbers(j, tuple(f"impulse[{i}].{a}" for a in AXES), IMPULSE_LIMIT, what)
     return BodiesState(magic, f[3], f[4], f[5], bodies, period, follows, impulse)
+
+
+def order_refusal(last: Any, epoch: int, seq: int, silent: bool) -> str | None:
+    """Why a message of a sender's `epoch` and `seq` is not taken after `last` (the last one
+    taken, with its epoch and seq, or None), or None: within its sender's epoch it must be
+    newer ("stale"); another epoch (a restarted sender, or a second one) only once the
+    present one is `silent` ("other_epoch")."""
+    if last is None:
+        return None
+    if epoch == last.epoch and seq <= last.seq:
+        return "stale"
+    if epoch != last.epoch and not silent:
+        return "other_epoch"
+    return None
 
 
 def encode_device(m: DeviceState) -> bytes:
