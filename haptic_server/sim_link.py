@@ -10,11 +10,14 @@ with the sim silent for `world_watchdog_ms`, they are held where they were carri
 A SimBodies carries the running impulse the sim's bodies have put on each mirrored body; the
 world applies what is new since the last one taken, spread over one sim step
 (`drain_impulse`): every impulse once, none lost with a dropped message, none doubled by
-two taken in one tick. A SimBodies whose mirror follows another world (or none yet) is
-refused (`other_world`). A malformed
-message is refused and counted by reason, never used; within the sim's epoch each must be
-newer than the last taken, and another epoch (a restarted sim) is taken only once the
-present one is silent.
+two taken in one tick; no body is pushed harder than FORCE_OVER_WEIGHT times the sim's
+bodies' weight (beyond it the impulse is not applied, and counted). The force a tick follows
+the arrivals: with 60 Hz samples on 1 kHz ticks, m g for 16 ticks and two thirds of it on
+the 17th; two samples in one tick make twice it for a step, then nothing until the next.
+A lost sim's impulse not yet applied is dropped. A SimBodies whose mirror follows another
+world (or none yet) is refused (`other_world`). A malformed message is refused and counted
+by reason, never used; within the sim's epoch each must be newer than the last taken, and
+another epoch (a restarted sim) is taken only once the present one is silent.
 """
 
 from __future__ import annotations
@@ -45,6 +48,9 @@ from haptic_local_model.shared.protocol.update import MessageError
 
 BODIES_EVERY = 4  # world ticks a WorldBodies: 250 Hz at 1 kHz, four times a 60 Hz sim's rate
 EXTRAPOLATE_S = 0.05  # three 60 Hz sim steps
+# the most force the sim's bodies may put on a body, over their weight: a body falling
+# 0.5 m onto it (3.1 m/s) stopped within a 60 Hz step is 19 times its weight
+FORCE_OVER_WEIGHT = 100.0
 SIM_RING = 16
 
 
@@ -68,6 +74,9 @@ class SimLink:
         for j, spec in enumerate(scene.sim_body_specs):
             self.sample[j, :3] = (*spec.position, spec.angle)
         self.held = True  # the sample is held (at rest), not carried on by its twist
+        g = float(np.hypot(*scene.gravity)) or 9.81
+        self.max_force = FORCE_OVER_WEIGHT * g * sum(b.mass for b in scene.sim_body_specs)
+        self.clipped = 0  # SimBodies whose impulse would have pushed beyond max_force
         self.taken: np.ndarray | None = None  # the sim's running impulse as last taken
         self.pending = np.zeros((MAX_COSIM_BODIES, 3))  # received, not yet applied (N s)
         self.rate = np.zeros((MAX_COSIM_BODIES, 3))  # applied per second (N, N m)
@@ -102,7 +111,13 @@ class SimLink:
         if self.taken is not None and self.last is not None and m.epoch == self.last.epoch:
             self.pending[: self.n_bodies] += impulse - self.taken
         self.taken = impulse
-        self.rate[:] = self.pending / m.period_s  # the rest over about one sim step
+        # the rest over about one sim step, each body's force and torque (about its centre:
+        # times a metre) within max_force; what is beyond is not applied (counted)
+        limit = self.max_force * m.period_s
+        if np.any(np.abs(self.pending) > limit):
+            self.clipped += 1
+            np.clip(self.pending, -limit, limit, out=self.pending)
+        self.rate[:] = self.pending / m.period_s
         self.last, self.rx_ns = m, now_ns
         self.received += 1
         self.sample[: self.n_sim] = m.array()
@@ -142,6 +157,8 @@ class SimLink:
             self.lost += 1
             self.last = None
             self.taken = None  # a sim heard again starts a new baseline
+            self.pending[:] = 0.0  # and nothing of a lost sim is applied on
+            self.rate[:] = 0.0
         drain_impulse(self.model, self.data, self.pending, self.rate)
         carry_sim_bodies(self.model, self.data, self.sample, 0.0 if self.held else age)
 
@@ -167,5 +184,6 @@ class SimLink:
             "sim_bodies_rejected": self.rejected,
             "rejected_by_reason": dict(self.reasons),
             "sim_lost": self.lost,  # times the sim fell silent for world_watchdog_ms
+            "impulse_clipped": self.clipped,
             "sim_bodies_age_ms": {f"p{q}": float(np.percentile(ages, q)) for q in (50, 99)},
         }

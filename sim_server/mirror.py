@@ -247,8 +247,9 @@ class Mirror:
                 now = pacer.wait()
                 self.take(sub, now)
                 self.step(now)
-                self.publish(pub, seq)
-                seq += 1
+                if self.last is not None:  # following a world: a sim of none says nothing
+                    self.publish(pub, seq)
+                    seq += 1
                 if not pacer.next():
                     break
         finally:
