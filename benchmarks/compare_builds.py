@@ -3,11 +3,14 @@
 Checks out BASE (a git revision) into a temporary worktree and runs, alternately in the base
 tree and in this one, (1) `benchmarks.kernel_cost` (the tick kernel alone and one Python call
 per tick, 0..32 contacts) and (2) a real-time run of the two servers (`haptic-run`, default
-scene and device, with the MCAP log), from which the loop's work per tick is read. The order
+scene and device, with the MCAP log), from which the loop's work per tick is read. With
+--stations, instead: `loop_timing --stations` once per repeat in each tree (a shared world and
+two stations on loopback, every shipped port scene), the world's work per tick read. The order
 alternates between repeats so slow spells of a shared host hit both builds; every figure is
 the median over repeats.
 
     python -m haptic_local_model.benchmarks.compare_builds [--base 2ccdfb6] [--repeat 5] [--seconds 10]
+    python -m haptic_local_model.benchmarks.compare_builds --stations [--base REV] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -130,6 +133,23 @@ def loop_work(tree: Path, seconds: float) -> dict[str, float]:
     }
 
 
+def stations_work(tree: Path, seconds: float) -> dict[str, float]:
+    """The world's work per tick p50 and p99 in one `loop_timing --stations` run, per scene."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "stations.json"
+        subprocess.run(
+            [sys.executable, "-m", _module(tree, "benchmarks.loop_timing"), "--stations",
+             "--seconds", str(seconds), "--repeat", "1", "--json", str(out)],
+            cwd=tree, env=_env(tree), check=True, stdout=subprocess.DEVNULL,
+        )  # fmt: skip
+        runs = json.loads(out.read_text())["runs"]
+    figures: dict[str, float] = {}
+    for scene, (run,) in runs.items():
+        for pct in ("p50", "p99"):
+            figures[f"{scene} {pct}"] = float(run["world"]["work_us"][pct])
+    return figures
+
+
 def _median(runs: list[dict[str, float]]) -> dict[str, float]:
     return {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
 
@@ -144,10 +164,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ticks", type=int, default=20000, help="ticks per kernel timing")
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--loop-only", action="store_true", help="skip kernel_cost")
+    parser.add_argument("--stations", action="store_true", help="instead: the shared world's work")
     args = parser.parse_args(argv)
     trees = {"base": checkout(args.base), "this": REPO_ROOT}
     for tree in trees.values():
         warm(tree)
+    if args.stations:
+        return _compare_stations(trees, args)
     kernels: dict[str, list[dict[int, dict[str, float]]]] = {k: [] for k in trees}
     loops: dict[str, list[dict[str, float]]] = {k: [] for k in trees}
     for i in range(args.repeat):
@@ -179,6 +202,26 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=2))
+    return 0
+
+
+def _compare_stations(trees: dict[str, Path], args: argparse.Namespace) -> int:
+    runs: dict[str, list[dict[str, float]]] = {k: [] for k in trees}
+    for i in range(args.repeat):
+        for name in list(trees) if i % 2 == 0 else list(reversed(trees)):
+            runs[name].append(stations_work(trees[name], args.seconds))
+            print(f"  {name}: {runs[name][-1]}", file=sys.stderr)
+    medians = {name: _median(runs[name]) for name in trees}
+    print(f"world work per tick (us), medians of {args.repeat} interleaved runs of "
+          f"{args.seconds:g} s; base = {args.base}")  # fmt: skip
+    print(f"{'scene':<24}{'base':>10}{'this':>10}")
+    for key in medians["base"]:
+        print(
+            f"{key:<24}{medians['base'][key]:>10.1f}{medians['this'].get(key, float('nan')):>10.1f}"
+        )
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({"base": args.base, "runs": runs, "medians": medians}))
     return 0
 
 

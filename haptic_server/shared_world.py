@@ -35,6 +35,9 @@ only once the present one is silent (a restarted station, not two on one port).
 Offsets are added per axis (x, y and the angle): a rejoining device's turn about its own
 origin is not composed with the anchor's (documented limit).
 
+The tick is compiled (haptic_server/stages/world_ports.py, and each engine's step): the
+world's Python is its Zenoh calls, one compiled call a DeviceState received and one a tick.
+
 Every tick's row (the engine's: PORT_ROW_DTYPE, or HAND_GRASP_ROW_DTYPE; the devices as
 fed) stays in memory; `--log` writes them as a `haptic-ports` log, which `haptic-ports
 --replay` re-runs bit for bit.
@@ -42,9 +45,7 @@ fed) stays in memory; `--log` writes them as a `haptic-ports` log, which `haptic
 
 from __future__ import annotations
 
-import math
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -54,6 +55,16 @@ from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import DeviceWorldMap
 from haptic_local_model.haptic_server.sim_link import SimLink
 from haptic_local_model.haptic_server.stages.port_io import push_stretch
+from haptic_local_model.haptic_server.stages.world_ports import (
+    EVENT_DTYPE,
+    MAX_EVENTS,
+    REASONS,
+    STALE,
+    STATE_NAMES,
+    port_links,
+    take_device,
+    world_clock,
+)
 from haptic_local_model.haptic_server.station import rows_in_order
 from haptic_local_model.haptic_server.world_engines import (
     CosimWorld,
@@ -66,44 +77,18 @@ from haptic_local_model.shared.net.stations import (
     open_client,
     port_keys,
 )
-from haptic_local_model.shared.net.transport import newest_payload
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
 from haptic_local_model.shared.protocol.station import (
-    HELD,
     DeviceState,
     Vec3,
-    decode_device,
-    order_refusal,
+    encode_device,
     tool_record,
     vec3,
 )
-from haptic_local_model.shared.protocol.update import MessageError
 from haptic_local_model.shared.timing import Pacer, SampleWindow, enter_loop
 
 DEVICE_RING = 64
 SPIN_NS = 100_000
-EXTRAPOLATE_S = 0.005  # as the station's (haptic_server/station.py)
-MAX_EVENTS = 10_000  # port state changes kept for the summary and the log
-HELD_STATE, INDEXING, COUPLED = "held", "indexing", "coupled"
-ZERO3 = np.zeros(3)
-
-
-@dataclass
-class PortState:
-    """What the world knows of one port's station."""
-
-    state: str = HELD_STATE
-    anchor: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    start: np.ndarray = field(default_factory=lambda: np.zeros(3))  # the anchor at coupling
-    blend: float = 0.0
-    glove_start: np.ndarray | None = None  # a hand's glove when its port coupled
-    last: DeviceState | None = None
-    rx_ns: int = 0
-    received: int = 0
-    rejected: int = 0
-    stale: int = 0  # older than the newest (another station's epoch, out of order)
-    reasons: dict[str, int] = field(default_factory=dict)
 
 
 class SharedWorld:
@@ -127,24 +112,28 @@ class SharedWorld:
         users = [load_user(port.user) for port in scene.ports]
         self.engine = world_engine(scene, self.limits, users)
         self.order = self.engine.names
-        self.ports = [PortState() for _ in scene.ports]
+        n = len(scene.ports)
+        self.ports = port_links(n)  # PORT_LINK_DTYPE: each port's state, its last DeviceState
+        self.clock = world_clock(n, self.engine.dt, network.world_watchdog_ms, network.safe_ramp_ms)
+        self.clock[0]["object"] = self.engine.object_dof
+        self.events = np.zeros(MAX_EVENTS, EVENT_DTYPE)
         self.epoch = time.time_ns()
-        self._tool_records = []
+        tools = []
         for p, user in enumerate(users):
             # the anchor squeezes as the scene's user pushes: the object is held at the start
             k, b = (np.array(v, np.float64) for v in port_gains(scene, p))
             stretch = push_stretch(user.wrench, maps[p], k)
-            self.ports[p].anchor = self.engine.tool(p)[0] + stretch
+            self.ports[p]["anchor"] = self.engine.tool(p)[0] + stretch
             rec = tool_record(p, self.epoch)
             rec["stiffness"] = k
             rec["damping"] = b
-            self._tool_records.append(rec)
+            tools.append(rec)
+        self.tools = np.concatenate(tools)  # each port's ToolState, filled in place each tick
+        self._tool_bytes = self.tools.view(np.uint8).reshape(n, -1)
         self.rows = np.zeros(max_rows, self.engine.rows_dtype)
         self.rows.view(np.uint8)[:] = 0  # every page touched now, not in the loop
         self.n_rows = 0
         self.start_q = self.engine.poses()
-        self.events: list[dict[str, Any]] = []
-        self.events_dropped = 0
         self.work_us = SampleWindow(100_000)
         self.pacer = Pacer(round(self.engine.dt * 1e9), SPIN_NS, None)
         self._stop = False
@@ -159,94 +148,30 @@ class SharedWorld:
     def request_stop(self, *_: object) -> None:
         self._stop = True
 
-    def _refuse(self, ps: PortState, reason: str) -> None:
-        ps.rejected += 1
-        ps.reasons[reason] = ps.reasons.get(reason, 0) + 1
+    def receive(self, p: int, sub: Any, now_ns: int) -> None:
+        """Every DeviceState waiting on port p's key, oldest first: each taken or refused and
+        counted (world_ports.take_device)."""
+        self.clock[0]["now_ns"] = now_ns
+        while (sample := sub.try_recv()) is not None:
+            take_device(self.ports, self.clock, p, sample.payload.to_bytes())
 
-    def _take(self, p: int, sub: Any, now_ns: int) -> None:
-        """Port p's newest valid DeviceState. Within the station's epoch a message must be
-        newer than the last taken; another epoch (a restarted station, or a second one on
-        the port) is taken only once the present one has been silent for the watchdog."""
-        ps = self.ports[p]
-        for raw in newest_payload(sub):
-            try:
-                m = decode_device(raw, p)
-            except MessageError as exc:
-                self._refuse(ps, exc.reason)
-                continue
-            why = order_refusal(ps.last, m.epoch, m.seq, self._silent(ps, now_ns))
-            if why is not None:
-                self._refuse(ps, why)
-                continue
-            ps.last, ps.rx_ns = m, now_ns
-            ps.received += 1
+    def step(self, now_ns: int, t: float, seq: int) -> None:
+        """One tick at `now_ns` (the loop's clock): every port's state and device, the
+        engine's tick, every port's ToolState (in `tools`, seq `seq`) and the tick's row."""
+        c = self.clock[0]
+        c["now_ns"], c["wall_ns"], c["t"], c["seq"] = now_ns, time.time_ns(), t, seq
+        c["k"] = self.n_rows % len(self.rows)
+        self.engine.step(self.ports, self.clock, self.events, self.tools, self.rows)
+        self.n_rows += 1
 
-    def _silent(self, ps: PortState, now_ns: int) -> bool:
-        return ps.last is None or (now_ns - ps.rx_ns) / 1e6 > self.network.world_watchdog_ms
+    def state(self, p: int) -> str:
+        """Port p's state: held, indexing or coupled."""
+        return STATE_NAMES[int(self.ports[p]["state"])]
 
-    def _live(self, ps: PortState, m: DeviceState, age_s: float) -> np.ndarray:
-        """The station's device in the world: re-indexed, carried on by its twist for at
-        most EXTRAPOLATE_S (an old reading is not carried on into a guess)."""
-        return np.array(m.pose) + ps.offset + np.array(m.twist) * min(age_s, EXTRAPOLATE_S)
-
-    def _port(self, p: int, now_ns: int, t: float) -> None:
-        """Port p's state this tick and the device pose and twist it feeds (module docstring)."""
-        ps = self.ports[p]
-        m = ps.last
-        if self._silent(ps, now_ns) or m is None or m.cut:
-            new = HELD_STATE
-        elif m.safe:
-            new = INDEXING
-        else:  # rendering: coupled, unless it comes from HELD (it must go safe first)
-            new = HELD_STATE if ps.state == HELD_STATE else COUPLED
-        if new != ps.state:
-            if ps.state == COUPLED and m is not None:  # held where it was last seen
-                ps.anchor = ps.start + ps.blend * (self._live(ps, m, 0.0) - ps.start)
-            if len(self.events) < MAX_EVENTS:
-                self.events.append({"t": round(t, 6), "port": self.scene.ports[p].name,
-                                    "from": ps.state, "to": new})  # fmt: skip
-            else:
-                self.events_dropped += 1
-            if new == COUPLED:
-                ps.start = ps.anchor.copy()
-                ps.blend = 0.0
-                ps.glove_start = self.engine.glove(p)
-            elif ps.state == COUPLED and m is not None and m.has_glove:
-                held = self.engine.glove(p)  # a hand's fingers held where its station left them
-                if held is not None:
-                    self.engine.feed_glove(p, held, np.zeros_like(held))
-            ps.state = new
-        if new == COUPLED and m is not None:
-            live = self._live(ps, m, (now_ns - ps.rx_ns) / 1e9)
-            ps.blend = min(1.0, ps.blend + self.engine.dt / (self.network.safe_ramp_ms / 1e3))
-            ps.anchor = ps.start + ps.blend * (live - ps.start)
-            self.engine.feed(p, ps.anchor, ps.blend * np.array(m.twist))
-            if m.has_glove and ps.glove_start is not None:
-                # the station's glove, blended in from the fingers' as they were (as the pose)
-                g0 = ps.glove_start
-                n = len(g0)
-                self.engine.feed_glove(
-                    p, g0 + ps.blend * (np.array(m.glove[:n]) - g0),
-                    ps.blend * np.array(m.glove_rate[:n]),
-                )  # fmt: skip
-            return
-        if new == INDEXING and m is not None:
-            ps.offset = ps.anchor - np.array(m.pose)
-        self.engine.feed(p, ps.anchor, ZERO3)
-
-    def _publish(self, p: int, pub: Any, seq: int) -> None:
-        """Port p's ToolState: its record filled in place (shared/protocol/station.py)."""
-        ps = self.ports[p]
-        pose, twist = self.engine.tool(p)
-        r = self._tool_records[p][0]
-        r["seq"] = seq
-        r["publish_time_ns"] = time.time_ns()
-        r["pose"] = pose - ps.offset
-        r["pose"][2] = math.atan2(math.sin(r["pose"][2]), math.cos(r["pose"][2]))
-        r["twist"] = twist
-        r["object_pose"] = self.engine.object_pose()
-        r["flags"] = HELD if ps.state == HELD_STATE else 0
-        pub.put(self._tool_records[p].tobytes())
+    def reasons(self, p: int) -> dict[str, int]:
+        """Port p's refused DeviceStates, by reason (those that happened)."""
+        counts = self.ports[p]["reasons"]
+        return {r: int(counts[i]) for i, r in enumerate(REASONS) if counts[i]}
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         session = open_client(self.network.world)
@@ -270,18 +195,15 @@ class SharedWorld:
         try:
             while not self._stop:
                 now = pacer.wait()
-                for p in range(len(self.ports)):
-                    self._take(p, subs[p], now)
-                    self._port(p, now, t)
+                for p in range(len(subs)):
+                    self.receive(p, subs[p], now)
                 if self.sim is not None:
                     self.sim.take(now)
-                self.engine.tick(t)
-                for p in range(len(self.ports)):
-                    self._publish(p, pubs[p], seq)
+                self.step(now, t, seq)
+                for p in range(len(pubs)):
+                    pubs[p].put(self._tool_bytes[p].tobytes())
                 if self.sim is not None:
                     self.sim.publish(seq)
-                self.engine.row(self.rows, self.n_rows % len(self.rows), t)
-                self.n_rows += 1
                 self.work_us.add((time.perf_counter_ns() - now) / 1e3)
                 seq += 1
                 t += self.engine.dt
@@ -292,26 +214,39 @@ class SharedWorld:
         return self.summary()
 
     def warm(self) -> None:
+        """The tick's kernels compiled (or loaded from numba's cache) before the loop."""
         self.engine.warm()
+        ports, clock = port_links(1), world_clock(1, 1e-3, 1.0, 1.0)
+        take_device(ports, clock, 0, encode_device(DeviceState(0, 1, 1, 0, (0, 0, 0), (0, 0, 0))))
 
     def logged_rows(self) -> np.ndarray:
         return rows_in_order(self.rows, self.n_rows)
+
+    def event_list(self) -> list[dict[str, Any]]:
+        """The ports' state changes, in order: t, port, from, to."""
+        names = [p.name for p in self.scene.ports]
+        return [
+            {"t": round(float(e["t"]), 6), "port": names[int(e["port"])],
+             "from": STATE_NAMES[int(e["frm"])], "to": STATE_NAMES[int(e["to"])]}
+            for e in self.events[: int(self.clock[0]["n_events"])]
+        ]  # fmt: skip
 
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "ticks": self.n_rows,
             **self.pacer.figures(),
             "work_us": self.work_us.percentiles(50, 99, 99.9),
-            "events": self.events,
-            "events_dropped": self.events_dropped,
+            "events": self.event_list(),
+            "events_dropped": int(self.clock[0]["events_dropped"]),
             "epoch": self.epoch,
             "ports": {},
         }
         for p, port in enumerate(self.scene.ports):
             ps = self.ports[p]
             out["ports"][port.name] = {
-                "state": ps.state, "received": ps.received, "rejected": ps.rejected,
-                "stale": ps.stale, "rejected_by_reason": dict(ps.reasons),
+                "state": self.state(p), "received": int(ps["received"]),
+                "rejected": int(ps["rejected"]), "stale": int(ps["reasons"][STALE]),
+                "rejected_by_reason": self.reasons(p),
             }  # fmt: skip
         end = self.engine.poses()
         for i, name in enumerate(self.order):  # over the whole run (not only the rows kept)

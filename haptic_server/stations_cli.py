@@ -178,7 +178,7 @@ def world_main(argv: list[str] | None = None) -> int:
                             "users": json.dumps([p.user for p in scene.ports])},
                 "limits": {"max_wrench": json.dumps([list(v) for v in world.limits])},
                 "run": {"version": __version__, "ticks": str(len(rows)), "kind": "haptic-world",
-                        "events": json.dumps(world.events)},
+                        "events": json.dumps(world.event_list())},
             })  # fmt: skip
         _finish("haptic-world", summary, args.json)
         return 0

@@ -3,13 +3,16 @@ what a station renders against: a port scene's co-simulation (two tools and the 
 haptic_server/stages/cosim.py) or two mass-spring hands holding a box (`hand_grasp`,
 haptic_server/stages/hand_grasp.py).
 
+Each tick is one compiled call (`cosim_world_step`, `hand_world_step`): the ports' states
+and the devices they feed (haptic_server/stages/world_ports.py), the engine's tick, each
+port's ToolState and the tick's row.
+
 Either way each port's station is coupled to a tool by a spring-damper of the port's gains,
 F = K (x_tool - x_dev) + B (v_tool - v_dev): for a co-simulated tool, its coupling; for a
 hand, its palm spring (the palm's command is the spring's reaction, the same law, with the
-palm as the tool and the device as the tracked palm). The world feeds each port's device
-(as the world takes it) to the engine, ticks it, and publishes each port's tool. A hand's
-glove is the port's scene user's `finger_angles`, evaluated by the world, until its station
-sends its own (`feed_glove`: a hand's station sends its user's glove with its device).
+palm as the tool and the device as the tracked palm). A hand's glove is the port's scene
+user's `finger_angles`, evaluated by the world, until its station sends its own (a hand's
+station sends its user's glove with its device).
 """
 
 from __future__ import annotations
@@ -35,6 +38,14 @@ from haptic_local_model.haptic_server.stages.cosim import (
     sim_bodies_of,
 )
 from haptic_local_model.haptic_server.stages.hand_grasp import MAX_HANDS, grasp_tick
+from haptic_local_model.haptic_server.stages.world_ports import (
+    COUPLED,
+    GLOVE_HOLD,
+    GLOVE_TAKE_START,
+    fill_tool,
+    step_ports,
+    warm_records,
+)
 from haptic_local_model.shared.config import UserConfig
 from haptic_local_model.shared.port_config import (
     MAX_PORTS,
@@ -42,7 +53,7 @@ from haptic_local_model.shared.port_config import (
     HandSceneConfig,
     PortSceneConfig,
 )
-from haptic_local_model.shared.protocol.station import Vec3
+from haptic_local_model.shared.protocol.station import GLOVE, Vec3
 
 F8 = np.float64
 
@@ -122,6 +133,67 @@ def hand_world_tick(grasp, io, t):
     grasp_tick(chains, hms, hds, gmodel, gdata)
 
 
+@njit(cache=True)
+def cosim_world_step(model, data, ports, clock, events, tools, rows, lowest):
+    """One tick of a port scene's world: the ports' states and the devices they feed
+    (step_ports), the co-simulation, each port's ToolState (tools) and the tick's row."""
+    c = clock[0]
+    step_ports(ports, clock, events)
+    m, d = model[0], data[0]
+    for p in range(c.n_ports):
+        for a in range(3):
+            d.device_pose[p, a] = ports[p].fed_pose[a]
+            d.device_twist[p, a] = ports[p].fed_twist[a]
+    cosim_tick(model, data)
+    o = c.object
+    for p in range(c.n_ports):
+        i = 3 * m.port_tool[p]
+        fill_tool(tools, p, ports[p], c, d.q[i : i + 3], d.qd[i : i + 3], d.q[o : o + 3])
+    world_row(model, data, rows, c.k, c.t, lowest)
+
+
+@njit(cache=True)
+def _feed_glove(ps, d, n, s):
+    """Hand d's glove this tick (n: its dof): its angles kept when its port couples; held
+    where they are, at rest, when the port leaves COUPLED; the station's blended in from the
+    kept ones over the ramp (as the pose) while COUPLED. s: its port's glove script's record
+    (glove_fed: the script no longer drives it)."""
+    if ps.glove_act == GLOVE_TAKE_START:
+        for j in range(n - 3):
+            ps.glove_start[j] = d.target[3 + j]
+    elif ps.glove_act == GLOVE_HOLD:
+        for j in range(n - 3):
+            d.target_rate[3 + j] = 0.0
+        s.glove_fed = 1
+    if ps.state == COUPLED and ps.flags & GLOVE:
+        for j in range(n - 3):
+            g0 = ps.glove_start[j]
+            d.target[3 + j] = g0 + ps.blend * (ps.glove[j] - g0)
+            d.target_rate[3 + j] = ps.blend * ps.glove_rate[j]
+        s.glove_fed = 1
+
+
+@njit(cache=True)
+def hand_world_step(grasp, io, ports, clock, events, tools, rows, lowest):
+    """One tick of two hands' world: the ports' states and the palms and gloves they feed,
+    both hands and the box (hand_world_tick), each port's ToolState (its palm) and the row."""
+    c = clock[0]
+    step_ports(ports, clock, events)
+    hms, hds, gdata = grasp[1], grasp[2], grasp[4]
+    for p in range(c.n_ports):
+        ps, d = ports[p], hds[p][0]
+        for a in range(3):
+            d.target[a] = ps.fed_pose[a]
+            d.target_rate[a] = ps.fed_twist[a]
+        _feed_glove(ps, d, hms[p][0].dof, io[p])
+    hand_world_tick(grasp, io, c.t)
+    gd = gdata[0]
+    for p in range(c.n_ports):
+        d = hds[p][0]
+        fill_tool(tools, p, ports[p], c, d.q, d.qd, gd.q_box)
+    hand_world_row(hds, gdata, io, rows, c.k, c.t, lowest)
+
+
 class CosimWorld:
     """A port scene's co-simulation: the tools and the object."""
 
@@ -134,37 +206,27 @@ class CosimWorld:
         m, d = self.model[0], self.data[0]
         self.dt = float(d["dt"])
         self._tools = [3 * int(m["port_tool"][p]) for p in range(len(scene.ports))]
-        # the first body that is not a tool (the tools come first), else the first tool
-        self._object = 3 * len(scene.ports) if len(self.names) > len(scene.ports) else 0
+        # the first body that is not a tool (the tools come first), else the first tool: the
+        # body whose pose each ToolState carries
+        self.object_dof = 3 * len(scene.ports) if len(self.names) > len(scene.ports) else 0
         self.lowest = np.full(MAX_COSIM_BODIES, np.inf)
 
-    def feed(self, p: int, pose: np.ndarray, twist: np.ndarray) -> None:
-        self.data[0]["device_pose"][p] = pose
-        self.data[0]["device_twist"][p] = twist
-
-    def tick(self, t: float) -> None:
-        cosim_tick(self.model, self.data)
+    def step(self, ports: np.ndarray, clock: np.ndarray, events: np.ndarray,
+             tools: np.ndarray, rows: np.ndarray) -> None:  # fmt: skip
+        """One tick (cosim_world_step): the ports' records in, the tools' and rows[k] out."""
+        cosim_world_step(self.model, self.data, ports, clock, events, tools, rows, self.lowest)
 
     def glove(self, p: int) -> np.ndarray | None:
         return None  # a tool has no glove
-
-    def feed_glove(self, p: int, angles: np.ndarray, rates: np.ndarray) -> None:
-        """No glove to feed (a DeviceState's glove is not used)."""
 
     def tool(self, p: int) -> tuple[np.ndarray, np.ndarray]:
         i = self._tools[p]
         d = self.data[0]
         return d["q"][i : i + 3], d["qd"][i : i + 3]
 
-    def object_pose(self) -> np.ndarray:
-        return self.data[0]["q"][self._object : self._object + 3]
-
     def poses(self) -> np.ndarray:
         """Every body's pose (n x 3), in `names`' order."""
         return self.data[0]["q"][: 3 * len(self.names)].reshape(-1, 3).copy()
-
-    def row(self, rows: np.ndarray, k: int, t: float) -> None:
-        world_row(self.model, self.data, rows, k, t, self.lowest)
 
     def steps_held(self) -> int:
         return int(self.data[0]["singular"])
@@ -173,8 +235,9 @@ class CosimWorld:
         model, data = cosim_records(self.scene, self.limits)
         carry_sim_bodies(model, data, np.zeros((MAX_SIM_BODIES, 6)), 0.0)  # a sim's bodies
         drain_impulse(model, data, np.zeros((MAX_COSIM_BODIES, 3)), np.zeros((MAX_COSIM_BODIES, 3)))
-        cosim_tick(model, data)
-        world_row(model, data, np.zeros(1, PORT_ROW_DTYPE), 0, 0.0, np.zeros(MAX_COSIM_BODIES))
+        ports, clock, events, tools = warm_records(len(self.scene.ports))
+        rows = np.zeros(1, PORT_ROW_DTYPE)
+        cosim_world_step(model, data, ports, clock, events, tools, rows, np.zeros(MAX_COSIM_BODIES))
 
 
 class HandGraspWorld:
@@ -199,48 +262,33 @@ class HandGraspWorld:
             self._io[p]["n_glove"] = len(script)
         self.lowest = np.full(len(self.names), np.inf)
 
-    def feed(self, p: int, pose: np.ndarray, twist: np.ndarray) -> None:
-        d = self._datas[p][0]
-        d["target"][:3] = pose
-        d["target_rate"][:3] = twist
+    object_dof = 0  # a ToolState carries the box's pose (not a co-simulation's dof)
 
-    def tick(self, t: float) -> None:
-        hand_world_tick(self.grasp, self._io, t)
+    def step(self, ports: np.ndarray, clock: np.ndarray, events: np.ndarray,
+             tools: np.ndarray, rows: np.ndarray) -> None:  # fmt: skip
+        """One tick (hand_world_step): the ports' records in, the tools' and rows[k] out."""
+        hand_world_step(self.grasp, self._io, ports, clock, events, tools, rows, self.lowest)
 
     def glove(self, p: int) -> np.ndarray | None:
         """Hand p's glove angles as the last tick took them."""
         n = int(self.grasp[1][p][0]["dof"])
         return np.array(self._datas[p][0]["target"][3:n])
 
-    def feed_glove(self, p: int, angles: np.ndarray, rates: np.ndarray) -> None:
-        """Hand p's glove from now on: these angles and rates, not its script's."""
-        d, n = self._datas[p][0], int(self.grasp[1][p][0]["dof"])
-        d["target"][3:n] = angles[: n - 3]
-        d["target_rate"][3:n] = rates[: n - 3]
-        self._io[p]["glove_fed"] = 1
-
     def tool(self, p: int) -> tuple[np.ndarray, np.ndarray]:
         d = self._datas[p][0]
         return d["q"][:3], d["qd"][:3]
 
-    def object_pose(self) -> np.ndarray:
-        return self._gd[0]["q_box"]
-
     def poses(self) -> np.ndarray:
         return np.array([*(d[0]["q"][:3] for d in self._datas), self._gd[0]["q_box"]])
-
-    def row(self, rows: np.ndarray, k: int, t: float) -> None:
-        hand_world_row(self._datas, self._gd, self._io, rows, k, t, self.lowest)
 
     def steps_held(self) -> int:
         return int(self._gd[0]["singular"])
 
     def warm(self) -> None:
         grasp = grasp_port_records(self.scene, self.limits)
-        io = self._io.copy()
-        hand_world_tick(grasp, io, 0.0)
+        ports, clock, events, tools = warm_records(len(self.scene.ports))
         rows = np.zeros(1, HAND_GRASP_ROW_DTYPE)
-        hand_world_row(grasp[2], grasp[4], io, rows, 0, 0.0, np.zeros(3))
+        hand_world_step(grasp, self._io.copy(), ports, clock, events, tools, rows, np.zeros(3))
 
 
 WorldEngine = CosimWorld | HandGraspWorld

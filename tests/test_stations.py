@@ -262,30 +262,35 @@ def test_the_world_holds_a_port_until_its_station_says_safe_and_refuses_old_epoc
         return encode_device(DeviceState(0, epoch, seq, 0, (x, 0.0, 0.0), (0.3, 0.0, 0.0), flags))
 
     # a station rendering (not SAFE) while the world holds its port: stays held
-    world._take(0, ring([device(1)]), now)
-    world._port(0, now, 0.0)
-    assert world.ports[0].state == "held"
+    world.receive(0, ring([device(1)]), now)
+    world.step(now, 0.0, 0)
+    assert world.state(0) == "held"
+    ps = world.ports[0]  # the port's record (world_ports.PORT_LINK_DTYPE), updated in place
     # it says SAFE: re-indexed onto the anchor; then rendering: coupled
-    anchor = world.ports[0].anchor.copy()
-    world._take(0, ring([device(2, flags=SAFE)]), now)
-    world._port(0, now, 0.0)
-    assert world.ports[0].state == "indexing"
-    world._take(0, ring([device(3, x=0.001), device(2), device(3, epoch=8)]), now)
-    assert world.ports[0].reasons == {"stale": 1, "other_epoch": 1}
-    world._port(0, now, 0.0)
-    assert world.ports[0].state == "coupled"
-    world._port(0, now + 1_000_000, 0.001)  # a tick later: the blend has begun
-    ps = world.ports[0]
-    assert 0.0 < ps.blend < 1.0
+    anchor = ps["anchor"].copy()
+    world.receive(0, ring([device(2, flags=SAFE)]), now)
+    world.step(now, 0.0, 1)
+    assert world.state(0) == "indexing"
+    assert np.allclose(ps["offset"], anchor, atol=1e-15)  # the device at 0 maps onto it
+    world.receive(0, ring([device(3, x=0.001), device(2), device(3, epoch=8)]), now)
+    assert world.reasons(0) == {"stale": 1, "other_epoch": 1}
+    world.step(now, 0.0, 2)
+    assert world.state(0) == "coupled"
+    world.step(now + 1_000_000, 0.001, 3)  # a tick later: the blend has begun
+    assert 0.0 < ps["blend"] < 1.0
     # silent: held where the device was last seen, not carried on by its 0.3 m/s
     later = now + int(0.2e9)
-    world._port(0, later, 0.2)
-    assert ps.state == "held"
-    seen = np.array((0.001, 0.0, 0.0)) + ps.offset
-    assert np.allclose(ps.anchor, anchor + ps.blend * (seen - anchor), atol=1e-12)
+    world.step(later, 0.2, 4)
+    assert world.state(0) == "held"
+    seen = np.array((0.001, 0.0, 0.0)) + ps["offset"]
+    assert np.allclose(ps["anchor"], anchor + ps["blend"] * (seen - anchor), atol=1e-12)
     # a new epoch is taken once the old one is silent (a restarted station)
-    world._take(0, ring([device(1, epoch=8, flags=SAFE)]), later)
-    assert ps.last is not None and ps.last.epoch == 8
+    world.receive(0, ring([device(1, epoch=8, flags=SAFE)]), later)
+    assert ps["epoch"] == 8 and world.reasons(0) == {"stale": 1, "other_epoch": 1}
+    # each change of state is an event, at its tick's time
+    assert [(e["t"], e["from"], e["to"]) for e in world.event_list() if e["port"] == "left"] == [
+        (0.0, "held", "indexing"), (0.0, "indexing", "coupled"), (0.2, "coupled", "held")
+    ]  # fmt: skip
 
 
 def test_a_hands_station_glove_blends_in_and_is_held_when_it_leaves(ring: Any) -> None:
@@ -299,37 +304,34 @@ def test_a_hands_station_glove_blends_in_and_is_held_when_it_leaves(ring: Any) -
     world = SharedWorld(scene, load_station_network("stations_loopback", "world"), 10)
     eng = world.engine
     rest = np.array([a for f in scene.hand_of(0).fingers for a in f.rest])
-    eng.tick(0.0)
+    now = time.perf_counter_ns()
+    world.step(now, 0.0, 0)
     assert np.allclose(eng.glove(0), rest)
     sent = rest + np.array([0.2, 0.0, -0.1, 0.0])
     rate = (0.4, 0.0, -0.2, 0.0)
-    now = time.perf_counter_ns()
 
     def device(seq: int, flags: int) -> bytes:
         return encode_device(DeviceState(0, 7, seq, 0, (0, 0, 0), (0, 0, 0), flags | GLOVE,
                                          tuple(sent), rate))  # fmt: skip
 
-    world._take(0, ring([device(1, SAFE)]), now)
-    world._port(0, now, 0.0)  # indexing: the script's fingers still
-    eng.tick(0.0)
-    assert world.ports[0].state == "indexing" and np.allclose(eng.glove(0), rest)
+    world.receive(0, ring([device(1, SAFE)]), now)
+    world.step(now, 0.0, 1)  # indexing: the script's fingers still
+    assert world.state(0) == "indexing" and np.allclose(eng.glove(0), rest)
     ramp_ticks = round(world.network.safe_ramp_ms / 1e3 / eng.dt)
     for k in range(ramp_ticks + 5):
         tk = now + (k + 1) * 1_000_000
-        world._take(0, ring([device(2 + k, 0)]), tk)
-        world._port(0, tk, 0.0)
-        blend = world.ports[0].blend
+        world.receive(0, ring([device(2 + k, 0)]), tk)
+        world.step(tk, 0.0, 2 + k)
+        blend = world.ports[0]["blend"]
         assert np.allclose(eng.glove(0), rest + blend * (sent - rest), atol=1e-12)
         n = len(rest)
         fed_rate = eng._datas[0][0]["target_rate"][3 : 3 + n]
         assert np.allclose(fed_rate, blend * np.array(rate), atol=1e-12)
-        eng.tick(0.0)
-    assert world.ports[0].state == "coupled" and world.ports[0].blend == 1.0
+    assert world.state(0) == "coupled" and world.ports[0]["blend"] == 1.0
     assert np.allclose(eng.glove(0), sent)
     later = now + int(0.5e9)  # silent for the watchdog: held, the fingers where they were
-    world._port(0, later, 0.5)
-    eng.tick(0.5)
-    assert world.ports[0].state == "held" and np.allclose(eng.glove(0), sent)
+    world.step(later, 0.5, 99)
+    assert world.state(0) == "held" and np.allclose(eng.glove(0), sent)
     assert not eng._datas[0][0]["target_rate"][3 : 3 + len(rest)].any()
     right = np.array([a for f in scene.hand_of(1).fingers for a in f.rest])
     assert np.allclose(eng.glove(1), right)

@@ -1,0 +1,249 @@
+"""A shared world's ports, compiled (haptic_server/shared_world.py runs them; docs/stations.md):
+
+- `take_device`: one DeviceState received on a port's key, decoded, checked and ordered as
+  shared/protocol/station.py's `decode_device` and `order_refusal` do (they stay the
+  reference: tests/test_world_ports.py checks that both refuse the same messages, for the
+  same reason, and take the same fields), or refused and counted by reason;
+- `step_ports`: each port's state this tick (HELD, INDEXING, COUPLED: shared_world's
+  docstring) and the device pose and twist it feeds its tool;
+- `fill_tool`: a port's ToolState, its TOOL_RECORD filled in place.
+
+The world's engines (haptic_server/world_engines.py) wrap `step_ports`, their tick and
+`fill_tool` in one compiled call a tick, so the world's Python is its Zenoh calls: one
+compiled call a message received and one a tick (the same tick in Python took about four
+times the co-simulation's own work).
+
+Records, not objects: a port's state is a PORT_LINK_DTYPE record (its last DeviceState's
+fields in it), the tick's inputs and settings a WORLD_CLOCK_DTYPE record, the state changes
+an EVENT_DTYPE array the summary reads.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import numpy as np
+from numba import njit
+
+from haptic_local_model.shared.protocol.station import (
+    CUT,
+    DEVICE_MAGIC,
+    GLOVE,
+    GLOVE_ANGLE_LIMIT,
+    HELD,
+    MAX_GLOVE_JOINTS,
+    POSE_LIMIT_M,
+    SAFE,
+    STATION_VERSION,
+    TWIST_LIMIT,
+    tool_record,
+)
+
+HELD_STATE, INDEXING, COUPLED = 0, 1, 2
+STATE_NAMES = ("held", "indexing", "coupled")
+#: A refusal's reason, by code: decode_device's MessageError reasons, then order_refusal's.
+REASONS = ("size", "magic", "version", "port", "value", "flags", "stale", "other_epoch")
+SIZE, MAGIC, VERSION, PORT, VALUE, FLAGS, STALE, OTHER_EPOCH = range(len(REASONS))
+#: What an engine does with a hand's glove this tick (a tool has none).
+GLOVE_AS_BEFORE, GLOVE_TAKE_START, GLOVE_HOLD = 0, 1, 2
+EXTRAPOLATE_S = 0.005  # a device's pose carried on by its twist at most this (as a station's)
+MAX_EVENTS = 10_000  # port state changes kept for the summary and the log
+
+J = MAX_GLOVE_JOINTS
+HEAD_BYTES = struct.calcsize("<4sHHQQq")
+N_FLOATS = 6 + 2 * J  # pose, twist, glove, glove_rate
+DEVICE_BYTES = struct.calcsize(f"<4sHHQQq{N_FLOATS}dI")
+MAGIC_BYTES = np.frombuffer(DEVICE_MAGIC, np.uint8).copy()
+FLAGS_KNOWN = SAFE | CUT | GLOVE
+
+F8, I8 = np.float64, np.int64
+PORT_LINK_DTYPE = np.dtype([
+    ("state", I8), ("anchor", F8, 3), ("offset", F8, 3), ("start", F8, 3), ("blend", F8),
+    # the last DeviceState taken
+    ("has_last", I8), ("epoch", np.uint64), ("seq", np.uint64), ("pose", F8, 3),
+    ("twist", F8, 3), ("flags", I8), ("glove", F8, J), ("glove_rate", F8, J), ("rx_ns", I8),
+    ("received", I8), ("rejected", I8), ("reasons", I8, len(REASONS)),
+    # what this tick feeds the port's tool: the device's pose and twist, the glove's action
+    ("fed_pose", F8, 3), ("fed_twist", F8, 3), ("glove_act", I8), ("glove_start", F8, J),
+])  # fmt: skip
+WORLD_CLOCK_DTYPE = np.dtype([
+    ("now_ns", I8),  # the tick's monotonic time (the loop's): ages and silence
+    ("wall_ns", I8),  # the ToolStates' publish time
+    ("t", F8), ("k", I8), ("seq", I8),  # the tick's time, its row's index, its ToolStates' seq
+    ("n_ports", I8), ("dt", F8), ("watchdog_ms", F8), ("ramp_ms", F8),
+    ("object", I8),  # a co-simulation's first dof of the body each ToolState carries
+    ("n_events", I8), ("events_dropped", I8),
+])  # fmt: skip
+EVENT_DTYPE = np.dtype([("t", F8), ("port", I8), ("frm", I8), ("to", I8)])
+
+
+def port_links(n_ports: int) -> np.ndarray:
+    """Every port's record, HELD with nothing taken."""
+    return np.zeros(n_ports, PORT_LINK_DTYPE)
+
+
+def world_clock(n_ports: int, dt: float, watchdog_ms: float, ramp_ms: float) -> np.ndarray:
+    clock = np.zeros(1, WORLD_CLOCK_DTYPE)
+    c = clock[0]
+    c["n_ports"], c["dt"], c["watchdog_ms"], c["ramp_ms"] = n_ports, dt, watchdog_ms, ramp_ms
+    return clock
+
+
+@njit(cache=True)
+def _bad(v, limit):
+    return not math.isfinite(v) or abs(v) > limit
+
+
+@njit(cache=True)
+def device_refusal(raw, p):
+    """Why `raw` is not a DeviceState for port p (a REASONS code), or -1: decode_device's
+    checks, in its order."""
+    n = len(raw)
+    if n < HEAD_BYTES:
+        return SIZE
+    u = np.frombuffer(raw, np.uint8)
+    for i in range(4):
+        if u[i] != MAGIC_BYTES[i]:
+            return MAGIC
+    if int(u[4]) + 256 * int(u[5]) != STATION_VERSION:
+        return VERSION
+    if n != DEVICE_BYTES:
+        return SIZE
+    if int(u[6]) + 256 * int(u[7]) != p:
+        return PORT
+    f = u[HEAD_BYTES : HEAD_BYTES + 8 * N_FLOATS].view(np.float64)
+    for i in range(N_FLOATS):
+        if i < 3 or 6 <= i < 6 + J:  # the pose, the glove
+            limit = POSE_LIMIT_M if i < 3 else GLOVE_ANGLE_LIMIT
+        else:  # the twist, the glove's rates
+            limit = TWIST_LIMIT
+        if _bad(f[i], limit):
+            return VALUE
+    flags = u[DEVICE_BYTES - 4 : DEVICE_BYTES].view(np.uint32)[0]
+    if flags & ~np.uint32(FLAGS_KNOWN):
+        return FLAGS
+    return -1
+
+
+@njit(cache=True)
+def silent(ps, c):
+    """Nothing taken from port ps's station, or nothing for the watchdog."""
+    return ps.has_last == 0 or (c.now_ns - ps.rx_ns) / 1e6 > c.watchdog_ms
+
+
+@njit(cache=True)
+def take_device(ports, clock, p, raw):
+    """Port p's DeviceState `raw` (bytes), taken or refused and counted (module docstring).
+    Within a station's epoch a message must be newer than the last taken; another epoch (a
+    restarted station, or a second one on the port) only once the present one is silent."""
+    c = clock[0]
+    ps = ports[p]
+    why = device_refusal(raw, p)
+    if why < 0:
+        u = np.frombuffer(raw, np.uint8)
+        head = u[8:24].view(np.uint64)
+        epoch, seq = head[0], head[1]
+        if ps.has_last != 0:
+            if epoch == ps.epoch and seq <= ps.seq:
+                why = STALE
+            elif epoch != ps.epoch and not silent(ps, c):
+                why = OTHER_EPOCH
+    if why >= 0:
+        ps.rejected += 1
+        ps.reasons[why] += 1
+        return
+    ps.epoch, ps.seq = epoch, seq
+    f = u[HEAD_BYTES : HEAD_BYTES + 8 * N_FLOATS].view(np.float64)
+    for a in range(3):
+        ps.pose[a] = f[a]
+        ps.twist[a] = f[3 + a]
+    for j in range(J):
+        ps.glove[j] = f[6 + j]
+        ps.glove_rate[j] = f[6 + J + j]
+    ps.flags = u[DEVICE_BYTES - 4 : DEVICE_BYTES].view(np.uint32)[0]
+    ps.has_last = 1
+    ps.rx_ns = c.now_ns
+    ps.received += 1
+
+
+@njit(cache=True)
+def _live(ps, age_s, a):
+    """The station's device in the world, axis a: re-indexed, carried on by its twist for at
+    most EXTRAPOLATE_S (an old reading is not carried on into a guess)."""
+    return ps.pose[a] + ps.offset[a] + ps.twist[a] * min(age_s, EXTRAPOLATE_S)
+
+
+@njit(cache=True)
+def _event(c, events, p, frm, to):
+    if c.n_events < len(events):
+        e = events[c.n_events]
+        e.t, e.port, e.frm, e.to = c.t, p, frm, to
+        c.n_events += 1
+    else:
+        c.events_dropped += 1
+
+
+@njit(cache=True)
+def step_ports(ports, clock, events):
+    """Each port's state this tick and the device pose and twist it feeds (shared_world's
+    docstring), into its fed_pose, fed_twist and glove_act."""
+    c = clock[0]
+    for p in range(c.n_ports):
+        ps = ports[p]
+        if silent(ps, c) or ps.flags & CUT:
+            new = HELD_STATE
+        elif ps.flags & SAFE:
+            new = INDEXING
+        else:  # rendering: coupled, unless it comes from HELD (it must go safe first)
+            new = HELD_STATE if ps.state == HELD_STATE else COUPLED
+        ps.glove_act = GLOVE_AS_BEFORE
+        if new != ps.state:
+            if ps.state == COUPLED:  # held where it was last seen
+                for a in range(3):
+                    ps.anchor[a] = ps.start[a] + ps.blend * (_live(ps, 0.0, a) - ps.start[a])
+            _event(c, events, p, ps.state, new)
+            if new == COUPLED:
+                for a in range(3):
+                    ps.start[a] = ps.anchor[a]
+                ps.blend = 0.0
+                ps.glove_act = GLOVE_TAKE_START
+            elif ps.state == COUPLED and ps.flags & GLOVE:
+                ps.glove_act = GLOVE_HOLD  # a hand's fingers held where its station left them
+            ps.state = new
+        if new == COUPLED:
+            age_s = (c.now_ns - ps.rx_ns) / 1e9
+            ps.blend = min(1.0, ps.blend + c.dt / (c.ramp_ms / 1e3))
+            for a in range(3):
+                ps.anchor[a] = ps.start[a] + ps.blend * (_live(ps, age_s, a) - ps.start[a])
+                ps.fed_pose[a] = ps.anchor[a]
+                ps.fed_twist[a] = ps.blend * ps.twist[a]
+            continue
+        for a in range(3):
+            if new == INDEXING:
+                ps.offset[a] = ps.anchor[a] - ps.pose[a]
+            ps.fed_pose[a] = ps.anchor[a]
+            ps.fed_twist[a] = 0.0
+
+
+@njit(cache=True)
+def fill_tool(tools, p, ps, c, q, qd, obj):
+    """Port p's ToolState in tools[p]: its tool (pose q[:3], twist qd[:3], world frame) in its
+    station's frame, and the object's pose `obj` (world frame)."""
+    r = tools[p]
+    r.seq = c.seq
+    r.publish_time_ns = c.wall_ns
+    for a in range(3):
+        r.pose[a] = q[a] - ps.offset[a]
+        r.twist[a] = qd[a]
+        r.object_pose[a] = obj[a]
+    r.pose[2] = math.atan2(math.sin(r.pose[2]), math.cos(r.pose[2]))
+    r.flags = HELD if ps.state == HELD_STATE else 0
+
+
+def warm_records(n_ports: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Fresh ports, clock, events and ToolStates to compile a world's step with (its own
+    would be stepped)."""
+    tools = np.concatenate([tool_record(p, 0) for p in range(n_ports)])
+    clock = world_clock(n_ports, 1e-3, 50.0, 100.0)
+    return port_links(n_ports), clock, np.zeros(1, EVENT_DTYPE), tools
