@@ -117,6 +117,7 @@ class SharedWorld:
         self.clock = world_clock(n, self.engine.dt, network.world_watchdog_ms, network.safe_ramp_ms)
         self.clock[0]["object"] = self.engine.object_dof
         self.events = np.zeros(MAX_EVENTS, EVENT_DTYPE)
+        self.events.view(np.uint8)[:] = 0  # touched now (as the rows), not page by page in the loop
         self.epoch = time.time_ns()
         tools = []
         for p, user in enumerate(users):

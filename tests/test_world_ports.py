@@ -22,12 +22,14 @@ from hypothesis import strategies as st
 from haptic_local_model.haptic_server.shared_world import SharedWorld
 from haptic_local_model.haptic_server.stages.world_ports import (
     DEVICE_BYTES,
+    EXTRAPOLATE_S,
     REASONS,
     device_refusal,
     port_links,
     take_device,
     world_clock,
 )
+from haptic_local_model.haptic_server.world_engines import CosimWorld
 from haptic_local_model.shared.net.stations import load_station_network
 from haptic_local_model.shared.port_config import load_port_scene
 from haptic_local_model.shared.protocol.station import (
@@ -104,6 +106,34 @@ def test_the_compiled_take_refuses_as_the_reference_and_takes_its_fields(
     assert np.array_equal(taken, sent)  # bit for bit (-0.0 == 0.0 aside)
 
 
+@settings(max_examples=500, deadline=None)
+@given(
+    st.integers(0, 1),
+    st.integers(0, 2**64 - 1),
+    st.integers(0, 2**64 - 1),
+    st.lists(st.floats(-100.0, 100.0), min_size=3, max_size=3),
+    st.lists(st.floats(-1000.0, 1000.0), min_size=3, max_size=3),
+    st.lists(st.floats(-6.28, 6.28), min_size=J, max_size=J),
+    st.lists(st.floats(-1000.0, 1000.0), min_size=J, max_size=J),
+    st.integers(0, 7),
+)
+def test_a_valid_message_is_taken_field_by_field(
+    p: int, epoch: int, seq: int, pose: list[float], twist: list[float],
+    glove: list[float], rate: list[float], flags: int,
+) -> None:  # fmt: skip
+    """Messages a station sends (every field within its limit, the epoch and seq over all of
+    uint64): each field taken as the reference decodes it."""
+    m = DeviceState(p, epoch, seq, 7, tuple(pose), tuple(twist), flags, tuple(glove), tuple(rate))  # type: ignore[arg-type]
+    raw = encode_device(m)
+    assert decode_device(raw, p) == m and device_refusal(raw, p) == -1
+    ports, clock = port_links(2), world_clock(2, 1e-3, 50.0, 100.0)
+    take_device(ports, clock, p, raw)
+    ps = ports[p]
+    assert (int(ps["epoch"]), int(ps["seq"]), int(ps["flags"])) == (epoch, seq, flags)
+    for field, sent in (("pose", pose), ("twist", twist), ("glove", glove), ("glove_rate", rate)):
+        assert ps[field].tolist() == sent, field
+
+
 def _device(p: int = 0, **fields: Any) -> bytes:
     m = DeviceState(p, 1, 1, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     return encode_device(dataclasses.replace(m, **fields))
@@ -178,6 +208,8 @@ def test_the_world_publishes_each_tool_in_its_stations_frame(ring: Any) -> None:
         raw = encode_device(DeviceState(0, 9, seq, 0, pose, (0.0, 0.0, 0.0), flags))
         world.receive(0, ring([raw]), now)
         world.step(now, 0.0, 5 + seq)
+        held = decode_tool(world.tools[0:1].tobytes(), 0).held
+        assert world.state(0) == ("indexing" if flags else "coupled") and not held
     tool = decode_tool(world.tools[0:1].tobytes(), 0)
     q, _ = world.engine.tool(0)
     offset = world.ports[0]["offset"]
@@ -187,3 +219,30 @@ def test_the_world_publishes_each_tool_in_its_stations_frame(ring: Any) -> None:
     unwrapped = q[2] - offset[2]  # about 2 pi - 0.1: the anchor's angle is about 0
     assert unwrapped > math.pi
     assert tool.pose[2] == math.atan2(math.sin(unwrapped), math.cos(unwrapped))
+
+
+def test_a_coupled_device_is_carried_on_by_its_twist_for_at_most_the_cap(ring: Any) -> None:
+    """COUPLED, the fed pose blends from the anchor to the device as last seen, re-indexed and
+    carried on by its twist for its age up to EXTRAPOLATE_S (not beyond); the fed twist is
+    the device's times the blend."""
+    scene = load_port_scene("grasp_vertical")
+    world = SharedWorld(scene, load_station_network("stations_loopback", "world"), 10)
+    now = time.perf_counter_ns()
+    twist = (0.3, -0.2, 1.5)
+    for seq, flags in ((1, SAFE), (2, 0)):
+        raw = encode_device(DeviceState(0, 9, seq, 0, (0.01, 0.02, 0.1), twist, flags))
+        world.receive(0, ring([raw]), now)
+        world.step(now, 0.0, seq)
+    ps = world.ports[0]
+    seen = np.array((0.01, 0.02, 0.1)) + ps["offset"]
+    for age_ms, carried_s in ((0.0, 0.0), (2.0, 0.002), (4.0, 0.004), (9.0, EXTRAPOLATE_S)):
+        start, blend0 = ps["start"].copy(), float(ps["blend"])
+        world.step(now + round(age_ms * 1e6), 0.0, 3)
+        blend = float(ps["blend"])
+        assert blend == min(1.0, blend0 + 1e-3 / (world.network.safe_ramp_ms / 1e3))
+        live = seen + np.array(twist) * carried_s
+        assert np.allclose(ps["fed_pose"], start + blend * (live - start), rtol=0, atol=1e-15)
+        assert np.allclose(ps["fed_twist"], blend * np.array(twist), rtol=0, atol=1e-15)
+        assert isinstance(world.engine, CosimWorld)
+        fed = world.engine.data[0]
+        assert np.array_equal(fed["device_pose"][0], ps["fed_pose"])
