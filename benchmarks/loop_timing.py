@@ -327,6 +327,15 @@ def stations_timing(seconds: float, repeat: int, out: Path | None) -> int:
             who: float(np.median([r[who]["work_us"]["p99"] for r in rs]))
             for who in ("world", "left", "right")
         }
+        for i, r in enumerate(rs):  # a scene with a sim: the world's ticks that met it, apart
+            if "sim" in r["world"]:
+                a, b = (
+                    r["world"]["sim"]["work_us_sim_ticks"],
+                    r["world"]["sim"]["work_us_other_ticks"],
+                )
+                print(f"{scene} #{i + 1} world work, ticks that took or sent the sim's bodies: "
+                      f"p50 {a['p50']:.0f} p99 {a['p99']:.0f} us; the others: p50 {b['p50']:.0f} "
+                      f"p99 {b['p99']:.0f} us")  # fmt: skip
     budget = 0.25 * 1e6 / 1000.0
     for scene, m in medians.items():
         ok = "met" if m["world"] <= budget else "MISSED"

@@ -136,6 +136,9 @@ class SharedWorld:
         self.n_rows = 0
         self.start_q = self.engine.poses()
         self.work_us = SampleWindow(100_000)
+        # with a sim: the ticks that took a SimBodies or published a WorldBodies, apart
+        self.work_sim_us = SampleWindow(100_000)
+        self.work_rest_us = SampleWindow(100_000)
         self.pacer = Pacer(round(self.engine.dt * 1e9), SPIN_NS, None)
         self._stop = False
         # the sim that mirrors the world: a port scene with sim bodies (a mirror refuses a
@@ -198,14 +201,16 @@ class SharedWorld:
                 now = pacer.wait()
                 for p in range(len(subs)):
                     self.receive(p, subs[p], now)
-                if self.sim is not None:
-                    self.sim.take(now)
+                sim_tick = self.sim is not None and self.sim.take(now)
                 self.step(now, t, seq)
                 for p in range(len(pubs)):
                     pubs[p].put(self._tool_bytes[p].tobytes())
                 if self.sim is not None:
-                    self.sim.publish(seq)
-                self.work_us.add((time.perf_counter_ns() - now) / 1e3)
+                    sim_tick = self.sim.publish(seq) or sim_tick
+                work = (time.perf_counter_ns() - now) / 1e3
+                self.work_us.add(work)
+                if self.sim is not None:
+                    (self.work_sim_us if sim_tick else self.work_rest_us).add(work)
                 seq += 1
                 t += self.engine.dt
                 if not pacer.next():
@@ -259,4 +264,7 @@ class SharedWorld:
         out["steps_held"] = self.engine.steps_held()
         if self.sim is not None:
             out["sim"] = self.sim.summary()
+            # the world's work on the ticks that took or sent the sim's bodies, and the rest
+            out["sim"]["work_us_sim_ticks"] = self.work_sim_us.percentiles(50, 99, 99.9)
+            out["sim"]["work_us_other_ticks"] = self.work_rest_us.percentiles(50, 99, 99.9)
         return out

@@ -132,11 +132,14 @@ class SimLink:
             self.sample[:, 3:] = 0.0
             self.held = True
 
-    def take(self, now_ns: int) -> None:
-        """The newest valid SimBodies (module docstring), then the sim's bodies this tick."""
+    def take(self, now_ns: int) -> bool:
+        """The newest valid SimBodies (module docstring), then the sim's bodies this tick;
+        whether a SimBodies came (taken or refused)."""
         if self._sub is None:
-            return
+            return False
+        came = False
         for raw in newest_payload(self._sub):
+            came = True
             try:
                 m = decode_bodies(raw, SIM_BODIES_MAGIC, self.n_sim)
             except MessageError as exc:
@@ -161,11 +164,13 @@ class SimLink:
             self.rate[:] = 0.0
         drain_impulse(self.model, self.data, self.pending, self.rate)
         carry_sim_bodies(self.model, self.data, self.sample, 0.0 if self.held else age)
+        return came
 
-    def publish(self, seq: int) -> None:
-        """Every BODIES_EVERY ticks: the co-simulated bodies (q's order) to the sim."""
+    def publish(self, seq: int) -> bool:
+        """Every BODIES_EVERY ticks: the co-simulated bodies (q's order) to the sim; whether
+        it did this tick."""
         if seq % BODIES_EVERY:
-            return
+            return False
         d = self.data[0]
         r = self.record[0]
         n = self.n_bodies
@@ -175,6 +180,7 @@ class SimLink:
         r["bodies"][:n, 3:] = d["qd"][: 3 * n].reshape(n, 3)
         self._pub.put(self.record.tobytes())
         self.sent += 1
+        return True
 
     def summary(self) -> dict[str, Any]:
         ages = np.array(self.age_ms) if self.age_ms else np.zeros(1)

@@ -207,6 +207,8 @@ def test_the_sim_drops_a_ball_on_the_held_box_and_the_world_feels_its_weight(
     compared, differs = replay_log(tmp_path / "world.mcap")
     assert differs is None and compared == f["ticks"]
     assert np.isfinite(f["lag_mm"]["p99"])
+    work = f["world_sim"]  # the world's work split: ticks that met the sim's bodies, the rest
+    assert np.isfinite(work["work_us_sim_ticks"]["p50"] + work["work_us_other_ticks"]["p50"])
 
 
 def test_a_shape_scenes_sim_bodies_pass_through_the_mirror(ring: Any) -> None:
