@@ -29,7 +29,7 @@ from haptic_local_model.device_models.world_map import (
     DeviceWorldMap,
 )
 from haptic_local_model.haptic_server.stages.cosim import body_core
-from haptic_local_model.haptic_server.stages.hand import hand_records, hand_tick
+from haptic_local_model.haptic_server.stages.hand import glove_at, hand_records, hand_tick
 from haptic_local_model.haptic_server.stages.port_io import (
     drive_device,
     push_stretch,
@@ -85,34 +85,6 @@ HAND_ROW_DTYPE = np.dtype(
 #: the row fields a replay recomputes from the logged targets
 HAND_REPLAYED = ("q", "qd", "command", "glove_torque", "glove_ungated", "contact_force",
                  "penetration", "n_contacts", "invalid", "singular")  # fmt: skip
-
-
-@njit(cache=True)
-def glove_at(script, rows, t, n, out_angle, out_rate):
-    """The glove's n angles at t from the script's first `rows` rows (t, a_1, ..., a_n):
-    linear in between, held after the last (rate 0), the first before it."""
-    if rows == 0:
-        return
-    if t < script[0, 0] or rows == 1:
-        k = 0 if t < script[0, 0] else rows - 1
-        for j in range(n):
-            out_angle[j] = script[k, 1 + j]
-            out_rate[j] = 0.0
-        return
-    for k in range(rows - 1):
-        t0 = script[k, 0]
-        t1 = script[k + 1, 0]
-        if t0 <= t < t1:
-            f = (t - t0) / (t1 - t0)
-            for j in range(n):
-                a0 = script[k, 1 + j]
-                a1 = script[k + 1, 1 + j]
-                out_angle[j] = a0 + f * (a1 - a0)
-                out_rate[j] = (a1 - a0) / (t1 - t0)
-            return
-    for j in range(n):
-        out_angle[j] = script[rows - 1, 1 + j]
-        out_rate[j] = 0.0
 
 
 @njit(cache=True)

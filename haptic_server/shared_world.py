@@ -55,11 +55,10 @@ from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import DeviceWorldMap
 from haptic_local_model.haptic_server.sim_link import SimLink
 from haptic_local_model.haptic_server.stages.port_io import push_stretch
+from haptic_local_model.haptic_server.stages.station_messages import REASONS, STALE
 from haptic_local_model.haptic_server.stages.world_ports import (
     EVENT_DTYPE,
     MAX_EVENTS,
-    REASONS,
-    STALE,
     STATE_NAMES,
     port_links,
     take_device,

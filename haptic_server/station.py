@@ -1,17 +1,18 @@
 """A haptic station: one port's device and user, coupled to its tool in a shared world that
 `haptic-world` co-simulates, over a Zenoh router (docs/stations.md).
 
-Each tick (wall-clock paced at the scene's haptic rate): take the newest ToolState (a
+Each tick (wall-clock paced at the scene's haptic rate): take each ToolState waiting (a
 malformed one is refused and counted), run the compiled tick (haptic_server/stages/station.py:
 the device, its user, the coupling rendered against the tool carried on by its twist, the
-watchdog's ramp to the safe state), publish the device's state. The rows stay in memory and
-are written to MCAP when the run ends (`--log`: a temporary file renamed when whole).
+watchdog's ramp to the safe state), publish the device's state. The taking, the tick, the
+DeviceState and the row are compiled (haptic_server/stages/station_link.py): the loop's
+Python is its Zenoh calls and the device's noise refills. The rows stay in memory and are
+written to MCAP when the run ends (`--log`: a temporary file renamed when whole).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -21,12 +22,17 @@ from haptic_local_model.device_models.base import SimulatedDevice
 from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import noise_ready
 from haptic_local_model.device_models.world_map import DeviceWorldMap
-from haptic_local_model.haptic_server.hand_ports import glove_at, glove_script
-from haptic_local_model.haptic_server.stages.station import (
-    STATION_DTYPE,
-    STATION_ROW_DTYPE,
-    station_row,
-    station_tick,
+from haptic_local_model.haptic_server.hand_ports import glove_script
+from haptic_local_model.haptic_server.stages.station import STATION_DTYPE, STATION_ROW_DTYPE
+from haptic_local_model.haptic_server.stages.station_link import (
+    station_link,
+    station_log,
+    station_step,
+    take_tool,
+)
+from haptic_local_model.haptic_server.stages.station_messages import (
+    REASONS,
+    device_record,
 )
 from haptic_local_model.haptic_server.users import user_record
 from haptic_local_model.haptic_server.world_engines import port_gains, tool_start
@@ -36,19 +42,8 @@ from haptic_local_model.shared.net.stations import (
     open_client,
     port_keys,
 )
-from haptic_local_model.shared.net.transport import newest_payload
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
-from haptic_local_model.shared.protocol.station import (
-    CUT,
-    GLOVE,
-    SAFE,
-    DeviceState,
-    ToolState,
-    decode_tool,
-    encode_device,
-    vec3,
-)
-from haptic_local_model.shared.protocol.update import MessageError
+from haptic_local_model.shared.protocol.station import TOOL_RECORD
 from haptic_local_model.shared.timing import Pacer, SampleWindow, enter_loop
 
 TOOL_RING = 64  # tool states kept between two ticks: a stalled tick's worth and more
@@ -68,15 +63,6 @@ def rows_in_order(rows: np.ndarray, written: int) -> np.ndarray:
         return rows[:written].copy()
     k = written % cap
     return np.concatenate([rows[k:], rows[:k]])
-
-
-@dataclass
-class StationCounters:
-    received: int = 0
-    rejected: int = 0
-    refills: int = 0
-    safe_entries: int = 0  # times the ramp reached the safe state
-    reasons: dict[str, int] = field(default_factory=dict)
 
 
 class Station:
@@ -118,20 +104,19 @@ class Station:
         self.rows = np.zeros(max_rows, STATION_ROW_DTYPE)
         self.rows.view(np.uint8)[:] = 0  # every page touched now, not in the loop
         self.n_rows = 0
-        self._tool_ns = 0
-        self._last_tool: ToolState | None = None
-        self.counters = StationCounters()
+        self.link = station_link()  # STATION_LINK_DTYPE: the ToolStates taken, the counters
+        self.refills = 0
         self.work_us = SampleWindow(100_000)
         self.pacer = Pacer(round(scene.period_s * 1e9), SPIN_NS, None)
         self.epoch = time.time_ns()
+        self.message = device_record(self.index, self.epoch)  # the tick's DeviceState
         self._stop = False
         # a hand's station sends its user's glove (finger_angles on its own clock)
         self._glove = np.zeros((0, 1))
         if isinstance(scene, HandSceneConfig):
             rest = [a for f in scene.hand_of(self.index).fingers for a in f.rest]
             self._glove = glove_script(user, rest)
-        joints = self._glove.shape[1] - 1
-        self._glove_angle, self._glove_rate = np.zeros(joints), np.zeros(joints)
+        self.link[0]["n_glove"] = len(self._glove)
 
     def _place(self, start: tuple[float, float, float]) -> None:
         """The device at rest at its start, mapped onto its tool (the world re-indexes it
@@ -153,44 +138,16 @@ class Station:
     def request_stop(self, *_: object) -> None:
         self._stop = True
 
-    def _refuse(self, reason: str) -> None:
-        self.counters.rejected += 1
-        self.counters.reasons[reason] = self.counters.reasons.get(reason, 0) + 1
+    def receive(self, sub: Any, now_ns: int) -> None:
+        """Every ToolState waiting, oldest first: each taken or refused and counted
+        (station_link.take_tool)."""
+        while (sample := sub.try_recv()) is not None:
+            take_tool(self.station, self.link, self.index, now_ns, sample.payload.to_bytes())
 
-    def _take_tools(self, sub: Any, now_ns: int) -> None:
-        """The newest valid ToolState waiting, into the record; the rest counted. Within the
-        world's epoch a message must be newer than the last taken; another epoch (a world
-        restarted, or a second one) is taken only once the present one's are stale."""
-        newest = None
-        s = self.station[0]
-        for raw in newest_payload(sub):
-            try:
-                m = decode_tool(raw, self.index)
-            except MessageError as exc:
-                self._refuse(exc.reason)
-                continue
-            last = newest or self._last_tool
-            if last is not None:
-                if m.epoch == last.epoch and m.seq <= last.seq:
-                    self._refuse("stale")
-                    continue
-                current = now_ns - self._tool_ns < s["watchdog_s"] * 1e9
-                if m.epoch != last.epoch and current and newest is None:
-                    self._refuse("other_epoch")
-                    continue
-            newest = m
-            self.counters.received += 1
-        if newest is not None:
-            self._last_tool = newest
-            s["have_tool"] = 1
-            s["held"] = 1 if newest.held else 0
-            s["tool_pose"] = newest.pose
-            s["tool_twist"] = newest.twist
-            s["stiffness"] = newest.stiffness
-            s["damping"] = newest.damping
-            self._tool_ns = now_ns
-        if s["have_tool"] == 1:
-            s["tool_age"] = (now_ns - self._tool_ns) / 1e9
+    def reasons(self) -> dict[str, int]:
+        """The refused ToolStates, by reason (those that happened)."""
+        counts = self.link[0]["reasons"]
+        return {r: int(counts[i]) for i, r in enumerate(REASONS) if counts[i]}
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         device_key, tool_key = port_keys(self.network.namespace, self.port)
@@ -205,33 +162,22 @@ class Station:
         self.pacer = pacer
         enter_loop(self.warm, ready)
         pacer.start()
-        t0 = -1
         seq = 0
-        was_safe = True
         try:
             while not self._stop:
                 now = pacer.wait()
-                t0 = now if t0 < 0 else t0
                 if not noise_ready(dev, dt):
                     refill_noise(self.device.noise, dev, dt)
-                    self.counters.refills += 1
-                self._take_tools(sub, now)
-                station_tick(st, dev)
-                s = st[0]
-                w = s["world"][0]
-                flags = (SAFE if s["fresh"] == 0 else 0) | (CUT if s["cut"] == 1 else 0)
-                pose = (0.0, 0.0, 0.0) if s["cut"] else vec3(w["pose"])
-                twist = (0.0, 0.0, 0.0) if s["cut"] else vec3(w["twist"])
-                glove, rate = self._glove_at((now - t0) / 1e9)
-                pub.put(encode_device(DeviceState(
-                    self.index, self.epoch, seq, time.time_ns(), pose, twist,
-                    flags | (GLOVE if glove else 0), glove, rate,
-                )))  # fmt: skip
-                safe = s["gain"] == 0.0
-                if safe and not was_safe:
-                    self.counters.safe_entries += 1
-                was_safe = safe
-                self._row(now, pacer.late_ns, time.perf_counter_ns() - now)
+                    self.refills += 1
+                self.receive(sub, now)
+                wall = time.time_ns()
+                station_step(st, dev, self.link, self.message, self._glove, now, wall, seq)
+                pub.put(self.message.tobytes())
+                work_ns = time.perf_counter_ns() - now
+                self.work_us.add(work_ns / 1e3)
+                station_log(st, self.link, self.rows, self.n_rows % len(self.rows), now,
+                            pacer.late_ns, work_ns)  # fmt: skip
+                self.n_rows += 1
                 seq += 1
                 if not pacer.next():
                     break
@@ -239,35 +185,15 @@ class Station:
             session.close()
         return self.summary()
 
-    def _glove_at(self, t: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """A hand's station: its glove's angles and rates at t (its own clock); else ()."""
-        if len(self._glove) == 0:
-            return (), ()
-        glove_at(self._glove, len(self._glove), t, len(self._glove_angle), self._glove_angle,
-                 self._glove_rate)  # fmt: skip
-        return tuple(self._glove_angle.tolist()), tuple(self._glove_rate.tolist())
-
-    def _row(self, now_ns: int, late_ns: int, work_ns: int) -> None:
-        self.work_us.add(work_ns / 1e3)
-        k = self.n_rows % len(self.rows)
-        station_row(self.station, self.rows, k, self.station[0]["sensors"][0]["fault"])
-        row = self.rows[k]
-        row["wall_ns"] = now_ns
-        row["late_us"] = late_ns / 1e3
-        row["work_us"] = work_ns / 1e3
-        row["received"] = self.counters.received
-        row["rejected"] = self.counters.rejected
-        self.n_rows += 1
-
     def warm(self) -> None:
         """Compile (or load) the tick on spare records before the loop."""
-        spare = self.station.copy()
+        spare, link = self.station.copy(), self.link.copy()
         self.device.noise.refill()
         records = self.device.records
-        station_tick(spare, records)
-        station_row(spare, np.zeros(1, STATION_ROW_DTYPE), 0, 0)
-        if len(self._glove):  # a hand's glove, called from the loop: compiled (or loaded) now
-            self._glove_at(0.0)
+        tool = np.zeros(1, TOOL_RECORD)  # a ToolState refused (the wrong magic): not taken
+        take_tool(spare, link, self.index, 0, tool.tobytes())
+        station_step(spare, records, link, self.message.copy(), self._glove, 0, 0, 0)
+        station_log(spare, link, np.zeros(1, STATION_ROW_DTYPE), 0, 0, 0, 0)
         self._place(self.scene.ports[self.index].device_start)
 
     def logged_rows(self) -> np.ndarray:
@@ -275,7 +201,7 @@ class Station:
 
     def summary(self) -> dict[str, Any]:
         rows = self.logged_rows()
-        c = self.counters
+        c = self.link[0]
         return {
             "port": self.port,
             "device": self.device.name,
@@ -283,11 +209,11 @@ class Station:
             "ticks": self.n_rows,
             **self.pacer.figures(),
             "work_us": self.work_us.percentiles(50, 99, 99.9),
-            "noise_refills": c.refills,
-            "tool_states_received": c.received,
-            "tool_states_rejected": c.rejected,
-            "rejected_by_reason": dict(c.reasons),
-            "safe_entries": c.safe_entries,
+            "noise_refills": self.refills,
+            "tool_states_received": int(c["received"]),
+            "tool_states_rejected": int(c["rejected"]),
+            "rejected_by_reason": self.reasons(),
+            "safe_entries": int(c["safe_entries"]),
             "commands_invalid": int(self.station[0]["invalid"]),
             "mean_command_last_s": (
                 rows["out"][-min(len(rows), 1000) :].mean(axis=0).tolist() if len(rows) else []

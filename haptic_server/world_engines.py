@@ -25,7 +25,7 @@ from haptic_local_model.haptic_server.hand_grasp_ports import (
     grasp_port_records,
     hand_grasp_row,
 )
-from haptic_local_model.haptic_server.hand_ports import HAND_IO_DTYPE, glove_at, glove_script
+from haptic_local_model.haptic_server.hand_ports import HAND_IO_DTYPE, glove_script
 from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE
 from haptic_local_model.haptic_server.stages.cosim import (
     MAX_COSIM_BODIES,
@@ -37,6 +37,7 @@ from haptic_local_model.haptic_server.stages.cosim import (
     drain_impulse,
     sim_bodies_of,
 )
+from haptic_local_model.haptic_server.stages.hand import glove_at
 from haptic_local_model.haptic_server.stages.hand_grasp import MAX_HANDS, grasp_tick
 from haptic_local_model.haptic_server.stages.world_ports import (
     COUPLED,

@@ -20,11 +20,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from haptic_local_model.haptic_server.shared_world import SharedWorld
-from haptic_local_model.haptic_server.stages.world_ports import (
+from haptic_local_model.haptic_server.stages.station_messages import (
     DEVICE_BYTES,
-    EXTRAPOLATE_S,
     REASONS,
     device_refusal,
+)
+from haptic_local_model.haptic_server.stages.world_ports import (
+    EXTRAPOLATE_S,
     port_links,
     take_device,
     world_clock,

@@ -658,3 +658,31 @@ def run_tracked(chain, model, data, targets, rates, rows_q, rows_command, rows_c
         rows_contact[k, 0] = d.contact_force[0]
         rows_contact[k, 1] = d.contact_force[1]
         rows_contact[k, 2] = d.penetration
+
+
+@njit(cache=True)
+def glove_at(script, rows, t, n, out_angle, out_rate):
+    """The glove's n angles at t from the script's first `rows` rows (t, a_1, ..., a_n):
+    linear in between, held after the last (rate 0), the first before it."""
+    if rows == 0:
+        return
+    if t < script[0, 0] or rows == 1:
+        k = 0 if t < script[0, 0] else rows - 1
+        for j in range(n):
+            out_angle[j] = script[k, 1 + j]
+            out_rate[j] = 0.0
+        return
+    for k in range(rows - 1):
+        t0 = script[k, 0]
+        t1 = script[k + 1, 0]
+        if t0 <= t < t1:
+            f = (t - t0) / (t1 - t0)
+            for j in range(n):
+                a0 = script[k, 1 + j]
+                a1 = script[k + 1, 1 + j]
+                out_angle[j] = a0 + f * (a1 - a0)
+                out_rate[j] = (a1 - a0) / (t1 - t0)
+            return
+    for j in range(n):
+        out_angle[j] = script[rows - 1, 1 + j]
+        out_rate[j] = 0.0

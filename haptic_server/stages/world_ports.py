@@ -1,9 +1,10 @@
 """A shared world's ports, compiled (haptic_server/shared_world.py runs them; docs/stations.md):
 
-- `take_device`: one DeviceState received on a port's key, decoded, checked and ordered as
-  shared/protocol/station.py's `decode_device` and `order_refusal` do (they stay the
-  reference: tests/test_world_ports.py checks that both refuse the same messages, for the
-  same reason, and take the same fields), or refused and counted by reason;
+- `take_device`: one DeviceState received on a port's key, checked
+  (station_messages.device_refusal) and ordered as shared/protocol/station.py's
+  `order_refusal` does (the reference: tests/test_world_ports.py checks that both refuse
+  the same messages, for the same reason), its fields taken, or refused and counted by
+  reason;
 - `step_ports`: each port's state this tick (HELD, INDEXING, COUPLED: shared_world's
   docstring) and the device pose and twist it feeds its tool;
 - `fill_tool`: a port's ToolState, its TOOL_RECORD filled in place.
@@ -21,41 +22,36 @@ an EVENT_DTYPE array the summary reads.
 from __future__ import annotations
 
 import math
-import struct
 
 import numpy as np
 from numba import njit
 
+from haptic_local_model.haptic_server.stages.station_messages import (
+    DEVICE_FLOATS,
+    OTHER_EPOCH,
+    REASONS,
+    STALE,
+    device_refusal,
+    message_flags,
+    message_floats,
+    message_order,
+)
 from haptic_local_model.shared.protocol.station import (
     CUT,
-    DEVICE_MAGIC,
     GLOVE,
-    GLOVE_ANGLE_LIMIT,
     HELD,
     MAX_GLOVE_JOINTS,
-    POSE_LIMIT_M,
     SAFE,
-    STATION_VERSION,
-    TWIST_LIMIT,
     tool_record,
 )
 
 HELD_STATE, INDEXING, COUPLED = 0, 1, 2
 STATE_NAMES = ("held", "indexing", "coupled")
-#: A refusal's reason, by code: decode_device's MessageError reasons, then order_refusal's.
-REASONS = ("size", "magic", "version", "port", "value", "flags", "stale", "other_epoch")
-SIZE, MAGIC, VERSION, PORT, VALUE, FLAGS, STALE, OTHER_EPOCH = range(len(REASONS))
 #: What an engine does with a hand's glove this tick (a tool has none).
 GLOVE_AS_BEFORE, GLOVE_TAKE_START, GLOVE_HOLD = 0, 1, 2
 EXTRAPOLATE_S = 0.005  # a device's pose carried on by its twist at most this (as a station's)
 MAX_EVENTS = 10_000  # port state changes kept for the summary and the log
-
 J = MAX_GLOVE_JOINTS
-HEAD_BYTES = struct.calcsize("<4sHHQQq")
-N_FLOATS = 6 + 2 * J  # pose, twist, glove, glove_rate
-DEVICE_BYTES = struct.calcsize(f"<4sHHQQq{N_FLOATS}dI")
-MAGIC_BYTES = np.frombuffer(DEVICE_MAGIC, np.uint8).copy()
-FLAGS_KNOWN = SAFE | CUT | GLOVE
 
 F8, I8 = np.float64, np.int64
 PORT_LINK_DTYPE = np.dtype([
@@ -91,42 +87,6 @@ def world_clock(n_ports: int, dt: float, watchdog_ms: float, ramp_ms: float) -> 
 
 
 @njit(cache=True)
-def _bad(v, limit):
-    return not math.isfinite(v) or abs(v) > limit
-
-
-@njit(cache=True)
-def device_refusal(raw, p):
-    """Why `raw` is not a DeviceState for port p (a REASONS code), or -1: decode_device's
-    checks, in its order."""
-    n = len(raw)
-    if n < HEAD_BYTES:
-        return SIZE
-    u = np.frombuffer(raw, np.uint8)
-    for i in range(4):
-        if u[i] != MAGIC_BYTES[i]:
-            return MAGIC
-    if int(u[4]) + 256 * int(u[5]) != STATION_VERSION:
-        return VERSION
-    if n != DEVICE_BYTES:
-        return SIZE
-    if int(u[6]) + 256 * int(u[7]) != p:
-        return PORT
-    f = u[HEAD_BYTES : HEAD_BYTES + 8 * N_FLOATS].view(np.float64)
-    for i in range(N_FLOATS):
-        if i < 3 or 6 <= i < 6 + J:  # the pose, the glove
-            limit = POSE_LIMIT_M if i < 3 else GLOVE_ANGLE_LIMIT
-        else:  # the twist, the glove's rates
-            limit = TWIST_LIMIT
-        if _bad(f[i], limit):
-            return VALUE
-    flags = u[DEVICE_BYTES - 4 : DEVICE_BYTES].view(np.uint32)[0]
-    if flags & ~np.uint32(FLAGS_KNOWN):
-        return FLAGS
-    return -1
-
-
-@njit(cache=True)
 def silent(ps, c):
     """Nothing taken from port ps's station, or nothing for the watchdog."""
     return ps.has_last == 0 or (c.now_ns - ps.rx_ns) / 1e6 > c.watchdog_ms
@@ -141,9 +101,7 @@ def take_device(ports, clock, p, raw):
     ps = ports[p]
     why = device_refusal(raw, p)
     if why < 0:
-        u = np.frombuffer(raw, np.uint8)
-        head = u[8:24].view(np.uint64)
-        epoch, seq = head[0], head[1]
+        epoch, seq = message_order(raw)
         if ps.has_last != 0:
             if epoch == ps.epoch and seq <= ps.seq:
                 why = STALE
@@ -154,14 +112,14 @@ def take_device(ports, clock, p, raw):
         ps.reasons[why] += 1
         return
     ps.epoch, ps.seq = epoch, seq
-    f = u[HEAD_BYTES : HEAD_BYTES + 8 * N_FLOATS].view(np.float64)
+    f = message_floats(raw, DEVICE_FLOATS)
     for a in range(3):
         ps.pose[a] = f[a]
         ps.twist[a] = f[3 + a]
     for j in range(J):
         ps.glove[j] = f[6 + j]
         ps.glove_rate[j] = f[6 + J + j]
-    ps.flags = u[DEVICE_BYTES - 4 : DEVICE_BYTES].view(np.uint32)[0]
+    ps.flags = message_flags(raw)
     ps.has_last = 1
     ps.rx_ns = c.now_ns
     ps.received += 1
