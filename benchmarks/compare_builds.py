@@ -5,7 +5,8 @@ tree and in this one, (1) `benchmarks.kernel_cost` (the tick kernel alone and on
 per tick, 0..32 contacts) and (2) a real-time run of the two servers (`haptic-run`, default
 scene and device, with the MCAP log), from which the loop's work per tick is read. With
 --stations, instead: `loop_timing --stations` once per repeat in each tree (a shared world and
-two stations on loopback, every shipped port scene), the world's work per tick read. The order
+two stations on loopback, every shipped port scene), the world's and the stations' work per
+tick read. The order
 alternates between repeats so slow spells of a shared host hit both builds; every figure is
 the median over repeats.
 
@@ -134,7 +135,8 @@ def loop_work(tree: Path, seconds: float) -> dict[str, float]:
 
 
 def stations_work(tree: Path, seconds: float) -> dict[str, float]:
-    """The world's work per tick p50 and p99 in one `loop_timing --stations` run, per scene."""
+    """The world's and the stations' work per tick p50 and p99 (the stations': the larger of
+    the two) in one `loop_timing --stations` run, per scene."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "stations.json"
         subprocess.run(
@@ -147,6 +149,10 @@ def stations_work(tree: Path, seconds: float) -> dict[str, float]:
     for scene, (run,) in runs.items():
         for pct in ("p50", "p99"):
             figures[f"{scene} {pct}"] = float(run["world"]["work_us"][pct])
+        for pct in ("p50", "p99"):
+            figures[f"{scene} stations {pct}"] = max(
+                float(run[p]["work_us"][pct]) for p in ("left", "right")
+            )
     return figures
 
 
@@ -212,7 +218,7 @@ def _compare_stations(trees: dict[str, Path], args: argparse.Namespace) -> int:
             runs[name].append(stations_work(trees[name], args.seconds))
             print(f"  {name}: {runs[name][-1]}", file=sys.stderr)
     medians = {name: _median(runs[name]) for name in trees}
-    print(f"world work per tick (us), medians of {args.repeat} interleaved runs of "
+    print(f"work per tick (us), medians of {args.repeat} interleaved runs of "
           f"{args.seconds:g} s; base = {args.base}")  # fmt: skip
     print(f"{'scene':<24}{'base':>10}{'this':>10}")
     for key in medians["base"]:
