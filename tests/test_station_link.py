@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.haptic_server.stages.station_link import (
     station_link,
+    station_log,
     station_step,
     take_tool,
 )
@@ -106,11 +107,23 @@ ONE_OF_EACH = {  # a ToolState each reason refuses
 }  # fmt: skip
 
 
+def _tool(twist: Any = (0, 0, 0), k: Any = (1, 1, 1), b: Any = (1, 1, 1),
+          obj: Any = (0, 0, 0)) -> bytes:  # fmt: skip
+    return encode_tool(ToolState(0, 1, 1, 0, (0, 0, 0), twist, k, b, obj))
+
+
 def test_each_reason_refuses_its_tool_state() -> None:
     for reason, raws in ONE_OF_EACH.items():
         for raw in raws:
             assert _reference(raw, 0)[0] == reason
             assert REASONS[tool_refusal(raw, 0)] == reason, (reason, raw)
+    # each field at its own limit: a twist beyond 1000, a damping below zero; a negative
+    # object pose is a pose, not a gain
+    for raw in (_tool(twist=(0, 1000.5, 0)), _tool(b=(1, 1, -1e-12)), _tool(k=(0, 1e7 * 1.01, 0))):
+        assert _reference(raw, 0)[0] == "value" and REASONS[tool_refusal(raw, 0)] == "value"
+    for raw in (_tool(obj=(-99.0, -5.0, -3.0)), _tool(twist=(-1000.0, 1000.0, 0)),
+                _tool(k=(1e7, 0, -0.0), b=(0, 1e7, 0))):  # fmt: skip
+        assert _reference(raw, 0)[0] is None and tool_refusal(raw, 0) == -1
 
 
 @settings(max_examples=300, deadline=None)
@@ -162,6 +175,39 @@ def test_tool_states_are_taken_in_order_and_another_world_only_after_silence() -
         assert got == want, (now, outcome)
         assert station[0]["tool_pose"][0] == x_taken
     assert int(link[0]["epoch"]) == 8 and link[0]["received"] == 3
+    # a batch (one tick's messages): the current world's newest, then another world's: refused
+    take_tool(station, link, 0, 107 * ms, tool(8, 4, 0.9))
+    take_tool(station, link, 0, 107 * ms, tool(9, 1, 1.0))
+    assert (
+        station[0]["tool_pose"][0] == 0.9 and link[0]["reasons"][REASONS.index("other_epoch")] == 4
+    )
+
+
+def test_silent_tool_states_age_the_tool_into_the_watchdog_and_the_safe_state(ring: Any) -> None:
+    """One ToolState, then none: the tool ages a tick at a time (the station's watchdog, 100 ms,
+    fires at the tick it is 100 ms old), the station ramps to the safe state over 40 ms and says
+    SAFE; the ramp counts one safe entry; each row logs the loop's figures and the counters."""
+    sta = _station()
+    now = 10**12
+    rows = sta.rows = np.zeros(200, sta.rows.dtype)
+    w = sta.station[0]["world"][0]
+    raw = encode_tool(ToolState(0, 1, 1, 0, tuple(w["pose"]), (0, 0, 0), (1, 1, 1), (1, 1, 1),
+                                (0, 0, 0)))  # fmt: skip
+    sta.receive(ring([raw, b"junk"]), now)
+    for k in range(200):
+        t_ns = now + k * 10**6
+        station_step(sta.station, sta.device.records, sta.link, sta.message, sta._glove,
+                     t_ns, 0, k)  # fmt: skip
+        station_log(sta.station, sta.link, rows, k, t_ns, 7000, 30000)
+    assert np.allclose(rows["tool_age"], np.arange(200) * 1e-3, rtol=0, atol=1e-12)
+    wd = int(np.argmax(rows["fresh"] == 0))
+    assert rows["fresh"][:wd].all() and not rows["fresh"][wd:].any() and wd == 100
+    safe = int(np.argmax(rows["gain"] == 0.0))
+    assert 30 <= safe - wd <= 40 and sta.link[0]["safe_entries"] == 1
+    assert decode_device(sta.message.tobytes(), 0).flags == SAFE
+    assert rows["wall_ns"][5] == now + 5 * 10**6 and rows["late_us"][5] == 7.0
+    assert rows["work_us"][5] == 30.0 and (rows["received"] == 1).all()
+    assert (rows["rejected"] == 1).all() and sta.reasons() == {"size": 1}
 
 
 def test_the_station_sends_its_device_as_decode_device_reads_it() -> None:
@@ -206,5 +252,6 @@ def test_a_hands_station_sends_its_users_glove_on_its_own_clock() -> None:
         glove_at(script, len(script), (t_ns - now) / 1e9, n, angle, rate)
         assert m.flags & GLOVE and m.glove[:n] == tuple(angle) and m.glove_rate[:n] == tuple(rate)
         assert not any(m.glove[n:]) and not any(m.glove_rate[n:])
+        assert any(m.glove[:n])  # written: the script's angles are not all zero
         if 1.5 < dt_s < 2.5:  # the script's second segment: 0.3 rad over 1 s
             assert math.isclose(m.glove_rate[0], 0.3, rel_tol=1e-12)

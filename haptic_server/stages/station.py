@@ -99,7 +99,7 @@ STATION_ROW_DTYPE = np.dtype(
         ("cut", I8),
         ("invalid", I8),
         ("received", I8),  # tool states taken, all told
-        ("rejected", I8),  # tool states refused (malformed), all told
+        ("rejected", I8),  # tool states refused (malformed, stale, another world's), all told
         ("fault", I8),  # the device's fault bits
     ]
 )
