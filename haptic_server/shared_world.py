@@ -55,7 +55,7 @@ from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import DeviceWorldMap
 from haptic_local_model.haptic_server.sim_link import SimLink
 from haptic_local_model.haptic_server.stages.port_io import push_stretch
-from haptic_local_model.haptic_server.stages.station_messages import REASONS, STALE
+from haptic_local_model.haptic_server.stages.station_messages import STALE, reason_counts
 from haptic_local_model.haptic_server.stages.world_ports import (
     EVENT_DTYPE,
     MAX_EVENTS,
@@ -173,8 +173,7 @@ class SharedWorld:
 
     def reasons(self, p: int) -> dict[str, int]:
         """Port p's refused DeviceStates, by reason (those that happened)."""
-        counts = self.ports[p]["reasons"]
-        return {r: int(counts[i]) for i, r in enumerate(REASONS) if counts[i]}
+        return reason_counts(self.ports[p]["reasons"])
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         session = open_client(self.network.world)

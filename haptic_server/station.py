@@ -31,8 +31,8 @@ from haptic_local_model.haptic_server.stages.station_link import (
     take_tool,
 )
 from haptic_local_model.haptic_server.stages.station_messages import (
-    REASONS,
     device_record,
+    reason_counts,
 )
 from haptic_local_model.haptic_server.users import user_record
 from haptic_local_model.haptic_server.world_engines import port_gains, tool_start
@@ -146,8 +146,7 @@ class Station:
 
     def reasons(self) -> dict[str, int]:
         """The refused ToolStates, by reason (those that happened)."""
-        counts = self.link[0]["reasons"]
-        return {r: int(counts[i]) for i, r in enumerate(REASONS) if counts[i]}
+        return reason_counts(self.link[0]["reasons"])
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         device_key, tool_key = port_keys(self.network.namespace, self.port)

@@ -24,13 +24,12 @@ from numba import njit
 from haptic_local_model.haptic_server.stages.hand import glove_at
 from haptic_local_model.haptic_server.stages.station import station_row, station_tick
 from haptic_local_model.haptic_server.stages.station_messages import (
-    OTHER_EPOCH,
     REASONS,
-    STALE,
     TOOL_FLOATS,
     message_flags,
     message_floats,
     message_order,
+    order_code,
     tool_refusal,
 )
 from haptic_local_model.shared.protocol.station import CUT, GLOVE, HELD, SAFE
@@ -61,11 +60,8 @@ def take_tool(station, link, p, now_ns, raw):
     why = tool_refusal(raw, p)
     if why < 0:
         epoch, seq = message_order(raw)
-        if c.has_last != 0:
-            if epoch == c.epoch and seq <= c.seq:
-                why = STALE
-            elif epoch != c.epoch and now_ns - c.tool_ns < s.watchdog_s * 1e9:
-                why = OTHER_EPOCH
+        silent = now_ns - c.tool_ns >= s.watchdog_s * 1e9  # the station's own watchdog
+        why = order_code(c.has_last, c.epoch, c.seq, epoch, seq, silent)
     if why >= 0:
         c.rejected += 1
         c.reasons[why] += 1

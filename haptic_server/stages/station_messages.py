@@ -131,6 +131,25 @@ def tool_refusal(raw, p):
 
 
 @njit(cache=True)
+def order_code(has_last, last_epoch, last_seq, epoch, seq, silent):
+    """shared/protocol/station.py's `order_refusal` as a REASONS code (-1: taken): within
+    the sender's epoch a message must be newer; another epoch only once the taken one is
+    `silent` (each side's own silence rule)."""
+    if has_last == 0:
+        return -1
+    if epoch == last_epoch and seq <= last_seq:
+        return STALE
+    if epoch != last_epoch and not silent:
+        return OTHER_EPOCH
+    return -1
+
+
+def reason_counts(counts: np.ndarray) -> dict[str, int]:
+    """Refusals counted by REASONS code, as a dict of those that happened."""
+    return {r: int(counts[i]) for i, r in enumerate(REASONS) if counts[i]}
+
+
+@njit(cache=True)
 def message_order(raw):
     """A checked message's epoch and seq (uint64)."""
     head = np.frombuffer(raw, np.uint8)[8:24].view(np.uint64)

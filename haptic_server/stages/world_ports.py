@@ -28,13 +28,12 @@ from numba import njit
 
 from haptic_local_model.haptic_server.stages.station_messages import (
     DEVICE_FLOATS,
-    OTHER_EPOCH,
     REASONS,
-    STALE,
     device_refusal,
     message_flags,
     message_floats,
     message_order,
+    order_code,
 )
 from haptic_local_model.shared.protocol.station import (
     CUT,
@@ -102,11 +101,7 @@ def take_device(ports, clock, p, raw):
     why = device_refusal(raw, p)
     if why < 0:
         epoch, seq = message_order(raw)
-        if ps.has_last != 0:
-            if epoch == ps.epoch and seq <= ps.seq:
-                why = STALE
-            elif epoch != ps.epoch and not silent(ps, c):
-                why = OTHER_EPOCH
+        why = order_code(ps.has_last, ps.epoch, ps.seq, epoch, seq, silent(ps, c))
     if why >= 0:
         ps.rejected += 1
         ps.reasons[why] += 1
