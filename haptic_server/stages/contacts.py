@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from numba import njit
 
+from haptic_local_model.haptic_server.physics.contact_law import penalty_friction
 from haptic_local_model.shared.kinematics import point_jacobian, point_on_link
 from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
 
@@ -190,18 +191,10 @@ def contact_stage(m, d, k, weight, detect):
         if cs.in_contact[i] == 0:
             cs.stick[i] = 0.0
         cs.in_contact[i] = 1
-        f_n = k_n * (-gap) - b_n * vn
-        if f_n < 0.0:
-            f_n = 0.0
         k_t = slot.c_tangential_stiffness[i]
-        cs.stick[i] += vt * dt
-        f_t = -k_t * cs.stick[i] - b_n * vt
-        limit = slot.c_friction[i] * f_n
-        sticking = True
-        if abs(f_t) > limit:
-            f_t = limit if f_t > 0.0 else -limit
-            cs.stick[i] = -f_t / k_t if k_t > 0.0 else 0.0
-            sticking = False
+        f_n, f_t, cs.stick[i], sticking = penalty_friction(
+            (k_n, b_n, slot.c_friction[i], k_t), -gap, vn, vt, cs.stick[i], dt
+        )
         fx = f_n * nx + f_t * tx
         fy = f_n * ny + f_t * ty
         ws.contact_force[0] += weight * fx

@@ -52,8 +52,15 @@ import math
 import numpy as np
 from numba import njit
 
+from haptic_local_model.haptic_server.physics.contact_law import add_rows, penalty_friction
+from haptic_local_model.haptic_server.physics.implicit import (
+    implicit_advance,
+    implicit_solve,
+    implicit_system,
+    subtract_stiffness_velocity,
+)
+from haptic_local_model.haptic_server.physics.impulses import lcp
 from haptic_local_model.shared.kinematics import wrap_angle
-from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
 from haptic_local_model.shared.port_config import (
     MAX_COSIM_BODIES,
     MAX_PORTS,
@@ -72,7 +79,6 @@ MAX_COLLISIONS = 16  # colliding contacts resolved in one tick; more: penalty al
 MAX_HITS = (
     MAX_COSIM_BODIES * (N_ELEMENTS - 1) + MAX_STATIC_BODIES * MAX_COSIM_BODIES
 ) * MAX_VERTICES
-LCP_SWEEPS = 200  # projected Gauss-Seidel sweeps at most (it stops when converged)
 
 COSIM_DTYPE = np.dtype(
     [
@@ -83,6 +89,7 @@ COSIM_DTYPE = np.dtype(
         ("n_ports", I8),
         ("mass", F8, (MAX_COSIM_BODIES,)),
         ("inertia", F8, (MAX_COSIM_BODIES,)),
+        ("mass_q", F8, (MAX_COSIM_DOF, MAX_COSIM_DOF)),  # D = blkdiag(m, m, I, ...)
         ("n_vert", I8, (N_ELEMENTS,)),
         ("vertices", F8, (N_ELEMENTS, MAX_VERTICES, 2)),  # core, body frame about the COM
         ("rounding", F8, (N_ELEMENTS,)),
@@ -191,6 +198,7 @@ def cosim_records(
         b = scene.body(name)
         m["mass"][i] = b.mass
         m["inertia"][i] = b.moment
+        m["mass_q"][3 * i : 3 * i + 3, 3 * i : 3 * i + 3] = np.diag([b.mass, b.mass, b.moment])
         _set_core(m, i, b)
         d["q"][3 * i : 3 * i + 3] = (b.position[0], b.position[1], b.angle)
         d["qd"][3 * i : 3 * i + 3] = (b.velocity[0], b.velocity[1], b.angular_velocity)
@@ -301,46 +309,6 @@ def _rows(d, o, t, px, py, nx, ny):
 
 
 @njit(cache=True)
-def add_rows(kmat, bmat, cols, jn, jt, count, gains):
-    """A contact's stiffness and damping over its columns (cols[:count]; -1: a wall's):
-    K += kn jn jn^T + kt jt jt^T, B += bn jn jn^T + bt jt jt^T, gains = (kn, kt, bn, bt).
-    Every co-simulation's contacts (the tools', a hand's, the hands' on a box) add theirs so."""
-    kn, kt, bn, bt = gains
-    for i in range(count):
-        a = cols[i]
-        if a < 0:
-            continue
-        for j in range(count):
-            b = cols[j]
-            if b < 0:
-                continue
-            nn = jn[i] * jn[j]
-            tt = jt[i] * jt[j]
-            kmat[a, b] += kn * nn + kt * tt
-            bmat[a, b] += bn * nn + bt * tt
-
-
-@njit(cache=True)
-def penalty_friction(m, depth, vn, vt, stick, h):
-    """Seed 001 eq 8 at one contact point: the normal force k delta - b v_n (>= 0) and the
-    stick spring's tangential force -k_t s - b v_t capped at mu f_n, s the stick's deflection
-    carried on by v_t h. m holds stiffness, damping, friction and tangential_stiffness (the
-    co-simulation's, a hand's or the hands' coupling's model). Returns (f_n, f_t, the new
-    deflection, whether it sticks)."""
-    f_n = m.stiffness * depth - m.damping * vn
-    if f_n < 0.0:
-        f_n = 0.0
-    stick += vt * h
-    k_t = m.tangential_stiffness
-    f_t = -k_t * stick - m.damping * vt
-    limit = m.friction * f_n
-    if abs(f_t) > limit:
-        f_t = limit if f_t > 0.0 else -limit
-        return f_n, f_t, (-f_t / k_t if k_t > 0.0 else 0.0), False
-    return f_n, f_t, stick, True
-
-
-@njit(cache=True)
 def _relative_velocity(d, o, t, px, py, nx, ny):
     """(v_n, v_t) of o's point (px, py) against t's, along the normal and its tangent."""
     vox, voy = _point_velocity(d, o, px, py)
@@ -392,10 +360,10 @@ def contact(m, d, h):
     tx = -ny
     ty = nx
     vn, vt = _relative_velocity(d, o, t, px, py, nx, ny)
-    f_n, f_t, d.stick[o, t, v], sticking = penalty_friction(
-        m, depth, vn, vt, d.stick[o, t, v], d.dt
-    )
     k_t = m.tangential_stiffness
+    f_n, f_t, d.stick[o, t, v], sticking = penalty_friction(
+        (m.stiffness, m.damping, m.friction, k_t), depth, vn, vt, d.stick[o, t, v], d.dt
+    )
     fx = f_n * nx + f_t * tx
     fy = f_n * ny + f_t * ty
     _apply(d, o, px, py, fx, fy)
@@ -461,28 +429,6 @@ def _queue_collision(m, d, o, t, vn):
     d.coll_target[c] = -(1.0 + m.restitution) * vn
     d.coll_depth[c] = d.hit[2]
     d.n_colliding = c + 1
-
-
-@njit(cache=True)
-def lcp(a, b, x, k):
-    """x >= 0 with w = A x - b >= 0 and x . w = 0 (A = a[:k, :k], symmetric positive
-    semi-definite with a positive diagonal, as R D^-1 R^T is): projected Gauss-Seidel from
-    x = 0, until a sweep moves no x by more than 1e-12 of the largest (or LCP_SWEEPS)."""
-    for i in range(k):
-        x[i] = 0.0
-    for _sweep in range(LCP_SWEEPS):
-        change = 0.0
-        size = 0.0
-        for i in range(k):
-            r = b[i]
-            for j in range(k):
-                r -= a[i, j] * x[j]
-            new = max(0.0, x[i] + r / a[i, i])
-            change = max(change, abs(new - x[i]))
-            x[i] = new
-            size = max(size, new)
-        if change <= 1e-12 * size:
-            return
 
 
 @njit(cache=True)
@@ -644,24 +590,14 @@ def step_bodies(m, d):
             for c in range(3):
                 d.f[3 * i + c] += d.sim_wrench[i, c]
     for a in range(n):
-        v = d.f[a] + d.extra[a]
-        for b in range(n):
-            v -= dt * d.k[a, b] * d.qd[b]
-            d.system[a, b] = dt * d.b[a, b] + dt * dt * d.k[a, b]
-        d.rhs[a] = dt * v
-        i = a // 3
-        d.system[a, a] += m.inertia[i] if a % 3 == 2 else m.mass[i]
-    for a in range(n):
+        d.f[a] += d.extra[a]
         d.q_before[a] = d.q[a]
         d.qd_before[a] = d.qd[a]
-    ok = cholesky_inplace(d.system, n, d.chol)
+    subtract_stiffness_velocity(d.f, d.k, d.qd, dt, n)
+    implicit_system(d.system, m.mass_q, d.b, d.k, dt, n)
+    ok = implicit_solve(d.system, d.chol, d.f, dt, d.rhs, d.dqd, n)
     if ok:
-        cholesky_solve(d.chol, n, d.rhs, d.dqd)
-        for a in range(n):
-            d.qd[a] += d.dqd[a]
-            d.q[a] += dt * d.qd[a]
-            if not (math.isfinite(d.q[a]) and math.isfinite(d.qd[a])):
-                ok = False
+        ok = implicit_advance(d.q, d.qd, d.dqd, dt, 1.0, n)
     if not ok:
         d.singular += 1
         for a in range(n):

@@ -46,7 +46,13 @@ import math
 import numpy as np
 from numba import njit
 
-from haptic_local_model.haptic_server.stages.cosim import add_rows, penalty_friction
+from haptic_local_model.haptic_server.physics.contact_law import add_rows, penalty_friction
+from haptic_local_model.haptic_server.physics.implicit import (
+    implicit_advance,
+    implicit_solve,
+    implicit_system,
+    subtract_stiffness_velocity,
+)
 from haptic_local_model.shared.kinematics import (
     MAX_DOF,
     PRISMATIC_X,
@@ -58,7 +64,6 @@ from haptic_local_model.shared.kinematics import (
     point_velocity,
     velocity_product_torque_into,
 )
-from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
 from haptic_local_model.shared.port_config import HandSpec
 from haptic_local_model.shared.shapes import MAX_VERTICES, vertex_signed_distance
 
@@ -269,8 +274,10 @@ def hand_contact(chain, m, d, link, wall, side, v):
     if d.touching[key] == 0:
         d.stick[key] = 0.0
     d.touching[key] = 1
-    f_n, f_t, d.stick[key], sticking = penalty_friction(m, depth, vn, vt, d.stick[key], d.h)
     k_t = m.tangential_stiffness
+    f_n, f_t, d.stick[key], sticking = penalty_friction(
+        (m.stiffness, m.damping, m.friction, k_t), depth, vn, vt, d.stick[key], d.h
+    )
     fx = f_n * nx + f_t * tx
     fy = f_n * ny + f_t * ty
     d.contact_force[0] += fx / d.n_sub  # the tick's mean over its sub-steps
@@ -453,20 +460,13 @@ def hand_step(m, d):
     n = m.dof
     th = m.theta
     for a in range(n):
-        v = d.f[a] - d.gravity_q[a] - d.coriolis[a] + d.extra[a]
-        for b in range(n):
-            v -= th * dt * d.k[a, b] * d.qd[b]
-            d.system[a, b] = d.mass[a, b] + th * dt * d.b[a, b] + th * th * dt * dt * d.k[a, b]
-        d.rhs[a] = dt * v
+        d.f[a] = d.f[a] - d.gravity_q[a] - d.coriolis[a] + d.extra[a]
         d.q_before[a] = d.q[a]
-    ok = cholesky_inplace(d.system, n, d.chol)
+    subtract_stiffness_velocity(d.f, d.k, d.qd, th * dt, n)
+    implicit_system(d.system, d.mass, d.b, d.k, th * dt, n)
+    ok = implicit_solve(d.system, d.chol, d.f, dt, d.rhs, d.dqd, n)
     if ok:
-        cholesky_solve(d.chol, n, d.rhs, d.dqd)
-        for a in range(n):
-            d.q[a] += dt * (d.qd[a] + th * d.dqd[a])
-            d.qd[a] += d.dqd[a]
-            if not (math.isfinite(d.q[a]) and math.isfinite(d.qd[a])):
-                ok = False
+        ok = implicit_advance(d.q, d.qd, d.dqd, dt, th, n)
     if not ok:
         d.singular += 1
         for a in range(n):

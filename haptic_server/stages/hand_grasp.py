@@ -16,7 +16,13 @@ import math
 import numpy as np
 from numba import njit
 
-from haptic_local_model.haptic_server.stages.cosim import add_rows, penalty_friction
+from haptic_local_model.haptic_server.physics.contact_law import add_rows, penalty_friction
+from haptic_local_model.haptic_server.physics.implicit import (
+    implicit_advance,
+    implicit_solve,
+    implicit_system,
+    subtract_stiffness_velocity,
+)
 from haptic_local_model.haptic_server.stages.hand import (
     MAX_SUBSTEPS,
     MAX_TURN,
@@ -33,7 +39,6 @@ from haptic_local_model.haptic_server.stages.hand import (
     tracked_inputs,
 )
 from haptic_local_model.shared.kinematics import MAX_DOF, point_jacobian, point_velocity
-from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
 
 F8 = np.float64
 I8 = np.int64
@@ -80,7 +85,9 @@ GRASP_DATA_DTYPE = np.dtype(
         ("singular_tick", I8),
         ("turn", F8),
         ("kg", F8, (MAX_SYS, MAX_SYS)),  # the hand-box contacts' stiffness, all of q
-        ("bg", F8, (MAX_SYS, MAX_SYS)),
+        ("bg", F8, (MAX_SYS, MAX_SYS)),  # (then the hands' own added, for the step)
+        ("mass_all", F8, (MAX_SYS, MAX_SYS)),  # D over all of q: the hands' and the box's
+        ("f_all", F8, (MAX_SYS,)),  # the step's force over all of q
         ("system", F8, (MAX_SYS, MAX_SYS)),
         ("chol", F8, (MAX_SYS, MAX_SYS)),
         ("rhs", F8, (MAX_SYS,)),
@@ -160,8 +167,10 @@ def box_contact(chain, hm, hd, gm, gd, hand, key):
     if gd.touching[at] == 0:
         gd.stick[at] = 0.0
     gd.touching[at] = 1
-    f_n, f_t, gd.stick[at], sticking = penalty_friction(gm, depth, vn, vt, gd.stick[at], gd.h)
     k_t = gm.tangential_stiffness
+    f_n, f_t, gd.stick[at], sticking = penalty_friction(
+        (gm.stiffness, gm.damping, gm.friction, k_t), depth, vn, vt, gd.stick[at], gd.h
+    )
     fx = f_n * nx + f_t * tx
     fy = f_n * ny + f_t * ty
     n = hm.dof
@@ -230,39 +239,29 @@ def solve_all(hms, hds, gm, gd):
     th = gm.theta
     for i in range(n):
         for j in range(n):
-            gd.system[i, j] = th * h * gd.bg[i, j] + th * th * h * h * gd.kg[i, j]
+            gd.mass_all[i, j] = 0.0
     for i in range(gm.n_hands):
         hm = hms[i][0]
         hd = hds[i][0]
         o = gm.offset[i]
         for a in range(hm.dof):
-            v = hd.f[a] - hd.gravity_q[a] - hd.coriolis[a] + hd.extra[a]
-            for b in range(hm.dof):
-                v -= th * h * hd.k[a, b] * hd.qd[b]
-                gd.system[o + a, o + b] += hd.mass[a, b] + th * h * hd.b[a, b]
-                gd.system[o + a, o + b] += th * th * h * h * hd.k[a, b]
-            gd.rhs[o + a] = h * v
+            gd.f_all[o + a] = hd.f[a] - hd.gravity_q[a] - hd.coriolis[a] + hd.extra[a]
             gd.qd_all[o + a] = hd.qd[a]
+            for b in range(hm.dof):
+                gd.mass_all[o + a, o + b] = hd.mass[a, b]
+                gd.bg[o + a, o + b] += hd.b[a, b]
+                gd.kg[o + a, o + b] += hd.k[a, b]
     b0 = gm.box
     for k in range(3):
         mass = gm.box_inertia if k == 2 else gm.box_mass
         grav = gm.gravity[k] * gm.box_mass if k < 2 else 0.0
-        gd.system[b0 + k, b0 + k] += mass
-        gd.rhs[b0 + k] = h * (gd.f_box[k] + grav)
+        gd.mass_all[b0 + k, b0 + k] = mass
+        gd.f_all[b0 + k] = gd.f_box[k] + grav
         gd.qd_all[b0 + k] = gd.qd_box[k]
         gd.box_before[k] = gd.q_box[k]
-    for i in range(n):
-        v = 0.0
-        for j in range(n):
-            v += gd.kg[i, j] * gd.qd_all[j]
-        gd.rhs[i] -= h * th * h * v
-    ok = cholesky_inplace(gd.system, n, gd.chol)
-    if ok:
-        cholesky_solve(gd.chol, n, gd.rhs, gd.dqd)
-        for i in range(n):
-            if not math.isfinite(gd.dqd[i]):
-                ok = False
-    if not ok:
+    subtract_stiffness_velocity(gd.f_all, gd.kg, gd.qd_all, th * h, n)
+    implicit_system(gd.system, gd.mass_all, gd.bg, gd.kg, th * h, n)
+    if not implicit_solve(gd.system, gd.chol, gd.f_all, h, gd.rhs, gd.dqd, n):
         gd.singular += 1
         for k in range(3):
             gd.qd_box[k] = 0.0
@@ -275,12 +274,8 @@ def solve_all(hms, hds, gm, gd):
     for i in range(gm.n_hands):
         hd = hds[i][0]
         o = gm.offset[i]
-        for a in range(hms[i][0].dof):
-            hd.q[a] += h * (hd.qd[a] + th * gd.dqd[o + a])
-            hd.qd[a] += gd.dqd[o + a]
-    for k in range(3):
-        gd.q_box[k] += h * (gd.qd_box[k] + th * gd.dqd[b0 + k])
-        gd.qd_box[k] += gd.dqd[b0 + k]
+        implicit_advance(hd.q, hd.qd, gd.dqd[o:], h, th, hms[i][0].dof)
+    implicit_advance(gd.q_box, gd.qd_box, gd.dqd[b0:], h, th, 3)
     return True
 
 

@@ -5,7 +5,11 @@ from __future__ import annotations
 
 from numba import njit
 
-from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
+from haptic_local_model.haptic_server.physics.implicit import (
+    implicit_advance,
+    implicit_solve,
+    implicit_system,
+)
 
 
 @njit(cache=True)
@@ -44,18 +48,12 @@ def proxy_step(m, d):
     for a in range(n):
         v = w.tau_contact[a] + w.tau_bias[a] - dt * w.contact_stiff_vrel[a]
         v += jh[0, a] * (w.pull[0] + g0) + jh[1, a] * (w.pull[1] + g1) + jh[2, a] * (w.pull[2] + g2)
-        w.proxy_rhs[a] = dt * v
+        w.proxy_force[a] = v
         for b in range(n):
             kq = 0.0
             for c in range(3):
                 kq += jh[c, a] * (bc[c] + dt * kc[c]) * jh[c, b]
-            w.proxy_system[a, b] = (
-                w.mass[a, b]
-                + dt * (w.contact_damping_q[a, b] + kq)
-                + dt * dt * w.contact_stiffness_q[a, b]
-            )
-    if cholesky_inplace(w.proxy_system, n, w.proxy_chol):
-        cholesky_solve(w.proxy_chol, n, w.proxy_rhs, w.proxy_dqd)
-        for a in range(n):
-            st.qd[a] += w.proxy_dqd[a]
-            st.q[a] += dt * st.qd[a]
+            w.proxy_damping[a, b] = w.contact_damping_q[a, b] + kq
+    implicit_system(w.proxy_system, w.mass, w.proxy_damping, w.contact_stiffness_q, dt, n)
+    if implicit_solve(w.proxy_system, w.proxy_chol, w.proxy_force, dt, w.proxy_rhs, w.proxy_dqd, n):
+        implicit_advance(st.q, st.qd, w.proxy_dqd, dt, 1.0, n)
