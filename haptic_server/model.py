@@ -129,14 +129,8 @@ SCRATCH_DTYPE = np.dtype(
         ("coll_index", I8, (MAX_CONTACTS,)),
         ("coll_row", F8, (MAX_DOF,)),  # one row of J_n, then D^-1 of it
         ("coll_minv_row", F8, (MAX_DOF,)),
-        ("nnls_a", F8, (MAX_CONTACTS, MAX_CONTACTS)),  # J_n D^-1 J_n^T
-        ("nnls_lambda", F8, (MAX_CONTACTS,)),
-        ("nnls_z", F8, (MAX_CONTACTS,)),
-        ("nnls_w", F8, (MAX_CONTACTS,)),
-        ("nnls_passive", I8, (MAX_CONTACTS,)),
-        ("nnls_m", F8, (MAX_CONTACTS, MAX_CONTACTS)),
-        ("nnls_rhs", F8, (MAX_CONTACTS,)),
-        ("nnls_chol", F8, (MAX_CONTACTS, MAX_CONTACTS)),
+        ("coll_a", F8, (MAX_CONTACTS, MAX_CONTACTS)),  # J_n D^-1 J_n^T
+        ("coll_lambda", F8, (MAX_CONTACTS,)),  # the impulses, N s (physics.impulses)
         ("impulse_q", F8, (MAX_DOF,)),  # P_cs = J_n^T lambda
         ("impulse_dqd", F8, (MAX_DOF,)),  # D^-1 P_cs
         ("jac_row", F8, (MAX_DOF,)),  # a row of J_h, then D^-1 of it

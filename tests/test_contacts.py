@@ -30,8 +30,9 @@ def contact_row(
     ]  # fmt: skip
 
 
-def engine_with(q, qd, rows, impulses=True) -> HapticEngine:
-    """A free body at q moving at qd with the given contacts; no coupling, no hand force."""
+def engine_with(q, qd, rows, impulses=True, mass=MASS, inertia=INERTIA) -> HapticEngine:
+    """A free body (mass, inertia) at q moving at qd with the given contacts; no coupling,
+    no hand force."""
     scene = load_scene("free_box")
     rendering = dataclasses.replace(
         scene.rendering, coordination_stiffness=(0.0, 0.0, 0.0),
@@ -46,8 +47,8 @@ def engine_with(q, qd, rows, impulses=True) -> HapticEngine:
     update = LocalModelUpdate(
         epoch=1, seq=0, sim_time=0.0, publish_time_ns=0, joint_types=jt, lengths=lengths,
         base=np.zeros(2), base_angle=0.0, op_link=2, op_point=np.zeros(2), q=np.array(q, float),
-        qd=np.array(qd, float), mass_matrix=np.diag([MASS, MASS, INERTIA]),
-        lambda_inv=np.diag([1 / MASS, 1 / MASS, 1 / INERTIA]), tool_pose=np.array(q, float),
+        qd=np.array(qd, float), mass_matrix=np.diag([mass, mass, inertia]),
+        lambda_inv=np.diag([1 / mass, 1 / mass, 1 / inertia]), tool_pose=np.array(q, float),
         gravity=None, velocity_torque=None, resisted=None, characteristic_length=0.05,
         contacts=ContactSet(np.full(n, 2), np.arange(n), np.reshape(rows, (n, CONTACT_FLOATS))),
         tool_touching=True,

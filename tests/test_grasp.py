@@ -212,6 +212,35 @@ def test_a_landing_on_two_corners_solves_the_complementarity_problem(scene):
                                rtol=1e-9)  # fmt: skip
 
 
+@pytest.mark.parametrize(("name", "half_width", "w"), [("pad_left", 0.003, -0.07 / 0.003),
+                                                    ("box", 0.02, 3.5)])  # fmt: skip
+def test_the_local_model_lands_on_two_corners_as_the_cosimulation_does(scene, name, half_width, w):
+    """One impulse solve for every world (haptic_server.physics.impulses): the single-device
+    path (a local model's free-body proxy with the two corners as its contacts, its own rows
+    n^T J_c) and the co-simulation (the body's corners against a floor, its rows
+    n^T (J_o - J_t)) take the same impulses on the same landing, the one above: the same
+    velocity after the tick and the same lambda, the pad's slow corner none. (A fifth of its
+    speeds: the local model's messages bound a tool's turn rate at 100 rad/s.)"""
+    from test_contacts import after_one_tick, contact_row, engine_with
+
+    body, qd_cosim, _corners, lam_cosim = _landing(scene, name, half_width, -0.09, w)
+    h = body.size[1] / 2
+    points = [(-half_width, -h), (half_width, -h)]
+    rows = [contact_row(p, p, (0.0, 1.0), 0.0) for p in points]
+    v = np.array([0.0, -0.09, w])
+    engine = engine_with([0.0, 0.0, 0.0], v, rows, mass=body.mass, inertia=body.moment)
+    qd, row = after_one_tick(engine)
+    assert row["n_colliding"] == 2
+    np.testing.assert_allclose(qd, qd_cosim, rtol=1e-9, atol=1e-12)
+    # lambda from the momentum the proxy took: D dqd = R^T lambda (R's rows independent)
+    rt = np.array([[0.0, 0.0], [1.0, 1.0], [points[0][0], points[1][0]]])
+    impulse = np.array([body.mass, body.mass, body.moment]) * (qd - v)
+    lam_local = np.linalg.lstsq(rt, impulse, rcond=None)[0]
+    np.testing.assert_allclose(lam_local, lam_cosim, rtol=1e-9, atol=1e-12)
+    if name == "pad_left":
+        assert abs(lam_local[0]) < 1e-12 < lam_local[1]  # the slow corner lifts off
+
+
 def test_an_elastic_first_touch_swaps_the_momentum_of_pad_and_box(scene):
     """e = 1, one pad (0.05 kg, 0.2 m/s) into the box (0.1 kg): they part at the elastic
     closed form, pad v (m_A - m_O)/(m_A + m_O), box 2 m_A v/(m_A + m_O), and the kinetic

@@ -6,90 +6,9 @@ from __future__ import annotations
 from numba import njit
 
 from haptic_local_model.haptic_server.physics.contact_law import penalty_friction
+from haptic_local_model.haptic_server.physics.impulses import lcp
 from haptic_local_model.shared.kinematics import point_jacobian, point_on_link
-from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
-
-
-@njit(cache=True)
-def nnls(ws, m):
-    """Lawson-Hanson non-negative least squares: min |A lam - b|, lam >= 0 (m x m, m small),
-    with A = ws.nnls_a, b = ws.coll_target, lam = ws.nnls_lambda; the rest is its workspace.
-
-    The inner least-squares problems are solved through the normal equations with a ridge
-    of 1e-12 trace(A^T A) so rank-deficient contact sets (more contacts than DOFs) behave.
-    """
-    a = ws.nnls_a
-    b = ws.coll_target
-    lam = ws.nnls_lambda
-    passive = ws.nnls_passive
-    z = ws.nnls_z
-    w = ws.nnls_w
-    sys_m = ws.nnls_m
-    rhs = ws.nnls_rhs
-    chol = ws.nnls_chol
-    for i in range(m):
-        lam[i] = 0.0
-        passive[i] = 0
-    ridge = 0.0
-    for i in range(m):
-        for k in range(m):
-            ridge += a[k, i] * a[k, i]
-    ridge = 1e-12 * ridge + 1e-300
-    for _outer in range(3 * m + 3):
-        # gradient w = A^T (b - A lam)
-        for i in range(m):
-            r = 0.0
-            for k in range(m):
-                res = b[k]
-                for j in range(m):
-                    res -= a[k, j] * lam[j]
-                r += a[k, i] * res
-            w[i] = r
-        best = -1
-        best_w = 1e-14
-        for i in range(m):
-            if passive[i] == 0 and w[i] > best_w:
-                best_w = w[i]
-                best = i
-        if best < 0:
-            return
-        passive[best] = 1
-        for _inner in range(3 * m + 3):
-            # z = argmin over the passive set (others zero)
-            for i in range(m):
-                for j in range(m):
-                    v = 0.0
-                    if passive[i] == 1 and passive[j] == 1:
-                        for k in range(m):
-                            v += a[k, i] * a[k, j]
-                    sys_m[i, j] = v
-                sys_m[i, i] += ridge if passive[i] == 1 else 1.0
-                v = 0.0
-                if passive[i] == 1:
-                    for k in range(m):
-                        v += a[k, i] * b[k]
-                rhs[i] = v
-            cholesky_inplace(sys_m, m, chol)
-            cholesky_solve(chol, m, rhs, z)
-            ok = True
-            for i in range(m):
-                if passive[i] == 1 and z[i] <= 0.0:
-                    ok = False
-            if ok:
-                for i in range(m):
-                    lam[i] = z[i] if passive[i] == 1 else 0.0
-                break
-            alpha = 1.0
-            for i in range(m):
-                if passive[i] == 1 and z[i] <= 0.0:
-                    denom = lam[i] - z[i]
-                    if denom > 0.0:
-                        alpha = min(alpha, lam[i] / denom)
-            for i in range(m):
-                lam[i] = lam[i] + alpha * (z[i] - lam[i]) if passive[i] == 1 else 0.0
-                if passive[i] == 1 and lam[i] <= 1e-15:
-                    passive[i] = 0
-                    lam[i] = 0.0
+from haptic_local_model.shared.linalg import cholesky_solve
 
 
 @njit(cache=True)
@@ -257,11 +176,11 @@ def contacts(m, d):
 
 @njit(cache=True)
 def impulses(m, d):
-    """All colliding contacts of a tick resolved together (DESIGN §4.1; seed 001 eq 5-6).
-
-    lambda >= 0 is the least-squares solution of (J_n D^-1 J_n^T) lambda = v+ - v-;
-    the proxy gets dqd = D^-1 J_n^T lambda at once and impulse_q = J_n^T lambda = P_cs.
-    """
+    """All colliding contacts of a tick resolved together (DESIGN §4.1; seed 001 eq 5-6):
+    lambda >= 0 solves the complementarity problem of A = J_n D^-1 J_n^T and the targets
+    v+ - v- (`physics.impulses`: a contact that would separate takes none, none is left
+    approaching); the proxy gets dqd = D^-1 J_n^T lambda at once and impulse_q = J_n^T
+    lambda = P_cs."""
     ws = d.scratch
     state = d.state
     n = m.slots[0].dof
@@ -279,12 +198,12 @@ def impulses(m, d):
             v = 0.0
             for a in range(n):
                 v += ws.coll_rows[r, a] * ws.coll_minv_row[a]
-            ws.nnls_a[r, c] = v
-    nnls(ws, k)
+            ws.coll_a[r, c] = v
+    lcp(ws.coll_a, ws.coll_target, ws.coll_lambda, k)
     for a in range(n):
         v = 0.0
         for c in range(k):
-            v += ws.coll_rows[c, a] * ws.nnls_lambda[c]
+            v += ws.coll_rows[c, a] * ws.coll_lambda[c]
         ws.impulse_q[a] = v
     cholesky_solve(ws.mass_chol, n, ws.impulse_q, ws.impulse_dqd)
     for a in range(n):
