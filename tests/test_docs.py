@@ -100,3 +100,27 @@ def test_protocol_doc_gives_the_proxy_header() -> None:
     text = (DOCS / "protocol.md").read_text()
     assert f"struct `{PROXY_HEADER.format}`, {PROXY_HEADER.size} bytes" in text
     assert f"version (`PROXY_VERSION`, {PROXY_VERSION})" in text
+
+
+def test_the_architecture_doc_names_every_module_of_the_four_packages() -> None:
+    """docs/architecture.md is the map of the house: each module of shared/, sim_server/,
+    device_models/ and haptic_server/ is named there by its path (its module map), and each
+    path named there is a module that exists."""
+    import re
+
+    root = DOCS.parent
+    text = (DOCS / "architecture.md").read_text()
+    packages = ("shared", "sim_server", "device_models", "haptic_server")
+    modules = {
+        p.relative_to(root).as_posix()
+        for package in packages
+        for p in (root / package).rglob("*.py")
+        if p != root / package / "__init__.py"
+    }
+    missing = sorted(m for m in modules if f"`{m}`" not in text)
+    assert not missing, f"docs/architecture.md does not name: {missing}"
+    pattern = r"`((?:" + "|".join(packages) + r")/[\w/]+\.py)`"
+    named = set(re.findall(pattern, text))
+    assert not named - modules, (
+        f"docs/architecture.md names modules that are not there: {sorted(named - modules)}"
+    )
