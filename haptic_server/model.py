@@ -153,11 +153,10 @@ SCRATCH_DTYPE = np.dtype(
         ("device_twist_eff", F8, (3,)),  # its twist as if the carried impulse were delivered
         ("inertia_chol", F8, (3, 3)),  # Cholesky factor of M_d (the carry's velocity)
         ("carry_velocity", F8, (3,)),  # M_d^-1 impulse_carry
-        ("proxy_force", F8, (MAX_DOF,)),  # f of the proxy step (physics.implicit)
         ("proxy_damping", F8, (MAX_DOF, MAX_DOF)),  # its B: contacts' + J_h^T (B_c + dt K_c) J_h
         ("proxy_system", F8, (MAX_DOF, MAX_DOF)),  # D + dt B + dt^2 K of the proxy step
         ("proxy_chol", F8, (MAX_DOF, MAX_DOF)),
-        ("proxy_rhs", F8, (MAX_DOF,)),
+        ("proxy_rhs", F8, (MAX_DOF,)),  # f, then h f (physics.implicit.implicit_solve)
         ("proxy_dqd", F8, (MAX_DOF,)),
     ]
 )

@@ -84,8 +84,10 @@ GRASP_DATA_DTYPE = np.dtype(
         ("singular", I8),
         ("singular_tick", I8),
         ("turn", F8),
-        ("kg", F8, (MAX_SYS, MAX_SYS)),  # the hand-box contacts' stiffness, all of q
-        ("bg", F8, (MAX_SYS, MAX_SYS)),  # (then the hands' own added, for the step)
+        # the hand-box contacts' stiffness and damping over all of q, then (solve_all) the
+        # hands' own blocks added: the step's K and B
+        ("kg", F8, (MAX_SYS, MAX_SYS)),
+        ("bg", F8, (MAX_SYS, MAX_SYS)),
         ("mass_all", F8, (MAX_SYS, MAX_SYS)),  # D over all of q: the hands' and the box's
         ("f_all", F8, (MAX_SYS,)),  # the step's force over all of q
         ("system", F8, (MAX_SYS, MAX_SYS)),

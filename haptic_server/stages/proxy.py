@@ -48,12 +48,12 @@ def proxy_step(m, d):
     for a in range(n):
         v = w.tau_contact[a] + w.tau_bias[a] - dt * w.contact_stiff_vrel[a]
         v += jh[0, a] * (w.pull[0] + g0) + jh[1, a] * (w.pull[1] + g1) + jh[2, a] * (w.pull[2] + g2)
-        w.proxy_force[a] = v
+        w.proxy_rhs[a] = v  # f; implicit_solve makes it h f in place
         for b in range(n):
             kq = 0.0
             for c in range(3):
                 kq += jh[c, a] * (bc[c] + dt * kc[c]) * jh[c, b]
             w.proxy_damping[a, b] = w.contact_damping_q[a, b] + kq
     implicit_system(w.proxy_system, w.mass, w.proxy_damping, w.contact_stiffness_q, dt, n)
-    if implicit_solve(w.proxy_system, w.proxy_chol, w.proxy_force, dt, w.proxy_rhs, w.proxy_dqd, n):
+    if implicit_solve(w.proxy_system, w.proxy_chol, w.proxy_rhs, dt, w.proxy_rhs, w.proxy_dqd, n):
         implicit_advance(st.q, st.qd, w.proxy_dqd, dt, 1.0, n)
