@@ -24,6 +24,7 @@ from haptic_local_model.shared.config import Vec3, require, within
 if TYPE_CHECKING:
     from haptic_local_model.device_models.common import NoiseBuffer
     from haptic_local_model.device_models.kernels import DeviceRecords
+    from haptic_local_model.device_models.world_map import DeviceWorldMap
 
 #: Entries of SENSOR_DTYPE.aux: device-specific readings the engine logs as `device_aux`.
 AUX_SIZE = 8
@@ -124,7 +125,8 @@ class Device(Protocol):
 
     Besides these, the engine uses two optional attributes: `world_map` (a
     device_models.world_map.DeviceWorldMap; without one the device maps to the world with
-    scale 1 and an offset the engine sets) and `aux_names` (what SENSOR_DTYPE.aux holds).
+    scale 1 and an offset the engine sets: read it through `world_map_of`) and `aux_names`
+    (what SENSOR_DTYPE.aux holds).
     """
 
     name: str
@@ -184,3 +186,20 @@ class DeviceModel(NamedTuple):
     config: str
     description: str
     simulated: bool = True  # False: it drives hardware (building it opens the device)
+
+
+def world_map_of(device: Device) -> DeviceWorldMap:
+    """The device's map onto the world: its own `world_map` (shared: rate control moves its
+    offset), or scale 1 with an offset its user sets. The one place the optional attribute
+    is read."""
+    from haptic_local_model.device_models.world_map import DeviceWorldMap
+
+    own: DeviceWorldMap | None = getattr(device, "world_map", None)
+    return own if own is not None else DeviceWorldMap.identity()
+
+
+def world_limits(device: Device) -> np.ndarray:
+    """The device's max_wrench in the world frame: F_world = F_device / (scale force_scale)
+    (device_models/world_map.py)."""
+    m = world_map_of(device).record[0]
+    return np.asarray(device.limits().max_wrench, np.float64) / (m["scale"] * m["force_scale"])

@@ -13,9 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from haptic_local_model.device_models.base import Device, SimulatedDevice
+from haptic_local_model.device_models.base import Device, SimulatedDevice, world_map_of
 from haptic_local_model.device_models.common import refill_noise
-from haptic_local_model.device_models.world_map import DeviceWorldMap
 from haptic_local_model.haptic_server.model import (
     CLOCK_DTYPE,
     DATA_DTYPE,
@@ -131,8 +130,7 @@ class HapticEngine:
                 f"{limits.max_rate_hz:g} Hz",
             )
         # the device's own map (shared: rate control moves its offset), or scale 1 + offset
-        own_map = getattr(device, "world_map", None)
-        self.world_map = (own_map or DeviceWorldMap.identity()).record
+        self.world_map = world_map_of(device).record
         self.model = np.zeros(1, MODEL_DTYPE)
         self.data = np.zeros(1, DATA_DTYPE)
         self.io = np.zeros(1, DEVICE_IO_DTYPE)

@@ -18,7 +18,12 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from haptic_local_model.device_models.base import SENSOR_DTYPE, SimulatedDevice
+from haptic_local_model.device_models.base import (
+    SENSOR_DTYPE,
+    SimulatedDevice,
+    world_limits,
+    world_map_of,
+)
 from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import (
     device_noise_ready,
@@ -26,7 +31,6 @@ from haptic_local_model.device_models.kernels import (
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import (
     MAP_DTYPE,
-    DeviceWorldMap,
 )
 from haptic_local_model.haptic_server.stages.cosim import body_core
 from haptic_local_model.haptic_server.stages.hand import glove_at, hand_records, hand_tick
@@ -215,15 +219,13 @@ def port_io(
 ) -> tuple[float, float, float]:
     """Fill a port's HAND_IO_DTYPE record `s` for this device, user and hand (map, limits,
     the glove's script); the device's limits in the world frame."""
-    wm = getattr(device, "world_map", None) or DeviceWorldMap.identity()
-    s["map"][0] = wm.record[0]
+    s["map"][0] = world_map_of(device).record[0]
     s["limits"] = device.limits().max_wrench
     rest = [a for f in spec.fingers for a in f.rest]
     glove = glove_script(user, rest)
     s["glove"][: len(glove), : glove.shape[1]] = glove
     s["n_glove"] = len(glove)
-    scale = s["map"][0]["scale"] * s["map"][0]["force_scale"]
-    return vec3(s["limits"] / scale)
+    return vec3(world_limits(device))
 
 
 def place_device(
@@ -263,8 +265,8 @@ class HandPortRun:
         self.user = user or load_user(port.user)
         self.spec = scene.hand_of(0)
         self.io = np.zeros(1, HAND_IO_DTYPE)
-        world_limits = port_io(self.io[0], self.device, self.user, self.spec)
-        self.chain, self.model, self.data = port_hand_records(scene, world_limits)
+        limits = port_io(self.io[0], self.device, self.user, self.spec)
+        self.chain, self.model, self.data = port_hand_records(scene, limits)
         place_device(self.io[0], self.device, self.user, self.spec, port.device_start)
 
     def run(self, duration_s: float) -> HandPortResult:

@@ -17,7 +17,12 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from haptic_local_model.device_models.base import SENSOR_DTYPE, SimulatedDevice
+from haptic_local_model.device_models.base import (
+    SENSOR_DTYPE,
+    SimulatedDevice,
+    world_limits,
+    world_map_of,
+)
 from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import (
     device_noise_ready,
@@ -25,7 +30,6 @@ from haptic_local_model.device_models.kernels import (
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import (
     MAP_DTYPE,
-    DeviceWorldMap,
 )
 from haptic_local_model.haptic_server.stages.cosim import (
     MAX_COSIM_BODIES,
@@ -173,15 +177,13 @@ class PortRun:
         self.scene = scene
         self.devices = devices or [load_simulated_device(p.device) for p in scene.ports]
         self.users = users or [load_user(p.user) for p in scene.ports]
-        maps = [getattr(d, "world_map", None) or DeviceWorldMap.identity() for d in self.devices]
         io = np.zeros(1, PORT_IO_DTYPE)
         self.io = io
         limits = []
-        for p, (dev, wm) in enumerate(zip(self.devices, maps, strict=True)):
-            io[0]["maps"][p] = wm.record[0]
-            scale = io[0]["maps"][p]["scale"] * io[0]["maps"][p]["force_scale"]
+        for p, dev in enumerate(self.devices):
+            io[0]["maps"][p] = world_map_of(dev).record[0]
             io[0]["limits"][p] = dev.limits().max_wrench
-            limits.append(tuple(io[0]["limits"][p] / scale))
+            limits.append(tuple(world_limits(dev)))
         self.model, self.data = cosim_records(scene, limits)
         self.order = cosim_order(scene)
         for p, port in enumerate(scene.ports):

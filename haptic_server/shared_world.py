@@ -51,8 +51,8 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from haptic_local_model.device_models.base import world_limits, world_map_of
 from haptic_local_model.device_models.registry import load_simulated_device
-from haptic_local_model.device_models.world_map import DeviceWorldMap
 from haptic_local_model.haptic_server.sim_link import SimLink
 from haptic_local_model.haptic_server.stages.port_io import push_stretch
 from haptic_local_model.haptic_server.stages.station_messages import STALE, reason_counts
@@ -104,10 +104,8 @@ class SharedWorld:
         maps = []  # each scene device's map onto the world
         for port in scene.ports:  # the scene's devices' limits, in the world frame
             dev = load_simulated_device(port.device)
-            wm = getattr(dev, "world_map", None) or DeviceWorldMap.identity()
-            scale = wm.record[0]["scale"] * wm.record[0]["force_scale"]
-            maps.append(wm.record[0])
-            self.limits.append(vec3(np.array(dev.limits().max_wrench) / scale))
+            maps.append(world_map_of(dev).record[0])
+            self.limits.append(vec3(world_limits(dev)))
         users = [load_user(port.user) for port in scene.ports]
         self.engine = world_engine(scene, self.limits, users)
         self.order = self.engine.names

@@ -18,10 +18,9 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from haptic_local_model.device_models.base import SimulatedDevice
+from haptic_local_model.device_models.base import SimulatedDevice, world_map_of
 from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import noise_ready
-from haptic_local_model.device_models.world_map import DeviceWorldMap
 from haptic_local_model.haptic_server.hand_ports import glove_script
 from haptic_local_model.haptic_server.stages.station import STATION_DTYPE, STATION_ROW_DTYPE
 from haptic_local_model.haptic_server.stages.station_link import (
@@ -97,8 +96,7 @@ class Station:
         s["max_stiffness"] = stiffness
         s["max_damping"] = damping
         s["extrapolate_s"] = EXTRAPOLATE_S
-        wm = getattr(device, "world_map", None) or DeviceWorldMap.identity()
-        s["map"][0] = wm.record[0]
+        s["map"][0] = world_map_of(device).record[0]
         self.station = st
         self._place(spec.device_start)
         self.rows = np.zeros(max_rows, STATION_ROW_DTYPE)

@@ -96,6 +96,20 @@ def scaled_map(rate_control: bool = False) -> DeviceWorldMap:
     )  # fmt: skip
 
 
+def test_a_device_limits_in_the_world_frame_divide_by_scale_and_force_scale() -> None:
+    """device_models.base.world_limits, the one place every world takes them from: F_device
+    = force_scale scale F_world, so a 50 N device limit along x at scale 2 and force scale
+    0.25 is 100 N in the world; a device without a map keeps its own (scale 1)."""
+    from haptic_local_model.device_models.base import world_limits, world_map_of
+
+    scaled = ScriptedDriver(scaled_map(), max_wrench=(50.0, 40.0, 5.0))
+    np.testing.assert_allclose(world_limits(scaled), [100.0, 80.0, 40.0], rtol=EXACT)
+    assert world_map_of(scaled) is scaled.world_map
+    bare = ScriptedDriver(None, max_wrench=(50.0, 40.0, 5.0))
+    np.testing.assert_array_equal(world_limits(bare), [50.0, 40.0, 5.0])
+    assert world_map_of(bare).record[0]["force_scale"] == 1.0
+
+
 # --------------------------------------------------------------------------- the kernels
 
 
