@@ -36,8 +36,8 @@ import numpy as np
 
 from haptic_local_model.benchmarks.stations import CLI, Process, loopback_network
 from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE
-from haptic_local_model.haptic_server.ports_cli import PORT_TICK_TOPIC, read_port_log, replay_log
 from haptic_local_model.haptic_server.stages.cosim import cosim_order
+from haptic_local_model.haptic_server.world_runs import PORT_TICK_TOPIC, read_port_log, replay_log
 from haptic_local_model.shared.config import resolve
 from haptic_local_model.shared.port_config import PortSceneConfig, load_port_scene
 

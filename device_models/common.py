@@ -71,11 +71,29 @@ class NoiseBuffer:
         self.normals = np.empty(block)
         self._rng.standard_normal(out=self.normals)
         self.index = np.zeros(1, np.int64)
+        self._next: np.ndarray | None = None  # the next block, drawn ahead (prefetch)
+        self._waiting = False
 
     def refill(self) -> None:
-        """A fresh block of normals, read from its start."""
-        self._rng.standard_normal(out=self.normals)
+        """A fresh block of normals, read from its start (the prefetched one, if waiting)."""
+        if self._waiting and self._next is not None:
+            self.normals[:] = self._next
+            self._waiting = False
+        else:
+            self._rng.standard_normal(out=self.normals)
         self.index[0] = 0
+
+    def prefetch(self) -> bool:
+        """Draw the next block now, ahead of need (a real-time loop does it in a tick's slack);
+        the refill at need then copies it in instead of drawing: the normals read are the same,
+        number for number. Whether it drew (False: one is already waiting)."""
+        if self._waiting:
+            return False
+        if self._next is None:
+            self._next = np.empty_like(self.normals)
+        self._rng.standard_normal(out=self._next)
+        self._waiting = True
+        return True
 
     def reserve(self, needed: int) -> int:
         """The start of `needed` fresh normals (refilling the block when it runs out)."""

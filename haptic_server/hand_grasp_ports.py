@@ -12,14 +12,12 @@ from the tracked hands it records.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
 from haptic_local_model.device_models.base import SimulatedDevice
-from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import device_noise_ready
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.haptic_server.hand_ports import (
@@ -36,6 +34,7 @@ from haptic_local_model.haptic_server.stages.hand_grasp import (
     grasp_records,
     grasp_tick,
 )
+from haptic_local_model.haptic_server.world import WorldKind, run_ticks, run_virtual
 from haptic_local_model.shared.config import UserConfig, load_user
 from haptic_local_model.shared.kinematics import MAX_DOF
 from haptic_local_model.shared.port_config import HandSceneConfig
@@ -160,41 +159,58 @@ class HandGraspRun:
         users: list[UserConfig] | None = None,
     ) -> None:
         self.scene = scene
+        self.kind = HAND_GRASP_KIND
+        self.period_s = scene.period_s
         self.devices = devices or [load_simulated_device(p.device) for p in scene.ports]
         self.users = users or [load_user(p.user) for p in scene.ports]
         self.specs = [scene.hand_of(p) for p in range(len(scene.ports))]
         self.io = np.zeros(MAX_HANDS, HAND_IO_DTYPE)
-        self.limits = [
+        world_limits = [
             port_io(self.io[p], dev, user, spec)
             for p, (dev, user, spec) in enumerate(
                 zip(self.devices, self.users, self.specs, strict=True)
             )
         ]
         self.chains, self.models, self.datas, self.gmodel, self.gdata = grasp_port_records(
-            scene, self.limits
+            scene, world_limits
         )
         for p, port in enumerate(scene.ports):
             place_device(self.io[p], self.devices[p], self.users[p], self.specs[p],
                          port.device_start)  # fmt: skip
 
+    def burst(self, rows: np.ndarray, start: int, stop: int) -> int:
+        """The World protocol's compiled ticks (run_hand_grasp_ticks)."""
+        grasp = (self.chains, self.models, self.datas, self.gmodel, self.gdata)
+        d0, d1 = self.devices
+        return run_hand_grasp_ticks(grasp, self.io, (d0.records, d1.records), rows, start, stop)
+
     def ticks(self, rows: np.ndarray, start: int, stop: int) -> int:
         """Ticks start..stop-1 into rows (refilling the devices' noise as they need)."""
-        k = start
-        d0, d1 = self.devices
-        while k < stop:
-            grasp = (self.chains, self.models, self.datas, self.gmodel, self.gdata)
-            k = run_hand_grasp_ticks(grasp, self.io, (d0.records, d1.records), rows, k, stop)
-            if k < stop:
-                for dev in self.devices:
-                    refill_noise(dev.noise, dev.records, self.scene.period_s)
-        return stop
+        return run_ticks(self, rows, start, stop)
+
+    def limits(self) -> list[list[float]]:
+        return [list(map(float, m[0]["max_wrench"])) for m in self.models]
 
     def run(self, duration_s: float) -> HandGraspResult:
-        n = round(duration_s * self.scene.haptic_rate_hz)
-        rows = np.zeros(n, HAND_GRASP_ROW_DTYPE)
-        entered = time.perf_counter()
-        self.ticks(rows, 0, n)
-        return HandGraspResult(rows, time.perf_counter() - entered)
+        return HandGraspResult(*run_virtual(self, duration_s))
+
+    def summary_lines(self, rows: np.ndarray, wall_s: float) -> list[str]:
+        last = rows[-min(len(rows), round(self.scene.haptic_rate_hz)) :]
+        lines = [f"{len(rows)} ticks in {wall_s:.2f} s of wall time"]
+        for p, port in enumerate(self.scene.ports):
+            cmd = last["command"][:, p, :2]
+            lines.append(
+                f"port {port.name} ({self.devices[p].name}, {self.users[p].name}): mean command "
+                f"over the last second ({cmd[:, 0].mean():+.3f}, {cmd[:, 1].mean():+.3f}) N; "
+                f"readings or commands not finite {rows['invalid'][-1, p]}"
+            )
+        q = rows["box_q"]
+        lines.append(
+            f"box: moved ({(q[-1, 0] - q[0, 0]) * 1e3:+.3f}, {(q[-1, 1] - q[0, 1]) * 1e3:+.3f}) "
+            f"mm, turned {q[-1, 2] - q[0, 2]:+.4f} rad; hand-box contacts at the end "
+            f"{rows['n_contacts'][-1]}, steps held {rows['singular'][-1]}"
+        )
+        return lines
 
 
 def replay_hand_grasp_rows(
@@ -215,3 +231,11 @@ def replay_hand_grasp_rows(
             if out[0][name].tobytes() != np.asarray(row[name]).tobytes():
                 return k + 1, k
     return len(rows), None
+
+
+#: two mass-spring hands in ports holding one box (`/ports/hand_grasp_tick`; also the shared
+#: world's log of a two-hand scene)
+HAND_GRASP_KIND = WorldKind(
+    name="hand_grasp", topic="/ports/hand_grasp_tick", schema="haptic_server/HandGraspTick",
+    rows=HAND_GRASP_ROW_DTYPE, scene=HandSceneConfig, ports=2, replay=replay_hand_grasp_rows,
+)  # fmt: skip

@@ -12,7 +12,6 @@ no actuators of its own.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,7 +23,6 @@ from haptic_local_model.device_models.base import (
     world_limits,
     world_map_of,
 )
-from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import (
     device_noise_ready,
 )
@@ -40,6 +38,7 @@ from haptic_local_model.haptic_server.stages.port_io import (
     read_device,
 )
 from haptic_local_model.haptic_server.users import USER_DTYPE, user_record
+from haptic_local_model.haptic_server.world import WorldKind, run_virtual
 from haptic_local_model.shared.config import ConfigError, UserConfig, load_user, resolve
 from haptic_local_model.shared.kinematics import MAX_DOF
 from haptic_local_model.shared.port_config import HandSceneConfig, HandTable
@@ -260,8 +259,11 @@ class HandPortRun:
         user: UserConfig | None = None,
     ) -> None:
         self.scene = scene
+        self.kind = HAND_KIND
+        self.period_s = scene.period_s
         port = scene.ports[0]
         self.device = device or load_simulated_device(port.device)
+        self.devices = [self.device]
         self.user = user or load_user(port.user)
         self.spec = scene.hand_of(0)
         self.io = np.zeros(1, HAND_IO_DTYPE)
@@ -269,18 +271,29 @@ class HandPortRun:
         self.chain, self.model, self.data = port_hand_records(scene, limits)
         place_device(self.io[0], self.device, self.user, self.spec, port.device_start)
 
+    def burst(self, rows: np.ndarray, start: int, stop: int) -> int:
+        """The World protocol's compiled ticks (run_hand_port_ticks)."""
+        return run_hand_port_ticks(self.chain, self.model, self.data, self.io,
+                                   self.device.records, rows, start, stop)  # fmt: skip
+
+    def limits(self) -> list[list[float]]:
+        return [list(map(float, self.model[0]["max_wrench"]))]
+
     def run(self, duration_s: float) -> HandPortResult:
-        n = round(duration_s * self.scene.haptic_rate_hz)
-        rows = np.zeros(n, HAND_ROW_DTYPE)
-        entered = time.perf_counter()
-        dev = self.device
-        k = 0
-        while k < n:
-            k = run_hand_port_ticks(self.chain, self.model, self.data, self.io, dev.records,
-                                    rows, k, n)  # fmt: skip
-            if k < n:
-                refill_noise(dev.noise, dev.records, self.scene.period_s)
-        return HandPortResult(rows, time.perf_counter() - entered)
+        return HandPortResult(*run_virtual(self, duration_s))
+
+    def summary_lines(self, rows: np.ndarray, wall_s: float) -> list[str]:
+        last = rows[-min(len(rows), round(self.scene.haptic_rate_hz)) :]
+        cmd, wall = last["command"][:, :2], last["contact_force"]
+        return [
+            f"{len(rows)} ticks in {wall_s:.2f} s of wall time",
+            f"port {self.scene.ports[0].name} ({self.device.name}, {self.user.name}): mean "
+            f"command over the last second ({cmd[:, 0].mean():+.3f}, {cmd[:, 1].mean():+.3f}) "
+            f"N, the walls' force on the hand ({wall[:, 0].mean():+.3f}, "
+            f"{wall[:, 1].mean():+.3f}) N",
+            f"steps held {rows['singular'][-1]}, readings or commands not finite "
+            f"{rows['invalid'][-1]}",
+        ]
 
 
 def replay_hand_rows(scene: HandSceneConfig, limits: tuple[float, float, float],
@@ -297,3 +310,11 @@ def replay_hand_rows(scene: HandSceneConfig, limits: tuple[float, float, float],
             if np.asarray(d[name]).tobytes() != np.asarray(row[name]).tobytes():
                 return k + 1, k
     return len(rows), None
+
+
+#: a mass-spring hand that one device drives (`/ports/hand_tick`)
+HAND_KIND = WorldKind(
+    name="hand", topic="/ports/hand_tick", schema="haptic_server/HandPortTick",
+    rows=HAND_ROW_DTYPE, scene=HandSceneConfig, ports=1,
+    replay=lambda scene, limits, rows: replay_hand_rows(scene, limits[0], rows),
+)  # fmt: skip

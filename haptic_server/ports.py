@@ -1,4 +1,4 @@
-"""Two ports on one co-simulated world, on a virtual clock (DESIGN-WAVE2 §2 C3, §6).
+"""Two ports on one co-simulated world: a `World` (DESIGN-WAVE2 §2 C3, §6).
 
 Each port is a simulated device, its device-to-world map and its simulated user (the hand
 that holds the device); both devices couple to their tools in one co-simulation
@@ -6,12 +6,12 @@ that holds the device); both devices couple to their tools in one co-simulation
 hand on its device's true state, each device's reading mapped to the world, the
 co-simulation, each command mapped back, clipped at the device's limits and held over the
 device's physics. No sim process and no wire: this is the 1 kHz local model of a grasp and
-its devices, run as fast as it computes (`python -m haptic_local_model.benchmarks.grasp`).
+its devices, run by haptic_server.world on the virtual clock (as fast as it computes,
+`python -m haptic_local_model.benchmarks.grasp`) or in real time (`haptic-run`).
 """
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,7 +23,6 @@ from haptic_local_model.device_models.base import (
     world_limits,
     world_map_of,
 )
-from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import (
     device_noise_ready,
 )
@@ -34,6 +33,7 @@ from haptic_local_model.device_models.world_map import (
 from haptic_local_model.haptic_server.stages.cosim import (
     MAX_COSIM_BODIES,
     MAX_COSIM_DOF,
+    carry_sim_bodies,
     cosim_order,
     cosim_records,
     cosim_tick,
@@ -45,6 +45,7 @@ from haptic_local_model.haptic_server.stages.port_io import (
     read_device,
 )
 from haptic_local_model.haptic_server.users import USER_DTYPE, user_record
+from haptic_local_model.haptic_server.world import WorldKind, run_virtual
 from haptic_local_model.shared.config import UserConfig, load_user
 from haptic_local_model.shared.port_config import MAX_PORTS, MAX_SIM_BODIES, PortSceneConfig
 
@@ -90,7 +91,7 @@ PORT_ROW_DTYPE = np.dtype(
 
 
 @njit(cache=True)
-def _port_in(cd, io, p, dev):
+def port_in(cd, io, p, dev):
     """Port p's hand on its device, then the device's reading in the world frame."""
     read_device(io.users[p : p + 1], io.t, dev, io.hand[p], io.sensors[p : p + 1],
                 io.maps[p : p + 1], io.world[p : p + 1])  # fmt: skip
@@ -100,14 +101,15 @@ def _port_in(cd, io, p, dev):
 
 
 @njit(cache=True)
-def _port_out(cd, io, p, dev):
+def port_out(cd, io, p, dev):
     """Port p's command to its device, clipped at its limits, and the device's physics."""
     drive_device(io.maps[p : p + 1], cd.command[p], io.limits[p], io.out[p], dev, cd.dt,
                  io.hand[p], io.sensors[p : p + 1])  # fmt: skip
 
 
 @njit(cache=True)
-def _row(m, cd, io, r):
+def port_row(m, cd, io, r):
+    """The tick's outputs and inputs into the row r (a port the scene does not have: zeros)."""
     r.t = io.t
     for a in range(MAX_COSIM_DOF):
         r.q[a] = cd.q[a]
@@ -141,12 +143,12 @@ def run_port_ticks(cosim, data, io, dev0, dev1, rows, start, stop):
     for k in range(start, stop):
         if not device_noise_ready(dev0, cd.dt) or not device_noise_ready(dev1, cd.dt):
             return k
-        _port_in(cd, s, 0, dev0)
-        _port_in(cd, s, 1, dev1)
+        port_in(cd, s, 0, dev0)
+        port_in(cd, s, 1, dev1)
         cosim_tick(cosim, data)
-        _port_out(cd, s, 0, dev0)
-        _port_out(cd, s, 1, dev1)
-        _row(cosim[0], cd, s, rows[k])
+        port_out(cd, s, 0, dev0)
+        port_out(cd, s, 1, dev1)
+        port_row(cosim[0], cd, s, rows[k])
         s.t += cd.dt
     return stop
 
@@ -166,7 +168,7 @@ class PortResult:
 
 
 class PortRun:
-    """A port scene with its devices and users, ready to run (one tick or many)."""
+    """A port scene with its devices and users, ready to run (one tick or many): a World."""
 
     def __init__(
         self,
@@ -175,6 +177,8 @@ class PortRun:
         users: list[UserConfig] | None = None,
     ) -> None:
         self.scene = scene
+        self.kind = PORT_KIND
+        self.period_s = scene.period_s
         self.devices = devices or [load_simulated_device(p.device) for p in scene.ports]
         self.users = users or [load_user(p.user) for p in scene.ports]
         io = np.zeros(1, PORT_IO_DTYPE)
@@ -209,19 +213,41 @@ class PortRun:
         wm["offset"] = tool + push_stretch(self.users[p].wrench, wm, kc) - wm["scale"] * pose
         io["maps"][p] = wm
 
+    def burst(self, rows: np.ndarray, start: int, stop: int) -> int:
+        """The World protocol's compiled ticks (run_port_ticks)."""
+        d0, d1 = self.devices
+        return run_port_ticks(self.model, self.data, self.io, d0.records, d1.records, rows,
+                              start, stop)  # fmt: skip
+
+    def limits(self) -> list[list[float]]:
+        return [list(map(float, w)) for w in self.model[0]["max_wrench"][: len(self.devices)]]
+
     def run(self, duration_s: float) -> PortResult:
         """Run `duration_s` of virtual time; every tick's row."""
-        n = round(duration_s * self.scene.haptic_rate_hz)
-        rows = np.zeros(n, PORT_ROW_DTYPE)
-        entered = time.perf_counter()
-        k = 0
-        d0, d1 = self.devices
-        while k < n:
-            k = run_port_ticks(self.model, self.data, self.io, d0.records, d1.records, rows, k, n)
-            if k < n:
-                for dev in self.devices:
-                    refill_noise(dev.noise, dev.records, float(self.data[0]["dt"]))
-        return PortResult(rows, self.model, self.order, time.perf_counter() - entered)
+        rows, wall_s = run_virtual(self, duration_s)
+        return PortResult(rows, self.model, self.order, wall_s)
+
+    def summary_lines(self, rows: np.ndarray, wall_s: float) -> list[str]:
+        last = rows[-min(len(rows), round(self.scene.haptic_rate_hz)) :]
+        lines = [
+            f"{len(rows)} ticks, {len(rows) * self.period_s:.3f} s in {wall_s:.2f} s of wall time"
+        ]
+        for p, port in enumerate(self.scene.ports):
+            cmd = last["command"][:, p, :2]
+            lines.append(
+                f"port {port.name} ({self.devices[p].name}, {self.users[p].name}): mean command "
+                f"over the last second ({cmd[:, 0].mean():+.3f}, {cmd[:, 1].mean():+.3f}) N"
+            )
+        for i, name in enumerate(self.order):
+            q = rows["q"][:, 3 * i : 3 * i + 3]
+            dx, dy = (q[-1, 0] - q[0, 0]) * 1e3, (q[-1, 1] - q[0, 1]) * 1e3
+            lines.append(f"{name}: moved ({dx:+.3f}, {dy:+.3f}) mm, turned "
+                         f"{q[-1, 2] - q[0, 2]:+.4f} rad")  # fmt: skip
+        lines.append(
+            f"contacts at the end {rows['n_contacts'][-1]}, commands not finite (zeroed) "
+            f"{rows['invalid'][-1]}, steps held {rows['singular'][-1]}"
+        )
+        return lines
 
 
 def run_ports(
@@ -232,3 +258,36 @@ def run_ports(
 ) -> PortResult:
     """A port scene's run on the virtual clock (module docstring)."""
     return PortRun(scene, devices, users).run(duration_s)
+
+
+#: the row fields a replay recomputes (the rest are its inputs or the devices' own)
+REPLAYED = ("q", "qd", "command", "body_force", "n_contacts", "penetration", "invalid", "singular",
+            "collisions")  # fmt: skip
+
+
+def replay_rows(
+    scene: PortSceneConfig, limits: list[tuple[float, float, float]], rows: np.ndarray
+) -> tuple[int, int | None]:
+    """Re-run the co-simulation on the rows' device readings (and the sim's bodies as each
+    tick met them); (ticks compared, the first tick whose outputs differ in any bit, or
+    None)."""
+    model, data = cosim_records(scene, limits)
+    d = data[0]
+    for k, row in enumerate(rows):
+        d["device_pose"] = row["device_pose"]
+        d["device_twist"] = row["device_twist"]
+        if scene.sim_bodies:
+            carry_sim_bodies(model, data, row["sim_bodies"], 0.0)
+            d["sim_wrench"] = row["sim_wrench"]
+        cosim_tick(model, data)
+        for name in REPLAYED:
+            if np.asarray(d[name]).tobytes() != np.asarray(row[name]).tobytes():
+                return k + 1, k
+    return len(rows), None
+
+
+#: devices on a co-simulated world (`/ports/tick`; also the shared world's log)
+PORT_KIND = WorldKind(
+    name="ports", topic="/ports/tick", schema="haptic_server/PortTick", rows=PORT_ROW_DTYPE,
+    scene=PortSceneConfig, ports=None, replay=replay_rows,
+)  # fmt: skip

@@ -39,8 +39,8 @@ The tick is compiled (haptic_server/stages/world_ports.py, and each engine's ste
 world's Python is its Zenoh calls, one compiled call a DeviceState received and one a tick.
 
 Every tick's row (the engine's: PORT_ROW_DTYPE, or HAND_GRASP_ROW_DTYPE; the devices as
-fed) stays in memory; `--log` writes them as a `haptic-ports` log, which `haptic-ports
---replay` re-runs bit for bit.
+fed) stays in memory; `--log` writes them as a port world's log (haptic_server/world_runs.py), which
+`haptic-replay` re-runs bit for bit.
 """
 
 from __future__ import annotations
@@ -189,28 +189,26 @@ class SharedWorld:
         pacer = Pacer(round(self.engine.dt * 1e9), SPIN_NS, duration_s)
         self.pacer = pacer
         enter_loop(self.warm, ready)
-        pacer.start()
-        seq = 0
-        t = 0.0
+        dt, t = self.engine.dt, 0.0
+
+        def tick(now: int, seq: int) -> None:
+            nonlocal t
+            for p in range(len(subs)):
+                self.receive(p, subs[p], now)
+            sim_tick = self.sim is not None and self.sim.take(now)
+            self.step(now, t, seq)
+            t += dt
+            for p in range(len(pubs)):
+                pubs[p].put(self._tool_bytes[p].tobytes())
+            if self.sim is not None:
+                sim_tick = self.sim.publish(seq) or sim_tick
+            work = (time.perf_counter_ns() - now) / 1e3
+            self.work_us.add(work)
+            if self.sim is not None:
+                (self.work_sim_us if sim_tick else self.work_rest_us).add(work)
+
         try:
-            while not self._stop:
-                now = pacer.wait()
-                for p in range(len(subs)):
-                    self.receive(p, subs[p], now)
-                sim_tick = self.sim is not None and self.sim.take(now)
-                self.step(now, t, seq)
-                for p in range(len(pubs)):
-                    pubs[p].put(self._tool_bytes[p].tobytes())
-                if self.sim is not None:
-                    sim_tick = self.sim.publish(seq) or sim_tick
-                work = (time.perf_counter_ns() - now) / 1e3
-                self.work_us.add(work)
-                if self.sim is not None:
-                    (self.work_sim_us if sim_tick else self.work_rest_us).add(work)
-                seq += 1
-                t += self.engine.dt
-                if not pacer.next():
-                    break
+            pacer.run(tick, lambda: self._stop)
         finally:
             session.close()
         return self.summary()

@@ -158,26 +158,23 @@ class Station:
         pacer = Pacer(round(dt * 1e9), SPIN_NS, duration_s)
         self.pacer = pacer
         enter_loop(self.warm, ready)
-        pacer.start()
-        seq = 0
+
+        def tick(now: int, seq: int) -> None:
+            if not noise_ready(dev, dt):
+                refill_noise(self.device.noise, dev, dt)
+                self.refills += 1
+            self.receive(sub, now)
+            wall = time.time_ns()
+            station_step(st, dev, self.link, self.message, self._glove, now, wall, seq)
+            pub.put(self.message.tobytes())
+            work_ns = time.perf_counter_ns() - now
+            self.work_us.add(work_ns / 1e3)
+            station_log(st, self.link, self.rows, self.n_rows % len(self.rows), now,
+                        pacer.late_ns, work_ns)  # fmt: skip
+            self.n_rows += 1
+
         try:
-            while not self._stop:
-                now = pacer.wait()
-                if not noise_ready(dev, dt):
-                    refill_noise(self.device.noise, dev, dt)
-                    self.refills += 1
-                self.receive(sub, now)
-                wall = time.time_ns()
-                station_step(st, dev, self.link, self.message, self._glove, now, wall, seq)
-                pub.put(self.message.tobytes())
-                work_ns = time.perf_counter_ns() - now
-                self.work_us.add(work_ns / 1e3)
-                station_log(st, self.link, self.rows, self.n_rows % len(self.rows), now,
-                            pacer.late_ns, work_ns)  # fmt: skip
-                self.n_rows += 1
-                seq += 1
-                if not pacer.next():
-                    break
+            pacer.run(tick, lambda: self._stop)
         finally:
             session.close()
         return self.summary()

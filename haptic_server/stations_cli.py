@@ -7,8 +7,8 @@
 
 Each runs until SIGTERM or SIGINT (or --duration), then writes its log (a temporary file
 renamed when whole) and its summary (--json), and prints one JSON line per event on stdout
-(`ready`, `done`). The world's log is a `haptic-ports` log: `haptic-ports --replay` re-runs
-it bit for bit.
+(`ready`, `done`). The world's log is a port world's log: `haptic-replay LOG` re-runs it bit
+for bit.
 """
 
 from __future__ import annotations
@@ -24,16 +24,12 @@ from typing import Any
 import zenoh
 
 from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.hand_grasp_ports import HAND_GRASP_KIND
 from haptic_local_model.haptic_server.hand_ports import load_glove_users
-from haptic_local_model.haptic_server.ports_cli import (
-    HAND_GRASP_SCHEMA,
-    HAND_GRASP_TOPIC,
-    PORT_TICK_SCHEMA,
-    PORT_TICK_TOPIC,
-    write_rows_log,
-)
+from haptic_local_model.haptic_server.ports import PORT_KIND
 from haptic_local_model.haptic_server.shared_world import SharedWorld
 from haptic_local_model.haptic_server.station import MAX_LOG_S, RING_S, Station
+from haptic_local_model.haptic_server.world_runs import write_rows_log
 from haptic_local_model.shared import __version__
 from haptic_local_model.shared.cli import (
     add_version,
@@ -89,7 +85,7 @@ def _scene(name: str) -> tuple[PortSceneConfig | HandSceneConfig, str]:
         hands = load_config_text(HandSceneConfig, text, str(path))
         if len(hands.ports) != 2:
             raise ConfigError(str(path), "ports", "one hand has no stations: run it with "
-                              "haptic-ports (two hands on a box have: hand_grasp)")  # fmt: skip
+                              "haptic-run (two hands on a box have: hand_grasp)")  # fmt: skip
         load_glove_users(hands, [p.user for p in hands.ports])  # the world's gloves
         for i, hand in enumerate(hands.hands):
             if hand.damping != "relative":  # a station renders B (v_palm - v_device)
@@ -168,11 +164,8 @@ def world_main(argv: list[str] | None = None) -> int:
         if args.log is not None:
             rows = world.logged_rows()
             hands = isinstance(scene, HandSceneConfig)
-            topic, schema = (
-                (HAND_GRASP_TOPIC, HAND_GRASP_SCHEMA) if hands
-                else (PORT_TICK_TOPIC, PORT_TICK_SCHEMA)
-            )  # fmt: skip
-            write_rows_log(args.log, rows, topic, schema, {
+            kind = HAND_GRASP_KIND if hands else PORT_KIND
+            write_rows_log(args.log, rows, kind.topic, kind.schema, {
                 "configs": {"ports": text,
                             "devices": json.dumps([p.device for p in scene.ports]),
                             "users": json.dumps([p.user for p in scene.ports])},

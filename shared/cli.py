@@ -20,16 +20,33 @@ EXIT_LOG_FAILED = 3  # the run went on, but logging stopped (a full disk): the l
 
 
 def add_config_args(
-    parser: argparse.ArgumentParser, device: bool = True, user: bool = True, rate: bool = False
+    parser: argparse.ArgumentParser,
+    device: bool = True,
+    user: bool = True,
+    rate: bool = False,
+    per_port: bool = False,
 ) -> None:
+    """--scene, --device, --user, --network, --port (and --haptic-rate). With `per_port`,
+    --device and --user may be given once per port of a port scene (a list, None when not
+    given: the caller takes its defaults, `single` for a scene of one device)."""
     add_version(parser)
-    parser.add_argument("--scene", default="testbed", help="scene name in configs/scenes or a path")
+    scenes = "configs/scenes (or configs/ports)" if per_port else "configs/scenes"
+    parser.add_argument("--scene", default="testbed", help=f"scene name in {scenes} or a path")
+    each: dict[str, Any] = {"action": "append", "default": None} if per_port else {}
+    again = ", or once per port of a port scene" if per_port else ""
     if device:
         parser.add_argument(
-            "--device", default="ideal", help="device name in configs/devices or a path"
-        )
+            "--device", **each, help=f"device name in configs/devices or a path (default ideal"
+            f"{again})",
+        )  # fmt: skip
+        if not per_port:
+            parser.set_defaults(device="ideal")
     if user:
-        parser.add_argument("--user", default="swing", help="user name in configs/users or a path")
+        parser.add_argument(
+            "--user", **each, help=f"user name in configs/users or a path (default swing{again})"
+        )
+        if not per_port:
+            parser.set_defaults(user="swing")
     parser.add_argument(
         "--network", default="loopback", help="network name in configs/network or a path"
     )
@@ -47,6 +64,15 @@ def add_config_args(
             help="the haptic loop's rate, instead of the scene's haptic_rate_hz (100-10000 Hz, "
             "at most the device's max_rate_hz)",
         )
+
+
+def single(given: list[str] | None, default: str, flag: str) -> str:
+    """The one name a scene of one device takes from a per-port flag (add_config_args)."""
+    if not given:
+        return default
+    if len(given) > 1:
+        raise ConfigError(flag, flag, f"given {len(given)} times: the scene has one device")
+    return given[0]
 
 
 #: the longest run any console script takes (a week): beyond it, a typo

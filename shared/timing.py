@@ -190,6 +190,22 @@ class Pacer:
         self.deadline += self.period_ns
         return self.end is None or self.last < self.end
 
+    def run(self, tick: Callable[[int, int], None], stopped: Callable[[], bool]) -> int:
+        """The paced loop, written once for every loop on the wall clock that is not the
+        local model's (the shared world, a station, the sim's mirror, a local port world):
+        start the clock, then until the duration is over or `stopped()`, wait for each
+        deadline and run tick(now_ns, seq) (seq counts the ticks from 0). Returns the ticks
+        run."""
+        self.start()
+        seq = 0
+        while not stopped():
+            now = self.wait()
+            tick(now, seq)
+            seq += 1
+            if not self.next():
+                break
+        return seq
+
     def figures(self) -> dict[str, Any]:
         return {
             "tick_rate_hz": rate_per_second(self.intervals_ms.values()),

@@ -240,18 +240,18 @@ class Mirror:
         pacer = Pacer(round(self.h * 1e9), SPIN_NS, duration_s)
         self.pacer = pacer
         enter_loop(lambda: None, ready)
-        pacer.start()
-        seq = 0
+        published = 0
+
+        def tick(now: int, _seq: int) -> None:
+            nonlocal published
+            self.take(sub, now)
+            self.step(now)
+            if self.last is not None:  # following a world: a sim of none says nothing
+                self.publish(pub, published)
+                published += 1
+
         try:
-            while not self._stop:
-                now = pacer.wait()
-                self.take(sub, now)
-                self.step(now)
-                if self.last is not None:  # following a world: a sim of none says nothing
-                    self.publish(pub, seq)
-                    seq += 1
-                if not pacer.next():
-                    break
+            pacer.run(tick, lambda: self._stop)
         finally:
             session.close()
         return self.summary()

@@ -1,7 +1,8 @@
 """Two hands in ports holding one box (`hand_grasp`, haptic_server/hand_grasp_ports.py,
 docs/grasp.md): each palm driven by its simulated device, both hands and the box in one
 implicit step, each palm's command to its device; V5.5 with devices; the log and its
-bit-exact replay through `haptic-ports`; scenes that are not two hands on a box."""
+bit-exact replay through `haptic-run` and `haptic-replay`; scenes that are not two hands
+on a box."""
 
 from __future__ import annotations
 
@@ -19,10 +20,10 @@ from haptic_local_model.haptic_server.hand_grasp_ports import (
     HandGraspRun,
     replay_hand_grasp_rows,
 )
-from haptic_local_model.haptic_server.ports_cli import (
-    HAND_GRASP_SCHEMA,
+from haptic_local_model.haptic_server.harness.replay import main as haptic_replay
+from haptic_local_model.haptic_server.harness.run import main as haptic_run
+from haptic_local_model.haptic_server.world_runs import (
     HAND_GRASP_TOPIC,
-    main,
     read_port_log,
     write_rows_log,
 )
@@ -143,8 +144,25 @@ def test_one_hand_cannot_hold_a_box(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def grasp_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("grasp") / "grasp.mcap"
-    assert main(["--scene", SCENE, "--duration", "1", "--device", "maglev",
-                 "--device", "twin_pantograph", "--log", str(path)]) == 0  # fmt: skip
+    assert (
+        haptic_run(
+            [
+                "--clock",
+                "virtual",
+                "--scene",
+                SCENE,
+                "--duration",
+                "1",
+                "--device",
+                "maglev",
+                "--device",
+                "twin_pantograph",
+                "--log",
+                str(path),
+            ]
+        )
+        == 0
+    )
     return path
 
 
@@ -153,7 +171,7 @@ def test_a_two_hand_run_logs_every_tick_and_replays_bit_for_bit(grasp_log, tmp_p
     assert len(rows) == 1000 and json.loads(metadata["configs"]["devices"]) == [
         "maglev", "twin_pantograph",
     ]  # fmt: skip
-    assert main(["--replay", str(grasp_log)]) == 0
+    assert haptic_replay([str(grasp_log)]) == 0
     assert "replayed 1000 ticks" in capsys.readouterr().out
     limits = [tuple(map(float, v)) for v in json.loads(metadata["limits"]["max_wrench"])]
     tampered = rows.copy()
@@ -162,8 +180,8 @@ def test_a_two_hand_run_logs_every_tick_and_replays_bit_for_bit(grasp_log, tmp_p
     tampered["box_q"] = box
     assert replay_hand_grasp_rows(load_hand_scene(SCENE), limits, tampered) == (601, 600)
     bad = tmp_path / "tampered.mcap"
-    write_rows_log(bad, tampered, HAND_GRASP_TOPIC, HAND_GRASP_SCHEMA, metadata)
-    assert main(["--replay", str(bad)]) == 1
+    write_rows_log(bad, tampered, HAND_GRASP_TOPIC, "haptic_server/HandGraspTick", metadata)
+    assert haptic_replay([str(bad)]) == 1
 
 
 def test_a_glove_that_does_not_fit_its_hand_is_named_by_its_users_file(tmp_path, capsys):
@@ -171,8 +189,20 @@ def test_a_glove_that_does_not_fit_its_hand_is_named_by_its_users_file(tmp_path,
     text = resolve("users", "hand_grasp_right").read_text()
     bad.write_text(text.replace('name = "hand_grasp_right"', 'name = "bad_glove"')
                    + "finger_angles = [[0.0, 0.1]]\n")  # fmt: skip
-    code = main(["--scene", SCENE, "--duration", "0.01", "--user", "hand_grasp_left",
-                 "--user", str(bad)])  # fmt: skip
+    code = haptic_run(
+        [
+            "--clock",
+            "virtual",
+            "--scene",
+            SCENE,
+            "--duration",
+            "0.01",
+            "--user",
+            "hand_grasp_left",
+            "--user",
+            str(bad),
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2
     assert str(bad) in err and "finger_angles" in err and "hand_grasp_left" not in err

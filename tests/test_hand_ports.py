@@ -1,6 +1,6 @@
 """A hand scene's port (haptic_server/hand_ports.py, docs/grasp.md): the mass-spring hand's
 palm driven by a simulated device, its fingers by the user's glove script; the palm's command
-to the device; the log and its bit-exact replay through `haptic-ports`."""
+to the device; the log and its bit-exact replay through `haptic-run` and `haptic-replay`."""
 
 from __future__ import annotations
 
@@ -19,9 +19,10 @@ from haptic_local_model.haptic_server.hand_ports import (
     replay_hand_rows,
     run_hand_port_ticks,
 )
-from haptic_local_model.haptic_server.ports_cli import (
+from haptic_local_model.haptic_server.harness.replay import main as haptic_replay
+from haptic_local_model.haptic_server.harness.run import main as haptic_run
+from haptic_local_model.haptic_server.world_runs import (
     HAND_TICK_TOPIC,
-    main,
     read_port_log,
     write_rows_log,
 )
@@ -131,15 +132,30 @@ def test_a_hand_scene_names_what_is_wrong(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def hand_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("hand") / "hand.mcap"
-    assert main(["--scene", SCENE, "--duration", "2.6", "--device", "maglev",
-                 "--log", str(path)]) == 0  # fmt: skip
+    assert (
+        haptic_run(
+            [
+                "--clock",
+                "virtual",
+                "--scene",
+                SCENE,
+                "--duration",
+                "2.6",
+                "--device",
+                "maglev",
+                "--log",
+                str(path),
+            ]
+        )
+        == 0
+    )
     return path
 
 
 def test_a_hand_run_logs_every_tick_and_replays_bit_for_bit(hand_log, tmp_path, capsys) -> None:
     rows, metadata = read_port_log(hand_log, HAND_TICK_TOPIC, HAND_ROW_DTYPE)
     assert len(rows) == 2600 and metadata["run"]["kind"] == "hand"
-    assert main(["--replay", str(hand_log)]) == 0
+    assert haptic_replay([str(hand_log)]) == 0
     assert "replayed 2600 ticks" in capsys.readouterr().out
     scene = load_hand_scene(SCENE)
     limits = tuple(float(v) for v in json.loads(metadata["limits"]["max_wrench"])[0])
@@ -150,4 +166,4 @@ def test_a_hand_run_logs_every_tick_and_replays_bit_for_bit(hand_log, tmp_path, 
     assert replay_hand_rows(scene, limits, tampered) == (1301, 1300)
     bad = tmp_path / "tampered.mcap"
     write_rows_log(bad, tampered, HAND_TICK_TOPIC, "haptic_server/HandPortTick", metadata)
-    assert main(["--replay", str(bad)]) == 1
+    assert haptic_replay([str(bad)]) == 1

@@ -134,7 +134,6 @@ BAD_CALLS = {
     "haptic-bench": ("--out", "x", "--no-such-option"),
     "haptic-stability": ("--rates", "fast"),
     "haptic-pointer": ("--events", "missing.jsonl"),
-    "haptic-ports": ("--scene", "missing.toml"),
     "haptic-router": ("--network", "missing.toml"),
     "haptic-world": ("--scene", "missing.toml"),
     "haptic-station": ("--port", "left", "--scene", "missing.toml"),

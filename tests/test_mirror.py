@@ -202,7 +202,7 @@ def test_the_sim_drops_a_ball_on_the_held_box_and_the_world_feels_its_weight(
     assert f["pads_sank_m"] == pytest.approx(f["pads_sank_expected_m"], rel=0.02), f
     assert f["slip_m"] <= 1e-4, f
     assert -1.05e-4 <= f["ball_above_mirror_m"] <= 0.0, f  # pymunk's slop: 1e-4 deep
-    from haptic_local_model.haptic_server.ports_cli import replay_log
+    from haptic_local_model.haptic_server.world_runs import replay_log
 
     compared, differs = replay_log(tmp_path / "world.mcap")
     assert differs is None and compared == f["ticks"]

@@ -31,14 +31,14 @@ from haptic_local_model.benchmarks.stations import (
 )
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.haptic_server.hand_grasp_ports import HAND_GRASP_ROW_DTYPE
-from haptic_local_model.haptic_server.ports_cli import (
+from haptic_local_model.haptic_server.shared_world import SharedWorld
+from haptic_local_model.haptic_server.stages.station import STATION_ROW_DTYPE
+from haptic_local_model.haptic_server.station import EXTRAPOLATE_S, Station
+from haptic_local_model.haptic_server.world_runs import (
     HAND_GRASP_TOPIC,
     read_port_log,
     replay_log,
 )
-from haptic_local_model.haptic_server.shared_world import SharedWorld
-from haptic_local_model.haptic_server.stages.station import STATION_ROW_DTYPE
-from haptic_local_model.haptic_server.station import EXTRAPOLATE_S, Station
 from haptic_local_model.shared.config import ConfigError, load_user, resolve
 from haptic_local_model.shared.net.stations import (
     access_control,

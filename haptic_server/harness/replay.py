@@ -6,6 +6,9 @@ tick they were received (rejected ones too, so every verdict is checked), with t
 the loop installed them with; each tick uses the logged dt and the logged hand wrench, and
 watchdog events switch the safe state at their tick. Every recomputed tick row is compared
 with the logged one: the same build and configs give exactly zero difference.
+
+A port world's log (`haptic-run --scene grasp_vertical`, `haptic-world`) is told by its topic
+and re-run bit for bit by haptic_server.world_runs.
 """
 
 from __future__ import annotations
@@ -399,6 +402,16 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
     def body() -> int:
+        from haptic_local_model.haptic_server.world_runs import is_port_log, replay_main
+
+        if is_port_log(args.log):  # a port world's log: its rows re-run bit for bit
+            asked = [flag for flag, on in (("--plot", args.plot), ("--summary", args.summary),
+                     ("--summary-json", args.summary_json), ("--recover", recover),
+                     ("--no-replay", args.no_replay), ("--view", args.view)) if on]  # fmt: skip
+            if asked:
+                raise ConfigError(str(args.log), asked[0], "not for a port world's log (it "
+                                  "replays bit for bit, nothing else yet)")  # fmt: skip
+            return replay_main(args.log)
         view = view_address(args)
         code = main_replay(
             args.log, args.plot, args.summary, recover, not args.no_replay and view is None,

@@ -34,6 +34,7 @@ from haptic_local_model.shared.cli import (
     print_shipped,
     run_main,
     seconds,
+    single,
     write_summary,
 )
 from haptic_local_model.shared.config import (
@@ -285,6 +286,31 @@ def run_virtual_clock(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def run_port_world(args: argparse.Namespace) -> int:
+    """A port scene: its world and both (or one) simulated devices in this process, in real
+    time or on the virtual clock (haptic_server.world_runs)."""
+    from haptic_local_model.haptic_server.world_runs import port_scene, run_port_scene
+
+    for flag, given in (("--haptic-rate", args.haptic_rate), ("--port", args.port),
+                        ("--view", view_address(args))):  # fmt: skip
+        if given is not None:
+            raise ConfigError("command line", flag, "not for a port scene: it runs in this "
+                              "process at its scene's haptic_rate_hz, and the view does not "
+                              "draw port worlds")  # fmt: skip
+    scene = port_scene(args.scene, args.device, args.user)
+    figures = run_port_scene(scene, args.duration, args.clock, args.log)
+    figures["log"] = str(args.log) if args.log else None
+    if args.clock == "real":
+        work, late = figures["work_us"], figures["late_us"]
+        print(
+            f"real time: {figures['ticks']} ticks, delivered "
+            f"{100 * figures['ticks_delivered']:.2f} %, overruns {figures['overruns']}; work "
+            f"(us) p50 {work['p50']:.1f} p99 {work['p99']:.1f} p99.9 {work['p99_9']:.1f}; "
+            f"late (us) p99 {late['p99']:.1f}"
+        )
+    return 0 if write_summary(args.summary_json, figures, "haptic-run") else 1
+
+
 def print_summary(s: dict[str, Any]) -> None:
     if s.get("clock") == "virtual":
         print(
@@ -319,7 +345,7 @@ def print_summary(s: dict[str, Any]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="haptic-run", description=__doc__)
-    add_config_args(parser, rate=True)
+    add_config_args(parser, rate=True, per_port=True)
     parser.add_argument(
         "--duration", type=seconds, default=10.0, help="seconds to run (default 10)"
     )
@@ -350,6 +376,12 @@ def main(argv: list[str] | None = None) -> int:
         args.log = None
 
     def body() -> int:
+        from haptic_local_model.haptic_server.world_runs import is_port_scene
+
+        if is_port_scene(args.scene):
+            return run_port_world(args)
+        args.device = single(args.device, "ideal", "--device")
+        args.user = single(args.user, "swing", "--user")
         view = view_address(args)
         if view is not None and args.clock == "virtual":
             raise ConfigError(

@@ -1,0 +1,161 @@
+"""`haptic-run` of a port scene on the virtual clock, its MCAP log and the log's bit-exact
+replay through `haptic-replay` (haptic_server/world_runs.py)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from haptic_local_model.haptic_server.harness.replay import main as haptic_replay
+from haptic_local_model.haptic_server.harness.run import main as haptic_run
+from haptic_local_model.haptic_server.log import LogWriter
+from haptic_local_model.haptic_server.ports import replay_rows
+from haptic_local_model.haptic_server.world import refill_ahead, run_ticks, run_virtual
+from haptic_local_model.haptic_server.world_runs import (
+    port_scene,
+    read_port_log,
+    replay_log,
+    write_port_log,
+)
+from haptic_local_model.shared.config import ConfigError
+from haptic_local_model.shared.port_config import load_port_scene
+
+
+@pytest.fixture(scope="module")
+def logged(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("ports") / "grasp.mcap"
+    argv = "--scene grasp_vertical --clock virtual --duration 1 --device maglev"
+    code = haptic_run([*argv.split(), "--device", "twin_pantograph", "--log", str(path)])
+    assert code == 0
+    return path
+
+
+def test_a_port_run_logs_every_tick_and_replays_bit_for_bit(logged, capsys):
+    rows, metadata = read_port_log(logged)
+    assert len(rows) == 1000
+    assert np.all(rows["n_contacts"] == 4)
+    assert '"maglev", "twin_pantograph"' in metadata["configs"]["devices"]
+    assert not list(logged.parent.glob("*.part"))  # renamed when whole
+    assert haptic_replay([str(logged)]) == 0
+    assert "replayed 1000 ticks" in capsys.readouterr().out
+
+
+def test_the_replay_finds_a_row_that_is_not_the_co_simulations(logged):
+    """One bit of one logged body's position changed at tick 500: the replay stops there."""
+    rows, metadata = read_port_log(logged)
+    rows = rows.copy()
+    q = rows["q"]
+    q[500, 6] = np.nextafter(q[500, 6], np.inf)
+    rows["q"] = q
+    scene = load_port_scene("grasp_vertical")
+    limits = [tuple(v) for v in json.loads(metadata["limits"]["max_wrench"])]
+    assert replay_rows(scene, limits, rows) == (501, 500)
+
+
+def test_haptic_replay_exits_1_on_a_port_log_that_differs(logged, tmp_path, capsys):
+    rows, metadata = read_port_log(logged)
+    rows = rows.copy()
+    rows["command"][700, 1, 0] += 1e-9
+    tampered = tmp_path / "tampered.mcap"
+    write_port_log(tampered, rows, metadata)
+    assert haptic_replay([str(tampered)]) == 1
+    assert "tick 700" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("change", "key"),
+    [
+        (lambda md: md["limits"].update(max_wrench="[1, 2"), "limits.max_wrench"),
+        (lambda md: md["limits"].update(max_wrench="[[1, 2, 3]]"), "limits.max_wrench"),
+        (lambda md: md["run"].update(ticks="999"), "run.ticks"),
+        (lambda md: md["configs"].pop("ports"), "configs.ports"),
+    ],
+)
+def test_a_log_with_bad_metadata_is_refused_by_name(logged, tmp_path, capsys, change, key):
+    rows, metadata = read_port_log(logged)
+    metadata = {k: dict(v) for k, v in metadata.items()}
+    change(metadata)
+    bad = tmp_path / "bad.mcap"
+    write_port_log(bad, rows, metadata)
+    assert haptic_replay([str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "bad.mcap" in err and key in err
+
+
+def test_a_log_cut_short_is_refused(logged, tmp_path, capsys):
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(logged.read_bytes()[: logged.stat().st_size // 2])
+    assert haptic_replay([str(cut)]) == 2
+    assert "cut short" in capsys.readouterr().err
+
+
+def test_a_log_that_is_not_a_port_log_is_refused_by_name(tmp_path):
+    other = tmp_path / "haptic.mcap"
+    writer = LogWriter(other)
+    writer.close()
+    with pytest.raises(ConfigError, match=r"haptic\.mcap.*/ports/tick"):
+        replay_log(other)
+    (tmp_path / "junk.mcap").write_bytes(b"not mcap at all")
+    with pytest.raises(ConfigError, match=r"junk\.mcap"):
+        read_port_log(tmp_path / "junk.mcap")
+
+
+def test_three_devices_for_two_ports_is_a_usage_error(capsys):
+    argv = "--scene grasp_vertical --clock virtual --duration 0.01"
+    code = haptic_run([*argv.split(), *["--device", "maglev"] * 3])
+    assert code == 2
+    assert "--device" in capsys.readouterr().err
+
+
+def test_a_port_scene_refuses_what_only_a_single_device_run_has(capsys):
+    for extra in (["--haptic-rate", "2000"], ["--view"]):
+        argv = ["--scene", "grasp_vertical", "--clock", "virtual", "--no-log", *extra]
+        assert haptic_run(argv) == 2
+        assert extra[0] in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("scene", ["grasp_vertical", "hand_grasp"])
+def test_the_real_time_runner_gives_the_virtual_clock_s_rows_bit_for_bit(scene):
+    """The real-time runner's path, tick by tick with each device's next noise block drawn
+    ahead of need in the slack after a tick (world.refill_ahead), reads the same normals as
+    the virtual clock's refills at need: the rows are the same, bit for bit, so a real-time
+    run's figures are the virtual clock's."""
+    made = port_scene(scene, ["maglev"], None)
+    virtual, _ = run_virtual(made.world(), 3.0)
+    world = made.world()
+    rows = np.zeros(len(virtual), world.kind.rows)
+    topped = 0
+    for k in range(len(rows)):
+        run_ticks(world, rows, k, k + 1)
+        topped += refill_ahead(world)
+    assert topped >= 2  # the blocks ran low in 3 s and the next ones were drawn ahead
+    assert rows.tobytes() == virtual.tobytes()
+
+
+@pytest.mark.processes
+def test_haptic_run_runs_a_port_scene_in_real_time_and_its_log_replays(tmp_path):
+    """`haptic-run --scene grasp_vertical` in real time: two simulated devices in one
+    process, the loop's figures in its summary, a log that `haptic-replay` re-runs bit for
+    bit (rates and work are the benchmark's: benchmarks/port_worlds.py)."""
+    log, summary = tmp_path / "grasp.mcap", tmp_path / "summary.json"
+    cmd = [sys.executable, "-m", "haptic_local_model.haptic_server.harness.run",
+           "--scene", "grasp_vertical", "--device", "maglev", "--duration", "2",
+           "--log", str(log), "--summary-json", str(summary)]  # fmt: skip
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    figures = json.loads(summary.read_text())
+    assert figures["world"] == "ports" and figures["ticks"] == 2000
+    assert not figures["stopped_early"]
+    assert 0.0 < figures["ticks_delivered"] <= 1.0
+    assert "real time: 2000 ticks" in proc.stdout
+    replayed = subprocess.run(
+        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.replay", str(log)],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert replayed.returncode == 0, replayed.stderr
+    assert "replayed 2000 ticks" in replayed.stdout and "bit-exact" in replayed.stdout
