@@ -43,6 +43,7 @@ from haptic_local_model.haptic_server.log import (
     ros1msg_schema,
     stream_records,
 )
+from haptic_local_model.haptic_server.one_port import OnePortRun
 from haptic_local_model.haptic_server.ports import PORT_KIND, PortRun
 from haptic_local_model.haptic_server.world import World, WorldKind, run_real_time, run_virtual
 from haptic_local_model.shared import __version__
@@ -194,7 +195,8 @@ class PortScene:
                 return HandPortRun(scene, sim[0], users[0])
             return HandGraspRun(scene, sim, users)
         ports = load_config_text(PortSceneConfig, self.text, self.source)
-        return PortRun(ports, sim, [load_user(name) for name in self.users])
+        run = OnePortRun if len(ports.ports) == 1 else PortRun
+        return run(ports, sim, [load_user(name) for name in self.users])
 
 
 def port_scene(ref: str, devices: list[str] | None, users: list[str] | None) -> PortScene:

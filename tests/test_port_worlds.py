@@ -119,7 +119,7 @@ def test_a_port_scene_refuses_what_only_a_single_device_run_has(capsys):
         assert extra[0] in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("scene", ["grasp_vertical", "hand_grasp"])
+@pytest.mark.parametrize("scene", ["grasp_vertical", "hand_grasp", "box_push"])
 def test_the_real_time_runner_gives_the_virtual_clock_s_rows_bit_for_bit(scene):
     """The real-time runner's path, tick by tick with each device's next noise block drawn
     ahead of need in the slack after a tick (world.refill_ahead), reads the same normals as
@@ -135,6 +135,25 @@ def test_the_real_time_runner_gives_the_virtual_clock_s_rows_bit_for_bit(scene):
         topped += refill_ahead(world)
     assert topped >= 2  # the blocks ran low in 3 s and the next ones were drawn ahead
     assert rows.tobytes() == virtual.tobytes()
+
+
+def test_one_device_pushes_a_box_into_a_wall_and_holds_it_there():
+    """`box_push`, a world of one port (haptic_server/one_port.py): the hand's 2 N push
+    slides the box across the 10 mm gap and presses it on the wall. At rest the box's right
+    face is in the wall's surface by the push over its two corners' contact stiffness
+    (2 N / (2 x 15 kN/m) = 0.067 mm; the box's small turn and the pad's push not quite
+    horizontal move it by a few µm), and the device's command balances its hand's push."""
+    made = port_scene("box_push", None, None)
+    world = made.world()
+    assert type(world).__name__ == "OnePortRun"
+    rows, _ = run_virtual(world, 3.0)
+    box = 3 * world.order.index("box")
+    give = rows["q"][-1, box] - 0.010  # the face at the wall's surface: x = 0.030 - 0.020
+    assert give == pytest.approx(2.0 / (2 * 15000.0), abs=0.015e-3)
+    last = rows[-500:]
+    assert np.mean(last["command"][:, 0, 0]) == pytest.approx(-2.0, rel=1e-3)
+    assert not np.any(last["command"][:, 1])  # the port the scene does not have: nothing
+    assert rows["n_contacts"][-1] == 6 and rows["singular"][-1] == 0
 
 
 @pytest.mark.processes

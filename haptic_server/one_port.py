@@ -1,0 +1,44 @@
+"""One device on a co-simulated world (`box_push`): a World kind of its own, added as the
+recipe of docs/architecture.md says (its module, its scene, and two lines elsewhere).
+
+The records, the device-to-world map, the users and the rows are the two-port world's
+(haptic_server.ports: a port scene with one port, its log `/ports/tick` and its replay);
+what is its own is the compiled tick for one device: the hand on the device and the
+device's reading in the world frame, the co-simulation (`stages/cosim.cosim_tick`), the
+command mapped back, clipped at the device's limits, and the device's physics.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from haptic_local_model.device_models.kernels import device_noise_ready
+from haptic_local_model.haptic_server.ports import PortRun, port_in, port_out, port_row
+from haptic_local_model.haptic_server.stages.cosim import cosim_tick
+
+
+@njit(cache=True)
+def run_one_port_ticks(cosim, data, io, dev, rows, start, stop):
+    """Ticks start..stop-1, row k into rows[k]; the first tick not run (stop, or earlier
+    when the device's noise block needs a refill)."""
+    cd = data[0]
+    s = io[0]
+    for k in range(start, stop):
+        if not device_noise_ready(dev, cd.dt):
+            return k
+        port_in(cd, s, 0, dev)
+        cosim_tick(cosim, data)
+        port_out(cd, s, 0, dev)
+        port_row(cosim[0], cd, s, rows[k])
+        s.t += cd.dt
+    return stop
+
+
+class OnePortRun(PortRun):
+    """A port scene of one port with its device and user, ready to run: a World."""
+
+    def burst(self, rows: np.ndarray, start: int, stop: int) -> int:
+        """The World protocol's compiled ticks (run_one_port_ticks)."""
+        return run_one_port_ticks(self.model, self.data, self.io, self.devices[0].records,
+                                  rows, start, stop)  # fmt: skip
