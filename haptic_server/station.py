@@ -29,10 +29,7 @@ from haptic_local_model.haptic_server.stages.station_link import (
     station_step,
     take_tool,
 )
-from haptic_local_model.haptic_server.stages.station_messages import (
-    device_record,
-    reason_counts,
-)
+from haptic_local_model.haptic_server.stages.station_messages import reason_counts
 from haptic_local_model.haptic_server.users import user_record
 from haptic_local_model.haptic_server.world_engines import port_gains, tool_start
 from haptic_local_model.shared.config import UserConfig
@@ -42,7 +39,7 @@ from haptic_local_model.shared.net.stations import (
     port_keys,
 )
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
-from haptic_local_model.shared.protocol.station import TOOL_RECORD
+from haptic_local_model.shared.protocol.station import TOOL_RECORD, device_record
 from haptic_local_model.shared.timing import Pacer, SampleWindow, enter_loop
 
 TOOL_RING = 64  # tool states kept between two ticks: a stalled tick's worth and more

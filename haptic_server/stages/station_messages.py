@@ -1,9 +1,9 @@
 """The stations' messages (shared/protocol/station.py), compiled: a DeviceState or a
-ToolState checked in place as the reference decoders check it (`decode_device`,
-`decode_tool`: they stay the reference; tests/test_world_ports.py and
-tests/test_station_link.py check that both refuse the same messages for the same reason and
-take the same fields), the refusal a REASONS code; and a DeviceState as a record of exactly
-its bytes, for a station to fill in place and send.
+ToolState checked in place as the reference decoders check it, from the same table
+(`StationMessage`: its limits, its non-negative numbers, its flags; the decoders stay the
+reference; tests/test_world_ports.py and tests/test_station_link.py check that both refuse
+the same messages for the same reason and take the same fields), the refusal a REASONS
+code.
 
 A message is `bytes` (Zenoh's payload): read through `np.frombuffer` views, no copy."""
 
@@ -16,50 +16,25 @@ import numpy as np
 from numba import njit
 
 from haptic_local_model.shared.protocol.station import (
-    CUT,
-    DEVICE_MAGIC,
-    GAIN_LIMIT,
-    GLOVE,
-    GLOVE_ANGLE_LIMIT,
-    HELD,
-    MAX_GLOVE_JOINTS,
-    POSE_LIMIT_M,
-    SAFE,
+    DEVICE,
+    DEVICE_RECORD,
     STATION_VERSION,
-    TOOL_MAGIC,
-    TWIST_LIMIT,
+    TOOL,
+    TOOL_RECORD,
 )
 
 #: A refusal's reason, by code: the decoders' MessageError reasons, then order_refusal's.
 REASONS = ("size", "magic", "version", "port", "value", "flags", "stale", "other_epoch")
 SIZE, MAGIC, VERSION, PORT, VALUE, FLAGS, STALE, OTHER_EPOCH = range(len(REASONS))
 
-J = MAX_GLOVE_JOINTS
 HEAD_BYTES = struct.calcsize("<4sHHQQq")
-DEVICE_FLOATS = 6 + 2 * J  # pose, twist, glove, glove_rate
-DEVICE_BYTES = struct.calcsize(f"<4sHHQQq{DEVICE_FLOATS}dI")
-TOOL_FLOATS = 15  # pose, twist, stiffness, damping, object_pose
-TOOL_BYTES = struct.calcsize(f"<4sHHQQq{TOOL_FLOATS}dI")
-DEVICE_MAGIC_U8 = np.frombuffer(DEVICE_MAGIC, np.uint8).copy()
-TOOL_MAGIC_U8 = np.frombuffer(TOOL_MAGIC, np.uint8).copy()
-DEVICE_FLAGS = SAFE | CUT | GLOVE
-
-#: A DeviceState as a numpy record of exactly the message's bytes (as TOOL_RECORD).
-DEVICE_RECORD = np.dtype(
-    [("magic", "S4"), ("version", "<u2"), ("port", "<u2"), ("epoch", "<u8"), ("seq", "<u8"),
-     ("publish_time_ns", "<i8"), ("pose", "<f8", (3,)), ("twist", "<f8", (3,)),
-     ("glove", "<f8", (J,)), ("glove_rate", "<f8", (J,)), ("flags", "<u4")]
-)  # fmt: skip
-assert DEVICE_RECORD.itemsize == DEVICE_BYTES
-
-
-def device_record(port: int, epoch: int) -> np.ndarray:
-    """A DEVICE_RECORD[1] for `port` from a station of `epoch`, its header set."""
-    rec = np.zeros(1, DEVICE_RECORD)
-    rec["magic"], rec["version"], rec["port"], rec["epoch"] = (
-        DEVICE_MAGIC, STATION_VERSION, port, epoch,
-    )  # fmt: skip
-    return rec
+# each message's table (shared/protocol/station.py) as the constants its compiled check reads
+DEVICE_FLOATS, TOOL_FLOATS = len(DEVICE.labels), len(TOOL.labels)
+DEVICE_BYTES, TOOL_BYTES = DEVICE_RECORD.itemsize, TOOL_RECORD.itemsize
+DEVICE_MAGIC_U8 = np.frombuffer(DEVICE.magic, np.uint8).copy()
+TOOL_MAGIC_U8 = np.frombuffer(TOOL.magic, np.uint8).copy()
+DEVICE_LIMITS, DEVICE_NONNEG, DEVICE_FLAGS = DEVICE.limits, DEVICE.nonneg, DEVICE.flags
+TOOL_LIMITS, TOOL_NONNEG, TOOL_FLAGS = TOOL.limits, TOOL.nonneg, TOOL.flags
 
 
 @njit(cache=True)
@@ -87,47 +62,34 @@ def head_refusal(u, magic, size, p):
 
 
 @njit(cache=True)
-def device_refusal(raw, p):
-    """Why `raw` is not a DeviceState for port p (a REASONS code), or -1: decode_device's
-    checks, in its order."""
+def message_refusal(raw, p, magic, size, limits, nonneg, flags):
+    """Why `raw` is not the message of this table for port p (a REASONS code), or -1: the
+    reference decoder's checks (StationMessage.decode), in its order."""
     u = np.frombuffer(raw, np.uint8)
-    why = head_refusal(u, DEVICE_MAGIC_U8, DEVICE_BYTES, p)
+    why = head_refusal(u, magic, size, p)
     if why >= 0:
         return why
-    f = u[HEAD_BYTES : HEAD_BYTES + 8 * DEVICE_FLOATS].view(np.float64)
-    for i in range(DEVICE_FLOATS):
-        if i < 3 or 6 <= i < 6 + J:  # the pose, the glove
-            limit = POSE_LIMIT_M if i < 3 else GLOVE_ANGLE_LIMIT
-        else:  # the twist, the glove's rates
-            limit = TWIST_LIMIT
-        if _bad(f[i], limit):
+    f = u[HEAD_BYTES : HEAD_BYTES + 8 * len(limits)].view(np.float64)
+    for i in range(len(limits)):
+        if _bad(f[i], limits[i]) or (nonneg[i] != 0 and f[i] < 0.0):
             return VALUE
-    if u[DEVICE_BYTES - 4 : DEVICE_BYTES].view(np.uint32)[0] & ~np.uint32(DEVICE_FLAGS):
+    if u[size - 4 : size].view(np.uint32)[0] & ~np.uint32(flags):
         return FLAGS
     return -1
 
 
 @njit(cache=True)
+def device_refusal(raw, p):
+    """Why `raw` is not a DeviceState for port p (a REASONS code), or -1."""
+    return message_refusal(raw, p, DEVICE_MAGIC_U8, DEVICE_BYTES, DEVICE_LIMITS,
+                           DEVICE_NONNEG, DEVICE_FLAGS)  # fmt: skip
+
+
+@njit(cache=True)
 def tool_refusal(raw, p):
-    """Why `raw` is not a ToolState for port p (a REASONS code), or -1: decode_tool's checks,
-    in its order (every value check refuses as "value")."""
-    u = np.frombuffer(raw, np.uint8)
-    why = head_refusal(u, TOOL_MAGIC_U8, TOOL_BYTES, p)
-    if why >= 0:
-        return why
-    f = u[HEAD_BYTES : HEAD_BYTES + 8 * TOOL_FLOATS].view(np.float64)
-    for i in range(TOOL_FLOATS):
-        if i < 3 or i >= 12:  # the pose, the object's pose
-            limit = POSE_LIMIT_M
-        elif i < 6:  # the twist
-            limit = TWIST_LIMIT
-        else:  # the gains
-            limit = GAIN_LIMIT
-        if _bad(f[i], limit) or (6 <= i < 12 and f[i] < 0.0):
-            return VALUE
-    if u[TOOL_BYTES - 4 : TOOL_BYTES].view(np.uint32)[0] & ~np.uint32(HELD):
-        return FLAGS
-    return -1
+    """Why `raw` is not a ToolState for port p (a REASONS code), or -1."""
+    return message_refusal(raw, p, TOOL_MAGIC_U8, TOOL_BYTES, TOOL_LIMITS, TOOL_NONNEG,
+                           TOOL_FLAGS)  # fmt: skip
 
 
 @njit(cache=True)

@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -45,8 +46,8 @@ TWIST_LIMIT = 1000.0
 GAIN_LIMIT = 1.0e7  # N/m, N s/m
 
 _HEAD = struct.Struct("<4sHHQQq")  # magic, version, port, epoch, seq, publish time (ns)
-_DEVICE = struct.Struct(f"<4sHHQQq{6 + 2 * MAX_GLOVE_JOINTS}dI")
-_TOOL = struct.Struct("<4sHHQQq15dI")
+HEAD_FIELDS = [("magic", "S4"), ("version", "<u2"), ("port", "<u2"), ("epoch", "<u8"),
+               ("seq", "<u8"), ("publish_time_ns", "<i8")]  # fmt: skip
 WORLD_BODIES_MAGIC = b"HSWB"
 SIM_BODIES_MAGIC = b"HSSB"
 MAX_MESSAGE_BODIES = 8  # a BodiesState's slots (a port scene's co-simulated or sim bodies)
@@ -104,27 +105,131 @@ class ToolState:
         return bool(self.flags & HELD)
 
 
-#: A ToolState as a numpy record of exactly the message's bytes: a loop that publishes one
-#: every tick fills its fields in place and sends `.tobytes()` (about 1 us; encode_tool,
-#: the reference, builds a dataclass and packs it: about 6 us).
-TOOL_RECORD = np.dtype(
-    [("magic", "S4"), ("version", "<u2"), ("port", "<u2"), ("epoch", "<u8"), ("seq", "<u8"),
-     ("publish_time_ns", "<i8"), ("pose", "<f8", (3,)), ("twist", "<f8", (3,)),
-     ("stiffness", "<f8", (3,)), ("damping", "<f8", (3,)), ("object_pose", "<f8", (3,)),
-     ("flags", "<u4")]
+AXES = ("x", "y", "angle")
+
+
+@dataclass(frozen=True)
+class Numbers:
+    """A run of a message's numbers (float64): their name, each one's label, the largest
+    magnitude a sender may put there, and whether they must not be negative."""
+
+    name: str
+    labels: tuple[str, ...]
+    limit: float
+    nonneg: bool = False
+
+
+def _axes(name: str, limit: float, nonneg: bool = False) -> Numbers:
+    return Numbers(name, tuple(f"{name}.{a}" for a in AXES), limit, nonneg)
+
+
+def _joints(name: str, limit: float) -> Numbers:
+    return Numbers(name, tuple(f"{name}[{i}]" for i in range(MAX_GLOVE_JOINTS)), limit)
+
+
+@dataclass(frozen=True)
+class StationMessage:
+    """A station message declared once (as shared/protocol/layout.py declares the update):
+    the header (magic, version, port, epoch, seq, publish time), its numbers in order, its
+    flags. From it: the record of exactly its bytes (`dtype`, which a loop fills in place
+    and sends), the reference decoder and encoder below, and the compiled checks
+    (haptic_server/stages/station_messages.py: `limits`, `nonneg`)."""
+
+    name: str
+    magic: bytes
+    numbers: tuple[Numbers, ...]
+    flags: int  # the flag bits a sender may set
+
+    @cached_property
+    def dtype(self) -> np.dtype:
+        return np.dtype([*HEAD_FIELDS, *((n.name, "<f8", (len(n.labels),)) for n in self.numbers),
+                         ("flags", "<u4")])  # fmt: skip
+
+    @cached_property
+    def labels(self) -> tuple[str, ...]:
+        return tuple(label for n in self.numbers for label in n.labels)
+
+    @cached_property
+    def limits(self) -> np.ndarray:
+        """Each number's largest magnitude, in the message's order."""
+        return np.array([n.limit for n in self.numbers for _ in n.labels], np.float64)
+
+    @cached_property
+    def nonneg(self) -> np.ndarray:
+        """Each number: 1 if it must not be negative."""
+        return np.array([n.nonneg for n in self.numbers for _ in n.labels], np.int64)
+
+    def record(self, port: int, epoch: int) -> np.ndarray:
+        """A record[1] of the message for `port` from a sender of `epoch`, its header set."""
+        rec = np.zeros(1, self.dtype)
+        rec["magic"], rec["version"], rec["port"], rec["epoch"] = (
+            self.magic, STATION_VERSION, port, epoch,
+        )  # fmt: skip
+        return rec
+
+    def encode(self, m: Any) -> bytes:
+        """The bytes of `m`, a dataclass with the message's fields (a run shorter than its
+        slots, a glove of fewer joints, is padded with zeros)."""
+        rec = self.record(m.port, m.epoch)
+        rec["seq"], rec["publish_time_ns"], rec["flags"] = m.seq, m.publish_time_ns, m.flags
+        for n in self.numbers:
+            values = tuple(getattr(m, n.name))
+            if len(values) > len(n.labels):
+                raise ValueError(f"{self.name}.{n.name}: {len(values)} values, at most "
+                                 f"{len(n.labels)}")  # fmt: skip
+            rec[n.name][0, : len(values)] = values
+        return rec.tobytes()
+
+    def decode(self, raw: bytes, port: int) -> dict[str, Any]:
+        """The fields of a message received on port `port`'s key, checked (module
+        docstring): MessageError names the first field that is wrong."""
+        _head(raw, self.magic, self.dtype.itemsize, self.name, port)
+        rec = np.frombuffer(raw, self.dtype)[0]
+        floats = np.frombuffer(raw, np.float64, len(self.labels), _HEAD.size)
+        for label, v, limit, nonneg in zip(self.labels, floats.tolist(), self.limits,
+                                           self.nonneg, strict=True):  # fmt: skip
+            if not math.isfinite(v) or abs(v) > limit:
+                raise MessageError("value", f"{self.name}.{label}: {v!r} is not finite or "
+                                   f"beyond {limit:g}")  # fmt: skip
+            if nonneg and v < 0.0:
+                raise MessageError("value", f"{self.name}.{label}: {v!r} is negative")
+        flags = int(rec["flags"])
+        if flags & ~self.flags:
+            raise MessageError("flags", f"{self.name}.flags: unknown bits {flags:#x}")
+        head = {k: int(rec[k]) for k in ("port", "epoch", "seq", "publish_time_ns")}
+        numbers = {n.name: tuple(rec[n.name].tolist()) for n in self.numbers}
+        return {**head, **numbers, "flags": flags}
+
+
+#: The two station messages (module docstring), each declared once.
+DEVICE = StationMessage(
+    "DeviceState", DEVICE_MAGIC,
+    (_axes("pose", POSE_LIMIT_M), _axes("twist", TWIST_LIMIT),
+     _joints("glove", GLOVE_ANGLE_LIMIT), _joints("glove_rate", TWIST_LIMIT)),
+    SAFE | CUT | GLOVE,
 )  # fmt: skip
+TOOL = StationMessage(
+    "ToolState", TOOL_MAGIC,
+    (_axes("pose", POSE_LIMIT_M), _axes("twist", TWIST_LIMIT),
+     _axes("stiffness", GAIN_LIMIT, nonneg=True), _axes("damping", GAIN_LIMIT, nonneg=True),
+     _axes("object_pose", POSE_LIMIT_M)),
+    HELD,
+)  # fmt: skip
+#: Each as a numpy record of exactly the message's bytes: a loop that publishes one every
+#: tick fills its fields in place and sends `.tobytes()` (about 1 us; the encoders below,
+#: the reference, build a dataclass first: about 6 us).
+DEVICE_RECORD = DEVICE.dtype
+TOOL_RECORD = TOOL.dtype
 
 
 def tool_record(port: int, epoch: int) -> np.ndarray:
     """A TOOL_RECORD[1] for `port` of the world's `epoch`, its header set."""
-    rec = np.zeros(1, TOOL_RECORD)
-    rec["magic"], rec["version"], rec["port"], rec["epoch"] = (
-        TOOL_MAGIC,
-        STATION_VERSION,
-        port,
-        epoch,
-    )
-    return rec
+    return TOOL.record(port, epoch)
+
+
+def device_record(port: int, epoch: int) -> np.ndarray:
+    """A DEVICE_RECORD[1] for `port` from a station of `epoch`, its header set."""
+    return DEVICE.record(port, epoch)
 
 
 @dataclass(frozen=True)
@@ -186,7 +291,8 @@ def encode_bodies(m: BodiesState) -> bytes:
 def decode_bodies(raw: bytes, magic: bytes, count: int) -> BodiesState:
     """A BodiesState of `magic` that must carry `count` bodies (the receiver's scene's)."""
     what = "SimBodies" if magic == SIM_BODIES_MAGIC else "WorldBodies"
-    f = _head(raw, magic, _BODIES, what, None)
+    _head(raw, magic, _BODIES.size, what, None)
+    f = _BODIES.unpack(raw)
     if f[2] != count:
         raise MessageError("count", f"{what}.count: {f[2]} bodies, this scene has {count}")
     follows, period = f[6], f[7]
@@ -219,28 +325,15 @@ def order_refusal(last: Any, epoch: int, seq: int, silent: bool) -> str | None:
 
 
 def encode_device(m: DeviceState) -> bytes:
-    glove, rate = _joints(m.glove, "glove"), _joints(m.glove_rate, "glove_rate")
-    return _DEVICE.pack(
-        DEVICE_MAGIC, STATION_VERSION, m.port, m.epoch, m.seq, m.publish_time_ns,
-        *m.pose, *m.twist, *glove, *rate, m.flags,
-    )  # fmt: skip
-
-
-def _joints(values: tuple[float, ...], key: str) -> tuple[float, ...]:
-    """A glove's values padded with zeros to MAX_GLOVE_JOINTS."""
-    if len(values) > MAX_GLOVE_JOINTS:
-        raise ValueError(f"DeviceState.{key}: {len(values)} joints, at most {MAX_GLOVE_JOINTS}")
-    return tuple(values) + (0.0,) * (MAX_GLOVE_JOINTS - len(values))
+    return DEVICE.encode(m)
 
 
 def encode_tool(m: ToolState) -> bytes:
-    return _TOOL.pack(
-        TOOL_MAGIC, STATION_VERSION, m.port, m.epoch, m.seq, m.publish_time_ns,
-        *m.pose, *m.twist, *m.stiffness, *m.damping, *m.object_pose, m.flags,
-    )  # fmt: skip
+    return TOOL.encode(m)
 
 
-def _head(raw: bytes, magic: bytes, layout: struct.Struct, what: str, port: int | None) -> tuple:
+def _head(raw: bytes, magic: bytes, size: int, what: str, port: int | None) -> None:
+    """A message's header checked: its length, magic, version, size and port."""
     if len(raw) < _HEAD.size:
         raise MessageError("size", f"{what}: {len(raw)} bytes, shorter than its header")
     got_magic, version, got_port = _HEAD.unpack_from(raw)[:3]
@@ -250,11 +343,10 @@ def _head(raw: bytes, magic: bytes, layout: struct.Struct, what: str, port: int 
         raise MessageError(
             "version", f"{what}.version: {version}, this build reads {STATION_VERSION}"
         )
-    if len(raw) != layout.size:
-        raise MessageError("size", f"{what}: {len(raw)} bytes, expected {layout.size}")
+    if len(raw) != size:
+        raise MessageError("size", f"{what}: {len(raw)} bytes, expected {size}")
     if port is not None and got_port != port:
         raise MessageError("port", f"{what}.port: {got_port} on port {port}'s key")
-    return layout.unpack(raw)
 
 
 def _numbers(values: tuple, names: tuple[str, ...], limit: float, what: str) -> None:
@@ -263,37 +355,14 @@ def _numbers(values: tuple, names: tuple[str, ...], limit: float, what: str) -> 
             raise MessageError("value", f"{what}.{name}: {v!r} is not finite or beyond {limit:g}")
 
 
-AXES = ("x", "y", "angle")
-
-
 def decode_device(raw: bytes, port: int) -> DeviceState:
     """A DeviceState received on port `port`'s key (module docstring)."""
-    f = _head(raw, DEVICE_MAGIC, _DEVICE, "DeviceState", port)
-    j = MAX_GLOVE_JOINTS
-    pose, twist, glove, rate, flags = f[6:9], f[9:12], f[12 : 12 + j], f[12 + j : 12 + 2 * j], f[-1]
-    _numbers(pose, tuple(f"pose.{a}" for a in AXES), POSE_LIMIT_M, "DeviceState")
-    _numbers(twist, tuple(f"twist.{a}" for a in AXES), TWIST_LIMIT, "DeviceState")
-    _numbers(glove, tuple(f"glove[{i}]" for i in range(j)), GLOVE_ANGLE_LIMIT, "DeviceState")
-    _numbers(rate, tuple(f"glove_rate[{i}]" for i in range(j)), TWIST_LIMIT, "DeviceState")
-    if flags & ~(SAFE | CUT | GLOVE):
-        raise MessageError("flags", f"DeviceState.flags: unknown bits {flags:#x}")
-    return DeviceState(f[2], f[3], f[4], f[5], pose, twist, flags, glove, rate)
+    return DeviceState(**DEVICE.decode(raw, port))
 
 
 def decode_tool(raw: bytes, port: int) -> ToolState:
     """A ToolState received on port `port`'s key (module docstring)."""
-    f = _head(raw, TOOL_MAGIC, _TOOL, "ToolState", port)
-    pose, twist, k, b, obj = f[6:9], f[9:12], f[12:15], f[15:18], f[18:21]
-    _numbers(pose + obj, tuple(f"{w}.{a}" for w in ("pose", "object_pose") for a in AXES),
-             POSE_LIMIT_M, "ToolState")  # fmt: skip
-    _numbers(twist, tuple(f"twist.{a}" for a in AXES), TWIST_LIMIT, "ToolState")
-    _numbers(k + b, tuple(f"{w}.{a}" for w in ("stiffness", "damping") for a in AXES),
-             GAIN_LIMIT, "ToolState")  # fmt: skip
-    if min(k + b) < 0.0:
-        raise MessageError("value", "ToolState.stiffness/damping: negative")
-    if f[21] & ~HELD:
-        raise MessageError("flags", f"ToolState.flags: unknown bits {f[21]:#x}")
-    return ToolState(f[2], f[3], f[4], f[5], pose, twist, k, b, obj, f[21])
+    return ToolState(**TOOL.decode(raw, port))
 
 
 Vec3 = tuple[float, float, float]
