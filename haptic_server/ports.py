@@ -108,18 +108,17 @@ def port_out(cd, io, p, dev):
 
 
 @njit(cache=True)
-def port_row(m, cd, io, r):
-    """The tick's outputs and inputs into the row r (a port the scene does not have: zeros)."""
-    r.t = io.t
+def cosim_row(m, cd, r):
+    """The co-simulation's tick into the row r (PORT_ROW_DTYPE): its state and outputs, the
+    devices' world-frame readings and the sim's bodies it met. The port worlds' rows and the
+    shared world's."""
     for a in range(MAX_COSIM_DOF):
         r.q[a] = cd.q[a]
         r.qd[a] = cd.qd[a]
     for p in range(MAX_PORTS):
-        r.device_fault[p] = io.sensors[p].fault
         for c in range(3):
             r.device_pose[p, c] = cd.device_pose[p, c]
             r.device_twist[p, c] = cd.device_twist[p, c]
-            r.hand_wrench[p, c] = io.hand[p, c]
             r.command[p, c] = cd.command[p, c]
     for e in range(MAX_COSIM_BODIES):
         for c in range(3):
@@ -131,6 +130,18 @@ def port_row(m, cd, io, r):
     r.singular = cd.singular
     r.collisions = cd.collisions
     sim_bodies_of(m, cd, r.sim_bodies)
+
+
+@njit(cache=True)
+def port_row(m, cd, io, r):
+    """The tick into the row r, with what only a port world sees: the time, each hand's
+    wrench and each device's fault (a port the scene does not have: zeros)."""
+    r.t = io.t
+    cosim_row(m, cd, r)
+    for p in range(MAX_PORTS):
+        r.device_fault[p] = io.sensors[p].fault
+        for c in range(3):
+            r.hand_wrench[p, c] = io.hand[p, c]
 
 
 @njit(cache=True)

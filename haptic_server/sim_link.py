@@ -39,12 +39,10 @@ from haptic_local_model.shared.port_config import MAX_SIM_BODIES, PortSceneConfi
 from haptic_local_model.shared.protocol.station import (
     SIM_BODIES_MAGIC,
     WORLD_BODIES_MAGIC,
+    BodiesReceiver,
     BodiesState,
     bodies_record,
-    decode_bodies,
-    order_refusal,
 )
-from haptic_local_model.shared.protocol.update import MessageError
 
 BODIES_EVERY = 4  # world ticks a WorldBodies: 250 Hz at 1 kHz, four times a 60 Hz sim's rate
 EXTRAPOLATE_S = 0.05  # three 60 Hz sim steps
@@ -54,7 +52,7 @@ FORCE_OVER_WEIGHT = 100.0
 SIM_RING = 16
 
 
-class SimLink:
+class SimLink(BodiesReceiver):
     """The world's bodies out, the sim's bodies in (module docstring)."""
 
     def __init__(
@@ -77,13 +75,11 @@ class SimLink:
         g = float(np.hypot(*scene.gravity)) or 9.81
         self.max_force = FORCE_OVER_WEIGHT * g * sum(b.mass for b in scene.sim_body_specs)
         self.clipped = 0  # SimBodies whose impulse would have pushed beyond max_force
-        self.taken: np.ndarray | None = None  # the sim's running impulse as last taken
+        self.impulse_taken: np.ndarray | None = None  # the sim's running impulse as last taken
         self.pending = np.zeros((MAX_COSIM_BODIES, 3))  # received, not yet applied (N s)
         self.rate = np.zeros((MAX_COSIM_BODIES, 3))  # applied per second (N, N m)
-        self.last: BodiesState | None = None
-        self.rx_ns = 0
-        self.received = self.rejected = self.sent = self.lost = 0
-        self.reasons: dict[str, int] = {}
+        self.init_receiver(SIM_BODIES_MAGIC, self.n_sim, network.world_watchdog_ms)
+        self.sent = 0
         # each SimBodies' age when taken: publish to take on the wall clocks (one host's)
         self.age_ms: list[float] = []
         self._pub: Any = None
@@ -97,20 +93,13 @@ class SimLink:
         if self.n_sim:
             self._sub = session.declare_subscriber(sim_key, zenoh.handlers.RingChannel(SIM_RING))
 
-    def _refuse(self, reason: str) -> None:
-        self.rejected += 1
-        self.reasons[reason] = self.reasons.get(reason, 0) + 1
-
-    def _silent(self, now_ns: int) -> bool:
-        return self.last is None or (now_ns - self.rx_ns) / 1e6 > self.network.world_watchdog_ms
-
     def _install(self, m: BodiesState, now_ns: int) -> None:
         """A SimBodies taken: its bodies, and the impulse since the last one taken (the first
         of a sim, or the first after a loss, is the baseline: nothing applied from it)."""
         impulse = np.array(m.impulse)[: self.n_bodies]
-        if self.taken is not None and self.last is not None and m.epoch == self.last.epoch:
-            self.pending[: self.n_bodies] += impulse - self.taken
-        self.taken = impulse
+        if self.impulse_taken is not None and self.last is not None and m.epoch == self.last.epoch:
+            self.pending[: self.n_bodies] += impulse - self.impulse_taken
+        self.impulse_taken = impulse
         # the rest over about one sim step, each body's force and torque (about its centre:
         # times a metre) within max_force; what is beyond is not applied (counted)
         limit = self.max_force * m.period_s
@@ -118,8 +107,7 @@ class SimLink:
             self.clipped += 1
             np.clip(self.pending, -limit, limit, out=self.pending)
         self.rate[:] = self.pending / m.period_s
-        self.last, self.rx_ns = m, now_ns
-        self.received += 1
+        self.taken(m, now_ns)
         self.sample[: self.n_sim] = m.array()
         self.held = False
         if len(self.age_ms) < 100_000:
@@ -132,6 +120,10 @@ class SimLink:
             self.sample[:, 3:] = 0.0
             self.held = True
 
+    def _other_world(self, m: BodiesState) -> str | None:
+        """A SimBodies whose mirror follows no world, or another one."""
+        return "other_world" if m.follows != self.epoch else None
+
     def take(self, now_ns: int) -> bool:
         """The newest valid SimBodies (module docstring), then the sim's bodies this tick;
         whether a SimBodies came (taken or refused)."""
@@ -140,26 +132,16 @@ class SimLink:
         came = False
         for raw in newest_payload(self._sub):
             came = True
-            try:
-                m = decode_bodies(raw, SIM_BODIES_MAGIC, self.n_sim)
-            except MessageError as exc:
-                self._refuse(exc.reason)
-                continue
-            why = order_refusal(self.last, m.epoch, m.seq, self._silent(now_ns))
-            if m.follows != self.epoch:  # its mirror follows no world, or another one
-                why = "other_world"
-            if why is not None:
-                self._refuse(why)
-            else:
+            m = self.accept(raw, now_ns, self._other_world)
+            if m is not None:
                 self._install(m, now_ns)
         age = (now_ns - self.rx_ns) / 1e9
         if self.last is not None and age > EXTRAPOLATE_S:
             self._hold(age)  # an old sample is not carried on into a guess
-        if self.last is not None and self._silent(now_ns):
+        if self.last is not None and self.silent(now_ns):
             self._hold(age)
-            self.lost += 1
-            self.last = None
-            self.taken = None  # a sim heard again starts a new baseline
+            self.lose()
+            self.impulse_taken = None  # a sim heard again starts a new baseline
             self.pending[:] = 0.0  # and nothing of a lost sim is applied on
             self.rate[:] = 0.0
         drain_impulse(self.model, self.data, self.pending, self.rate)

@@ -26,16 +26,14 @@ from haptic_local_model.haptic_server.hand_grasp_ports import (
     hand_grasp_row,
 )
 from haptic_local_model.haptic_server.hand_ports import HAND_IO_DTYPE, glove_script
-from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE
+from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE, cosim_row
 from haptic_local_model.haptic_server.stages.cosim import (
     MAX_COSIM_BODIES,
-    MAX_COSIM_DOF,
     carry_sim_bodies,
     cosim_order,
     cosim_records,
     cosim_tick,
     drain_impulse,
-    sim_bodies_of,
 )
 from haptic_local_model.haptic_server.stages.hand import glove_at
 from haptic_local_model.haptic_server.stages.hand_grasp import MAX_HANDS, grasp_tick
@@ -49,7 +47,6 @@ from haptic_local_model.haptic_server.stages.world_ports import (
 )
 from haptic_local_model.shared.config import UserConfig
 from haptic_local_model.shared.port_config import (
-    MAX_PORTS,
     MAX_SIM_BODIES,
     HandSceneConfig,
     PortSceneConfig,
@@ -69,24 +66,7 @@ def world_row(model, data, rows, k, t, lowest):
     for e in range(MAX_COSIM_BODIES):
         lowest[e] = min(lowest[e], cd.q[3 * e + 1])
     row.t = t
-    for a in range(MAX_COSIM_DOF):
-        row.q[a] = cd.q[a]
-        row.qd[a] = cd.qd[a]
-    for p in range(MAX_PORTS):
-        for c in range(3):
-            row.device_pose[p, c] = cd.device_pose[p, c]
-            row.device_twist[p, c] = cd.device_twist[p, c]
-            row.command[p, c] = cd.command[p, c]
-    for e in range(MAX_COSIM_BODIES):
-        for c in range(3):
-            row.body_force[e, c] = cd.body_force[e, c]
-            row.sim_wrench[e, c] = cd.sim_wrench[e, c]
-    row.n_contacts = cd.n_contacts
-    row.penetration = cd.penetration
-    row.invalid = cd.invalid
-    row.singular = cd.singular
-    row.collisions = cd.collisions
-    sim_bodies_of(model[0], cd, row.sim_bodies)
+    cosim_row(model[0], cd, row)
 
 
 def tool_start(scene: PortSceneConfig | HandSceneConfig, p: int) -> np.ndarray:

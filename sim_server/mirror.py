@@ -51,12 +51,9 @@ from haptic_local_model.shared.port_config import PortSceneConfig
 from haptic_local_model.shared.protocol.station import (
     SIM_BODIES_MAGIC,
     WORLD_BODIES_MAGIC,
-    BodiesState,
+    BodiesReceiver,
     bodies_record,
-    decode_bodies,
-    order_refusal,
 )
-from haptic_local_model.shared.protocol.update import MessageError
 from haptic_local_model.shared.timing import Pacer, SampleWindow, enter_loop
 from haptic_local_model.sim_server.world import body_shape
 
@@ -75,7 +72,7 @@ def _shape(body: pymunk.Body, spec: BodySpec, scene: PortSceneConfig) -> pymunk.
     return shape
 
 
-class Mirror:
+class Mirror(BodiesReceiver):
     """The sim's world of a port scene (module docstring), ready to run."""
 
     def __init__(
@@ -116,10 +113,8 @@ class Mirror:
             b.angular_velocity = spec.angular_velocity
         self.epoch = time.time_ns()
         self.record = bodies_record(SIM_BODIES_MAGIC, len(self.sims), self.epoch, self.h)
-        self.last: BodiesState | None = None
-        self.rx_ns = 0
-        self.received = self.rejected = self.lost = self.steps = 0
-        self.reasons: dict[str, int] = {}
+        self.init_receiver(WORLD_BODIES_MAGIC, len(self.mirrored), network.world_watchdog_ms)
+        self.steps = 0
         self.lag_mm = SampleWindow(1_000_000)
         self.touching = [0] * len(self.sims)  # steps each sim body touched a mirrored one
         self._sim_set = set(self.sims)
@@ -138,35 +133,20 @@ class Mirror:
     def request_stop(self, *_: object) -> None:
         self._stop = True
 
-    def _refuse(self, reason: str) -> None:
-        self.rejected += 1
-        self.reasons[reason] = self.reasons.get(reason, 0) + 1
-
-    def _silent(self, now_ns: int) -> bool:
-        return self.last is None or (now_ns - self.rx_ns) / 1e6 > self.network.world_watchdog_ms
-
     def take(self, sub: Any, now_ns: int) -> None:
         """The newest valid WorldBodies: within the world's epoch newer than the last taken;
         another epoch (a restarted world) only once the present one is silent."""
         for raw in newest_payload(sub):
-            try:
-                m = decode_bodies(raw, WORLD_BODIES_MAGIC, len(self.mirrored))
-            except MessageError as exc:
-                self._refuse(exc.reason)
-                continue
-            why = order_refusal(self.last, m.epoch, m.seq, self._silent(now_ns))
-            if why is not None:
-                self._refuse(why)
-                continue
-            self.last, self.rx_ns = m, now_ns
-            self.received += 1
+            m = self.accept(raw, now_ns)
+            if m is not None:
+                self.taken(m, now_ns)
 
     def step(self, now_ns: int) -> None:
         """One sim step: the mirror driven to the world's predicted poses, the space stepped."""
         m = self.last
-        if m is not None and self._silent(now_ns):
-            self.lost += 1
-            self.last = m = None
+        if m is not None and self.silent(now_ns):
+            self.lose()
+            m = None
         if m is None:
             for b in self.mirrored:  # no world: the mirror stops where it is
                 b.velocity, b.angular_velocity = (0.0, 0.0), 0.0

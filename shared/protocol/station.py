@@ -324,6 +324,53 @@ def order_refusal(last: Any, epoch: int, seq: int, silent: bool) -> str | None:
     return None
 
 
+class BodiesReceiver:
+    """The receiving side of a BodiesState link, written once for the world (its SimBodies)
+    and the sim's mirror (its WorldBodies): each payload decoded, a malformed one refused
+    and counted by reason; ordered by order_refusal (and the receiver's own rule); the newest
+    taken, and when; silent after `watchdog_ms` without one (the watchdog)."""
+
+    def init_receiver(self, magic: bytes, count: int, watchdog_ms: float) -> None:
+        self.magic, self.count, self.watchdog_ms = magic, count, watchdog_ms
+        self.last: BodiesState | None = None
+        self.rx_ns = 0
+        self.received = self.rejected = self.lost = 0
+        self.reasons: dict[str, int] = {}
+
+    def refuse(self, reason: str) -> None:
+        self.rejected += 1
+        self.reasons[reason] = self.reasons.get(reason, 0) + 1
+
+    def silent(self, now_ns: int) -> bool:
+        return self.last is None or (now_ns - self.rx_ns) / 1e6 > self.watchdog_ms
+
+    def accept(self, raw: bytes, now_ns: int, rule: Any = None) -> BodiesState | None:
+        """`raw` decoded and ordered: the message if it may be taken (the caller takes it
+        with `taken`), else None (refused and counted). `rule(m)` names a refusal of the
+        receiver's own, which comes before the order's."""
+        try:
+            m = decode_bodies(raw, self.magic, self.count)
+        except MessageError as exc:
+            self.refuse(exc.reason)
+            return None
+        why = (rule(m) if rule is not None else None) or order_refusal(
+            self.last, m.epoch, m.seq, self.silent(now_ns)
+        )
+        if why is not None:
+            self.refuse(why)
+            return None
+        return m
+
+    def taken(self, m: BodiesState, now_ns: int) -> None:
+        self.last, self.rx_ns = m, now_ns
+        self.received += 1
+
+    def lose(self) -> None:
+        """The sender fell silent: nothing followed until it is heard again."""
+        self.lost += 1
+        self.last = None
+
+
 def encode_device(m: DeviceState) -> bytes:
     return DEVICE.encode(m)
 
