@@ -2,8 +2,8 @@
 
 Checks out BASE (a git revision) into a temporary worktree and runs, alternately in the base
 tree and in this one, (1) `benchmarks.kernel_cost` (the tick kernel alone and one Python call
-per tick, 0..32 contacts) and (2) a real-time run of the two servers (`haptic-run`, default
-scene and device, with the MCAP log), from which the loop's work per tick is read. With
+per tick, 0..32 contacts) and (2) a real-time run of the two servers (`haptic-run`, `--scene`
+(default testbed), default device, with the MCAP log), from which the loop's work per tick is read. With
 --stations, instead: `loop_timing --stations` once per repeat in each tree (a shared world and
 two stations on loopback, every shipped port scene), the world's and the stations' work per
 tick read. The order
@@ -11,6 +11,7 @@ alternates between repeats so slow spells of a shared host hit both builds; ever
 the median over repeats.
 
     python -m haptic_local_model.benchmarks.compare_builds [--base 2ccdfb6] [--repeat 5] [--seconds 10]
+        [--scene testbed] [--loop-only]
     python -m haptic_local_model.benchmarks.compare_builds --stations [--base REV] [--repeat 3]
 """
 
@@ -108,15 +109,16 @@ def kernel_cost(tree: Path, ticks: int) -> dict[int, dict[str, float]]:
     return table
 
 
-def loop_work(tree: Path, seconds: float) -> dict[str, float]:
-    """Work per tick and lateness of a real-time run of the default scene, log on; work also
-    split into ticks that installed an update and the others (from the run's log)."""
+def loop_work(tree: Path, seconds: float, scene: str = "testbed") -> dict[str, float]:
+    """Work per tick and lateness of a real-time run of `scene` (the default device), log on;
+    work also split into ticks that installed an update and the others (from the run's
+    log)."""
     module = _module(tree, "haptic_server.harness.run", "haptic_server.run")
     with tempfile.TemporaryDirectory() as tmp:
         summary = Path(tmp) / "summary.json"
         subprocess.run(
             [
-                sys.executable, "-m", module, "--duration", str(seconds),
+                sys.executable, "-m", module, "--scene", scene, "--duration", str(seconds),
                 "--log", str(Path(tmp) / "run.mcap"), "--summary-json", str(summary),
             ],
             cwd=tree, env=_env(tree), check=True, stdout=subprocess.DEVNULL,
@@ -170,6 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--ticks", type=int, default=20000, help="ticks per kernel timing")
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--loop-only", action="store_true", help="skip kernel_cost")
+    parser.add_argument("--scene", default="testbed", help="the real-time runs' scene")
     parser.add_argument("--stations", action="store_true", help="instead: the shared world's work")
     args = parser.parse_args(argv)
     trees = {"base": checkout(args.base), "this": REPO_ROOT}
@@ -184,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
         for name in order:
             if not args.loop_only:
                 kernels[name].append(kernel_cost(trees[name], args.ticks))
-            loops[name].append(loop_work(trees[name], args.seconds))
+            loops[name].append(loop_work(trees[name], args.seconds, args.scene))
             print(f"  {name}: {loops[name][-1]}", file=sys.stderr)
         print(f"repeat {i + 1}/{args.repeat} done", file=sys.stderr)
     result: dict[str, Any] = {

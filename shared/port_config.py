@@ -372,12 +372,14 @@ def load_hand_scene(name_or_path: str) -> HandSceneConfig:
 
 
 def shipped_port_scenes(hands: bool) -> list[str]:
-    """The shipped port scenes with hands (hands=True) or with two co-simulated tools."""
-    return sorted(
-        name
-        for name in shipped("ports")
-        if is_hand_scene(read_toml(resolve("ports", name))) == hands
-    )
+    """The shipped port scenes with hands (hands=True) or with two co-simulated tools (a
+    scene of one port, `box_push`, is neither)."""
+    out = []
+    for name in shipped("ports"):
+        data = read_toml(resolve("ports", name))
+        if is_hand_scene(data) == hands and (hands or len(data.get("ports", ())) == MAX_PORTS):
+            out.append(name)
+    return sorted(out)
 
 
 def shipped_station_scenes() -> list[str]:
