@@ -30,6 +30,7 @@ from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import (
     MAP_DTYPE,
 )
+from haptic_local_model.haptic_server.port_scene import MAX_GLOVE_ROWS, glove_script
 from haptic_local_model.haptic_server.stages.cosim import body_core
 from haptic_local_model.haptic_server.stages.hand import glove_at, hand_records, hand_tick
 from haptic_local_model.haptic_server.stages.port_io import (
@@ -39,14 +40,13 @@ from haptic_local_model.haptic_server.stages.port_io import (
 )
 from haptic_local_model.haptic_server.users import USER_DTYPE, user_record
 from haptic_local_model.haptic_server.world import WorldKind, run_virtual
-from haptic_local_model.shared.config import ConfigError, UserConfig, load_user, resolve
+from haptic_local_model.shared.config import UserConfig, load_user
 from haptic_local_model.shared.kinematics import MAX_DOF
 from haptic_local_model.shared.port_config import HandSceneConfig, HandTable
 from haptic_local_model.shared.protocol.station import vec3
 
 F8 = np.float64
 I8 = np.int64
-MAX_GLOVE_ROWS = 64  # a glove script's rows (as a user's waypoints)
 
 HAND_IO_DTYPE = np.dtype(
     [
@@ -174,37 +174,6 @@ def port_hand_records(
                                       limits, scene.period_s, gravity=scene.gravity)  # fmt: skip
     model[0]["measured_palm"] = 1
     return chain, model, data
-
-
-def glove_script(user: UserConfig, rest: list[float]) -> np.ndarray:
-    """The user's finger_angles as rows (t, a_1, ..., a_n) for the hand's n joints; without
-    any, the fingers' rest angles held."""
-    if not user.finger_angles:
-        return np.array([[0.0, *rest]], F8)
-    if len(user.finger_angles) > MAX_GLOVE_ROWS:
-        raise ValueError(f"finger_angles: at most {MAX_GLOVE_ROWS} rows")
-    rows = np.array(user.finger_angles, F8)
-    if rows.shape[1] != 1 + len(rest):
-        raise ValueError(
-            f"finger_angles: {rows.shape[1] - 1} angles a row, the hand has {len(rest)} joints"
-        )
-    return rows
-
-
-def load_glove_users(scene: HandSceneConfig, names: list[str]) -> list[UserConfig]:
-    """Each port's user by name, its glove script checked against its port's hand; a
-    script that does not fit is named by the user's file and key."""
-    users = []
-    for p, name in enumerate(names):
-        user = load_user(name)
-        rest = [a for f in scene.hand_of(p).fingers for a in f.rest]
-        try:
-            glove_script(user, rest)
-        except ValueError as exc:
-            key, _, problem = str(exc).partition(": ")
-            raise ConfigError(str(resolve("users", name)), key, problem) from None
-        users.append(user)
-    return users
 
 
 @dataclass

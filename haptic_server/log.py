@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -436,3 +437,46 @@ def recover_log(src: Path | str, dst: Path | str) -> dict[str, int]:
                 counts["metadata"] += 1
         writer.finish()
     return counts
+
+
+def write_rows_log(
+    path: Path, rows: np.ndarray, topic: str, schema_name: str, metadata: dict[str, dict[str, str]]
+) -> None:
+    """Rows of a record dtype (one message each on `topic`, a ros1msg schema from the dtype)
+    and the metadata, into a temporary file renamed to `path` when whole (removed if the
+    writing fails)."""
+    from haptic_local_model.shared import __version__
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    part = path.with_name(path.name + ".part")
+    try:
+        with part.open("wb") as fh:
+            writer = Writer(fh)
+            writer.start(profile="", library=f"haptic-local-model {__version__}")
+            schema = writer.register_schema(
+                name=schema_name, encoding="ros1msg", data=ros1msg_schema(rows.dtype).encode()
+            )
+            channel = writer.register_channel(topic, message_encoding="ros1", schema_id=schema)
+            for name, data in metadata.items():
+                writer.add_metadata(name, data)
+            for k, row in enumerate(rows):
+                t_ns = round(float(row["t"]) * 1e9)
+                writer.add_message(channel, log_time=t_ns, data=row.tobytes(),
+                                   publish_time=t_ns, sequence=k)  # fmt: skip
+            writer.finish()
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(part, path)
+    except BaseException:
+        part.unlink(missing_ok=True)
+        raise
+
+
+def rows_in_order(rows: np.ndarray, written: int) -> np.ndarray:
+    """A ring of rows, `written` of them written in turn: those kept, oldest first (the
+    last len(rows) if more were written). The station's and the shared world's logs."""
+    cap = len(rows)
+    if written <= cap:
+        return rows[:written].copy()
+    k = written % cap
+    return np.concatenate([rows[k:], rows[:k]])

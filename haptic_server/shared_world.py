@@ -53,6 +53,8 @@ import zenoh
 
 from haptic_local_model.device_models.base import world_limits, world_map_of
 from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.haptic_server.log import rows_in_order
+from haptic_local_model.haptic_server.port_scene import port_gains
 from haptic_local_model.haptic_server.sim_link import SimLink
 from haptic_local_model.haptic_server.stages.port_io import push_stretch
 from haptic_local_model.haptic_server.stages.station_messages import STALE, reason_counts
@@ -64,12 +66,7 @@ from haptic_local_model.haptic_server.stages.world_ports import (
     take_device,
     world_clock,
 )
-from haptic_local_model.haptic_server.station import rows_in_order
-from haptic_local_model.haptic_server.world_engines import (
-    CosimWorld,
-    port_gains,
-    world_engine,
-)
+from haptic_local_model.haptic_server.world_engines import CosimWorld, world_engine
 from haptic_local_model.shared.config import load_user
 from haptic_local_model.shared.net.stations import (
     StationNetworkConfig,

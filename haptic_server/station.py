@@ -21,7 +21,8 @@ import zenoh
 from haptic_local_model.device_models.base import SimulatedDevice, world_map_of
 from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import noise_ready
-from haptic_local_model.haptic_server.hand_ports import glove_script
+from haptic_local_model.haptic_server.log import rows_in_order
+from haptic_local_model.haptic_server.port_scene import glove_script, port_gains, tool_start
 from haptic_local_model.haptic_server.stages.station import STATION_DTYPE, STATION_ROW_DTYPE
 from haptic_local_model.haptic_server.stages.station_link import (
     station_link,
@@ -31,7 +32,6 @@ from haptic_local_model.haptic_server.stages.station_link import (
 )
 from haptic_local_model.haptic_server.stages.station_messages import reason_counts
 from haptic_local_model.haptic_server.users import user_record
-from haptic_local_model.haptic_server.world_engines import port_gains, tool_start
 from haptic_local_model.shared.config import UserConfig
 from haptic_local_model.shared.net.stations import (
     StationNetworkConfig,
@@ -49,16 +49,6 @@ RING_S = 60.0  # without --log: the last this long (the summary's figures)
 #: the tool is carried on by its twist for at most this long: a few of the world's periods
 #: and a network hop; an older tool state is rendered where it was (DeviceState likewise)
 EXTRAPOLATE_S = 0.005
-
-
-def rows_in_order(rows: np.ndarray, written: int) -> np.ndarray:
-    """A ring of rows, `written` of them written in turn: those kept, oldest first (the
-    last len(rows) if more were written). The station's and the shared world's logs."""
-    cap = len(rows)
-    if written <= cap:
-        return rows[:written].copy()
-    k = written % cap
-    return np.concatenate([rows[k:], rows[:k]])
 
 
 class Station:

@@ -25,11 +25,11 @@ import zenoh
 
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.haptic_server.hand_grasp_ports import HAND_GRASP_KIND
-from haptic_local_model.haptic_server.hand_ports import load_glove_users
+from haptic_local_model.haptic_server.log import write_rows_log
+from haptic_local_model.haptic_server.port_scene import load_glove_users
 from haptic_local_model.haptic_server.ports import PORT_KIND
 from haptic_local_model.haptic_server.shared_world import SharedWorld
 from haptic_local_model.haptic_server.station import MAX_LOG_S, RING_S, Station
-from haptic_local_model.haptic_server.world_runs import write_rows_log
 from haptic_local_model.shared import __version__
 from haptic_local_model.shared.cli import (
     add_version,

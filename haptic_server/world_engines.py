@@ -25,7 +25,8 @@ from haptic_local_model.haptic_server.hand_grasp_ports import (
     grasp_port_records,
     hand_grasp_row,
 )
-from haptic_local_model.haptic_server.hand_ports import HAND_IO_DTYPE, glove_script
+from haptic_local_model.haptic_server.hand_ports import HAND_IO_DTYPE
+from haptic_local_model.haptic_server.port_scene import glove_script
 from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE, cosim_row
 from haptic_local_model.haptic_server.stages.cosim import (
     MAX_COSIM_BODIES,
@@ -67,23 +68,6 @@ def world_row(model, data, rows, k, t, lowest):
         lowest[e] = min(lowest[e], cd.q[3 * e + 1])
     row.t = t
     cosim_row(model[0], cd, row)
-
-
-def tool_start(scene: PortSceneConfig | HandSceneConfig, p: int) -> np.ndarray:
-    """Where port p's tool starts in the world: its co-simulated body, or its hand's palm."""
-    if isinstance(scene, HandSceneConfig):
-        return np.array(scene.hand_of(p).pose, F8)
-    _, data = cosim_records(scene, [(1.0, 1.0, 1.0)] * len(scene.ports))
-    return np.array(data[0]["q"][3 * p : 3 * p + 3])
-
-
-def port_gains(scene: PortSceneConfig | HandSceneConfig, p: int) -> tuple[Vec3, Vec3]:
-    """Port p's coupling (stiffness, damping): its co-simulation's, or its palm springs."""
-    if isinstance(scene, HandSceneConfig):
-        hand = scene.hand_of(p)
-        return hand.palm_spring, hand.palm_damping
-    port = scene.ports[p]
-    return port.coupling_stiffness, port.coupling_damping
 
 
 @njit(cache=True)

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 import tomllib
 from dataclasses import dataclass
@@ -31,19 +30,20 @@ from typing import Any
 
 import numpy as np
 from mcap.records import Channel
-from mcap.writer import Writer
 
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.haptic_server.hand_grasp_ports import HAND_GRASP_KIND, HandGraspRun
-from haptic_local_model.haptic_server.hand_ports import HAND_KIND, HandPortRun, load_glove_users
+from haptic_local_model.haptic_server.hand_ports import HAND_KIND, HandPortRun
 from haptic_local_model.haptic_server.log import (
     _iter_messages,
     is_indexed,
     read_metadata,
     ros1msg_schema,
     stream_records,
+    write_rows_log,
 )
 from haptic_local_model.haptic_server.one_port import OnePortRun
+from haptic_local_model.haptic_server.port_scene import load_glove_users
 from haptic_local_model.haptic_server.ports import PORT_KIND, PortRun
 from haptic_local_model.haptic_server.world import World, WorldKind, run_real_time, run_virtual
 from haptic_local_model.shared import __version__
@@ -67,37 +67,6 @@ def write_port_log(path: Path, rows: np.ndarray, metadata: dict[str, dict[str, s
     """Every row and the metadata, into a temporary file renamed to `path` when whole (and
     removed if the writing fails)."""
     write_rows_log(path, rows, PORT_KIND.topic, PORT_KIND.schema, metadata)
-
-
-def write_rows_log(
-    path: Path, rows: np.ndarray, topic: str, schema_name: str, metadata: dict[str, dict[str, str]]
-) -> None:
-    """Rows of a record dtype (one message each on `topic`, a ros1msg schema from the dtype)
-    and the metadata, into a temporary file renamed to `path` when whole (removed if the
-    writing fails)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    part = path.with_name(path.name + ".part")
-    try:
-        with part.open("wb") as fh:
-            writer = Writer(fh)
-            writer.start(profile="", library=f"haptic-local-model {__version__}")
-            schema = writer.register_schema(
-                name=schema_name, encoding="ros1msg", data=ros1msg_schema(rows.dtype).encode()
-            )
-            channel = writer.register_channel(topic, message_encoding="ros1", schema_id=schema)
-            for name, data in metadata.items():
-                writer.add_metadata(name, data)
-            for k, row in enumerate(rows):
-                t_ns = round(float(row["t"]) * 1e9)
-                writer.add_message(channel, log_time=t_ns, data=row.tobytes(),
-                                   publish_time=t_ns, sequence=k)  # fmt: skip
-            writer.finish()
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(part, path)
-    except BaseException:
-        part.unlink(missing_ok=True)
-        raise
 
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"

@@ -15,12 +15,12 @@ from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.haptic_server.hand_ports import (
     HAND_ROW_DTYPE,
     HandPortRun,
-    glove_script,
     replay_hand_rows,
     run_hand_port_ticks,
 )
 from haptic_local_model.haptic_server.harness.replay import main as haptic_replay
 from haptic_local_model.haptic_server.harness.run import main as haptic_run
+from haptic_local_model.haptic_server.port_scene import glove_script
 from haptic_local_model.haptic_server.world_runs import (
     HAND_TICK_TOPIC,
     read_port_log,
