@@ -144,25 +144,8 @@ def test_one_hand_cannot_hold_a_box(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def grasp_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("grasp") / "grasp.mcap"
-    assert (
-        haptic_run(
-            [
-                "--clock",
-                "virtual",
-                "--scene",
-                SCENE,
-                "--duration",
-                "1",
-                "--device",
-                "maglev",
-                "--device",
-                "twin_pantograph",
-                "--log",
-                str(path),
-            ]
-        )
-        == 0
-    )
+    argv = f"--clock virtual --scene {SCENE} --duration 1 --device maglev".split()
+    assert haptic_run([*argv, "--device", "twin_pantograph", "--log", str(path)]) == 0
     return path
 
 
@@ -189,20 +172,8 @@ def test_a_glove_that_does_not_fit_its_hand_is_named_by_its_users_file(tmp_path,
     text = resolve("users", "hand_grasp_right").read_text()
     bad.write_text(text.replace('name = "hand_grasp_right"', 'name = "bad_glove"')
                    + "finger_angles = [[0.0, 0.1]]\n")  # fmt: skip
-    code = haptic_run(
-        [
-            "--clock",
-            "virtual",
-            "--scene",
-            SCENE,
-            "--duration",
-            "0.01",
-            "--user",
-            "hand_grasp_left",
-            "--user",
-            str(bad),
-        ]
-    )
+    argv = f"--clock virtual --scene {SCENE} --duration 0.01 --user hand_grasp_left".split()
+    code = haptic_run([*argv, "--user", str(bad)])
     err = capsys.readouterr().err
     assert code == 2
     assert str(bad) in err and "finger_angles" in err and "hand_grasp_left" not in err

@@ -132,23 +132,8 @@ def test_a_hand_scene_names_what_is_wrong(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def hand_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("hand") / "hand.mcap"
-    assert (
-        haptic_run(
-            [
-                "--clock",
-                "virtual",
-                "--scene",
-                SCENE,
-                "--duration",
-                "2.6",
-                "--device",
-                "maglev",
-                "--log",
-                str(path),
-            ]
-        )
-        == 0
-    )
+    argv = f"--clock virtual --scene {SCENE} --duration 2.6 --device maglev".split()
+    assert haptic_run([*argv, "--log", str(path)]) == 0
     return path
 
 
