@@ -204,10 +204,8 @@ class SharedWorld:
             if self.sim is not None:
                 (self.work_sim_us if sim_tick else self.work_rest_us).add(work)
 
-        try:
+        with session:  # closed however the loop ends
             pacer.run(tick, lambda: self._stop)
-        finally:
-            session.close()
         return self.summary()
 
     def warm(self) -> None:

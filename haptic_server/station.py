@@ -160,10 +160,8 @@ class Station:
                         pacer.late_ns, work_ns)  # fmt: skip
             self.n_rows += 1
 
-        try:
+        with session:  # closed however the loop ends
             pacer.run(tick, lambda: self._stop)
-        finally:
-            session.close()
         return self.summary()
 
     def warm(self) -> None:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 import tomllib
 from dataclasses import dataclass
@@ -193,6 +194,9 @@ def run_port_scene(
     world = scene.world()
     if round(duration_s / world.period_s) < 1:
         raise ConfigError("--duration", "--duration", "shorter than one tick")
+    print(f"{world.kind.name} world, {len(world.devices)} simulated device(s): loading its "
+          f"kernels (a first run compiles them, about 30 s on 2 cores, into "
+          f"{os.environ.get('NUMBA_CACHE_DIR', 'the numba cache')})", file=sys.stderr)  # fmt: skip
     if clock == "virtual":
         rows, wall_s = run_virtual(world, duration_s)
         figures: dict[str, Any] = {"ticks": len(rows), "wall_s": wall_s}

@@ -230,10 +230,8 @@ class Mirror(BodiesReceiver):
                 self.publish(pub, published)
                 published += 1
 
-        try:
+        with session:  # closed however the loop ends
             pacer.run(tick, lambda: self._stop)
-        finally:
-            session.close()
         return self.summary()
 
     def summary(self) -> dict[str, Any]:
