@@ -139,12 +139,14 @@ def add_version(parser: argparse.ArgumentParser) -> None:
 
 
 def print_shipped(extra: Sequence[str] = ()) -> None:
-    """The shipped scenes, devices, users and networks, a line each, then `extra` (the
-    installed device models: `haptic-run --list`)."""
+    """The shipped scenes, devices, users, networks and port scenes, a line each, then
+    `extra` (the installed device models: `haptic-run --list`)."""
     lines = []
-    for kind in CONFIG_KINDS:
+    for kind in (*CONFIG_KINDS, "ports"):
         configs = shipped(kind)
-        lines.append(f"{kind} (--{kind.rstrip('s')} NAME, or a path to a .toml file):")
+        flag = "--scene" if kind == "ports" else f"--{kind.rstrip('s')}"
+        what = ", scenes whose devices run in this process" if kind == "ports" else ""
+        lines.append(f"{kind}{what} ({flag} NAME, or a path to a .toml file):")
         width = max(map(len, configs), default=0)
         lines += [f"  {name:<{width}}  {text}" for name, text in configs.items()]
     lines += extra
