@@ -147,26 +147,25 @@ def is_port_scene(ref: str) -> bool:
 
 @dataclass(frozen=True)
 class PortScene:
-    """A port scene as read once: its text (the log keeps it) and the names of its devices
-    and users (the scene's, or the command line's)."""
+    """A port scene as read once: its text (the log keeps it), its config, and the names of
+    its devices and users (the scene's, or the command line's)."""
 
     text: str
-    source: str
+    config: PortSceneConfig | HandSceneConfig
     devices: list[str]
     users: list[str]
 
     def world(self) -> World:
         """The scene's world with its devices and users, at their start."""
         sim = [load_simulated_device(name) for name in self.devices]
-        if is_hand_scene(parse_toml_text(self.text, self.source)):
-            scene = load_config_text(HandSceneConfig, self.text, self.source)
+        scene = self.config
+        if isinstance(scene, HandSceneConfig):
             users = load_glove_users(scene, self.users)
             if len(scene.ports) == 1:
                 return HandPortRun(scene, sim[0], users[0])
             return HandGraspRun(scene, sim, users)
-        ports = load_config_text(PortSceneConfig, self.text, self.source)
-        run = OnePortRun if len(ports.ports) == 1 else PortRun
-        return run(ports, sim, [load_user(name) for name in self.users])
+        run = OnePortRun if len(scene.ports) == 1 else PortRun
+        return run(scene, sim, [load_user(name) for name in self.users])
 
 
 def port_scene(ref: str, devices: list[str] | None, users: list[str] | None) -> PortScene:
@@ -180,7 +179,7 @@ def port_scene(ref: str, devices: list[str] | None, users: list[str] | None) -> 
     scene_type = HandSceneConfig if is_hand_scene(data) else PortSceneConfig
     scene = load_config_text(scene_type, text, str(path))
     return PortScene(
-        text, str(path),
+        text, scene,
         _per_port(devices, [p.device for p in scene.ports], "--device"),
         _per_port(users, [p.user for p in scene.ports], "--user"),
     )  # fmt: skip
