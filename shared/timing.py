@@ -39,6 +39,20 @@ def wait_until(deadline_ns: int, spin_ns: int = SPIN_NS) -> int:
     return now
 
 
+def wall_clock_at(mono_ns: int, reads: int = 5) -> int:
+    """The wall clock (time.time_ns) at a reading of time.perf_counter_ns: their offset from
+    the tightest of a few bracketed reads (to within a microsecond unless every read was
+    preempted). NTP slews both clocks alike; only a step of the wall clock moves them apart."""
+    width, offset = None, 0
+    for _ in range(reads):
+        before = time.perf_counter_ns()
+        wall = time.time_ns()
+        after = time.perf_counter_ns()
+        if width is None or after - before < width:
+            width, offset = after - before, wall - (before + after) // 2
+    return mono_ns + offset
+
+
 REALTIME_PRIORITY = 10
 # CPython hands the GIL to a waiting thread after this long (default 5 ms): a thread that must
 # run every millisecond (a Zenoh receiver, a device's servo callback) must not wait that long
@@ -153,14 +167,20 @@ def rate_per_second(intervals_ms: np.ndarray) -> dict[str, float]:
 class Pacer:
     """A loop paced by the wall clock (the shared world's and a station's): `wait` sleeps to
     the next deadline, then spins its last spin_ns; a tick later than a whole period starts
-    the deadlines afresh from now (counted as an overrun). It keeps the tick intervals (for
-    rate_per_second) and the lateness."""
+    the deadlines afresh from now (counted as an overrun, and the whole periods it spanned as
+    skipped ticks). It keeps the tick intervals (for rate_per_second) and the lateness.
+
+    Every period of the run is a tick or a skipped one: over a run of T, ticks + skipped
+    lies in [T/P - overruns, T/P + 1]. A restart spaces the deadlines it counts by less than
+    two periods (the last skipped deadline, then a period after the late start), so each may
+    lose one; the +1 is the tick that starts at or after the end and ends the run."""
 
     def __init__(self, period_ns: int, spin_ns: int, duration_s: float | None) -> None:
         self.period_ns, self.spin_ns, self.duration_s = period_ns, spin_ns, duration_s
         self.intervals_ms = SampleWindow(1_000_000)
         self.late_us = SampleWindow(100_000)
         self.overruns = 0
+        self.skipped = 0  # whole periods an overrun spanned: ticks never run
         self.ticks = 0
         self.late_ns = 0
         self.worst = (0, 0)  # the latest tick: ns late, its index
@@ -175,6 +195,7 @@ class Pacer:
         self.late_ns = now - self.deadline
         if self.late_ns > self.period_ns:
             self.overruns += 1
+            self.skipped += self._spanned(self.late_ns)
             self.deadline = now
         if self.ticks:
             self.intervals_ms.add((now - self.last) / 1e6)
@@ -183,6 +204,14 @@ class Pacer:
         if self.late_ns > self.worst[0]:
             self.worst = (self.late_ns, self.ticks)
         return now
+
+    def _spanned(self, late_ns: int) -> int:
+        """The deadlines after this tick's that passed before it started (those before the
+        run's end): the ticks an overrun skips."""
+        n = late_ns // self.period_ns
+        if self.end is not None:
+            n = min(n, max(0, -(-(self.end - self.deadline) // self.period_ns) - 1))
+        return n
 
     def next(self) -> bool:
         """The tick is done: whether the loop goes on (its duration not yet over)."""
@@ -211,6 +240,7 @@ class Pacer:
             "tick_rate_hz": rate_per_second(self.intervals_ms.values()),
             "late_us": self.late_us.percentiles(50, 99, 99.9),
             "overruns": self.overruns,
+            "ticks_skipped": self.skipped,
             "latest_tick": {"late_ms": self.worst[0] / 1e6, "tick": self.worst[1]},
         }
 
