@@ -6,16 +6,21 @@ cut for `--cut` seconds, then restored. Reports, from the processes' own logs:
 
 - each station's tick rate (per second: median and least) and ticks, lateness, work;
 - the box: how far it sank below its start at worst (held: the couplings' sag only);
-- the cut station: its watchdog after the cut, the safe state after its watchdog (the ramp);
+- the cut station: its watchdog after the cut (counted from when `ip link set down` had
+  returned; how long that took beside it), the safe state after its watchdog (the ramp);
   when tool states came back after the restore, and the largest change of its rendered
   spring force from one tick to the next in the 200 ms after (a force jump), beside the
   same in the 2 s before the cut; its command before the cut and after the ramp;
 - the other station: whether it rendered the coupling through the whole cut.
 
+With `--check` it exits 1 unless each station delivered at least 98 % of its run's ticks and
+its median second at least 990 of them (the rate target: a property of the machine as much as
+of the code, so it lives here, not in the tests).
+
 Needs root (network namespaces); everything it creates is removed, and every process it
 starts stopped by its pid, however it ends.
 
-    sudo .venv/bin/python -m haptic_local_model.benchmarks.stations [--seconds 24] [--cut 3] [--json out.json]
+    sudo .venv/bin/python -m haptic_local_model.benchmarks.stations [--seconds 24] [--cut 3] [--json out.json] [--check]
 """
 
 from __future__ import annotations
@@ -52,6 +57,8 @@ IP_TIMEOUT_S = 10.0
 PORTS = ("left", "right")
 JUMP_WINDOW = 200  # ticks after the tool states return
 STEADY_WINDOW = 2000  # ticks before the cut
+DELIVERED_MIN = 0.98  # the rate target (--check): of the run's ticks, each station's ...
+MEDIAN_HZ_MIN = 990.0  # ... and its median second
 
 
 def ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
@@ -263,7 +270,12 @@ def cut_figures(left: np.ndarray, right: np.ndarray, cut: int, restored: int) ->
     steady = largest_step(left, c - STEADY_WINDOW, c)
     r0, r1 = after(right, cut), after(right, restored)
     return {
-        "watchdog_after_cut_ms": float((left["wall_ns"][wd] - left["wall_ns"][c]) / 1e6),
+        "watchdog_after_cut_ms": float((left["wall_ns"][wd] - cut) / 1e6),
+        # the newest tool state the watchdog had (what was in flight when the link went down)
+        "last_tool_state_after_cut_ms": float(
+            (left["wall_ns"][wd] - left["tool_age"][wd] * 1e9 - cut) / 1e6
+        ),
+        "watchdog_tick_late_ms": float(left["late_us"][wd] / 1e3),
         "safe_after_watchdog_ms": float((left["wall_ns"][safe] - left["wall_ns"][wd]) / 1e6),
         "resumed_after_restore_ms": float((left["wall_ns"][back] - restored) / 1e6),
         "largest_step_after_n": largest_step(left, back, back + JUMP_WINDOW),
@@ -294,8 +306,9 @@ def run(seconds: float, cut_after_s: float, cut_s: float, folder: Path) -> dict[
         for s in stations.values():
             s.wait_ready()
         time.sleep(cut_after_s)
-        cut = time.perf_counter_ns()
+        begun = time.perf_counter_ns()
         h.set_link("left", False)
+        cut = time.perf_counter_ns()  # down by now: its watchdog counts from here at the latest
         time.sleep(cut_s)
         h.set_link("left", True)
         restored = time.perf_counter_ns()
@@ -305,17 +318,34 @@ def run(seconds: float, cut_after_s: float, cut_s: float, folder: Path) -> dict[
     figures: dict[str, Any] = {"exit_codes": codes}
     for p in PORTS:
         s = json.loads((folder / f"{p}.json").read_text())
-        figures[p] = {k: s[k] for k in ("ticks", "tick_rate_hz", "late_us", "work_us",
-                                         "safe_entries", "tool_states_rejected")}  # fmt: skip
+        figures[p] = {k: s[k] for k in ("ticks", "ticks_skipped", "overruns", "tick_rate_hz",
+                                         "late_us", "work_us", "safe_entries",
+                                         "tool_states_rejected")}  # fmt: skip
     w = json.loads(world_json.read_text())
     box = w["bodies"]["box"]
     figures["world"] = {k: w[k] for k in ("ticks", "tick_rate_hz", "late_us", "work_us", "events")}
     figures["box_sank_m"] = float(box["start"][1] - box["lowest_y"])
     rows = {p: station_rows(folder / f"{p}.mcap") for p in PORTS}
     figures["cut"] = cut_figures(rows["left"], rows["right"], cut, restored)
+    figures["cut"]["cutting_took_ms"] = (cut - begun) / 1e6  # `ip link set down`, a process
     figures["world_log"] = str(folder / "world.mcap")
     figures["left_over"] = left_over
     return figures
+
+
+def rate_shortfalls(figures: dict[str, Any], seconds: float) -> list[str]:
+    """Where a station missed the rate target (module docstring): each device rendered at
+    least DELIVERED_MIN of the run's ticks, its median second at least MEDIAN_HZ_MIN. A
+    timing target of the machine as much as of the code: measured here, not in the tests."""
+    out = []
+    for p in PORTS:
+        f = figures[p]
+        delivered = f["ticks"] / (seconds * 1000.0)
+        if delivered < DELIVERED_MIN:
+            out.append(f"{p}: {delivered:.2%} of the ticks delivered (< {DELIVERED_MIN:.0%})")
+        if f["tick_rate_hz"]["p50"] < MEDIAN_HZ_MIN:
+            out.append(f"{p}: median second {f['tick_rate_hz']['p50']} Hz (< {MEDIAN_HZ_MIN})")
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -325,6 +355,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cut", type=float, default=3.0, help="how long the link is cut (s)")
     ap.add_argument("--out", type=Path, default=None, help="keep the logs here")
     ap.add_argument("--json", type=Path, default=None, help="write the figures here")
+    ap.add_argument("--check", action="store_true", help="exit 1 if a station missed the rate")
     args = ap.parse_args(argv)
     reason = netns_unavailable()
     if reason:
@@ -337,7 +368,10 @@ def main(argv: list[str] | None = None) -> int:
     print(json.dumps(figures, indent=2))
     if args.json:
         args.json.write_text(json.dumps(figures, indent=2))
-    return 0
+    short = rate_shortfalls(figures, args.seconds)
+    for line in short:
+        print(f"stations benchmark: {line}", file=sys.stderr)
+    return 1 if args.check and short else 0
 
 
 if __name__ == "__main__":

