@@ -153,8 +153,9 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
         block.fail_log(f"{config['log_path']}: {exc}")
         raise
     drain = LogDrain(
-        block, log, int(config["wall_start_ns"]), int(config.get("update_time_offset_ns", 0))
-    )
+        block, log, int(config["wall_start_ns"]), int(config.get("update_time_offset_ns", 0)),
+        int(config.get("tick_period_ns", 0)),
+    )  # fmt: skip
     poll_s = float(config.get("poll_s", REALTIME_POLL_S))
     _load_decoder()
     gc.collect()
@@ -221,12 +222,20 @@ class LogDrain:
     """What has been written to the MCAP log so far, and the writing of the rest."""
 
     def __init__(
-        self, block: SharedBlock, log: LogWriter, wall_start_ns: int, update_offset_ns: int = 0
+        self,
+        block: SharedBlock,
+        log: LogWriter,
+        wall_start_ns: int,
+        update_offset_ns: int = 0,
+        period_ns: int = 0,
     ) -> None:
-        """Ticks are logged at wall_start_ns + their time t (the real-time loop's own start,
-        from the block's C_WALL_START, once it has started); updates at their receive time
-        plus `update_offset_ns` (a virtual clock's: its updates are received at virtual
-        times from 0, its log starts at the run's wall-clock start)."""
+        """A virtual clock's ticks (period_ns 0) are logged at wall_start_ns + their time t,
+        its updates at their receive time plus `update_offset_ns` (they are received at
+        virtual times from 0; its log starts at the run's wall-clock start). A real-time
+        loop's (period_ns its tick period) at their deadlines on the wall clock, from its own
+        start (the block's C_WALL_START, once it has started): its t is the sum of clamped
+        dts and falls behind the wall clock at every stall, while its updates are logged at
+        the wall-clock time the sidecar received them."""
         from haptic_local_model.haptic_server.foxglove_view import ViewFrames, log_message
         from haptic_local_model.haptic_server.log import (
             update_record,  # the writer's imports, not the loop's
@@ -235,6 +244,7 @@ class LogDrain:
 
         self.block, self.log, self.wall_start_ns = block, log, wall_start_ns
         self.update_offset_ns = update_offset_ns
+        self.deadlines = TickDeadlines(period_ns) if period_ns > 0 else None
         self._record, self._reason = update_record, reason_tag
         self.view = ViewFrames(log.scene_text)  # Foxglove's channels, at VIEW_HZ of log time
         self._log_message = log_message
@@ -288,13 +298,18 @@ class LogDrain:
             self.wall_start_ns = int(ctl[C_WALL_START])
         if head - self.tick_tail > RING_TICKS:
             ctl[C_TICK_LOST] += head - self.tick_tail - RING_TICKS
+            if self.deadlines is not None:
+                self.deadlines.skip(head - self.tick_tail - RING_TICKS)
             self.tick_tail = head - RING_TICKS
         while self.tick_tail < head:  # in runs of the ring, one copy each
             at = self.tick_tail % RING_TICKS
             n = min(head - self.tick_tail, RING_TICKS - at)
             rows = block.ticks[at : at + n]
             data = rows.tobytes()
-            times = (self.wall_start_ns + (rows["t"] * 1e9).astype(np.int64)).tolist()
+            if self.deadlines is None:
+                times = (self.wall_start_ns + (rows["t"] * 1e9).astype(np.int64)).tolist()
+            else:
+                times = self.deadlines.of(rows["lateness_us"], self.wall_start_ns)
             size = rows.dtype.itemsize
             view = self.view
             for i, log_ns in enumerate(times):
@@ -326,6 +341,31 @@ class LogDrain:
         transforms, scene = self.view.frame(row, log_ns)
         self.log.view_transforms(transforms, log_ns)
         self.log.view_scene(scene, log_ns)
+
+
+class TickDeadlines:
+    """A real-time loop's tick deadlines, from its start, rebuilt from the rows' lateness
+    by the loop's own rule (haptic_server.realtime._open_tick): a tick starts its lateness
+    after its deadline; one later than a whole period restarts the deadlines from its start;
+    the next deadline is a period on."""
+
+    def __init__(self, period_ns: int) -> None:
+        self.period_ns = period_ns
+        self.next_ns = period_ns  # the first tick's deadline: a period after the start
+
+    def of(self, lateness_us: np.ndarray, wall_start_ns: int) -> list[int]:
+        """The wall-clock deadlines of the next rows, given their lateness."""
+        period, out = self.period_ns, []
+        deadline = self.next_ns
+        for late in np.round(lateness_us * 1e3).astype(np.int64).tolist():
+            out.append(wall_start_ns + deadline)
+            deadline = (deadline + late if late > period else deadline) + period
+        self.next_ns = deadline
+        return out
+
+    def skip(self, ticks: int) -> None:
+        """Rows lost before they were logged: their deadlines as if none overran."""
+        self.next_ns += ticks * self.period_ns
 
 
 def _publish_time_ns(raw: bytes) -> int:

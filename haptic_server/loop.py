@@ -56,6 +56,7 @@ from haptic_local_model.shared.timing import (
     loop_cpu,
     try_realtime_priority,
     wait_until,
+    wall_clock_at,
 )
 
 DT_CLAMP = (0.25, 2.0)  # measured dt is clamped to these multiples of the nominal period
@@ -266,7 +267,7 @@ class HapticServer:
             if ready is not None:
                 ready()
             start_ns = time.perf_counter_ns()
-            io.block.ctl[C_WALL_START] = time.time_ns()  # the log's time of t = 0
+            io.block.ctl[C_WALL_START] = wall_clock_at(start_ns)  # the log's time of t = 0
             # the duration counts from the first installed update (a sim that starts later, or
             # compiles first, does not eat into it); without any update it ends all the same
             # after FIRST_UPDATE_WAIT_S more

@@ -89,7 +89,7 @@ class LoopIO:
         self._logger: LogProcess | None = None
         if config.get("log_path"):
             try:
-                keys = ("log_path", "metadata", "wall_start_ns", "loop_cpu")
+                keys = ("log_path", "metadata", "wall_start_ns", "loop_cpu", "tick_period_ns")
                 log_config = {k: config[k] for k in keys}
                 self._logger = LogProcess(self._shm.name, self.block, log_config)
             except BaseException:
