@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck pytest bench soak-ci soak warm clean browser
+.PHONY: demo test check lint typecheck pytest bench soak-ci soak warm clean browser
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -33,8 +33,17 @@ typecheck: $(STAMP)
 		ln -sfn ../../../$$p $(TYPECHECK)/$$p; done
 	$(VENV)/bin/mypy
 
+# The tiers (tests/conftest.py enforces them): the fast tier is every test not marked slow
+# or processes, independent, run on both cores; the marked ones start processes, run real
+# time or run long, and run one at a time so that they measure the machine, not each other.
+FAST := -m "not slow and not processes"
 pytest: $(STAMP) warm browser
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 $(FAST)
+	$(PY) -m pytest -q -m "slow or processes"
+
+# before each commit: lint, types and the fast tier (README: ~2 min on two cores)
+check: lint typecheck warm
+	$(PY) -m pytest -q -n 2 $(FAST)
 
 # the live view's browser test drives Debian's Chromium (Playwright's own download is not
 # used); installed here where apt-get may, else that test skips (CI requires it: .ci/run)

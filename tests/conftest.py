@@ -16,8 +16,17 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import settings
 
 from haptic_local_model.shared.net.config import free_loopback_port
+
+pytest_plugins = ["pytester"]  # tests/test_tiers.py runs a pytest of its own
+
+# hypothesis's per-example deadline (200 ms) is a timing claim: on a loaded 2-core machine it
+# fails the example a preemption lands in, not the code. Time belongs to the tiers (below)
+# and to the benchmarks.
+settings.register_profile("suite", deadline=None)
+settings.load_profile("suite")
 
 REPO = Path(__file__).resolve().parent.parent
 READY_TIMEOUT_S = 300.0  # a cold numba cache compiles for a while on 2 cores
@@ -215,3 +224,102 @@ class Ring:
 def ring() -> type[Ring]:
     """Ring: messages as a subscriber delivers them, for a loop's taking step."""
     return Ring
+
+
+# --- tiers ----------------------------------------------------------------------------------
+# The fast tier (`make check`: -m "not slow and not processes") is what a developer runs
+# before each commit. A test outside it carries its marker: `processes` if it starts a
+# process or opens a socket or a Zenoh session, `slow` if it sleeps or runs for more than
+# FAST_S. Enforced here: an unmarked test that does one of those fails and says which marker
+# it needs. Its time is measured less what numba spent compiling or loading kernels in it (a
+# cold cache is not the test's), and fails only past OVERRUN_S: twice the tier's second, so a
+# loaded machine does not fail a test that keeps to it (tests/test_tiers.py).
+FAST_S = 1.0
+OVERRUN_S = 2.0 * FAST_S
+TIER_MARKERS = ("slow", "processes")
+
+
+class TierError(Exception):
+    """An unmarked (fast-tier) test did what only a marked test may."""
+
+
+def _refuse(original: Any, what: str, marker: str) -> Any:
+    """`original`, refused in the thread the test runs in (a library's own threads go on)."""
+    owner = threading.get_ident()
+
+    def refused(*args: Any, **kwargs: Any) -> Any:
+        if threading.get_ident() != owner:
+            return original(*args, **kwargs)
+        raise TierError(f"this test {what}: mark it @pytest.mark.{marker} (tests/conftest.py)")
+
+    return refused
+
+
+def _guards(mp: pytest.MonkeyPatch) -> None:
+    """What a fast-tier test may not do, refused for the length of one of its phases."""
+    import multiprocessing.process
+    import socket
+
+    import zenoh
+
+    for owner, name, what, marker in (
+        (subprocess.Popen, "__init__", "starts a process", "processes"),
+        (multiprocessing.process.BaseProcess, "start", "starts a process", "processes"),
+        (socket.socket, "__init__", "opens a socket", "processes"),
+        (zenoh, "open", "opens a Zenoh session", "processes"),
+        (time, "sleep", "sleeps", "slow"),
+    ):
+        mp.setattr(owner, name, _refuse(getattr(owner, name), what, marker))
+
+
+class CompileClock:
+    """The seconds numba spends compiling (or loading from its cache) while installed."""
+
+    def __init__(self) -> None:
+        from numba.core import event
+
+        self.seconds = 0.0
+        self._event = event
+        self._listener = event.TimingListener()
+
+    def __enter__(self) -> CompileClock:
+        self._event.register("numba:compiler_lock", self._listener)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._event.unregister("numba:compiler_lock", self._listener)
+        self.seconds = self._listener.duration if self._listener.done else 0.0
+
+
+def _fast_tier(item: pytest.Item) -> bool:
+    return not any(item.get_closest_marker(m) for m in TIER_MARKERS)
+
+
+def _guarded_phase(item: pytest.Item) -> Iterator[None]:
+    """One phase of a test: guarded and timed if it is in the fast tier."""
+    if not _fast_tier(item):
+        yield
+        return
+    start = time.perf_counter()
+    with pytest.MonkeyPatch.context() as mp, CompileClock() as compiling:
+        _guards(mp)
+        yield
+    spent = getattr(item, "_tier_seconds", 0.0) + time.perf_counter() - start - compiling.seconds
+    item._tier_seconds = spent  # type: ignore[attr-defined]
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_setup(item: pytest.Item) -> Iterator[None]:
+    yield from _guarded_phase(item)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_call(item: pytest.Item) -> Iterator[None]:
+    yield from _guarded_phase(item)
+    spent = getattr(item, "_tier_seconds", 0.0)
+    item.user_properties.append(("tier_seconds", round(spent, 3)))  # --junitxml keeps it
+    if spent > OVERRUN_S:
+        raise TierError(
+            f"took {spent:.2f} s (setup and call, numba's compiling aside) in the fast tier "
+            f"(<= {FAST_S:.0f} s, failed past {OVERRUN_S:.0f} s): mark it @pytest.mark.slow"
+        )

@@ -170,6 +170,7 @@ def test_the_trains_acceleration_is_the_mass_weighted_projection_of_its_cars() -
         assert not singular and m_q >= 3 * LOOP.mass
 
 
+@pytest.mark.slow
 def test_v3_1_cars_on_the_loop_follow_the_independent_reference_and_hold_their_energy() -> None:
     figures = loop_figures()
     for cars in ("1_car", "3_car"):
@@ -391,6 +392,7 @@ def test_a_geared_trees_mass_is_g_t_d_g_of_the_reference_tree() -> None:
         assert tree_mass(rec[0], q) == pytest.approx(expected, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_a_geared_tree_swings_as_the_reference_tree() -> None:
     """The unbalanced wheel from rest at 1 rad for 3 s at 1 kHz against DOP853 on
     M_q q'' = -g^T b(theta, g q') (the reference's RNEA bias with gravity): every link's

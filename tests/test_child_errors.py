@@ -13,6 +13,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from haptic_local_model.haptic_server.harness.soak import SEGMENTS, Segment, check_configs
 
 REPO = Path(__file__).resolve().parent.parent
@@ -45,6 +47,7 @@ def _one_error_line(res: subprocess.CompletedProcess[str]) -> str:
     return lines[0]
 
 
+@pytest.mark.processes
 def test_an_error_only_the_haptic_server_finds_stops_the_soak_with_its_reason(
     tmp_path: Path,
 ) -> None:
@@ -63,6 +66,7 @@ def test_an_error_only_the_haptic_server_finds_stops_the_soak_with_its_reason(
     assert "FAILED" not in res.stdout and not (tmp_path / "out" / "soak.md").exists()
 
 
+@pytest.mark.processes
 def test_a_bad_segment_file_stops_the_soak_before_a_server_starts(tmp_path: Path) -> None:
     scene = tmp_path / "unknown_key.toml"
     scene.write_text(_with_top_level(WALL_PUSH.read_text(), "bogus_key = 1"))
@@ -76,6 +80,7 @@ def test_the_shipped_segments_pass_the_soaks_own_check() -> None:
     check_configs(SEGMENTS)
 
 
+@pytest.mark.processes
 def test_haptic_run_passes_a_child_reason_up(tmp_path: Path) -> None:
     """The same pair given to haptic-run, which checks each file but not the pair: the haptic
     server's one line, and exit 2, nothing added."""

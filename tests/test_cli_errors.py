@@ -53,6 +53,7 @@ def _write_fault(tmp_path: Path, option: str, fault: str) -> tuple[str, str]:
     return name, key
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize(("script", "option", "fault"), CASES)
 def test_a_bad_config_is_one_line_and_exit_2(
     tmp_path: Path, script: str, option: str, fault: str
@@ -74,6 +75,7 @@ def test_a_bad_config_is_one_line_and_exit_2(
         assert "not found" in lines[0]
 
 
+@pytest.mark.processes
 def test_replay_of_a_missing_or_foreign_file_is_one_line_and_exit_2(tmp_path: Path) -> None:
     (tmp_path / "notes.mcap").write_text("not a log\n")
     for name in ("absent.mcap", "notes.mcap"):

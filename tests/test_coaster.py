@@ -258,6 +258,7 @@ def test_a_track_that_cannot_be_built_is_refused_at_load() -> None:
         load_config_text(type(load_scene("coaster_loop")), broken, "x.toml")
 
 
+@pytest.mark.processes
 def test_the_coaster_runs_in_real_time_over_zenoh_and_replays_exactly(tmp_path: Path) -> None:
     """coaster_loop as a user runs it: both servers as processes over Zenoh on loopback for
     10 s with the twin pantograph and the shoving hand. The sim's static message arrives and

@@ -31,6 +31,7 @@ def parameters(node: ast.FunctionDef | ast.AsyncFunctionDef) -> list[str]:
     return [n for n in names if n not in ("self", "cls")] + ([a.vararg.arg] if a.vararg else [])
 
 
+@pytest.mark.slow
 def test_no_function_is_long_or_takes_many_parameters() -> None:
     long = []
     wide = []

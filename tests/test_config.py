@@ -89,6 +89,7 @@ def test_nan_and_inf_are_rejected_with_file_and_key(tmp_path: Path, table: str, 
     assert "finite" in err.value.problem and str(path) in str(err.value)
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize(
     ("args", "needle"),
     [

@@ -50,6 +50,7 @@ def wall_push_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.mark.processes
 def test_the_channels_carry_foxglove_schemas(wall_push_log: Path) -> None:
     msgs = _decoded(wall_push_log)
     assert {s for _, s, _ in msgs[SCENE_TOPIC]} == {"foxglove.SceneUpdate"}
@@ -58,6 +59,7 @@ def test_the_channels_carry_foxglove_schemas(wall_push_log: Path) -> None:
     assert abs(frames - SECONDS * VIEW_HZ) <= 1  # VIEW_HZ of log time
 
 
+@pytest.mark.processes
 def test_the_static_bodies_are_drawn_where_the_scene_puts_them(wall_push_log: Path) -> None:
     scene = load_scene("wall_push")
     statics = [b for b in scene.bodies if b.kind == "static"]
@@ -77,6 +79,7 @@ def test_the_static_bodies_are_drawn_where_the_scene_puts_them(wall_push_log: Pa
             ), body.name
 
 
+@pytest.mark.processes
 def test_transforms_and_force_arrows_follow_the_tick_rows(wall_push_log: Path) -> None:
     ticks = read_ticks(wall_push_log)
     with wall_push_log.open("rb") as fh:
@@ -122,6 +125,7 @@ def test_transforms_and_force_arrows_follow_the_tick_rows(wall_push_log: Path) -
     )
 
 
+@pytest.mark.processes
 def test_a_failing_view_never_stops_the_log(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

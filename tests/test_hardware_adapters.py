@@ -148,6 +148,7 @@ def test_without_the_binding_the_config_names_the_extra() -> None:
         assert f"haptic-local-model[{name.split('_')[0]}]" in text
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ADAPTERS)
 def test_start_up_then_a_tick_then_the_safe_stop(name: str, fake_vendor: Path) -> None:
     """The binding is opened as its maker documents it; the safe stop sends zero force last
@@ -194,6 +195,7 @@ def test_an_uncalibrated_force_dimension_device(
     device.safe_stop()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ADAPTERS)
 def test_units_frames_and_the_plane(
     name: str, fake_vendor: Path, monkeypatch: pytest.MonkeyPatch
@@ -226,6 +228,7 @@ def test_units_frames_and_the_plane(
     device.safe_stop()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ADAPTERS)
 def test_force_limits_and_nan_never_sent(name: str, fake_vendor: Path) -> None:
     """A command beyond the limit is clipped in magnitude (the device's limit is on the
@@ -256,6 +259,7 @@ def test_force_limits_and_nan_never_sent(name: str, fake_vendor: Path) -> None:
     device.safe_stop()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ADAPTERS)
 def test_a_read_and_a_command_take_a_small_part_of_a_period(name: str, fake_vendor: Path) -> None:
     """3000 ticks paced at 1 kHz: read + command (the adapter and the fake binding) take
@@ -279,6 +283,7 @@ def test_a_read_and_a_command_take_a_small_part_of_a_period(name: str, fake_vend
     assert p99 < PERIOD_S * 1e6
 
 
+@pytest.mark.slow
 def test_the_touch_servo_zeroes_a_stale_command(fake_vendor: Path) -> None:
     """The Touch's servo runs on its own: when the loop stops commanding (hung, or killed
     before its safe stop), the servo sends zero force after command_timeout_ms."""
@@ -478,6 +483,7 @@ def test_a_failing_safe_stop_says_so_and_is_tried_again() -> None:
     device.safe_stop()  # stopped: nothing more to do
 
 
+@pytest.mark.processes
 def test_nothing_but_the_haptic_server_opens_a_real_device(
     fake_vendor: Path, tmp_path: Path
 ) -> None:

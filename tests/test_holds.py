@@ -130,6 +130,7 @@ GAINS = LoopGains(
 )
 
 
+@pytest.mark.slow
 def test_the_continuous_law_follows_the_hand_driven_linkage_only_with_jdot_qd() -> None:
     """Distal hold pushed diagonally: with J_h_dot qd the closed loop is the linkage alone
     to solver tolerance; without, it is off by millimetres."""
@@ -150,6 +151,7 @@ def quick_family() -> list[dict]:
     return [measure_case(scene, case, 5.0, (60.0,)) for case in family(scene, quick=True)]
 
 
+@pytest.mark.slow
 def test_holds_away_from_singularities_are_within_the_goal(quick_family) -> None:
     away = [r for r in quick_family if not r["singular"]]
     assert len(away) >= 5, [r["case"] for r in quick_family]
@@ -158,6 +160,7 @@ def test_holds_away_from_singularities_are_within_the_goal(quick_family) -> None
         assert row["travel_mm"] > 5.0, row  # the hold moved: the error is over a real path
 
 
+@pytest.mark.slow
 def test_every_hold_follows_the_hand_driven_linkage(quick_family) -> None:
     """Also the holds that pass near rank loss (the distal ones, pushed toward a straight
     arm): within the same goal."""
@@ -165,6 +168,7 @@ def test_every_hold_follows_the_hand_driven_linkage(quick_family) -> None:
         assert row["rms_mm"]["60"] <= TARGET_RMS_MM, row
 
 
+@pytest.mark.slow
 def test_the_printed_law_misses_where_the_continuous_law_says_it_must(quick_family) -> None:
     """Seed 000's law as printed is off by more than the goal on several holds, and by
     what the same law with exact dynamics and no sampling gives (within 15%): the error is

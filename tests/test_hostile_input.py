@@ -20,6 +20,7 @@ import struct
 from typing import Any
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -778,6 +779,7 @@ def assert_logged_as_rejected(raw: bytes, reason: str) -> None:
 # --- the decoder --------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @cases("random_bytes")
 @given(
     st.one_of(
@@ -797,6 +799,7 @@ def test_random_bytes_are_rejected(raw: bytes) -> None:
     assert_logged_as_rejected(raw, reason)
 
 
+@pytest.mark.slow
 @cases("valid")
 @given(valid_updates())
 def test_valid_updates_are_accepted(raw: bytes) -> None:
@@ -806,6 +809,7 @@ def test_valid_updates_are_accepted(raw: bytes) -> None:
     assert encode_update(back) == raw  # nothing lost or altered by the validating decoder
 
 
+@pytest.mark.slow
 @cases("broken")
 @given(valid_updates(), st.sampled_from(BREAKS), st.data())
 def test_each_broken_field_is_rejected(raw: bytes, kind: str, data: st.DataObject) -> None:
@@ -827,6 +831,7 @@ def updates_with_shapes(draw: Any) -> bytes:
     return random_update(rng, d, int(rng.integers(0, 4)), 0, 16, epoch, seq, s)
 
 
+@pytest.mark.slow
 @cases("shapes")
 @given(updates_with_shapes(), st.data())
 def test_each_broken_shape_is_rejected_and_named(raw: bytes, data: st.DataObject) -> None:
@@ -846,6 +851,7 @@ def updates_with_chains(draw: Any) -> bytes:
     return random_update(rng, d, int(rng.integers(0, 4)), 0, flags, epoch, seq, 2)
 
 
+@pytest.mark.slow
 @cases("chains")
 @given(updates_with_chains(), st.data())
 def test_each_broken_chain_is_rejected_and_named(raw: bytes, data: st.DataObject) -> None:
@@ -910,6 +916,7 @@ def break_avars(raw: bytes, draw: Any) -> bytes | None:
     return bytes(out)
 
 
+@pytest.mark.slow
 @cases("avars")
 @given(updates_with_avars(), st.data())
 def test_each_broken_avar_is_rejected_and_named(raw: bytes, data: st.DataObject) -> None:
@@ -920,6 +927,7 @@ def test_each_broken_avar_is_rejected_and_named(raw: bytes, data: st.DataObject)
     assert_rejected_as(raw, break_avars(raw, data.draw), "avar")
 
 
+@pytest.mark.slow
 @cases("bit_flips")
 @given(
     valid_updates(),
@@ -954,6 +962,7 @@ def proxy_bytes(rng: np.random.Generator, d: int) -> bytes:
     return encode_proxy(row, int(rng.integers(0, 4)), int(rng.integers(0, 2**62)), wait)
 
 
+@pytest.mark.slow
 @cases("proxy")
 @given(
     st.integers(0, MAX_DOF),
@@ -1120,6 +1129,7 @@ ENGINE_POOL = [
 ] + [extreme_update(_POOL_RNG) for _ in range(16)]  # fmt: skip
 
 
+@pytest.mark.slow
 @cases("engine")
 @given(st.integers(0, 2**32 - 1), st.lists(ACTIONS, min_size=1, max_size=30), st.data())
 def test_live_engine_under_interleaved_garbage(

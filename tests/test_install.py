@@ -39,6 +39,7 @@ def test_the_package_list_is_the_tree() -> None:
     }
 
 
+@pytest.mark.processes
 def test_the_wheel_installs_one_top_level_name(wheel: Path) -> None:
     """Nothing lands in site-packages under a generic name (`shared`, `benchmarks`) another
     project could also use: every file of the wheel is under haptic_local_model/ or its

@@ -175,6 +175,7 @@ def test_live_view_of_a_real_run_and_of_its_log(tmp_path: Path, procs: list[Proc
     assert any("frames drawn" in line for line in replay.out), replay.out
 
 
+@pytest.mark.processes
 def test_view_options_are_checked() -> None:
     """--view with the virtual clock, and one port for both, are usage errors (exit 2)."""
     for argv in (
@@ -190,6 +191,7 @@ def test_view_options_are_checked() -> None:
         assert "--view" in out.stderr and "Traceback" not in out.stderr
 
 
+@pytest.mark.processes
 def test_a_file_without_ticks_is_refused(tmp_path: Path) -> None:
     """haptic-replay NOT_A_LOG --view: one line naming the file, exit 2, no server left."""
     bogus = tmp_path / "notes.mcap"

@@ -65,6 +65,7 @@ def sampled_core_distance(shape: np.void, point_body: np.ndarray) -> float:
     return -best if inside else best
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", list(ShapeKind))
 def test_signed_distance_matches_sampling(kind: ShapeKind) -> None:
     rng = np.random.default_rng(7 + int(kind))
@@ -97,6 +98,7 @@ def test_signed_distance_matches_sampling(kind: ShapeKind) -> None:
     assert checked > 200
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", list(ShapeKind))
 def test_sweep_stops_at_the_surface_and_never_past(kind: ShapeKind) -> None:
     """The swept distance is where phi first reaches the gap along the ray, found by a fine

@@ -281,6 +281,7 @@ def test_the_scene_refuses_a_string_it_cannot_sample_or_step() -> None:
         dataclasses.replace(scene, deformables=two)
 
 
+@pytest.mark.slow
 def test_v2_3_the_membrane_pressed_through_the_system_at_10_hz() -> None:
     """V2.3 in the virtual clock (the real sim and haptic engine): at rest the string's
     deflection, read from the proxy, is F L / (4 T) within 5 % of the force the hand feels,

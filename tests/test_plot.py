@@ -83,6 +83,7 @@ def _statics(ax: Any) -> dict[str, Any]:
     return {p.get_gid(): p for p in ax.patches if p.get_gid()}
 
 
+@pytest.mark.processes
 def test_one_patch_per_static_body_at_its_place_and_size(figures: list[Any]) -> None:
     text = (REPO / "configs" / "scenes" / "wall_push.toml").read_text() + EXTRA_BODIES
     scene = load_config_text(SceneConfig, text, "test scene")
@@ -118,6 +119,7 @@ def test_one_patch_per_static_body_at_its_place_and_size(figures: list[Any]) -> 
     assert labels.count("static bodies") == 1  # one legend entry for all of them
 
 
+@pytest.mark.processes
 def test_the_shipped_demo_scene_draws_its_walls(figures: list[Any]) -> None:
     text = (REPO / "configs" / "scenes" / "testbed.toml").read_text()
     scene = load_config_text(SceneConfig, text, "testbed")
@@ -130,6 +132,7 @@ def test_the_shipped_demo_scene_draws_its_walls(figures: list[Any]) -> None:
     assert x0 < -95 and x1 > 95 and y0 < -95 and y1 > 95  # the whole enclosure is in view
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize("scene_text", [None, "", "not = [toml"])
 def test_no_or_a_bad_scene_text_plots_the_paths_alone(
     figures: list[Any], scene_text: str | None
@@ -139,6 +142,7 @@ def test_no_or_a_bad_scene_text_plots_the_paths_alone(
     assert len(ax.lines) >= 2  # hand and VM
 
 
+@pytest.mark.processes
 def test_a_long_floor_does_not_shrink_the_path_to_a_dot(figures: list[Any]) -> None:
     text = (REPO / "configs" / "scenes" / "maglev_scoop.toml").read_text()
     ax = _path_panel(_log(text), figures)
@@ -147,6 +151,7 @@ def test_a_long_floor_does_not_shrink_the_path_to_a_dot(figures: list[Any]) -> N
     assert x1 - x0 < 300  # mm: the floor is 800 mm long, the path 20 mm
 
 
+@pytest.mark.processes
 def test_plot_run_writes_the_figure(tmp_path: Path) -> None:
     text = (REPO / "configs" / "scenes" / "testbed.toml").read_text()
     out = plot_run(_log(text), tmp_path / "sub" / "run.png")

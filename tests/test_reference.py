@@ -197,6 +197,7 @@ def test_kinetic_energy_conserved_without_gravity(make_spec) -> None:
     np.testing.assert_allclose(energy, energy[0], rtol=ENERGY_RTOL, atol=0.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("make_spec", [haptic_chain, skewed_chain], ids=["haptic", "skewed"])
 def test_total_energy_conserved_with_gravity(make_spec) -> None:
     spec = make_spec(GRAVITY)

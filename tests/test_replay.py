@@ -61,6 +61,7 @@ def assert_exact(path: Path, min_ticks: int) -> None:
     assert result.ticks.tobytes() == log.ticks.tobytes()  # bit for bit, NaNs included
 
 
+@pytest.mark.processes
 @pytest.mark.parametrize("scene", sorted(VIRTUAL_RUNS))
 def test_virtual_clock_logs_replay_exactly(tmp_path: Path, scene: str) -> None:
     path = virtual_log(tmp_path, scene)
@@ -72,6 +73,7 @@ def test_virtual_clock_logs_replay_exactly(tmp_path: Path, scene: str) -> None:
     assert_exact(path, int(VIRTUAL_RUNS[scene][2] * 1000))
 
 
+@pytest.mark.processes
 def test_changed_gain_is_detected(tmp_path: Path) -> None:
     path = virtual_log(tmp_path, "free_box")
     log = read_log(path)
@@ -88,6 +90,7 @@ def test_changed_gain_is_detected(tmp_path: Path) -> None:
     assert replay(log).identical  # and the log's own configs still reproduce it
 
 
+@pytest.mark.processes
 def test_cli_summary_plot_and_exit_code(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = virtual_log(tmp_path, "wall_push")
     png = tmp_path / "run.png"
@@ -102,6 +105,7 @@ def test_cli_summary_plot_and_exit_code(tmp_path: Path, capsys: pytest.CaptureFi
     assert summary["updates_received"] == summary["updates_installed"] == 120
 
 
+@pytest.mark.processes
 def test_log_cut_mid_chunk_is_read_and_recovered(tmp_path: Path) -> None:
     """A writer killed mid-write leaves a file cut inside a chunk without footer or index:
     the streaming reader returns every complete chunk, replay still matches, and --recover

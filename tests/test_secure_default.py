@@ -74,6 +74,7 @@ def _password_of(folder: str) -> str:
     return local_credentials()[1].read_text()
 
 
+@pytest.mark.processes
 def test_processes_that_start_together_agree_on_one_password(tmp_path: Path) -> None:
     folder = str(tmp_path / "creds")
     with ProcessPoolExecutor(6) as pool:

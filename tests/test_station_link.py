@@ -10,6 +10,7 @@ import time
 from typing import Any
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -81,6 +82,7 @@ def _tool_messages(draw: Any) -> tuple[bytes, int]:
     return raw, p
 
 
+@pytest.mark.slow
 @settings(max_examples=2000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(_tool_messages())
 def test_the_compiled_tool_check_refuses_as_decode_tool(message: tuple[bytes, int]) -> None:
@@ -126,6 +128,7 @@ def test_each_reason_refuses_its_tool_state() -> None:
         assert _reference(raw, 0)[0] is None and tool_refusal(raw, 0) == -1
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(
     st.tuples(*[st.floats(-100.0, 100.0)] * 3), st.tuples(*[st.floats(-1000.0, 1000.0)] * 3),

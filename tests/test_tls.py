@@ -43,6 +43,7 @@ def publish(sender: Any, key: str, payload: bytes) -> None:
     pub.undeclare()
 
 
+@pytest.mark.processes
 def test_mutual_tls_from_the_docs(tmp_path: Path) -> None:
     if shutil.which("openssl") is None:
         pytest.skip("openssl not installed")

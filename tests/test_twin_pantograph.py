@@ -294,6 +294,7 @@ def lp_max_scale(jac: np.ndarray, wrench: np.ndarray, limit: np.ndarray) -> floa
     return float(res.x[4])
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(
     pose_unit=st.tuples(*[st.floats(-1.0, 1.0)] * 3),
@@ -325,6 +326,7 @@ def test_redundancy_resolution_exact_when_feasible_and_within_limits(
     assert scale >= s_lp - 1e-6
 
 
+@pytest.mark.slow
 def test_null_space_shift_keeps_a_feasible_wrench_exact(
     config: TwinPantographConfig, params: np.ndarray
 ) -> None:

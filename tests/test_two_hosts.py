@@ -276,6 +276,7 @@ def test_link_cut_makes_the_device_safe_and_restoring_it_resumes(
     )
 
 
+@pytest.mark.processes
 def test_two_hosts_clean_up_after_a_failure() -> None:
     """A test that fails with a process that ignores SIGTERM still leaves nothing behind."""
     reason = netns_unavailable()

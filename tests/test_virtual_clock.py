@@ -6,6 +6,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 
 from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
@@ -28,6 +29,7 @@ def test_free_mass_matches_closed_form_before_contact() -> None:
     assert np.abs(ticks["vm_pose"][:, 1:]).max() == 0.0  # no force off-axis, no motion
 
 
+@pytest.mark.processes
 def test_two_runs_log_identical_forces(tmp_path: Path) -> None:
     a = run_virtual_named("free_box", "ideal", "waypoints", 3.0, tmp_path / "a.mcap")
     b = run_virtual_named("free_box", "ideal", "waypoints", 3.0, tmp_path / "b.mcap")
@@ -47,6 +49,7 @@ def test_two_runs_log_identical_forces(tmp_path: Path) -> None:
     assert a.updates == b.updates == 180
 
 
+@pytest.mark.processes
 def test_a_virtual_log_starts_at_the_run_s_wall_clock_time(tmp_path: Path) -> None:
     """A viewer places a virtual-clock log at the time it was run (not at 1970): every
     message's log time is the run's wall-clock start plus its virtual time."""

@@ -16,6 +16,7 @@ import time
 from typing import Any
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -85,6 +86,7 @@ def _messages(draw: Any) -> tuple[bytes, int]:
     return raw, p
 
 
+@pytest.mark.slow
 @settings(max_examples=2000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(_messages())
 def test_the_compiled_take_refuses_as_the_reference_and_takes_its_fields(
@@ -108,6 +110,7 @@ def test_the_compiled_take_refuses_as_the_reference_and_takes_its_fields(
     assert np.array_equal(taken, sent)  # bit for bit (-0.0 == 0.0 aside)
 
 
+@pytest.mark.slow
 @settings(max_examples=500, deadline=None)
 @given(
     st.integers(0, 1),

@@ -1,0 +1,91 @@
+"""The test tiers (tests/conftest.py): an unmarked test that starts a process, opens a socket
+or a Zenoh session, sleeps, or overruns the fast tier's time fails and names the marker it
+needs; a marked one may do all of that. Run in a pytest of its own (a process)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+CASES = """
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import zenoh
+from numba import njit
+
+
+def test_unmarked_starts_a_process():
+    subprocess.run([sys.executable, "-c", "pass"], check=True)
+
+
+def test_unmarked_opens_a_socket():
+    socket.socket()
+
+
+def test_unmarked_opens_zenoh():
+    zenoh.open(zenoh.Config())
+
+
+def test_unmarked_sleeps():
+    time.sleep(0.01)
+
+
+def test_unmarked_overruns():
+    end = time.perf_counter() + 2.5
+    while time.perf_counter() < end:
+        pass
+
+
+def test_unmarked_compiles_for_long():  # numba's compiling is not the test's time
+    @njit
+    def f(x):
+        return np.sin(x) + 1.0
+
+    end = time.perf_counter() + 0.2
+    while time.perf_counter() < end:
+        pass
+    assert f(0.0) == 1.0
+
+
+def test_unmarked_is_quick():
+    assert sum(range(1000)) == 499500
+
+
+@pytest.mark.processes
+def test_marked_starts_a_process_and_sleeps():
+    subprocess.run([sys.executable, "-c", "pass"], check=True)
+    time.sleep(0.01)
+
+
+@pytest.mark.slow
+def test_marked_runs_long():
+    end = time.perf_counter() + 2.5
+    while time.perf_counter() < end:
+        pass
+"""
+
+
+@pytest.mark.processes
+def test_the_fast_tier_refuses_what_needs_a_marker(pytester: pytest.Pytester) -> None:
+    conftest = Path(__file__).with_name("conftest.py").read_text()
+    pytester.makeconftest(conftest)
+    pytester.makeini("[pytest]\nmarkers =\n    slow: long\n    processes: processes and sockets\n")
+    pytester.makepyfile(test_cases=CASES)
+    result = pytester.runpytest_subprocess("-q", "-p", "no:cacheprovider")
+    result.assert_outcomes(passed=4, failed=5)
+    out = result.stdout.str()
+    for name, needs in (
+        ("starts_a_process", "this test starts a process: mark it @pytest.mark.processes"),
+        ("opens_a_socket", "this test opens a socket: mark it @pytest.mark.processes"),
+        ("opens_zenoh", "this test opens a Zenoh session: mark it @pytest.mark.processes"),
+        ("sleeps", "this test sleeps: mark it @pytest.mark.slow"),
+        ("overruns", "in the fast tier (<= 1 s, failed past 2 s): mark it @pytest.mark.slow"),
+    ):
+        assert f"FAILED test_cases.py::test_unmarked_{name}" in out, name
+        assert needs in out, name
