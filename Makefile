@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 
 # numba compiles the kernels once into its on-disk cache; later starts load it in < 1 s
 warm: $(STAMP)
-	$(PY) -m haptic_local_model.haptic_server.harness.warmup
+	$(PY) -m haptic_local_model.haptic_server.harness.warmup --jobs 2
 
 demo: $(STAMP) warm
 	$(VENV)/bin/haptic-run --duration 10 --log runs/demo.mcap --summary-json runs/demo-summary.json

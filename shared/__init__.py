@@ -4,7 +4,9 @@ Importing this package (every package of the project does, first) points numba's
 cache at a directory named by a hash of the project's sources, in the user's cache directory
 (`~/.cache/haptic-local-model/numba/<hash>` on Linux; NUMBA_CACHE_DIR overrides it): numba
 does not notice that a kernel's callee in another module changed, so without this a stale
-compiled kernel could outlive a code change. An install never writes into its own tree.
+compiled kernel could outlive a code change. An install never writes into its own tree. Within
+that directory a kernel is cached by its module's place in the project, not by the checkout's
+path (shared/numba_cache.py), so another clone or an installed wheel loads what one compiled.
 """
 
 import hashlib
@@ -44,4 +46,11 @@ def cache_dir() -> Path:
 
 if "NUMBA_CACHE_DIR" not in os.environ:
     os.environ["NUMBA_CACHE_DIR"] = str(cache_dir() / "numba" / _source_hash())
+# the project's kernels cached by their place in the project, not by the checkout's path:
+# another clone or an installed wheel of the same sources loads them (shared/numba_cache.py)
+os.environ.setdefault(
+    "NUMBA_CACHE_LOCATOR_CLASSES",
+    "haptic_local_model.shared.numba_cache.ProjectCacheLocator,UserProvidedCacheLocator,"
+    "InTreeCacheLocator,UserWideCacheLocator,IPythonCacheLocator,ZipCacheLocator",
+)
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # 3x3 algebra: no BLAS thread pools

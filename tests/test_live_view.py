@@ -134,6 +134,7 @@ def _changed(a: np.ndarray, b: np.ndarray) -> int:
     return int(np.count_nonzero(np.abs(a.astype(np.int16) - b.astype(np.int16)).max(-1) > 30))
 
 
+@pytest.mark.processes
 def test_live_view_of_a_real_run_and_of_its_log(tmp_path: Path, procs: list[Proc]) -> None:
     browser = _browser()
     web, grpc = free_ports(2)
