@@ -44,6 +44,7 @@ from haptic_local_model.shared.net.config import load_network
 
 FAKES = Path(__file__).resolve().parent / "fake_vendors"
 ADAPTERS = ("haply_inverse3", "forcedimension", "touch")
+COMMANDS_BEYOND_TICKS = 10  # the start-up's first command and the safe stop's
 BINDINGS = {"haply_inverse3": "HaplyHardwareAPI", "forcedimension": "forcedimension_core",
             "touch": "pyOpenHaptics"}  # fmt: skip
 #: the calls each binding sees at start-up, in order (repeats of a call listed once)
@@ -383,23 +384,21 @@ def test_a_run_the_watchdog_and_sigint_reach_the_device(
     safe = (t > safe_from) & (t < resumed_at)
     assert safe.sum() > 200
     assert np.all(np.abs(fx[safe]) <= b * np.abs(vx[safe]) * 1.2 + 0.02)
-    # a command every period (for the Touch: a force set by every tick of its servo): the
-    # gaps' median is the period, and from the loop's start to the stop the mean gap is
-    # within 5 % of it (an adapter that dropped one command in ten reads 1.1 ms, one in two
-    # 2 ms; a loop that overran a period resynchronises and skips it, so a loaded machine
-    # raises the mean a little: 1.005 ms here; the Touch's servo catches up after a late
-    # tick, so its mean may fall below). A tail percentile of the gaps is the machine's
-    # load, not the adapter's (a loaded suite: p99 2.05 ms); benchmarks/loop_timing.py
-    # measures it
+    # a command every tick: the binding saw as many commands as the loop ran ticks (and the
+    # start-up's and the safe stop's few); an adapter that dropped one in ten misses by 10 %.
+    # The Touch's servo sets the force on its own 1 kHz clock: the gaps' median is its
+    # period. How evenly the ticks come, and their mean rate (a 150 ms stall of a loaded
+    # machine takes 2 % off it), are the machine's load: benchmarks/loop_timing.py
+    summary = json.loads((tmp_path / "haptic.json").read_text())
     sent = t[(t > ticking_from) & (t < pushed_until)]
     gaps_ms = np.diff(sent) * 1e3
     p50, p99 = np.percentile(gaps_ms, [50, 99])
     print(f"\n{name}: command gap p50 {p50:.3f} ms, mean {np.mean(gaps_ms):.4f} ms, "
-          f"p99 {p99:.3f} ms; wall force {np.mean(before):.3f} N")  # fmt: skip
-    assert p50 == pytest.approx(1.0, abs=0.05)
-    assert np.mean(gaps_ms) <= 1.05 and sent.size > 2500
-    summary = json.loads((tmp_path / "haptic.json").read_text())
-    assert summary["tick_rate_hz"] == pytest.approx(1000.0, rel=0.02)
+          f"p99 {p99:.3f} ms; wall force {np.mean(before):.3f} N; {len(rows)} commands, "
+          f"{summary['ticks']} ticks")  # fmt: skip
+    if name != "touch":
+        assert 0 <= len(rows) - summary["ticks"] <= COMMANDS_BEYOND_TICKS, summary["ticks"]
+    assert p50 == pytest.approx(1.0, abs=0.05) and sent.size > 2500
     assert summary["watchdog_trips"] >= 1 and summary["reinitialisations"] >= 1
 
 
