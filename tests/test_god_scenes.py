@@ -133,6 +133,7 @@ def test_the_membrane_sampled_at_10_hz_yields_as_a_string(runs: dict[str, Path])
     scene = load_scene("membrane_10hz")
     ready = log.ticks[log.ticks["update_seq"] >= 0]
     press = press_figures(ready, scene, "node_foh")
+    print(f"\nmembrane over Zenoh: {press}")
     assert press.force_n == pytest.approx(1.1, abs=0.1)
     assert abs(press.error) <= DEFLECTION_TOLERANCE, press
     assert press.peak_to_peak_n <= PEAK_TO_PEAK_N, press

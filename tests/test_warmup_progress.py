@@ -25,7 +25,7 @@ def fake_groups(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
         (cache / "kernel-12.py311.1.nbc").write_bytes(b"x")
 
     groups = [("scene kernels", compile_one), ("device kernels", lambda: None)]
-    monkeypatch.setattr(warmup, "warm_groups", lambda: groups)
+    monkeypatch.setattr(warmup, "warm_groups", lambda demo=False: groups)
     return cache
 
 
@@ -63,3 +63,21 @@ def test_the_groups_cover_every_warm_run_in_at_most_ten_lines() -> None:
     ]
     assert sorted(covered) == sorted(warmup.warm_runs())
     assert any(call is warmup._loop_kernels for _, call in groups)
+
+
+def test_the_demo_warms_the_run_make_demo_starts() -> None:
+    """`make warm-demo` compiles the kernels of haptic-run's defaults (a scene of one device:
+    shared.cli's defaults), and the real-time loop's for that device."""
+    import argparse
+
+    from haptic_local_model.shared.cli import add_config_args
+
+    parser = argparse.ArgumentParser()
+    add_config_args(parser)
+    defaults = parser.parse_args([])
+    scene, device, user, _ = warmup.DEMO_RUN
+    assert (defaults.scene, defaults.device, defaults.user) == (scene, device, user)
+    (_, run), (_, loop) = warmup.demo_groups()
+    assert isinstance(run, partial) and run.args == ([warmup.DEMO_RUN],)
+    assert isinstance(loop, partial) and loop.func is warmup._loop_kernels
+    assert loop.args == ([device],)

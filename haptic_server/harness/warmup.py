@@ -1,6 +1,6 @@
 """Compile every numba kernel into the on-disk cache (`make warm`), so servers start fast.
 
-    python -m haptic_local_model.haptic_server.harness.warmup [--quiet] [--jobs 2]
+    python -m haptic_local_model.haptic_server.harness.warmup [--quiet] [--jobs 2] [--demo]
 
 Progress goes to stderr: a line per group of kernels (what, how long; one at a time, also
 whether it compiled or loaded from the cache) and the total; `--quiet` prints nothing.
@@ -69,9 +69,9 @@ def _run_virtual(runs: list[tuple[str, str, str, float]]) -> None:
         run_virtual_named(scene, device, user, seconds)
 
 
-def _loop_kernels() -> None:
-    """The real-time loop's kernels, per device model."""
-    for config in built_in_models():
+def _loop_kernels(configs: list[str] | None = None) -> None:
+    """The real-time loop's kernels, per device model (every built-in one by default)."""
+    for config in built_in_models() if configs is None else configs:
         engine = HapticEngine(load_scene("testbed"), load_device(config), load_user("swing"))
         compile_loop_kernels(engine)
         compile_realtime_kernels(engine)
@@ -106,9 +106,25 @@ def _port_kernels() -> None:
     _hand_port_kernels()
 
 
-def warm_groups() -> list[tuple[str, Callable[[], None]]]:
+#: `--demo`: the kernels of `make demo`'s run (haptic-run's defaults) and nothing else
+DEMO_RUN = ("testbed", "ideal", "swing", 1.0)
+
+
+def demo_groups() -> list[tuple[str, Callable[[], None]]]:
+    """The demo run's kernels: its sim and rendering, and its real-time loop."""
+    scene, device = DEMO_RUN[0], DEMO_RUN[1]
+    return [
+        (f"sim + rendering kernels, {scene} scene", partial(_run_virtual, [DEMO_RUN])),
+        (f"real-time loop kernels: {device} device", partial(_loop_kernels, [device])),
+    ]
+
+
+def warm_groups(demo: bool = False) -> list[tuple[str, Callable[[], None]]]:
     """What warm_all compiles, in groups: (a description, the call that compiles it). The
-    first scene compiles most of the sim and the rendering stages, the others what they add."""
+    first scene compiles most of the sim and the rendering stages, the others what they add.
+    With `demo`, only the demo run's (demo_groups)."""
+    if demo:
+        return demo_groups()
     runs = warm_runs()
     scenes, devices = runs[: len(SCENE_RUNS)], runs[len(SCENE_RUNS) :]
     groups: list[tuple[str, Callable[[], None]]] = [
@@ -144,10 +160,11 @@ def _cached_kernels(cache: Path) -> dict[Path, int]:
 LANES = (lambda i, n: i < n - 1, lambda i, n: i == n - 1)
 
 
-def warm_all(out: TextIO | None = None, jobs: int = 1) -> float:
+def warm_all(out: TextIO | None = None, jobs: int = 1, demo: bool = False) -> float:
     """Compile (or load) every kernel; returns the seconds it took. With `out`, a line per
     group (what, how long, compiled or loaded) and the total are written to it. With jobs
-    2, the groups compile in two processes at once (LANES), each group's line as it ends."""
+    2, the groups compile in two processes at once (LANES), each group's line as it ends.
+    With `demo`, only the demo run's kernels (demo_groups)."""
     cache = Path(os.environ["NUMBA_CACHE_DIR"])  # set by `shared` on import, or by the user
 
     def say(text: str, end: str = "\n") -> None:
@@ -158,9 +175,9 @@ def warm_all(out: TextIO | None = None, jobs: int = 1) -> float:
     say(f"warming numba kernels (cache: {cache})")
     started, before = time.perf_counter(), _cached_kernels(cache)
     if jobs > 1:
-        _warm_lanes(say)
+        _warm_lanes(say, demo)
     else:
-        for what, warm in warm_groups():
+        for what, warm in warm_groups(demo):
             say(f"  {what} ...", end="")
             t0, group_before = time.perf_counter(), _cached_kernels(cache)
             warm()
@@ -178,9 +195,9 @@ def _written(before: dict[Path, int], cache: Path) -> int:
     return sum(before.get(f) != m for f, m in _cached_kernels(cache).items())
 
 
-def _warm_lane(lane: int, done: Any) -> None:
+def _warm_lane(lane: int, done: Any, demo: bool) -> None:
     """One worker of a parallel warm-up: its groups, each reported (index, seconds) on `done`."""
-    groups = warm_groups()
+    groups = warm_groups(demo)
     for i, (_, warm) in enumerate(groups):
         if LANES[lane](i, len(groups)):
             t0 = time.perf_counter()
@@ -188,14 +205,14 @@ def _warm_lane(lane: int, done: Any) -> None:
             done.put((i, time.perf_counter() - t0))
 
 
-def _warm_lanes(say: Callable[..., None]) -> None:
+def _warm_lanes(say: Callable[..., None], demo: bool) -> None:
     """The groups in two processes at once; a line per group as it ends."""
     import multiprocessing as mp
 
-    groups = warm_groups()
+    groups = warm_groups(demo)
     ctx = mp.get_context("spawn")
     done = ctx.Queue()
-    workers = [ctx.Process(target=_warm_lane, args=(k, done)) for k in range(len(LANES))]
+    workers = [ctx.Process(target=_warm_lane, args=(k, done, demo)) for k in range(len(LANES))]
     for w in workers:
         w.start()
     try:
@@ -229,8 +246,12 @@ def main(argv: list[str] | None = None) -> int:
         "--jobs", "-j", type=int, default=1, choices=(1, 2),
         help="compile in this many processes at once (make warm: 2)",
     )  # fmt: skip
+    parser.add_argument(
+        "--demo", action="store_true",
+        help="only the kernels of make demo's run (haptic-run's defaults), not every feature's",
+    )  # fmt: skip
     args = parser.parse_args(argv)
-    warm_all(None if args.quiet else sys.stderr, args.jobs)
+    warm_all(None if args.quiet else sys.stderr, args.jobs, args.demo)
     return 0
 
 
