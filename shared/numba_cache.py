@@ -42,7 +42,7 @@ def project_subpath(py_file: str | os.PathLike[str]) -> str | None:
     return "_".join(("project", *rel.parts))
 
 
-class ProjectCacheLocator(UserProvidedCacheLocator):  # type: ignore[misc]
+class ProjectCacheLocator(UserProvidedCacheLocator):
     """numba's NUMBA_CACHE_DIR locator, with the module's place in the project as its
     directory (module docstring)."""
 
@@ -50,10 +50,10 @@ class ProjectCacheLocator(UserProvidedCacheLocator):  # type: ignore[misc]
         super().__init__(py_func, py_file)
         subpath = project_subpath(py_file)
         assert subpath is not None  # from_function keeps to the project's files
-        self._cache_path = os.path.join(config.CACHE_DIR, subpath)
+        self._cache_path = os.path.join(config.CACHE_DIR, subpath)  # type: ignore[attr-defined]
 
     @classmethod
     def from_function(cls, py_func: Any, py_file: str) -> ProjectCacheLocator | None:
         if project_subpath(py_file) is None:
             return None  # not the project's: numba's own locators decide
-        return super().from_function(py_func, py_file)  # type: ignore[no-any-return]
+        return super().from_function(py_func, py_file)
