@@ -25,7 +25,7 @@ def fake_groups(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
         (cache / "kernel-12.py311.1.nbc").write_bytes(b"x")
 
     groups = [("scene kernels", compile_one), ("device kernels", lambda: None)]
-    monkeypatch.setattr(warmup, "warm_groups", lambda demo=False: groups)
+    monkeypatch.setattr(warmup, "warm_groups", lambda run=None: groups)
     return cache
 
 
@@ -81,3 +81,35 @@ def test_the_demo_warms_the_run_make_demo_starts() -> None:
     assert isinstance(run, partial) and run.args == ([warmup.DEMO_RUN],)
     assert isinstance(loop, partial) and loop.func is warmup._loop_kernels
     assert loop.args == ([device],)
+
+
+def test_a_cold_run_compiles_first_once_and_says_where(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """haptic-run's first run of a scene and device on a build compiles their kernels before
+    either server starts (run.compile_first), says so with the cache's place, and marks
+    them warmed; `make warm` marks every run warmed."""
+    import argparse
+
+    from haptic_local_model.haptic_server.harness import run as run_cli
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    calls = []
+
+    def fake_warm(out: object, jobs: int = 1, run: warmup.Run | None = None) -> float:
+        calls.append((jobs, run))
+        warmup._mark_warmed(tmp_path, warmup._run_key(run) if run else warmup.ALL_WARMED)
+        return 0.0
+
+    monkeypatch.setattr(warmup, "warm_all", fake_warm)
+    args = argparse.Namespace(scene="testbed", device="ideal", user="swing")
+    assert not warmup.runs_warmed(warmup.DEMO_RUN)
+    run_cli.compile_first(args)
+    run_cli.compile_first(args)  # warmed now: nothing more
+    assert calls == [(2, warmup.DEMO_RUN)]
+    err = capsys.readouterr().err
+    assert err.count("the first run of testbed with ideal") == 1 and str(tmp_path) in err
+    other = ("god_slabs", "maglev", "press_lift", 1.0)
+    assert not warmup.runs_warmed(other)
+    warmup._mark_warmed(tmp_path, warmup.ALL_WARMED)
+    assert warmup.runs_warmed(other)

@@ -131,6 +131,29 @@ def _server_argv(module: str, args: argparse.Namespace, extra: list[str]) -> lis
     return [*argv, "--network", absolute_ref(args.network), *extra]
 
 
+def compile_first(args: argparse.Namespace) -> None:
+    """A run whose kernels the cache does not hold yet compiles them before either server
+    starts, and says so: started cold, the two servers compile side by side and the haptic
+    loop waits on a sim that is still compiling (a watchdog trip that is no fault). Once per
+    run and build; `make warm` compiles every feature's at once."""
+    from haptic_local_model.haptic_server.harness import warmup
+
+    run = (args.scene, args.device, args.user, 1.0)
+    if warmup.runs_warmed(run):
+        return
+    print(
+        f"haptic-run: the first run of {Path(args.scene).stem} with {Path(args.device).stem} "
+        f"on this build compiles its kernels (about 70 s on two cores, once) into "
+        f"{os.environ['NUMBA_CACHE_DIR']}",
+        file=sys.stderr,
+    )
+    try:
+        warmup.warm_all(sys.stderr, jobs=2, run=run)
+    except Exception as exc:  # the servers compile what they need as they start
+        print(f"haptic-run: compiling ahead failed ({exc}); the servers compile as they start",
+              file=sys.stderr)  # fmt: skip
+
+
 def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
     """The two-process system: haptic (listener) first, then the sim, then the duration.
 
@@ -147,7 +170,9 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
         args.port = free_loopback_port()
     from haptic_local_model.device_models.registry import check_device
 
-    check_device(args.device)  # not built: a hardware driver is the haptic server's to open
+    model = check_device(args.device)  # not built: a hardware driver is the haptic server's
+    if model.simulated and not pointer:
+        compile_first(args)
     # the servers' own summaries: in a folder of this run's, not beside the log (whose disk
     # may fill up: that is the log's failure, not the run's)
     summary_dir = Path(tempfile.mkdtemp(prefix="haptic-run-"))

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import hashlib
 import itertools
 import os
 import queue
@@ -106,25 +107,35 @@ def _port_kernels() -> None:
     _hand_port_kernels()
 
 
+#: one run's kernels: (scene, device, user, seconds of the virtual run that compiles them)
+Run = tuple[str, str, str, float]
 #: `--demo`: the kernels of `make demo`'s run (haptic-run's defaults) and nothing else
-DEMO_RUN = ("testbed", "ideal", "swing", 1.0)
+DEMO_RUN: Run = ("testbed", "ideal", "swing", 1.0)
+#: what make warm leaves in the cache once every group is compiled (haptic-run's first-run
+#: check: runs_warmed)
+ALL_WARMED = "all"
 
 
-def demo_groups() -> list[tuple[str, Callable[[], None]]]:
-    """The demo run's kernels: its sim and rendering, and its real-time loop."""
-    scene, device = DEMO_RUN[0], DEMO_RUN[1]
+def run_groups(run: Run) -> list[tuple[str, Callable[[], None]]]:
+    """One run's kernels: its sim and rendering, and its real-time loop."""
+    scene, device = Path(run[0]).stem, Path(run[1]).stem
     return [
-        (f"sim + rendering kernels, {scene} scene", partial(_run_virtual, [DEMO_RUN])),
-        (f"real-time loop kernels: {device} device", partial(_loop_kernels, [device])),
+        (f"sim + rendering kernels, {scene} scene", partial(_run_virtual, [run])),
+        (f"real-time loop kernels: {device} device", partial(_loop_kernels, [run[1]])),
     ]
 
 
-def warm_groups(demo: bool = False) -> list[tuple[str, Callable[[], None]]]:
+def demo_groups() -> list[tuple[str, Callable[[], None]]]:
+    """The demo run's kernels (DEMO_RUN)."""
+    return run_groups(DEMO_RUN)
+
+
+def warm_groups(run: Run | None = None) -> list[tuple[str, Callable[[], None]]]:
     """What warm_all compiles, in groups: (a description, the call that compiles it). The
     first scene compiles most of the sim and the rendering stages, the others what they add.
-    With `demo`, only the demo run's (demo_groups)."""
-    if demo:
-        return demo_groups()
+    With `run`, only that run's (run_groups)."""
+    if run is not None:
+        return run_groups(run)
     runs = warm_runs()
     scenes, devices = runs[: len(SCENE_RUNS)], runs[len(SCENE_RUNS) :]
     groups: list[tuple[str, Callable[[], None]]] = [
@@ -160,11 +171,12 @@ def _cached_kernels(cache: Path) -> dict[Path, int]:
 LANES = (lambda i, n: i < n - 1, lambda i, n: i == n - 1)
 
 
-def warm_all(out: TextIO | None = None, jobs: int = 1, demo: bool = False) -> float:
+def warm_all(out: TextIO | None = None, jobs: int = 1, run: Run | None = None) -> float:
     """Compile (or load) every kernel; returns the seconds it took. With `out`, a line per
     group (what, how long, compiled or loaded) and the total are written to it. With jobs
     2, the groups compile in two processes at once (LANES), each group's line as it ends.
-    With `demo`, only the demo run's kernels (demo_groups)."""
+    With `run`, only that run's kernels (run_groups); without, every group, and the cache
+    is marked as warmed for every run (runs_warmed)."""
     cache = Path(os.environ["NUMBA_CACHE_DIR"])  # set by `shared` on import, or by the user
 
     def say(text: str, end: str = "\n") -> None:
@@ -175,9 +187,9 @@ def warm_all(out: TextIO | None = None, jobs: int = 1, demo: bool = False) -> fl
     say(f"warming numba kernels (cache: {cache})")
     started, before = time.perf_counter(), _cached_kernels(cache)
     if jobs > 1:
-        _warm_lanes(say, demo)
+        _warm_lanes(say, run)
     else:
-        for what, warm in warm_groups(demo):
+        for what, warm in warm_groups(run):
             say(f"  {what} ...", end="")
             t0, group_before = time.perf_counter(), _cached_kernels(cache)
             warm()
@@ -185,19 +197,38 @@ def warm_all(out: TextIO | None = None, jobs: int = 1, demo: bool = False) -> fl
             how = f"compiled, {written} cached" if written else "loaded from the cache"
             say(f" {time.perf_counter() - t0:.1f} s ({how})")
     total = time.perf_counter() - started
+    _mark_warmed(cache, ALL_WARMED if run is None else _run_key(run))
     written = _written(before, cache)
     how = f"{written} kernels compiled" if written else "all loaded from the cache"
     say(f"numba kernels ready in {total:.1f} s ({how})")
     return total
 
 
+def _run_key(run: Run) -> str:
+    """A run's name in the cache's list of warmed runs (its configs, as given)."""
+    return hashlib.sha1("\0".join(run[:3]).encode()).hexdigest()[:16]
+
+
+def _mark_warmed(cache: Path, key: str) -> None:
+    with contextlib.suppress(OSError):  # a read-only cache: the next run checks again
+        (cache / "warmed").mkdir(parents=True, exist_ok=True)
+        (cache / "warmed" / key).touch()
+
+
+def runs_warmed(run: Run) -> bool:
+    """Whether the cache holds `run`'s kernels: make warm has compiled every group, or a
+    warm-up of this run has (haptic-run's first-run check)."""
+    marks = Path(os.environ["NUMBA_CACHE_DIR"]) / "warmed"
+    return (marks / ALL_WARMED).exists() or (marks / _run_key(run)).exists()
+
+
 def _written(before: dict[Path, int], cache: Path) -> int:
     return sum(before.get(f) != m for f, m in _cached_kernels(cache).items())
 
 
-def _warm_lane(lane: int, done: Any, demo: bool) -> None:
+def _warm_lane(lane: int, done: Any, run: Run | None) -> None:
     """One worker of a parallel warm-up: its groups, each reported (index, seconds) on `done`."""
-    groups = warm_groups(demo)
+    groups = warm_groups(run)
     for i, (_, warm) in enumerate(groups):
         if LANES[lane](i, len(groups)):
             t0 = time.perf_counter()
@@ -205,14 +236,14 @@ def _warm_lane(lane: int, done: Any, demo: bool) -> None:
             done.put((i, time.perf_counter() - t0))
 
 
-def _warm_lanes(say: Callable[..., None], demo: bool) -> None:
+def _warm_lanes(say: Callable[..., None], run: Run | None) -> None:
     """The groups in two processes at once; a line per group as it ends."""
     import multiprocessing as mp
 
-    groups = warm_groups(demo)
+    groups = warm_groups(run)
     ctx = mp.get_context("spawn")
     done = ctx.Queue()
-    workers = [ctx.Process(target=_warm_lane, args=(k, done, demo)) for k in range(len(LANES))]
+    workers = [ctx.Process(target=_warm_lane, args=(k, done, run)) for k in range(len(LANES))]
     for w in workers:
         w.start()
     try:
@@ -251,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
         help="only the kernels of make demo's run (haptic-run's defaults), not every feature's",
     )  # fmt: skip
     args = parser.parse_args(argv)
-    warm_all(None if args.quiet else sys.stderr, args.jobs, args.demo)
+    warm_all(None if args.quiet else sys.stderr, args.jobs, DEMO_RUN if args.demo else None)
     return 0
 
 
