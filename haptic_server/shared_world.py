@@ -15,7 +15,10 @@ when the port leaves COUPLED; until a station sends its glove, the hand's finger
 the scene user's script.
 
 A port is, in turn:
-- HELD: its station is silent (none yet, or none for `world_watchdog_ms`). Its tool stays
+- HELD: its station is silent (none yet, or none for `world_watchdog_ms`), or the world
+  itself was (a tick more than the watchdog after the last: a stopped or starved process;
+  its stations went safe meanwhile, and what it takes as it resumes was sent before). Its
+  tool stays
   coupled to an anchor where its device was last, at rest: the tool keeps squeezing as it
   did, so the other ports keep the object. ToolStates say HELD, and the station ramps to
   its safe state.
@@ -233,6 +236,7 @@ class SharedWorld:
             "work_us": self.work_us.percentiles(50, 99, 99.9),
             "events": self.event_list(),
             "events_dropped": int(self.clock[0]["events_dropped"]),
+            "stalls": int(self.clock[0]["stalls"]),  # ticks the world came late to, all held
             "epoch": self.epoch,
             "ports": {},
         }

@@ -69,6 +69,9 @@ WORLD_CLOCK_DTYPE = np.dtype([
     ("n_ports", I8), ("dt", F8), ("watchdog_ms", F8), ("ramp_ms", F8),
     ("object", I8),  # a co-simulation's first dof of the body each ToolState carries
     ("n_events", I8), ("events_dropped", I8),
+    ("last_tick_ns", I8),  # the previous tick's now_ns (0 before the first)
+    ("stalls", I8),  # ticks that came more than the watchdog after the one before
+    ("held_until_ns", I8),  # after a stall every port is held until then
 ])  # fmt: skip
 EVENT_DTYPE = np.dtype([("t", F8), ("port", I8), ("frm", I8), ("to", I8)])
 
@@ -138,13 +141,32 @@ def _event(c, events, p, frm, to):
 
 
 @njit(cache=True)
+def stalled(c):
+    """Whether this tick comes more than the watchdog after the last (the world's process
+    stopped or starved): its stations went safe meanwhile, and what it takes now was sent
+    before. Notes the tick's time for the next."""
+    gap = c.last_tick_ns > 0 and (c.now_ns - c.last_tick_ns) / 1e6 > c.watchdog_ms
+    c.last_tick_ns = c.now_ns
+    if gap:
+        c.stalls += 1
+        c.held_until_ns = c.now_ns + int(c.watchdog_ms * 1e6)
+    return gap
+
+
+@njit(cache=True)
 def step_ports(ports, clock, events):
     """Each port's state this tick and the device pose and twist it feeds (shared_world's
-    docstring), into its fed_pose, fed_twist and glove_act."""
+    docstring), into its fed_pose, fed_twist and glove_act. After a stall of the world's own
+    longer than the watchdog every port is held, as if its station had been silent for it,
+    for a watchdog period more: what the world takes as it resumes was sent during the stall
+    (the backlog drained in about 20 ms on loopback), and a re-index onto a device pose from
+    it would put the tool where the device is no longer. Then coupled again only through
+    SAFE and a re-index, never into the stretch it left."""
     c = clock[0]
+    gap = stalled(c)
     for p in range(c.n_ports):
         ps = ports[p]
-        if silent(ps, c) or ps.flags & CUT:
+        if gap or c.now_ns < c.held_until_ns or silent(ps, c) or ps.flags & CUT:
             new = HELD_STATE
         elif ps.flags & SAFE:
             new = INDEXING
@@ -152,7 +174,9 @@ def step_ports(ports, clock, events):
             new = HELD_STATE if ps.state == HELD_STATE else COUPLED
         ps.glove_act = GLOVE_AS_BEFORE
         if new != ps.state:
-            if ps.state == COUPLED:  # held where it was last seen
+            # held where it was last seen; after a stall, where the last tick before it fed
+            # (what the stall's backlog says is where the device drifted while safe)
+            if ps.state == COUPLED and not gap:
                 for a in range(3):
                     ps.anchor[a] = ps.start[a] + ps.blend * (_live(ps, 0.0, a) - ps.start[a])
             _event(c, events, p, ps.state, new)
