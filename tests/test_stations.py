@@ -21,6 +21,7 @@ import zenoh
 
 from haptic_local_model.benchmarks import stations
 from haptic_local_model.benchmarks.stations import (
+    PORTS,
     after,
     first,
     largest_step,
@@ -214,6 +215,32 @@ def test_a_held_port_goes_safe_without_waiting_for_the_watchdog() -> None:
     assert rows["fresh"].max() == 0 and rows["gain"][39] == 0.0
 
 
+def test_a_station_rejoins_only_into_about_the_squeeze_it_left_with() -> None:
+    """Coupled, then held (safe): a tool state where it left is ramped in at once; one far
+    from it (a world that re-indexed on an old device state: 20 mm, 40 N more spring) is
+    waited out, safe, for the watchdog's period at most, then ramped in as it is."""
+    st = _station()
+    s = st.station
+    s[0]["tool_pose"][0] += 0.001
+    _ticks(st, 100, lambda k: 0.0)
+    for far in (0.0, 0.02):
+        s[0]["held"] = 1
+        _ticks(st, 60, lambda k: 0.0)  # safe now
+        left = float(s[0]["left_spring"][0])
+        s[0]["held"] = 0
+        s[0]["tool_pose"][0] += far
+        rows = _ticks(st, 150, lambda k: 0.0)
+        waited = first(rows["fresh"] == 1, "the ramp")
+        if far:
+            assert abs(rows["spring"][0, 0] - left) > 30.0  # the stretch it was offered
+            assert waited == pytest.approx(100, abs=1)  # the watchdog's 100 ms, then as it is
+            assert rows["gain"][:waited].max() == 0.0 and s[0]["rejoin_waits"] >= 99
+        else:
+            assert abs(rows["spring"][0, 0] - left) < 0.5
+            assert waited == 0 and rows["gain"][39] == pytest.approx(1.0)
+        s[0]["tool_pose"][0] -= far
+
+
 def test_a_reading_or_a_coupling_that_is_not_finite_commands_zero() -> None:
     """A reading that is not finite (here: its map's offset) cuts the coupling for the tick:
     zero, not a limit; a coupling that is not finite (a NaN gain that got past every check)
@@ -278,10 +305,12 @@ def test_the_world_holds_a_port_until_its_station_says_safe_and_refuses_old_epoc
     assert world.state(0) == "coupled"
     world.step(now + 1_000_000, 0.001, 3)  # a tick later: the blend has begun
     assert 0.0 < ps["blend"] < 1.0
-    # silent: held where the device was last seen, not carried on by its 0.3 m/s
-    later = now + int(0.2e9)
-    world.step(later, 0.2, 4)
-    assert world.state(0) == "held"
+    # silent (the world ticking every 10 ms: a gap of more than its watchdog would be a stall
+    # of its own): held where the device was last seen, not carried on by its 0.3 m/s
+    for i in range(1, 21):
+        later = now + 1_000_000 + i * 10_000_000
+        world.step(later, 0.001 + i * 0.01, 3 + i)
+    assert world.state(0) == "held" and world.summary()["stalls"] == 0
     seen = np.array((0.001, 0.0, 0.0)) + ps["offset"]
     assert np.allclose(ps["anchor"], anchor + ps["blend"] * (seen - anchor), atol=1e-12)
     # a new epoch is taken once the old one is silent (a restarted station)
@@ -289,7 +318,7 @@ def test_the_world_holds_a_port_until_its_station_says_safe_and_refuses_old_epoc
     assert ps["epoch"] == 8 and world.reasons(0) == {"stale": 1, "other_epoch": 1}
     # each change of state is an event, at its tick's time
     assert [(e["t"], e["from"], e["to"]) for e in world.event_list() if e["port"] == "left"] == [
-        (0.0, "held", "indexing"), (0.0, "indexing", "coupled"), (0.2, "coupled", "held")
+        (0.0, "held", "indexing"), (0.0, "indexing", "coupled"), (0.101, "coupled", "held")
     ]  # fmt: skip
 
 
@@ -466,6 +495,87 @@ def test_a_killed_station_leaves_the_box_held_and_a_late_one_joins_without_a_jum
     print(f"\nstations, loopback: largest command step {jump * 1e3:.1f} mN a tick as the late "
           f"station joined (steady {steady * 1e3:.1f} mN); box lowest "
           f"{(box['lowest_y'] - box['start'][1]) * 1e3:+.2f} mm")  # fmt: skip
+
+
+STALLS_S = (0.2, 0.5, 2.0)  # the world stopped this long, in turn (its watchdog: 100 ms)
+LIMIT_N = 50.0  # the loopback stations' maglevs' max_wrench on x and y
+SETTLE_S = 2.5  # after each, the stations back and steady
+
+
+@pytest.mark.slow
+@pytest.mark.processes
+def test_a_stalled_world_holds_every_port_and_the_stations_come_back_without_a_jump(
+    tmp_path: Path, start_server: Any
+) -> None:
+    """Loopback, both stations squeezing: the world is stopped (SIGSTOP) for 0.2, 0.5 and
+    2 s in turn. Each time both stations go safe on their watchdogs and the world, resuming,
+    holds every port for a watchdog period (what it takes first was sent during the stall):
+    each port goes back to coupled only through held and indexing, re-indexed onto where its
+    device is now, and each station ramps back in within the ramp's bound. (Before, the
+    world's first ToolStates said COUPLED with the tool where the stall found it, and a
+    station ramped into the stretch its device had drifted: 181 N of spring after the 2 s
+    stall here, 19.6 N commanded.) The box's slip over the three stalls
+    and the command's peak (4.5 N against the 2 N squeeze: the device the user pushed while
+    safe is still moving as the ramp begins) are printed: issue 48's bounds on them are not
+    met yet."""
+    mod = "haptic_local_model.haptic_server.stations_cli"
+    net = ["--network", loopback_network(tmp_path)]
+    router = start_server(mod, "router", *net)
+    router.wait_ready(READY_S)
+    run_s = 3.0 + sum(STALLS_S) + SETTLE_S * len(STALLS_S)
+    world_json = tmp_path / "world.json"
+    world = start_server(mod, "world", *net, "--duration", str(run_s + 4.0),
+                         "--json", str(world_json))  # fmt: skip
+    world.wait_ready(READY_S)
+    logs = {p: tmp_path / f"{p}.mcap" for p in PORTS}
+    args = ["--duration", str(run_s)]
+    stations = {
+        p: start_server(mod, "station", *net, "--port", p, *args, "--log", str(logs[p]))
+        for p in PORTS
+    }
+    for st in stations.values():
+        st.wait_ready(READY_S)
+    time.sleep(3.0)
+    stops = []
+    for stall_s in STALLS_S:
+        world.proc.send_signal(signal.SIGSTOP)
+        stopped = time.perf_counter_ns()
+        time.sleep(stall_s)
+        resumed = time.perf_counter_ns()  # before the signal: the world may run at once
+        world.proc.send_signal(signal.SIGCONT)
+        stops.append((stopped, resumed))
+        time.sleep(SETTLE_S)
+    for st in (*stations.values(), world):
+        assert st.proc.wait(STOP_S) == 0
+    summary = json.loads(world_json.read_text())
+    assert summary["stalls"] >= len(STALLS_S), summary["stalls"]
+    for p in PORTS:
+        states = [e["to"] for e in summary["events"] if e["port"] == p]
+        assert states[:2] == ["indexing", "coupled"], states
+        stalled = states[2 : 2 + 3 * len(STALLS_S)]
+        assert stalled == ["held", "indexing", "coupled"] * len(STALLS_S), states
+    for p in PORTS:
+        rows = station_rows(logs[p])
+        for stall_s, (stopped, resumed) in zip(STALLS_S, stops, strict=True):
+            before = after(rows, stopped)
+            k = after(rows, resumed)
+            back = k + first(rows["fresh"][k:] == 1, f"{p} fresh after the {stall_s} s stall")
+            steady = largest_step(rows, before - 1000, before)
+            jump = largest_step(rows, back, back + 200)
+            bound = ramp_bound(rows, back, back + 200, steady)
+            left_with = np.abs(rows["spring"][before - 500 : before, 0]).mean()
+            ramps_into = abs(rows["spring"][back, 0])
+            peak = np.abs(rows["out"][back : back + 1500, 0]).max()
+            print(f"\n{p}, world stopped {stall_s} s: ramps into {ramps_into:.2f} N of spring "
+                  f"(left with {left_with:.2f} N), step {jump * 1e3:.0f} mN a tick (bound "
+                  f"{bound * 1e3:.0f}), command peak {peak:.2f} N")  # fmt: skip
+            assert jump <= bound, (p, stall_s, jump, bound)
+            # into the squeeze it left with, within what it allows (stages.station._rejoins):
+            # a world that re-indexed on a DeviceState of the stall's backlog (about one
+            # stall in six here, 42 N of spring) is waited out until it re-indexes anew
+            assert abs(ramps_into - left_with) <= max(left_with, 0.1 * LIMIT_N), (p, stall_s)
+    box = summary["bodies"]["box"]
+    print(f"box lowest {(box['lowest_y'] - box['start'][1]) * 1e3:+.1f} mm")
 
 
 @pytest.mark.processes

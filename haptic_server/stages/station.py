@@ -12,7 +12,8 @@ tool state is not carried on into a guess):
 mapped to the device, clipped at its limits. Without a fresh tool state (none for the
 watchdog's period, or the world says it holds the port) the command ramps over `ramp_s` to
 the safe state, damping on the handle's own motion; it ramps back the same way when tool
-states return. A reading that is not finite renders zero for the tick; a coupling or a
+states return (into about the squeeze it left with: _rejoins). A reading that is not finite
+renders zero for the tick; a coupling or a
 command that is not finite is zeroed and counted. No I/O: the loop
 (haptic_server/station.py) feeds the tool state and its age and publishes the device state
 this leaves in `world`.
@@ -75,6 +76,11 @@ STATION_DTYPE = np.dtype(
         ("user", USER_DTYPE, (1,)),
         ("map", MAP_DTYPE, (1,)),
         ("scratch", F8, (3,)),
+        # rejoining (_rejoins): the spring it rendered last while fully coupled, and the wait
+        ("left_spring", F8, (3,)),
+        ("has_left", I8),
+        ("rejoin_wait_s", F8),  # waited so far for a tool state near the squeeze it left
+        ("rejoin_waits", I8),  # ticks it waited so, all told
     ]
 )
 
@@ -106,6 +112,29 @@ STATION_ROW_DTYPE = np.dtype(
 
 
 @njit(cache=True)
+def _rejoins(s, fresh):
+    """Whether a fresh tool state is rendered: a station that was coupled and is safe again
+    ramps back in only into about the squeeze it left with. A tool state whose spring
+    differs from it, on x or y, by more than that squeeze (or a tenth of the device's limit,
+    if more) is waited out, the station safe and saying so, for at most the watchdog's
+    period: a world that re-indexed on a device state of a stall's backlog re-indexes on the
+    next within a few ticks; a stretch the world changed meanwhile is then ramped in as it
+    is, the ramp bounding each tick's step."""
+    if fresh == 0 or s.gain > 0.0 or s.has_left == 0:
+        s.rejoin_wait_s = 0.0
+        return fresh
+    if s.rejoin_wait_s >= s.watchdog_s:
+        return fresh
+    floor = 0.1 * max(s.limits[0], s.limits[1])
+    for c in range(2):
+        if abs(s.spring[c] - s.left_spring[c]) > max(abs(s.left_spring[c]), floor):
+            s.rejoin_wait_s += s.dt
+            s.rejoin_waits += 1
+            return 0
+    return fresh
+
+
+@njit(cache=True)
 def station_tick(station, dev):
     """One tick (module docstring)."""
     s = station[0]
@@ -116,9 +145,7 @@ def station_tick(station, dev):
     for c in range(3):
         if not (math.isfinite(w.pose[c]) and math.isfinite(w.twist[c])):
             s.cut = 1
-    s.fresh = 1 if s.have_tool == 1 and s.held == 0 and s.tool_age < s.watchdog_s else 0
-    step = s.dt / s.ramp_s
-    s.gain = min(1.0, s.gain + step) if s.fresh == 1 else max(0.0, s.gain - step)
+    fresh = 1 if s.have_tool == 1 and s.held == 0 and s.tool_age < s.watchdog_s else 0
     ahead = min(s.tool_age, s.extrapolate_s)
     bad = False
     for c in range(3):
@@ -134,6 +161,13 @@ def station_tick(station, dev):
             s.coupling[c] = s.spring[c] + b * (s.tool_twist[c] - w.twist[c])
             if not math.isfinite(s.coupling[c]):
                 bad = True
+    s.fresh = _rejoins(s, fresh)
+    step = s.dt / s.ramp_s
+    s.gain = min(1.0, s.gain + step) if s.fresh == 1 else max(0.0, s.gain - step)
+    if s.fresh == 1 and s.gain == 1.0:
+        s.has_left = 1
+        for c in range(3):
+            s.left_spring[c] = s.spring[c]
     map_command_to_device(s.map, s.coupling, s.limits, s.scratch)
     for c in range(3):
         safe = -s.safe_damping[c] * sen.twist[c] if s.cut == 0 else 0.0
