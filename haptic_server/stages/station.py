@@ -125,7 +125,9 @@ def _rejoins(s, fresh):
         return fresh
     if s.rejoin_wait_s >= s.watchdog_s:
         return fresh
-    floor = 0.1 * max(s.limits[0], s.limits[1])
+    floor = 0.0  # a tenth of the device's limit on x or y, whichever is more
+    for c in range(2):
+        floor = max(floor, 0.1 * s.limits[c])
     for c in range(2):
         if abs(s.spring[c] - s.left_spring[c]) > max(abs(s.left_spring[c]), floor):
             s.rejoin_wait_s += s.dt
