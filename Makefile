@@ -46,7 +46,7 @@ pytest: $(STAMP) warm browser
 	$(PY) -m pytest -q -n 2 $(FAST)
 	$(PY) -m pytest -q -m "slow or processes"
 
-# before each commit: lint, types and the fast tier (README: ~2 min on two cores)
+# before each commit: lint, types and the fast tier (README: 1-1.5 min on two cores)
 check: lint typecheck warm
 	$(PY) -m pytest -q -n 2 $(FAST)
 
