@@ -48,9 +48,9 @@ if "NUMBA_CACHE_DIR" not in os.environ:
     os.environ["NUMBA_CACHE_DIR"] = str(cache_dir() / "numba" / _source_hash())
 # the project's kernels cached by their place in the project, not by the checkout's path:
 # another clone or an installed wheel of the same sources loads them (shared/numba_cache.py)
-os.environ.setdefault(
-    "NUMBA_CACHE_LOCATOR_CLASSES",
+NUMBA_CACHE_LOCATORS = (  # the project's, then numba's own, in numba's order
     "haptic_local_model.shared.numba_cache.ProjectCacheLocator,UserProvidedCacheLocator,"
-    "InTreeCacheLocator,UserWideCacheLocator,IPythonCacheLocator,ZipCacheLocator",
+    "InTreeCacheLocator,UserWideCacheLocator,IPythonCacheLocator,ZipCacheLocator"
 )
+os.environ.setdefault("NUMBA_CACHE_LOCATOR_CLASSES", NUMBA_CACHE_LOCATORS)
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # 3x3 algebra: no BLAS thread pools

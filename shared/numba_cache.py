@@ -22,14 +22,11 @@ from typing import Any
 from numba.core import config
 from numba.core.caching import UserProvidedCacheLocator
 
+from haptic_local_model.shared import NUMBA_CACHE_LOCATORS
+
 ROOT = Path(__file__).resolve().parent.parent  # the project's package root (shared/..)
 
-#: numba's own locators, in numba's order, after the project's
-NUMBA_LOCATORS = (
-    "UserProvidedCacheLocator", "InTreeCacheLocator", "UserWideCacheLocator",
-    "IPythonCacheLocator", "ZipCacheLocator",
-)  # fmt: skip
-LOCATORS = ",".join((f"{__name__}.ProjectCacheLocator", *NUMBA_LOCATORS))
+LOCATORS = NUMBA_CACHE_LOCATORS  # what shared/__init__ gives numba, this locator first
 
 
 def project_subpath(py_file: str | os.PathLike[str]) -> str | None:

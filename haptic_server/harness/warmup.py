@@ -125,11 +125,6 @@ def run_groups(run: Run) -> list[tuple[str, Callable[[], None]]]:
     ]
 
 
-def demo_groups() -> list[tuple[str, Callable[[], None]]]:
-    """The demo run's kernels (DEMO_RUN)."""
-    return run_groups(DEMO_RUN)
-
-
 def warm_groups(run: Run | None = None) -> list[tuple[str, Callable[[], None]]]:
     """What warm_all compiles, in groups: (a description, the call that compiles it). The
     first scene compiles most of the sim and the rendering stages, the others what they add.
