@@ -216,8 +216,10 @@ class Forger:
         world.set_tool_state(proxy.q, proxy.qd)
         seq = proxy.update_seq + 2  # the sim's next may be on its way already
         world.time = seq * world.period
-        update = world.local_model(self.epoch, seq, time.time_ns())
-        raw = encode_update(FORGERIES[name](update, self.scene))
+        update = FORGERIES[name](world.local_model(self.epoch, seq, 0), self.scene)
+        # stamped as it goes out, as the sim stamps: building a forgery (teleport makes a world)
+        # may take longer on a loaded host than max_update_age_ms, and "late" is not its point
+        raw = encode_update(dataclasses.replace(update, publish_time_ns=time.time_ns()))
         self._publisher.put(raw)
         return raw
 
