@@ -177,13 +177,16 @@ class SimServer:
                 t0 = now
                 if seq > 0:
                     self.interval_ms.add((t0 - last_start) / 1e6)
-                    self.world.step(self.target(t0))
+                # every step, the first too (from rest: no proxy state yet), covers the coming
+                # period: the sim's clock and its kinematic laws run with the wall's, not one
+                # period behind
+                self.world.step(self.target(t0) if seq > 0 else None)
                 last_start = t0
                 raw_update = bytearray(self.world.local_model_bytes(self.epoch, seq, 0))
                 # stamped at the put: the step covered [step_start, step_start + period], so
                 # the state holds one period after its start, lead_s from now
                 put_ns = time.perf_counter_ns()
-                lead_s = (step_start + period_ns - put_ns) / 1e9 if seq > 0 else 0.0
+                lead_s = (step_start + period_ns - put_ns) / 1e9
                 publish_ns = time.time_ns()
                 if self.clock_jump is not None:
                     publish_ns += self.clock_jump.offset_ns((t0 - start) / 1e9)

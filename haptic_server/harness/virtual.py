@@ -99,13 +99,16 @@ def run_virtual(
         while k < n_ticks:
             t = k * dt
             if t >= next_sim_t - 1e-12:
-                lead = 0.0
                 t0 = clock()
-                if seq > 0:  # with the impulses of the ticks since the last step, as the
-                    # real sim gets them from the proxy states of those ticks
-                    world.step(_target(engine, coupled, rows[impulses_from:k]))
-                    impulses_from = k
-                    lead = sim_period  # the world now holds one period ahead of the proxy
+                # every step covers the coming period [seq P, (seq + 1) P] of the one clock:
+                # the first from rest (the real sim has no proxy state yet), the others with
+                # the impulses of the ticks since the last step, as the real sim gets them
+                target = _target(engine, coupled, rows[impulses_from:k]) if seq > 0 else None
+                world.step(target)
+                impulses_from = k
+                # the world now holds at world.time: that far ahead of this tick (the phase
+                # between the sim's period and the ticks included)
+                lead = world.time - t
                 t1 = clock()
                 t_ns = round(t * 1e9)  # published (and received) at the virtual time
                 raw = world.local_model_bytes(VIRTUAL_EPOCH, seq, t_ns, lead)  # built, encoded
