@@ -133,8 +133,8 @@ GOD_DATA_DTYPE = np.dtype(
         ("substeps", np.int64),
         ("capped", np.int64),  # 1: the sub-steps needed exceeded max_substeps this tick
         ("popped_key", np.int64),  # key of the obstacle being passed through, -1 none
-        ("stick_shape", np.int64),  # index of the obstacle the proxy sticks to
-        ("stick_local", np.float64, (2,)),  # p in that obstacle's frame
+        ("stick_shape", np.int64),  # the obstacle the proxy sticks to or slides on (-1)
+        ("stick_local", np.float64, (2,)),  # p in that obstacle's frame (it carries p)
         ("touch", np.float64, (2,)),  # where the last swept move met an obstacle
         ("touched", np.int64),
         ("fade_elapsed_s", np.float64),  # time since the last install's pose blend began
@@ -499,7 +499,7 @@ def depenetrate(m, d, shapes, xh):
             d.ramping = 1
             if d.contact == Contact.STICK:
                 d.contact = Contact.SLIDE
-                d.stick_shape = -1
+            d.stick_shape = -1
             continue
         d.proxy[0] = x
         d.proxy[1] = y
@@ -630,7 +630,12 @@ def apply_friction(m, d, shapes, xh, hold_x, hold_y):
     d.proxy[0] = cx + t * sx
     d.proxy[1] = cy + t * sy
     d.contact = Contact.SLIDE
-    d.stick_shape = -1
+    # the sliding proxy rides on the obstacle too: kinetic friction acts in its frame, so
+    # on a moving surface the next substep's candidate is where the surface carried it
+    d.stick_shape = k
+    lx, ly = to_body(d.poses[k], d.proxy[0], d.proxy[1])
+    d.stick_local[0] = lx
+    d.stick_local[1] = ly
 
 
 @njit(cache=True)
@@ -759,7 +764,7 @@ def god_object_step(m, d, shapes, n_shapes, x0, x1, tau, dt):
         xh[0] = x0[0] + f * (x1[0] - x0[0])
         xh[1] = x0[1] + f * (x1[1] - x0[1])
         place_shapes(m, d, shapes, tau, f * dt)
-        if d.contact == Contact.STICK and d.stick_shape >= 0:
+        if d.contact != Contact.FREE and d.stick_shape >= 0:  # carried: stuck or sliding
             x, y = to_world(d.poses[d.stick_shape], d.stick_local[0], d.stick_local[1])
             d.proxy[0] = x
             d.proxy[1] = y
