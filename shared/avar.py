@@ -45,6 +45,7 @@ MAX_CARS = 8
 MAX_EVENTS = 8  # events met within one step; beyond, the step is clamped (counted)
 NUDGE_M = 1.0e-12  # past an event, so the next lookup reads the side the train moves into
 SAME_EVENT_M = 1.0e-9  # kinks that cars reach within this of each other are crossed together
+LEAVE_M = 1.0e-4  # a bumper contact ends when the train is this far from the stop
 
 
 TRAIN_DTYPE = np.dtype(
@@ -68,6 +69,7 @@ AVAR_DTYPE = np.dtype(
         ("plastic_loss", np.float64),  # J lost at kinks so far
         ("bumper_loss", np.float64),  # J lost at the bumpers so far
         ("singular", np.int64),  # steps whose M_q was regularised (a singular J)
+        ("at_stop", np.int64),  # the end bumper of the contact going on (2 far, 3 near; 0)
     ]
 )
 
@@ -301,11 +303,9 @@ def train_step(tr, train, st, q_ext, dt):
             sd = cross_kinks(tr, train, st, at, sd, forward)
         else:  # just inside the stop
             s = at - NUDGE_M if forward else at + NUDGE_M
-            st.bumps += 1
-            st.bumper_loss += (
-                0.5 * train_mass(tr, train, s) * sd * sd * (1.0 - train.restitution**2)
-            )
-            sd = -train.restitution * sd
+            sd, left = hit_stop(tr, train, st, kind, s, sd, q_ext, left, forward)
+            if left == 0.0:
+                break
     if left > 0.0:
         st.capped += 1
     if tr.closed == 0:
@@ -313,8 +313,33 @@ def train_step(tr, train, st, q_ext, dt):
         if s > tr.length or s < near:  # only after MAX_EVENTS: held at the stop
             s = min(max(s, near), tr.length)
             sd = 0.0
+        gap = tr.length - s if st.at_stop == 2 else s - near
+        if st.at_stop != 0 and gap > LEAVE_M:
+            st.at_stop = 0  # off the bumper: the next hit is another
     st.s = wrap_s(tr, s) if tr.closed == 1 else s
     st.sd = sd
+
+
+@njit(cache=True)
+def hit_stop(tr, train, st, kind, s, sd, q_ext, left, forward):
+    """An end bumper (kind 2 far, 3 near) met at s with s' = sd, `left` of the step to go:
+    s' <- -e s', counted once per contact (a train resting on the bumper meets it again every
+    step); when the bounce would come back within what is left of the step (a resting train:
+    the bounces shrink geometrically, each e times the last, a Zeno series), it settles there,
+    s' = 0 for the rest of the step, all its kinetic energy lost. Returns (s', left)."""
+    if st.at_stop != kind:
+        st.bumps += 1
+        st.at_stop = kind
+    m = train_mass(tr, train, s)
+    e = train.restitution
+    st.bumper_loss += 0.5 * m * sd * sd * (1.0 - e * e)
+    sd = -e * sd
+    a = train_accel(tr, train, s, sd, q_ext)
+    a_in = a if forward else -a  # towards the stop
+    if a_in > 0.0 and 2.0 * abs(sd) < a_in * left:  # back within the step
+        st.bumper_loss += 0.5 * m * sd * sd
+        return 0.0, 0.0
+    return sd, left
 
 
 @njit(cache=True)
