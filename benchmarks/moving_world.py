@@ -85,6 +85,8 @@ class Case:
     target: float
     unit: str
     detail: str = ""
+    faults: int = 0  # ticks with a guard fault
+    port_energy_j: float = 0.0  # the passivity observer's largest
 
     @property
     def meets(self) -> bool:
@@ -144,9 +146,12 @@ def approaching_wall(speed: float, sim_rate_hz: float = 60.0) -> Case:
     t = ends(ticks)
     depth = ticks["god_proxy"][:, 0] + RADIUS - (face0 - speed * t)
     touched = int((depth > -1e-6).sum())
+    faults = int((ticks["fault"] != 0).sum())
+    port = float(ticks["port_energy"].max())
     return Case(
         f"wall at {speed:g} m/s", max(0.0, float(depth.max())), DEPTH_TARGET_M, "m",
-        f"{touched} ticks touching",
+        f"{touched} ticks touching; guard faults {faults}, port energy <= {port * 1e3:.2f} mJ",
+        faults, port,
     )  # fmt: skip
 
 

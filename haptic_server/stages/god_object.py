@@ -175,6 +175,10 @@ GOD_DATA_DTYPE = np.dtype(
         # (haptic_server/stages/train.py writes them before the god-object's step)
         ("car_pose", np.float64, (MAX_CARS, 3)),
         ("car_twist", np.float64, (MAX_CARS, 3)),
+        # J, this tick: the work the touched obstacles' own motion did on the finger (the
+        # passivity observer's budget for a moving world: a wall driven into the hand)
+        ("env_work", np.float64),
+        ("work_pose", np.float64, (2, 3)),  # scratch of env_work: the shape's start, end
     ]
 )
 
@@ -778,6 +782,30 @@ def god_object_step(m, d, shapes, n_shapes, x0, x1, tau, dt):
     d.node_elapsed_s += dt
     render_force(m, d, d.proxy_start, x0, x1, dt)
     share_force(m, d, shapes)
+    env_work(d, shapes, tau, dt)
+
+
+@njit(cache=True)
+def env_work(d, shapes, tau, dt):
+    """d.env_work: the work of the touched obstacles' motion on the finger over the tick,
+    -sum F_j . (the touching point carried by its obstacle from the tick's start to its end);
+    a NODAL segment (a membrane, not prescribed) counts none."""
+    d.env_work = 0.0
+    for j in range(d.n_active):
+        if d.env_key[j] < 0:
+            continue
+        k = d.plane_index[j]
+        s = shapes[k]
+        if s.motion == Motion.NODAL:
+            continue
+        start = d.work_pose[0]
+        end = d.work_pose[1]
+        carry_shape(d, s, tau, 0.0, start)  # its own motion (an install's blend left out)
+        carry_shape(d, s, tau, dt, end)
+        lx, ly = to_body(end, d.env_point[j, 0], d.env_point[j, 1])
+        x1, y1 = to_world(end, lx, ly)
+        x0, y0 = to_world(start, lx, ly)
+        d.env_work -= d.env_force[j, 0] * (x1 - x0) + d.env_force[j, 1] * (y1 - y0)
 
 
 @njit(cache=True)
