@@ -64,6 +64,13 @@ MAX_UPDATE_BYTES = update_size(
 )
 
 
+#: pymunk takes a contact's friction (and restitution) as the product of its two shapes';
+#: the haptic side renders a tool's contact with the touched material's alone
+#: (docs/scenes.md), so the sim's tool shapes take the product's identity for both and its
+#: contacts agree with what is felt
+TOOL_FRICTION = 1.0
+
+
 @dataclass
 class ToolTarget:
     """Where the haptic side wants the tool: proxy configuration, or the device pose (FOH)."""
@@ -181,8 +188,8 @@ class SimWorld:
             body.angular_velocity = spec.angular_velocity
         shape = body_shape(body, spec)
         mat = self.scene.materials[spec.material]
-        shape.friction = mat.friction
-        shape.elasticity = mat.restitution
+        shape.friction = TOOL_FRICTION if is_tool else mat.friction
+        shape.elasticity = TOOL_FRICTION if is_tool else mat.restitution
         if is_tool:
             # a god-object's finger only shows where the proxy is: the proxy's forces reach the
             # world through the proxy state (collisions too would count them twice)
@@ -215,8 +222,8 @@ class SimWorld:
             body.angle = angle  # before the position: see set_tool_state
             body.position = tuple(pos)
             shape = pymunk.Segment(body, (0.0, 0.0), (length, 0.0), lk.radius)
-            shape.friction = mat.friction
-            shape.elasticity = mat.restitution
+            shape.friction = TOOL_FRICTION if is_tool else mat.friction
+            shape.elasticity = TOOL_FRICTION if is_tool else mat.restitution
             # a passive serial linkage's links collide with all but their neighbours; a
             # tree's siblings share their pivot, so a tree's links are one group
             group = 100 + len(self.shape_keys) if not lk.parents else 100 + first_key

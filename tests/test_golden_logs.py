@@ -121,18 +121,30 @@ GOLDEN_07 = Path(__file__).parent / "golden" / "logs-0.7"
 LOGS_07 = sorted(GOLDEN_07.glob("*.mcap"))
 GOLDEN_09 = Path(__file__).parent / "golden" / "logs-0.9"
 LOGS_09 = sorted(GOLDEN_09.glob("*.mcap"))
+GOLDEN_10 = Path(__file__).parent / "golden" / "logs-0.10"
+LOGS_10 = sorted(GOLDEN_10.glob("*.mcap"))
 VIRTUAL_LOGS = [
     *sorted(GOLDEN.glob("vc_*.mcap")),
     *sorted(GOLDEN_02.glob("vc_*.mcap")),
     *LOGS_07,
     *LOGS_09,
+    *LOGS_10,
 ]
 
 
-def _sim_changed_since(log_version: str, scene_text: str) -> bool:
+#: Runs whose sim 0.10 changed (tests/golden/logs-0.10/README.md): the sim's tool shapes
+#: take the touched material's friction (pymunk's product with 1), and testbed's arm slides
+#: along a wall in these
+CHANGED_IN_0_10 = {"vc_testbed_twin_swing"}
+
+
+def _sim_changed_since(log_version: str, scene_text: str, stem: str) -> bool:
     """0.7 placed the sim's linkage links on their joints (tests/golden/logs-0.7/README.md):
-    a rerun of an older run with a linkage no longer gives its ticks."""
+    a rerun of an older run with a linkage no longer gives its ticks; 0.10 changed the
+    friction of the sim's tool (CHANGED_IN_0_10)."""
     major, minor = (int(v) for v in log_version.split(".")[:2])
+    if (major, minor) < (0, 10) and stem in CHANGED_IN_0_10:
+        return True
     return (major, minor) < (0, 7) and "[[linkages]]" in scene_text
 
 
@@ -177,19 +189,21 @@ def test_virtual_clock_reruns_the_golden_runs_exactly(path: Path) -> None:
     assert len(result.ticks) == n
     diffs = max_abs_differences(result.ticks, log.ticks, skip=log.absent_tick_fields)
     beyond = {k: v for k, v in diffs.items() if v > RERUN_BOUND}
-    if _sim_changed_since(log.metadata["run"]["version"], configs["scene"]):
+    if _sim_changed_since(log.metadata["run"]["version"], configs["scene"], path.stem):
         assert beyond.get("proxy_q", 0.0) > 1e-6  # the fixed sim moves the run
         return
     assert not beyond
 
 
 @pytest.mark.parametrize(
-    "path", LOGS_07 + LOGS_09, ids=[f"{p.parent.name}/{p.stem}" for p in LOGS_07 + LOGS_09]
-)
-def test_version_07_and_09_logs_replay_exactly(path: Path) -> None:
-    """Logs of 0.7's sim (its linkages on their joints; a tree's CHAINS trailer) and of 0.9's
-    impulse solve (the complementarity problem on the single-device path): every field,
-    every tick, to the bit (0.7's up to their first colliding tick, IMPULSE_BOUND after)."""
+    "path", LOGS_07 + LOGS_09 + LOGS_10,
+    ids=[f"{p.parent.name}/{p.stem}" for p in LOGS_07 + LOGS_09 + LOGS_10],
+)  # fmt: skip
+def test_version_07_09_and_010_logs_replay_exactly(path: Path) -> None:
+    """Logs of 0.7's sim (its linkages on their joints; a tree's CHAINS trailer), of 0.9's
+    impulse solve (the complementarity problem on the single-device path) and of 0.10's
+    moving worlds (a sliding proxy carried by its obstacle): every field, every tick, to the
+    bit (0.7's up to their first colliding tick, IMPULSE_BOUND after)."""
     log = read_log(path)
     version = log.metadata["run"]["version"]
     assert version.startswith(path.parent.name.removeprefix("logs-"))
@@ -198,6 +212,13 @@ def test_version_07_and_09_logs_replay_exactly(path: Path) -> None:
     assert result.updates_replayed == len(log.updates) > 0
     assert not result.verdict_mismatches, result.verdict_mismatches[:5]
     _assert_replayed(path, log, result, _first_colliding(log.ticks, version), IMPULSE_BOUND)
+
+
+def test_the_logs_of_010_ride_and_slide_on_a_moving_surface() -> None:
+    """The 0.10 god-object log exercises what 0.10 changed: the finger both stuck to and
+    sliding over the moving shuttle."""
+    ticks = read_log(GOLDEN_10 / "vc_god_testbed_press.mcap").ticks
+    assert {1, 2} <= set(np.unique(ticks["god_contact"]).tolist())
 
 
 def test_the_logs_of_09_hold_simultaneous_impulses() -> None:
