@@ -265,8 +265,8 @@ def reference_accepts(raw: bytes) -> bool:
     magic, version, flags, _, _, sim_time, _, d, n, j, op_link, char_len, lead = HEADER.unpack_from(
         raw
     )
-    if magic != b"HLMU" or version not in CONTACT_WIDTH or not 1 <= d <= MAX_DOF:
-        return False
+    if magic != b"HLMU" or version not in CONTACT_WIDTH or flags & ~127 or not 1 <= d <= MAX_DOF:
+        return False  # the protocol defines flags 1..64 (since 0.10 any other bit is refused)
     if n > MAX_CONTACTS or j > 3 or (j > 0) != bool(flags & 2) or op_link >= d:
         return False
     groups = float_groups(d, n, j, flags, version)
@@ -490,7 +490,8 @@ CONTACT_BREAKS = {
     12: -1.0,
 }  # fmt: skip
 BREAKS = [
-    "nonfinite", "magic", "version", "truncate", "pad", "count", "flag", "magnitude",
+    "nonfinite", "magic", "version", "truncate", "pad", "count", "flag", "unknown_flag",
+    "magnitude",
     "header_float", "not_spd", "asymmetric", "contact", "resisted_norm", "joint_type",
     "contact_link", "op_link", "shape",
 ]  # fmt: skip
@@ -543,6 +544,8 @@ def break_update(raw: bytes, kind: str, draw: Any) -> bytes | None:
         )
     elif kind == "flag":  # a section (gravity, resisted, velocity torque, shapes, chains)
         struct.pack_into("<H", out, 6, flags ^ draw(st.sampled_from([1, 2, 8, 16, 32])))
+    elif kind == "unknown_flag":  # a bit the protocol does not define
+        struct.pack_into("<H", out, 6, flags | (1 << draw(st.integers(7, 15))))
     elif kind == "shape":
         return break_shape(raw, groups, draw)
     elif kind == "magnitude":

@@ -9,7 +9,9 @@ wraps it for tools and raises `MessageError`. Layout: `shared.protocol.layout`.
 
 from __future__ import annotations
 
+import functools
 import math
+import operator
 import struct
 from dataclasses import dataclass
 
@@ -90,6 +92,7 @@ FLAG_CHAINS = int(Flag.CHAINS)
 FLAG_AVARS = int(Flag.AVARS)
 MAX_TRAIN_CARS = 8  # shared.avar.MAX_CARS (the protocol does not import the dynamics)
 TRAILERS = FLAG_SHAPES | FLAG_CHAINS | FLAG_AVARS
+KNOWN_FLAGS = int(functools.reduce(operator.or_, Flag))  # any other bit is refused (`flags`)
 AT_VERSION = HEADER_AT["version"]
 AT_FLAGS = HEADER_AT["flags"]
 AT_EPOCH = HEADER_AT["epoch"]
@@ -569,6 +572,8 @@ def _check_body(buf, nbytes):
         return Reason.VERSION, 0, 0, 0, 0, 0, 0
     n_cf = CONTACT_FLOATS if version >= 2 else CONTACT_FLOATS_V1
     flags = _u16(buf, AT_FLAGS)
+    if (flags & ~KNOWN_FLAGS) != 0:
+        return Reason.FLAGS, 0, 0, 0, 0, 0, 0
     d = _u16(buf, AT_DOF)
     n = _u16(buf, AT_N_CONTACTS)
     j = _u16(buf, AT_N_RESISTED)
