@@ -232,8 +232,10 @@ def _corrupt_float(raw: bytes, value: float, index_from_end: int) -> bytes:
         (lambda r: _corrupt_float(r, 0.5, 8), "contact"),  # normal no longer unit
         # a flag bit the protocol does not define (it passed the parser up to 0.9, and was
         # refused only later as `jump`)
-        (lambda r: r[:6] + struct.pack("<H", struct.unpack_from("<H", r, 6)[0] | 128) + r[8:],
-         "flags"),
+        (
+            lambda r: r[:6] + struct.pack("<H", struct.unpack_from("<H", r, 6)[0] | 128) + r[8:],
+            "flags",
+        ),
     ],
 )
 def test_bad_updates_are_rejected_with_a_reason(mutate: object, reason: str) -> None:
