@@ -89,9 +89,11 @@ class HapticRunStats:
     lost_log_ticks: int = 0
     proxy_published: int = 0
     pointer_received: int = 0  # pointer inputs (a user of kind "pointer") received
-    pointer_rejected: int = 0  # ... refused: malformed, out of range, late
+    pointer_rejected: int = 0  # ... refused: malformed, out of range, late, future
+    pointer_rejected_by_reason: dict[str, int] = field(default_factory=dict)
     static_received: int = 0  # the sim's static messages of this scene's train ...
     static_refused: int = 0  # ... and of another train, or malformed
+    static_refused_by_reason: dict[str, int] = field(default_factory=dict)
     updates_lost: int = 0
     events_lost: int = 0  # overwritten in the event ring before the log writer read them
     log_failed: str = ""  # why the log writer stopped (a full disk): the run went on
@@ -131,8 +133,10 @@ class HapticRunStats:
             "proxy_published": self.proxy_published,
             "pointer_received": self.pointer_received,
             "pointer_rejected": self.pointer_rejected,
+            "pointer_rejected_by_reason": dict(self.pointer_rejected_by_reason),
             "static_received": self.static_received,
             "static_refused": self.static_refused,
+            "static_refused_by_reason": dict(self.static_refused_by_reason),
             "log": str(log_path) if log_path else None,
         }
 
@@ -457,6 +461,7 @@ class HapticServer:
                 "proxy_publish_hz": self.network.proxy_publish_hz,
                 "method": self.engine.method,
                 "pointer": self.engine.follows_pointer,
+                "clock_skew_ns": round(self.network.clock_skew_ms * 1e6),
                 "static_id": int(self.engine.model[0]["train"]["static_id"]),
                 "view": None if view is None else {
                     **dataclasses.asdict(view), "scene_text": self.configs.get("scene"),
@@ -488,6 +493,8 @@ class HapticServer:
         stats.pointer_rejected = io_counters["pointer_rejected"]
         stats.static_received = io_counters["static_received"]
         stats.static_refused = io_counters["static_refused"]
+        stats.pointer_rejected_by_reason = io.refused["pointer"]
+        stats.static_refused_by_reason = io.refused["static"]
         stats.updates_lost = io_counters["lost_updates"]
         stats.events_lost = io_counters["lost_events"]
         if stop_failed is not None:

@@ -38,6 +38,7 @@ from haptic_local_model.haptic_server.mailbox import (
     C_IO_BEAT,
     C_LOG_FAILED,
     C_LOWER_IO,
+    C_PTR_REASONS,
     C_PTR_RECEIVED,
     C_PTR_REJECTED,
     C_PUBLISHED,
@@ -45,13 +46,16 @@ from haptic_local_model.haptic_server.mailbox import (
     C_RECEIVED,
     C_STATIC_BAD,
     C_STATIC_OK,
+    C_STATIC_REASONS,
     C_TICK_HEAD,
     C_TICK_LOGGED,
     C_TICK_LOST,
     C_UPD_LOST,
     C_UPD_READ,
     MAILBOX_SLOTS,
+    POINTER_REASONS,
     RING_TICKS,
+    STATIC_REASONS,
     SharedBlock,
     take_updates,
 )
@@ -87,6 +91,7 @@ class LoopIO:
         self.block = SharedBlock.create()  # its pages touched: the loop's memory stays flat
         self._shm = self.block.shm
         self._logger: LogProcess | None = None
+        self.refused: dict[str, dict[str, int]] = {"pointer": {}, "static": {}}  # at close
         if config.get("log_path"):
             try:
                 keys = ("log_path", "metadata", "wall_start_ns", "loop_cpu", "tick_period_ns")
@@ -176,6 +181,15 @@ class LoopIO:
             "static_refused": int(c[C_STATIC_BAD]),
         }
 
+    @property
+    def refused_by_reason(self) -> dict[str, dict[str, int]]:
+        """The pointer inputs and static messages refused, by reason (those that happened)."""
+        c = self.block.ctl
+        return {
+            "pointer": by_reason(c, POINTER_REASONS, C_PTR_REASONS),
+            "static": by_reason(c, STATIC_REASONS, C_STATIC_REASONS),
+        }
+
     def close(self, timeout_s: float = 30.0) -> dict[str, int]:
         """Stop the sidecar and the log writer (it writes what remains); returns the
         counters."""
@@ -189,6 +203,7 @@ class LoopIO:
         if self._view is not None:
             self._view.join(VIEW_CLOSE_S)
         counters = self.counters
+        self.refused = self.refused_by_reason  # read before the block is released
         self._release()
         return counters
 
@@ -243,8 +258,9 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
             ctl[C_UPD_LOST] += 1  # the loop (or the writer) is not reading: stopped or dead
 
     subscriber = session.declare_subscriber(k.update, receive)
+    skew_ns = int(config.get("clock_skew_ns", 0))
     pointer_sub = (
-        session.declare_subscriber(k.pointer, _pointer_receiver(block))
+        session.declare_subscriber(k.pointer, _pointer_receiver(block, skew_ns))
         if config.get("pointer")
         else None
     )
@@ -319,29 +335,75 @@ def ticks_impulses(block: SharedBlock, start: int, head: int, method: int) -> Sh
     )
 
 
-def _pointer_receiver(block: SharedBlock) -> Any:
-    """The subscriber callback for pointer inputs: a valid one, stamped within
-    MAX_POINTER_AGE_NS of this clock and newer than the last (by its publish time, so a
-    restarted `haptic-pointer` is taken at once), becomes the user's target; anything else
-    is refused and counted, never installed."""
+class Refusals:
+    """Refused messages of one kind counted by reason in fixed shared counters (the summary's
+    `<kind>_rejected_by_reason`), and told in the event ring at most once per reason every
+    EVENT_PERIOD_S, with how many of that reason went untold since: a flood of any size costs
+    no memory and cannot push a safety event (watchdog, fault, safe) out of the ring."""
+
+    EVENT_PERIOD_S = 1.0
+
+    def __init__(self, block: SharedBlock, kind: str, reasons: tuple[str, ...], at: int) -> None:
+        self.block, self.kind, self.at = block, kind, at
+        self.index = {r: i for i, r in enumerate(reasons)}
+        self.next_ns = [0] * len(reasons)
+        self.untold = [0] * len(reasons)
+
+    def refuse(self, reason: str, detail: str) -> None:
+        """Count one refusal of `reason` (one of the kind's reasons) and tell it if due."""
+        i = self.index[reason]
+        ctl = self.block.ctl
+        ctl[self.at + i] += 1
+        now = time.monotonic_ns()
+        if now < self.next_ns[i]:
+            self.untold[i] += 1
+            return
+        more = f" (and {self.untold[i]} more since the last told)" if self.untold[i] else ""
+        self.block.post_event(int(ctl[C_TICK_HEAD]), self.kind, f"{reason}: {detail}{more}")
+        self.untold[i] = 0
+        self.next_ns[i] = now + int(self.EVENT_PERIOD_S * 1e9)
+
+
+def by_reason(ctl: np.ndarray, reasons: tuple[str, ...], at: int) -> dict[str, int]:
+    """The refusals counted by Refusals, those that happened."""
+    return {r: int(ctl[at + i]) for i, r in enumerate(reasons) if ctl[at + i]}
+
+
+def _pointer_receiver(block: SharedBlock, skew_ns: int) -> Any:
+    """The subscriber callback for pointer inputs: a valid one, stamped at most
+    MAX_POINTER_AGE_NS behind this clock and at most `skew_ns` ahead of it (the clock skew
+    the network allows), and newer than the last (by its publish time, so a restarted
+    `haptic-pointer` is taken at once), becomes the user's target; anything else is refused
+    and counted by reason, never installed. The last taken stamp is remembered as at most
+    this clock's time then, so one input stamped ahead cannot lock out the next ones."""
     from haptic_local_model.shared.protocol.pointer import MAX_POINTER_AGE_NS, decode_pointer
     from haptic_local_model.shared.protocol.update import MessageError
 
     ctl = block.ctl
+    refusals = Refusals(block, "pointer", POINTER_REASONS, C_PTR_REASONS)
     newest = [-(2**63)]
 
     def receive(sample: Any) -> None:
         ctl[C_PTR_RECEIVED] += 1
         try:
             pointer = decode_pointer(sample.payload.to_bytes())
-        except MessageError:
+        except MessageError as exc:
             ctl[C_PTR_REJECTED] += 1
+            refusals.refuse(exc.reason, str(exc))
             return
-        stamp = pointer.publish_time_ns
-        if stamp <= newest[0] or abs(time.time_ns() - stamp) > MAX_POINTER_AGE_NS:
+        stamp, now = pointer.publish_time_ns, time.time_ns()
+        reason = ""
+        if stamp > now + skew_ns:
+            reason = "future"
+        elif stamp < now - MAX_POINTER_AGE_NS:
+            reason = "late"
+        elif stamp <= newest[0]:
+            reason = "repeated"
+        if reason:
             ctl[C_PTR_REJECTED] += 1
+            refusals.refuse(reason, f"stamped {(stamp - now) / 1e6:+.1f} ms from this clock")
             return
-        newest[0] = stamp
+        newest[0] = min(stamp, now)
         block.post_pointer(pointer.target)
 
     return receive
@@ -349,32 +411,30 @@ def _pointer_receiver(block: SharedBlock) -> Any:
 
 def _static_receiver(block: SharedBlock, static_id: int) -> Any:
     """Subscriber callback for the sim's static message (shared/protocol/static.py): one of
-    this scene's train is counted; any other, or a malformed one, is counted as refused and
-    told once per distinct reason in the event ring (the loop installs no update of another
-    train: Reason.STATIC)."""
+    this scene's train is counted; any other, or a malformed one, is refused and counted by
+    reason (Refusals: told at most once a second per reason, whatever the flood); the loop
+    installs no update of another train (Reason.STATIC)."""
     from haptic_local_model.shared.protocol.static import decode_static
     from haptic_local_model.shared.protocol.update import MessageError
 
     ctl = block.ctl
-    told: set[str] = set()
+    refusals = Refusals(block, "static", STATIC_REASONS, C_STATIC_REASONS)
 
     def receive(sample: Any) -> None:
         try:
             sid, _ = decode_static(sample.payload.to_bytes())
-            problem = (
-                "" if sid == static_id else f"the sim's train {sid} is not this scene's {static_id}"
-            )
+            reason, problem = ("", "") if sid == static_id else (
+                "foreign", f"the sim's train {sid} is not this scene's {static_id}"
+            )  # fmt: skip
         except MessageError as exc:
-            problem = f"a malformed static message: {exc}"
+            reason, problem = "malformed", f"a malformed static message: {exc}"
         except Exception as exc:  # a hostile payload (JSON nested past the stack)
-            problem = f"a malformed static message: {type(exc).__name__}"
-        if not problem:
+            reason, problem = "hostile", f"a malformed static message: {type(exc).__name__}"
+        if not reason:
             ctl[C_STATIC_OK] += 1
             return
         ctl[C_STATIC_BAD] += 1
-        if problem not in told:
-            told.add(problem)
-            block.post_event(int(ctl[C_TICK_HEAD]), "static", problem)
+        refusals.refuse(reason, problem)
 
     return receive
 

@@ -113,6 +113,50 @@ def test_any_bytes_parse_or_are_refused_by_reason(data: bytes) -> None:
         assert all(np.isfinite(p.target))
 
 
+def test_the_io_process_refuses_pointer_inputs_by_reason_and_a_stamp_ahead() -> None:
+    """The sidecar's pointer subscriber (haptic_server/sidecar.py): refusals counted by
+    reason; an input stamped further ahead of this clock than the network's clock skew is
+    refused (`future`: one 0.9 s ahead was taken up to 0.10 and locked the real pointer out
+    for 0.9 s); one within the skew is taken but cannot lock out the next inputs."""
+    from types import SimpleNamespace
+
+    from haptic_local_model.haptic_server.mailbox import (
+        C_PTR_REASONS,
+        C_PTR_RECEIVED,
+        C_PTR_REJECTED,
+        N_CTL,
+        POINTER_REASONS,
+    )
+    from haptic_local_model.haptic_server.sidecar import _pointer_receiver, by_reason
+
+    targets: list[tuple[float, float, float]] = []
+    events: list[tuple[str, str]] = []
+    block: Any = SimpleNamespace(
+        ctl=np.zeros(N_CTL, np.int64),
+        post_pointer=targets.append,
+        post_event=lambda tick, kind, text: events.append((kind, text)),
+    )
+    skew_ns = 50_000_000
+    receive = _pointer_receiver(block, skew_ns)
+
+    def send(stamp_from_now_ns: int, x: float, raw: bytes | None = None) -> None:
+        data = raw or encode_pointer(1, time.time_ns() + stamp_from_now_ns, (x, 0.0, 0.0))
+        receive(SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: data)))
+
+    send(900_000_000, 0.5)  # 0.9 s ahead: refused
+    send(0, 0.01)  # the real pointer: taken
+    send(40_000_000, 0.02)  # within the skew: taken ...
+    send(1_000_000, 0.03)  # ... and the next real input is taken all the same
+    send(-2_000_000_000, 0.04)  # 2 s old
+    send(0, 0.0, encode_pointer(1, 1, (0.0, 1.5, 0.0)))  # beyond reach
+    assert targets == [(0.01, 0.0, 0.0), (0.02, 0.0, 0.0), (0.03, 0.0, 0.0)]
+    assert block.ctl[C_PTR_RECEIVED] == 6 and block.ctl[C_PTR_REJECTED] == 3
+    assert by_reason(block.ctl, POINTER_REASONS, C_PTR_REASONS) == {
+        "future": 1, "late": 1, "magnitude": 1,
+    }  # fmt: skip
+    assert [kind for kind, _ in events] == ["pointer"] * 3
+
+
 def test_the_hand_follows_the_pointer_target_with_its_spring() -> None:
     """f = K (start + target - pose) - B v, clipped at the hand's limit, per axis."""
     user = np.zeros(1, USER_DTYPE)
