@@ -124,3 +124,25 @@ def test_the_architecture_doc_names_every_module_of_the_four_packages() -> None:
     assert not named - modules, (
         f"docs/architecture.md names modules that are not there: {sorted(named - modules)}"
     )
+
+
+def _embedded(doc: str, name: str) -> str:
+    text = (DOCS / doc).read_text()
+    return text.split(f"<!-- access-table:{name}:begin -->\n")[1].split(
+        f"<!-- access-table:{name}:end"
+    )[0]
+
+
+def test_the_access_tables_in_the_docs_are_the_codes() -> None:
+    """docs/security.md's and docs/stations.md's access tables are generated from the
+    access-control code (the hand-written one left out `<ns>/static`, which sims publish)."""
+    from haptic_local_model.shared.net.security import access_control, access_table
+    from haptic_local_model.shared.net.stations import access_control as router_access
+    from haptic_local_model.shared.net.stations import load_station_network
+
+    haptic = access_table(access_control("<ns>", ("sim",), ("monitor",)), "<ns>")
+    assert _embedded("security.md", "haptic") == haptic
+    assert "`<ns>/static`" in haptic
+    net = load_station_network("stations_three_hosts", "router")
+    router = access_table(router_access(net, sorted(net.stations)), net.namespace)
+    assert _embedded("stations.md", "router") == router

@@ -76,6 +76,37 @@ def access_control(namespace: str, sim_users: tuple[str, ...], observers: tuple[
     }
 
 
+#: how an access-control rule reads from the subject's side: (message, flow) -> the column
+ACCESS_COLUMNS = {
+    ("put", "ingress"): "publishes",
+    ("declare_subscriber", "ingress"): "subscribes to",
+    ("put", "egress"): "receives",
+    ("declare_subscriber", "egress"): "is told of subscribers to",
+}
+
+
+def access_table(acl: dict[str, Any], namespace: str) -> str:
+    """A Zenoh access-control table as the markdown docs/security.md and docs/stations.md
+    embed: one row per subject, what it may do by key (`namespace` shown as `<ns>`); with
+    default deny, nothing else. Generated, so the docs cannot drift from the code."""
+    rules = {r["id"]: r for r in acl["rules"]}
+    users = {sub["id"]: sub["usernames"] for sub in acl["subjects"]}
+    heads = list(dict.fromkeys(ACCESS_COLUMNS.values()))
+    lines = ["| subject (users) | " + " | ".join(heads) + " |", "|---" * (len(heads) + 1) + "|"]
+    for policy in acl["policies"]:
+        cells: dict[str, list[str]] = {h: [] for h in heads}
+        for rule_id in policy["rules"]:
+            rule = rules[rule_id]
+            for message in rule["messages"]:
+                for flow in rule["flows"]:
+                    keys = [k.replace(namespace, "<ns>", 1) for k in rule["key_exprs"]]
+                    cells[ACCESS_COLUMNS[(message, flow)]] += [f"`{k}`" for k in keys]
+        who = ", ".join(f"`{u}`" for s in policy["subjects"] for u in users[s])
+        row = [", ".join(dict.fromkeys(cells[h])) or "-" for h in heads]
+        lines.append(f"| {policy['id']} ({who}) | " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def zenoh_keys(endpoints: EndpointSpec, namespace: str | None) -> dict[str, str]:
     """Zenoh config path -> JSON5 value for the endpoint's credentials, access control, its
     transport and extra `zenoh` keys."""
