@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 
 from haptic_local_model.benchmarks.grasp import (
+    CREEP_TARGET_M,
     SCENE,
     below_cone,
+    creep,
     fit_weights,
     hold,
     lift,
@@ -364,6 +366,18 @@ def test_v4_1_a_2n_squeeze_holds_the_box(scene):
     assert h["squeeze_n"] == pytest.approx(2.0, rel=0.01)
     assert max(h["transparency_max_n"]) <= 0.02
     assert h["faults"] == 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("device", ["twin_pantograph", "maglev"])
+def test_a_box_held_just_above_its_friction_threshold_does_not_creep(scene, device):
+    """At 1.25x the friction threshold, 10 s, with the devices' sensor noise: the box moves
+    <= 0.2 mm along its pads (it climbed 1.35 mm on twin pantographs, 0.28 mm on maglevs,
+    when a cap crossed by the contact damping's share reset the stick spring's anchor
+    against the motion), and keeps its four contacts."""
+    r = creep(scene, device)
+    assert r["max_m"] <= CREEP_TARGET_M, r
+    assert r["contacts_min"] == 4, r
 
 
 @pytest.mark.parametrize(

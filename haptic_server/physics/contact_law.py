@@ -13,8 +13,11 @@ def penalty_friction(law, depth, vn, vt, stick, h):
     k_n delta - b_n v_n (>= 0) and the stick spring's tangential force -k_t s - b_n v_t
     capped at mu f_n, s the stick's deflection carried on by v_t h. depth delta >= 0 is the
     penetration, v_n < 0 approaches.
-    Returns (f_n, f_t, the new deflection, whether it sticks); a slipping contact's
-    deflection is the one its capped force holds."""
+    Returns (f_n, f_t, the new deflection, whether it sticks). A capped contact's anchor
+    slides only by what the spring itself carries past the cone (its deflection clipped at
+    mu f_n / k_t), so it moves with v_t: a cap crossed by the damping's share b_n v_t moves
+    no anchor (set to the capped force's -f_t / k_t, the deflection grew against v_t on
+    every such tick, and sensor noise ratcheted a held box up its pads)."""
     k_n, b_n, mu, k_t = law
     f_n = k_n * depth - b_n * vn
     if f_n < 0.0:
@@ -24,7 +27,10 @@ def penalty_friction(law, depth, vn, vt, stick, h):
     limit = mu * f_n
     if abs(f_t) > limit:
         f_t = limit if f_t > 0.0 else -limit
-        return f_n, f_t, (-f_t / k_t if k_t > 0.0 else 0.0), False
+        if k_t <= 0.0:
+            return f_n, f_t, 0.0, False
+        edge = limit / k_t
+        return f_n, f_t, min(edge, max(-edge, stick)), False
     return f_n, f_t, stick, True
 
 
