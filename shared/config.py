@@ -218,6 +218,9 @@ ANGLE_RAD = 1e4  # |angle| (MessageLimits.max_abs_angle_rad)
 SPEED_M_PER_S = 100.0  # |velocity| (MessageLimits.max_abs_velocity)
 GRAVITY_M_PER_S2 = 100.0  # |g|: G(q) within max_abs_generalized_force for these masses
 STIFFNESS_RANGE_N_PER_M = (1e-9, 1e8)
+#: The heaviest device (kg; kg m^2 about its handle) a device config may state: the haptic
+#: side's gains are bounded by what would be stable on it (SceneConfig._check_gains)
+HEAVIEST_DEVICE = 100.0
 DAMPING_RANGE_NS_PER_M = (0.0, 1e6)
 FRICTION_RANGE = (0.0, 10.0)
 HAND_FORCE_N, HAND_TORQUE_NM = 1000.0, 100.0  # a simulated hand pushes no harder
@@ -996,6 +999,7 @@ class SceneConfig:
             require(0 <= self.tool.link < len(match_l[0].lengths), "tool.link", "no such link")
         if self.rendering.method == "virtual_coupling_foh" and self.tool.kind == "body":
             self._check_coupling_substeps(match[0])
+        self._check_gains()
         if self.rendering.method == "god_object":
             self._check_god_object()
         if self.tracks or self.cars:
@@ -1078,6 +1082,36 @@ class SceneConfig:
                 k0, k1 = (seg.kappa0, seg.kappa1) if kind == SegmentKind.CLOTHOID else (0.0, 0.0)
                 segments.append(Segment(kind, seg.length, k0, k1))
         return TrackSpec(tuple(segments), t.start, t.heading, t.closed)
+
+    def _check_gains(self) -> None:
+        """Every spring-damper the haptic side puts on the device (the god-object's, the
+        virtual coupling's, the coordination coupling's) must be stable on some device at the
+        haptic rate: its discrete step on a mass m is stable only if K dt^2 + 2 B dt < 4 m
+        (semi-implicit Euler), and no admitted device is heavier than HEAVIEST_DEVICE (kg,
+        or kg m^2 about the handle). A gain past it is a typo that would chatter the device
+        at its force limit, and is refused by its own key."""
+        r = self.rendering
+        dt = 1.0 / self.haptic_rate_hz
+        m = HEAVIEST_DEVICE
+        for name in ("god_object", "virtual_coupling", "coordination"):
+            ks, bs = getattr(r, f"{name}_stiffness"), getattr(r, f"{name}_damping")
+            for axis, (k, b) in enumerate(zip(ks, bs, strict=True)):
+                unit = "N/m" if axis < 2 else "N m/rad"
+                require(
+                    k * dt * dt < 4.0 * m,
+                    f"rendering.{name}_stiffness",
+                    f"{k:g} {unit} on axis {axis} cannot be stable on any device at "
+                    f"{self.haptic_rate_hz:g} Hz: K dt^2 + 2 B dt < 4 m for the heaviest "
+                    f"device admitted ({m:g}) gives K < {4.0 * m / (dt * dt):.4g}",
+                )
+                b_max = (4.0 * m - k * dt * dt) / (2.0 * dt)
+                require(
+                    b < b_max,
+                    f"rendering.{name}_damping",
+                    f"{b:g} on axis {axis} with stiffness {k:g} cannot be stable on any device "
+                    f"at {self.haptic_rate_hz:g} Hz: K dt^2 + 2 B dt < 4 m for the heaviest "
+                    f"device admitted ({m:g}) gives B < {b_max:.4g}",
+                )
 
     def _check_god_object(self) -> None:
         """A god-object is a disc held as a free body, and its coupling is passive (Colgate:

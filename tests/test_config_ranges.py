@@ -175,3 +175,28 @@ def test_a_log_directory_and_a_garbage_endpoint_are_refused_by_name(
     net.write_text('namespace = "x"\n[haptic]\nlisten = ["garbage"]\n')
     with pytest.raises(ConfigError, match=r"key 'haptic.listen\[0\]'.*not a Zenoh endpoint"):
         load_network(str(net))
+
+
+@pytest.mark.parametrize(
+    ("name", "stiffness", "damping", "key"),
+    [
+        ("god_object", 1e12, 2.0, "god_object_stiffness"),  # it loaded with damping raised
+        ("god_object", 1e12, 5e8, "god_object_stiffness"),  # to match K dt / 2 (issue 48)
+        ("god_object", 1e6, 1e6, "god_object_damping"),
+        ("virtual_coupling", 5e8, 3.0, "virtual_coupling_stiffness"),
+        ("coordination", 100.0, 3e5, "coordination_damping"),
+    ],
+)
+def test_a_gain_no_device_could_render_stably_is_refused_by_its_key(
+    name: str, stiffness: float, damping: float, key: str
+) -> None:
+    """The device-side spring-dampers must satisfy K dt^2 + 2 B dt < 4 m on the heaviest
+    device admitted (SceneConfig._check_gains); a scene file past it is refused naming the
+    file and the key, and the shipped scenes are within it."""
+    import dataclasses
+
+    scene = load_scene("god_testbed")
+    dims = 2 if name == "god_object" else 3
+    change = {f"{name}_stiffness": (stiffness,) * dims, f"{name}_damping": (damping,) * dims}
+    with pytest.raises(ValueError, match=f"rendering.{key}: .* gives [KB] <"):
+        dataclasses.replace(scene, rendering=dataclasses.replace(scene.rendering, **change))
