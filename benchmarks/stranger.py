@@ -72,6 +72,7 @@ class ServerPair:
     net: NetworkConfig
     log: Path
     epoch: int
+    sim_pid: int = 0
 
 
 @contextmanager
@@ -92,7 +93,7 @@ def server_pair(
     try:
         _ready(haptic)
         sim = Child("sim", [py, "-m", "haptic_local_model.sim_server.cli", *common])
-        yield ServerPair(net, log, int(_ready(sim)["epoch"]))
+        yield ServerPair(net, log, int(_ready(sim)["epoch"]), sim.proc.pid)
     finally:
         codes = [haptic.stop()] + ([sim.stop()] if sim is not None else [])
     if any(codes):

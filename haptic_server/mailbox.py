@@ -51,13 +51,17 @@ C_IO_BEAT = 17  # the I/O sidecar's heartbeat: its monotonic clock (ns) at its l
 C_PTR_RECEIVED, C_PTR_REJECTED = 18, 19  # pointer inputs received / refused by the sidecar
 C_WALL_START = 20  # the wall clock (ns) at the real-time loop's start: tick t = 0
 C_STATIC_OK, C_STATIC_BAD = 21, 22  # static messages of this scene's train / refused
+#: the sim's liveliness (sidecar): 1 while a sim's token is alive, and that sim's epoch (the
+#: earliest declared of those alive): while bound, only that epoch installs (Reason.UNBOUND)
+C_SIM_BOUND = 23
 #: refusals by reason, fixed counters (sidecar.Refusals): the pointer's, then the static's
 POINTER_REASONS = ("size", "magic", "version", "nonfinite", "magnitude", "late", "future",
                    "repeated")  # fmt: skip
 STATIC_REASONS = ("foreign", "malformed", "hostile")
 C_PTR_REASONS = 24
 C_STATIC_REASONS = C_PTR_REASONS + len(POINTER_REASONS)
-N_CTL = C_STATIC_REASONS + len(STATIC_REASONS)
+C_SIM_OWNER = C_STATIC_REASONS + len(STATIC_REASONS)
+N_CTL = C_SIM_OWNER + 1
 ERROR_BYTES = 256  # the log writer's last error, as text
 
 #: One mailbox slot: a received update's bytes and what the loop made of it.
@@ -290,6 +294,8 @@ def take_updates(ctl, mailbox, tick, now_ns, budget, model, data, install):
     needed, seq of the newest install, its latency in s).
     """
     ins = install[0]
+    ins.bound = load_acquire(ctl, C_SIM_BOUND)  # the sim's liveliness, as the sidecar saw it
+    ins.owner = load_acquire(ctl, C_SIM_OWNER)
     taken = 0
     installed = 0
     follow = 0

@@ -347,6 +347,9 @@ INSTALL_DTYPE = np.dtype(
         ("installed", I8),  # installs so far
         ("follow", I8),  # every install needs the engine's Python side (stale, FOH)
         ("stale", I8),  # the watchdog fired: the next good update may begin any epoch
+        # the sim's liveliness (the I/O sidecar): while `bound`, only `owner`'s epoch installs
+        ("bound", I8),
+        ("owner", I8),
         ("epoch_law", I8),  # EPOCH_LAW_*: how epochs and times are admitted
         ("max_age_s", F8),  # an update older than this when taken is late
         ("max_skew_s", F8),  # a publish time (or epoch) this far ahead of the clock is forged

@@ -44,6 +44,8 @@ from haptic_local_model.haptic_server.mailbox import (
     C_PUBLISHED,
     C_READY,
     C_RECEIVED,
+    C_SIM_BOUND,
+    C_SIM_OWNER,
     C_STATIC_BAD,
     C_STATIC_OK,
     C_STATIC_REASONS,
@@ -59,6 +61,7 @@ from haptic_local_model.haptic_server.mailbox import (
     SharedBlock,
     take_updates,
 )
+from haptic_local_model.shared.atomics import store_release
 from haptic_local_model.shared.protocol.codes import Method
 from haptic_local_model.shared.protocol.proxy import (
     MAX_WAIT_NS,
@@ -269,6 +272,9 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         if int(config.get("static_id", -1)) >= 0
         else None
     )
+    alive_sub = session.liveliness().declare_subscriber(
+        f"{k.alive}/*", SimLiveliness(block).receive, history=True
+    )
     publish_period = 1.0 / float(config["proxy_publish_hz"])
     method = int(config["method"])
     tick_period_ns = int(config["tick_period_ns"])
@@ -318,6 +324,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
             pointer_sub.undeclare()
         if static_sub is not None:
             static_sub.undeclare()
+        alive_sub.undeclare()
         session.close()
         block.release()
         shm.close()
@@ -407,6 +414,41 @@ def _pointer_receiver(block: SharedBlock, skew_ns: int) -> Any:
         block.post_pointer(pointer.target)
 
     return receive
+
+
+class SimLiveliness:
+    """The sims' liveliness tokens (`<ns>/alive/sim/<epoch>`, declared by `sim-server` on its
+    session): while one is alive, the earliest declared of them owns the namespace and only
+    its epoch installs (Reason.UNBOUND); when its session ends or loses us (Zenoh drops the
+    token), the next one alive, or none, and then any epoch may begin after the watchdog.
+    A second authenticated sim cannot take over a sim that stalled past the watchdog but
+    lives. At most MAX_TOKENS are remembered (a flood of tokens costs nothing more)."""
+
+    MAX_TOKENS = 16
+
+    def __init__(self, block: SharedBlock) -> None:
+        self.block = block
+        self.alive: dict[int, int] = {}  # epoch -> the order it was declared in
+        self.declared = 0
+
+    def receive(self, sample: Any) -> None:
+        from zenoh import SampleKind  # the loop's process never imports Zenoh
+
+        tail = str(sample.key_expr).rsplit("/", 1)[-1]
+        if not (tail.isdigit() and 0 < int(tail) < 2**63):
+            return  # not an epoch: nothing a sim declares
+        epoch = int(tail)
+        if sample.kind == SampleKind.DELETE:
+            self.alive.pop(epoch, None)
+        elif epoch not in self.alive and len(self.alive) < self.MAX_TOKENS:
+            self.alive[epoch] = self.declared
+            self.declared += 1
+        ctl = self.block.ctl
+        owner = min(self.alive, key=self.alive.__getitem__) if self.alive else 0
+        if owner != int(ctl[C_SIM_OWNER]) or (owner != 0) != bool(ctl[C_SIM_BOUND]):
+            store_release(ctl, C_SIM_BOUND, 0)  # no owner while it changes
+            store_release(ctl, C_SIM_OWNER, owner)
+            store_release(ctl, C_SIM_BOUND, 1 if owner else 0)
 
 
 def _static_receiver(block: SharedBlock, static_id: int) -> Any:

@@ -140,6 +140,9 @@ class SimServer:
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         k = keys(self.network.namespace)
         session = open_session(self.network.sim, self.zenoh_extra, self.network.namespace)
+        # this session's liveliness binds the epoch to it: while it lives, the haptic server
+        # takes no other sim's epoch (haptic_server/sidecar.py SimLiveliness)
+        alive = session.liveliness().declare_token(f"{k.alive}/{self.epoch}")
         # express: sent at once, not held back to batch with other messages (STACK-NOTES)
         pub = session.declare_publisher(
             k.update, congestion_control=zenoh.CongestionControl.DROP, express=True
@@ -206,6 +209,7 @@ class SimServer:
                 if end is not None and now >= end:
                     break
         finally:
+            alive.undeclare()
             session.close()
         q, _ = self.world.tool_state()
         return {

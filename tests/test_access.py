@@ -159,3 +159,54 @@ def test_only_the_configured_sim_drives_the_haptic_server(
     installed_sim = [r for r in by_epoch.get(sim_epoch, []) if r["installed"]]
     run_s = SIM_FLOW_S + len(intruders) * UPDATES_PER_PEER / PUBLISH_HZ
     assert len(installed_sim) >= MIN_SIM_FRACTION * run_s * load_scene(SCENE).sim_rate_hz
+
+
+@pytest.mark.processes
+def test_a_second_authenticated_sim_cannot_take_over_a_stalled_one(tmp_path: Path) -> None:
+    """The sim's epoch is bound to its session's liveliness (haptic_server/sidecar.py
+    SimLiveliness): the sim is stopped (SIGSTOP) past the watchdog, and a second process with
+    the sim's own credentials, declaring itself alive too, publishes plausible updates of a
+    new epoch. While the first sim's session lives none of them installs (`unbound`); up to
+    0.9 the first one after the watchdog began its epoch. The first sim, resumed, renders
+    again."""
+    import os
+    import signal
+
+    from haptic_local_model.benchmarks.stranger import server_pair
+    from haptic_local_model.haptic_server.log import UPDATE_TOPIC, read_json_topic
+    from haptic_local_model.shared.config import load_scene
+    from haptic_local_model.shared.net.transport import keys, open_session
+    from haptic_local_model.shared.protocol.update import encode_update
+    from haptic_local_model.sim_server.world import SimWorld
+
+    scene = "free_box"
+    with server_pair(
+        tmp_path, "second-sim", scene, "loopback", ["--user", "constant_push"]
+    ) as pair:
+        time.sleep(1.0)
+        k = keys(pair.net.namespace)
+        second = open_session(pair.net.sim)  # the sim's own credentials
+        try:
+            forged_epoch = time.time_ns()
+            token = second.liveliness().declare_token(f"{k.alive}/{forged_epoch}")
+            pub = second.declare_publisher(k.update)
+            world = SimWorld(load_scene(scene))
+            os.kill(pair.sim_pid, signal.SIGSTOP)
+            try:
+                time.sleep(0.5)  # past the watchdog
+                for seq in range(60):
+                    pub.put(encode_update(world.local_model(forged_epoch, seq, time.time_ns())))
+                    time.sleep(1 / 60)
+            finally:
+                os.kill(pair.sim_pid, signal.SIGCONT)
+            token.undeclare()
+        finally:
+            second.close()
+        time.sleep(1.0)
+    records = read_json_topic(pair.log, UPDATE_TOPIC)
+    forged = [r for r in records if r.get("epoch") == forged_epoch]
+    assert len(forged) >= 50, len(forged)
+    assert not any(r["installed"] for r in forged)
+    assert {r["reason"] for r in forged} == {"unbound"}
+    after = [r for r in records if r.get("epoch") == pair.epoch and r["installed"]]
+    assert after and after[-1]["tick"] > max(r["tick"] for r in forged)

@@ -210,11 +210,14 @@ class Forger:
                     raise RuntimeError("the haptic server does not render the sim's model")
 
     def forge(self, name: str) -> bytes:
-        """Publish forgery `name` of the sim's next update but one; returns its bytes."""
+        """Publish forgery `name` of the sim's update three ahead; returns its bytes."""
         proxy = self.next_rendering()
         world = self._world
         world.set_tool_state(proxy.q, proxy.qd)
-        seq = proxy.update_seq + 2  # the sim's next may be on its way already
+        # the sim's next ones may be on their way already (a loaded host delays the forger by
+        # a period or two: at + 2 the sim's update of that seq came first, `sequence`); at
+        # most + 3, the sequence's rate the jump check allows one period after the last
+        seq = proxy.update_seq + 3
         world.time = seq * world.period
         update = FORGERIES[name](world.local_model(self.epoch, seq, 0), self.scene)
         # stamped as it goes out, as the sim stamps: building a forgery (teleport makes a world)

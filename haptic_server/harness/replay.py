@@ -251,6 +251,8 @@ def _install(engine: HapticEngine, rec: dict[str, Any]) -> str:
     raw = base64.b64decode(rec["raw_b64"])
     if int(rec["size_bytes"]) > len(raw):
         return reason_of(Reason.SIZE)  # too big for the mailbox: the loop never parsed it
+    if rec["reason"] == Reason.UNBOUND.tag:  # a fact of the network (the sims' liveliness),
+        return Reason.UNBOUND.tag  # not of the bytes: refused as the loop refused it
     return engine.receive(raw, float(rec.get("latency_s", 0.0)))
 
 

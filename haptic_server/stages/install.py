@@ -96,6 +96,8 @@ def admit_live(u, age_s, ins):
         return Reason.FUTURE
     if u.epoch != ins.epoch and ins.ready == 1 and ins.stale == 0:
         return Reason.STALE_EPOCH
+    if ins.bound == 1 and u.epoch != ins.owner:  # the live sim's session holds another epoch
+        return Reason.UNBOUND
     return 0
 
 

@@ -36,6 +36,7 @@ def access_control(namespace: str, sim_users: tuple[str, ...], observers: tuple[
     update, proxy = f"{namespace}/local_model", f"{namespace}/proxy"
     pointer = f"{namespace}/input/pointer"
     static = f"{namespace}/static"
+    alive = f"{namespace}/alive/sim/*"
     rules = [
         {"id": "put_update_in", "messages": ["put"], "flows": ["ingress"],
          "permission": "allow", "key_exprs": [update]},
@@ -53,13 +54,18 @@ def access_control(namespace: str, sim_users: tuple[str, ...], observers: tuple[
          "permission": "allow", "key_exprs": [static]},
         {"id": "announce_static_sub", "messages": ["declare_subscriber"], "flows": ["egress"],
          "permission": "allow", "key_exprs": [static]},
+        {"id": "sim_alive_in", "messages": ["liveliness_token"], "flows": ["ingress"],
+         "permission": "allow", "key_exprs": [alive]},
+        {"id": "follow_sims_alive", "messages": ["declare_liveliness_subscriber",
+                                                 "liveliness_query"], "flows": ["egress"],
+         "permission": "allow", "key_exprs": [alive]},
     ]  # fmt: skip
     subjects = [{"id": "sims", "usernames": list(sim_users)}]
     policies = [
         {"id": "sims_drive", "subjects": ["sims"],
          "rules": ["put_update_in", "announce_update_sub", "follow_proxy_in", "put_proxy_out",
                    "put_pointer_in", "announce_pointer_sub", "put_static_in",
-                   "announce_static_sub"]},
+                   "announce_static_sub", "sim_alive_in", "follow_sims_alive"]},
     ]  # fmt: skip
     if observers:
         subjects.append({"id": "observers", "usernames": list(observers)})
@@ -79,9 +85,12 @@ def access_control(namespace: str, sim_users: tuple[str, ...], observers: tuple[
 #: how an access-control rule reads from the subject's side: (message, flow) -> the column
 ACCESS_COLUMNS = {
     ("put", "ingress"): "publishes",
+    ("liveliness_token", "ingress"): "declares alive",
     ("declare_subscriber", "ingress"): "subscribes to",
     ("put", "egress"): "receives",
     ("declare_subscriber", "egress"): "is told of subscribers to",
+    ("declare_liveliness_subscriber", "egress"): "is told of subscribers to",
+    ("liveliness_query", "egress"): "is asked for its tokens on",
 }
 
 
@@ -91,10 +100,10 @@ def access_table(acl: dict[str, Any], namespace: str) -> str:
     default deny, nothing else. Generated, so the docs cannot drift from the code."""
     rules = {r["id"]: r for r in acl["rules"]}
     users = {sub["id"]: sub["usernames"] for sub in acl["subjects"]}
-    heads = list(dict.fromkeys(ACCESS_COLUMNS.values()))
-    lines = ["| subject (users) | " + " | ".join(heads) + " |", "|---" * (len(heads) + 1) + "|"]
+    every = list(dict.fromkeys(ACCESS_COLUMNS.values()))
+    rows = []
     for policy in acl["policies"]:
-        cells: dict[str, list[str]] = {h: [] for h in heads}
+        cells: dict[str, list[str]] = {h: [] for h in every}
         for rule_id in policy["rules"]:
             rule = rules[rule_id]
             for message in rule["messages"]:
@@ -102,8 +111,12 @@ def access_table(acl: dict[str, Any], namespace: str) -> str:
                     keys = [k.replace(namespace, "<ns>", 1) for k in rule["key_exprs"]]
                     cells[ACCESS_COLUMNS[(message, flow)]] += [f"`{k}`" for k in keys]
         who = ", ".join(f"`{u}`" for s in policy["subjects"] for u in users[s])
+        rows.append((f"{policy['id']} ({who})", cells))
+    heads = [h for h in every if any(cells[h] for _, cells in rows)]  # the columns in use
+    lines = ["| subject (users) | " + " | ".join(heads) + " |", "|---" * (len(heads) + 1) + "|"]
+    for who, cells in rows:
         row = [", ".join(dict.fromkeys(cells[h])) or "-" for h in heads]
-        lines.append(f"| {policy['id']} ({who}) | " + " | ".join(row) + " |")
+        lines.append(f"| {who} | " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
 

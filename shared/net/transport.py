@@ -26,6 +26,7 @@ class Keys:
     proxy: str
     pointer: str
     static: str  # latched description of the scene's train (shared/protocol/static.py)
+    alive: str  # the sim's liveliness token: <alive>/<epoch> while its session lives
 
 
 def keys(namespace: str) -> Keys:
@@ -34,6 +35,7 @@ def keys(namespace: str) -> Keys:
         proxy=f"{namespace}/proxy",
         pointer=f"{namespace}/input/pointer",
         static=f"{namespace}/static",
+        alive=f"{namespace}/alive/sim",
     )
 
 

@@ -39,7 +39,7 @@ class Fault(IntEnum):
 class Reason(IntEnum):
     """An update's verdict: 0 installed, else why it was rejected (stable: logs keep them).
 
-    1-15, 25-27 and 29 come from the validating parser, 16-18 and 28 from the order and scene
+    1-15, 25-27 and 29 come from the validating parser, 16-18, 28 and 30 from the order and scene
     checks at install, 19-21 from the time check at install (the receiver's clock against
     the update's times), 22-24 from the plausibility check against the scene
     (haptic_server/stages/plausible.py)."""
@@ -80,6 +80,7 @@ class Reason(IntEnum):
     # cars, or not carried by the train (motion 3), or a world shape carried by it
     STATIC = 28  # the update's track (its static id) is not the one this scene rides
     FLAGS = 29  # a header flag bit this protocol does not define (a newer peer or a forgery)
+    UNBOUND = 30  # an epoch not the live sim's: another session holds the sim's liveliness
 
     @property
     def tag(self) -> str:
