@@ -73,6 +73,7 @@ class ServerPair:
     log: Path
     epoch: int
     sim_pid: int = 0
+    haptic_pid: int = 0
 
 
 @contextmanager
@@ -93,7 +94,7 @@ def server_pair(
     try:
         _ready(haptic)
         sim = Child("sim", [py, "-m", "haptic_local_model.sim_server.cli", *common])
-        yield ServerPair(net, log, int(_ready(sim)["epoch"]), sim.proc.pid)
+        yield ServerPair(net, log, int(_ready(sim)["epoch"]), sim.proc.pid, haptic.proc.pid)
     finally:
         codes = [haptic.stop()] + ([sim.stop()] if sim is not None else [])
     if any(codes):
