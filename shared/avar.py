@@ -303,7 +303,7 @@ def train_step(tr, train, st, q_ext, dt):
             sd = cross_kinks(tr, train, st, at, sd, forward)
         else:  # just inside the stop
             s = at - NUDGE_M if forward else at + NUDGE_M
-            sd, left = hit_stop(tr, train, st, kind, s, sd, q_ext, left, forward)
+            sd, left = hit_stop(tr, train, st, kind, s, sd, q_ext, left)
             if left == 0.0:
                 break
     if left > 0.0:
@@ -321,7 +321,7 @@ def train_step(tr, train, st, q_ext, dt):
 
 
 @njit(cache=True)
-def hit_stop(tr, train, st, kind, s, sd, q_ext, left, forward):
+def hit_stop(tr, train, st, kind, s, sd, q_ext, left):
     """An end bumper (kind 2 far, 3 near) met at s with s' = sd, `left` of the step to go:
     s' <- -e s', counted once per contact (a train resting on the bumper meets it again every
     step); when the bounce would come back within what is left of the step (a resting train:
@@ -335,7 +335,7 @@ def hit_stop(tr, train, st, kind, s, sd, q_ext, left, forward):
     st.bumper_loss += 0.5 * m * sd * sd * (1.0 - e * e)
     sd = -e * sd
     a = train_accel(tr, train, s, sd, q_ext)
-    a_in = a if forward else -a  # towards the stop
+    a_in = a if kind == 2 else -a  # towards the stop (the far one ahead, the near behind)
     if a_in > 0.0 and 2.0 * abs(sd) < a_in * left:  # back within the step
         st.bumper_loss += 0.5 * m * sd * sd
         return 0.0, 0.0
