@@ -614,7 +614,10 @@ def break_shape(raw: bytes, groups: dict[str, tuple[int, int]], draw: Any) -> by
         bad = {0: [0, 2, 3], 1: [1, 3, 0], 2: [0, 1, 2, 9, 100]}[kind]
         struct.pack_into("<q", out, i_at + 24, draw(st.sampled_from(bad)))
     elif how == "owner":
-        struct.pack_into("<q", out, i_at + 8, draw(st.sampled_from([-2, 0, 5, 2**40])))
+        # a car's index (0, 5) is an owner only with the AVARS trailer, where it may be valid
+        cars = struct.unpack_from("<H", raw, 6)[0] & 64
+        owners = [-2, 2**40] if cars else [-2, 0, 5, 2**40]
+        struct.pack_into("<q", out, i_at + 8, draw(st.sampled_from(owners)))
     elif how == "generation":
         struct.pack_into("<q", out, i_at + 32, -1)
     elif how == "motion":

@@ -139,10 +139,15 @@ def test_a_starved_then_killed_sidecar(
     assert haptic.proc.wait(10.0) == 1  # the loop noticed, stopped the run, said so
     assert sim.stop() == 0
     summary = json.loads(summary_path.read_text())
-    assert summary["io_lost"] and summary["io_stalls"] == 1
+    assert summary["io_lost"]
     log = Log.read(log_path)
     kinds = [e["kind"] for e in log.events]
     assert "io_stalled" in kinds and "io_resumed" in kinds and "io_lost" in kinds, kinds
+    # said once per stall: the stop's, and any the machine's load added after it (a 2-core
+    # CI host starved the resumed sidecar a second time once), each ended by a resumption
+    # but a last one the kill cut short
+    stalls, resumed = kinds.count("io_stalled"), kinds.count("io_resumed")
+    assert summary["io_stalls"] == stalls >= 1 and stalls - resumed in (0, 1), kinds
     trip = log.event_ticks("watchdog")[0]
     stalled = log.event_ticks("io_stalled")[0]
     clear = log.event_ticks("watchdog_clear")[0]
