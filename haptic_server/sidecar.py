@@ -61,7 +61,6 @@ from haptic_local_model.haptic_server.mailbox import (
     SharedBlock,
     take_updates,
 )
-from haptic_local_model.shared.atomics import store_release
 from haptic_local_model.shared.protocol.codes import Method
 from haptic_local_model.shared.protocol.proxy import (
     MAX_WAIT_NS,
@@ -446,9 +445,12 @@ class SimLiveliness:
         ctl = self.block.ctl
         owner = min(self.alive, key=self.alive.__getitem__) if self.alive else 0
         if owner != int(ctl[C_SIM_OWNER]) or (owner != 0) != bool(ctl[C_SIM_BOUND]):
-            store_release(ctl, C_SIM_BOUND, 0)  # no owner while it changes
-            store_release(ctl, C_SIM_OWNER, owner)
-            store_release(ctl, C_SIM_BOUND, 1 if owner else 0)
+            # plain aligned int64 stores, in program order (x86-64 keeps it; the loop reads
+            # with load_acquire): no compiled call in a Zenoh thread, which on a cold cache
+            # would compile there
+            ctl[C_SIM_BOUND] = 0  # no owner while it changes
+            ctl[C_SIM_OWNER] = owner
+            ctl[C_SIM_BOUND] = 1 if owner else 0
 
 
 def _static_receiver(block: SharedBlock, static_id: int) -> Any:
