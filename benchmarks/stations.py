@@ -45,7 +45,7 @@ import numpy as np
 
 from haptic_local_model.haptic_server.log import _iter_messages
 from haptic_local_model.haptic_server.stages.station import STATION_ROW_DTYPE
-from haptic_local_model.haptic_server.stations_cli import STATION_TICK_TOPIC
+from haptic_local_model.haptic_server.station_records import STATION_TOPIC
 from haptic_local_model.shared.config import resolve
 from haptic_local_model.shared.net.config import free_loopback_port
 
@@ -228,7 +228,7 @@ def _has_sim_bodies(scene: str) -> bool:
 
 def station_rows(path: Path) -> np.ndarray:
     """A station log's rows."""
-    chunks = [data for topic, data, _ in _iter_messages(path) if topic == STATION_TICK_TOPIC]
+    chunks = [data for topic, data, _ in _iter_messages(path) if topic == STATION_TOPIC]
     return np.frombuffer(b"".join(chunks), STATION_ROW_DTYPE)
 
 

@@ -7,23 +7,26 @@ the device, its user, the coupling rendered against the tool carried on by its t
 watchdog's ramp to the safe state), publish the device's state. The taking, the tick, the
 DeviceState and the row are compiled (haptic_server/stages/station_link.py): the loop's
 Python is its Zenoh calls and the device's noise refills. The rows stay in memory and are
-written to MCAP when the run ends (`--log`: a temporary file renamed when whole).
+written to MCAP when the run ends (`--log`: a temporary file renamed when whole), and
+`haptic-replay` re-runs them (haptic_server/station_records.py).
 """
 
 from __future__ import annotations
 
+import copy
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import zenoh
 
-from haptic_local_model.device_models.base import SimulatedDevice, world_map_of
+from haptic_local_model.device_models.base import SimulatedDevice
 from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import noise_ready
-from haptic_local_model.haptic_server.log import rows_in_order
-from haptic_local_model.haptic_server.port_scene import glove_script, port_gains, tool_start
-from haptic_local_model.haptic_server.stages.station import STATION_DTYPE, STATION_ROW_DTYPE
+from haptic_local_model.haptic_server.log import rows_in_order, write_rows_log
+from haptic_local_model.haptic_server.port_scene import glove_script
+from haptic_local_model.haptic_server.stages.station import STATION_ROW_DTYPE
 from haptic_local_model.haptic_server.stages.station_link import (
     station_link,
     station_log,
@@ -31,7 +34,14 @@ from haptic_local_model.haptic_server.stages.station_link import (
     take_tool,
 )
 from haptic_local_model.haptic_server.stages.station_messages import reason_counts
-from haptic_local_model.haptic_server.users import user_record
+from haptic_local_model.haptic_server.station_records import (
+    STATION_SCHEMA,
+    STATION_TOPIC,
+    StationSetup,
+    station_metadata,
+    station_record,
+)
+from haptic_local_model.shared import __version__
 from haptic_local_model.shared.config import UserConfig
 from haptic_local_model.shared.net.stations import (
     StationNetworkConfig,
@@ -46,9 +56,6 @@ TOOL_RING = 64  # tool states kept between two ticks: a stalled tick's worth and
 SPIN_NS = 100_000  # the wait's last 0.1 ms spins (several loops share two cores)
 MAX_LOG_S = 600.0  # the rows of at most this long stay in memory (--log: --duration <= this)
 RING_S = 60.0  # without --log: the last this long (the summary's figures)
-#: the tool is carried on by its twist for at most this long: a few of the world's periods
-#: and a network hop; an older tool state is rendered where it was (DeviceState likewise)
-EXTRAPOLATE_S = 0.005
 
 
 class Station:
@@ -69,23 +76,9 @@ class Station:
         self.scene, self.network, self.port, self.device = scene, network, port, device
         self.index = names.index(port)
         self.user = user
-        spec = scene.ports[self.index]
-        stiffness, damping = port_gains(scene, self.index)
-        st = np.zeros(1, STATION_DTYPE)
-        s = st[0]
-        s["dt"] = scene.period_s
-        s["watchdog_s"] = network.watchdog_ms / 1e3
-        s["ramp_s"] = network.safe_ramp_ms / 1e3
-        s["limits"] = device.limits().max_wrench
-        s["safe_damping"] = device.rendering.safe_damping
-        s["stiffness"] = stiffness
-        s["damping"] = damping
-        s["max_stiffness"] = stiffness
-        s["max_damping"] = damping
-        s["extrapolate_s"] = EXTRAPOLATE_S
-        s["map"][0] = world_map_of(device).record[0]
-        self.station = st
-        self._place(spec.device_start)
+        self.setup = StationSetup(scene, self.index, device, user, network.watchdog_ms / 1e3,
+                                  network.safe_ramp_ms / 1e3)  # fmt: skip
+        self.station = station_record(self.setup)
         self.rows = np.zeros(max_rows, STATION_ROW_DTYPE)
         self.rows.view(np.uint8)[:] = 0  # every page touched now, not in the loop
         self.n_rows = 0
@@ -103,23 +96,6 @@ class Station:
             self._glove = glove_script(user, rest)
         self.link[0]["n_glove"] = len(self._glove)
 
-    def _place(self, start: tuple[float, float, float]) -> None:
-        """The device at rest at its start, mapped onto its tool (the world re-indexes it
-        when it joins, so this only makes the log's frame the world's at the start)."""
-        dev = self.device
-        dev.reset(np.array(start, np.float64))
-        pose, twist = np.zeros(3), np.zeros(3)
-        dev.true_state(pose, twist)
-        s = self.station[0]
-        u = user_record(self.user)[0]
-        u["start_pose"] = pose
-        s["user"][0] = u
-        tool = tool_start(self.scene, self.index)
-        wm = s["map"][0]
-        wm["offset"] = tool - wm["scale"] * pose
-        s["map"][0] = wm
-        s["tool_pose"] = tool
-
     def request_stop(self, *_: object) -> None:
         self._stop = True
 
@@ -127,7 +103,11 @@ class Station:
         """Every ToolState waiting, oldest first: each taken or refused and counted
         (station_link.take_tool)."""
         while (sample := sub.try_recv()) is not None:
-            take_tool(self.station, self.link, self.index, now_ns, sample.payload.to_bytes())
+            self.take(sample.payload.to_bytes(), now_ns)
+
+    def take(self, raw: bytes, now_ns: int) -> None:
+        """One ToolState received at now_ns, taken or refused and counted."""
+        take_tool(self.station, self.link, self.index, now_ns, raw)
 
     def reasons(self) -> dict[str, int]:
         """The refused ToolStates, by reason (those that happened)."""
@@ -140,43 +120,60 @@ class Station:
         pub = session.declare_publisher(
             device_key, congestion_control=zenoh.CongestionControl.DROP, express=True
         )
-        st, dev = self.station, self.device.records
-        dt = float(st[0]["dt"])
-        pacer = Pacer(round(dt * 1e9), SPIN_NS, duration_s)
+        pacer = Pacer(round(float(self.station[0]["dt"]) * 1e9), SPIN_NS, duration_s)
         self.pacer = pacer
         enter_loop(self.warm, ready)
 
         def tick(now: int, seq: int) -> None:
-            if not noise_ready(dev, dt):
-                refill_noise(self.device.noise, dev, dt)
-                self.refills += 1
             self.receive(sub, now)
-            wall = time.time_ns()
-            station_step(st, dev, self.link, self.message, self._glove, now, wall, seq)
+            self.step(now, seq)
             pub.put(self.message.tobytes())
-            work_ns = time.perf_counter_ns() - now
-            self.work_us.add(work_ns / 1e3)
-            station_log(st, self.link, self.rows, self.n_rows % len(self.rows), now,
-                        pacer.late_ns, work_ns)  # fmt: skip
-            self.n_rows += 1
+            self.log(now, pacer.late_ns)
 
         with session:  # closed however the loop ends
             pacer.run(tick, lambda: self._stop)
         return self.summary()
 
+    def step(self, now_ns: int, seq: int) -> None:
+        """One tick at now_ns (the loop's clock) on the tool states taken: the device's noise
+        refilled if the tick needs it, the compiled tick, the DeviceState in `message`."""
+        dev, dt = self.device.records, float(self.station[0]["dt"])
+        if not noise_ready(dev, dt):
+            refill_noise(self.device.noise, dev, dt)
+            self.refills += 1
+        station_step(self.station, dev, self.link, self.message, self._glove, now_ns,
+                     time.time_ns(), seq)  # fmt: skip
+
+    def log(self, now_ns: int, late_ns: int) -> None:
+        """The tick's row (the ring's next), with its work since now_ns."""
+        work_ns = time.perf_counter_ns() - now_ns
+        self.work_us.add(work_ns / 1e3)
+        station_log(self.station, self.link, self.rows, self.n_rows % len(self.rows), now_ns,
+                    late_ns, work_ns)  # fmt: skip
+        self.n_rows += 1
+
     def warm(self) -> None:
-        """Compile (or load) the tick on spare records before the loop."""
-        spare, link = self.station.copy(), self.link.copy()
-        self.device.noise.refill()
-        records = self.device.records
+        """Compile (or load) the tick on spare records and a spare device before the loop
+        (the device's own noise is drawn from its start, as the replay draws it)."""
+        spare, link, device = self.station.copy(), self.link.copy(), copy.deepcopy(self.device)
         tool = np.zeros(1, TOOL_RECORD)  # a ToolState refused (the wrong magic): not taken
         take_tool(spare, link, self.index, 0, tool.tobytes())
-        station_step(spare, records, link, self.message.copy(), self._glove, 0, 0, 0)
+        station_step(spare, device.records, link, self.message.copy(), self._glove, 0, 0, 0)
         station_log(spare, link, np.zeros(1, STATION_ROW_DTYPE), 0, 0, 0, 0)
-        self._place(self.scene.ports[self.index].device_start)
 
     def logged_rows(self) -> np.ndarray:
         return rows_in_order(self.rows, self.n_rows)
+
+    def write_log(self, path: Path, texts: dict[str, str]) -> None:
+        """The rows and what replays them (the scene's, device's and user's files, `texts`:
+        ports, device, user), into a temporary file renamed to `path` when whole."""
+        rows = self.logged_rows()
+        write_rows_log(path, rows, STATION_TOPIC, STATION_SCHEMA, {
+            "configs": {"ports": texts["ports"], "port": self.port, "device": self.device.name,
+                        "user": self.user.name},
+            "station": station_metadata(self.setup, texts),
+            "run": {"version": __version__, "ticks": str(len(rows)), "kind": "haptic-station"},
+        })  # fmt: skip
 
     def summary(self) -> dict[str, Any]:
         rows = self.logged_rows()

@@ -7,8 +7,8 @@
 
 Each runs until SIGTERM or SIGINT (or --duration), then writes its log (a temporary file
 renamed when whole) and its summary (--json), and prints one JSON line per event on stdout
-(`ready`, `done`). The world's log is a port world's log: `haptic-replay LOG` re-runs it bit
-for bit.
+(`ready`, `done`). The world's log is a port world's log and a station's holds the tool states
+it rendered against: `haptic-replay LOG` re-runs either bit for bit.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import Any
 
 import zenoh
 
-from haptic_local_model.device_models.registry import load_simulated_device
+from haptic_local_model.device_models.registry import device_config, load_simulated_device
 from haptic_local_model.haptic_server.hand_grasp_ports import HAND_GRASP_KIND
 from haptic_local_model.haptic_server.log import write_rows_log
 from haptic_local_model.haptic_server.port_scene import load_glove_users
@@ -48,9 +48,6 @@ from haptic_local_model.shared.config import (
 )
 from haptic_local_model.shared.net.stations import load_station_network, router_config
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig, is_hand_scene
-
-STATION_TICK_TOPIC = "/station/tick"
-STATION_TICK_SCHEMA = "haptic_server/StationTick"
 
 
 def _common(parser: argparse.ArgumentParser, scene: bool = True) -> None:
@@ -194,20 +191,17 @@ def station_main(argv: list[str] | None = None) -> int:
         if spec is None:
             names = ", ".join(p.name for p in scene.ports)
             raise ConfigError(args.scene, "--port", f"{args.port!r} is not a port ({names})")
-        device = load_simulated_device(args.device or spec.device)
-        user = load_user(args.user or spec.user)
+        device_name, user_name = args.device or spec.device, args.user or spec.user
+        device, user = load_simulated_device(device_name), load_user(user_name)
         rows = _rows_for(args, scene.haptic_rate_hz)
         station = Station(scene, network, args.port, device, user, rows)
         summary = _run_loop("haptic-station", station, args.duration)
         if summary is None:
             return 1
         if args.log is not None:
-            logged = station.logged_rows()
-            write_rows_log(args.log, logged, STATION_TICK_TOPIC, STATION_TICK_SCHEMA, {
-                "configs": {"ports": text, "port": args.port, "device": device.name,
-                            "user": user.name},
-                "run": {"version": __version__, "ticks": str(len(logged)),
-                        "kind": "haptic-station"},
+            station.write_log(args.log, {
+                "ports": text, "device": device_config(device_name).read_text(),
+                "user": resolve("users", user_name).read_text(),
             })  # fmt: skip
         _finish("haptic-station", summary, args.json)
         return 0

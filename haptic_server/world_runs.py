@@ -46,6 +46,12 @@ from haptic_local_model.haptic_server.log import (
 from haptic_local_model.haptic_server.one_port import OnePortRun
 from haptic_local_model.haptic_server.port_scene import load_glove_users
 from haptic_local_model.haptic_server.ports import PORT_KIND, PortRun
+from haptic_local_model.haptic_server.stages.station import STATION_ROW_DTYPE
+from haptic_local_model.haptic_server.station_records import (
+    STATION_TOPIC,
+    replay_station_rows,
+    setup_from_log,
+)
 from haptic_local_model.haptic_server.world import World, WorldKind, run_real_time, run_virtual
 from haptic_local_model.shared import __version__
 from haptic_local_model.shared.config import (
@@ -217,28 +223,38 @@ def run_port_scene(
     return figures
 
 
-def log_kind(path: Path) -> WorldKind | None:
-    """The world kind whose rows a log holds, told by its channels (None: none of a world).
-    A world's channel comes before its first row."""
+def _rows_topic(path: Path) -> str | None:
+    """The topic of a world's or a station's rows in a log, told by its channels (None:
+    neither). That channel comes before its first row."""
     if not path.is_file():
         return None
     for n, record in enumerate(stream_records(path)):
-        if isinstance(record, Channel) and record.topic in WORLD_KINDS:
-            return WORLD_KINDS[record.topic]
+        if isinstance(record, Channel) and (
+            record.topic in WORLD_KINDS or record.topic == STATION_TOPIC
+        ):
+            return str(record.topic)
         if n > CHANNEL_SCAN:
             break
     return None
 
 
+def log_kind(path: Path) -> WorldKind | None:
+    """The world kind whose rows a log holds (None: none of a world)."""
+    return WORLD_KINDS.get(_rows_topic(path) or "")
+
+
 def is_port_log(path: Path) -> bool:
-    """A log of a port world, whole or cut short: its rows' channel, or its port scene (the
-    metadata, written first, survives where the rows' first chunk was cut)."""
-    return log_kind(path) is not None or "ports" in read_metadata(path).get("configs", {})
+    """A log of a port world or of a station, whole or cut short: its rows' channel, or its
+    port scene (the metadata, written first, survives where the rows' first chunk was cut)."""
+    return _rows_topic(path) is not None or "ports" in read_metadata(path).get("configs", {})
 
 
 def replay_log(path: Path) -> tuple[int, int | None]:
-    """Re-run a port world's log (told by its topic); (ticks compared, the first tick whose
-    outputs differ in any bit, or None)."""
+    """Re-run a port world's or a station's log (told by its topic); (ticks compared, the
+    first tick whose outputs differ in any bit, or None)."""
+    if _rows_topic(path) == STATION_TOPIC:
+        rows, metadata = read_port_log(path, STATION_TOPIC, STATION_ROW_DTYPE)
+        return replay_station_rows(setup_from_log(path, metadata), rows)
     kind = log_kind(path) or PORT_KIND  # not one: read_port_log says why
     rows, metadata = read_port_log(path, kind.topic, kind.rows)
     scene = load_config_text(kind.scene, metadata["configs"]["ports"], f"{path} (its scene)")
@@ -251,7 +267,7 @@ def replay_log(path: Path) -> tuple[int, int | None]:
 
 
 def replay_main(path: Path) -> int:
-    """`haptic-replay` of a port world's log: 0 when bit-exact, 1 when it differs."""
+    """`haptic-replay` of a port world's or a station's log: 0 when bit-exact, 1 when it differs."""
     ticks, first = replay_log(path)
     if first is None:
         print(f"replayed {ticks} ticks of {path}: bit-exact")

@@ -32,10 +32,12 @@ from haptic_local_model.benchmarks.stations import (
 )
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.haptic_server.hand_grasp_ports import HAND_GRASP_ROW_DTYPE
+from haptic_local_model.haptic_server.log import write_rows_log
 from haptic_local_model.haptic_server.port_scene import port_gains
 from haptic_local_model.haptic_server.shared_world import SharedWorld
 from haptic_local_model.haptic_server.stages.station import STATION_ROW_DTYPE
-from haptic_local_model.haptic_server.station import EXTRAPOLATE_S, Station
+from haptic_local_model.haptic_server.station import Station
+from haptic_local_model.haptic_server.station_records import EXTRAPOLATE_S
 from haptic_local_model.haptic_server.world_runs import (
     HAND_GRASP_TOPIC,
     read_port_log,
@@ -279,6 +281,56 @@ def test_an_old_tool_state_is_not_carried_on_and_received_gains_are_capped() -> 
     assert rows["spring"][0, 0] == pytest.approx(k * err)
 
 
+def _station_log(tmp_path: Path, n: int, every: int) -> tuple[Station, Path]:
+    """A maglev's station run offline through its loop's own calls for n ticks, a ToolState
+    (the tool gliding along x) taken every `every` ticks and none for the last 150 (its
+    watchdog fires), then logged."""
+    st = _station("maglev")
+    st.rows = np.zeros(n, STATION_ROW_DTYPE)
+    start = st.station[0]["tool_pose"].copy()
+    for k in range(n):
+        now = 1_000_000 * k
+        if k % every == 0 and k < n - 150:
+            pose = (start[0] + 1e-3 + 0.05 * k * 1e-3, start[1], start[2])
+            raw = encode_tool(_tool(seq=k + 1, pose=pose, twist=(0.05, 0.0, 0.0)))
+            st.take(raw, now)
+        st.step(now, k)
+        st.log(now, 0)
+    path = tmp_path / "left.mcap"
+    files = (("ports", "ports", SCENE), ("device", "devices", "maglev"),
+             ("user", "users", "hold_still"))  # fmt: skip
+    texts = {name: resolve(folder, ref).read_text() for name, folder, ref in files}
+    st.write_log(path, texts)
+    return st, path
+
+
+def test_a_stations_log_replays_bit_for_bit_and_a_changed_input_is_found(tmp_path: Path) -> None:
+    """The station's rows re-run from the log alone (its scene, device, user, watchdog and
+    the tool states it rendered against): bit-exact across a noise refill and the watchdog;
+    a tool twist changed in one row is found at that row; a log without the station's
+    metadata is refused by key."""
+    st, path = _station_log(tmp_path, 3000, 3)
+    rows = station_rows(path)
+    assert st.refills >= 1 and rows["fresh"][:2800].all() and rows["fresh"][-50:].max() == 0
+    assert np.abs(rows["out"][:2800, 0]).max() > 0.5  # it rendered the coupling
+    assert replay_log(path) == (3000, None)
+    changed = rows.copy()
+    changed["tool_twist"][1234, 0] += 1e-9
+    forged = tmp_path / "forged.mcap"
+    st.rows = changed
+    st.n_rows = len(changed)
+    _, metadata = read_port_log(path, "/station/tick", STATION_ROW_DTYPE)
+    st.write_log(forged, {k[: -len("_toml")]: v for k, v in metadata["station"].items()
+                          if k.endswith("_toml")})  # fmt: skip
+    assert replay_log(forged) == (1235, 1234)
+    bare = tmp_path / "bare.mcap"
+    write_rows_log(bare, rows, "/station/tick", "haptic_server/StationTick",
+                   {"configs": {"ports": metadata["configs"]["ports"]},
+                    "run": {"ticks": str(len(rows))}})  # fmt: skip
+    with pytest.raises(ConfigError, match=r"station\.port"):
+        replay_log(bare)
+
+
 def test_the_world_holds_a_port_until_its_station_says_safe_and_refuses_old_epochs(
     ring: Any,
 ) -> None:
@@ -493,6 +545,8 @@ def test_a_killed_station_leaves_the_box_held_and_a_late_one_joins_without_a_jum
     assert pushed == pytest.approx(-2.0, abs=0.1)  # the left hand's 2 N squeeze, held
     ticks, differs = replay_log(world_log)
     assert differs is None and ticks == len(read_port_log(world_log)[0])
+    for log in (right_log, late_log):  # the stations' logs too, on the tool states they took
+        assert replay_log(log) == (len(station_rows(log)), None)
     print(f"\nstations, loopback: largest command step {jump * 1e3:.1f} mN a tick as the late "
           f"station joined (steady {steady * 1e3:.1f} mN); box lowest "
           f"{(box['lowest_y'] - box['start'][1]) * 1e3:+.2f} mm")  # fmt: skip
@@ -639,6 +693,8 @@ def test_two_hands_at_two_stations_hold_and_lift_the_box(tmp_path: Path, start_s
     assert end["q"][0, 3] == pytest.approx(0.5, abs=0.02)  # the finger went there
     ticks, differs = replay_log(world_log)
     assert differs is None and ticks == summary["ticks"]
+    for log in logs.values():  # each station's, its glove's user file among its metadata
+        assert replay_log(log) == (len(station_rows(log)), None)
 
 
 RUN_S = 24.0  # the stations' run: >= 20 s

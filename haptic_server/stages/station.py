@@ -97,11 +97,16 @@ STATION_ROW_DTYPE = np.dtype(
         ("coupling", F8, (3,)),
         ("spring", F8, (3,)),
         ("out", F8, (3,)),  # device frame
+        # the tool state the tick rendered against, as the loop set it (the replay's input)
         ("tool_pose", F8, (3,)),
+        ("tool_twist", F8, (3,)),
+        ("stiffness", F8, (3,)),  # the gains the world sent (before the station's clamp)
+        ("damping", F8, (3,)),
         ("tool_age", F8),
+        ("have_tool", I8),
+        ("held", I8),
         ("gain", F8),
         ("fresh", I8),
-        ("held", I8),
         ("cut", I8),
         ("invalid", I8),
         ("received", I8),  # tool states taken, all told
@@ -203,7 +208,11 @@ def station_row(station, rows, k, fault):
         row.spring[c] = s.spring[c]
         row.out[c] = s.out[c]
         row.tool_pose[c] = s.tool_pose[c]
+        row.tool_twist[c] = s.tool_twist[c]
+        row.stiffness[c] = s.stiffness[c]
+        row.damping[c] = s.damping[c]
     row.tool_age = s.tool_age
+    row.have_tool = s.have_tool
     row.gain = s.gain
     row.fresh = s.fresh
     row.held = s.held

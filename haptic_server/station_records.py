@@ -1,0 +1,161 @@
+"""A haptic station's records, built from its scene, port, device and user, and the replay of
+its log: the station's loop (haptic_server/station.py) and `haptic-replay` build them here.
+
+A station's tick is a function of its device and user (both simulated, seeded), the scene's
+coupling and what the world sent it. Its log's rows hold, each tick, the tool state the tick
+rendered against (pose, twist, gains, whether held) and its age; the metadata holds the
+scene's, device's and user's files and the station's watchdog and ramp. The replay rebuilds
+the station, runs its tick on the logged tool states and compares every output bit for bit.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from haptic_local_model.device_models.base import SimulatedDevice, world_map_of
+from haptic_local_model.device_models.common import refill_noise
+from haptic_local_model.device_models.kernels import noise_ready
+from haptic_local_model.device_models.registry import device_from_text
+from haptic_local_model.haptic_server.port_scene import port_gains, tool_start
+from haptic_local_model.haptic_server.stages.station import (
+    STATION_DTYPE,
+    STATION_ROW_DTYPE,
+    station_row,
+    station_tick,
+)
+from haptic_local_model.haptic_server.users import user_record
+from haptic_local_model.shared.config import (
+    ConfigError,
+    UserConfig,
+    load_config_text,
+    parse_toml_text,
+)
+from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig, is_hand_scene
+
+STATION_TOPIC = "/station/tick"
+STATION_SCHEMA = "haptic_server/StationTick"
+#: the tool is carried on by its twist for at most this long: a few of the world's periods
+#: and a network hop; an older tool state is rendered where it was (DeviceState likewise)
+EXTRAPOLATE_S = 0.005
+#: what a tick renders against, as the loop set it: logged each tick, fed back by the replay
+TOOL_INPUTS = ("have_tool", "held", "tool_age", "tool_pose", "tool_twist", "stiffness", "damping")
+#: what a tick computes from them: compared bit for bit by the replay
+REPLAYED = ("pose", "twist", "hand", "coupling", "spring", "out", "gain", "fresh", "cut",
+            "invalid", "fault")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class StationSetup:
+    """What a station is built from (its log's metadata holds all of it)."""
+
+    scene: PortSceneConfig | HandSceneConfig
+    index: int  # its port's
+    device: SimulatedDevice
+    user: UserConfig
+    watchdog_s: float  # the station network's watchdog and safe ramp
+    ramp_s: float
+
+
+def station_record(setup: StationSetup) -> np.ndarray:
+    """The station's STATION_DTYPE record, its device placed at the port's start."""
+    scene, device = setup.scene, setup.device
+    stiffness, damping = port_gains(scene, setup.index)
+    st = np.zeros(1, STATION_DTYPE)
+    s = st[0]
+    s["dt"] = scene.period_s
+    s["watchdog_s"] = setup.watchdog_s
+    s["ramp_s"] = setup.ramp_s
+    s["limits"] = device.limits().max_wrench
+    s["safe_damping"] = device.rendering.safe_damping
+    s["stiffness"] = stiffness
+    s["damping"] = damping
+    s["max_stiffness"] = stiffness
+    s["max_damping"] = damping
+    s["extrapolate_s"] = EXTRAPOLATE_S
+    s["map"][0] = world_map_of(device).record[0]
+    place_station(st, setup)
+    return st
+
+
+def place_station(station: np.ndarray, setup: StationSetup) -> None:
+    """The device at rest at its port's start, mapped onto its tool (the world re-indexes it
+    when it joins, so this only makes the log's frame the world's at the start)."""
+    dev = setup.device
+    dev.reset(np.array(setup.scene.ports[setup.index].device_start, np.float64))
+    pose, twist = np.zeros(3), np.zeros(3)
+    dev.true_state(pose, twist)
+    s = station[0]
+    u = user_record(setup.user)[0]
+    u["start_pose"] = pose
+    s["user"][0] = u
+    tool = tool_start(setup.scene, setup.index)
+    wm = s["map"][0]
+    wm["offset"] = tool - wm["scale"] * pose
+    s["map"][0] = wm
+    s["tool_pose"] = tool
+
+
+def station_metadata(setup: StationSetup, texts: dict[str, str]) -> dict[str, str]:
+    """The log's `station` metadata: the port, the watchdog and the ramp, and the scene's,
+    device's and user's files (`texts`: ports, device, user) the replay rebuilds it from."""
+    return {
+        "port": setup.scene.ports[setup.index].name,
+        "watchdog_s": json.dumps(setup.watchdog_s),
+        "ramp_s": json.dumps(setup.ramp_s),
+        **{f"{key}_toml": text for key, text in texts.items()},
+    }
+
+
+def setup_from_log(path: Path, metadata: dict[str, dict[str, str]]) -> StationSetup:
+    """The station a log's metadata describes; what is missing or wrong is named."""
+    meta = metadata.get("station", {})
+    missing = [k for k in ("port", "watchdog_s", "ramp_s", "ports_toml", "device_toml",
+                           "user_toml") if k not in meta]  # fmt: skip
+    if missing:
+        raise ConfigError(str(path), f"station.{missing[0]}", "missing: not a station's "
+                          "log of this release")  # fmt: skip
+    where = f"{path} (its scene)"
+    text = meta["ports_toml"]
+    scene_type = HandSceneConfig if is_hand_scene(parse_toml_text(text, where)) else PortSceneConfig
+    scene: PortSceneConfig | HandSceneConfig = load_config_text(scene_type, text, where)
+    names = [p.name for p in scene.ports]
+    if meta["port"] not in names:
+        raise ConfigError(str(path), "station.port", f"{meta['port']!r} is not a port")
+    device = device_from_text(meta["device_toml"], f"{path} (its device)", simulated_only=True)
+    if not isinstance(device, SimulatedDevice):
+        raise ConfigError(str(path), "station.device_toml", "not a simulated device")
+    user = load_config_text(UserConfig, meta["user_toml"], f"{path} (its user)")
+    seconds = []
+    for key in ("watchdog_s", "ramp_s"):
+        try:
+            seconds.append(float(json.loads(meta[key])))
+        except (ValueError, TypeError):
+            raise ConfigError(str(path), f"station.{key}", "not a number") from None
+        if not seconds[-1] > 0.0:
+            raise ConfigError(str(path), f"station.{key}", "not a positive number of seconds")
+    return StationSetup(scene, names.index(meta["port"]), device, user, seconds[0], seconds[1])
+
+
+def replay_station_rows(setup: StationSetup, rows: np.ndarray) -> tuple[int, int | None]:
+    """Re-run the station's ticks on the rows' tool states; (ticks compared, the first tick
+    whose outputs differ in any bit, or None)."""
+    station = station_record(setup)
+    s = station[0]
+    dev, noise = setup.device.records, setup.device.noise
+    dt = float(s["dt"])
+    out = np.zeros(1, STATION_ROW_DTYPE)
+    for k, row in enumerate(rows):
+        if not noise_ready(dev, dt):  # where the loop refilled: the same seeded draws
+            refill_noise(noise, dev, dt)
+        for name in TOOL_INPUTS:
+            s[name] = row[name]
+        station_tick(station, dev)
+        station_row(station, out, 0, s["sensors"][0]["fault"])
+        for name in REPLAYED:
+            if np.asarray(out[0][name]).tobytes() != np.asarray(row[name]).tobytes():
+                return k + 1, k
+    return len(rows), None
