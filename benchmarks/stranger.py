@@ -74,6 +74,8 @@ class ServerPair:
     epoch: int
     sim_pid: int = 0
     haptic_pid: int = 0
+    #: the haptic server's JSON events as they come (its `stopped` summary last)
+    events: list[dict[str, Any]] = field(default_factory=list)
 
 
 @contextmanager
@@ -94,7 +96,8 @@ def server_pair(
     try:
         _ready(haptic)
         sim = Child("sim", [py, "-m", "haptic_local_model.sim_server.cli", *common])
-        yield ServerPair(net, log, int(_ready(sim)["epoch"]), sim.proc.pid, haptic.proc.pid)
+        epoch = int(_ready(sim)["epoch"])
+        yield ServerPair(net, log, epoch, sim.proc.pid, haptic.proc.pid, haptic.events)
     finally:
         codes = [haptic.stop()] + ([sim.stop()] if sim is not None else [])
     if any(codes):

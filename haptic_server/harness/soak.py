@@ -167,7 +167,7 @@ class SegmentResult:
     log: str = ""
 
 
-def _rss_mb(pid: int) -> float | None:
+def rss_mb(pid: int) -> float | None:
     try:
         for line in Path(f"/proc/{pid}/status").read_text().splitlines():
             if line.startswith("VmRSS:"):
@@ -177,7 +177,7 @@ def _rss_mb(pid: int) -> float | None:
     return None
 
 
-def _helper_name(pid: int) -> str | None:
+def helper_name(pid: int) -> str | None:
     """Which of the haptic server's helpers `pid` is, by its command line (the
     multiprocessing resource tracker is none of them)."""
     try:
@@ -191,7 +191,7 @@ def _helper_name(pid: int) -> str | None:
     return None
 
 
-def _children(pid: int) -> list[int]:
+def children(pid: int) -> list[int]:
     try:
         return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
     except OSError:
@@ -213,14 +213,14 @@ class MemorySampler:
     def _run(self) -> None:
         while not self._stop.wait(MEMORY_SAMPLE_S):
             if "haptic" in self.pids and not {"haptic_io", "haptic_log"} <= set(self.pids):
-                for kid in _children(self.pids["haptic"]):
-                    name = _helper_name(kid)
+                for kid in children(self.pids["haptic"]):
+                    name = helper_name(kid)
                     if name and name not in self.pids:
                         self.pids[name] = kid
                         self.traces[name] = MemoryTrace(name)
             now = time.monotonic() - self._start
             for name, pid in self.pids.items():
-                rss = _rss_mb(pid)
+                rss = rss_mb(pid)
                 if rss is not None:
                     self.traces[name].t.append(now)
                     self.traces[name].rss_mb.append(rss)
@@ -332,7 +332,7 @@ def _inject(
         if not sims[-1].wait_ready(120.0):
             raise RuntimeError("the restarted sim did not start")
     elif fault == "sidecar_stall":
-        sidecar = next(p for p in _children(haptic.proc.pid) if _helper_name(p) == "haptic_io")
+        sidecar = next(p for p in children(haptic.proc.pid) if helper_name(p) == "haptic_io")
         os.kill(sidecar, signal.SIGSTOP)
         time.sleep(SIDECAR_STALL_S)
         os.kill(sidecar, signal.SIGCONT)
