@@ -18,6 +18,7 @@ is there and closes the log.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import gc
 import multiprocessing as mp
 import os
@@ -52,6 +53,7 @@ from haptic_local_model.haptic_server.mailbox import (
     C_TICK_HEAD,
     C_TICK_LOGGED,
     C_TICK_LOST,
+    C_UPD_HEAD,
     C_UPD_LOST,
     C_UPD_READ,
     MAILBOX_SLOTS,
@@ -80,6 +82,36 @@ if TYPE_CHECKING:
     from haptic_local_model.haptic_server.engine import HapticEngine
 
 IO_POLL_S = 0.004  # the sidecar wakes at least this often (and for each proxy publish)
+TRIM_AFTER = 1000  # messages received since the last trim: a flood's worth
+TRIM_EVERY_S = 1.0  # at most this often
+
+
+class FloodTrim:
+    """After a flood, the memory its messages took handed back to the system: Zenoh's receive
+    path allocates through glibc, whose per-thread arenas keep what was freed, and a first
+    flood of 30,000 messages on a key left this process 0-24 MB larger for good
+    (benchmarks/flood.py). `malloc_trim` (ctypes releases the GIL for it; a few ms at most,
+    in this process only) in each second a flood's worth arrived in and in the one after."""
+
+    def __init__(self) -> None:
+        self._trim: Any = None
+        with contextlib.suppress(OSError, AttributeError):  # not glibc: nothing to trim
+            self._trim = ctypes.CDLL("libc.so.6").malloc_trim
+        self._counted = 0
+        self._flooding = False
+        self._next = 0.0
+
+    def after_flood(self, ctl: np.ndarray, now: float) -> None:
+        if self._trim is None or now < self._next:
+            return
+        counted = int(ctl[C_UPD_HEAD] + ctl[C_UPD_LOST] + ctl[C_PTR_RECEIVED] + ctl[C_PTR_REJECTED]
+                      + ctl[C_STATIC_OK] + ctl[C_STATIC_BAD])  # fmt: skip
+        flooding = counted - self._counted >= TRIM_AFTER
+        if flooding or self._flooding:  # in a flood's seconds, and the one after its end
+            self._trim(0)
+        self._counted, self._flooding, self._next = counted, flooding, now + TRIM_EVERY_S
+
+
 IO_NICENESS = 10  # only when the loop could not get real-time priority (see _lower_priority)
 IO_PRIORITY = REALTIME_PRIORITY // 2  # SCHED_FIFO below the loop's
 VIEW_CLOSE_S = 5.0  # the live view's last frame and flush
@@ -290,6 +322,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     ctl[C_IO_BEAT] = time.monotonic_ns()
     ctl[C_READY] = 1
     log_failure_told = False
+    trim = FloodTrim()
     try:
         while True:
             ctl[C_IO_BEAT] = time.monotonic_ns()  # the loop watches it (HapticServer)
@@ -314,6 +347,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
                     ctl[C_PUBLISHED] += 1
                     last_published_tick = int(newest["tick"][0])
                 next_publish = now + publish_period
+            trim.after_flood(ctl, now)
             if closing:
                 break
             time.sleep(max(0.0005, min(next_publish - time.monotonic(), IO_POLL_S)))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -348,6 +349,7 @@ def test_the_io_process_counts_static_messages_and_survives_hostile_ones() -> No
         return SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: raw))
 
     nested = STATIC_HEADER.pack(STATIC_MAGIC, STATIC_VERSION, 0) + b"[" * 60_000
+    started = time.monotonic()  # before the first refusal told: one a second after it
     for raw in (encode_static(scene), encode_static(load_scene("crank")), b"junk", nested, nested):
         receive(sample(raw))
     assert block.ctl[C_STATIC_OK] == 1 and block.ctl[C_STATIC_BAD] == 4
@@ -362,5 +364,6 @@ def test_the_io_process_counts_static_messages_and_survives_hostile_ones() -> No
         receive(
             sample(STATIC_HEADER.pack(STATIC_MAGIC, STATIC_VERSION, id_of(desc)) + canonical(desc))
         )
-    assert block.ctl[C_STATIC_BAD] == 30_004 and len(events) == 3, events[3:]
+    told = len(events) - 3  # at most one a second (a loaded host takes more than one)
+    assert block.ctl[C_STATIC_BAD] == 30_004 and told <= time.monotonic() - started, events[3:]
     assert by_reason(block.ctl, STATIC_REASONS, C_STATIC_REASONS)["foreign"] == 30_001

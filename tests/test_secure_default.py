@@ -204,10 +204,10 @@ def test_a_flood_on_every_key_is_counted_by_reason_and_loses_no_safety_event(
     """30,000 refused messages on each of the haptic server's keys, twice, with the sim's
     credentials and the sim stopped throughout (benchmarks/flood.py): every one is refused
     and counted by its reason (an update the mailbox had no room for is counted as lost),
-    the watchdog's trip during the flood is in the log and no event was lost, and neither
-    the loop's process nor the log writer grows by more than 1 MB. The I/O process's growth
-    is printed, not asserted: its first flood takes it to a high-water mark of its
-    allocators (0-24 MB measured), which issue 48's 1 MB does not allow yet."""
+    the watchdog's trip during the flood is in the log and no event was lost, and none of
+    the haptic server's processes grows by more than 1 MB in either round. (The I/O
+    process's first flood grew it by 0-24 MB, glibc's arenas keeping what Zenoh's receive
+    path freed, until it trimmed them after a flood: sidecar.FloodTrim.)"""
     from haptic_local_model.benchmarks import flood
 
     result = flood.run(tmp_path, flood.MESSAGES, rounds=2)
@@ -223,5 +223,4 @@ def test_a_flood_on_every_key_is_counted_by_reason_and_loses_no_safety_event(
         growth = result.growth_mb(r)
         print(f"\nflood round {r + 1}: resident growth " +
               ", ".join(f"{p} {mb:+.2f} MB" for p, mb in growth.items()))  # fmt: skip
-        assert growth["haptic"] <= flood.GROWTH_TARGET_MB, growth
-        assert growth["haptic_log"] <= flood.GROWTH_TARGET_MB, growth
+        assert max(growth.values()) <= flood.GROWTH_TARGET_MB, growth
