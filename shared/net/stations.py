@@ -35,12 +35,12 @@ from haptic_local_model.shared.config import (
     within,
 )
 from haptic_local_model.shared.net.config import (
-    SAFE_RAMP_MS_RANGE,
     WATCHDOG_MS_RANGE,
     EndpointSpec,
     _read_users,
+    require_safe_state,
 )
-from haptic_local_model.shared.net.security import zenoh_keys
+from haptic_local_model.shared.net.transport import session_config
 
 PORT_NAME_CHARS = set("abcdefghijklmnopqrstuvwxyz0123456789_-")
 
@@ -77,12 +77,8 @@ class StationNetworkConfig:
     unauthenticated_insecure: bool = False
 
     def __post_init__(self) -> None:
-        require(
-            bool(self.namespace) and "*" not in self.namespace, "namespace", "must be a plain key"
-        )
-        within(self.watchdog_ms, WATCHDOG_MS_RANGE, "watchdog_ms", "ms")
+        require_safe_state(self.namespace, self.watchdog_ms, self.safe_ramp_ms)
         within(self.world_watchdog_ms, WATCHDOG_MS_RANGE, "world_watchdog_ms", "ms")
-        within(self.safe_ramp_ms, SAFE_RAMP_MS_RANGE, "safe_ramp_ms", "ms")
         require(bool(self.router.listen), "router.listen", "the router must listen somewhere")
         require(bool(self.world.connect), "world.connect", "the world must connect to the router")
         for port, spec in self.stations.items():
@@ -176,24 +172,9 @@ def access_control(config: StationNetworkConfig, ports: list[str]) -> dict[str, 
             "subjects": subjects, "policies": policies}  # fmt: skip
 
 
-def _base(mode: str, endpoints: EndpointSpec) -> zenoh.Config:
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps(mode))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("scouting/gossip/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps(list(endpoints.listen)))
-    conf.insert_json5("connect/endpoints", json.dumps(list(endpoints.connect)))
-    for key, text in zenoh_keys(endpoints, None).items():
-        try:
-            conf.insert_json5(key, text)
-        except zenoh.ZError as exc:
-            raise ValueError(f"zenoh.{key}: {exc}") from None
-    return conf
-
-
 def router_config(config: StationNetworkConfig) -> zenoh.Config:
     """Zenoh's router mode on router.listen, with the stations' access control."""
-    conf = _base("router", config.router)
+    conf = session_config(config.router, mode="router")
     if config.router.users_file:
         acl = access_control(config, sorted(config.station_users))
         conf.insert_json5("access_control", json.dumps(acl))
@@ -202,7 +183,7 @@ def router_config(config: StationNetworkConfig) -> zenoh.Config:
 
 def client_config(endpoints: EndpointSpec) -> zenoh.Config:
     """A client of the router (the world or a station): all its traffic goes through it."""
-    return _base("client", endpoints)
+    return session_config(endpoints, mode="client")
 
 
 def open_client(endpoints: EndpointSpec) -> zenoh.Session:

@@ -40,12 +40,16 @@ def keys(namespace: str) -> Keys:
 
 
 def session_config(
-    endpoints: EndpointSpec, extra: dict[str, Any] | None = None, namespace: str | None = None
+    endpoints: EndpointSpec,
+    extra: dict[str, Any] | None = None,
+    namespace: str | None = None,
+    mode: str = "peer",
 ) -> zenoh.Config:
-    """A peer-mode config on explicit endpoints; gossip and multicast off (STACK-NOTES); the
-    endpoint's credentials and access control (rules under `namespace`, shared/net/security.py)."""
+    """A config in Zenoh's `mode` (peer, or a station network's router and clients) on explicit
+    endpoints; gossip and multicast off (STACK-NOTES); the endpoint's credentials and access
+    control (rules under `namespace`, shared/net/security.py)."""
     conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("mode", json.dumps(mode))
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("scouting/gossip/enabled", "false")
     conf.insert_json5("listen/endpoints", json.dumps(list(endpoints.listen)))
