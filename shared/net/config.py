@@ -119,6 +119,17 @@ SAFE_RAMP_MS_RANGE = (1.0, 50.0)
 CLOCK_SKEW_MS_RANGE = (0.0, 1000.0)
 
 
+def require_safe_state(namespace: str, watchdog_ms: float, safe_ramp_ms: float) -> None:
+    """The checks every network config (this one, a station network's) makes of its namespace
+    (a plain key) and of its safe state: the watchdog's period and the force ramp within their
+    stated ranges (the loader rejects nan and inf). A watchdog that never fires or a ramp that
+    never ends switch the safe state off, and the device must be safe within 50 ms of the
+    watchdog."""
+    require(bool(namespace) and "*" not in namespace, "namespace", "must be a plain key")
+    within(watchdog_ms, WATCHDOG_MS_RANGE, "watchdog_ms", "ms")
+    within(safe_ramp_ms, SAFE_RAMP_MS_RANGE, "safe_ramp_ms", "ms")
+
+
 @dataclass(frozen=True)
 class NetworkConfig:
     """Key-expression namespace and the endpoints of both processes."""
@@ -138,15 +149,9 @@ class NetworkConfig:
     unauthenticated_insecure: bool = False
 
     def __post_init__(self) -> None:
-        require(
-            bool(self.namespace) and "*" not in self.namespace, "namespace", "must be a plain key"
-        )
-        # the safety-relevant values within stated ranges (the loader rejects nan and inf):
-        # a watchdog that never fires, a ramp that never ends or a rate of zero switch the
-        # safe state off, and the device must be safe within 50 ms of the watchdog
+        require_safe_state(self.namespace, self.watchdog_ms, self.safe_ramp_ms)
+        # a proxy rate of zero would switch the safe state off as well
         within(self.proxy_publish_hz, PROXY_HZ_RANGE, "proxy_publish_hz", "Hz")
-        within(self.watchdog_ms, WATCHDOG_MS_RANGE, "watchdog_ms", "ms")
-        within(self.safe_ramp_ms, SAFE_RAMP_MS_RANGE, "safe_ramp_ms", "ms")
         # an update older than the watchdog's period could end an outage it predates
         within(self.max_update_age_ms, (1.0, self.watchdog_ms), "max_update_age_ms", "ms")
         within(self.clock_skew_ms, CLOCK_SKEW_MS_RANGE, "clock_skew_ms", "ms")
