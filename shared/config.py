@@ -929,24 +929,14 @@ class SceneConfig:
             "bodies",
             "body, crowd, linkage and deformable names must be unique",
         )
-        for i, c in enumerate(self.crowds):
-            require(
-                c.material in self.materials,
-                f"crowds[{i}].material",
-                f"unknown material {c.material!r}",
-            )
-        for i, b in enumerate(self.bodies):
-            require(
-                b.material in self.materials,
-                f"bodies[{i}].material",
-                f"unknown material {b.material!r}",
-            )
+        for kind in ("crowds", "bodies", "deformables", "linkages"):  # what has a material
+            for i, item in enumerate(getattr(self, kind)):
+                require(
+                    item.material in self.materials,
+                    f"{kind}[{i}].material",
+                    f"unknown material {item.material!r}",
+                )
         for i, dm in enumerate(self.deformables):
-            require(
-                dm.material in self.materials,
-                f"deformables[{i}].material",
-                f"unknown material {dm.material!r}",
-            )
             require(
                 self.rendering.method == "god_object",
                 f"deformables[{i}]",
@@ -982,12 +972,6 @@ class SceneConfig:
                 f"a gain of {gain:.2f} per sample (>= 1: the press would limit-cycle; "
                 "DeformableSpec.loop_gain): lower rendering.god_object_stiffness, raise the "
                 "string's mass or damping_per_s, or publish it faster",
-            )
-        for i, lk in enumerate(self.linkages):
-            require(
-                lk.material in self.materials,
-                f"linkages[{i}].material",
-                f"unknown material {lk.material!r}",
             )
         if self.tool.kind == "body":
             match = [b for b in self.bodies if b.name == self.tool.name]
