@@ -35,6 +35,8 @@ Every kernel is a numba function of records: TRAIN_DTYPE (the cars, static) and 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -173,6 +175,30 @@ def rk4(tr, train, s, sd, q_ext, h):
     s1 = s + h / 6.0 * (sd + 2.0 * v2 + 2.0 * v3 + v4)
     sd1 = sd + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
     return s1, sd1
+
+
+def rk4_flagged(rate: Callable[..., Any]) -> Callable[..., Any]:
+    """Classical RK4 on (q, q') for a mechanism whose `rate(model, q, q', q_ext)` returns
+    (q'', flag) (a crank's, an avar tree's): a kernel `step(model, q, q', q_ext, dt)` that
+    returns the new (q, q') after dt with q_ext held and whether any stage flagged. (`rate`
+    is a constant of the kernel, not an argument: a function passed as a value would keep
+    numba from caching its caller.) Its sums keep the order the crank and the tree had, which
+    rounds q apart from `rk4`'s by an ulp now and then."""
+
+    @njit(cache=True)
+    def step(model, q, qd, q_ext, dt):
+        a1, f1 = rate(model, q, qd, q_ext)
+        v2 = qd + 0.5 * dt * a1
+        a2, f2 = rate(model, q + 0.5 * dt * qd, v2, q_ext)
+        v3 = qd + 0.5 * dt * a2
+        a3, f3 = rate(model, q + 0.5 * dt * v2, v3, q_ext)
+        v4 = qd + dt * a3
+        a4, f4 = rate(model, q + dt * v3, v4, q_ext)
+        q1 = q + dt / 6.0 * (qd + 2.0 * v2 + 2.0 * v3 + qd + dt * a3)  # not v4: kept bit for bit
+        qd1 = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+        return q1, qd1, f1 or f2 or f3 or f4
+
+    return step
 
 
 @njit(cache=True, inline="always")

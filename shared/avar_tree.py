@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-from haptic_local_model.shared.avar import mass_weighted_rate
+from haptic_local_model.shared.avar import mass_weighted_rate, rk4_flagged
 from haptic_local_model.shared.kinematics import (
     CHAIN_DTYPE,
     MAX_DOF,
@@ -155,21 +155,15 @@ def tree_rate(t, q, qd, q_ext):
     return qdd + q_ext / m_q, singular
 
 
+_tree_rk4 = rk4_flagged(tree_rate)
+
+
 @njit(cache=True)
 def tree_step(t, st, q_ext, dt):
     """One RK4 step of dt with q_ext held; the avar kept on [0, 2 pi) (its gears are whole
     numbers: a turn of q brings every link back); a flagged step counts once."""
-    q = st.s
-    qd = st.sd
-    a1, f1 = tree_rate(t, q, qd, q_ext)
-    a2, f2 = tree_rate(t, q + 0.5 * dt * qd, qd + 0.5 * dt * a1, q_ext)
-    a3, f3 = tree_rate(t, q + 0.5 * dt * (qd + 0.5 * dt * a1), qd + 0.5 * dt * a2, q_ext)
-    a4, f4 = tree_rate(t, q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, q_ext)
-    st.s = q + dt / 6.0 * (
-        qd + 2.0 * (qd + 0.5 * dt * a1) + 2.0 * (qd + 0.5 * dt * a2) + qd + dt * a3
-    )
-    st.sd = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-    if f1 or f2 or f3 or f4:
+    st.s, st.sd, flagged = _tree_rk4(t, st.s, st.sd, q_ext, dt)
+    if flagged:
         st.singular += 1
     st.s = st.s % (2.0 * math.pi)
 

@@ -28,7 +28,7 @@ import math
 import numpy as np
 from numba import njit
 
-from haptic_local_model.shared.avar import mass_weighted_rate
+from haptic_local_model.shared.avar import mass_weighted_rate, rk4_flagged
 
 N_COORDS = 7
 MIN_CONDITIONING = 1e-8  # DESIGN-WAVE2 §5: sigma_min(M_q) / sigma_max below this is singular
@@ -285,20 +285,13 @@ def crank_energy(c, q, qd):
     return 0.5 * m_q * qd * qd + potential
 
 
+_crank_rk4 = rk4_flagged(crank_rate)
+
+
 @njit(cache=True)
 def crank_step(c, st, q_ext, dt):
     """One RK4 step of dt with the generalised force held; a flagged step counts once."""
-    q = st.s
-    qd = st.sd
-    a1, f1 = crank_rate(c, q, qd, q_ext)
-    a2, f2 = crank_rate(c, q + 0.5 * dt * qd, qd + 0.5 * dt * a1, q_ext)
-    a3, f3 = crank_rate(c, q + 0.5 * dt * (qd + 0.5 * dt * a1), qd + 0.5 * dt * a2, q_ext)
-    a4, f4 = crank_rate(c, q + dt * (qd + 0.5 * dt * a2), qd + dt * a3, q_ext)
-    st.s = q + dt / 6.0 * (
-        qd + 2.0 * (qd + 0.5 * dt * a1) + 2.0 * (qd + 0.5 * dt * a2) + qd + dt * a3
-    )
-    st.sd = qd + dt / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
-    flagged = f1 or f2 or f3 or f4
+    st.s, st.sd, flagged = _crank_rk4(c, st.s, st.sd, q_ext, dt)
     if c.driver == CrankDriver.CRANK_ANGLE:  # the angle on [0, 2 pi): it turns for ever
         st.s = st.s % (2.0 * math.pi)
     if c.driver == CrankDriver.SLIDER_POSITION:
