@@ -2,9 +2,9 @@
 invalid-command fault bit, the sensor-noise buffer, and `KernelDevice`, the device class
 skeleton that implements the `SimulatedDevice` calls by calling the model's kernels.
 
-A model module keeps its physics (its records, `pack_parameters` and kernels) and subclasses
-`KernelDevice`, naming its kernels: see `device_models/maglev.py` and
-`device_models/twin_pantograph/device.py`.
+A model module keeps its physics (its records, `pack_parameters` and kernels, registered by
+their names: device_models/kernels.py) and subclasses `KernelDevice`: see
+`device_models/maglev.py` and `device_models/twin_pantograph/device.py`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any, ClassVar, Self
 
 import numpy as np
-from numba import njit
 
 from haptic_local_model.device_models.base import DeviceLimits, DeviceRenderingSpec
 from haptic_local_model.device_models.kernels import (
@@ -112,8 +111,8 @@ class KernelDevice:
     (implements `device_models.base.SimulatedDevice` but `reset` and `servo_plant`, which a
     model writes itself).
 
-    A subclass names its kernels (`KERNELS`, registered for its params dtype with
-    `device_models.kernels.register_model`) and passes its records: `params`, `state`, a
+    A subclass names its kernels (`KERNELS`, what `device_models.kernels.register_model`
+    returned for its params dtype) and passes its records: `params`, `state`, a
     scratch `work` record and its sensor-noise buffer. `records` is what the compiled tick
     takes (device_models.kernels.DeviceRecords); the Python calls below run the same kernels."""
 
@@ -165,13 +164,6 @@ class KernelDevice:
         """The physics over dt under the held command and the hand's true wrench."""
         refill_noise(self.noise, self.records, dt)
         advance_device(self.records, dt, hand_wrench)
-
-
-@njit(cache=True)
-def sense_hand_wrench(state, hand_wrench):
-    """A model whose state holds `hand_wrench`: the hand's true wrench this tick."""
-    for c in range(3):
-        state[0].hand_wrench[c] = hand_wrench[c]
 
 
 def refill_noise(noise: NoiseBuffer, records: DeviceRecords, dt: float) -> None:

@@ -25,8 +25,8 @@ from haptic_local_model.device_models.base import (
     DeviceRenderingSpec,
     require_device_limits,
 )
-from haptic_local_model.device_models.common import KernelDevice, NoiseBuffer, sense_hand_wrench
-from haptic_local_model.device_models.kernels import ModelKernels, register_model
+from haptic_local_model.device_models.common import KernelDevice, NoiseBuffer
+from haptic_local_model.device_models.kernels import register_model
 from haptic_local_model.device_models.world_map import DeviceWorldMap, WorldMapSection
 from haptic_local_model.shared.config import Vec3, load_dataclass, require, within, within_all
 
@@ -76,7 +76,7 @@ STATE_DTYPE = np.dtype(
 
 
 @njit(cache=True)
-def _command(params, state, wrench):
+def command(params, state, wrench):
     """Hold the command (zero-order hold) clipped at the limits; NaN -> zero."""
     st = state[0]
     max_wrench = params[0].max_wrench
@@ -97,7 +97,7 @@ def _command(params, state, wrench):
 
 
 @njit(cache=True)
-def _advance(params, state, work, dt, hand, normals, noise_index):
+def advance(params, state, work, dt, hand, normals, noise_index):
     """Semi-implicit Euler of M xdd = F_h + u - b xd over dt in `substeps` equal steps, the
     hand's wrench and the command u held (zero-order hold). Without damping and with one
     step this is the original single step, term for term."""
@@ -116,7 +116,7 @@ def _advance(params, state, work, dt, hand, normals, noise_index):
 
 
 @njit(cache=True)
-def _read(params, state, sensors):
+def read(params, state, sensors):
     st = state[0]
     inertia = params[0].inertia
     s = sensors[0]
@@ -132,33 +132,16 @@ def _read(params, state, sensors):
 
 
 @njit(cache=True)
-def _noise_needed(params, dt):
+def noise_needed(params, dt):
     return 0  # perfect sensing
 
 
 @njit(cache=True)
-def _applied(state):
+def applied(state):
     return state[0].held
 
 
-@njit(cache=True)
-def _true_state(state, pose, twist):
-    st = state[0]
-    for c in range(3):
-        pose[c] = st.pose[c]
-        twist[c] = st.twist[c]
-
-
-KERNELS = ModelKernels(
-    read=_read,
-    command=_command,
-    applied=_applied,
-    advance=_advance,
-    noise_needed=_noise_needed,
-    true_state=_true_state,
-    sense_hand=sense_hand_wrench,
-)
-register_model(PARAMS_DTYPE, KERNELS)
+KERNELS = register_model(PARAMS_DTYPE, globals())  # true_state, sense_hand: the defaults
 
 
 class IdealDevice(KernelDevice):

@@ -19,12 +19,17 @@ The kernels a model registers, all over its own records:
 - `noise_needed(params, dt)`: how many normals `advance` reads for this dt
 - `true_state(state, pose, twist)`: the true (noise-free) pose and twist
 - `sense_hand(state, hand)`: the hand's true wrench this tick, as the handle feels it
+
+A model module defines its kernels under these names and registers them with
+`register_model(PARAMS_DTYPE, globals())`, which finds them by name; a module whose state
+holds `pose` and `twist` (or `hand_wrench`) may leave `true_state` (or `sense_hand`) out and
+get `copy_pose_twist` (or `sense_hand_wrench`) below.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numba
@@ -40,6 +45,23 @@ Kernel = Callable[..., Any]
 DeviceRecords = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
+@njit(cache=True)
+def copy_pose_twist(state, pose, twist):
+    """The `true_state` of a model whose state holds the true `pose` and `twist`."""
+    st = state[0]
+    for c in range(3):
+        pose[c] = st.pose[c]
+        twist[c] = st.twist[c]
+
+
+@njit(cache=True)
+def sense_hand_wrench(state, hand_wrench):
+    """The `sense_hand` of a model whose state holds `hand_wrench`: the hand's true wrench
+    this tick."""
+    for c in range(3):
+        state[0].hand_wrench[c] = hand_wrench[c]
+
+
 @dataclass(frozen=True)
 class ModelKernels:
     """A device model's kernels (see the module docstring for their signatures)."""
@@ -49,16 +71,21 @@ class ModelKernels:
     applied: Kernel
     advance: Kernel
     noise_needed: Kernel
-    true_state: Kernel
-    sense_hand: Kernel
+    true_state: Kernel = copy_pose_twist
+    sense_hand: Kernel = sense_hand_wrench
 
 
 _MODELS: dict[Any, ModelKernels] = {}
 
 
-def register_model(params_dtype: np.dtype, kernels: ModelKernels) -> None:
-    """Make a model's kernels the ones the overloads below pick for `params_dtype`."""
+def register_model(params_dtype: np.dtype, namespace: Mapping[str, Any]) -> ModelKernels:
+    """Make a model's kernels the ones the overloads below pick for `params_dtype`, and return
+    them: the functions of `namespace` (the model module's globals()) named as the fields of
+    ModelKernels, the defaults for the roles it leaves out."""
+    roles = {f.name: namespace[f.name] for f in fields(ModelKernels) if f.name in namespace}
+    kernels = ModelKernels(**roles)
     _MODELS[numba.from_dtype(params_dtype)] = kernels
+    return kernels
 
 
 def _model_of(dev: Any) -> ModelKernels:

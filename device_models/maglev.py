@@ -39,9 +39,8 @@ from haptic_local_model.device_models.common import (
     KernelDevice,
     ModelConfig,
     NoiseBuffer,
-    sense_hand_wrench,
 )
-from haptic_local_model.device_models.kernels import ModelKernels, register_model
+from haptic_local_model.device_models.kernels import register_model
 from haptic_local_model.device_models.world_map import DeviceWorldMap, WorldMapSection
 from haptic_local_model.shared.config import Vec3, require, within, within_all
 
@@ -352,13 +351,14 @@ def _sample_sensors(params, state, dt, normals, noise_index):
 
 
 @njit(cache=True)
-def advance_kernel(params, state, dt, hand_wrench, normals, noise_index):
+def advance(params, state, work, dt, hand_wrench, normals, noise_index):
     """Flotor dynamics over dt by semi-implicit Euler substeps (<= max_substep), then a
     sensor sample.
 
     Per substep the levitation PD acts on z, roll, pitch measured with fresh sensor noise,
     with gravity feed-forward, saturated at the peak force/torque (seed 002 §2, §4 f_g).
-    Uses 3 normals per substep and 6 for the sample, from normals[noise_index:].
+    Uses 3 normals per substep and 6 for the sample, from normals[noise_index:]. (No
+    scratch record: `work` is unused.)
     """
     p = params[0]
     st = state[0]
@@ -411,7 +411,7 @@ def advance_kernel(params, state, dt, hand_wrench, normals, noise_index):
 
 
 @njit(cache=True)
-def command_kernel(params, state, wrench):
+def command(params, state, wrench):
     """Saturate the planar command at the peak force and torque by one uniform scale (the
     direction is kept) and hold it; NaN or Inf commands zero."""
     p = params[0]
@@ -437,7 +437,7 @@ def command_kernel(params, state, wrench):
 
 
 @njit(cache=True)
-def read_kernel(params, state, sensors):
+def read(params, state, sensors):
     """Copy the newest sample into a SENSOR_DTYPE record: the planar rigid body has constant
     M_d = diag(m, m, I_yaw) and C_d = 0; no force sensor. aux: AUX_NAMES."""
     p = params[0]
@@ -488,7 +488,7 @@ def _place_at_rest(params, state, planar_pose, zero_noise):
 
 
 @njit(cache=True)
-def _copy_true_state(state, pose, twist):
+def true_state(state, pose, twist):
     st = state[0]
     pose[0] = st.q[X]
     pose[1] = st.q[Y]
@@ -513,32 +513,18 @@ def _copy_out_of_plane(params, state, out):
 
 
 @njit(cache=True)
-def _advance(params, state, work, dt, hand_wrench, normals, noise_index):
-    advance_kernel(params, state, dt, hand_wrench, normals, noise_index)
-
-
-@njit(cache=True)
-def _noise_needed(params, dt):
+def noise_needed(params, dt):
     """Three normals per substep (levitation sensing) and six for the sample."""
     return 3 * max(1, math.ceil(dt / params[0].max_substep)) + 6
 
 
 @njit(cache=True)
-def _applied(state):
+def applied(state):
     """The saturated planar wrench (the flotor stays levitated)."""
     return state[0].held_wrench
 
 
-KERNELS = ModelKernels(
-    read=read_kernel,
-    command=command_kernel,
-    applied=_applied,
-    advance=_advance,
-    noise_needed=_noise_needed,
-    true_state=_copy_true_state,
-    sense_hand=sense_hand_wrench,
-)
-register_model(PARAMS_DTYPE, KERNELS)
+KERNELS = register_model(PARAMS_DTYPE, globals())  # sense_hand: the default
 
 _NOISE_BLOCK = 3 * 8192  # standard normals per refill of the sensor-noise buffer
 

@@ -17,9 +17,8 @@ from haptic_local_model.device_models.common import (
     FAULT_INVALID_COMMAND,
     KernelDevice,
     NoiseBuffer,
-    sense_hand_wrench,
 )
-from haptic_local_model.device_models.kernels import ModelKernels, register_model
+from haptic_local_model.device_models.kernels import register_model
 from haptic_local_model.device_models.twin_pantograph.config import (
     PARAMS_DTYPE,
     STATE_DTYPE,
@@ -120,7 +119,7 @@ def _sample_sensors(params, state, work, dt, normals, noise_index):
 
 
 @njit(cache=True)
-def advance_kernel(params, state, work, dt, hand_wrench, normals, noise_index):
+def advance(params, state, work, dt, hand_wrench, normals, noise_index):
     """True dynamics M_d(x) xdd + C_d xd = Jm^T (tau_held + tau_friction) + W_hand + W_stop
     over dt by semi-implicit Euler substeps (<= max_substep), then one sensor sample."""
     p = params[0]
@@ -178,7 +177,7 @@ def advance_kernel(params, state, work, dt, hand_wrench, normals, noise_index):
 
 
 @njit(cache=True)
-def command_kernel(params, state, wrench):
+def command(params, state, wrench):
     """Saturate a wrench command and hold the motor torques resolving it (zero-order hold).
 
     The per-axis max_wrench and the torque limits both scale the wrench uniformly (its
@@ -211,7 +210,7 @@ def command_kernel(params, state, wrench):
 
 
 @njit(cache=True)
-def read_kernel(params, state, sensors):
+def read(params, state, sensors):
     """Copy the newest sensor sample into a SENSOR_DTYPE record with the current faults;
     aux: the quantised encoder angles and the held motor torques (AUX_NAMES)."""
     p = params[0]
@@ -235,14 +234,6 @@ def read_kernel(params, state, sensors):
 
 
 @njit(cache=True)
-def _copy_true_state(state, handle_pose, twist):
-    st = state[0]
-    for c in range(3):
-        handle_pose[c] = st.pose[c]
-        twist[c] = st.twist[c]
-
-
-@njit(cache=True)
 def _place_at_rest(params, state, work, handle_pose):
     """Put the true handle at rest at `handle_pose` with no held torque, and sample sensors."""
     st = state[0]
@@ -260,27 +251,18 @@ def _place_at_rest(params, state, work, handle_pose):
 
 
 @njit(cache=True)
-def _noise_needed(params, dt):
+def noise_needed(params, dt):
     """The force sensor's three normals."""
     return 3
 
 
 @njit(cache=True)
-def _applied(state):
+def applied(state):
     """What the saturated motor torques produce."""
     return state[0].applied_wrench
 
 
-KERNELS = ModelKernels(
-    read=read_kernel,
-    command=command_kernel,
-    applied=_applied,
-    advance=advance_kernel,
-    noise_needed=_noise_needed,
-    true_state=_copy_true_state,
-    sense_hand=sense_hand_wrench,
-)
-register_model(PARAMS_DTYPE, KERNELS)
+KERNELS = register_model(PARAMS_DTYPE, globals())  # true_state, sense_hand: the defaults
 
 # ---------------------------------------------------------------------------- the device
 
