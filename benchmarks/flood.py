@@ -10,6 +10,9 @@ refused: updates of a foreign magic, pointer inputs stamped 10 s ahead, static d
 with distinct foreign ids (each one a text the receiver has not seen). The sim is stopped
 (SIGSTOP) from the flood's start to its end, so the haptic server's watchdog trips during it.
 
+Then the shared world's station ports (`run_world`): through the router, each port's key
+flooded with its own station's credentials, no station running.
+
 Figures: each of the haptic server's processes' resident memory (VmRSS) before the flood and
 after it (the flood's own growth), the refusals by reason from the server's summary, the
 watchdog trips and the events the log lost (`lost`).
@@ -20,6 +23,7 @@ watchdog trips and the events the log lost (`lost`).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import struct
@@ -35,6 +39,7 @@ import zenoh
 from haptic_local_model.benchmarks.stranger import server_pair
 from haptic_local_model.haptic_server.harness.soak import children, helper_name, rss_mb
 from haptic_local_model.haptic_server.log import EVENT_TOPIC, read_json_topic
+from haptic_local_model.haptic_server.shared_world import DEVICE_RING
 from haptic_local_model.shared.net.config import EndpointSpec
 from haptic_local_model.shared.net.transport import keys, open_session
 from haptic_local_model.shared.protocol.pointer import encode_pointer
@@ -154,6 +159,60 @@ def run(
     return result
 
 
+def run_world(workdir: Path, messages: int = MESSAGES, rounds: int = 2) -> FloodResult:
+    """`rounds` floods of the shared world's station ports: through the router, each port's
+    key flooded with its own station's credentials (all the router lets publish there) by
+    DeviceStates of a foreign magic, no station running; the world's resident memory and its
+    refusals by reason (in its summary, `ports`)."""
+    from haptic_local_model.benchmarks.stations import CLI, Process, loopback_network
+    from haptic_local_model.shared.net.stations import (
+        load_station_network,
+        open_client,
+        port_keys,
+    )
+
+    result = FloodResult()
+    net = loopback_network(workdir)
+    network = load_station_network(net, "router")
+    summary = workdir / "world.json"
+    router = Process([*CLI, "router", "--network", net])
+    world: Process | None = None
+    try:
+        router.wait_ready()
+        world = Process([*CLI, "world", "--network", net, "--scene", "grasp_vertical",
+                         "--json", str(summary)])  # fmt: skip
+        world.wait_ready()
+        time.sleep(SETTLE_S)
+        pids = {"world": world.proc.pid}
+        result.rss_mb.append(_rss(pids))
+        sessions = {p: open_client(network.station(p)) for p in ("left", "right")}
+        try:
+            for _ in range(rounds):
+                start = time.perf_counter()
+                for port, session in sessions.items():
+                    key = port_keys(network.namespace, port)[0]
+                    pub = session.declare_publisher(
+                        key, congestion_control=zenoh.CongestionControl.BLOCK
+                    )
+                    for i in range(messages):
+                        pub.put(junk_update(i))
+                    pub.undeclare()
+                    result.sent[port] = result.sent.get(port, 0) + messages
+                result.flood_s = time.perf_counter() - start
+                time.sleep(AFTER_S)
+                result.rss_mb.append(_rss(pids))
+        finally:
+            for session in sessions.values():
+                session.close()
+    finally:
+        for proc in (world, router):
+            if proc is not None:
+                proc.stop()
+    if summary.is_file():
+        result.summary = json.loads(summary.read_text())
+    return result
+
+
 def report(result: FloodResult) -> list[str]:
     s = result.summary
     what = ", ".join(f"{n} {k}" for k, n in result.sent.items()) or "none: the control"
@@ -192,7 +251,15 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"  round {r + 1}, the flood's own growth (flood - control): "
                       + ", ".join(f"{p} {mb:+.2f} MB" for p, mb in own.items()))  # fmt: skip
                 worst = max(worst, *own.values())
-    print(f"largest growth {worst:+.2f} MB (target <= {GROWTH_TARGET_MB:g} MB)")
+        for _ in range(args.repeat):  # the shared world's station ports, the same way
+            world = run_world(Path(tmp), args.messages, args.rounds)
+            rounds = ", ".join(f"{world.growth_mb(r)['world']:+.2f}" for r in range(args.rounds))
+            refused = {p: v["rejected_by_reason"] for p, v in world.summary["ports"].items()}
+            print(f"world: {sum(world.sent.values())} DeviceStates ({world.sent}), resident "
+                  f"{world.rss_mb[0]['world']:.1f} MB, grew by round: {rounds} MB; refused by "
+                  f"reason {refused} (the rest dropped by its ring of {DEVICE_RING})")  # fmt: skip
+    print(f"largest growth of the haptic server's processes {worst:+.2f} MB (target <= "
+          f"{GROWTH_TARGET_MB:g} MB)")  # fmt: skip
     return 0 if worst <= GROWTH_TARGET_MB else 1
 
 

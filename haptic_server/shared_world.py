@@ -76,6 +76,7 @@ from haptic_local_model.shared.net.stations import (
     open_client,
     port_keys,
 )
+from haptic_local_model.shared.net.transport import FloodTrim
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
 from haptic_local_model.shared.protocol.station import (
     DeviceState,
@@ -191,6 +192,8 @@ class SharedWorld:
         enter_loop(self.warm, ready)
         dt, t = self.engine.dt, 0.0
 
+        trim = FloodTrim()  # a flood's memory back to the system after it
+
         def tick(now: int, seq: int) -> None:
             nonlocal t
             for p in range(len(subs)):
@@ -204,12 +207,17 @@ class SharedWorld:
                 sim_tick = self.sim.publish(seq) or sim_tick
             work = (time.perf_counter_ns() - now) / 1e3
             self.work_us.add(work)
+            trim.after(now / 1e9, self._messages_received)
             if self.sim is not None:
                 (self.work_sim_us if sim_tick else self.work_rest_us).add(work)
 
         with session:  # closed however the loop ends
             pacer.run(tick, lambda: self._stop)
         return self.summary()
+
+    def _messages_received(self) -> int:
+        """DeviceStates taken or refused, every port's."""
+        return int(self.ports["received"].sum() + self.ports["rejected"].sum())
 
     def warm(self) -> None:
         """The tick's kernels compiled (or loaded from numba's cache) before the loop."""

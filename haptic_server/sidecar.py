@@ -18,7 +18,6 @@ is there and closes the log.
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import gc
 import multiprocessing as mp
 import os
@@ -82,34 +81,6 @@ if TYPE_CHECKING:
     from haptic_local_model.haptic_server.engine import HapticEngine
 
 IO_POLL_S = 0.004  # the sidecar wakes at least this often (and for each proxy publish)
-TRIM_AFTER = 1000  # messages received since the last trim: a flood's worth
-TRIM_EVERY_S = 1.0  # at most this often
-
-
-class FloodTrim:
-    """After a flood, the memory its messages took handed back to the system: Zenoh's receive
-    path allocates through glibc, whose per-thread arenas keep what was freed, and a first
-    flood of 30,000 messages on a key left this process 0-24 MB larger for good
-    (benchmarks/flood.py). `malloc_trim` (ctypes releases the GIL for it; a few ms at most,
-    in this process only) in each second a flood's worth arrived in and in the one after."""
-
-    def __init__(self) -> None:
-        self._trim: Any = None
-        with contextlib.suppress(OSError, AttributeError):  # not glibc: nothing to trim
-            self._trim = ctypes.CDLL("libc.so.6").malloc_trim
-        self._counted = 0
-        self._flooding = False
-        self._next = 0.0
-
-    def after_flood(self, ctl: np.ndarray, now: float) -> None:
-        if self._trim is None or now < self._next:
-            return
-        counted = int(ctl[C_UPD_HEAD] + ctl[C_UPD_LOST] + ctl[C_PTR_RECEIVED] + ctl[C_PTR_REJECTED]
-                      + ctl[C_STATIC_OK] + ctl[C_STATIC_BAD])  # fmt: skip
-        flooding = counted - self._counted >= TRIM_AFTER
-        if flooding or self._flooding:  # in a flood's seconds, and the one after its end
-            self._trim(0)
-        self._counted, self._flooding, self._next = counted, flooding, now + TRIM_EVERY_S
 
 
 IO_NICENESS = 10  # only when the loop could not get real-time priority (see _lower_priority)
@@ -257,7 +228,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     import zenoh
 
     from haptic_local_model.shared.net.config import EndpointSpec
-    from haptic_local_model.shared.net.transport import keys, open_session
+    from haptic_local_model.shared.net.transport import FloodTrim, keys, open_session
     from haptic_local_model.shared.protocol.proxy import encode_proxy
 
     # the loop decides when I/O ends: a Ctrl-C to the process group is ignored; SIGTERM (the
@@ -322,7 +293,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     ctl[C_IO_BEAT] = time.monotonic_ns()
     ctl[C_READY] = 1
     log_failure_told = False
-    trim = FloodTrim()
+    trim = FloodTrim()  # a flood's memory back to the system after it
     try:
         while True:
             ctl[C_IO_BEAT] = time.monotonic_ns()  # the loop watches it (HapticServer)
@@ -347,7 +318,8 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
                     ctl[C_PUBLISHED] += 1
                     last_published_tick = int(newest["tick"][0])
                 next_publish = now + publish_period
-            trim.after_flood(ctl, now)
+            trim.after(now, lambda: int(ctl[C_UPD_HEAD] + ctl[C_UPD_LOST] + ctl[C_PTR_RECEIVED]
+                       + ctl[C_PTR_REJECTED] + ctl[C_STATIC_OK] + ctl[C_STATIC_BAD]))  # fmt: skip
             if closing:
                 break
             time.sleep(max(0.0005, min(next_publish - time.monotonic(), IO_POLL_S)))
