@@ -255,6 +255,54 @@ def hand_records(
 
 
 @njit(cache=True)
+def hit_force(law, hit, vx, vy, touching, stick, key, h):
+    """The force at the contact in `hit` (point, depth, normal) whose point moves at (vx,
+    vy) against what it touches: penalty and stick-spring friction, law a record with the
+    contacts' stiffness, damping, friction and tangential_stiffness. The stick spring at
+    `key` starts over on a new contact. Returns (fx, fy, f_n, whether it sticks)."""
+    depth = hit[2]
+    nx = hit[3]
+    ny = hit[4]
+    tx = -ny
+    ty = nx
+    vn = nx * vx + ny * vy
+    vt = tx * vx + ty * vy
+    if touching[key] == 0:
+        stick[key] = 0.0
+    touching[key] = 1
+    k_t = law.tangential_stiffness
+    f_n, f_t, stick[key], sticking = penalty_friction(
+        (law.stiffness, law.damping, law.friction, k_t), depth, vn, vt, stick[key], h
+    )
+    return f_n * nx + f_t * tx, f_n * ny + f_t * ty, f_n, sticking
+
+
+@njit(cache=True)
+def hit_rows(jac, n, hit, fx, fy, f, jn, jt):
+    """The force (fx, fy) at the contact in `hit` through the point's Jacobian (jac, n
+    columns) into the generalised forces f, and the contact's normal and tangent rows."""
+    nx = hit[3]
+    ny = hit[4]
+    tx = -ny
+    ty = nx
+    for a in range(n):
+        f[a] += jac[0, a] * fx + jac[1, a] * fy
+        jn[a] = nx * jac[0, a] + ny * jac[1, a]
+        jt[a] = tx * jac[0, a] + ty * jac[1, a]
+
+
+@njit(cache=True)
+def hit_stiffness(law, sticking, kmat, bmat, cols, jn, jt, count):
+    """A pressing contact's rows (cols[:count]) into the implicit step's K and B: the
+    tangent's spring and damper only while it sticks. At the step's end, not at theta of
+    it (module docstring): the gains over theta."""
+    kt = law.tangential_stiffness if sticking else 0.0
+    bt = law.damping if sticking else 0.0
+    s = 1.0 / law.theta
+    add_rows(kmat, bmat, cols, jn, jt, count, (s * law.stiffness, s * kt, s * law.damping, s * bt))
+
+
+@njit(cache=True)
 def hand_contact(chain, m, d, link, wall, side, v):
     """The contact in d.hit on `link` (key: wall, side, vertex): penalty, stick-spring
     friction, its generalised force and its stiffness for the implicit step."""
@@ -263,40 +311,18 @@ def hand_contact(chain, m, d, link, wall, side, v):
     px = d.hit[0]
     py = d.hit[1]
     depth = d.hit[2]
-    nx = d.hit[3]
-    ny = d.hit[4]
-    tx = -ny
-    ty = nx
     vx, vy = point_velocity(c, d.frame_pos, link, px, py, d.qd)
-    vn = nx * vx + ny * vy
-    vt = tx * vx + ty * vy
     key = (link, wall, side, v)
-    if d.touching[key] == 0:
-        d.stick[key] = 0.0
-    d.touching[key] = 1
-    k_t = m.tangential_stiffness
-    f_n, f_t, d.stick[key], sticking = penalty_friction(
-        (m.stiffness, m.damping, m.friction, k_t), depth, vn, vt, d.stick[key], d.h
-    )
-    fx = f_n * nx + f_t * tx
-    fy = f_n * ny + f_t * ty
+    fx, fy, f_n, sticking = hit_force(m, d.hit, vx, vy, d.touching, d.stick, key, d.h)
     d.contact_force[0] += fx / d.n_sub  # the tick's mean over its sub-steps
     d.contact_force[1] += fy / d.n_sub
     d.n_contacts += 1
     if depth > d.penetration:
         d.penetration = depth
     point_jacobian(c, d.frame_pos, n, link, px, py, d.jac)
-    for a in range(n):
-        d.f[a] += d.jac[0, a] * fx + d.jac[1, a] * fy
-        d.jn[a] = nx * d.jac[0, a] + ny * d.jac[1, a]
-        d.jt[a] = tx * d.jac[0, a] + ty * d.jac[1, a]
-    if f_n <= 0.0:
-        return
-    kt = k_t if sticking else 0.0
-    bt = m.damping if sticking else 0.0
-    # at the step's end, not at theta of it (module docstring): gains over theta
-    s = 1.0 / m.theta
-    add_rows(d.k, d.b, d.cols, d.jn, d.jt, n, (s * m.stiffness, s * kt, s * m.damping, s * bt))
+    hit_rows(d.jac, n, d.hit, fx, fy, d.f, d.jn, d.jt)
+    if f_n > 0.0:
+        hit_stiffness(m, sticking, d.k, d.b, d.cols, d.jn, d.jt, n)
 
 
 @njit(cache=True)
@@ -519,22 +545,37 @@ def hand_outputs(m, d):
 
 
 @njit(cache=True)
+def copy_state(n, src, dst):
+    """The state a retried tick starts again from, src = (q, qd, stick, touching) into dst
+    of the same: the first n of q and qd, every stick spring and touching flag."""
+    q, qd, stick, touching = src
+    q_to, qd_to, stick_to, touching_to = dst
+    for a in range(n):
+        q_to[a] = q[a]
+        qd_to[a] = qd[a]
+    stick_to[:] = stick
+    touching_to[:] = touching
+
+
+@njit(cache=True)
+def _live(d):
+    return d.q, d.qd, d.stick, d.touching
+
+
+@njit(cache=True)
+def _kept(d):
+    return d.q_tick, d.qd_tick, d.stick_tick, d.touching_tick
+
+
+@njit(cache=True)
 def save_tick(m, d):
-    for a in range(m.dof):
-        d.q_tick[a] = d.q[a]
-        d.qd_tick[a] = d.qd[a]
-    d.stick_tick[:] = d.stick
-    d.touching_tick[:] = d.touching
+    copy_state(m.dof, _live(d), _kept(d))
     d.singular_tick = d.singular
 
 
 @njit(cache=True)
 def restore_tick(m, d):
-    for a in range(m.dof):
-        d.q[a] = d.q_tick[a]
-        d.qd[a] = d.qd_tick[a]
-    d.stick[:] = d.stick_tick
-    d.touching[:] = d.touching_tick
+    copy_state(m.dof, _kept(d), _live(d))
     d.singular = d.singular_tick
 
 

@@ -16,7 +16,6 @@ import math
 import numpy as np
 from numba import njit
 
-from haptic_local_model.haptic_server.physics.contact_law import add_rows, penalty_friction
 from haptic_local_model.haptic_server.physics.implicit import (
     implicit_advance,
     implicit_solve,
@@ -28,8 +27,12 @@ from haptic_local_model.haptic_server.stages.hand import (
     MAX_TURN,
     PALM,
     begin_substeps,
+    copy_state,
     finish_substep,
     hand_outputs,
+    hit_force,
+    hit_rows,
+    hit_stiffness,
     link_core,
     link_vertex_hit,
     prepare_substep,
@@ -152,7 +155,6 @@ def box_contact(chain, hm, hd, gm, gd, hand, key):
     c = chain[0]
     px = hd.hit[0]
     py = hd.hit[1]
-    depth = hd.hit[2]
     nx = hd.hit[3]
     ny = hd.hit[4]
     tx = -ny
@@ -163,26 +165,14 @@ def box_contact(chain, hm, hd, gm, gd, hand, key):
     w = gd.qd_box[2]
     rvx = vhx - (gd.qd_box[0] - w * ry)
     rvy = vhy - (gd.qd_box[1] + w * rx)
-    vn = nx * rvx + ny * rvy
-    vt = tx * rvx + ty * rvy
     at = (hand, link, side, v)
-    if gd.touching[at] == 0:
-        gd.stick[at] = 0.0
-    gd.touching[at] = 1
-    k_t = gm.tangential_stiffness
-    f_n, f_t, gd.stick[at], sticking = penalty_friction(
-        (gm.stiffness, gm.damping, gm.friction, k_t), depth, vn, vt, gd.stick[at], gd.h
-    )
-    fx = f_n * nx + f_t * tx
-    fy = f_n * ny + f_t * ty
+    fx, fy, f_n, sticking = hit_force(gm, hd.hit, rvx, rvy, gd.touching, gd.stick, at, gd.h)
     n = hm.dof
     point_jacobian(c, hd.frame_pos, n, link, px, py, hd.jac)
     o = gm.offset[hand]
     for a in range(n):
-        hd.f[a] += hd.jac[0, a] * fx + hd.jac[1, a] * fy
         gd.cols[a] = o + a
-        gd.jn[a] = nx * hd.jac[0, a] + ny * hd.jac[1, a]
-        gd.jt[a] = tx * hd.jac[0, a] + ty * hd.jac[1, a]
+    hit_rows(hd.jac, n, hd.hit, fx, fy, hd.f, gd.jn, gd.jt)
     torque = rx * fy - ry * fx
     gd.f_box[0] -= fx
     gd.f_box[1] -= fy
@@ -203,12 +193,8 @@ def box_contact(chain, hm, hd, gm, gd, hand, key):
     gd.jt[n + 1] = -ty
     gd.jt[n + 2] = -(rx * ty - ry * tx)
     gd.n_contacts += 1
-    if f_n > 0.0:
-        kt = k_t if sticking else 0.0
-        bt = gm.damping if sticking else 0.0
-        s = 1.0 / gm.theta  # at the step's end, as a hand's own contacts (hand.py)
-        gains = (s * gm.stiffness, s * kt, s * gm.damping, s * bt)
-        add_rows(gd.kg, gd.bg, gd.cols, gd.jn, gd.jt, n + 3, gains)
+    if f_n > 0.0:  # at the step's end, as a hand's own contacts
+        hit_stiffness(gm, sticking, gd.kg, gd.bg, gd.cols, gd.jn, gd.jt, n + 3)
 
 
 @njit(cache=True)
@@ -332,11 +318,9 @@ def grasp_tick(chains, hms, hds, gmodel, gdata):
     for i in range(gm.n_hands):
         tracked_inputs(hms[i][0], hds[i][0])
         save_tick(hms[i][0], hds[i][0])
-    for k in range(3):
-        gd.box_tick[k] = gd.q_box[k]
-        gd.box_tick[k + 3] = gd.qd_box[k]
-    gd.stick_tick[:] = gd.stick
-    gd.touching_tick[:] = gd.touching
+    live = (gd.q_box, gd.qd_box, gd.stick, gd.touching)
+    kept = (gd.box_tick[:3], gd.box_tick[3:], gd.stick_tick, gd.touching_tick)
+    copy_state(3, live, kept)
     gd.singular_tick = gd.singular
     n_sub = 1
     while True:
@@ -345,11 +329,7 @@ def grasp_tick(chains, hms, hds, gmodel, gdata):
             break
         for i in range(gm.n_hands):
             restore_tick(hms[i][0], hds[i][0])
-        for k in range(3):
-            gd.q_box[k] = gd.box_tick[k]
-            gd.qd_box[k] = gd.box_tick[k + 3]
-        gd.stick[:] = gd.stick_tick
-        gd.touching[:] = gd.touching_tick
+        copy_state(3, kept, live)
         gd.singular = gd.singular_tick
         n_sub *= 4
     for i in range(gm.n_hands):
