@@ -20,6 +20,18 @@ from haptic_local_model.shared.linalg import cholesky_inplace, cholesky_solve
 
 
 @njit(cache=True)
+def clear_terms(n, force, extra, stiffness, damping):
+    """A step's terms over n coordinates start at zero: the force and the springs' motion
+    term (n), their stiffness K and damping B (n x n)."""
+    for a in range(n):
+        force[a] = 0.0
+        extra[a] = 0.0
+        for b in range(n):
+            stiffness[a, b] = 0.0
+            damping[a, b] = 0.0
+
+
+@njit(cache=True)
 def subtract_stiffness_velocity(force, stiffness, qd, th_h, n):
     """force -= theta h K qd (th_h = theta h): the springs' stiffness times the motion of q
     over the step, the implicit step's explicit part."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 from numba import njit
 
 from haptic_local_model.haptic_server.physics.contact_law import penalty_friction
+from haptic_local_model.haptic_server.physics.implicit import clear_terms
 from haptic_local_model.haptic_server.physics.impulses import lcp
 from haptic_local_model.shared.kinematics import point_jacobian, point_on_link
 from haptic_local_model.shared.linalg import cholesky_solve
@@ -144,12 +145,7 @@ def contacts(m, d):
     (version 0.1) the forces come first, from the velocity before the impulses."""
     w = d.scratch
     n = m.slots[0].dof
-    for a in range(n):
-        w.tau_contact[a] = 0.0
-        w.contact_stiff_vrel[a] = 0.0
-        for b in range(n):
-            w.contact_stiffness_q[a, b] = 0.0
-            w.contact_damping_q[a, b] = 0.0
+    clear_terms(n, w.tau_contact, w.contact_stiff_vrel, w.contact_stiffness_q, w.contact_damping_q)
     w.n_colliding = 0
     w.contact_force[0] = 0.0
     w.contact_force[1] = 0.0

@@ -54,6 +54,7 @@ from numba import njit
 
 from haptic_local_model.haptic_server.physics.contact_law import add_rows, penalty_friction
 from haptic_local_model.haptic_server.physics.implicit import (
+    clear_terms,
     implicit_advance,
     implicit_solve,
     implicit_system,
@@ -560,13 +561,7 @@ def couple_ports(m, d):
 
 @njit(cache=True)
 def _clear(m, d):
-    n = 3 * m.n_bodies
-    for a in range(n):
-        d.f[a] = 0.0
-        d.extra[a] = 0.0
-        for b in range(n):
-            d.k[a, b] = 0.0
-            d.b[a, b] = 0.0
+    clear_terms(3 * m.n_bodies, d.f, d.extra, d.k, d.b)
     for e in range(MAX_COSIM_BODIES):
         for c in range(3):
             d.body_force[e, c] = 0.0

@@ -48,6 +48,7 @@ from numba import njit
 
 from haptic_local_model.haptic_server.physics.contact_law import add_rows, penalty_friction
 from haptic_local_model.haptic_server.physics.implicit import (
+    clear_terms,
     implicit_advance,
     implicit_solve,
     implicit_system,
@@ -603,12 +604,8 @@ def prepare_substep(chain, m, d, sub):
     for a in range(n):
         d.target_live[a] = d.target[a] + tau * (d.target_rate[a] + 0.5 * tau * d.target_acc[a])
         d.rate_live[a] = d.target_rate[a] + tau * d.target_acc[a]
-        d.f[a] = 0.0
-        d.extra[a] = 0.0
         d.q_before[a] = d.q[a]
-        for b in range(n):
-            d.k[a, b] = 0.0
-            d.b[a, b] = 0.0
+    clear_terms(n, d.f, d.extra, d.k, d.b)
     d.n_contacts = 0
     hand_dynamics(chain, m, d)
     hand_contacts(chain, m, d)
