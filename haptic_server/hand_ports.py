@@ -37,8 +37,9 @@ from haptic_local_model.haptic_server.stages.port_io import (
     drive_device,
     push_stretch,
     read_device,
+    rest_device,
 )
-from haptic_local_model.haptic_server.users import USER_DTYPE, user_record
+from haptic_local_model.haptic_server.users import USER_DTYPE
 from haptic_local_model.haptic_server.world import WorldKind, run_virtual
 from haptic_local_model.shared.config import UserConfig, load_user
 from haptic_local_model.shared.kinematics import MAX_DOF
@@ -206,15 +207,9 @@ def place_device(
     """The device at rest at `start`, its map putting it where the palm's springs are in
     equilibrium with its hand's constant push at the palm's pose (the tracked palm inside
     the grasp by push / k), its user's script starting there."""
-    device.reset(np.array(start, F8))
-    pose, twist = np.zeros(3), np.zeros(3)
-    device.true_state(pose, twist)
-    u = user_record(user)[0]
-    u["start_pose"] = pose
-    s["user"][0] = u
     wm = s["map"][0]
-    stretch = push_stretch(user.wrench, wm, spec.palm_spring)
-    wm["offset"] = np.asarray(spec.pose, F8) + stretch - wm["scale"] * pose
+    anchor = np.asarray(spec.pose, F8) + push_stretch(user.wrench, wm, spec.palm_spring)
+    s["user"][0] = rest_device(device, user, wm, start, anchor)
     s["map"][0] = wm
 
 

@@ -43,8 +43,9 @@ from haptic_local_model.haptic_server.stages.port_io import (
     drive_device,
     push_stretch,
     read_device,
+    rest_device,
 )
-from haptic_local_model.haptic_server.users import USER_DTYPE, user_record
+from haptic_local_model.haptic_server.users import USER_DTYPE
 from haptic_local_model.haptic_server.world import WorldKind, run_virtual
 from haptic_local_model.shared.config import UserConfig, load_user
 from haptic_local_model.shared.port_config import MAX_PORTS, MAX_SIM_BODIES, PortSceneConfig
@@ -207,21 +208,14 @@ class PortRun:
     def _place(self, p: int, start: tuple[float, float, float]) -> None:
         """Device p at rest at its start pose, its map putting it where the coupling is
         in equilibrium with its hand's constant push, its hand's script starting there."""
-        dev = self.devices[p]
-        dev.reset(np.array(start, F8))
-        user = user_record(self.users[p])
-        pose = np.zeros(3)
-        twist = np.zeros(3)
-        dev.true_state(pose, twist)
-        u = user[0]
-        u["start_pose"] = pose
-        u["start_s"] = 0.0
         io = self.io[0]
-        io["users"][p] = u
         wm = io["maps"][p]
         tool = self.data[0]["q"][3 * self.model[0]["port_tool"][p] :][:3]
         kc = self.model[0]["coupling_stiffness"][p]
-        wm["offset"] = tool + push_stretch(self.users[p].wrench, wm, kc) - wm["scale"] * pose
+        anchor = tool + push_stretch(self.users[p].wrench, wm, kc)
+        u = rest_device(self.devices[p], self.users[p], wm, start, anchor)
+        u["start_s"] = 0.0
+        io["users"][p] = u
         io["maps"][p] = wm
 
     def burst(self, rows: np.ndarray, start: int, stop: int) -> int:

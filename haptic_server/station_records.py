@@ -21,13 +21,13 @@ from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import noise_ready
 from haptic_local_model.device_models.registry import device_from_text
 from haptic_local_model.haptic_server.port_scene import port_gains, tool_start
+from haptic_local_model.haptic_server.stages.port_io import rest_device
 from haptic_local_model.haptic_server.stages.station import (
     STATION_DTYPE,
     STATION_ROW_DTYPE,
     station_row,
     station_tick,
 )
-from haptic_local_model.haptic_server.users import user_record
 from haptic_local_model.shared.config import (
     ConfigError,
     UserConfig,
@@ -84,17 +84,11 @@ def station_record(setup: StationSetup) -> np.ndarray:
 def place_station(station: np.ndarray, setup: StationSetup) -> None:
     """The device at rest at its port's start, mapped onto its tool (the world re-indexes it
     when it joins, so this only makes the log's frame the world's at the start)."""
-    dev = setup.device
-    dev.reset(np.array(setup.scene.ports[setup.index].device_start, np.float64))
-    pose, twist = np.zeros(3), np.zeros(3)
-    dev.true_state(pose, twist)
     s = station[0]
-    u = user_record(setup.user)[0]
-    u["start_pose"] = pose
-    s["user"][0] = u
     tool = tool_start(setup.scene, setup.index)
     wm = s["map"][0]
-    wm["offset"] = tool - wm["scale"] * pose
+    start = setup.scene.ports[setup.index].device_start
+    s["user"][0] = rest_device(setup.device, setup.user, wm, start, tool)
     s["map"][0] = wm
     s["tool_pose"] = tool
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from haptic_local_model.device_models.base import SimulatedDevice
 from haptic_local_model.device_models.kernels import (
     device_advance,
     device_command,
@@ -21,7 +22,8 @@ from haptic_local_model.device_models.world_map import (
     map_rate_step,
     map_sensors_to_world,
 )
-from haptic_local_model.haptic_server.users import hand_wrench
+from haptic_local_model.haptic_server.users import hand_wrench, user_record
+from haptic_local_model.shared.config import UserConfig
 
 
 @njit(cache=True)
@@ -53,3 +55,23 @@ def push_stretch(wrench: object, world_map: np.ndarray, stiffness: object) -> np
     push = np.asarray(wrench, np.float64) / (world_map["force_scale"] * world_map["scale"])
     k = np.asarray(stiffness, np.float64)
     return np.divide(push, k, out=np.zeros(3), where=k > 0)
+
+
+def rest_device(
+    device: SimulatedDevice,
+    user: UserConfig,
+    world_map: np.ndarray,
+    start: tuple[float, float, float],
+    anchor: np.ndarray,
+) -> np.ndarray:
+    """The device at rest at `start`, its map (`world_map`, a MAP_DTYPE record, set in
+    place) putting it at `anchor` in the world: a port's tool plus its spring's stretch
+    under the user's push (push_stretch), or a station's tool. Returns its user's record
+    (USER_DTYPE), the script starting there."""
+    device.reset(np.array(start, np.float64))
+    pose, twist = np.zeros(3), np.zeros(3)
+    device.true_state(pose, twist)
+    u = user_record(user)[0]
+    u["start_pose"] = pose
+    world_map["offset"] = anchor - world_map["scale"] * pose
+    return u
