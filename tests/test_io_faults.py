@@ -8,6 +8,9 @@ fault list of docs/security.md):
   watchdog, the loop says so (`io_stalled`) and resumes with the sidecar (`io_resumed`);
   killed (SIGKILL): the loop says so within a watchdog period and a check, stops the run
   with the device safe, exit status 1;
+- the loop itself stopped (SIGSTOP for 0.5 s) while its user pushes on a wall: it resumes
+  on the sim's newest update, its first tick's dt clamped, the command's step 10 mN (the
+  fade's bound: 10 N) and its largest 6 % above the steady push (bound: 10 %);
 - a group SIGKILL leaves the shared-memory segment in /dev/shm: the next server's start
   removes it (a live server's is kept);
 - the sim's clock stepped by +-10 s for 1 s (NTP stepping one host): its updates are refused
@@ -35,12 +38,14 @@ from test_faults import (
     ProxyWatch,
     descendants,
     haptic_args,
+    report,
     resumption_step,
     safe_decay_s,
     server_args,
 )
 
 from haptic_local_model.haptic_server.log import read_log
+from haptic_local_model.haptic_server.loop import DT_CLAMP
 from haptic_local_model.haptic_server.mailbox import SEGMENT_PREFIX, SHM_DIR, sweep_segments
 
 REPO = Path(__file__).resolve().parent.parent
@@ -224,3 +229,47 @@ def test_a_clock_step_of_the_sim(
     assert resumption_step(log, clears[0]) <= FADE_STEP_BOUND_N
     outage_s = float(log.row(clears[0])[0]["t"] - log.row(trips[0])[0]["t"])
     assert outage_s <= JUMP_FOR_S + 0.2  # back with the clock's first right update
+
+
+@pytest.mark.processes
+def test_the_loop_stalled_resumes_without_a_jump(
+    tmp_path: Path, network_file: Path, start_server: Any
+) -> None:
+    """The haptic server's own loop stopped (SIGSTOP) for 0.5 s while its user pushes (issue
+    48): it resumes on the sim's newest update, its first tick's dt clamped (DT_CLAMP), no
+    command step above the fade's bound and no command above the pre-stall push + 10 %.
+    (A simulated device stops with the loop; a real one holds the last command through the
+    stall: its driver's own watchdog is what bounds that, docs/devices.md.)"""
+    log_path, summary_path = tmp_path / "h.mcap", tmp_path / "h.json"
+    haptic = start_server(
+        "haptic_local_model.haptic_server.cli", *haptic_args(network_file, log_path, summary_path)
+    )
+    haptic.wait_ready()
+    sim = start_server("haptic_local_model.sim_server.cli", *server_args(network_file))
+    sim.wait_ready()
+    watch = ProxyWatch(network_file)
+    try:
+        watch.rendering(sim.events[0]["epoch"])
+        time.sleep(6.0)  # pushing steadily on the wall (the impact settled: issue 47)
+        os.kill(haptic.proc.pid, signal.SIGSTOP)
+        time.sleep(STALL_S)
+        os.kill(haptic.proc.pid, signal.SIGCONT)
+        time.sleep(1.5)
+    finally:
+        os.kill(haptic.proc.pid, signal.SIGCONT)
+        watch.close()
+    assert haptic.stop() == 0
+    assert sim.stop() == 0
+    ticks = Log.read(log_path).ticks
+    k = int(np.argmax(ticks["lateness_us"]))  # the tick the stall made late
+    assert ticks["lateness_us"][k] >= 0.8e6 * STALL_S
+    assert ticks["dt"][k] <= DT_CLAMP[1] * 1e-3 + 1e-12
+    command = ticks["wrench_command"][:, :2]
+    pushed = np.abs(command[k - 500 : k]).max(axis=0)
+    steady = np.abs(np.diff(command[k - 500 : k], axis=0)).max()
+    after = command[k : k + 1000]
+    step = np.abs(np.diff(command[k - 1 : k + 1000], axis=0)).max()
+    report("loop stalled", stall_s=STALL_S, step_n=step, steady_step_n=steady,
+           pushed_n=pushed.tolist(), after_max_n=np.abs(after).max(axis=0).tolist())  # fmt: skip
+    assert steady < 1e-3 and step <= FADE_STEP_BOUND_N, (step, steady)  # a steady push before
+    assert np.all(np.abs(after).max(axis=0) <= 1.1 * pushed + 1e-3), (after, pushed)
