@@ -140,3 +140,23 @@ def test_the_deployment_example_in_the_docs_loads(tmp_path: Path) -> None:
     path.write_text(textwrap.dedent(block.group(1)).replace("/etc/haptic/", f"{tmp_path}/"))
     network = load_network(str(path))
     assert network.haptic.sim_users == ("sim",) and network.sim.user == "sim"
+
+
+def test_flood_trim_trims_in_a_floods_seconds_and_the_one_after() -> None:
+    """FloodTrim counts once a second: it trims in each second 1,000 messages or more
+    arrived in and in the one after (the flood's last freed buffers), never in quiet ones."""
+    from haptic_local_model.shared.net.transport import TRIM_AFTER, FloodTrim
+
+    trim = FloodTrim()
+    calls: list[int] = []
+    trim._trim = calls.append  # the test's malloc_trim
+    received = [0]
+    per_second = [10, 60, TRIM_AFTER + 5, 3 * TRIM_AFTER, 40, 60, 60, TRIM_AFTER, 0, 0]
+    trimmed = []
+    for second, n in enumerate(per_second):
+        received[0] += n
+        before = len(calls)
+        for k in range(4):  # called often: counts and acts once a second
+            trim.after(second + 1.0 + k * 0.2, lambda: received[0])
+        trimmed.append(len(calls) - before)
+    assert trimmed == [0, 0, 1, 1, 1, 0, 0, 1, 1, 0]
