@@ -23,8 +23,9 @@ import contextlib
 import importlib.util
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol, Self
+from typing import Any, ClassVar, NamedTuple, Protocol, Self
 
 import numpy as np
 
@@ -122,6 +123,20 @@ def require_binding(module: str, extra: str, source: str) -> None:
             f"needs the vendor's Python binding {module!r}, which is not installed: "
             f"pip install 'haptic-local-model[{extra}]'",
         )
+
+
+class Bringup(NamedTuple):
+    """What the device doctor (device_models/doctor.py) needs of a vendor module to say,
+    without opening the device, whether it can be opened: its `BRINGUP`."""
+
+    #: modules whose import loads the vendor's runtime (its shared libraries): an OSError or
+    #: ImportError on importing them means the runtime is missing
+    runtime_modules: tuple[str, ...]
+    runtime_fix: str  # what to install when the runtime is missing
+    access_fix: str  # permissions a user account needs (udev rule, group)
+    #: the devices attached, one line each, without opening them; None: the binding cannot
+    #: tell without opening one
+    detect: Callable[[], list[str]] | None = None
 
 
 class VendorLink(Protocol):
@@ -261,6 +276,25 @@ class PlanarHardware:
             raise DeviceError(f"{self.name}: commanding the device failed: {exc}") from exc
         applied[0], applied[1], applied[2] = fx, fy, 0.0
         return applied
+
+    def device_position(self) -> np.ndarray:
+        """The newest reading's position in the device's own frame (m), before the planar
+        map (a copy): the device doctor finds the plane's axes from it."""
+        return self._position.copy()
+
+    def idle(self) -> None:
+        """Send zero force and no hold spring: keeps a device that answers only to commands
+        (the Inverse3) reading while nothing may be rendered (the device doctor's steps
+        before --force)."""
+        if self._stopping:
+            return
+        self._force[:] = 0.0
+        try:
+            self._link.send(self._force)
+        except DeviceError:
+            raise
+        except Exception as exc:
+            raise DeviceError(f"{self.name}: commanding the device failed: {exc}") from exc
 
     def safe_stop(self) -> None:
         """Zero force, force output off, the device closed. From the first call on nothing

@@ -21,6 +21,7 @@ import numpy as np
 
 from haptic_local_model.device_models.base import DeviceError, DeviceModel
 from haptic_local_model.device_models.hardware.base import (
+    Bringup,
     HardwareConfig,
     PlanarHardware,
 )
@@ -93,6 +94,25 @@ class ForceDimensionLink:
         finally:
             dhd.stop(self.id)  # forces off, brakes on
             dhd.close(self.id)
+
+
+def detect() -> list[str]:
+    """How many Force Dimension devices the SDK sees (dhd.getDeviceCount); their model and
+    serial number are read only on opening."""
+    dhd = importlib.import_module(f"{BINDING}.dhd")
+    count = int(dhd.getDeviceCount())
+    return [f"Force Dimension device #{i} (model and serial read on opening)" for i in range(count)]
+
+
+BRINGUP = Bringup(
+    # importing dhd and drd loads the SDK's libdhd and libdrd
+    runtime_modules=(f"{BINDING}.dhd", f"{BINDING}.drd"),
+    runtime_fix="install the Force Dimension SDK (https://www.forcedimension.com/software) "
+    "and put its lib/ directory on LD_LIBRARY_PATH",
+    access_fix="USB access: install the SDK's udev rule (its README) or the device is seen "
+    "but cannot be opened",
+    detect=detect,
+)
 
 
 class ForceDimension(PlanarHardware):

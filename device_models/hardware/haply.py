@@ -22,6 +22,7 @@ import numpy as np
 
 from haptic_local_model.device_models.base import DeviceError, DeviceModel
 from haptic_local_model.device_models.hardware.base import (
+    Bringup,
     HardwareConfig,
     PlanarHardware,
 )
@@ -78,6 +79,22 @@ class Inverse3Link:
         if self._device is not None:
             self._device.end_effector_force([0.0, 0.0, 0.0])
             self._device = None
+
+
+def detect() -> list[str]:
+    """The Inverse3s on the serial ports (detect_inverse3s); their serial numbers are read
+    only on opening (device_wakeup_dict)."""
+    api = importlib.import_module(BINDING)
+    return [f"Inverse3 on {port} (its id is read on opening)" for port in api.detect_inverse3s()]
+
+
+BRINGUP = Bringup(
+    runtime_modules=(),  # the binding talks to the serial port itself: no vendor runtime
+    runtime_fix="",
+    access_fix="the serial port (/dev/ttyACM*) must be readable: sudo usermod -aG dialout "
+    "$USER, then log in again",
+    detect=detect,
+)
 
 
 class Inverse3(PlanarHardware):

@@ -30,6 +30,7 @@ import numpy as np
 
 from haptic_local_model.device_models.base import DeviceError, DeviceModel
 from haptic_local_model.device_models.hardware.base import (
+    Bringup,
     HardwareConfig,
     PlanarHardware,
 )
@@ -159,6 +160,17 @@ class TouchLink:
         while self.servo_ticks < ticks + 2 and time.monotonic() < deadline:
             time.sleep(0.0005)
         device.close()
+
+
+BRINGUP = Bringup(
+    # importing hd loads OpenHaptics' libHD (an OSError when it is not installed)
+    runtime_modules=(f"{BINDING}.hd",),
+    runtime_fix="install OpenHaptics and the Touch device driver from 3D Systems, then name "
+    "the device in Touch_Setup (device_name)",
+    access_fix="the Touch's port (/dev/ttyACM*) must be readable: sudo usermod -aG dialout "
+    "$USER, then log in again",
+    detect=None,  # OpenHaptics finds a device only by initialising it (hdInitDevice)
+)
 
 
 class Touch(PlanarHardware):

@@ -16,6 +16,17 @@ process reads it. Settings from the environment (a test sets them for the server
 - FAKE_VENDOR_RAISE_AT: the force command, counted from the first that is not zero, at
   which the binding fails, once
 - FAKE_VENDOR_CALIBRATED: "0" for a device that needs calibrating
+- FAKE_VENDOR_RUNTIME: "0": the vendor's runtime is not installed (importing the binding's
+  modules that load it raises what the real one raises: OSError for a missing library)
+- FAKE_VENDOR_DEVICES: how many devices are attached (default 1; 0: none is found)
+- FAKE_VENDOR_FROZEN: "1": the readings never change (a device whose pose is stuck)
+- FAKE_VENDOR_FORCE_SIGN: "-1": the device pushes against the commanded force
+- FAKE_VENDOR_PLANE: "x,z": the device axes (with sign) that are really the scene's +x and +y:
+  where `user_moves` moves the handle (default "x,y")
+- FAKE_VENDOR_READ_FAIL_AT: the reading (counted from 1) at which the binding fails, once
+
+The device doctor's tests play the user with `HANDLE.user_moves("x")`: the handle moves
+along the scene's +x (the device axis FAKE_VENDOR_PLANE names) as a hand would.
 """
 
 from __future__ import annotations
@@ -31,6 +42,20 @@ from typing import Any
 MASS_KG = 0.2
 FRICTION_NS_PER_M = 1.0
 MAX_STEP_S = 0.005
+USER_MOVE_M = 0.02  # a user asked to move the handle moves it this far ...
+USER_MOVE_S = 0.15  # ... over this long
+AXES = {"x": 0, "y": 1, "z": 2}
+
+
+def runtime(library: str) -> None:
+    """What loading the vendor's runtime does when it is not installed (FAKE_VENDOR_RUNTIME)."""
+    if os.environ.get("FAKE_VENDOR_RUNTIME", "1") == "0":
+        raise OSError(f"{library}: cannot open shared object file: No such file or directory")
+
+
+def attached() -> int:
+    """How many devices are attached (FAKE_VENDOR_DEVICES)."""
+    return int(os.environ.get("FAKE_VENDOR_DEVICES", "1"))
 
 
 def _vector(name: str, default: str = "0,0,0") -> list[float]:
@@ -48,6 +73,12 @@ class FakeHandle:
         self.limit = float(os.environ.get("FAKE_VENDOR_LIMIT", "inf"))
         self.raise_at = int(os.environ.get("FAKE_VENDOR_RAISE_AT", "-1"))
         self.calibrated = os.environ.get("FAKE_VENDOR_CALIBRATED", "1") == "1"
+        self.frozen = os.environ.get("FAKE_VENDOR_FROZEN", "0") == "1"
+        self.force_sign = float(os.environ.get("FAKE_VENDOR_FORCE_SIGN", "1"))
+        self.plane = os.environ.get("FAKE_VENDOR_PLANE", "x,y").split(",")
+        self.read_fail_at = int(os.environ.get("FAKE_VENDOR_READ_FAIL_AT", "-1"))
+        self.reads = 0
+        self._moving: tuple[int, float, int] | None = None  # axis, velocity, until (ns)
         self.force = [0.0, 0.0, 0.0]
         self.first_push = -1  # the index of the first force that was not zero
         self.calls: list[str] = []  # in order; a repeat of the previous call is not listed
@@ -66,15 +97,46 @@ class FakeHandle:
         if self.closed and name not in ("close", "stop"):
             raise RuntimeError(f"{self.vendor}: {name} called after the device was closed")
 
+    def user_moves(self, scene_axis: str) -> None:
+        """A user moves the handle USER_MOVE_M along the scene's +x or +y ("x", "y"), that is
+        along the device axis FAKE_VENDOR_PLANE names for it, over USER_MOVE_S."""
+        text = self.plane[0 if scene_axis == "x" else 1]
+        sign = -1.0 if text.startswith("-") else 1.0
+        speed = sign * USER_MOVE_M / USER_MOVE_S
+        self._moving = (
+            AXES[text.lstrip("+-")],
+            speed,
+            time.monotonic_ns() + int(USER_MOVE_S * 1e9),
+        )
+
     def advance(self) -> None:
-        """Move the handle over the wall time since the last call."""
+        """Move the handle over the wall time since the last call (a reading)."""
+        self.reads += 1
+        if self.reads == self.read_fail_at:
+            raise RuntimeError(
+                f"{self.vendor}: the device stopped answering (reading {self.reads})"
+            )
         now = time.monotonic_ns()
         dt = min((now - self._last_ns) * 1e-9, MAX_STEP_S)
         self._last_ns = now
+        if self.frozen:
+            return
         for i in range(3):
-            f = self.hand[i] + self.force[i] - FRICTION_NS_PER_M * self.velocity[i]
+            f = (
+                self.hand[i]
+                + self.force_sign * self.force[i]
+                - FRICTION_NS_PER_M * self.velocity[i]
+            )
             self.velocity[i] += dt * f / MASS_KG
             self.position[i] += dt * self.velocity[i]
+        if self._moving is not None:  # the user's hand leads: it sets the velocity
+            axis, speed, until = self._moving
+            if now >= until:
+                self._moving = None
+                self.velocity[axis] = 0.0
+            else:
+                self.velocity[axis] = speed
+                self.position[axis] += dt * speed
 
     def command(self, force: Any) -> None:
         """A force (N, the vendor's frame) held from now on."""

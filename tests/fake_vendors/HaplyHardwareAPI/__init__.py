@@ -6,13 +6,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from _fake_handle import FakeHandle, handle
+from _fake_handle import FakeHandle, attached, handle
 
 PORT = "/dev/ttyFAKE0"
 
 
 def detect_inverse3s() -> list[str]:
-    return [PORT]
+    return [PORT][: attached()]
 
 
 class SerialStream:

@@ -7,7 +7,12 @@ from typing import Any
 
 import _fake_handle
 
+_fake_handle.runtime("libdhd.so.3")
 _last_error = "no error"
+
+
+def getDeviceCount() -> int:
+    return _fake_handle.attached()
 
 
 def _h() -> _fake_handle.FakeHandle:
@@ -34,9 +39,14 @@ def enableForce(val: bool, ID: int = -1) -> int:
 
 
 def getPosition(out: Any, ID: int = -1) -> int:
+    global _last_error
     h = _h()
     h.call("dhd.getPosition")
-    h.advance()
+    try:
+        h.advance()
+    except RuntimeError as exc:
+        _last_error = str(exc)
+        return -1
     out[0], out[1], out[2] = h.position
     return 0
 

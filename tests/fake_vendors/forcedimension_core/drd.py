@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import _fake_handle
 
+_fake_handle.runtime("libdrd.so.3")
 DEVICE_ID = 0
 
 
 def open() -> int:
     h = _fake_handle.handle("forcedimension")
     h.call("drd.open")
-    return DEVICE_ID
+    return DEVICE_ID if _fake_handle.attached() else -1
 
 
 def isInitialized(ID: int = -1) -> bool:

@@ -7,6 +7,8 @@ from typing import Any
 
 import _fake_handle
 
+_fake_handle.runtime("libHD.so")
+
 IN_FRAME = threading.local()
 
 

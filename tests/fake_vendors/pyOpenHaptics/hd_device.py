@@ -20,6 +20,8 @@ class HapticDevice:
     ) -> None:  # fmt: skip
         h = self._h = _fake_handle.handle("touch")
         h.call("hdInitDevice")
+        if not _fake_handle.attached():  # pyOpenHaptics raises on HD_DEVICE_ERROR
+            raise RuntimeError(f"HD_DEVICE_ERROR: cannot initialise {device_name!r}")
         h.call("hdEnable(HD_FORCE_OUTPUT)")
         h.call("hdStartScheduler")
         self._callback = callback
