@@ -4,12 +4,16 @@ with its message and exit code (issue 49)."""
 
 from __future__ import annotations
 
+import importlib
 import json
+import math
 import os
+import re
 import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -117,3 +121,212 @@ def test_the_console_script_lists(fakes: Path) -> None:
     out = subprocess.run([str(script), "list"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert "Inverse3 on /dev/ttyFAKE0" in out.stdout and "twin_pantograph" in out.stdout
+
+
+ADAPTERS = tuple(BINDINGS)
+#: where each shipped config's [planar] origin is (the fake handle starts there)
+QUICK = ["--seconds", "0.1", "--move-seconds", "0.4"]
+
+
+def _start_at_origin(monkeypatch: pytest.MonkeyPatch, name: str) -> None:
+    from haptic_local_model.device_models.registry import device_config
+    from haptic_local_model.shared.config import read_toml
+
+    planar = read_toml(device_config(name))["planar"]
+    monkeypatch.setenv("FAKE_VENDOR_START", ",".join(map(str, planar["origin_m"])))
+    monkeypatch.setenv("FAKE_VENDOR_PLANE", f"{planar['x']},{planar['y']}")
+
+
+def _user(step: str, text: str) -> None:
+    """The fake user: moves the handle along the scene's axis it is asked for."""
+    if step in ("x", "y"):
+        importlib.import_module("_fake_handle").HANDLE.user_moves(step)
+
+
+def _check(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str]:
+    code = main(["check", *QUICK, *args], ask=_user)
+    return code, capsys.readouterr().out
+
+
+def _record() -> Any:
+    return importlib.import_module("_fake_handle").HANDLE
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+@pytest.mark.parametrize("name", ADAPTERS)
+def test_check_passes_on_a_healthy_fake(
+    name: str, fakes: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Rate, jitter and noise reported; the moves match the shipped [planar] map; no force
+    without --force; the safe stop closes the device."""
+    _start_at_origin(monkeypatch, name)
+    code, out = _check(capsys, "--device", name)
+    assert code == 0, out
+    assert re.search(r"rest: ok: \d+ readings at \d+ Hz; period p50 [\d.]+ ms, p99", out)
+    assert "axes: ok:" in out and "spring: not tried (forces only with --force)" in out
+    assert "stop: ok: safe stop: zero force, the device closed" in out
+    assert out.rstrip().endswith("check passed (exit 0)")
+    h = _record()
+    assert max((max(map(abs, f[1:4])) for f in h.forces), default=0.0) == 0.0
+    assert h.closed or name == "haply_inverse3"  # the Inverse3's binding has no close
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+@pytest.mark.parametrize("name", ADAPTERS)
+def test_one_axis_flipped_is_found_and_the_written_table_fixes_it(
+    name: str, fakes: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+) -> None:  # fmt: skip
+    """The device's y runs the other way than the config says: named, exit 14, and the
+    config --write writes makes the next check pass."""
+    _start_at_origin(monkeypatch, name)
+    x, y = os.environ["FAKE_VENDOR_PLANE"].split(",")
+    flipped = y[1:] if y.startswith("-") else f"-{y}"
+    monkeypatch.setenv("FAKE_VENDOR_PLANE", f"{x},{flipped}")
+    fixed = tmp_path / "fixed.toml"
+    code, out = _check(capsys, "--device", name, "--write", str(fixed))
+    assert code == doctor.EXIT_AXES, out
+    assert "axes: FAILED: the scene's y is flipped" in out
+    assert f"Wrote {fixed} with [planar] x = {x!r}, y = {flipped!r}" in out
+    assert h_closed_or_zero(name)
+    _forget_fakes()
+    code, out = _check(capsys, "--device", str(fixed))
+    assert code == 0, out
+
+
+def h_closed_or_zero(name: str) -> bool:
+    """The device is closed (the Inverse3: its last force is zero, its binding has no close)."""
+    h = _record()
+    return (
+        h.closed if name != "haply_inverse3" else (not h.forces or h.forces[-1][1:4] == (0, 0, 0))
+    )
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+def test_swapped_axes_are_named(
+    fakes: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _start_at_origin(monkeypatch, "touch")
+    monkeypatch.setenv("FAKE_VENDOR_PLANE", "y,x")
+    code, out = _check(capsys, "--device", "touch")
+    assert code == doctor.EXIT_AXES and "axes: FAILED: x and y are swapped" in out
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+@pytest.mark.parametrize("name", ADAPTERS)
+def test_a_frozen_pose(
+    name: str, fakes: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The readings never change, at rest nor when the user moves: a named failure."""
+    _start_at_origin(monkeypatch, name)
+    monkeypatch.setenv("FAKE_VENDOR_FROZEN", "1")
+    code, out = _check(capsys, "--device", name)
+    assert code == doctor.EXIT_FROZEN, out
+    assert (
+        "x: FAILED: the pose did not change at all, at rest nor when the handle was to move" in out
+    )
+    assert "its readings are frozen" in out and h_closed_or_zero(name)
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+@pytest.mark.parametrize("name", ADAPTERS)
+def test_a_force_sign_flipped(
+    name: str, fakes: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """With --force the spring toward the start pushes the handle away: a named failure;
+    the force stays within 10 % of the device's limit and the device ends closed."""
+    _start_at_origin(monkeypatch, name)
+    monkeypatch.setenv("FAKE_VENDOR_FORCE_SIGN", "-1")
+    code, out = _check(capsys, "--device", name, "--force")
+    assert code == doctor.EXIT_FORCE, out
+    assert "spring: FAILED: the spring pushes away from the start" in out
+    assert "The force's sign is flipped" in out
+    _assert_gentle(name)
+    assert h_closed_or_zero(name)
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+@pytest.mark.parametrize("name", ADAPTERS)
+def test_the_spring_restores(
+    name: str, fakes: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _start_at_origin(monkeypatch, name)
+    code, out = _check(capsys, "--device", name, "--force")
+    assert code == 0, out
+    assert "spring: ok: the spring restores toward the start" in out
+    _assert_gentle(name)
+
+
+def _assert_gentle(name: str) -> None:
+    """No force beyond 10 % of the limit in the plane (the hold spring aside), none NaN."""
+    from haptic_local_model.device_models.hardware.base import PlanarSection
+    from haptic_local_model.device_models.registry import device_config
+    from haptic_local_model.shared.config import read_toml
+
+    config = read_toml(device_config(name))
+    ix, iy, _, _, _ = PlanarSection(x=config["planar"]["x"], y=config["planar"]["y"]).axes()
+    h = _record()
+    planar = [math.hypot(f[1 + ix], f[1 + iy]) for f in h.forces]
+    assert max(planar) <= 0.1 * config["max_wrench"][0] + 1e-9
+    assert h.not_finite == 0 and max(planar) > 0
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+@pytest.mark.parametrize("name", ADAPTERS)
+def test_a_binding_call_that_raises_mid_check(
+    name: str, fakes: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The binding fails on a reading (during the rest step; the Touch's servo thread reads
+    from the open on, its adapter notices a servo that stopped later): a message naming the step
+    and the binding's error, exit 16, the safe stop done and the device closed."""
+    _start_at_origin(monkeypatch, name)
+    monkeypatch.setenv("FAKE_VENDOR_READ_FAIL_AT", "40")
+    code, out = _check(capsys, "--device", name)
+    assert code == doctor.EXIT_DEVICE_FAILED, out
+    step = "rest" if name != "touch" else r"\w+"  # the Touch's servo reads on its own
+    assert re.search(rf"({step}): FAILED: the device failed during the \1 step: DeviceError:", out)
+    assert "the device stopped answering" in out or "servo callback has not run" in out
+    assert "stop: ok: safe stop" in out and h_closed_or_zero(name)
+
+
+@pytest.mark.parametrize(
+    ("env", "code", "text"),
+    [
+        ({"FAKE_VENDOR_RUNTIME": "0"}, doctor.EXIT_RUNTIME, "find: FAILED: the vendor runtime "
+         "does not load (OSError: libdhd.so.3: cannot open"),
+        ({"FAKE_VENDOR_DEVICES": "0"}, doctor.EXIT_NO_DEVICE, "find: FAILED: no device detected"),
+    ],
+)  # fmt: skip
+def test_check_before_opening(
+    env: dict[str, str], code: int, text: str, fakes: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    """A missing runtime or no device ends the check before anything is opened."""
+    for key, value in env.items():
+        monkeypatch.setenv(key, value)
+    got, out = _check(capsys, "--device", "forcedimension")
+    assert got == code and text in out, out
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+def test_check_no_touch_found_on_opening(
+    fakes: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """OpenHaptics cannot detect without opening: the open fails, named, exit 12, closed."""
+    monkeypatch.setenv("FAKE_VENDOR_DEVICES", "0")
+    code, out = _check(capsys, "--device", "touch")
+    assert code == doctor.EXIT_NO_DEVICE
+    assert "open: FAILED: opening the device failed: " in out and "HD_DEVICE_ERROR" in out
+
+
+def test_check_binding_missing(capsys: pytest.CaptureFixture[str]) -> None:
+    _forget_fakes()
+    code, out = _check(capsys, "--device", "haply_inverse3")
+    assert code == doctor.EXIT_BINDING
+    fix = "fix: pip install 'haptic-local-model[haply]'"
+    assert f"find: FAILED: the binding 'HaplyHardwareAPI' is not installed; {fix}" in out
+
+
+def test_check_a_simulated_device_is_a_config_error(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["check", "--device", "ideal"]) == 2
+    assert "is simulated: the doctor checks a real device" in capsys.readouterr().err

@@ -9,9 +9,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
+from pathlib import Path
 
 from haptic_local_model.device_models import doctor
-from haptic_local_model.shared.cli import add_version, run_main
+from haptic_local_model.device_models.doctor_check import Ask, CheckOptions, run_check
+from haptic_local_model.shared.cli import add_version, run_main, seconds
 
 
 def _list(args: argparse.Namespace) -> int:
@@ -23,6 +26,21 @@ def _list(args: argparse.Namespace) -> int:
     return doctor.EXIT_OK
 
 
+def ask_user(step: str, text: str) -> None:
+    """The interactive prompt: the text, then wait for Enter."""
+    input(f"{step}: {text} ")
+
+
+def _check(args: argparse.Namespace, ask: Ask) -> int:
+    options = CheckOptions(
+        seconds=args.seconds, force=args.force, write=args.write, move_timeout_s=args.move_seconds
+    )
+    result = run_check(args.device, options, ask, lambda line: print(line, flush=True))
+    code = result.exit_code
+    print(f"check {'passed' if code == doctor.EXIT_OK else 'FAILED'} (exit {code})")
+    return code
+
+
 def parser() -> argparse.ArgumentParser:
     """The arguments of `haptic-device` and its commands."""
     p = argparse.ArgumentParser(prog="haptic-device", description=__doc__)
@@ -32,13 +50,32 @@ def parser() -> argparse.ArgumentParser:
         "list", help="installed device models: binding, vendor runtime, devices detected"
     )
     listing.add_argument("--json", action="store_true", help="one JSON list, for machines")
-    listing.set_defaults(body=_list)
+    listing.set_defaults(body=lambda args, ask: _list(args))
+    check = commands.add_parser(
+        "check", help="open a device: read rate, jitter, noise; the [planar] map; the force"
+    )
+    check.add_argument("--device", required=True, help="device name in configs/devices or a path")
+    check.add_argument("--seconds", type=seconds, default=3.0, help="read at rest this long")
+    check.add_argument(
+        "--move-seconds", type=seconds, default=10.0,
+        help="how long to wait for each move of the handle the check asks for",
+    )  # fmt: skip
+    check.add_argument(
+        "--force", action="store_true",
+        help="render a gentle spring (10 %% of the limit, faded in) and check its direction",
+    )  # fmt: skip
+    check.add_argument(
+        "--write", type=Path, default=None, metavar="FILE",
+        help="if the [planar] map is wrong, write a corrected device config here",
+    )  # fmt: skip
+    check.set_defaults(body=_check)
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, ask: Callable[[str, str], None] = ask_user) -> int:
+    """`haptic-device`; `ask` plays the user in tests (the fake handle's moves)."""
     args = parser().parse_args(argv)
-    return run_main(lambda: int(args.body(args)))
+    return run_main(lambda: int(args.body(args, ask)))
 
 
 if __name__ == "__main__":

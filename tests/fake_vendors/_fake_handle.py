@@ -121,22 +121,15 @@ class FakeHandle:
         self._last_ns = now
         if self.frozen:
             return
-        for i in range(3):
-            f = (
-                self.hand[i]
-                + self.force_sign * self.force[i]
-                - FRICTION_NS_PER_M * self.velocity[i]
-            )
-            self.velocity[i] += dt * f / MASS_KG
-            self.position[i] += dt * self.velocity[i]
         if self._moving is not None:  # the user's hand leads: it sets the velocity
             axis, speed, until = self._moving
+            self.velocity[axis] = speed if now < until else 0.0
             if now >= until:
                 self._moving = None
-                self.velocity[axis] = 0.0
-            else:
-                self.velocity[axis] = speed
-                self.position[axis] += dt * speed
+        for i in range(3):
+            f = self.hand[i] + self.force_sign * self.force[i]
+            self.velocity[i] += dt * (f - FRICTION_NS_PER_M * self.velocity[i]) / MASS_KG
+            self.position[i] += dt * self.velocity[i]
 
     def command(self, force: Any) -> None:
         """A force (N, the vendor's frame) held from now on."""
