@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from haptic_local_model.device_models import doctor
@@ -330,3 +331,56 @@ def test_check_binding_missing(capsys: pytest.CaptureFixture[str]) -> None:
 def test_check_a_simulated_device_is_a_config_error(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["check", "--device", "ideal"]) == 2
     assert "is simulated: the doctor checks a real device" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+def test_the_bring_up_log(
+    fakes: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+) -> None:  # fmt: skip
+    """`check --log` writes every sample (each step's) and the findings as metadata; the
+    spring's commanded and applied forces are in it."""
+    from mcap.reader import make_reader
+
+    from haptic_local_model.device_models.doctor_check import SAMPLE_DTYPE, STEPS
+    from haptic_local_model.haptic_server.harness.device_doctor import LOG_TOPIC
+
+    _start_at_origin(monkeypatch, "forcedimension")
+    log = tmp_path / "bring-up.mcap"
+    code, out = _check(capsys, "--device", "forcedimension", "--force", "--log", str(log))
+    assert code == 0, out
+    assert f"log: {log} (" in out
+    with log.open("rb") as fh:
+        reader = make_reader(fh)
+        rows = np.array(
+            [np.frombuffer(m.data, SAMPLE_DTYPE)[0] for _, c, m in reader.iter_messages()
+             if c.topic == LOG_TOPIC]
+        )  # fmt: skip
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+    steps = {STEPS[s] for s in rows["step"]}
+    assert {"rest", "x", "y", "spring"} <= steps
+    spring = rows[rows["step"] == STEPS.index("spring")]
+    assert np.abs(spring["commanded"]).max() > 0 and np.abs(spring["applied"]).max() > 0
+    findings = json.loads(metadata["device_doctor"]["findings"])
+    assert [f["step"] for f in findings] == ["rest", "axes", "spring", "stop"]
+    assert metadata["device_doctor"]["exit_code"] == "0"
+    assert 'model = "forcedimension"' in metadata["device_config"]["text"]
+
+
+@pytest.mark.processes
+def test_the_console_script_checks_a_frozen_device(
+    fakes: Path, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """`haptic-device check` as installed, stdin closed: the frozen fake's exit code and
+    message, the device closed (the fake's record), the log written."""
+    _start_at_origin(monkeypatch, "forcedimension")
+    monkeypatch.setenv("FAKE_VENDOR_FROZEN", "1")
+    script = Path(sys.executable).parent / "haptic-device"
+    log = tmp_path / "frozen.mcap"
+    out = subprocess.run(
+        [str(script), "check", "--device", "forcedimension", *QUICK, "--log", str(log)],
+        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    assert out.returncode == doctor.EXIT_FROZEN, out.stdout + out.stderr
+    assert "its readings are frozen" in out.stdout and log.is_file()
+    assert json.loads(fakes.read_text())["closed"]

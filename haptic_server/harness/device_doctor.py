@@ -13,8 +13,20 @@ from collections.abc import Callable
 from pathlib import Path
 
 from haptic_local_model.device_models import doctor
-from haptic_local_model.device_models.doctor_check import Ask, CheckOptions, run_check
-from haptic_local_model.shared.cli import add_version, run_main, seconds
+from haptic_local_model.device_models.doctor_check import (
+    STEPS,
+    Ask,
+    CheckOptions,
+    CheckResult,
+    run_check,
+)
+from haptic_local_model.device_models.registry import device_config
+from haptic_local_model.haptic_server.log import write_rows_log
+from haptic_local_model.shared.cli import EXIT_LOG_FAILED, add_version, log_file, run_main, seconds
+
+#: the bring-up log's channel and schema (one message per sample, doctor_check.SAMPLE_DTYPE)
+LOG_TOPIC = "/device_doctor/sample"
+LOG_SCHEMA = "haptic_local_model/DeviceDoctorSample"
 
 
 def _list(args: argparse.Namespace) -> int:
@@ -27,8 +39,12 @@ def _list(args: argparse.Namespace) -> int:
 
 
 def ask_user(step: str, text: str) -> None:
-    """The interactive prompt: the text, then wait for Enter."""
-    input(f"{step}: {text} ")
+    """The interactive prompt: the text, then wait for Enter (without a terminal on stdin,
+    it goes straight on: the move's window still runs)."""
+    try:
+        input(f"{step}: {text} ")
+    except EOFError:
+        print("(stdin is closed: not waiting for Enter)", flush=True)
 
 
 def _check(args: argparse.Namespace, ask: Ask) -> int:
@@ -37,8 +53,39 @@ def _check(args: argparse.Namespace, ask: Ask) -> int:
     )
     result = run_check(args.device, options, ask, lambda line: print(line, flush=True))
     code = result.exit_code
+    if args.log is not None and not write_log(args.log, args.device, result):
+        code = code or EXIT_LOG_FAILED
     print(f"check {'passed' if code == doctor.EXIT_OK else 'FAILED'} (exit {code})")
     return code
+
+
+def write_log(path: Path, device: str, result: CheckResult) -> bool:
+    """The bring-up log: every sample (t, step, planar pose and twist, the device-frame
+    position, the commanded and the applied force, the fault bits) on LOG_TOPIC, and as
+    metadata the findings, the steps' names and the device config's text, so a user can
+    send it with a question. Whether it was written (a failure is said in one line)."""
+    source = device_config(device)
+    findings = [
+        {"step": f.step, "ok": f.ok, "exit_code": f.exit_code, "message": f.message,
+         "figures": f.figures}
+        for f in result.findings
+    ]  # fmt: skip
+    metadata = {
+        "device_doctor": {
+            "device": device,
+            "exit_code": str(result.exit_code),
+            "steps": json.dumps(list(STEPS)),
+            "findings": json.dumps(findings),
+        },
+        "device_config": {"path": str(source), "text": source.read_text()},
+    }
+    try:
+        write_rows_log(path, result.samples, LOG_TOPIC, LOG_SCHEMA, metadata)
+    except OSError as exc:
+        print(f"haptic-device: cannot write the log {path}: {exc}", file=sys.stderr)
+        return False
+    print(f"log: {path} ({len(result.samples)} samples)")
+    return True
 
 
 def parser() -> argparse.ArgumentParser:
@@ -67,6 +114,10 @@ def parser() -> argparse.ArgumentParser:
     check.add_argument(
         "--write", type=Path, default=None, metavar="FILE",
         help="if the [planar] map is wrong, write a corrected device config here",
+    )  # fmt: skip
+    check.add_argument(
+        "--log", type=log_file, default=None, metavar="OUT.mcap",
+        help="write the bring-up log: every sample and the findings (MCAP)",
     )  # fmt: skip
     check.set_defaults(body=_check)
     return p
