@@ -130,8 +130,8 @@ def format_list(reports: list[ModelReport]) -> str:
     out: list[str] = []
     width = max((len(r.name) for r in reports), default=0)
     for r in reports:
-        kind = "simulated" if r.simulated else "hardware"
-        out.append(f"{r.name:<{width}}  {kind}: {r.description or r.problem}")
+        kind = "simulated: " if r.simulated else ""  # a hardware one's description says so
+        out.append(f"{r.name:<{width}}  {kind}{r.description or r.problem}")
         if r.simulated or not r.binding:
             continue
         out.append(f"  binding {r.binding}: {'imports' if r.binding_ok else 'NOT INSTALLED'}")

@@ -138,6 +138,7 @@ BAD_CALLS = {
     "haptic-router": ("--network", "missing.toml"),
     "haptic-world": ("--scene", "missing.toml"),
     "haptic-station": ("--port", "left", "--scene", "missing.toml"),
+    "haptic-device": ("check", "--device", "missing.toml"),
 }
 
 
