@@ -30,6 +30,7 @@ import struct
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -56,7 +57,7 @@ USER = "pointer"
 MESSAGES = 30_000
 GROWTH_TARGET_MB = 1.0
 SETTLE_S = 20.0  # after ready: the log writer's first growth (docs/bench soak) is done
-AFTER_S = 1.5  # after the flood: its backlog taken and logged before the second reading
+AFTER_S = 5.0  # after the flood: its backlog taken, logged and trimmed before the reading
 FUTURE_NS = 10_000_000_000  # a pointer stamp this far ahead of every receiver's clock
 
 
@@ -108,6 +109,27 @@ def _rss(pids: dict[str, int]) -> dict[str, float]:
     return {name: rss_mb(pid) or float("nan") for name, pid in pids.items()}
 
 
+def _put_all(session: Any, key: str, messages: int, make: Callable[[int], bytes]) -> None:
+    """make(i) for i < messages on `key`, each waiting for room (nothing dropped at the
+    sender)."""
+    pub = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+    for i in range(messages):
+        pub.put(make(i))
+    pub.undeclare()
+
+
+def _rounds(
+    result: FloodResult, rounds: int, pids: dict[str, int], flood_once: Callable[[], None]
+) -> None:
+    """`rounds` floods, each timed and followed by AFTER_S and a reading of `pids`' memory."""
+    for _ in range(rounds):
+        start = time.perf_counter()
+        flood_once()
+        result.flood_s = time.perf_counter() - start
+        time.sleep(AFTER_S)
+        result.rss_mb.append(_rss(pids))
+
+
 def run(
     workdir: Path,
     messages: int = MESSAGES,
@@ -130,22 +152,15 @@ def run(
         k = keys(pair.net.namespace)
         os.kill(pair.sim_pid, signal.SIGSTOP)
         try:
-            for _ in range(rounds):
-                start = time.perf_counter()
+
+            def flood_once() -> None:
                 if control_s is not None:
                     time.sleep(control_s)
                 for name in floods if control_s is None else ():
-                    make = FLOODS[name]
-                    pub = session.declare_publisher(
-                        getattr(k, name), congestion_control=zenoh.CongestionControl.BLOCK
-                    )
-                    for i in range(messages):
-                        pub.put(make(i))
-                    pub.undeclare()
+                    _put_all(session, getattr(k, name), messages, FLOODS[name])
                     result.sent[name] = result.sent.get(name, 0) + messages
-                result.flood_s = time.perf_counter() - start
-                time.sleep(AFTER_S)
-                result.rss_mb.append(_rss(pids))
+
+            _rounds(result, rounds, pids, flood_once)
         finally:
             os.kill(pair.sim_pid, signal.SIGCONT)
             session.close()
@@ -187,20 +202,13 @@ def run_world(workdir: Path, messages: int = MESSAGES, rounds: int = 2) -> Flood
         result.rss_mb.append(_rss(pids))
         sessions = {p: open_client(network.station(p)) for p in ("left", "right")}
         try:
-            for _ in range(rounds):
-                start = time.perf_counter()
+
+            def flood_once() -> None:
                 for port, session in sessions.items():
-                    key = port_keys(network.namespace, port)[0]
-                    pub = session.declare_publisher(
-                        key, congestion_control=zenoh.CongestionControl.BLOCK
-                    )
-                    for i in range(messages):
-                        pub.put(junk_update(i))
-                    pub.undeclare()
+                    _put_all(session, port_keys(network.namespace, port)[0], messages, junk_update)
                     result.sent[port] = result.sent.get(port, 0) + messages
-                result.flood_s = time.perf_counter() - start
-                time.sleep(AFTER_S)
-                result.rss_mb.append(_rss(pids))
+
+            _rounds(result, rounds, pids, flood_once)
         finally:
             for session in sessions.values():
                 session.close()

@@ -43,6 +43,7 @@ from haptic_local_model.haptic_server.mailbox import (
     C_TICK_HEAD,
     C_TICK_LOGGED,
     C_TICK_LOST,
+    C_UPD_HEAD,
     C_UPD_LOGGED,
     C_UPD_READ,
     C_WALL_START,
@@ -52,6 +53,7 @@ from haptic_local_model.haptic_server.mailbox import (
     SharedBlock,
 )
 from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.shared.memory import FloodTrim
 from haptic_local_model.shared.protocol.layout import PUBLISH_TIME_AT, PUBLISH_TIME_END
 from haptic_local_model.shared.timing import avoid_cpu
 
@@ -162,11 +164,14 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
     gc.freeze()
     ctl[C_LOG_READY] = 1
     failed = False
+    trim = FloodTrim()  # a flood of updates, each logged: its memory back after it
     try:
         while True:
             closing = ctl[C_CLOSED] == 1 or os.getppid() != parent_pid or terminated.is_set()
             head = int(ctl[C_TICK_HEAD])  # first: see LogDrain.drain
-            drain.drain(head, time.monotonic())
+            now = time.monotonic()
+            drain.drain(head, now)
+            trim.after(now, lambda: int(ctl[C_UPD_HEAD]))
             if closing and int(ctl[C_TICK_HEAD]) == drain.tick_tail and drain.drained_updates():
                 break
             if not closing:

@@ -71,12 +71,12 @@ from haptic_local_model.haptic_server.stages.world_ports import (
 )
 from haptic_local_model.haptic_server.world_engines import CosimWorld, world_engine
 from haptic_local_model.shared.config import load_user
+from haptic_local_model.shared.memory import FloodTrim
 from haptic_local_model.shared.net.stations import (
     StationNetworkConfig,
     open_client,
     port_keys,
 )
-from haptic_local_model.shared.net.transport import FloodTrim
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
 from haptic_local_model.shared.protocol.station import (
     DeviceState,

@@ -227,8 +227,9 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
 
     import zenoh
 
+    from haptic_local_model.shared.memory import FloodTrim
     from haptic_local_model.shared.net.config import EndpointSpec
-    from haptic_local_model.shared.net.transport import FloodTrim, keys, open_session
+    from haptic_local_model.shared.net.transport import keys, open_session
     from haptic_local_model.shared.protocol.proxy import encode_proxy
 
     # the loop decides when I/O ends: a Ctrl-C to the process group is ignored; SIGTERM (the

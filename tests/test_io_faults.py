@@ -118,17 +118,23 @@ def _sidecar(haptic_pid: int) -> int:
     raise AssertionError("no I/O sidecar")
 
 
-@pytest.mark.processes
-def test_a_starved_then_killed_sidecar(
-    tmp_path: Path, network_file: Path, start_server: Any
-) -> None:
-    log_path, summary_path = tmp_path / "h.mcap", tmp_path / "h.json"
+def _both(start_server: Any, network_file: Path, log_path: Path, summary_path: Path) -> Any:
+    """The haptic server (logging to log_path), then the sim, each ready."""
     haptic = start_server(
         "haptic_local_model.haptic_server.cli", *haptic_args(network_file, log_path, summary_path)
     )
     haptic.wait_ready()
     sim = start_server("haptic_local_model.sim_server.cli", *server_args(network_file))
     sim.wait_ready()
+    return haptic, sim
+
+
+@pytest.mark.processes
+def test_a_starved_then_killed_sidecar(
+    tmp_path: Path, network_file: Path, start_server: Any
+) -> None:
+    log_path, summary_path = tmp_path / "h.mcap", tmp_path / "h.json"
+    haptic, sim = _both(start_server, network_file, log_path, summary_path)
     epoch = sim.events[0]["epoch"]
     watch = ProxyWatch(network_file)
     try:
@@ -241,12 +247,7 @@ def test_the_loop_stalled_resumes_without_a_jump(
     (A simulated device stops with the loop; a real one holds the last command through the
     stall: its driver's own watchdog is what bounds that, docs/devices.md.)"""
     log_path, summary_path = tmp_path / "h.mcap", tmp_path / "h.json"
-    haptic = start_server(
-        "haptic_local_model.haptic_server.cli", *haptic_args(network_file, log_path, summary_path)
-    )
-    haptic.wait_ready()
-    sim = start_server("haptic_local_model.sim_server.cli", *server_args(network_file))
-    sim.wait_ready()
+    haptic, sim = _both(start_server, network_file, log_path, summary_path)
     watch = ProxyWatch(network_file)
     try:
         watch.rendering(sim.events[0]["epoch"])

@@ -143,20 +143,20 @@ def test_the_deployment_example_in_the_docs_loads(tmp_path: Path) -> None:
 
 
 def test_flood_trim_trims_in_a_floods_seconds_and_the_one_after() -> None:
-    """FloodTrim counts once a second: it trims in each second 1,000 messages or more
+    """FloodTrim counts once a window: it trims in each window a flood's worth of messages
     arrived in and in the one after (the flood's last freed buffers), never in quiet ones."""
-    from haptic_local_model.shared.net.transport import TRIM_AFTER, FloodTrim
+    from haptic_local_model.shared.memory import TRIM_AFTER, TRIM_EVERY_S, FloodTrim
 
     trim = FloodTrim()
     calls: list[int] = []
     trim._trim = calls.append  # the test's malloc_trim
     received = [0]
-    per_second = [10, 60, TRIM_AFTER + 5, 3 * TRIM_AFTER, 40, 60, 60, TRIM_AFTER, 0, 0]
+    per_window = [10, 60, TRIM_AFTER + 5, 3 * TRIM_AFTER, 4, 6, 6, TRIM_AFTER, 0, 0]
     trimmed = []
-    for second, n in enumerate(per_second):
+    for window, n in enumerate(per_window):
         received[0] += n
         before = len(calls)
-        for k in range(4):  # called often: counts and acts once a second
-            trim.after(second + 1.0 + k * 0.2, lambda: received[0])
+        for k in range(4):  # called often: counts and acts once a window
+            trim.after((window + 1.0 + k * 0.2) * TRIM_EVERY_S, lambda: received[0])
         trimmed.append(len(calls) - before)
     assert trimmed == [0, 0, 1, 1, 1, 0, 0, 1, 1, 0]

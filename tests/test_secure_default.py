@@ -207,7 +207,7 @@ def test_a_flood_on_every_key_is_counted_by_reason_and_loses_no_safety_event(
     the watchdog's trip during the flood is in the log and no event was lost, and none of
     the haptic server's processes grows by more than 1 MB in either round. (The I/O
     process's first flood grew it by 0-24 MB, glibc's arenas keeping what Zenoh's receive
-    path freed, until it trimmed them after a flood: sidecar.FloodTrim.)"""
+    path freed, until it trimmed them after a flood: shared.memory.FloodTrim.)"""
     from haptic_local_model.benchmarks import flood
 
     result = flood.run(tmp_path, flood.MESSAGES, rounds=2)

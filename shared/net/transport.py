@@ -8,10 +8,7 @@ Key expressions under the configured namespace (docs/protocol.md):
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
 import json
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -81,35 +78,3 @@ def newest_payload(subscriber: Any) -> list[bytes]:
         if sample is None:
             return out
         out.append(sample.payload.to_bytes())
-
-
-TRIM_AFTER = 1000  # messages received in a second: a flood's worth
-TRIM_EVERY_S = 1.0
-
-
-class FloodTrim:
-    """After a flood, the memory its messages took handed back to the system: Zenoh's receive
-    path allocates through glibc, whose per-thread arenas keep what was freed, and a first
-    flood of 30,000 messages on a key left a receiving process 0-24 MB larger for good
-    (benchmarks/flood.py). A loop calls `after` as often as it likes, with how to count its
-    messages received (taken, refused or dropped): it counts them once a second, and
-    `malloc_trim` runs (ctypes releases the GIL for it; tens of microseconds) in each second
-    a flood's worth arrived in and in the one after."""
-
-    def __init__(self) -> None:
-        self._trim: Any = None
-        with contextlib.suppress(OSError, AttributeError):  # not glibc: nothing to trim
-            self._trim = ctypes.CDLL("libc.so.6").malloc_trim
-        self._counted = 0
-        self._flooding = False
-        self._next = 0.0
-
-    def after(self, now_s: float, count: Callable[[], int]) -> None:
-        """At `now_s` (a monotonic clock, in s); `count()`: the messages received so far."""
-        if self._trim is None or now_s < self._next:
-            return
-        counted = count()
-        flooding = counted - self._counted >= TRIM_AFTER
-        if flooding or self._flooding:  # in a flood's seconds, and the one after its end
-            self._trim(0)
-        self._counted, self._flooding, self._next = counted, flooding, now_s + TRIM_EVERY_S
