@@ -79,6 +79,7 @@ class Station:
         self.setup = StationSetup(scene, self.index, device, user, network.watchdog_ms / 1e3,
                                   network.safe_ramp_ms / 1e3)  # fmt: skip
         self.station = station_record(self.setup)
+        self._records, self._dt = device.records, float(self.station[0]["dt"])  # per tick
         self.rows = np.zeros(max_rows, STATION_ROW_DTYPE)
         self.rows.view(np.uint8)[:] = 0  # every page touched now, not in the loop
         self.n_rows = 0
@@ -137,7 +138,7 @@ class Station:
     def step(self, now_ns: int, seq: int) -> None:
         """One tick at now_ns (the loop's clock) on the tool states taken: the device's noise
         refilled if the tick needs it, the compiled tick, the DeviceState in `message`."""
-        dev, dt = self.device.records, float(self.station[0]["dt"])
+        dev, dt = self._records, self._dt
         if not noise_ready(dev, dt):
             refill_noise(self.device.noise, dev, dt)
             self.refills += 1
