@@ -165,13 +165,17 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
     ctl[C_LOG_READY] = 1
     failed = False
     trim = FloodTrim()  # a flood of updates, each logged: its memory back after it
+
+    def updates() -> int:
+        return int(ctl[C_UPD_HEAD])
+
     try:
         while True:
             closing = ctl[C_CLOSED] == 1 or os.getppid() != parent_pid or terminated.is_set()
             head = int(ctl[C_TICK_HEAD])  # first: see LogDrain.drain
             now = time.monotonic()
             drain.drain(head, now)
-            trim.after(now, lambda: int(ctl[C_UPD_HEAD]))
+            trim.after(now, updates)
             if closing and int(ctl[C_TICK_HEAD]) == drain.tick_tail and drain.drained_updates():
                 break
             if not closing:

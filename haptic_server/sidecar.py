@@ -81,8 +81,6 @@ if TYPE_CHECKING:
     from haptic_local_model.haptic_server.engine import HapticEngine
 
 IO_POLL_S = 0.004  # the sidecar wakes at least this often (and for each proxy publish)
-
-
 IO_NICENESS = 10  # only when the loop could not get real-time priority (see _lower_priority)
 IO_PRIORITY = REALTIME_PRIORITY // 2  # SCHED_FIFO below the loop's
 VIEW_CLOSE_S = 5.0  # the live view's last frame and flush
@@ -295,6 +293,12 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
     ctl[C_READY] = 1
     log_failure_told = False
     trim = FloodTrim()  # a flood's memory back to the system after it
+
+    def received() -> int:
+        """Every message taken, refused or lost, on every key."""
+        return int(ctl[C_UPD_HEAD] + ctl[C_UPD_LOST] + ctl[C_PTR_RECEIVED] + ctl[C_PTR_REJECTED]
+                   + ctl[C_STATIC_OK] + ctl[C_STATIC_BAD])  # fmt: skip
+
     try:
         while True:
             ctl[C_IO_BEAT] = time.monotonic_ns()  # the loop watches it (HapticServer)
@@ -319,8 +323,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
                     ctl[C_PUBLISHED] += 1
                     last_published_tick = int(newest["tick"][0])
                 next_publish = now + publish_period
-            trim.after(now, lambda: int(ctl[C_UPD_HEAD] + ctl[C_UPD_LOST] + ctl[C_PTR_RECEIVED]
-                       + ctl[C_PTR_REJECTED] + ctl[C_STATIC_OK] + ctl[C_STATIC_BAD]))  # fmt: skip
+            trim.after(now, received)
             if closing:
                 break
             time.sleep(max(0.0005, min(next_publish - time.monotonic(), IO_POLL_S)))

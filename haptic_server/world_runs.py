@@ -252,10 +252,11 @@ def is_port_log(path: Path) -> bool:
 def replay_log(path: Path) -> tuple[int, int | None]:
     """Re-run a port world's or a station's log (told by its topic); (ticks compared, the
     first tick whose outputs differ in any bit, or None)."""
-    if _rows_topic(path) == STATION_TOPIC:
+    topic = _rows_topic(path)  # the channels read once
+    if topic == STATION_TOPIC:
         rows, metadata = read_port_log(path, STATION_TOPIC, STATION_ROW_DTYPE)
         return replay_station_rows(setup_from_log(path, metadata), rows)
-    kind = log_kind(path) or PORT_KIND  # not one: read_port_log says why
+    kind = WORLD_KINDS.get(topic or "", PORT_KIND)  # not one: read_port_log says why
     rows, metadata = read_port_log(path, kind.topic, kind.rows)
     scene = load_config_text(kind.scene, metadata["configs"]["ports"], f"{path} (its scene)")
     limits = _limits(path, metadata)
