@@ -194,6 +194,8 @@ class Station:
             "commands_invalid": int(self.station[0]["invalid"]),
             # ticks it stayed safe for a tool state far from the squeeze it left (_rejoins)
             "rejoin_waits": int(self.station[0]["rejoin_waits"]),
+            # ticks it braked its device, back from safe, before it coupled (_brakes)
+            "rejoin_brakes": int(self.station[0]["rejoin_brakes"]),
             "mean_command_last_s": (
                 rows["out"][-min(len(rows), 1000) :].mean(axis=0).tolist() if len(rows) else []
             ),

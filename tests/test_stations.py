@@ -569,10 +569,11 @@ def test_a_stalled_world_holds_every_port_and_the_stations_come_back_without_a_j
     device is now, and each station ramps back in within the ramp's bound. (Before, the
     world's first ToolStates said COUPLED with the tool where the stall found it, and a
     station ramped into the stretch its device had drifted: 181 N of spring after the 2 s
-    stall here, 19.6 N commanded.) The box's slip over the three stalls
-    and the command's peak (4.5 N against the 2 N squeeze: the device the user pushed while
-    safe is still moving as the ramp begins) are printed: issue 48's bounds on them are not
-    met yet."""
+    stall here, 19.6 N commanded.) Each station brakes its device, which the user pushed
+    while it was safe (about 50 mm/s, the maglev's rate control at its edge), before it
+    couples (stages.station._brakes): no command above the squeeze it left with + 10 %,
+    beside the noise the command carried before the stall (4.5 N against the 2 N squeeze
+    before the brake), and the box held."""
     mod = "haptic_local_model.haptic_server.stations_cli"
     net = ["--network", loopback_network(tmp_path)]
     router = start_server(mod, "router", *net)
@@ -624,18 +625,39 @@ def test_a_stalled_world_holds_every_port_and_the_stations_come_back_without_a_j
             moved = np.abs(np.diff(rows["pose"][back : back + 200, :2], axis=0)).max()
             bound = ramp_bound(rows, back, back + 200, steady) + stiffness * moved
             left_with = np.abs(rows["spring"][before - 500 : before, 0]).mean()
-            ramps_into = abs(rows["spring"][back, 0])
-            peak = np.abs(rows["out"][back : back + 1500, 0]).max()
+            ramps_into = abs(live_spring(rows, back, stiffness))
+            # the command over 10 ticks, after the return and in the steady second before
+            # the stall: its peak within the squeeze + 10 % and the noise it carried before
+            peak = np.abs(mean_over(rows["out"][back : back + 1500, 0], 10)).max()
+            steady_out = np.abs(mean_over(rows["out"][before - 1000 : before, 0], 10))
+            noise = steady_out.max() - steady_out.mean()
             print(f"\n{p}, world stopped {stall_s} s: ramps into {ramps_into:.2f} N of spring "
                   f"(left with {left_with:.2f} N), step {jump * 1e3:.0f} mN a tick (bound "
-                  f"{bound * 1e3:.0f}), command peak {peak:.2f} N")  # fmt: skip
+                  f"{bound * 1e3:.0f}), command peak {peak:.2f} N over 10 ticks (bound "
+                  f"{1.1 * left_with + noise:.2f})")  # fmt: skip
             assert jump <= bound, (p, stall_s, jump, bound)
+            assert peak <= 1.1 * left_with + noise, (p, stall_s, peak, left_with, noise)
             # into the squeeze it left with, within what it allows (stages.station._rejoins):
             # a world that re-indexed on a DeviceState of the stall's backlog (about one
             # stall in six here, 42 N of spring) is waited out until it re-indexes anew
             assert abs(ramps_into - left_with) <= max(left_with, 0.1 * LIMIT_N), (p, stall_s)
     box = summary["bodies"]["box"]
-    print(f"box lowest {(box['lowest_y'] - box['start'][1]) * 1e3:+.1f} mm")
+    lowest = box["lowest_y"] - box["start"][1]
+    print(f"box lowest {lowest * 1e3:+.1f} mm")
+    assert lowest >= -2e-3, lowest  # held (6.6 mm down over the stalls before the brake)
+
+
+def live_spring(rows: np.ndarray, k: int, stiffness: float) -> float:
+    """The coupling's spring on x at row k from the tool state it rendered against (the row's
+    `spring` is the one rendered: on a return, the squeeze it left with)."""
+    ahead = min(float(rows["tool_age"][k]), EXTRAPOLATE_S)
+    x_tool = rows["tool_pose"][k, 0] + rows["tool_twist"][k, 0] * ahead
+    return stiffness * float(x_tool - rows["pose"][k, 0])
+
+
+def mean_over(x: np.ndarray, n: int) -> np.ndarray:
+    """x's running mean over n samples."""
+    return np.convolve(x, np.ones(n) / n, mode="valid")
 
 
 @pytest.mark.processes

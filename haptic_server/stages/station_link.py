@@ -95,7 +95,7 @@ def station_step(station, dev, link, msg, glove, now_ns, wall_ns, seq):
     for a in range(3):
         r.pose[a] = 0.0 if s.cut == 1 else w.pose[a]
         r.twist[a] = 0.0 if s.cut == 1 else w.twist[a]
-    flags = (SAFE if s.fresh == 0 else 0) | (CUT if s.cut == 1 else 0)
+    flags = (SAFE if s.fresh == 0 or s.braking == 1 else 0) | (CUT if s.cut == 1 else 0)
     if c.n_glove > 0:
         n = min(glove.shape[1] - 1, len(r.glove))  # a script wider than the message: cut
         glove_at(glove, c.n_glove, (now_ns - c.t0_ns) / 1e9, n, r.glove[:n], r.glove_rate[:n])

@@ -206,13 +206,15 @@ def step_ports(ports, clock, events):
 @njit(cache=True)
 def fill_tool(tools, p, ps, c, q, qd, obj):
     """Port p's ToolState in tools[p]: its tool (pose q[:3], twist qd[:3], world frame) in its
-    station's frame, and the object's pose `obj` (world frame)."""
+    station's frame, and the object's pose `obj` (world frame). While the port is re-indexed
+    every tick (INDEXING) the tool moves with the device in the station's frame: its twist
+    there is its own plus the device's."""
     r = tools[p]
     r.seq = c.seq
     r.publish_time_ns = c.wall_ns
     for a in range(3):
         r.pose[a] = q[a] - ps.offset[a]
-        r.twist[a] = qd[a]
+        r.twist[a] = qd[a] + (ps.twist[a] if ps.state == INDEXING else 0.0)
         r.object_pose[a] = obj[a]
     r.pose[2] = math.atan2(math.sin(r.pose[2]), math.cos(r.pose[2]))
     r.flags = HELD if ps.state == HELD_STATE else 0
