@@ -29,6 +29,7 @@ EXIT_AXES = 14  # the [planar] map's axes or signs do not match the motion seen
 EXIT_FORCE = 15  # the force pushes away from the spring's start (its sign is flipped)
 EXIT_DEVICE_FAILED = 16  # a binding call failed during the check
 EXIT_SAFE_STOP = 17  # the safe stop failed: the device may still apply force
+EXIT_FORCE_SCALE = 18  # the handle responds to a fraction or a multiple of the force sent
 
 
 @dataclass

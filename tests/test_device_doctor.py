@@ -5,6 +5,7 @@ with its message and exit code (issue 49)."""
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import json
 import math
 import os
@@ -130,12 +131,19 @@ QUICK = ["--seconds", "0.1", "--move-seconds", "0.4"]
 
 
 def _start_at_origin(monkeypatch: pytest.MonkeyPatch, name: str) -> None:
+    """The fake handle starts at the config's [planar] origin, its plane and its mass as the
+    config says."""
     from haptic_local_model.device_models.registry import device_config
     from haptic_local_model.shared.config import read_toml
 
     planar = read_toml(device_config(name))["planar"]
     monkeypatch.setenv("FAKE_VENDOR_START", ",".join(map(str, planar["origin_m"])))
     monkeypatch.setenv("FAKE_VENDOR_PLANE", f"{planar['x']},{planar['y']}")
+    # the handle weighs what the config says it does (the force's magnitude is told by it),
+    # its friction of the fake's default time constant (0.2 kg at 1 N s/m)
+    mass = float(planar["apparent_mass_kg"])
+    monkeypatch.setenv("FAKE_VENDOR_MASS", str(mass))
+    monkeypatch.setenv("FAKE_VENDOR_FRICTION", str(mass / 0.2))
 
 
 def _user(step: str, text: str) -> None:
@@ -255,7 +263,38 @@ def test_the_spring_restores(
     code, out = _check(capsys, "--device", name, "--force")
     assert code == 0, out
     assert "spring: ok: the spring restores toward the start" in out
+    gain = re.search(r"force: ok: the handle moved as if the force were ([\d.]+) x the force", out)
+    assert gain is not None, out
+    assert 0.9 <= float(gain.group(1)) <= 1.1
     _assert_gentle(name)
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+@pytest.mark.parametrize("name", ADAPTERS)
+@pytest.mark.parametrize(
+    ("scale", "cause"),
+    [("0.3", "the device renders a fraction of the force asked"),
+     ("3", "the device renders more force than asked")],
+)  # fmt: skip
+def test_a_force_scaled(
+    name: str, scale: str, cause: str, fakes: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    """The device renders 0.3 or 3 times the force sent: the spring still restores, the
+    handle's response names the scale (exit 18); the force sent stays gentle, the device
+    ends closed."""
+    _start_at_origin(monkeypatch, name)
+    monkeypatch.setenv("FAKE_VENDOR_FORCE_SCALE", scale)
+    code, out = _check(capsys, "--device", name, "--force")
+    assert code == doctor.EXIT_FORCE_SCALE, out
+    assert "spring: ok: the spring restores toward the start" in out
+    found = re.search(r"force: FAILED: the handle moved as if the force were ([\d.]+) x", out)
+    assert found is not None, out
+    assert float(found.group(1)) == pytest.approx(float(scale), rel=0.15)
+    assert f"outside 0.5-2 x. Either {cause}" in out
+    assert out.rstrip().endswith("check FAILED (exit 18)")
+    _assert_gentle(name)
+    assert h_closed_or_zero(name)
 
 
 def _assert_gentle(name: str) -> None:
@@ -362,7 +401,7 @@ def test_the_bring_up_log(
     spring = rows[rows["step"] == STEPS.index("spring")]
     assert np.abs(spring["commanded"]).max() > 0 and np.abs(spring["applied"]).max() > 0
     findings = json.loads(metadata["device_doctor"]["findings"])
-    assert [f["step"] for f in findings] == ["rest", "axes", "spring", "stop"]
+    assert [f["step"] for f in findings] == ["rest", "axes", "spring", "force", "stop"]
     assert metadata["device_doctor"]["exit_code"] == "0"
     assert 'model = "forcedimension"' in metadata["device_config"]["text"]
 
@@ -384,3 +423,208 @@ def test_the_console_script_checks_a_frozen_device(
     assert out.returncode == doctor.EXIT_FROZEN, out.stdout + out.stderr
     assert "its readings are frozen" in out.stdout and log.is_file()
     assert json.loads(fakes.read_text())["closed"]
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+@pytest.mark.parametrize(
+    ("name", "error"),
+    [("touch", "HD_COMM_ERROR: hdDisableDevice failed (FAKE_VENDOR_CLOSE_FAIL)"),
+     ("forcedimension", "Force Dimension dhd.stop failed: communication error (fake: "
+      "FAKE_VENDOR_CLOSE_FAIL)")],
+)  # fmt: skip
+def test_the_safe_stop_fails(
+    name: str, error: str, fakes: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str], tmp_path: Path,
+) -> None:  # fmt: skip
+    """The binding's closing call fails (OpenHaptics' disable raises, the Force Dimension
+    SDK's dhd.stop returns -1): a check that passed every step ends with exit 17 and says
+    the device may still push. (The Inverse3's binding has no closing call: its stop is a
+    zero-force command, whose failure is this same finding.) The log replays it."""
+    _start_at_origin(monkeypatch, name)
+    monkeypatch.setenv("FAKE_VENDOR_CLOSE_FAIL", "1")
+    log = tmp_path / "stop.mcap"
+    code, out = _check(capsys, "--device", name, "--log", str(log))
+    assert code == doctor.EXIT_SAFE_STOP, out
+    assert "axes: ok:" in out
+    assert (
+        f"stop: FAILED: {name}: the safe stop failed: {error}: the device may still push; "
+        "switch it off" in out
+    )
+    assert out.rstrip().endswith("check FAILED (exit 17)")
+    assert _replay(capsys, log)[0] == 0
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+def test_a_log_that_cannot_be_written(
+    fakes: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+) -> None:  # fmt: skip
+    """A check that passed but whose bring-up log cannot be written exits 3, naming the
+    file; a check that failed keeps its own exit code."""
+    _start_at_origin(monkeypatch, "forcedimension")
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    log = blocker / "bring-up.mcap"  # under a file: not a directory
+    args = ["check", *QUICK, "--device", "forcedimension", "--log", str(log)]
+    assert main(args, ask=_user) == 3
+    captured = capsys.readouterr()
+    assert f"haptic-device: cannot write the log {log}: " in captured.err
+    assert captured.out.rstrip().endswith("check passed, but its log was not written (exit 3)")
+    _forget_fakes()
+    monkeypatch.setenv("FAKE_VENDOR_FROZEN", "1")
+    assert main(args, ask=_user) == doctor.EXIT_FROZEN
+    captured = capsys.readouterr()
+    assert f"haptic-device: cannot write the log {log}: " in captured.err
+    assert captured.out.rstrip().endswith("check FAILED (exit 13)")
+
+
+def _replay(capsys: pytest.CaptureFixture[str], log: Path) -> tuple[int, str]:
+    """`haptic-replay LOG` in this process: its exit code and what it printed."""
+    from haptic_local_model.haptic_server.harness import replay
+
+    capsys.readouterr()
+    code = replay.main([str(log)])
+    captured = capsys.readouterr()
+    return code, captured.out + captured.err
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+@pytest.mark.parametrize("name", ADAPTERS)
+def test_a_healthy_log_replays_identical_without_the_binding(
+    name: str, fakes: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+) -> None:  # fmt: skip
+    """`haptic-replay` of a healthy device's bring-up log (--force: the spring and the
+    force fit too) rebuilds the adapter over the logged readings, with no vendor binding
+    importable, and reproduces every sample and finding."""
+    _start_at_origin(monkeypatch, name)
+    log = tmp_path / "bring-up.mcap"
+    code, out = _check(capsys, "--device", name, "--force", "--log", str(log))
+    assert code == 0, out
+    assert f"replay it: haptic-replay {log}" in out
+    sys.path.remove(str(FAKES))  # the replay opens no device: no binding needed
+    _forget_fakes()
+    assert importlib.util.find_spec(BINDINGS[name]) is None
+    code, out = _replay(capsys, log)
+    assert code == 0, out
+    assert f"replayed the check of {name} ({name}) in {log} against its " in out
+    assert "  force: ok: the handle moved as if the force were" in out
+    assert "identical: every sample's step, pose, twist, forces and fault bits, every finding " \
+        "and the exit code (0) as logged" in out  # fmt: skip
+
+
+def _tamper(log: Path, out: Path, rows: Any = None, findings: Any = None) -> None:
+    """`log` rewritten to `out` with its samples or its findings replaced."""
+    from haptic_local_model.haptic_server.harness.device_doctor import (
+        LOG_SCHEMA,
+        LOG_TOPIC,
+        read_bringup_log,
+    )
+    from haptic_local_model.haptic_server.log import read_metadata, write_rows_log
+
+    metadata = read_metadata(log)
+    if findings is not None:
+        metadata["device_doctor"]["findings"] = json.dumps(findings)
+    rows = read_bringup_log(log).rows if rows is None else rows
+    write_rows_log(out, rows, LOG_TOPIC, LOG_SCHEMA, metadata)
+
+
+@pytest.mark.slow  # real time: the device is read at 1 kHz
+def test_a_flipped_axis_log_replays_to_the_same_finding_and_edits_are_found(
+    fakes: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+) -> None:  # fmt: skip
+    """A check that found a flipped axis (and wrote the corrected config) replays to the
+    same finding without writing anything; the same log with one finding or one sample
+    edited is told at that finding's step, or at that sample."""
+    from haptic_local_model.device_models.doctor_check import STEPS
+    from haptic_local_model.haptic_server.harness.device_doctor import read_bringup_log
+
+    _start_at_origin(monkeypatch, "touch")
+    monkeypatch.setenv("FAKE_VENDOR_PLANE", "x,-y")
+    log, fixed = tmp_path / "flipped.mcap", tmp_path / "fixed.toml"
+    code, out = _check(capsys, "--device", "touch", "--write", str(fixed), "--log", str(log))
+    assert code == doctor.EXIT_AXES, out
+    fixed.unlink()
+    code, out = _replay(capsys, log)
+    assert code == 0, out
+    assert "  axes: FAILED: the scene's y is flipped" in out and f"Wrote {fixed}" in out
+    assert "identical: " in out and "the exit code (14) as logged" in out
+    assert not fixed.exists()  # said as the check said it, not written again
+
+    findings = [dict(f) for f in read_bringup_log(log).findings]
+    assert [f["step"] for f in findings] == ["rest", "axes", "stop"]
+    findings[1]["ok"] = True  # an edited verdict
+    edited = tmp_path / "edited-finding.mcap"
+    _tamper(log, edited, findings=findings)
+    code, out = _replay(capsys, edited)
+    assert code == 1, out
+    at = read_bringup_log(log).findings[1]["at_sample"]
+    assert f"DIFFERENT at sample {at} (step axes): finding 2 (step axes): ok logged True, " \
+        "replayed False" in out  # fmt: skip
+
+    rows = read_bringup_log(log).rows.copy()
+    in_y = np.flatnonzero(rows["step"] == STEPS.index("y"))
+    k = int(in_y[len(in_y) // 2])
+    rows["device_position"][k][0] += 1e-3  # one reading moved by 1 mm
+    edited = tmp_path / "edited-sample.mcap"
+    _tamper(log, edited, rows=rows)
+    code, out = _replay(capsys, edited)
+    assert code == 1, out
+    assert f"DIFFERENT at sample {k} (step y): sample {k} (step y, t " in out
+    assert ": pose logged [" in out and "(the replay computes it from the logged device" in out
+
+
+def test_a_log_of_a_check_that_found_no_device(
+    fakes: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+) -> None:  # fmt: skip
+    """A check that stopped before opening the device read nothing: its log replays to
+    "nothing to replay" and its finding, exit 0."""
+    monkeypatch.setenv("FAKE_VENDOR_DEVICES", "0")
+    log = tmp_path / "none.mcap"
+    code, _ = _check(capsys, "--device", "forcedimension", "--log", str(log))
+    assert code == doctor.EXIT_NO_DEVICE
+    code, out = _replay(capsys, log)
+    assert code == 0, out
+    assert "stopped before opening the device: nothing was read, nothing to replay" in out
+    assert "  find: FAILED: no device detected" in out
+    from haptic_local_model.haptic_server.harness import replay
+
+    assert replay.main([str(log), "--summary"]) == 2  # a run's options are not a check's
+    err = capsys.readouterr().err
+    assert f"config error: {log}: key '--summary': not for a bring-up log (it replays" in err
+
+
+def test_a_log_that_is_not_a_bring_up_log_is_refused(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """The bring-up replay refuses another MCAP file and a file that is not MCAP, naming
+    it; `haptic-replay` names the file it cannot replay either."""
+    from mcap.writer import Writer
+
+    from haptic_local_model.haptic_server.harness.device_doctor import (
+        is_bringup_log,
+        read_bringup_log,
+    )
+    from haptic_local_model.shared.config import ConfigError
+
+    other = tmp_path / "other.mcap"
+    with other.open("wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        schema = writer.register_schema(name="x", encoding="jsonschema", data=b"{}")
+        channel = writer.register_channel("/other", message_encoding="json", schema_id=schema)
+        writer.add_message(channel, log_time=0, data=b"{}", publish_time=0)
+        writer.finish()
+    text = tmp_path / "notes.mcap"
+    text.write_text("not a log\n")
+    assert not is_bringup_log(other) and not is_bringup_log(text)
+    with pytest.raises(ConfigError, match="not a bring-up log: it has no device_doctor") as err:
+        read_bringup_log(other)
+    assert str(other) in str(err.value)
+    with pytest.raises(ConfigError, match="not an MCAP file, so not a bring-up log") as err:
+        read_bringup_log(text)
+    assert str(text) in str(err.value)
+    code, out = _replay(capsys, other)
+    assert code == 2 and f"haptic-replay: {other}: the log holds no ticks" in out

@@ -186,7 +186,11 @@ class PlanarHardware:
         self._fault = FAULT_NONE
         self._stopping = False  # no command is sent once a safe stop has begun
         self._stopped = False  # ... and the binding's stop has succeeded
-        self._first_command_ns = 0  # the hold spring fades in from the first command
+        self._first_command_ns = -1  # the hold spring fades in from the first command
+        #: the clock the hold spring's fade reads (ns); the device doctor sets its own so
+        #: that its replay against the logged readings is exact
+        self.clock_ns: Callable[[], int] = time.monotonic_ns
+        self._vendor_fault = 0  # the newest reading's vendor fault bits
         self._fade = 0.0  # ... by this factor, 1 once faded in
         self.not_finite_commands = 0  # commands replaced by zero (never sent)
         self._link = link
@@ -205,7 +209,7 @@ class PlanarHardware:
     def read(self, sensors: np.ndarray) -> None:
         pos, vel = self._position, self._velocity
         try:
-            vendor_fault = self._link.sample(pos, vel)
+            vendor_fault = self._vendor_fault = self._link.sample(pos, vel)
         except DeviceError:
             raise
         except Exception as exc:  # the binding's own error: the device is lost
@@ -253,8 +257,8 @@ class PlanarHardware:
         p = self.config.planar
         iz = self._iz
         if self._fade < 1.0:
-            now = time.monotonic_ns()
-            if not self._first_command_ns:
+            now = self.clock_ns()
+            if self._first_command_ns < 0:
                 self._first_command_ns = now
             self._fade = min(1.0, (now - self._first_command_ns) * 1e-9 / HOLD_FADE_S)
         hold = -p.hold_stiffness_n_per_m * (self._position[iz] - self._origin[iz])
@@ -277,10 +281,11 @@ class PlanarHardware:
         applied[0], applied[1], applied[2] = fx, fy, 0.0
         return applied
 
-    def device_position(self) -> np.ndarray:
-        """The newest reading's position in the device's own frame (m), before the planar
-        map (a copy): the device doctor finds the plane's axes from it."""
-        return self._position.copy()
+    def device_reading(self) -> tuple[np.ndarray, np.ndarray, int]:
+        """The newest reading in the device's own frame, before the planar map: position
+        (m) and velocity (m/s), copies, and the vendor's fault bits. The device doctor finds
+        the plane's axes from it, and its bring-up log keeps it to replay the check."""
+        return self._position.copy(), self._velocity.copy(), int(self._vendor_fault)
 
     def idle(self) -> None:
         """Send zero force and no hold spring: keeps a device that answers only to commands

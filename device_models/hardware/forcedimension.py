@@ -8,7 +8,8 @@ the device is not initialised yet (the device moves itself: `calibrate = true` a
 Per tick: `dhd.getPosition` and `dhd.getLinearVelocity` (m, m/s), `dhd.setForce` (N). The
 binding returns error codes (-1) rather than raising: a failed call raises here, with
 `dhd.errorGetLastStr()`, which ends the run and sends the device safe. Safe stop: zero force,
-`dhd.stop` (forces off, brakes on), `dhd.close`.
+`dhd.stop` (forces off, brakes on), `dhd.close`; a code of failure from any of them raises
+once all three are made (the safe stop fails, loudly).
 """
 
 from __future__ import annotations
@@ -85,15 +86,23 @@ class ForceDimensionLink:
         self._check(self._dhd.setForce(f, self.id), "dhd.setForce")
 
     def stop(self) -> None:
+        """Zero force, forces off and brakes on, closed: every call is made, and one that
+        fails (the binding's -1) raises after them, so the safe stop reports it."""
         dhd = self._dhd
         if dhd is None:
             return
         self._dhd = None
+        codes = {}
         try:
-            dhd.setForce([0.0, 0.0, 0.0], self.id)
+            codes["dhd.setForce"] = dhd.setForce([0.0, 0.0, 0.0], self.id)
         finally:
-            dhd.stop(self.id)  # forces off, brakes on
-            dhd.close(self.id)
+            codes["dhd.stop"] = dhd.stop(self.id)  # forces off, brakes on
+            codes["dhd.close"] = dhd.close(self.id)
+        failed = [call for call, code in codes.items() if code <= SDK_ERROR]
+        if failed:
+            raise DeviceError(
+                f"Force Dimension {', '.join(failed)} failed: {dhd.errorGetLastStr()}"
+            )
 
 
 def detect() -> list[str]:

@@ -1,7 +1,9 @@
 """`haptic-device`: the device doctor's command line (device_models/doctor.py does the work).
 
-It lives in the harness, not in device_models, because its bring-up log is written with the
-haptic server's MCAP writer (haptic_server/log.py), which device models may not import.
+It lives in the harness, not in device_models, because its bring-up log is written and read
+with the haptic server's MCAP writer and reader (haptic_server/log.py), which device models
+may not import. `haptic-replay LOG` comes here for a bring-up log (`replay_main`): the check
+replayed against the logged readings (device_models/doctor_replay.py).
 """
 
 from __future__ import annotations
@@ -12,17 +14,36 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+from mcap.records import Channel, Metadata
+
 from haptic_local_model.device_models import doctor
 from haptic_local_model.device_models.doctor_check import (
+    SAMPLE_DTYPE,
     STEPS,
     Ask,
     CheckOptions,
     CheckResult,
+    options_from_json,
+    options_json,
     run_check,
 )
+from haptic_local_model.device_models.doctor_replay import (
+    BringupLog,
+    first_difference,
+    replay_check,
+)
 from haptic_local_model.device_models.registry import device_config
-from haptic_local_model.haptic_server.log import write_rows_log
+from haptic_local_model.haptic_server.log import (
+    _iter_messages,
+    is_indexed,
+    read_metadata,
+    ros1msg_schema,
+    stream_records,
+    write_rows_log,
+)
 from haptic_local_model.shared.cli import EXIT_LOG_FAILED, add_version, log_file, run_main, seconds
+from haptic_local_model.shared.config import ConfigError
 
 #: the bring-up log's channel and schema (one message per sample, doctor_check.SAMPLE_DTYPE)
 LOG_TOPIC = "/device_doctor/sample"
@@ -53,39 +74,143 @@ def _check(args: argparse.Namespace, ask: Ask) -> int:
     )
     result = run_check(args.device, options, ask, lambda line: print(line, flush=True))
     code = result.exit_code
-    if args.log is not None and not write_log(args.log, args.device, result):
-        code = code or EXIT_LOG_FAILED
+    logged = args.log is None or write_log(args.log, args.device, result, options)
+    if not logged and code == doctor.EXIT_OK:
+        print(f"check passed, but its log was not written (exit {EXIT_LOG_FAILED})")
+        return EXIT_LOG_FAILED
     print(f"check {'passed' if code == doctor.EXIT_OK else 'FAILED'} (exit {code})")
     return code
 
 
-def write_log(path: Path, device: str, result: CheckResult) -> bool:
+def write_log(path: Path, device: str, result: CheckResult, options: CheckOptions) -> bool:
     """The bring-up log: every sample (t, step, planar pose and twist, the device-frame
-    position, the commanded and the applied force, the fault bits) on LOG_TOPIC, and as
-    metadata the findings, the steps' names and the device config's text, so a user can
-    send it with a question. Whether it was written (a failure is said in one line)."""
-    source = device_config(device)
+    position and velocity, the commanded and the applied force, the fault bits and the
+    vendor's) on LOG_TOPIC, and as metadata the findings, the steps' names, the options, the
+    adapter and the device config's text, so a user can send it with a question and it
+    replays against the logged readings (`haptic-replay LOG`). Whether it was written (a
+    failure is said in one line)."""
     findings = [
         {"step": f.step, "ok": f.ok, "exit_code": f.exit_code, "message": f.message,
-         "figures": f.figures}
+         "figures": f.figures, "at_sample": f.at_sample}
         for f in result.findings
     ]  # fmt: skip
     metadata = {
         "device_doctor": {
             "device": device,
+            "adapter": result.adapter,
             "exit_code": str(result.exit_code),
+            "samples": str(len(result.samples)),
             "steps": json.dumps(list(STEPS)),
+            "options": json.dumps(options_json(options)),
             "findings": json.dumps(findings),
         },
-        "device_config": {"path": str(source), "text": source.read_text()},
+        "device_config": {"path": str(device_config(device)), "text": result.config_text},
     }
     try:
         write_rows_log(path, result.samples, LOG_TOPIC, LOG_SCHEMA, metadata)
     except OSError as exc:
         print(f"haptic-device: cannot write the log {path}: {exc}", file=sys.stderr)
         return False
-    print(f"log: {path} ({len(result.samples)} samples)")
+    print(f"log: {path} ({len(result.samples)} samples; replay it: haptic-replay {path})")
     return True
+
+
+#: records read from a log's start to tell a bring-up log (its metadata and channel lead)
+SCAN_RECORDS = 1000
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def is_bringup_log(path: Path) -> bool:
+    """A bring-up log (`check --log`): its device_doctor metadata or its samples' channel
+    among the first records."""
+    if not path.is_file():
+        return False
+    for n, record in enumerate(stream_records(path)):
+        if isinstance(record, Metadata) and record.name == "device_doctor":
+            return True
+        if isinstance(record, Channel) and record.topic == LOG_TOPIC:
+            return True
+        if n > SCAN_RECORDS:
+            break
+    return False
+
+
+def read_bringup_log(path: Path) -> BringupLog:
+    """A whole bring-up log's samples and metadata; anything else is refused by name (a
+    ConfigError naming the file)."""
+    where = str(path)
+    if not path.is_file():
+        raise ConfigError(where, "log", "no such file")
+    with path.open("rb") as fh:
+        if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise ConfigError(where, "log", "not an MCAP file, so not a bring-up log")
+    metadata = read_metadata(path)
+    doctor_record = metadata.get("device_doctor")
+    if doctor_record is None:
+        raise ConfigError(where, "log", (
+            "not a bring-up log: it has no device_doctor metadata (`haptic-device check --log "
+            "OUT.mcap` writes one)"))  # fmt: skip
+    if not is_indexed(path):
+        raise ConfigError(where, "log", "cut short (no summary): a bring-up log is written whole")
+    chunks, schema_text = [], None
+    for topic, data, schema in _iter_messages(path):
+        if topic == LOG_TOPIC:
+            chunks.append(data)
+            schema_text = schema.data.decode() if schema else None
+    if chunks and schema_text != ros1msg_schema(SAMPLE_DTYPE):
+        raise ConfigError(where, LOG_TOPIC, "samples of another layout (another release)")
+    if any(len(c) != SAMPLE_DTYPE.itemsize for c in chunks):
+        raise ConfigError(where, LOG_TOPIC, "a sample of the wrong size")
+    rows = np.frombuffer(b"".join(chunks), SAMPLE_DTYPE).copy()
+    try:
+        expected = int(doctor_record["samples"])
+        options = options_from_json(json.loads(doctor_record["options"]))
+        findings = json.loads(doctor_record["findings"])
+        exit_code = int(doctor_record["exit_code"])
+        config_text = metadata["device_config"]["text"]
+    except (KeyError, ValueError, TypeError) as exc:
+        raise ConfigError(where, "device_doctor", f"incomplete ({type(exc).__name__}: {exc}): "
+                          "written by an earlier release?") from None  # fmt: skip
+    if len(rows) != expected:
+        raise ConfigError(where, "device_doctor.samples", f"{len(rows)} samples logged, "
+                          f"{expected} taken")  # fmt: skip
+    return BringupLog(
+        where, rows, doctor_record.get("device", ""), doctor_record.get("adapter", ""),
+        config_text, options, findings, exit_code,
+    )  # fmt: skip
+
+
+def replay_main(path: Path) -> int:
+    """`haptic-replay` of a bring-up log: the check's steps again against its readings,
+    compared with what it found (device_models/doctor_replay.py): 0 identical, 1 different;
+    a log that is not a whole bring-up log is refused (a ConfigError, exit 2)."""
+    log = read_bringup_log(path)
+    if not log.adapter:  # stopped before the device was opened: nothing was read
+        lines = [f"{f['step']}: {'ok' if f['ok'] else 'FAILED'}: {f['message']}"
+                 for f in log.findings]  # fmt: skip
+        print(f"the check of {log.device} logged in {path} stopped before opening the device: "
+              "nothing was read, nothing to replay (its findings are the machine's):")  # fmt: skip
+        print("\n".join(f"  {line}" for line in lines))
+        return 0
+    replayed = replay_check(log)
+    result = replayed.result
+    print(
+        f"replayed the check of {log.device} ({log.adapter}) in {path} against its "
+        f"{len(log.rows)} logged readings: {len(result.samples)} taken, "
+        f"{len(result.findings)} findings (logged {len(log.findings)}), exit {result.exit_code}"
+    )
+    for f in result.findings:
+        print(f"  {f.line()}")
+    difference = first_difference(log, replayed)
+    if difference is None:
+        print(
+            f"identical: every sample's step, pose, twist, forces and fault bits, every "
+            f"finding and the exit code ({log.exit_code}) as logged"
+        )
+        return 0
+    print(f"DIFFERENT at sample {difference.at_sample} (step {difference.step}): "
+          f"{difference.text}")  # fmt: skip
+    return 1
 
 
 def parser() -> argparse.ArgumentParser:

@@ -8,7 +8,9 @@ watchdog events switch the safe state at their tick. Every recomputed tick row i
 with the logged one: the same build and configs give exactly zero difference.
 
 A port world's log (`haptic-run --scene grasp_vertical`, `haptic-world`) is told by its topic
-and re-run bit for bit by haptic_server.world_runs.
+and re-run bit for bit by haptic_server.world_runs; a bring-up log (`haptic-device check
+--log`) by its metadata, and its check replayed against its readings by
+harness/device_doctor.py.
 """
 
 from __future__ import annotations
@@ -178,7 +180,9 @@ def replay(
     """
     logged = log.ticks
     if len(logged) == 0:
-        raise ReplayError("the log holds no ticks")
+        raise ReplayError(
+            "the log holds no ticks: not a haptic run's log (nor a port world's nor a bring-up log)"
+        )
     engine = engine_from_configs(
         configs if configs is not None else log.metadata.get("configs", {}),
         log.metadata.get("run"),
@@ -374,7 +378,11 @@ def serve_view(path: Path, address: ViewAddress, seconds: float | None, speed: f
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="haptic-replay", description=__doc__)
     add_version(parser)
-    parser.add_argument("log", type=Path, help="MCAP log of a haptic run")
+    parser.add_argument(
+        "log",
+        type=Path,
+        help="MCAP log of a haptic run, a port world or a device check (haptic-device --log)",
+    )
     parser.add_argument("--plot", type=Path, default=None, metavar="OUT.png")
     parser.add_argument("--summary", action="store_true", help="print the run's figures")
     parser.add_argument("--summary-json", type=Path, default=None, help="write them as JSON")
@@ -404,12 +412,18 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
     def body() -> int:
+        from haptic_local_model.haptic_server.harness import device_doctor
         from haptic_local_model.haptic_server.world_runs import is_port_log, replay_main
 
+        asked = [flag for flag, on in (("--plot", args.plot), ("--summary", args.summary),
+                 ("--summary-json", args.summary_json), ("--recover", recover),
+                 ("--no-replay", args.no_replay), ("--view", args.view)) if on]  # fmt: skip
+        if device_doctor.is_bringup_log(args.log):  # `haptic-device check --log`: the check
+            if asked:  # replayed against its readings
+                raise ConfigError(str(args.log), asked[0], "not for a bring-up log (it "
+                                  "replays the check, nothing else)")  # fmt: skip
+            return device_doctor.replay_main(args.log)
         if is_port_log(args.log):  # a port world's log: its rows re-run bit for bit
-            asked = [flag for flag, on in (("--plot", args.plot), ("--summary", args.summary),
-                     ("--summary-json", args.summary_json), ("--recover", recover),
-                     ("--no-replay", args.no_replay), ("--view", args.view)) if on]  # fmt: skip
             if asked:
                 raise ConfigError(str(args.log), asked[0], "not for a port world's log (it "
                                   "replays bit for bit, nothing else yet)")  # fmt: skip
@@ -426,7 +440,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return run_main(body)
     except ReplayError as exc:
-        print(f"haptic-replay: {exc}", file=sys.stderr)
+        print(f"haptic-replay: {args.log}: {exc}", file=sys.stderr)
         return 2
 
 

@@ -2,12 +2,13 @@
 
 Each fake (HaplyHardwareAPI, forcedimension_core, pyOpenHaptics) exposes the maker's call
 names and units at the boundary the adapters use, and moves one `FakeHandle`: a 0.2 kg
-handle in 3D with viscous friction, pushed by a constant hand force and by the commanded
-force, integrated over the wall time between calls. It records what the adapter asked: the
-calls in order, every force with its time, the forces that were not finite or beyond the
-device's limit, and whether the device was closed. The record is JSON, written to
-$FAKE_VENDOR_RECORD when the device is closed and again at exit, so a test in another
-process reads it. Settings from the environment (a test sets them for the server it starts):
+handle in 3D with viscous friction (FAKE_VENDOR_MASS, FAKE_VENDOR_FRICTION), pushed by a
+constant hand force and by the commanded force, integrated over the wall time between calls.
+It records what the adapter asked: the calls in order, every force with its time, the forces
+that were not finite or beyond the device's limit, and whether the device was closed. The
+record is JSON, written to $FAKE_VENDOR_RECORD when the device is closed and again at exit,
+so a test in another process reads it. Settings from the environment (a test sets them for
+the server it starts):
 
 - FAKE_VENDOR_RECORD: where to write the record
 - FAKE_VENDOR_HAND: "fx,fy,fz", the hand's force (N, the vendor's frame)
@@ -21,6 +22,12 @@ process reads it. Settings from the environment (a test sets them for the server
 - FAKE_VENDOR_DEVICES: how many devices are attached (default 1; 0: none is found)
 - FAKE_VENDOR_FROZEN: "1": the readings never change (a device whose pose is stuck)
 - FAKE_VENDOR_FORCE_SIGN: "-1": the device pushes against the commanded force
+- FAKE_VENDOR_FORCE_SCALE: the device renders this times the commanded force (default 1:
+  a device whose force is mis-scaled, 0.3 or 3)
+- FAKE_VENDOR_MASS: the handle's mass (kg, default 0.2) and FAKE_VENDOR_FRICTION its viscous
+  friction (N s/m, default 1.0); the device doctor's tests set the config's
+  [planar].apparent_mass_kg and a friction of the same time constant (0.2 s)
+- FAKE_VENDOR_CLOSE_FAIL: "1": the binding's closing call fails (the safe stop cannot finish)
 - FAKE_VENDOR_PLANE: "x,z": the device axes (with sign) that are really the scene's +x and +y:
   where `user_moves` moves the handle (default "x,y")
 - FAKE_VENDOR_READ_FAIL_AT: the reading (counted from 1) at which the binding fails, once
@@ -75,6 +82,10 @@ class FakeHandle:
         self.calibrated = os.environ.get("FAKE_VENDOR_CALIBRATED", "1") == "1"
         self.frozen = os.environ.get("FAKE_VENDOR_FROZEN", "0") == "1"
         self.force_sign = float(os.environ.get("FAKE_VENDOR_FORCE_SIGN", "1"))
+        self.force_sign *= float(os.environ.get("FAKE_VENDOR_FORCE_SCALE", "1"))
+        self.mass = float(os.environ.get("FAKE_VENDOR_MASS", str(MASS_KG)))
+        self.friction = float(os.environ.get("FAKE_VENDOR_FRICTION", str(FRICTION_NS_PER_M)))
+        self.close_fails = os.environ.get("FAKE_VENDOR_CLOSE_FAIL", "0") == "1"
         self.plane = os.environ.get("FAKE_VENDOR_PLANE", "x,y").split(",")
         self.read_fail_at = int(os.environ.get("FAKE_VENDOR_READ_FAIL_AT", "-1"))
         self.reads = 0
@@ -128,7 +139,7 @@ class FakeHandle:
                 self._moving = None
         for i in range(3):
             f = self.hand[i] + self.force_sign * self.force[i]
-            self.velocity[i] += dt * (f - FRICTION_NS_PER_M * self.velocity[i]) / MASS_KG
+            self.velocity[i] += dt * (f - self.friction * self.velocity[i]) / self.mass
             self.position[i] += dt * self.velocity[i]
 
     def command(self, force: Any) -> None:

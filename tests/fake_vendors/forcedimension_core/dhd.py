@@ -71,7 +71,11 @@ def setForce(f: Any, ID: int = -1) -> int:
 
 
 def stop(ID: int = -1) -> int:
+    global _last_error
     _h().call("stop")
+    if _h().close_fails:  # the device does not answer: its forces may still be on
+        _last_error = "communication error (fake: FAKE_VENDOR_CLOSE_FAIL)"
+        return -1
     _h().force = [0.0, 0.0, 0.0]
     return 0
 

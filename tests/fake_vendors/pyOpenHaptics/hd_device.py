@@ -47,4 +47,6 @@ class HapticDevice:
         self._thread.join(1.0)
         self._h.call("hdStopScheduler")
         self._h.call("hdDisableDevice")
+        if self._h.close_fails:  # pyOpenHaptics raises on an HD error
+            raise RuntimeError("HD_COMM_ERROR: hdDisableDevice failed (FAKE_VENDOR_CLOSE_FAIL)")
         self._h.close()
