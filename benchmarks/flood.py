@@ -7,7 +7,9 @@ train: its static description on `<ns>/static`) with the `pointer` user (`<ns>/i
 besides the local model's `<ns>/local_model`. A peer with the sim's credentials (all the
 access control lets publish there) sends, key after key, `--messages` messages that are each
 refused: updates of a foreign magic, pointer inputs stamped 10 s ahead, static descriptions
-with distinct foreign ids (each one a text the receiver has not seen). The sim is stopped
+with distinct foreign ids (each one a text the receiver has not seen); and proxy states of a
+foreign magic toward the sim's own subscriber, which the access control drops at the haptic
+server (only it may publish there). The sim is stopped
 (SIGSTOP) from the flood's start to its end, so the haptic server's watchdog trips during it.
 
 Then the shared world's station ports (`run_world`): through the router, each port's key
@@ -75,7 +77,16 @@ def foreign_static(i: int) -> bytes:
     return STATIC_HEADER.pack(STATIC_MAGIC, STATIC_VERSION, id_of(desc)) + canonical(desc)
 
 
-FLOODS = {"update": junk_update, "pointer": future_pointer, "static": foreign_static}
+#: a proxy state of a foreign magic, sent toward the sim: the access control lets only the
+#: haptic server publish proxy states (a sim may only follow them), so none may reach it
+junk_proxy = junk_update
+
+FLOODS = {
+    "update": junk_update,
+    "pointer": future_pointer,
+    "static": foreign_static,
+    "proxy": junk_proxy,
+}
 
 
 @dataclass
@@ -85,6 +96,7 @@ class FloodResult:
     sent: dict[str, int] = field(default_factory=dict)
     rss_mb: list[dict[str, float]] = field(default_factory=list)  # before, after each round
     summary: dict[str, Any] = field(default_factory=dict)  # the haptic server's, at its stop
+    sim_summary: dict[str, Any] = field(default_factory=dict)  # the sim's, at its stop
     watchdog_trips: int = 0
     events_lost: int = 0
     flood_s: float = 0.0
@@ -167,6 +179,8 @@ def run(
         time.sleep(1.0)  # the sim's updates again: the server back out of its safe state
     stopped = [e for e in pair.events if e.get("event") == "stopped"]
     result.summary = stopped[-1] if stopped else {}
+    sim_stopped = [e for e in pair.sim_events if e.get("event") == "stopped"]
+    result.sim_summary = sim_stopped[-1] if sim_stopped else {}
     events = read_json_topic(pair.log, EVENT_TOPIC)
     result.watchdog_trips = sum(1 for e in events if e.get("kind") == "watchdog")
     result.events_lost = sum(1 for e in events if e.get("kind") == "lost")
@@ -235,6 +249,9 @@ def report(result: FloodResult) -> list[str]:
                  f"(the mailbox full, counted): {s.get('updates_lost')}")  # fmt: skip
     lines.append(f"  pointer inputs refused by reason: {s.get('pointer_rejected_by_reason')}")
     lines.append(f"  static messages refused by reason: {s.get('static_refused_by_reason')}")
+    sim = result.sim_summary
+    lines.append(f"  proxy states that reached the sim, refused by reason: "
+                 f"{sim.get('proxies_rejected_by_reason')} (the access control drops them)")  # fmt: skip
     lines.append(f"  watchdog trips in the log: {result.watchdog_trips}; events lost: "
                  f"{result.events_lost}")  # fmt: skip
     return lines

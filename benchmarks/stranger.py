@@ -76,6 +76,8 @@ class ServerPair:
     haptic_pid: int = 0
     #: the haptic server's JSON events as they come (its `stopped` summary last)
     events: list[dict[str, Any]] = field(default_factory=list)
+    #: the sim's, the same
+    sim_events: list[dict[str, Any]] = field(default_factory=list)
 
 
 @contextmanager
@@ -97,7 +99,7 @@ def server_pair(
         _ready(haptic)
         sim = Child("sim", [py, "-m", "haptic_local_model.sim_server.cli", *common])
         epoch = int(_ready(sim)["epoch"])
-        yield ServerPair(net, log, epoch, sim.proc.pid, haptic.proc.pid, haptic.events)
+        yield ServerPair(net, log, epoch, sim.proc.pid, haptic.proc.pid, haptic.events, sim.events)
     finally:
         codes = [haptic.stop()] + ([sim.stop()] if sim is not None else [])
     if any(codes):

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import gc
 import time
-from dataclasses import dataclass
+from collections import Counter
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -44,6 +45,7 @@ class SimStats:
     overruns: int = 0
     proxies_received: int = 0
     proxies_rejected: int = 0
+    proxies_rejected_by_reason: Counter[str] = field(default_factory=Counter)  # fixed tags
     update_bytes: int = 0  # the last update's size
     update_bytes_max: int = 0
 
@@ -106,8 +108,9 @@ class SimServer:
         for raw in waiting if every else reversed(waiting):
             try:
                 proxy = decode_proxy(raw)
-            except MessageError:
+            except MessageError as e:
                 self.stats.proxies_rejected += 1
+                self.stats.proxies_rejected_by_reason[e.reason] += 1
                 continue
             if proxy.epoch == self.epoch and not self.check.take(proxy, time.time_ns()):
                 continue  # one the sim could not have caused: counted by the check
@@ -217,6 +220,7 @@ class SimServer:
             "overruns": self.stats.overruns,
             "proxies_received": self.stats.proxies_received,
             "proxies_rejected": self.stats.proxies_rejected,
+            "proxies_rejected_by_reason": dict(self.stats.proxies_rejected_by_reason),
             "proxies_implausible": self.check.refused,
             "step_ms": self.step_ms.percentiles(50, 99),
             "interval_ms": self.interval_ms.percentiles(50, 99),

@@ -201,8 +201,9 @@ def test_two_default_runs_at_once_do_not_collide(tmp_path: Path) -> None:
 def test_a_flood_on_every_key_is_counted_by_reason_and_loses_no_safety_event(
     tmp_path: Path,
 ) -> None:
-    """30,000 refused messages on each of the haptic server's keys, twice, with the sim's
-    credentials and the sim stopped throughout (benchmarks/flood.py): every one is refused
+    """30,000 refused messages on each of the haptic server's keys and on the sim's proxy
+    key, twice, with the sim's credentials and the sim stopped throughout
+    (benchmarks/flood.py): every one is refused
     and counted by its reason (an update the mailbox had no room for is counted as lost),
     the watchdog's trip during the flood is in the log and no event was lost, and none of
     the haptic server's processes grows by more than 1 MB in either round. (The I/O
@@ -218,9 +219,52 @@ def test_a_flood_on_every_key_is_counted_by_reason_and_loses_no_safety_event(
     assert set(s["rejected_by_reason"]) == {"magic"}, s["rejected_by_reason"]
     assert s["pointer_rejected_by_reason"] == {"future": sent["pointer"]}
     assert s["static_refused_by_reason"] == {"foreign": sent["static"]}
+    # the proxy states sent toward the sim were dropped by the access control: none reached
+    # it (its ring would have kept the newest 32, each refused and counted by its reason)
+    assert result.sim_summary["proxies_rejected_by_reason"] == {}, result.sim_summary
     assert result.watchdog_trips >= 1 and result.events_lost == 0
     for r in range(2):
         growth = result.growth_mb(r)
         print(f"\nflood round {r + 1}: resident growth " +
               ", ".join(f"{p} {mb:+.2f} MB" for p, mb in growth.items()))  # fmt: skip
         assert max(growth.values()) <= flood.GROWTH_TARGET_MB, growth
+
+
+class _Payload:
+    def __init__(self, raw: bytes) -> None:
+        self._raw = raw
+
+    def to_bytes(self) -> bytes:
+        return self._raw
+
+
+class _Sample:
+    def __init__(self, raw: bytes) -> None:
+        self.payload = _Payload(raw)
+
+
+class _Ring:
+    """A ring-channel subscriber holding the given payloads (oldest first)."""
+
+    def __init__(self, payloads: list[bytes]) -> None:
+        self._waiting = [_Sample(p) for p in payloads]
+
+    def try_recv(self) -> _Sample | None:
+        return self._waiting.pop(0) if self._waiting else None
+
+
+def test_the_sim_counts_the_proxy_states_it_refuses_by_reason() -> None:
+    """What reaches the sim on its proxy key (only the haptic server may publish there) and
+    is malformed is refused and counted by the parser's reason, in its summary; the newest
+    valid one is still taken."""
+    from haptic_local_model.benchmarks.flood import junk_proxy
+    from haptic_local_model.shared.config import load_scene
+    from haptic_local_model.shared.net.config import NetworkConfig
+    from haptic_local_model.sim_server.server import SimServer
+
+    server = SimServer(load_scene("free_box"), NetworkConfig())
+    short = junk_proxy(0)[:10]
+    server._read_proxies(_Ring([junk_proxy(i) for i in range(5)] + [short]), time.time_ns())
+    assert server.stats.proxies_rejected == 6
+    assert dict(server.stats.proxies_rejected_by_reason) == {"magic": 5, "short": 1}
+    assert server._proxy is None
