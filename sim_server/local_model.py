@@ -37,8 +37,10 @@ from haptic_local_model.shared.protocol.update import encode_record
 from haptic_local_model.sim_server import chipmunk as cp
 from haptic_local_model.sim_server.tool import TOOL_LINKAGE, tool_state
 
-if TYPE_CHECKING:  # annotations only: world.py imports this module
-    from haptic_local_model.sim_server.world import SimWorld
+if TYPE_CHECKING:  # annotations only
+    from collections.abc import Sequence
+
+    from haptic_local_model.shared.config import Material
 
 TOUCH_TOLERANCE_M = 1.0e-4  # gap below which the tool counts as touching (FOH force gate)
 TOOL_GROUP = 1  # pymunk shape-filter group: tool shapes never collide with each other
@@ -130,24 +132,29 @@ class StageStats:
 
 
 class LocalModelKernel:
-    """What build_local_model needs of a world, made once: the queries, the world shapes by
-    pointer, the buffers."""
+    """What build_local_model needs of a space, made once: the queries, the world shapes by
+    pointer, the buffers.
 
-    def __init__(self, world: SimWorld) -> None:
-        margin = world.scene.tool.neighbourhood_margin_m
+    tool_shapes: (shape, link index) of the held tool; env_shapes: (shape, key, material) of
+    every world shape the tool may touch (a shape in neither is not rendered); margin: the
+    neighbourhood margin (m)."""
+
+    def __init__(
+        self,
+        tool_shapes: Sequence[tuple[pymunk.Shape, int]],
+        env_shapes: Sequence[tuple[pymunk.Shape, int, Material]],
+        margin: float,
+    ) -> None:
         # inflated copies ride on the tool's own bodies, outside the space
-        self._inflated = [_inflated(shape, margin) for shape, _ in world.tool_shapes]
+        self._inflated = [_inflated(shape, margin) for shape, _ in tool_shapes]
         self.queries = np.zeros(len(self._inflated), QUERY_DTYPE)
-        for i, (q, (shape, link)) in enumerate(zip(self._inflated, world.tool_shapes, strict=True)):
+        for i, (q, (shape, link)) in enumerate(zip(self._inflated, tool_shapes, strict=True)):
             assert shape.body is not None
             self.queries[i] = (cp.shape_ptr(q), cp.body_ptr(shape.body), link)
-        tool = {s for s, _ in world.tool_shapes}
-        others = [s for s in world.shape_keys if s not in tool]
-        env = np.zeros(len(others), ENV_SHAPE_DTYPE)
-        for i, shape in enumerate(others):
-            m = world.shape_materials[shape]
+        env = np.zeros(len(env_shapes), ENV_SHAPE_DTYPE)
+        for i, (shape, key, m) in enumerate(env_shapes):
             env[i] = (
-                cp.shape_ptr(shape), world.shape_keys[shape], m.friction, m.restitution,
+                cp.shape_ptr(shape), key, m.friction, m.restitution,
                 m.stiffness_n_per_m, m.damping_ns_per_m, m.tangential_stiffness,
             )  # fmt: skip
         self.env = np.sort(env, order="ptr")

@@ -19,19 +19,15 @@ import pymunk
 
 from haptic_local_model.shared.config import BodySpec, Material, SceneConfig
 from haptic_local_model.shared.kinematics import (
-    MAX_CHAINS,
-    MAX_DOF,
     link_frames,
     mass_matrix_and_gravity,
     point_jacobian,
     point_on_link,
 )
-from haptic_local_model.shared.protocol.layout import MAX_CONTACTS, MAX_RESISTED, update_size
 from haptic_local_model.shared.protocol.proxy import ShapeImpulses, TrainState
 from haptic_local_model.shared.protocol.update import LocalModelUpdate, update_from_record
-from haptic_local_model.shared.shapes import MAX_SHAPES
 from haptic_local_model.shared.tool_chain import tool_chain
-from haptic_local_model.sim_server.chipmunk import body_ptr, set_velocity_function, space_ptr
+from haptic_local_model.sim_server.chipmunk import body_ptr, set_velocity_function
 from haptic_local_model.sim_server.drive import (
     DRIVE_DEVICE,
     DRIVE_PROXY,
@@ -43,25 +39,17 @@ from haptic_local_model.sim_server.drive import (
     step_world,
     table_drag,
 )
-from haptic_local_model.sim_server.local_model import (
-    TOOL_GROUP,
-    LocalModelKernel,
-    StageStats,
-    build_local_model,
-    encode_stamped,
-)
+from haptic_local_model.sim_server.local_model import TOOL_GROUP, StageStats
 from haptic_local_model.sim_server.membrane import Membrane
 from haptic_local_model.sim_server.shapes import LocalShapes
-from haptic_local_model.sim_server.tool import TOOL_BODY, TOOL_DTYPE, TOOL_LINKAGE, tool_state
+from haptic_local_model.sim_server.space_model import MAX_UPDATE_BYTES, SpaceLocalModel
+from haptic_local_model.sim_server.tool import tool_state
 from haptic_local_model.sim_server.train import SimTrain
 
 #: the most haptic time of impulses a step keeps for the next (in steps): enough to even out
 #: 4 and 5 proxy states between two steps, while a stall's backlog is let out at once
 KEPT_SPAN_STEPS = 0.5
-#: The largest update (all sections, every contact and shape): the encoder's buffer
-MAX_UPDATE_BYTES = update_size(
-    MAX_DOF, MAX_RESISTED, MAX_CONTACTS, 0x7F, n_shapes=MAX_SHAPES, n_chains=MAX_CHAINS
-)
+__all__ = ["MAX_UPDATE_BYTES", "SimWorld", "ToolTarget"]
 
 
 #: pymunk takes a contact's friction (and restitution) as the product of its two shapes';
@@ -125,12 +113,18 @@ class SimWorld:
         self.train = SimTrain(scene, self.space, self._register_car) if mechanism else None
         self._setup_tool_chain()
         self.space.step(0.0)  # pymunk's checks of the bodies added (a zero step moves nothing)
-        self.tool = self._tool_record()
+        tool = {t for t, _ in self.tool_shapes}
+        # the local model's builder, the same for a user's own space (sim_server/user_space.py)
+        self.model = SpaceLocalModel(
+            self.space, self.tool_bodies, self.tool_shapes, self._tool_chain,
+            [(s, k, self.shape_materials[s]) for s, k in self.shape_keys.items() if s not in tool],
+            scene.tool, scene.rendering,
+        )  # fmt: skip
+        self.tool = self.model.tool
         self._target = np.zeros(1, TARGET_DTYPE)
         self._kinematic_rec = _kinematic_records(self._kinematic)
         self._drive_work = drive_work(self.train.record if self.train else None)
-        self._local = LocalModelKernel(self)
-        self._encoded = np.zeros(MAX_UPDATE_BYTES, np.uint8)
+        self._local = self.model.kernel
         # a god_object tool is rendered against the shapes near it (DESIGN-WAVE2 C2)
         self.local_shapes = (
             LocalShapes(
@@ -146,7 +140,6 @@ class SimWorld:
         # the god-object's proxy (x, y, r) from the newest proxy state: the shapes are sent
         # about it (LocalShapes.fill); None while the haptic side is silent
         self._proxy: tuple[float, float, float] | None = None
-        tool = {t for t, _ in self.tool_shapes}
         self._dynamic_by_key = {  # the bodies a god-object's push is applied to, by shape key
             k: s.body
             for s, k in self.shape_keys.items()
@@ -241,6 +234,7 @@ class SimWorld:
 
     def _setup_tool_chain(self) -> None:
         chain = tool_chain(self.scene)  # the haptic server builds the same (shared/tool_chain.py)
+        self._tool_chain = chain
         c = chain.chain[0]
         self.dof = chain.dof
         self.joint_types = c["joint_types"][: self.dof].copy()
@@ -312,29 +306,6 @@ class SimWorld:
         return mass, grav, jac
 
     # --- stepping (sim_server/drive.py) ------------------------------------------------
-
-    def _tool_record(self) -> np.ndarray:
-        """The tool as the compiled step and local model read it (sim_server/tool.py)."""
-        tool, rendering = self.scene.tool, self.scene.rendering
-        rec = np.zeros(1, TOOL_DTYPE)
-        t = rec[0]
-        t["space"] = space_ptr(self.space)
-        t["kind"] = TOOL_BODY if tool.kind == "body" else TOOL_LINKAGE
-        t["dof"] = self.dof
-        t["bodies"][: len(self.tool_bodies)] = [body_ptr(b) for b in self.tool_bodies]
-        t["gravity"] = self.gravity
-        t["base_angle"] = self.base_angle
-        t["parents"][: self.dof] = self.chain[0]["parents"][: self.dof]
-        t["op_link"] = self.op_link
-        t["op_point"] = self.op_point
-        t["bandwidth_hz"] = tool.tracking_bandwidth_hz
-        t["foh_stiffness"] = rendering.foh_spring_stiffness
-        t["foh_damping"] = rendering.foh_spring_damping
-        t["foh_relative"] = 1.0 if rendering.foh_relative_damping else 0.0
-        t["characteristic_length"] = tool.characteristic_length_m
-        t["rank_tolerance"] = tool.rank_tolerance
-        t["margin"] = tool.neighbourhood_margin_m
-        return rec
 
     def step(self, target: ToolTarget | None) -> None:
         """Advance one sim period: drive the tool, move kinematic bodies, substep pymunk (one
@@ -418,7 +389,7 @@ class SimWorld:
         state_lead_s: how long after publication the state holds (the step just computed
         covers the coming period, driven by the extrapolated proxy)."""
         lm = self._local
-        build_local_model(self.tool, self.chain, lm.query, lm.work, lm.record)
+        self.model.build()
         if self.local_shapes is not None:  # the god-object needs shapes, not contact points
             lm.record[0]["n_contacts"] = 0
             self.local_shapes.fill(self.space, lm.record[0], self._proxy)
@@ -428,10 +399,7 @@ class SimWorld:
             rec["avar_static_id"] = self.train.static_id
             rec["avar_cars"] = self.train.n_cars
             rec["avar_s"], rec["avar_sd"] = self.train.state
-        n = encode_stamped(
-            lm.record, self._encoded, epoch, seq, self.time, publish_time_ns, state_lead_s
-        )
-        return self._encoded[:n].tobytes()
+        return self.model.encode(epoch, seq, self.time, publish_time_ns, state_lead_s)
 
     @property
     def kinematic_bodies(self) -> list[tuple[pymunk.Body, BodySpec]]:
