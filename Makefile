@@ -34,7 +34,7 @@ lint: $(STAMP)
 TYPECHECK := build/typecheck/haptic_local_model
 typecheck: $(STAMP)
 	mkdir -p $(TYPECHECK)
-	for p in shared sim_server haptic_server device_models benchmarks; do \
+	for p in shared sim_server haptic_server device_models benchmarks api; do \
 		ln -sfn ../../../$$p $(TYPECHECK)/$$p; done
 	$(VENV)/bin/mypy
 

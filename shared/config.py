@@ -313,8 +313,12 @@ class BodySpec:
     oscillation_period_s: float = 0.0
     angle_amplitude: float = 0.0  # kinematic bodies: theta(t) = theta0 + a sin(2 pi t / T_a)
     angle_period_s: float = 0.0
+    # kg m^2 about the body's origin; unset: the shape's (a user's own space gives its own)
+    moment_kg_m2: float | None = None
 
     def __post_init__(self) -> None:
+        if self.moment_kg_m2 is not None:
+            within(self.moment_kg_m2, INERTIA_RANGE_KGM2, "moment_kg_m2", "kg m^2")
         if self.shape == "box":
             require(self.size[0] > 0 and self.size[1] > 0, "size", "box sides must be > 0")
         if self.shape == "circle":
@@ -360,6 +364,8 @@ class BodySpec:
     @property
     def moment(self) -> float:
         """Moment of inertia about the body's origin (kg m^2), as pymunk computes it."""
+        if self.moment_kg_m2 is not None:
+            return self.moment_kg_m2
         if self.shape == "box":
             return coupling.box_moment(self.mass, self.size[0], self.size[1])
         if self.shape == "circle":

@@ -15,7 +15,7 @@ from conftest import run_installed as _run
 from haptic_local_model.shared import __version__
 
 REPO = Path(__file__).resolve().parent.parent
-CODE_ROOTS = ("shared", "sim_server", "haptic_server", "device_models", "benchmarks")
+CODE_ROOTS = ("shared", "sim_server", "haptic_server", "device_models", "benchmarks", "api")
 NAMESPACE = "haptic_local_model"
 
 

@@ -35,6 +35,7 @@ from haptic_local_model.shared.config import (
 )
 from haptic_local_model.shared.protocol.codes import Method, Reason
 from haptic_local_model.shared.protocol.proxy import ShapeImpulses, TrainState
+from haptic_local_model.sim_server.user_space import UserSpaceWorld
 from haptic_local_model.sim_server.world import SimWorld, ToolTarget
 from haptic_local_model.sim_server.world import warm_kernels as warm_sim_kernels
 
@@ -47,7 +48,7 @@ class VirtualResult:
 
     ticks: np.ndarray  # TICK_DTYPE records of every tick
     updates: int
-    world: SimWorld  # the sim's world at the end (bodies, tool)
+    world: SimWorld | UserSpaceWorld  # the sim's world at the end (bodies, tool)
     stage_ns: dict[str, int]  # total time spent in each stage (sim_step, local_model, ...)
     update_bytes: list[int]  # size of every update
     svd_steps: int  # sim steps that ran the SVD of J_h (0 for a free body)
@@ -72,10 +73,14 @@ def run_virtual(
     duration_s: float,
     log_path: Path | str | None = None,
     configs: dict[str, str] | None = None,
+    world: SimWorld | UserSpaceWorld | None = None,
 ) -> VirtualResult:
-    """Run `duration_s` of simulated time; returns every tick record (and logs if asked)."""
+    """Run `duration_s` of simulated time; returns every tick record (and logs if asked).
+
+    world: the sim's world of `scene` (default: the scene's own, SimWorld(scene); a user's
+    space, UserSpaceWorld, with its own scene)."""
     entered = time.perf_counter()
-    world = SimWorld(scene)
+    world = SimWorld(scene) if world is None else world
     engine = HapticEngine(scene, device, user)
     dt = engine.dt_nominal
     n_ticks = round(duration_s / dt)

@@ -1,0 +1,145 @@
+"""Touch your own pymunk world: the one module a user imports from (docs/touch-your-world.md).
+
+    import pymunk
+    from haptic_local_model import api
+
+    space = pymunk.Space()                      # the user's own world, in metres and kilograms
+    ...                                         # their bodies and shapes
+    finger = pymunk.Body(0.05, pymunk.moment_for_circle(0.05, 0, 0.01))
+    space.add(finger, pymunk.Circle(finger, 0.01))
+    run = api.run_offline(space, finger, seconds=2.0, log="touch.mcap")
+    print(run.wrench_command[:, :2].max(axis=0))  # N, the force the device rendered
+
+`run_offline` renders the user's space on the virtual clock with a simulated device and user:
+each sim step the library drives the held body toward the haptic proxy and steps the user's
+space (one compiled call: the proxy's pushes reach their bodies through the held body's
+contacts), then builds the local model of the held body's neighbourhood from the space with
+the sim's own compiled builder. The run is deterministic, and its log replays bit for bit
+with `haptic-replay` (or `replays_identically`). Everything here is plain Python and numpy
+arrays: no records, no numba types.
+
+What a space may hold that is not rendered raises `UnsupportedSpaceError` or warns with
+`SpaceWarning`, naming the body, shape or constraint and what is rendered instead.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pymunk
+
+from haptic_local_model.device_models.registry import device_config, load_simulated_device
+from haptic_local_model.haptic_server.harness.replay import replay
+from haptic_local_model.haptic_server.harness.virtual import run_virtual, warm_virtual
+from haptic_local_model.haptic_server.log import read_log
+from haptic_local_model.shared.config import Material, load_user, resolve
+from haptic_local_model.sim_server.user_space import (
+    DEFAULT_CONTACT,
+    SpaceWarning,
+    UnsupportedSpaceError,
+    UserSpaceWorld,
+    check_space,
+)
+
+__all__ = [
+    "DEFAULT_CONTACT",
+    "Material",
+    "OfflineRun",
+    "SpaceWarning",
+    "TouchOptions",
+    "UnsupportedSpaceError",
+    "check_space",
+    "replays_identically",
+    "run_offline",
+]
+
+
+@dataclass(frozen=True)
+class TouchOptions:
+    """How a user's space is rendered.
+
+    rate_hz: sim steps per second (each step is `substeps` pymunk steps of the user's space);
+    contact: the stiffness and damping of every contact (friction and restitution are each
+    touched shape's own pymunk values); margin_m: how far from the held body a neighbour is
+    sent; after_step: the user's own code of a step of their loop, called after each step
+    with the space's time in seconds."""
+
+    rate_hz: float = 60.0
+    substeps: int = 10
+    contact: Material = DEFAULT_CONTACT
+    margin_m: float = 0.02
+    after_step: Callable[[float], None] | None = field(default=None, compare=False)
+
+
+@dataclass(frozen=True)
+class OfflineRun:
+    """What an offline run rendered, one row per haptic tick (arrays, SI units).
+
+    times_s: (n,) s; device_pose: (n, 3) m, m, rad (world frame); proxy_pose: (n, 3) the held
+    body's operational point on the haptic side's proxy; wrench_command: (n, 3) N, N, N m,
+    what the device was commanded; n_contacts: (n,) contacts in the installed local model;
+    faults: (n,) the loop's fault code (0: none). updates: local models sent; refused:
+    those the haptic side refused, by reason (a held body driven beyond the scene's speed
+    bounds); speedup: simulated s per wall s; log_path: the MCAP log, if one was written."""
+
+    times_s: np.ndarray
+    device_pose: np.ndarray
+    proxy_pose: np.ndarray
+    wrench_command: np.ndarray
+    n_contacts: np.ndarray
+    faults: np.ndarray
+    updates: int
+    speedup: float
+    log_path: Path | None
+    refused: dict[str, int]
+
+
+def run_offline(
+    space: pymunk.Space,
+    tool: pymunk.Body,
+    seconds: float,
+    *,
+    device: str = "ideal",
+    user: str = "swing",
+    log: Path | str | None = None,
+    options: TouchOptions | None = None,
+) -> OfflineRun:
+    """Hold `tool` (a dynamic body of `space`) with a simulated `device` moved by a simulated
+    `user` (shipped names or paths of TOML files) for `seconds` on the virtual clock; log to
+    `log` (MCAP) if given. The space is stepped: at the end it holds the run's last state."""
+    opts = options or TouchOptions()
+    world = UserSpaceWorld(
+        space, tool, opts.rate_hz, opts.substeps, opts.contact, opts.margin_m, opts.after_step
+    )
+    user_config = load_user(user)
+    configs = {
+        "scene": world.text,
+        "device": device_config(device).read_text(),
+        "user": resolve("users", user).read_text(),
+    }
+    warm_virtual(world.scene, load_simulated_device(device), user_config)
+    result = run_virtual(
+        world.scene, load_simulated_device(device), user_config, seconds, log, configs, world
+    )
+    rows = result.ticks
+    return OfflineRun(
+        times_s=rows["t"].copy(),
+        device_pose=rows["device_pose"].copy(),
+        proxy_pose=rows["vm_pose"].copy(),
+        wrench_command=rows["wrench_command"].copy(),
+        n_contacts=rows["n_contacts"].astype(np.int64),
+        faults=rows["fault"].astype(np.int64),
+        updates=result.updates,
+        speedup=result.speedup,
+        log_path=result.log_path,
+        refused=dict(result.refused),
+    )
+
+
+def replays_identically(log: Path | str) -> bool:
+    """Whether the haptic side of a logged run, re-run from the log's own updates and
+    configs, gives every tick row bit for bit (what `haptic-replay LOG` checks)."""
+    return replay(read_log(Path(log))).identical

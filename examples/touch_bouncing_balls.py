@@ -1,0 +1,76 @@
+"""pymunk's `bouncing_balls` example, touchable: its space, and a disc the hand holds in it.
+
+The space is the example's own (`pymunk.examples.bouncing_balls`: an L-shaped static
+platform, balls of elasticity 0.95 and friction 0.9, gravity), without its pygame window and
+in SI units: 1 pixel = 1 mm, y up (y_m = (600 - y_px) / 1000), its 10-unit balls 0.1 kg, its
+gravity 900 px/s^2 = 0.9 m/s^2. Its three balls are made at the start instead of one every
+100 frames (a shape added during a run is not rendered yet: docs/touch-your-world.md).
+
+The lines that make it touchable are marked `# touchable` (4 lines). Run it:
+
+    python examples/touch_bouncing_balls.py --seconds 5 --log runs/balls.mcap
+    haptic-replay runs/balls.mcap
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+import pymunk
+
+from haptic_local_model import api  # touchable
+
+BALL_MASS_KG, BALL_RADIUS_M = 0.1, 0.025
+
+
+def build_space() -> pymunk.Space:
+    """The example's space: the platform and three balls (x in the example's spawn range)."""
+    space = pymunk.Space()
+    space.gravity = (0.0, -0.9)
+    space.collision_slop = 1.0e-4  # pymunk's default (0.1) is for pixels
+    lines = [
+        pymunk.Segment(space.static_body, (0.111, 0.280), (0.407, 0.246), 0.0),
+        pymunk.Segment(space.static_body, (0.407, 0.246), (0.407, 0.343), 0.0),
+    ]
+    for line in lines:
+        line.elasticity = 0.95
+        line.friction = 0.9
+    space.add(*lines)
+    for x in (0.150, 0.300, 0.350):
+        body = pymunk.Body(BALL_MASS_KG, pymunk.moment_for_circle(BALL_MASS_KG, 0, BALL_RADIUS_M))
+        body.position = (x, 0.400)
+        shape = pymunk.Circle(body, BALL_RADIUS_M)
+        shape.elasticity = 0.95
+        shape.friction = 0.9
+        space.add(body, shape)
+    return space
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=5.0)
+    parser.add_argument("--device", default="ideal")
+    parser.add_argument("--user", default="swing")
+    parser.add_argument("--log", default=None, help="write the run to this MCAP file")
+    args = parser.parse_args(argv)
+    space = build_space()
+    hand = pymunk.Body(1.0, 1.0e-3)  # touchable: 1 kg, 1e-3 kg m^2 (the ideal device's)
+    hand.position = (0.25, 0.33)  # touchable
+    space.add(hand, pymunk.Circle(hand, 0.01))  # touchable
+    run = api.run_offline(
+        space, hand, args.seconds, device=args.device, user=args.user, log=args.log
+    )
+    force = np.hypot(run.wrench_command[:, 0], run.wrench_command[:, 1])
+    touching = float(np.mean(run.n_contacts > 0))
+    print(
+        f"{args.seconds:g} s at {run.speedup:.0f}x real time: {run.updates} local models, "
+        f"touching {100 * touching:.0f} % of ticks, peak force {force.max():.2f} N, "
+        f"faults {int(np.count_nonzero(run.faults))}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

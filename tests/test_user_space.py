@@ -1,0 +1,221 @@
+"""A user's own pymunk space, touchable (issue 44): the public API, the checks of what a space
+may hold, the one local-model builder, and an offline run that replays bit for bit."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pymunk
+import pytest
+
+from haptic_local_model import api
+from haptic_local_model.shared.config import load_scene
+from haptic_local_model.sim_server.user_space import UserSpaceWorld
+from haptic_local_model.sim_server.world import SimWorld
+
+RADIUS_M, MASS_KG = 0.01, 0.05
+
+
+def _finger(space: pymunk.Space, at: tuple[float, float] = (0.0, 0.0)) -> pymunk.Body:
+    body = pymunk.Body(MASS_KG, pymunk.moment_for_circle(MASS_KG, 0.0, RADIUS_M))
+    body.position = at
+    space.add(body, pymunk.Circle(body, RADIUS_M))
+    return body
+
+
+def _wall_space() -> tuple[pymunk.Space, pymunk.Body, pymunk.Segment]:
+    """A finger 5 mm from a static wall (x = 0.015 plus its 5 mm half-thickness)."""
+    space = pymunk.Space()
+    wall = pymunk.Segment(space.static_body, (0.02, -0.1), (0.02, 0.1), 0.005)
+    wall.friction, wall.elasticity = 0.4, 0.3
+    space.add(wall)
+    return space, _finger(space), wall
+
+
+# --- what a space may hold ------------------------------------------------------------------
+
+
+def test_the_api_exposes_no_records_or_numba_types() -> None:
+    """Every public name is a class, a function, or a Material: no numpy structured dtype,
+    no numba dispatcher."""
+    for name in api.__all__:
+        obj = getattr(api, name)
+        assert not isinstance(obj, np.ndarray | np.dtype), name
+        assert "numba" not in type(obj).__module__, name
+
+
+@pytest.mark.parametrize("kind", [pymunk.Body.STATIC, pymunk.Body.KINEMATIC])
+def test_a_static_or_kinematic_tool_is_refused_by_name(kind: int) -> None:
+    space = pymunk.Space()
+    body = pymunk.Body(body_type=kind)
+    space.add(body, pymunk.Circle(body, RADIUS_M))
+    word = "static" if kind == pymunk.Body.STATIC else "kinematic"
+    with pytest.raises(api.UnsupportedSpaceError, match=rf"tool Body #0 is {word}: a hand"):
+        api.check_space(space, body)
+
+
+def test_a_tool_of_zero_mass_is_refused() -> None:
+    space = pymunk.Space()
+    body = pymunk.Body()  # mass from shapes' densities: none given
+    space.add(body, pymunk.Circle(body, RADIUS_M))
+    with pytest.raises(api.UnsupportedSpaceError, match=r"has mass 0\.0: the tool needs"):
+        api.check_space(space, body)
+
+
+def test_a_tool_of_zero_radius_is_refused() -> None:
+    space = pymunk.Space()
+    body = pymunk.Body(MASS_KG, 1e-6)
+    space.add(body, pymunk.Circle(body, 0.0))
+    with pytest.raises(api.UnsupportedSpaceError, match=r"tool shape Circle #0 .* zero size"):
+        api.check_space(space, body)
+
+
+def test_a_world_shape_of_zero_radius_warns_it_is_a_point() -> None:
+    space = pymunk.Space()
+    space.add(pymunk.Circle(space.static_body, 0.0, (0.05, 0.0)))
+    tool = _finger(space)
+    with pytest.warns(api.SpaceWarning, match=r"shape Circle #0 .* zero size: rendered as a point"):
+        api.check_space(space, tool)
+
+
+def test_nan_positions_are_refused_by_body() -> None:
+    space = pymunk.Space()
+    tool = _finger(space)
+    other = pymunk.Body(1.0, 1.0)
+    other.position = (math.nan, 0.0)
+    space.add(other, pymunk.Circle(other, 0.01))
+    with pytest.raises(api.UnsupportedSpaceError, match=r"Body #1: .* not finite"):
+        api.check_space(space, tool)
+
+
+def test_a_spring_on_the_tool_warns_it_is_not_felt() -> None:
+    space = pymunk.Space()
+    tool = _finger(space)
+    space.add(pymunk.DampedSpring(space.static_body, tool, (0, 0), (0, 0), 0.0, 10.0, 1.0))
+    with pytest.warns(api.SpaceWarning, match=r"DampedSpring #0 on the tool: not rendered"):
+        api.check_space(space, tool)
+
+
+def test_a_joint_on_the_tool_is_refused_as_a_held_chain() -> None:
+    space = pymunk.Space()
+    tool = _finger(space)
+    space.add(pymunk.PivotJoint(space.static_body, tool, (0.0, 0.0)))
+    with pytest.raises(api.UnsupportedSpaceError, match=r"PivotJoint #0 joins the tool"):
+        api.check_space(space, tool)
+
+
+def test_a_sensor_is_not_rendered_and_says_so() -> None:
+    space, tool, wall = _wall_space()
+    wall.sensor = True
+    with pytest.warns(api.SpaceWarning, match=r"Segment #0 .* is a sensor: not rendered"):
+        assert api.check_space(space, tool) == []
+
+
+def test_a_tool_off_its_centre_of_gravity_is_refused() -> None:
+    space = pymunk.Space()
+    tool = _finger(space)
+    tool.center_of_gravity = (0.01, 0.0)
+    with pytest.raises(api.UnsupportedSpaceError, match=r"centre of gravity at \(0\.01, 0\.0\)"):
+        api.check_space(space, tool)
+
+
+# --- the one builder ------------------------------------------------------------------------
+
+
+def test_the_local_model_is_the_walls_gap_and_the_shapes_own_friction() -> None:
+    """The finger 5 mm from the wall's face: one contact, gap 5 mm (closed form), normal
+    -x (from the wall to the tool), the wall's friction and restitution, D = diag(m, m, I)."""
+    space, tool, _ = _wall_space()
+    world = UserSpaceWorld(space, tool)
+    world.model.build()
+    m = world.model.record[0]
+    assert int(m["n_contacts"]) == 1
+    gap = m["c_normal"][0] @ (
+        _tool_point_world(tool, m["c_tool"][0]) - m["c_env"][0]
+    )  # n . (tool - env)
+    assert gap == pytest.approx(0.015 - 0.01 - 0.0, abs=1e-9)  # wall face 0.015, finger 0.01
+    np.testing.assert_allclose(m["c_normal"][0], [-1.0, 0.0], atol=1e-12)
+    assert float(m["c_friction"][0]) == pytest.approx(0.4)
+    assert float(m["c_restitution"][0]) == pytest.approx(0.3)
+    moment = pymunk.moment_for_circle(MASS_KG, 0.0, RADIUS_M)
+    np.testing.assert_allclose(np.diag(m["mass"][:3, :3]), [MASS_KG, MASS_KG, moment])
+
+
+def _tool_point_world(body: pymunk.Body, local: np.ndarray) -> np.ndarray:
+    return np.array(body.local_to_world(tuple(local)))
+
+
+def test_a_scene_world_and_a_user_space_build_the_same_model() -> None:
+    """The testbed_free_tool scene's world, and a plain space holding the same bodies as a
+    user would build them: the same contacts (gaps, normals, frictions) from the one
+    builder. The user's space is the scene world's own space, its tool named by body."""
+    scene = load_scene("testbed_free_tool")
+    ours = SimWorld(scene)
+    ours.set_tool_state(np.array([-0.01, 0.0, 0.0]), np.zeros(3))  # 5 mm from the block
+    ours.model.build()
+    theirs = UserSpaceWorld(
+        ours.space, ours.tool_bodies[0], margin_m=scene.tool.neighbourhood_margin_m
+    )
+    theirs.model.build()
+    a, b = ours.model.record[0], theirs.model.record[0]
+    n = int(a["n_contacts"])
+    assert n == int(b["n_contacts"]) and n > 0
+    fields = ("c_tool", "c_env", "c_normal", "c_link", "c_friction", "c_stiffness", "mass")
+    for f in (*fields, "tool_pose"):
+        np.testing.assert_array_equal(
+            a[f][:n] if f.startswith("c_") else a[f], b[f][:n] if f.startswith("c_") else b[f]
+        )
+
+
+# --- offline --------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_an_offline_run_touches_the_space_and_replays_bit_for_bit(tmp_path: Path) -> None:
+    """A finger pushed into a free ball on the virtual clock: the ball moves (the proxy's
+    pushes reach the user's body), no fault, and the log replays identically."""
+    space = pymunk.Space()
+    ball = pymunk.Body(0.2, pymunk.moment_for_circle(0.2, 0.0, 0.02))
+    ball.position = (0.04, 0.0)
+    space.add(ball, pymunk.Circle(ball, 0.02))
+    tool = _finger(space)
+    log = tmp_path / "touch.mcap"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing in this space is rendered differently
+        run = api.run_offline(space, tool, 3.0, user="push_block", log=log)
+    assert run.updates == 3 * 60
+    assert not run.faults.any()
+    assert run.n_contacts.max() >= 1
+    assert ball.position.x > 0.04 + 0.005, ball.position  # pushed at least 5 mm
+    assert api.replays_identically(log)
+
+
+# --- the examples ---------------------------------------------------------------------------
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+@pytest.mark.slow
+def test_the_bouncing_balls_example_runs_offline_and_replays_identically(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """examples/touch_bouncing_balls.py as a user runs it: 3 s on the virtual clock with the
+    ideal device and the swing user; the disc touches the platform or a ball, no fault, and
+    its log replays bit for bit (so the README's example cannot rot)."""
+    spec = importlib.util.spec_from_file_location(
+        "touch_bouncing_balls", EXAMPLES / "touch_bouncing_balls.py"
+    )
+    assert spec is not None and spec.loader is not None
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    log = tmp_path / "balls.mcap"
+    assert example.main(["--seconds", "3", "--log", str(log)]) == 0
+    out = capsys.readouterr().out
+    assert "180 local models" in out and "faults 0" in out, out
+    touching = int(out.split("touching ")[1].split(" %")[0])
+    assert touching > 0, out
+    assert api.replays_identically(log)
