@@ -1,12 +1,12 @@
 """pymunk's `bouncing_balls` example, touchable: its space, and a disc the hand holds in it.
 
-The space is the example's own (`pymunk.examples.bouncing_balls`: an L-shaped static
-platform, balls of elasticity 0.95 and friction 0.9, gravity), without its pygame window and
-in SI units: 1 pixel = 1 mm, y up (y_m = (600 - y_px) / 1000), its 10-unit balls 0.1 kg, its
-gravity 900 px/s^2 = 0.9 m/s^2. Its three balls are made at the start instead of one every
-100 frames (a shape added during a run is not rendered yet: docs/touch-your-world.md).
+The space and its loop are the example's own (`pymunk.examples.bouncing_balls`: an L-shaped
+static platform; a ball of elasticity 0.95 and friction 0.9 dropped every 100 steps at a
+random x, the first after 10; balls that fall off removed), without its pygame window and in
+SI units: 1 pixel = 1 mm, y up (y_m = (600 - y_px) / 1000), its 10-unit balls 0.1 kg, its
+gravity 900 px/s^2 = 0.9 m/s^2, its random x from a seeded generator (a run is repeatable).
 
-The lines that make it touchable are marked `# touchable` (4 lines). Run it:
+The lines that make it touchable are marked `# touchable` (6 lines). Run it:
 
     python examples/touch_bouncing_balls.py --seconds 5 --log runs/balls.mcap
     haptic-replay runs/balls.mcap
@@ -15,6 +15,7 @@ The lines that make it touchable are marked `# touchable` (4 lines). Run it:
 from __future__ import annotations
 
 import argparse
+import random
 import sys
 
 import numpy as np
@@ -26,7 +27,7 @@ BALL_MASS_KG, BALL_RADIUS_M = 0.1, 0.025
 
 
 def build_space() -> pymunk.Space:
-    """The example's space: the platform and three balls (x in the example's spawn range)."""
+    """The example's space: the platform (`_add_static_scenery`)."""
     space = pymunk.Space()
     space.gravity = (0.0, -0.9)
     space.collision_slop = 1.0e-4  # pymunk's default (0.1) is for pixels
@@ -38,14 +39,35 @@ def build_space() -> pymunk.Space:
         line.elasticity = 0.95
         line.friction = 0.9
     space.add(*lines)
-    for x in (0.150, 0.300, 0.350):
-        body = pymunk.Body(BALL_MASS_KG, pymunk.moment_for_circle(BALL_MASS_KG, 0, BALL_RADIUS_M))
-        body.position = (x, 0.400)
-        shape = pymunk.Circle(body, BALL_RADIUS_M)
+    return space
+
+
+class Balls:
+    """The example's `_update_balls`, once a step: a ball every 100 steps, the fallen removed."""
+
+    def __init__(self, space: pymunk.Space, seed: int = 0) -> None:
+        self.space, self.random = space, random.Random(seed)
+        self.balls: list[pymunk.Circle] = []
+        self.ticks_to_next_ball = 10
+
+    def update(self, _t: float = 0.0) -> None:
+        self.ticks_to_next_ball -= 1
+        if self.ticks_to_next_ball <= 0:
+            self.create_ball()
+            self.ticks_to_next_ball = 100
+        for ball in [b for b in self.balls if b.body.position.y < 0.1]:
+            self.space.remove(ball, ball.body)
+            self.balls.remove(ball)
+
+    def create_ball(self) -> None:
+        moment = pymunk.moment_for_circle(BALL_MASS_KG, 0, BALL_RADIUS_M, (0, 0))
+        body = pymunk.Body(BALL_MASS_KG, moment)
+        body.position = self.random.randint(115, 350) / 1000.0, 0.400
+        shape = pymunk.Circle(body, BALL_RADIUS_M, (0, 0))
         shape.elasticity = 0.95
         shape.friction = 0.9
-        space.add(body, shape)
-    return space
+        self.space.add(body, shape)
+        self.balls.append(shape)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -56,11 +78,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--log", default=None, help="write the run to this MCAP file")
     args = parser.parse_args(argv)
     space = build_space()
+    balls = Balls(space)
     hand = pymunk.Body(1.0, 1.0e-3)  # touchable: 1 kg, 1e-3 kg m^2 (the ideal device's)
     hand.position = (0.25, 0.33)  # touchable
     space.add(hand, pymunk.Circle(hand, 0.01))  # touchable
-    run = api.run_offline(
-        space, hand, args.seconds, device=args.device, user=args.user, log=args.log
+    each_step = api.TouchOptions(after_step=balls.update)  # touchable: the example's loop
+    run = api.run_offline(  # touchable
+        space,
+        hand,
+        args.seconds,
+        device=args.device,
+        user=args.user,
+        log=args.log,
+        options=each_step,
     )
     force = np.hypot(run.wrench_command[:, 0], run.wrench_command[:, 1])
     touching = float(np.mean(run.n_contacts > 0))

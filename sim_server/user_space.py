@@ -273,34 +273,50 @@ class UserSpaceWorld:
         rendered = check_space(space, tool)
         self.after_step = after_step
         self.space, self.tool_body = space, tool
-        keys = {s: k for k, s in enumerate(space.shapes)}  # registration order, as a scene's
         materials: dict[tuple[float, float], Material] = {}
-        env = [(s, keys[s], _shape_material(s, contact, materials)) for s in rendered]
-        touched = _shape_material(
-            _Surface(
-                max((f for f, _ in materials), default=0.0),
-                max((e for _, e in materials), default=0.0),
-            ),
-            contact,
-            {},
-        )
-        self.text = scene_text(space, tool, rate_hz, substeps, touched, margin_m)
+        for shape in rendered:
+            _shape_material(shape, contact, materials)
+        friction = max((f for f, _ in materials), default=0.0)
+        restitution = max((e for _, e in materials), default=0.0)
+        self._touched = _shape_material(_Surface(friction, restitution), contact, {})
+        self.text = scene_text(space, tool, rate_hz, substeps, self._touched, margin_m)
         self.scene: SceneConfig = load_config_text(SceneConfig, self.text, "user space")
         self.time = 0.0
         self.period = 1.0 / self.scene.sim_rate_hz
         self.substeps = self.scene.sim_substeps
-        for shape in _shapes_of(
-            tool, space
-        ):  # the touched shape's friction alone (module docstring)
+        # the touched shape's friction alone (module docstring)
+        for shape in _shapes_of(tool, space):
             shape.friction = shape.elasticity = TOOL_FRICTION
         self._chain = tool_chain(self.scene)
-        self.model = SpaceLocalModel(
-            space, [tool], [(s, 2) for s in _shapes_of(tool, space)], self._chain, env,
-            self.scene.tool, self.scene.rendering,
-        )  # fmt: skip
+        self._contact = contact
+        self._build(rendered)
         self._target = np.zeros(1, TARGET_DTYPE)
         self._kinematic = np.zeros(0, KINEMATIC_DTYPE)  # the user moves their own
         self._work = drive_work()
+
+    def _build(self, rendered: list[pymunk.Shape]) -> None:
+        """The local model's builder over the space's shapes now (`rendered`: those of the
+        world). A shape's friction or elasticity above the scene's material (set from the
+        space's shapes at the start) is clipped to it: the haptic side refuses a contact
+        beyond its scene's materials. The shapes are kept alive, so a shape the user
+        removes cannot leave its address to a new one."""
+        keys = {s: k for k, s in enumerate(self.space.shapes)}  # registration order
+        top = self._touched
+        made: dict[tuple[float, float], Material] = {}
+        env = []
+        for shape in rendered:
+            surface = _Surface(
+                min(float(shape.friction), top.friction),
+                min(float(shape.elasticity), top.restitution),
+            )
+            env.append((shape, keys[shape], _shape_material(surface, self._contact, made)))
+        self._rendered = rendered
+        self._shape_count = len(self.space.shapes)
+        tool_shapes = [(s, 2) for s in _shapes_of(self.tool_body, self.space)]
+        self.model = SpaceLocalModel(
+            self.space, [self.tool_body], tool_shapes, self._chain, env,
+            self.scene.tool, self.scene.rendering,
+        )  # fmt: skip
 
     def step(self, target: ToolTarget | None) -> None:
         """One period: the tool driven toward the proxy (held at rest without a fresh
@@ -323,7 +339,11 @@ class UserSpaceWorld:
     def local_model_bytes(
         self, epoch: int, seq: int, publish_time_ns: int, state_lead_s: float = 0.0
     ) -> bytes:
-        """The encoded local model at the tool's current state (as SimWorld's)."""
+        """The encoded local model at the tool's current state (as SimWorld's); the world's
+        shapes are taken again when the space's count of shapes has changed (a shape added
+        and another removed within one step are seen at the next change of count)."""
+        if len(self.space.shapes) != self._shape_count:
+            self._build(_check_world(self.space, self.tool_body))
         self.model.build()
         return self.model.encode(epoch, seq, self.time, publish_time_ns, state_lead_s)
 

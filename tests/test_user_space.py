@@ -14,6 +14,8 @@ import pytest
 
 from haptic_local_model import api
 from haptic_local_model.shared.config import load_scene
+from haptic_local_model.shared.protocol.layout import MAX_CONTACTS
+from haptic_local_model.shared.protocol.update import decode_update
 from haptic_local_model.sim_server.user_space import UserSpaceWorld
 from haptic_local_model.sim_server.world import SimWorld
 
@@ -219,3 +221,42 @@ def test_the_bouncing_balls_example_runs_offline_and_replays_identically(
     touching = int(out.split("touching ")[1].split(" %")[0])
     assert touching > 0, out
     assert api.replays_identically(log)
+
+
+@pytest.mark.slow
+def test_a_hundred_thousand_shapes_under_the_tool_give_a_bounded_finite_model() -> None:
+    """100,000 small discs, a few thousand of them overlapping the held disc: the model keeps
+    the nearest MAX_CONTACTS, counts the overlaps it dropped, and its bytes decode with the
+    protocol's validating parser (every number finite)."""
+    space = pymunk.Space()
+    rng = np.random.default_rng(0)
+    for x, y in rng.uniform(-0.05, 0.05, (100_000, 2)):
+        space.add(pymunk.Circle(space.static_body, 0.001, (float(x), float(y))))
+    tool = pymunk.Body(1.0, 1.0e-3)
+    space.add(tool, pymunk.Circle(tool, RADIUS_M))
+    world = UserSpaceWorld(space, tool)
+    update = decode_update(world.local_model_bytes(1, 0, 0))
+    assert update.contacts.count == MAX_CONTACTS
+    assert np.isfinite(update.contacts.floats).all()
+    assert world.stats.hits_dropped > 0
+
+
+def test_a_shape_added_or_removed_later_is_seen_at_the_next_local_model() -> None:
+    """A wall added 5 mm from the finger after the start is one contact in the next local
+    model, its friction clipped to the scene's material (the highest of the space's shapes
+    at the start, 0.4 here); removed, it is gone again."""
+    space, tool, _ = _wall_space()
+    tool.position = (-0.1, 0.0)  # away from the first wall
+    world = UserSpaceWorld(space, tool)
+    world.local_model_bytes(1, 0, 0)
+    assert world.stats.contacts_sent == 0
+    late = pymunk.Segment(space.static_body, (-0.075, -0.1), (-0.075, 0.1), 0.005)
+    late.friction = 0.9
+    space.add(late)
+    world.local_model_bytes(1, 1, 0)
+    m = world.model.record[0]
+    assert world.stats.contacts_sent == 1
+    assert float(m["c_friction"][0]) == pytest.approx(0.4)
+    space.remove(late)
+    world.local_model_bytes(1, 2, 0)
+    assert world.stats.contacts_sent == 0
