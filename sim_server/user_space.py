@@ -43,6 +43,7 @@ from haptic_local_model.sim_server.drive import (
     set_target,
     step_world,
 )
+from haptic_local_model.sim_server.held_chain import ChainError, HeldChain, find_held_chain
 from haptic_local_model.sim_server.local_model import TOOL_GROUP, StageStats
 from haptic_local_model.sim_server.space_model import SpaceLocalModel
 from haptic_local_model.sim_server.world import TOOL_FRICTION, ToolTarget
@@ -81,9 +82,9 @@ def _finite_body(body: pymunk.Body, index: int) -> None:
         )
 
 
-def _check_tool(space: pymunk.Space, tool: pymunk.Body) -> None:
-    """The held body: in the space, dynamic, of finite positive mass and moment, its mass at
-    its origin, with shapes of area."""
+def _check_tool(space: pymunk.Space, tool: pymunk.Body, free: bool, held: bool = True) -> None:
+    """The held body (or a link of the held chain): in the space, dynamic, of finite positive
+    mass and moment, a free body's mass at its origin, with shapes of area."""
     bodies = list(space.bodies)
     if tool not in bodies:
         raise UnsupportedSpaceError("the tool body is not in the space (space.add it first)")
@@ -99,12 +100,12 @@ def _check_tool(space: pymunk.Space, tool: pymunk.Body) -> None:
                 f"tool {name} has {what} {value}: the tool needs a finite {what} > 0 "
                 "(give its shapes a density or the body a mass and moment)"
             )
-    if math.hypot(*tool.center_of_gravity) > COG_TOLERANCE_M:
+    if free and math.hypot(*tool.center_of_gravity) > COG_TOLERANCE_M:
         raise UnsupportedSpaceError(
             f"tool {name} has its centre of gravity at {tuple(tool.center_of_gravity)}, off "
             "its origin: a free tool's mass must be at its body's origin"
         )
-    if not _shapes_of(tool, space):
+    if held and not _shapes_of(tool, space):
         raise UnsupportedSpaceError(f"tool {name} has no shapes: it can touch nothing")
     shapes = list(space.shapes)
     for shape in _shapes_of(tool, space):
@@ -115,11 +116,13 @@ def _check_tool(space: pymunk.Space, tool: pymunk.Body) -> None:
             )
 
 
-def _check_constraints(space: pymunk.Space, tool: pymunk.Body) -> None:
-    """Constraints on the held body: a joint makes it a held chain (not supported yet); a
-    spring acts in the user's space but is not felt."""
+def _check_constraints(space: pymunk.Space, tool: pymunk.Body, chain: HeldChain | None) -> None:
+    """Constraints on the held body or chain: its own pivots are the chain; a spring acts in
+    the user's space but is not felt; any other joint is refused."""
+    held = set(chain.bodies) if chain is not None else {tool}
+    pivots = set(chain.joints) if chain is not None else set()
     for index, c in enumerate(space.constraints):
-        if tool not in (c.a, c.b):
+        if c in pivots or not ({c.a, c.b} & held):
             continue
         if isinstance(c, pymunk.DampedSpring | pymunk.DampedRotarySpring):
             warnings.warn(
@@ -130,17 +133,17 @@ def _check_constraints(space: pymunk.Space, tool: pymunk.Body) -> None:
             )
             continue
         raise UnsupportedSpaceError(
-            f"{_name(c, index)} joins the tool to another body: a held chain of joints is "
-            "not supported yet (hold a free body)"
+            f"{_name(c, index)} joins the held body or chain to another body: a held chain "
+            "is rendered only as PivotJoints from a static body (DESIGN §2)"
         )
 
 
-def _check_world(space: pymunk.Space, tool: pymunk.Body) -> list[pymunk.Shape]:
-    """The world shapes the tool may touch; sensors, zero-size shapes and shapes in the
-    tool's filter group are named in a warning."""
+def _check_world(space: pymunk.Space, held: set[pymunk.Body]) -> list[pymunk.Shape]:
+    """The world shapes the tool may touch (not those of the `held` bodies); sensors,
+    zero-size shapes and shapes in the tool's filter group are named in a warning."""
     rendered = []
     for index, shape in enumerate(space.shapes):
-        if shape.body is tool:
+        if shape.body in held:
             continue
         name = _name(shape, index)
         if type(shape) not in (pymunk.Circle, pymunk.Segment, pymunk.Poly):
@@ -173,14 +176,28 @@ def check_space(space: pymunk.Space, tool: pymunk.Body) -> list[pymunk.Shape]:
     """What of `space` is rendered when `tool` is held: its world shapes. Raises
     UnsupportedSpaceError for what cannot be rendered; warns (SpaceWarning) for what is
     rendered differently."""
+    return _inspect(space, tool)[0]
+
+
+def _inspect(space: pymunk.Space, tool: pymunk.Body) -> tuple[list[pymunk.Shape], HeldChain | None]:
+    """check_space's world shapes and the held chain `tool` is a link of (None: free)."""
     for index, body in enumerate(space.bodies):
         _finite_body(body, index)
-    _check_tool(space, tool)
-    _check_constraints(space, tool)
+    if tool not in space.bodies:
+        raise UnsupportedSpaceError("the tool body is not in the space (space.add it first)")
+    try:
+        chain = find_held_chain(space, tool)
+    except ChainError as e:
+        raise UnsupportedSpaceError(str(e)) from e
+    _check_tool(space, tool, chain is None)
+    for body in chain.bodies if chain is not None else ():
+        _check_tool(space, body, False, body is tool)
+    _check_constraints(space, tool, chain)
     g = space.gravity
     if not all(math.isfinite(v) for v in g):
         raise UnsupportedSpaceError(f"the space's gravity {tuple(g)} is not finite")
-    return _check_world(space, tool)
+    held = set(chain.bodies) if chain is not None else {tool}
+    return _check_world(space, held), chain
 
 
 def _shapes_of(body: pymunk.Body, space: pymunk.Space | None) -> list[pymunk.Shape]:
@@ -227,30 +244,41 @@ def scene_text(
     substeps: int,
     touched: Material,
     margin_m: float,
+    chain: HeldChain | None = None,
 ) -> str:
     """The scene the haptic side renders a user's space with, as TOML: the rates, the held
     body (its mass, moment and pose) and `touched`, the material whose friction and
     restitution are the highest of the world's shapes (the haptic side checks every contact
-    against the scene's materials); no other bodies (the world is the user's space)."""
+    against the scene's materials); no other bodies (the world is the user's space). A held
+    `chain` is the scene's linkage, held at its body's centre of gravity."""
     gx, gy = space.gravity
     contact = touched
     x, y = tool.position
+    if chain is not None:
+        px, py = tool.center_of_gravity
+        kind = f'"linkage"\nlink = {chain.held}\npoint = [{float(px)!r}, {float(py)!r}]'
+        held = chain.toml(USER_TOOL, USER_TOOL)
+    else:
+        kind = '"body"'
+        held = (
+            f'[[bodies]]\nname = "{USER_TOOL}"\nkind = "dynamic"\nmaterial = "{USER_TOOL}"\n'
+            f"{_tool_shape_toml(tool)}"
+            f"mass = {float(tool.mass)!r}\nmoment_kg_m2 = {float(tool.moment)!r}\n"
+            f"position = [{float(x)!r}, {float(y)!r}]\nangle = {float(tool.angle)!r}\n"
+        )
     return (
         f'name = "{USER_SCENE}"\n'
         'description = "a user\'s own pymunk space (haptic_local_model.api)"\n'
         f"gravity = [{float(gx)!r}, {float(gy)!r}]\n"
         f"sim_rate_hz = {float(rate_hz)!r}\nsim_substeps = {int(substeps)}\n\n"
-        f'[tool]\nkind = "body"\nname = "{USER_TOOL}"\n'
+        f'[tool]\nkind = {kind}\nname = "{USER_TOOL}"\n'
         f"neighbourhood_margin_m = {float(margin_m)!r}\n\n"
         '[rendering]\nmethod = "local_model"\n\n'
         f"[materials.{USER_TOOL}]\n"
         f"stiffness_n_per_m = {contact.stiffness_n_per_m!r}\n"
         f"damping_ns_per_m = {contact.damping_ns_per_m!r}\n"
         f"friction = {contact.friction!r}\nrestitution = {contact.restitution!r}\n\n"
-        f'[[bodies]]\nname = "{USER_TOOL}"\nkind = "dynamic"\nmaterial = "{USER_TOOL}"\n'
-        f"{_tool_shape_toml(tool)}"
-        f"mass = {float(tool.mass)!r}\nmoment_kg_m2 = {float(tool.moment)!r}\n"
-        f"position = [{float(x)!r}, {float(y)!r}]\nangle = {float(tool.angle)!r}\n"
+        f"{held}"
     )
 
 
@@ -270,22 +298,24 @@ class UserSpaceWorld:
     ) -> None:
         """after_step: the user's own code of a step of their loop, called after each step
         with the space's time (s)."""
-        rendered = check_space(space, tool)
+        rendered, chain = _inspect(space, tool)
         self.after_step = after_step
         self.space, self.tool_body = space, tool
+        self.held_chain = chain
+        self._tool_bodies = list(chain.bodies) if chain is not None else [tool]
         materials: dict[tuple[float, float], Material] = {}
         for shape in rendered:
             _shape_material(shape, contact, materials)
         friction = max((f for f, _ in materials), default=0.0)
         restitution = max((e for _, e in materials), default=0.0)
         self._touched = _shape_material(_Surface(friction, restitution), contact, {})
-        self.text = scene_text(space, tool, rate_hz, substeps, self._touched, margin_m)
+        self.text = scene_text(space, tool, rate_hz, substeps, self._touched, margin_m, chain)
         self.scene: SceneConfig = load_config_text(SceneConfig, self.text, "user space")
         self.time = 0.0
         self.period = 1.0 / self.scene.sim_rate_hz
         self.substeps = self.scene.sim_substeps
         # the touched shape's friction alone (module docstring)
-        for shape in _shapes_of(tool, space):
+        for shape in (s for b in self._tool_bodies for s in _shapes_of(b, space)):
             shape.friction = shape.elasticity = TOOL_FRICTION
         self._chain = tool_chain(self.scene)
         self._contact = contact
@@ -312,9 +342,15 @@ class UserSpaceWorld:
             env.append((shape, keys[shape], _shape_material(surface, self._contact, made)))
         self._rendered = rendered
         self._shape_count = len(self.space.shapes)
-        tool_shapes = [(s, 2) for s in _shapes_of(self.tool_body, self.space)]
+        bodies = self._tool_bodies
+        links = range(len(bodies)) if self.held_chain is not None else [2]  # a free body: q[2]
+        tool_shapes = [
+            (s, link)
+            for b, link in zip(bodies, links, strict=True)
+            for s in _shapes_of(b, self.space)
+        ]
         self.model = SpaceLocalModel(
-            self.space, [self.tool_body], tool_shapes, self._chain, env,
+            self.space, bodies, tool_shapes, self._chain, env,
             self.scene.tool, self.scene.rendering,
         )  # fmt: skip
 
@@ -343,7 +379,7 @@ class UserSpaceWorld:
         shapes are taken again when the space's count of shapes has changed (a shape added
         and another removed within one step are seen at the next change of count)."""
         if len(self.space.shapes) != self._shape_count:
-            self._build(_check_world(self.space, self.tool_body))
+            self._build(_check_world(self.space, set(self._tool_bodies)))
         self.model.build()
         return self.model.encode(epoch, seq, self.time, publish_time_ns, state_lead_s)
 
@@ -352,7 +388,7 @@ class UserSpaceWorld:
         """What the last local model's query found (a free tool: no SVD)."""
         m, counts = self.model.record[0], self.model.kernel.counts
         return StageStats(
-            svd=False,
+            svd=self.held_chain is not None,
             gravity=bool(m["has_gravity"]),
             contacts_sent=int(m["n_contacts"]),
             shapes_queried=int(counts[0]),

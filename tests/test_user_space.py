@@ -13,7 +13,7 @@ import pymunk
 import pytest
 
 from haptic_local_model import api
-from haptic_local_model.shared.config import load_scene
+from haptic_local_model.shared.config import LinkageSpec, load_scene
 from haptic_local_model.shared.protocol.layout import MAX_CONTACTS
 from haptic_local_model.shared.protocol.update import decode_update
 from haptic_local_model.sim_server.user_space import UserSpaceWorld
@@ -102,12 +102,58 @@ def test_a_spring_on_the_tool_warns_it_is_not_felt() -> None:
         api.check_space(space, tool)
 
 
-def test_a_joint_on_the_tool_is_refused_as_a_held_chain() -> None:
+def test_a_pin_joint_on_the_tool_is_refused_by_name() -> None:
     space = pymunk.Space()
     tool = _finger(space)
-    space.add(pymunk.PivotJoint(space.static_body, tool, (0.0, 0.0)))
-    with pytest.raises(api.UnsupportedSpaceError, match=r"PivotJoint #0 joins the tool"):
+    space.add(pymunk.PinJoint(space.static_body, tool, (0.05, 0.0), (0.0, 0.0)))
+    with pytest.raises(api.UnsupportedSpaceError, match=r"PinJoint #0 joins the held body"):
         api.check_space(space, tool)
+
+
+def test_a_link_pivoted_off_its_origin_is_refused() -> None:
+    space = pymunk.Space()
+    tool = _finger(space)
+    space.add(pymunk.PivotJoint(space.static_body, tool, (0.0, 0.0), (0.01, 0.0)))
+    with pytest.raises(api.UnsupportedSpaceError, match=r"a link's origin must be its pivot"):
+        api.check_space(space, tool)
+
+
+def _arm(space: pymunk.Space, lk: LinkageSpec) -> list[pymunk.Body]:
+    """A linkage table built as a user would in plain pymunk: a body per link, its origin at
+    its pivot, a PivotJoint to the previous one (the first to the static body)."""
+    bodies: list[pymunk.Body] = []
+    pos, angle = np.array(lk.base, dtype=float), lk.base_angle
+    for i, length in enumerate(lk.lengths):
+        body = pymunk.Body(lk.masses[i], lk.inertias[i])
+        body.center_of_gravity = lk.com_offsets[i]
+        angle += lk.initial_angles[i]
+        body.angle = angle
+        body.position = tuple(pos)
+        prev = bodies[-1] if bodies else space.static_body
+        joint = pymunk.PivotJoint(prev, body, tuple(pos))
+        joint.collide_bodies = False
+        space.add(body, pymunk.Segment(body, (0.0, 0.0), (length, 0.0), lk.radius), joint)
+        bodies.append(body)
+        pos = pos + length * np.array([math.cos(angle), math.sin(angle)])
+    return bodies
+
+
+def test_a_held_chain_builds_our_linkage_scenes_model() -> None:
+    """Seed 000's three-link arm (linkage_distal) in a plain space, its distal link held: the
+    same D, G, Λ⁻¹, resisted directions, q and tool pose as the scene's own world builds
+    (the same kernels over the same numbers, to rounding)."""
+    scene = load_scene("linkage_distal")
+    ours = SimWorld(scene)
+    ours.model.build()
+    space = pymunk.Space()
+    arm = _arm(space, scene.tool_linkage)
+    theirs = UserSpaceWorld(space, arm[scene.tool.link])
+    theirs.model.build()
+    a, b = ours.model.record[0], theirs.model.record[0]
+    assert int(b["dof"]) == 3 and theirs.stats.svd
+    for f in ("q", "mass", "gravity", "lambda_inv", "tool_pose", "lengths", "parents"):
+        np.testing.assert_allclose(b[f], a[f], rtol=1e-9, atol=1e-12, err_msg=f)
+    assert int(a["n_resisted"]) == int(b["n_resisted"])
 
 
 def test_a_sensor_is_not_rendered_and_says_so() -> None:
@@ -260,3 +306,17 @@ def test_a_shape_added_or_removed_later_is_seen_at_the_next_local_model() -> Non
     space.remove(late)
     world.local_model_bytes(1, 2, 0)
     assert world.stats.contacts_sent == 0
+
+
+@pytest.mark.slow
+def test_a_held_chain_runs_offline_and_replays_bit_for_bit(tmp_path: Path) -> None:
+    """linkage_distal's arm in a plain space, its distal link held by the swing user for 3 s:
+    every update installed (none refused by the scene's checks), no fault, replay identical."""
+    scene = load_scene("linkage_distal")
+    space = pymunk.Space()
+    arm = _arm(space, scene.tool_linkage)
+    log = tmp_path / "arm.mcap"
+    run = api.run_offline(space, arm[scene.tool.link], 3.0, log=log)
+    assert run.updates == 3 * 60 and run.refused == {}
+    assert not run.faults.any()
+    assert api.replays_identically(log)
