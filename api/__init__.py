@@ -5,7 +5,7 @@
 
     space = pymunk.Space()                      # the user's own world, in metres and kilograms
     ...                                         # their bodies and shapes
-    finger = pymunk.Body(0.05, pymunk.moment_for_circle(0.05, 0, 0.01))
+    finger = pymunk.Body(1.0, 1.0e-3)           # 1 kg, 1e-3 kg m^2: the device's own order
     space.add(finger, pymunk.Circle(finger, 0.01))
     run = api.run_offline(space, finger, seconds=2.0, log="touch.mcap")
     print(run.wrench_command[:, :2].max(axis=0))  # N, the force the device rendered
