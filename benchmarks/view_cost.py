@@ -143,7 +143,7 @@ def _drive(frame: Any, update: Any, log: LogContents) -> tuple[float, int]:
     cpu = 0.0
     n = 0
     wall0 = time.monotonic()
-    for row, updates, _events in log_frames(log):
+    for row, updates, _events, _world in log_frames(log):
         t0 = time.process_time()
         for raw in updates:
             update(raw)

@@ -45,6 +45,8 @@ from haptic_local_model.haptic_server.mailbox import (
     RING_TICKS,
     SharedBlock,
 )
+from haptic_local_model.haptic_server.view_board import ViewBoard
+from haptic_local_model.haptic_server.view_world import WorldLayer
 from haptic_local_model.shared.config import BodySpec, ConfigError, static_bodies
 from haptic_local_model.shared.protocol.layout import MAX_DOF
 
@@ -243,6 +245,8 @@ class SceneView:
         self._contacts: list[tuple[float, float, float, float]] | None = None
         self._parser: Any = None
         self.frames = 0
+        self.epoch = -1  # of the newest installed update: the sim whose world is drawn
+        self.world_layer = WorldLayer(self._log)
 
     def _log(self, path: str, archetype: Any, static: bool = False) -> None:
         _rr().log(path, archetype, static=static, recording=self.rec)
@@ -302,6 +306,8 @@ class SceneView:
 
         rr = _rr()
         self.set_time(float(row["t"]))
+        if "update_epoch" in (row.dtype.names or ()):
+            self.epoch = int(row["update_epoch"])
         dev, vm = row["device_pose"], row["vm_pose"]
         dev_xy = (float(dev[0]), float(dev[1]))
         vm_xy = (float(vm[0]), float(vm[1]))
@@ -330,6 +336,11 @@ class SceneView:
         if "penetration" in (row.dtype.names or ()):
             self._log("plots/penetration", rr.Scalars([float(row["penetration"]) * 1e3]))
         self.frames += 1
+
+    def world(self, raw: bytes) -> None:
+        """A message of the sim's world (its bodies, or their poses), drawn at the time of the
+        newest frame if it is the installed epoch's (view_world.py)."""
+        self.world_layer.take(raw, self.epoch)
 
     def event(self, tick: int, kind: str, detail: str, t_s: float | None = None) -> None:
         rr = _rr()
@@ -406,7 +417,8 @@ def _live(config: dict[str, Any]) -> None:
         view = SceneView(config.get("scene_text"), rec)
         cpu0, server_cpu0, wall0 = time.process_time(), server.cpu_s(), time.monotonic()
         print(f"live view: {address.url}", file=sys.stderr, flush=True)
-        feed = BlockFeed(block, view)
+        board = ViewBoard.attach(config["view_board"]) if config.get("view_board") else None
+        feed = BlockFeed(block, view, board)
         parent = int(config["parent_pid"])
         period = 1.0 / VIEW_HZ
         next_frame = time.monotonic()
@@ -420,6 +432,12 @@ def _live(config: dict[str, Any]) -> None:
         rec.disconnect()  # before its server goes
         cpu_s, server_cpu_s = time.process_time() - cpu0, server.cpu_s() - server_cpu0
         frames = max(view.frames, 1)
+        if board is not None:
+            board.close()
+        print(
+            f"live view: {view.world_layer.drawn} world frames; refused {view.world_layer.refused}",
+            file=sys.stderr, flush=True,
+        )  # fmt: skip
         print(
             f"live view: {view.frames} frames in {time.monotonic() - wall0:.1f} s; CPU per "
             f"frame {1e3 * cpu_s / frames:.2f} ms here, {1e3 * server_cpu_s / frames:.2f} ms "
@@ -436,7 +454,7 @@ class BlockFeed:
     """The shared block's newest tick row, the loop's new verdicts and its new events, read
     without taking anything from the log writer or the sidecar."""
 
-    def __init__(self, block: SharedBlock, view: SceneView) -> None:
+    def __init__(self, block: SharedBlock, view: SceneView, board: ViewBoard | None) -> None:
         from haptic_local_model.haptic_server.model import TICK_DTYPE
 
         self.block, self.view = block, view
@@ -444,6 +462,8 @@ class BlockFeed:
         self.last_tick_head = 0
         self.upd_seen = 0
         self.evt_seen = 0
+        self.board = board
+        self.world_seen = 0
 
     def poll(self) -> None:
         b, ctl, view = self.block, self.block.ctl, self.view
@@ -467,6 +487,10 @@ class BlockFeed:
             if int(ctl[C_TICK_HEAD]) - (head - 1) < RING_TICKS:  # not overwritten meanwhile
                 view.frame(self.row[0])
             self.last_tick_head = head
+        if self.board is not None:  # the sim's world, at the newest frame's time
+            messages, self.world_seen = self.board.read_since(self.world_seen)
+            for _tick, raw in messages:
+                view.world(raw)
 
 
 # -- replay: a log drawn the same way -----------------------------------------------------
@@ -478,22 +502,27 @@ class EmptyLogError(ValueError):
 
 def log_frames(
     log: LogContents,
-) -> Iterator[tuple[np.void, list[bytes], list[tuple[int, str, str, float]]]]:
+) -> Iterator[tuple[np.void, list[bytes], list[tuple[int, str, str, float]], list[bytes]]]:
     """A log as the view draws it: a tick row every 1 / VIEW_HZ of log time, with the
-    installed updates (bytes) and the events (tick, kind, detail, time) since the frame
-    before."""
+    installed updates (bytes), the events (tick, kind, detail, time) and the sim's world
+    messages since the frame before."""
     updates = sorted(
         ((int(u["tick"]), base64.b64decode(str(u["raw_b64"]))) for u in log.updates
          if u.get("installed")),
         key=lambda u: u[0],
     )  # fmt: skip
     events = sorted(log.events, key=lambda e: int(e["tick"]))
-    u = e = 0
+    world = sorted(log.world, key=lambda w: w[0])
+    u = e = w = 0
     next_t = -1.0
     new_updates: list[bytes] = []
     new_events: list[tuple[int, str, str, float]] = []
+    new_world: list[bytes] = []
     for row in log.ticks:
         tick, t = int(row["tick"]), float(row["t"])
+        while w < len(world) and world[w][0] <= tick:
+            new_world.append(world[w][1])
+            w += 1
         while u < len(updates) and updates[u][0] <= tick:
             new_updates.append(updates[u][1])
             u += 1
@@ -502,8 +531,8 @@ def log_frames(
             new_events.append((int(ev["tick"]), str(ev["kind"]), str(ev.get("detail", "")), t))
             e += 1
         if t >= next_t:
-            yield row, new_updates, new_events
-            new_updates, new_events = [], []
+            yield row, new_updates, new_events, new_world
+            new_updates, new_events, new_world = [], [], []
             next_t = t + 1.0 / VIEW_HZ
 
 
@@ -522,16 +551,21 @@ def view_log(path: Path, address: ViewAddress, stop: threading.Event, speed: flo
         view = SceneView(log.metadata.get("configs", {}).get("scene"), rec)
         print(f"live view: {address.url}", file=sys.stderr, flush=True)
         wall0 = time.monotonic()
-        for row, updates, events in log_frames(log):
+        for row, updates, events, world in log_frames(log):
             for raw in updates:
                 view.update(raw)
             for event in events:
                 view.event(*event)
             view.frame(row)
+            for raw in world:  # at this frame's time, as live
+                view.world(raw)
             if speed > 0:
                 time.sleep(max(0.0, wall0 + float(row["t"]) / speed - time.monotonic()))
             if stop.is_set():
                 break
+        layer = view.world_layer
+        print(f"live view: {layer.drawn} world frames; refused {layer.refused}", file=sys.stderr,
+              flush=True)  # fmt: skip
         rec.flush(timeout_sec=5.0)
         rec.disconnect()  # before its server goes
         stop.wait()

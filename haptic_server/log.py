@@ -19,7 +19,7 @@ import json
 import os
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +35,10 @@ from haptic_local_model.shared.protocol.update import UpdateParser
 TICK_TOPIC = "/haptic/tick"
 UPDATE_TOPIC = "/haptic/update"
 EVENT_TOPIC = "/haptic/event"
+# the sim's world for the live view as it arrived (shared/protocol/world_view.py), after an
+# 8-byte little-endian count: the ticks the loop had run when it arrived (logged with --view)
+WORLD_TOPIC = "/sim/world"
+WORLD_ENCODING = "haptic-world-view"
 TICK_SCHEMA_NAME = "haptic_server/Tick"
 CHUNK_SIZE = 256 * 1024  # bytes: about 0.5 s of ticks, so a crash loses at most that
 RECORD_SIZE_LIMIT = 64 * 2**20  # no record of ours is this big: a larger length is garbage
@@ -162,6 +166,7 @@ class LogWriter:
         self._event_ch = self._channel(
             EVENT_TOPIC, "json", "haptic_server/Event", "jsonschema", json.dumps(EVENT_JSON_SCHEMA)
         )
+        self._world_ch: Any = None  # opened with the first world message
         for name, data in (metadata or {}).items():
             self._writer.write_metadata(name, data)
         # Foxglove's well-known channels, for its 3D and Log panels (haptic_server.foxglove_view)
@@ -203,6 +208,15 @@ class LogWriter:
     def event(self, tick: int, kind: str, detail: str, log_time_ns: int) -> None:
         msg = json.dumps({"tick": tick, "kind": kind, "detail": detail}).encode()
         self._event_ch.log(msg, log_time=log_time_ns)
+
+    def world(self, tick: int, raw: bytes, log_time_ns: int) -> None:
+        """A world message of the sim (its bodies or their poses), filed under `tick`."""
+        if self._world_ch is None:
+            self._world_ch = self._channel(
+                WORLD_TOPIC, WORLD_ENCODING, "haptic/WorldView", WORLD_ENCODING,
+                "shared/protocol/world_view.py, after an 8-byte little-endian tick",
+            )  # fmt: skip
+        self._world_ch.log(tick.to_bytes(8, "little") + raw, log_time=log_time_ns)
 
     def view_scene(self, scene: Any, log_time_ns: int) -> None:
         """A foxglove.SceneUpdate (haptic_server.foxglove_view)."""
@@ -371,6 +385,7 @@ class LogContents:
     metadata: dict[str, dict[str, str]]
     indexed: bool  # closed properly (footer and summary readable by make_reader)
     absent_tick_fields: tuple[str, ...] = ()  # today's tick fields the log's rows lack
+    world: list[tuple[int, bytes]] = field(default_factory=list)  # (tick, message), WORLD_TOPIC
 
 
 def read_log(path: Path | str) -> LogContents:
@@ -379,6 +394,7 @@ def read_log(path: Path | str) -> LogContents:
     rows: list[bytes] = []
     updates: list[dict[str, Any]] = []
     events: list[dict[str, Any]] = []
+    world: list[tuple[int, bytes]] = []
     metadata: dict[str, dict[str, str]] = {}
     schemas: dict[int, bytes] = {}
     tick_schema: str | None = None
@@ -391,6 +407,8 @@ def read_log(path: Path | str) -> LogContents:
                 updates.append(json.loads(rec.data))
             elif topic == EVENT_TOPIC:
                 events.append(json.loads(rec.data))
+            elif topic == WORLD_TOPIC and len(rec.data) >= 8:
+                world.append((int.from_bytes(rec.data[:8], "little"), bytes(rec.data[8:])))
         elif isinstance(rec, Channel):
             topics[rec.id] = rec.topic
             if rec.topic == TICK_TOPIC:
@@ -400,7 +418,7 @@ def read_log(path: Path | str) -> LogContents:
         elif isinstance(rec, Metadata):
             metadata[rec.name] = dict(rec.metadata)
     ticks, absent = ticks_from_rows(b"".join(rows), tick_schema)
-    return LogContents(ticks, updates, events, metadata, is_indexed(path), absent)
+    return LogContents(ticks, updates, events, metadata, is_indexed(path), absent, world)
 
 
 def recover_log(src: Path | str, dst: Path | str) -> dict[str, int]:

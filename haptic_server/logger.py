@@ -59,6 +59,7 @@ from haptic_local_model.shared.timing import avoid_cpu
 
 if TYPE_CHECKING:
     from haptic_local_model.haptic_server.log import LogWriter
+    from haptic_local_model.haptic_server.view_board import ViewBoard
 
 #: how often the writer looks for rows: for a real-time loop (its ring holds 16 s; each wake
 #: costs the machine, and at 10 kHz a writer that never idles would wake 2000 times a
@@ -158,6 +159,10 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
         block, log, int(config["wall_start_ns"]), int(config.get("update_time_offset_ns", 0)),
         int(config.get("tick_period_ns", 0)),
     )  # fmt: skip
+    if config.get("view_board"):  # the sim's world, as the live view gets it
+        from haptic_local_model.haptic_server.view_board import ViewBoard
+
+        drain.board = ViewBoard.attach(config["view_board"])
     poll_s = float(config.get("poll_s", REALTIME_POLL_S))
     _load_decoder()
     gc.collect()
@@ -192,6 +197,8 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
         with contextlib.suppress(Exception):  # a failed writer cannot write its footer
             log.close()
         ctl[C_LOG_DONE] = 1
+        if drain.board is not None:
+            drain.board.close()
         block.release()
         shm.close()
     if failed:
@@ -262,6 +269,8 @@ class LogDrain:
         self.upd_logged = 0
         self.evt_tail = 0
         self.last_flush = time.monotonic()
+        self.board: ViewBoard | None = None  # with --view: the sim's world messages
+        self.world_seen = 0
 
     def drained_updates(self) -> bool:
         ctl = self.block.ctl
@@ -273,6 +282,10 @@ class LogDrain:
         the mailbox / ring and is written before that tick's row, so a file cut anywhere
         holds all the updates of every complete tick it holds (replay)."""
         block, log, ctl = self.block, self.log, self.block.ctl
+        if self.board is not None:  # filed under the tick they arrived at, before its row
+            messages, self.world_seen = self.board.read_since(self.world_seen)
+            for tick, raw in messages:
+                log.world(tick, raw, time.time_ns())
         read = int(ctl[C_UPD_READ])
         evt_head = int(ctl[C_EVT_HEAD])
         while self.upd_logged < read:

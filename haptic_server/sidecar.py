@@ -62,6 +62,7 @@ from haptic_local_model.haptic_server.mailbox import (
     SharedBlock,
     take_updates,
 )
+from haptic_local_model.haptic_server.view_board import ViewBoard
 from haptic_local_model.shared.protocol.codes import Method
 from haptic_local_model.shared.protocol.proxy import (
     MAX_WAIT_NS,
@@ -93,12 +94,17 @@ class LoopIO:
     def __init__(self, config: dict[str, Any], ready_timeout_s: float = 120.0) -> None:
         self.block = SharedBlock.create()  # its pages touched: the loop's memory stays flat
         self._shm = self.block.shm
+        # the sim's world for the live view (and the log), only when a view is asked for
+        self.board = ViewBoard.create() if config.get("view") else None
+        if self.board is not None:
+            config = {**config, "view_board": self.board.name}
         self._logger: LogProcess | None = None
         self.refused: dict[str, dict[str, int]] = {"pointer": {}, "static": {}}  # at close
         if config.get("log_path"):
             try:
                 keys = ("log_path", "metadata", "wall_start_ns", "loop_cpu", "tick_period_ns")
                 log_config = {k: config[k] for k in keys}
+                log_config["view_board"] = config.get("view_board")
                 self._logger = LogProcess(self._shm.name, self.block, log_config)
             except BaseException:
                 self._release()
@@ -117,7 +123,8 @@ class LoopIO:
             time.sleep(0.01)
         self._view: ViewProcess | None = None
         if config.get("view"):  # after the sidecar: the view never delays a start
-            view_config = {**config["view"], "loop_cpu": config.get("loop_cpu")}
+            view_config = {**config["view"], "loop_cpu": config.get("loop_cpu"),
+                           "view_board": config["view_board"]}  # fmt: skip
             self._view = ViewProcess(self._shm.name, view_config)
 
     def take_updates(
@@ -211,6 +218,8 @@ class LoopIO:
         return counters
 
     def _release(self) -> None:
+        if self.board is not None:
+            self.board.close()
         self.block.release()
         self._shm.close()
         self._shm.unlink()
@@ -273,6 +282,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         if int(config.get("static_id", -1)) >= 0
         else None
     )
+    view = ViewSubscription(session, k.view, block, config.get("view_board"))
     alive_sub = session.liveliness().declare_subscriber(
         f"{k.alive}/*", SimLiveliness(block).receive, history=True
     )
@@ -333,6 +343,7 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
             pointer_sub.undeclare()
         if static_sub is not None:
             static_sub.undeclare()
+        view.close()
         alive_sub.undeclare()
         session.close()
         block.release()
@@ -491,6 +502,28 @@ def _static_receiver(block: SharedBlock, static_id: int) -> Any:
         refusals.refuse(reason, problem)
 
     return receive
+
+
+class ViewSubscription:
+    """The sim's world (`<ns>/view/world`) onto the view board, subscribed only with a view
+    (the sim sends the world only while someone subscribes). The callback copies the bytes,
+    filed under the loop's newest tick; the view and the log writer check them, never here."""
+
+    def __init__(self, session: Any, key: str, block: SharedBlock, board: str | None) -> None:
+        # spawned by multiprocessing: the parent's resource tracker is this process's too
+        self.board = ViewBoard.attach(board, own_tracker=False) if board else None
+        self.ctl = block.ctl
+        self.sub = session.declare_subscriber(key, self.receive) if self.board else None
+
+    def receive(self, sample: Any) -> None:
+        if self.board is not None:
+            self.board.post(sample.payload.to_bytes(), int(self.ctl[C_TICK_HEAD]))
+
+    def close(self) -> None:
+        if self.sub is not None:
+            self.sub.undeclare()
+        if self.board is not None:
+            self.board.close()
 
 
 def _tell_log_failure(block: SharedBlock) -> None:

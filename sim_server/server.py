@@ -34,6 +34,7 @@ from haptic_local_model.shared.timing import SampleWindow, rate_per_second, wait
 from haptic_local_model.sim_server.pacing import PhaseLock
 from haptic_local_model.sim_server.proxy_check import ProxyCheck
 from haptic_local_model.sim_server.world import SimWorld, ToolTarget, warm_kernels
+from haptic_local_model.sim_server.world_view import WorldViewSource
 
 PROXY_RING = 32  # proxy states kept between two reads: 8 steps' worth at 250 Hz and 60 Hz
 PHASE_SPIN_NS = 600_000  # how long before a step's start the sim stops sleeping and spins
@@ -48,6 +49,7 @@ class SimStats:
     proxies_rejected_by_reason: Counter[str] = field(default_factory=Counter)  # fixed tags
     update_bytes: int = 0  # the last update's size
     update_bytes_max: int = 0
+    view_messages: int = 0  # the world's shapes and poses sent to a live view
 
 
 @dataclass(frozen=True)
@@ -156,6 +158,7 @@ class SimServer:
         static = session.declare_publisher(k.static) if has_mechanism(self.scene) else None
         static_bytes = encode_static(self.scene) if static is not None else b""
         static_due = 0
+        view = WorldView(session, k.view, self)
         period_ns = round(1e9 / self.scene.sim_rate_hz)
         # the first step and local model load the kernels (about a second on a busy machine):
         # do it before saying ready, so a ready sim publishes within one period
@@ -201,6 +204,7 @@ class SimServer:
                 if static is not None and put_ns >= static_due:
                     static.put(static_bytes)
                     static_due = put_ns + int(STATIC_PERIOD_S * 1e9)
+                view.publish(put_ns, seq * period_ns / 1e9)
                 self.check.published(seq, self.world.tool_pose, publish_ns)
                 self.phase.published(seq, step_start, put_ns)
                 self.step_ms.add((time.perf_counter_ns() - t0) / 1e6)
@@ -212,6 +216,7 @@ class SimServer:
                 if end is not None and now >= end:
                     break
         finally:
+            view.close()
             alive.undeclare()
             session.close()
         q, _ = self.world.tool_state()
@@ -227,6 +232,39 @@ class SimServer:
             "step_rate_hz": rate_per_second(self.interval_ms.values()),
             "update_bytes": self.stats.update_bytes,
             "update_bytes_max": self.stats.update_bytes_max,
+            "view_messages": self.stats.view_messages,
             "tool_q": np.asarray(q).tolist(),
             "epoch": self.epoch,
         }
+
+
+class WorldView:
+    """The world for a live view (`<ns>/view/world`): its shapes and poses after a step's
+    update is out, only while a view subscribes (Zenoh's matching status, kept by a
+    listener: a run without a view reads no body and sends nothing)."""
+
+    def __init__(self, session: Any, key: str, server: SimServer) -> None:
+        self.server = server
+        self.publisher = session.declare_publisher(
+            key, congestion_control=zenoh.CongestionControl.DROP
+        )
+        self.matched = False
+        self.listener = self.publisher.declare_matching_listener(self._matching)
+        w = server.world
+        self.source = WorldViewSource(
+            w.space, w.body_names, w.tool_bodies, server.epoch, server.network.view_publish_hz
+        )
+
+    def _matching(self, status: Any) -> None:
+        self.matched = bool(status.matching)
+
+    def publish(self, now_ns: int, t: float) -> None:
+        if not self.matched:
+            return
+        for raw in self.source.due(now_ns / 1e9, t):
+            self.publisher.put(raw)
+            self.server.stats.view_messages += 1
+
+    def close(self) -> None:
+        self.listener.undeclare()
+        self.publisher.undeclare()

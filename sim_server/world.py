@@ -94,6 +94,7 @@ class SimWorld:
         self._kinematic: list[tuple[pymunk.Body, BodySpec]] = []
         self.tool_bodies: list[pymunk.Body] = []
         self.tool_shapes: list[tuple[pymunk.Shape, int]] = []  # (shape, link index)
+        self.body_names: dict[pymunk.Body, str] = {}  # what the live view calls them
         _configure_space(self.space, scene)
         for spec in scene.all_bodies:
             self._add_body(spec)
@@ -191,6 +192,7 @@ class SimWorld:
             shape.filter = pymunk.ShapeFilter(group=TOOL_GROUP, mask=mask)
             self.tool_bodies = [body]
             self.tool_shapes = [(shape, 2)]
+        self.body_names.setdefault(body, "static" if body is self.space.static_body else spec.name)
         if body is self.space.static_body:
             self.space.add(shape)
         else:
@@ -224,6 +226,7 @@ class SimWorld:
             joint = pymunk.PivotJoint(prev, body, tuple(pos))
             joint.collide_bodies = False
             self.space.add(body, shape, joint)
+            self.body_names[body] = f"{name}/{i}"
             self._register(shape, lk.material)
             bodies.append(body)
             if is_tool:

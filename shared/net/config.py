@@ -114,6 +114,7 @@ MESSAGE_BYTES_RANGE = (4096, 16 * 1024 * 1024)
 
 
 PROXY_HZ_RANGE = (1.0, 10_000.0)
+VIEW_HZ_RANGE = (1.0, 120.0)
 WATCHDOG_MS_RANGE = (10.0, 1000.0)
 SAFE_RAMP_MS_RANGE = (1.0, 50.0)
 CLOCK_SKEW_MS_RANGE = (0.0, 1000.0)
@@ -138,6 +139,8 @@ class NetworkConfig:
     haptic: EndpointSpec = field(default_factory=EndpointSpec)
     sim: EndpointSpec = field(default_factory=EndpointSpec)
     proxy_publish_hz: float = 250.0  # haptic -> sim proxy state rate
+    # sim -> live view: the world's poses this often, only while a view subscribes
+    view_publish_hz: float = 30.0
     watchdog_ms: float = 100.0  # no valid update for this long: device to safe state
     safe_ramp_ms: float = 40.0  # force ramp into (and out of) the safe state (< 50 ms)
     # an update older than this when the haptic server takes it is rejected as late
@@ -152,6 +155,7 @@ class NetworkConfig:
         require_safe_state(self.namespace, self.watchdog_ms, self.safe_ramp_ms)
         # a proxy rate of zero would switch the safe state off as well
         within(self.proxy_publish_hz, PROXY_HZ_RANGE, "proxy_publish_hz", "Hz")
+        within(self.view_publish_hz, VIEW_HZ_RANGE, "view_publish_hz", "Hz")
         # an update older than the watchdog's period could end an outage it predates
         within(self.max_update_age_ms, (1.0, self.watchdog_ms), "max_update_age_ms", "ms")
         within(self.clock_skew_ms, CLOCK_SKEW_MS_RANGE, "clock_skew_ms", "ms")

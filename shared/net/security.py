@@ -37,6 +37,7 @@ def access_control(namespace: str, sim_users: tuple[str, ...], observers: tuple[
     pointer = f"{namespace}/input/pointer"
     static = f"{namespace}/static"
     alive = f"{namespace}/alive/sim/*"
+    view = f"{namespace}/view/world"
     rules = [
         {"id": "put_update_in", "messages": ["put"], "flows": ["ingress"],
          "permission": "allow", "key_exprs": [update]},
@@ -54,6 +55,10 @@ def access_control(namespace: str, sim_users: tuple[str, ...], observers: tuple[
          "permission": "allow", "key_exprs": [static]},
         {"id": "announce_static_sub", "messages": ["declare_subscriber"], "flows": ["egress"],
          "permission": "allow", "key_exprs": [static]},
+        {"id": "put_view_in", "messages": ["put"], "flows": ["ingress"],
+         "permission": "allow", "key_exprs": [view]},
+        {"id": "announce_view_sub", "messages": ["declare_subscriber"], "flows": ["egress"],
+         "permission": "allow", "key_exprs": [view]},
         {"id": "sim_alive_in", "messages": ["liveliness_token"], "flows": ["ingress"],
          "permission": "allow", "key_exprs": [alive]},
         {"id": "follow_sims_alive", "messages": ["declare_liveliness_subscriber",
@@ -65,7 +70,8 @@ def access_control(namespace: str, sim_users: tuple[str, ...], observers: tuple[
         {"id": "sims_drive", "subjects": ["sims"],
          "rules": ["put_update_in", "announce_update_sub", "follow_proxy_in", "put_proxy_out",
                    "put_pointer_in", "announce_pointer_sub", "put_static_in",
-                   "announce_static_sub", "sim_alive_in", "follow_sims_alive"]},
+                   "announce_static_sub", "put_view_in", "announce_view_sub", "sim_alive_in",
+                   "follow_sims_alive"]},
     ]  # fmt: skip
     if observers:
         subjects.append({"id": "observers", "usernames": list(observers)})

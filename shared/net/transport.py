@@ -4,6 +4,8 @@ Key expressions under the configured namespace (docs/protocol.md):
 - `<ns>/local_model`: LocalModelUpdate, sim -> haptic
 - `<ns>/proxy`: ProxyState, haptic -> sim
 - `<ns>/input/pointer`: PointerInput, `haptic-pointer` -> haptic
+- `<ns>/view/world`: the world's shapes and poses, sim -> the live view (through the haptic
+  server's I/O process; shared/protocol/world_view.py)
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ class Keys:
     pointer: str
     static: str  # latched description of the scene's train (shared/protocol/static.py)
     alive: str  # the sim's liveliness token: <alive>/<epoch> while its session lives
+    view: str  # the world for the live view (sent only while a view subscribes)
 
 
 def keys(namespace: str) -> Keys:
@@ -36,6 +39,7 @@ def keys(namespace: str) -> Keys:
         pointer=f"{namespace}/input/pointer",
         static=f"{namespace}/static",
         alive=f"{namespace}/alive/sim",
+        view=f"{namespace}/view/world",
     )
 
 
