@@ -198,7 +198,9 @@ def blueprint() -> Any:
 
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial2DView(origin="world", name="scene (y up)"),
+            # the view's origin is the root, not `world`: a view does not apply its own
+            # origin's transform, which would leave the world's mirror (y up) undone
+            rrb.Spatial2DView(origin="/", contents="/world/**", name="scene (y up)"),
             rrb.Vertical(
                 rrb.TimeSeriesView(origin="plots/force", name="forces (N)"),
                 rrb.TimeSeriesView(origin="plots/penetration", name="penetration (mm)"),

@@ -1,0 +1,175 @@
+"""The live view draws the bodies the sim steps where the sim has them: headless Chromium
+(Debian's, driven by Playwright) watches `haptic-run --view --log` on the testbed; when the
+run ends the viewer keeps its last frame, and the block's and the shuttle's outlines in that
+screenshot are compared with the last poses the sim sent (read back from the run's log, which
+files every world message the view was given).
+
+World to pixels is measured, not assumed: the walls' outer extent in the sim's shapes message
+against the extent of the walls' colour in the screenshot gives the view's scale and offset
+(Rerun fits its 2D camera to what is drawn). Skipped without a browser unless
+HAPTIC_REQUIRE_BROWSER is set (CI)."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from test_live_view import ARTIFACTS, SCENE, SETTLE_S, Proc, _browser, procs  # noqa: F401
+
+from haptic_local_model.benchmarks.browser import free_ports, open_page, pixels
+from haptic_local_model.haptic_server.log import read_log
+from haptic_local_model.haptic_server.view_world import ROLE_COLORS, world_vertices
+from haptic_local_model.shared.protocol.world_view import (
+    ROLE_DYNAMIC,
+    ROLE_KINEMATIC,
+    ROLE_STATIC,
+    WorldPoses,
+    WorldShapes,
+    decode_world,
+)
+
+RUN_S = 20  # the viewer loads (SETTLE_S) and draws the run live before it ends
+PIXEL_TOL = 4.0  # px: the outline's anti-aliasing and line width, at ~2 px per mm here
+COLOUR_TOL = 10  # per channel: the outlines' anti-aliased edges
+REPLAY_CATCH_UP_S = 4.0  # the viewer takes the log and draws
+SCALE_AGREEMENT = 0.03  # x and y scales of the measured map agree (Rerun keeps the aspect)
+
+
+def _mask(img: np.ndarray, rgb: tuple[int, int, int]) -> np.ndarray:
+    diff = np.abs(img.astype(np.int16) - np.array(rgb, np.int16)).max(axis=-1)
+    return diff <= COLOUR_TOL
+
+
+def _extent(mask: np.ndarray) -> tuple[float, float, float, float]:
+    """(x min, x max, y min, y max) of the pixels set, in pixel centres."""
+    ys, xs = np.nonzero(mask)
+    assert len(xs) > 0
+    return float(xs.min()), float(xs.max()), float(ys.min()), float(ys.max())
+
+
+def _world(log_path: Path) -> tuple[WorldShapes, list[WorldPoses]]:
+    """The run's shapes and every poses message of their layout, as logged."""
+    messages = [decode_world(raw) for _tick, raw in read_log(log_path).world]
+    shapes = [m for m in messages if isinstance(m, WorldShapes)]
+    assert shapes, f"{log_path}: no world shapes logged"
+    poses = [m for m in messages if isinstance(m, WorldPoses) and m.layout == shapes[-1].layout]
+    assert poses, f"{log_path}: no world poses logged"
+    return shapes[-1], poses
+
+
+def _walls(shapes: WorldShapes, poses: WorldPoses) -> tuple[float, float, float, float]:
+    """The inside of the walls in the world (x0, x1, y0, y1): the static segments' centre
+    lines, less their half-thickness (the testbed's walls enclose it, all of one thickness)."""
+    static = shapes.bodies["role"][shapes.shapes["body"]] == ROLE_STATIC
+    verts = world_vertices(shapes, poses)[static][:, :2]
+    r = float(shapes.shapes["radius"][static].max())
+    return (
+        float(verts[..., 0].min()) + r, float(verts[..., 0].max()) - r,
+        float(verts[..., 1].min()) + r, float(verts[..., 1].max()) - r,
+    )  # fmt: skip
+
+
+def _inside(mask: np.ndarray) -> tuple[float, float, float, float]:
+    """The inside of the walls on screen (left, right, top, bottom; pixel edges): along the
+    rows and columns through the middle of the walls' colour, its innermost pixels on each
+    side (the median over 41 of them; the view may cut the walls' outer edges off)."""
+    ys, xs = np.nonzero(mask)
+    cy, cx = (int(ys.min()) + int(ys.max())) // 2, (int(xs.min()) + int(xs.max())) // 2
+    edges = []
+    for lines, centre in ((mask[cy - 20 : cy + 21], cx), (mask[:, cx - 20 : cx + 21].T, cy)):
+        first = [int(np.flatnonzero(line[:centre]).max()) + 1 for line in lines]
+        last = [centre + int(np.flatnonzero(line[centre:]).min()) for line in lines]
+        edges += [float(np.median(first)), float(np.median(last))]
+    return edges[0], edges[1], edges[2], edges[3]
+
+
+def _centre(shapes: WorldShapes, poses: WorldPoses, name: str) -> tuple[float, float, int]:
+    names = [bytes(b["name"]).decode() for b in shapes.bodies]
+    i = names.index(name)
+    return float(poses.poses[i]["x"]), float(poses.poses[i]["y"]), int(shapes.bodies[i]["role"])
+
+
+def _drawn_centres(img: np.ndarray, shapes: WorldShapes, poses: WorldPoses) -> dict[str, Any]:
+    """For the block and the shuttle: where the screenshot has its outline's middle, and
+    where the sim's pose puts it through the walls' measured map (pixels)."""
+    wx0, wx1, wy0, wy1 = _walls(shapes, poses)
+    left, right, top, bottom = _inside(_mask(img, ROLE_COLORS[ROLE_STATIC]))
+    sx, sy = (right - left) / (wx1 - wx0), (bottom - top) / (wy1 - wy0)
+    assert abs(sx - sy) < SCALE_AGREEMENT * sx, f"scales {sx:.1f} and {sy:.1f} px/m"
+    found = {}
+    for name, role in (("block", ROLE_DYNAMIC), ("shuttle", ROLE_KINEMATIC)):
+        x, y, sent_role = _centre(shapes, poses, name)
+        assert sent_role == role
+        mx0, mx1, my0, my1 = _extent(_mask(img, ROLE_COLORS[role]))
+        drawn = ((mx0 + mx1 + 1) / 2, (my0 + my1 + 1) / 2)  # pixel edges, as the walls'
+        found[name] = (drawn, (left + sx * (x - wx0), bottom - sy * (y - wy0)))  # y points up
+    return found
+
+
+def _error_px(found: dict[str, Any]) -> float:
+    return max(float(np.hypot(d[0] - e[0], d[1] - e[1])) for d, e in found.values())
+
+
+def _assert_drawn_as_sent(
+    img: np.ndarray, shapes: WorldShapes, all_poses: list[WorldPoses], what: str
+) -> None:
+    """The block and the shuttle both where one poses message of the sim has them: the viewer
+    may show any moment of the run (it lags on a busy machine), so the message is the one
+    nearest the drawing, and both bodies must agree with it within PIXEL_TOL."""
+    errors = [_error_px(_drawn_centres(img, shapes, p)) for p in all_poses]
+    best = int(np.argmin(errors))
+    found = _drawn_centres(img, shapes, all_poses[best])
+    print(f"{what}: poses message {best} of {len(all_poses)}, {errors[best]:.1f} px: {found}")
+    assert errors[best] < PIXEL_TOL, f"{what}: no poses message within {PIXEL_TOL} px: {found}"
+    # the check can tell: the shuttle moves 5 cm over its period, far more than PIXEL_TOL
+    assert max(errors) > 10 * PIXEL_TOL, f"{what}: every poses message fits: {max(errors)} px"
+
+
+def _shot(url: str, browser: str, wait: Any) -> np.ndarray:
+    with open_page(url, browser) as page:
+        time.sleep(SETTLE_S)
+        wait()
+        return page.screenshot()
+
+
+@pytest.mark.processes
+def test_the_block_and_the_shuttle_are_drawn_where_the_sim_has_them(
+    tmp_path: Path,
+    procs: list[Proc],  # noqa: F811
+) -> None:
+    """Live, and replayed from the run's log: the block and the shuttle where one of the
+    sim's poses messages has them both."""
+    browser = _browser()
+    web, grpc = free_ports(2)
+    run = Proc(
+        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--duration",
+         str(RUN_S), "--log", "run.mcap", "--view", "--view-port", str(web), "--view-grpc-port",
+         str(grpc)],
+        tmp_path,
+    )  # fmt: skip
+    procs.append(run)
+    url = run.url()
+    live_png = _shot(url, browser, lambda: time.sleep(4.0))
+    assert run.proc.wait(RUN_S + 120) == 0, run.lines
+    drawn = [line for line in run.lines if "world frames" in line]
+    assert drawn and int(drawn[0].split("live view: ")[1].split()[0]) > 0, drawn
+    shapes, all_poses = _world(tmp_path / "run.mcap")
+    _assert_drawn_as_sent(pixels(live_png)[SCENE], shapes, all_poses, "live")
+    web, grpc = free_ports(2)
+    replay = Proc(
+        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.replay", "run.mcap",
+         "--view", "--view-port", str(web), "--view-grpc-port", str(grpc), "--view-seconds",
+         "120"],
+        tmp_path,
+    )  # fmt: skip
+    procs.append(replay)
+    replay_png = _shot(replay.url(), browser, lambda: time.sleep(REPLAY_CATCH_UP_S))
+    assert replay.stop() == 0, replay.lines
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    (ARTIFACTS / "world-live.png").write_bytes(live_png)
+    (ARTIFACTS / "world-replay.png").write_bytes(replay_png)
+    _assert_drawn_as_sent(pixels(replay_png)[SCENE], shapes, all_poses, "replay")
