@@ -377,6 +377,13 @@ def _print_view(runs: dict[str, list[dict[str, Any]]], medians: dict[str, Any]) 
         f"{on['work_us']['p99']:.1f} us; lateness p99 {view['lateness_us']['p99']:.1f} vs "
         f"{on['lateness_us']['p99']:.1f} us; late ticks {view['overruns']:g} vs {on['overruns']:g}"
     )
+    for name in ("system_log_on", VIEW_CONFIG):  # the sim starved by the browser shows here
+        rs = runs[name]
+        print(
+            f"{name}: watchdog trips {[r.get('watchdog_trips') for r in rs]}, updates installed "
+            f"{[r.get('updates_installed') for r in rs]}, world messages from the sim "
+            f"{[(r.get('sim') or {}).get('view_messages') for r in rs]}"
+        )
     reports = [r["view"]["report"] for r in runs[VIEW_CONFIG] if r["view"]["report"]]
     if reports:
         here = np.median([r["cpu_ms_per_frame_view"] for r in reports])

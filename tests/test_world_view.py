@@ -23,6 +23,7 @@ from haptic_local_model.shared.protocol.world_view import (
     WorldShapes,
     decode_world,
     encode_poses,
+    encode_shapes,
 )
 from haptic_local_model.sim_server.world import SimWorld
 from haptic_local_model.sim_server.world_view import WorldViewSource
@@ -109,6 +110,12 @@ def test_a_pose_out_of_bounds_or_a_forged_layout_is_refused(testbed: Any) -> Non
     bad[0]["x"] = np.nan
     with pytest.raises(MessageError, match="finite"):
         decode_world(encode_poses(WorldPoses(EPOCH, poses.layout, 0.0, bad)))
+    shapes = decode_world(shapes_raw)
+    assert isinstance(shapes, WorldShapes)
+    negative = shapes.shapes.copy()
+    negative[0]["radius"] = -0.01
+    with pytest.raises(MessageError, match="negative radius"):
+        decode_world(encode_shapes(WorldShapes(EPOCH, shapes.layout, 0.0, shapes.bodies, negative)))
     forged = bytearray(shapes_raw)
     forged[-4:] = np.float32(0.5).tobytes()  # a vertex moved, the layout id kept
     with pytest.raises(MessageError) as err:
@@ -160,7 +167,7 @@ def test_the_strips_are_the_bodies_where_the_sim_has_them(testbed: Any) -> None:
 def test_the_board_keeps_the_newest_messages_and_counts_the_too_long() -> None:
     board = ViewBoard.create()
     try:
-        reader = ViewBoard.attach(board.name)
+        reader = ViewBoard.attach(board.name, own_tracker=False)  # this process made it
         for i in range(BOARD_SLOTS + 3):
             assert board.post(bytes([i]) * (i + 1), tick=100 + i)
         messages, seen = reader.read_since(0)

@@ -121,8 +121,9 @@ def decode_world(raw: bytes) -> WorldShapes | WorldPoses:
         raise MessageError("role", f"a body's role is not one of {ROLES}")
     if np.any(shape["body"] >= bodies) or np.any(shape["kind"] > SHAPE_POLY):
         raise MessageError("index", "a shape names a body or a kind that does not exist")
-    if np.any(shape["n_verts"] > MAX_VERTS):
-        raise MessageError("bounds", f"a polygon of more than {MAX_VERTS} vertices")
+    if np.any(shape["n_verts"] > MAX_VERTS) or np.any(shape["radius"] < 0):
+        raise MessageError("bounds", f"a polygon of more than {MAX_VERTS} vertices, or a "
+                                     "negative radius")  # fmt: skip
     _finite_within(shape["verts"], MAX_COORD_M, "a shape's vertex")
     _finite_within(shape["radius"], MAX_RADIUS_M, "a shape's radius")
     if layout != layout_id(body, shape):
