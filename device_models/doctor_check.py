@@ -634,6 +634,7 @@ def run_check(name: str, options: CheckOptions, ask: Ask, say: Say) -> CheckResu
     """Check the device a `--device` value names (registry.device_config): find it, open it,
     its steps (module docstring), and always its safe stop. A ConfigError is the config's."""
     source = device_config(name)
+    read_toml(source)  # a missing or malformed file: a ConfigError naming it
     result = CheckResult(str(name), config_text=source.read_text())
     if not _before_opening(name, source, result, say):
         return result
