@@ -32,6 +32,7 @@ import numpy as np
 import pymunk
 
 from haptic_local_model.device_models.registry import device_config, load_simulated_device
+from haptic_local_model.haptic_server.harness.log_arrays import LogArrays, Table, read_arrays
 from haptic_local_model.haptic_server.harness.replay import replay
 from haptic_local_model.haptic_server.harness.virtual import run_virtual, warm_virtual
 from haptic_local_model.haptic_server.log import read_log
@@ -46,12 +47,15 @@ from haptic_local_model.sim_server.user_space import (
 
 __all__ = [
     "DEFAULT_CONTACT",
+    "LogArrays",
     "Material",
     "OfflineRun",
     "SpaceWarning",
+    "Table",
     "TouchOptions",
     "UnsupportedSpaceError",
     "check_space",
+    "read_arrays",
     "replays_identically",
     "run_offline",
 ]
