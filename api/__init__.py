@@ -37,6 +37,7 @@ from haptic_local_model.haptic_server.harness.replay import replay
 from haptic_local_model.haptic_server.harness.virtual import run_virtual, warm_virtual
 from haptic_local_model.haptic_server.log import read_log
 from haptic_local_model.shared.config import Material, load_user, resolve
+from haptic_local_model.sim_server.space_units import Units, scale_space
 from haptic_local_model.sim_server.user_space import (
     DEFAULT_CONTACT,
     SpaceWarning,
@@ -53,11 +54,13 @@ __all__ = [
     "SpaceWarning",
     "Table",
     "TouchOptions",
+    "Units",
     "UnsupportedSpaceError",
     "check_space",
     "read_arrays",
     "replays_identically",
     "run_offline",
+    "scale_space",
 ]
 
 

@@ -320,3 +320,39 @@ def test_a_held_chain_runs_offline_and_replays_bit_for_bit(tmp_path: Path) -> No
     assert run.updates == 3 * 60 and run.refused == {}
     assert not run.faults.any()
     assert api.replays_identically(log)
+
+
+def _load_example(name: str):  # type: ignore[no-untyped-def]
+    spec = importlib.util.spec_from_file_location(name, EXAMPLES / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    return example
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["touch_vertical_stack", "touch_pyramid"])
+def test_a_pixel_example_runs_offline_in_si_and_replays_identically(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str
+) -> None:
+    """pymunk's box2d_vertical_stack and box2d_pyramid, their spaces built in pixels and
+    rescaled by api.scale_space: 3 s on the virtual clock, the push_block user pushing the
+    disc into the boxes; no fault, the log replays bit for bit, and the push is felt (the
+    stack gives way: a box moves; the pyramid holds: the disc stops short of the user's 12 cm
+    and the device commands the user's push back)."""
+    example = _load_example(name)
+    log = tmp_path / f"{name}.mcap"
+    assert example.main(["--seconds", "3", "--log", str(log)]) == 0
+    out = capsys.readouterr().out
+    assert "180 local models" in out and "faults 0" in out, out
+    assert api.replays_identically(log)
+    ticks = api.read_arrays(log).ticks
+    assert ticks["n_active"].max() > 0, out  # in contact with a box
+    if name == "touch_vertical_stack":
+        assert int(out.split("boxes moved up to ")[1].split(" mm")[0]) > 5, out
+    else:
+        travel = ticks["device_pose"][-1, 0] - ticks["device_pose"][0, 0]
+        assert 0.0 < travel < 0.05, out
+        # push_block's 150 N/m over the rest of its 12 cm: the pyramid pushes back that much
+        expected = 150.0 * (0.12 - travel)
+        assert ticks["wrench_command"][-1, 0] == pytest.approx(-expected, rel=0.05), out
