@@ -32,6 +32,7 @@ import numpy as np
 import pymunk
 
 from haptic_local_model.device_models.registry import device_config, load_simulated_device
+from haptic_local_model.haptic_server.harness.live_space import run_live as _run_live
 from haptic_local_model.haptic_server.harness.log_arrays import LogArrays, Table, read_arrays
 from haptic_local_model.haptic_server.harness.replay import replay
 from haptic_local_model.haptic_server.harness.virtual import run_virtual, warm_virtual
@@ -48,6 +49,7 @@ from haptic_local_model.sim_server.user_space import (
 
 __all__ = [
     "DEFAULT_CONTACT",
+    "LiveRun",
     "LogArrays",
     "Material",
     "OfflineRun",
@@ -59,6 +61,7 @@ __all__ = [
     "check_space",
     "read_arrays",
     "replays_identically",
+    "run_live",
     "run_offline",
     "scale_space",
 ]
@@ -143,6 +146,63 @@ def run_offline(
         speedup=result.speedup,
         log_path=result.log_path,
         refused=dict(result.refused),
+    )
+
+
+@dataclass(frozen=True)
+class LiveRun:
+    """What a live run rendered, from the haptic server's summary (haptic-run's figures).
+
+    ticks: haptic ticks run; tick_rate_hz: their rate; update_age_ms: the local models' age
+    at install (publish -> installed, ms) as {"p50", "p99", "max"}; updates_installed, and
+    updates_rejected by reason; watchdog_trips; sim_steps and sim_overruns: the user's
+    space's steps and those that started late; log_path: the MCAP log, if one was written
+    (`read_arrays(log_path)` has every tick); summary: the whole summary."""
+
+    ticks: int
+    tick_rate_hz: float
+    update_age_ms: dict[str, float]
+    updates_installed: int
+    updates_rejected: dict[str, int]
+    watchdog_trips: int
+    sim_steps: int
+    sim_overruns: int
+    log_path: Path | None
+    summary: dict[str, object]
+
+
+def run_live(
+    space: pymunk.Space,
+    tool: pymunk.Body,
+    seconds: float,
+    *,
+    device: str = "ideal",
+    user: str = "swing",
+    log: Path | str | None = None,
+    options: TouchOptions | None = None,
+    network: str = "loopback",
+) -> LiveRun:
+    """Hold `tool` live for `seconds` of wall time: start the haptic server (the same process
+    as `haptic-run`'s) on `device` (a simulated one moved by the simulated `user`) over the
+    `network` (default: the authenticated loopback one, on a free port), then step the user's
+    space at `options.rate_hz` in this process and publish its local model each step with the
+    sim's own server; stop the haptic server at the end (its log, if `log`, replays with
+    `haptic-replay`)."""
+    opts = options or TouchOptions()
+    world_options = (opts.rate_hz, opts.substeps, opts.contact, opts.margin_m, opts.after_step)
+    s = _run_live(space, tool, seconds, device, user, log, world_options, network)
+    sim = s.get("sim") or {}
+    return LiveRun(
+        ticks=int(s.get("ticks", 0)),
+        tick_rate_hz=float(s.get("tick_rate_hz", 0.0)),
+        update_age_ms=dict(s.get("update_age_ms") or {}),
+        updates_installed=int(s.get("updates_installed", 0)),
+        updates_rejected=dict(s.get("updates_rejected") or {}),
+        watchdog_trips=int(s.get("watchdog_trips", 0)),
+        sim_steps=int(sim.get("steps", 0)),
+        sim_overruns=int(sim.get("overruns", 0)),
+        log_path=Path(log) if log is not None else None,
+        summary=s,
     )
 
 

@@ -76,10 +76,13 @@ class SimServer:
         network: NetworkConfig,
         zenoh_extra: dict[str, Any] | None = None,
         clock_jump: ClockJump | None = None,
+        world: Any = None,
     ) -> None:
+        """world: what is stepped and published (default the scene's SimWorld; a user's own
+        space, sim_server/user_space.py, whose scene `scene` is)."""
         self.scene = scene
         self.network = network
-        self.world = SimWorld(scene)
+        self.world = world if world is not None else SimWorld(scene)
         self.epoch = time.time_ns()
         self.zenoh_extra = zenoh_extra
         self.stats = SimStats()

@@ -395,6 +395,12 @@ class UserSpaceWorld:
             hits_dropped=int(counts[1]),
         )
 
+    def tool_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The held body's configuration q and velocity qd in the last local model built."""
+        m = self.model.record[0]
+        dof = int(m["dof"])
+        return m["q"][:dof].copy(), m["qd"][:dof].copy()
+
     @property
     def tool_pose(self) -> np.ndarray:
         """The held body's pose (x, y, angle) in the last local model built (a copy)."""
