@@ -170,6 +170,20 @@ class LiveRun:
     log_path: Path | None
     summary: dict[str, object]
 
+    def report(self) -> str:
+        """One line of the run's figures (fault ticks from the log, if one was written)."""
+        age = self.update_age_ms
+        faults = "?"
+        if self.log_path is not None:
+            faults = str(int(np.count_nonzero(read_arrays(self.log_path).ticks["fault"])))
+        return (
+            f"live: {self.ticks} ticks at {self.tick_rate_hz:.1f} Hz, update age p50 "
+            f"{age.get('p50', float('nan')):.2f} ms p99 {age.get('p99', float('nan')):.2f} ms, "
+            f"{self.updates_installed} local models installed, rejected {self.updates_rejected}"
+            f", watchdog trips {self.watchdog_trips}, sim overruns {self.sim_overruns}/"
+            f"{self.sim_steps}, fault ticks {faults}"
+        )
+
 
 def run_live(
     space: pymunk.Space,

@@ -9,6 +9,7 @@ gravity 900 px/s^2 = 0.9 m/s^2, its random x from a seeded generator (a run is r
 The lines that make it touchable are marked `# touchable` (6 lines). Run it:
 
     python examples/touch_bouncing_balls.py --seconds 5 --log runs/balls.mcap
+    python examples/touch_bouncing_balls.py --live --seconds 10 --log runs/live.mcap
     haptic-replay runs/balls.mcap
 """
 
@@ -76,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--device", default="ideal")
     parser.add_argument("--user", default="swing")
     parser.add_argument("--log", default=None, help="write the run to this MCAP file")
+    parser.add_argument("--live", action="store_true", help="in real time: the haptic server")
     args = parser.parse_args(argv)
     space = build_space()
     balls = Balls(space)
@@ -83,6 +85,18 @@ def main(argv: list[str] | None = None) -> int:
     hand.position = (0.25, 0.33)  # touchable
     space.add(hand, pymunk.Circle(hand, 0.01))  # touchable
     each_step = api.TouchOptions(after_step=balls.update)  # touchable: the example's loop
+    if args.live:  # the same space, touched in real time (api.run_live)
+        live = api.run_live(
+            space,
+            hand,
+            args.seconds,
+            device=args.device,
+            user=args.user,
+            log=args.log,
+            options=each_step,
+        )
+        print(live.report())
+        return 0
     run = api.run_offline(  # touchable
         space,
         hand,

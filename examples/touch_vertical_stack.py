@@ -10,6 +10,7 @@ lines) beside the first column, and `run_offline`. The `push_block` user pushes 
 the stack. Run it:
 
     python examples/touch_vertical_stack.py --seconds 5 --log runs/stack.mcap
+    python examples/touch_vertical_stack.py --live --seconds 10 --log runs/live.mcap
     haptic-replay runs/stack.mcap
 """
 
@@ -58,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--device", default="ideal")
     parser.add_argument("--user", default="push_block")
     parser.add_argument("--log", default=None, help="write the run to this MCAP file")
+    parser.add_argument("--live", action="store_true", help="in real time: the haptic server")
     args = parser.parse_args(argv)
     space = create_world()
     units = api.Units(metres_per_unit=1.0e-3, kg_per_unit=0.01)  # touchable
@@ -65,6 +67,12 @@ def main(argv: list[str] | None = None) -> int:
     hand = pymunk.Body(1.0, 1.0e-3)  # touchable: 1 kg, 1e-3 kg m^2 (the ideal device's)
     hand.position = (0.26, 0.115)  # touchable: 2 cm left of the first column, in metres
     space.add(hand, pymunk.Circle(hand, 0.01))  # touchable
+    if args.live:  # the same space, touched in real time (api.run_live)
+        live = api.run_live(
+            space, hand, args.seconds, device=args.device, user=args.user, log=args.log
+        )
+        print(live.report())
+        return 0
     run = api.run_offline(  # touchable: one call
         space, hand, args.seconds, device=args.device, user=args.user, log=args.log
     )

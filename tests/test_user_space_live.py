@@ -40,3 +40,24 @@ def test_a_users_space_runs_live_without_fault_and_its_log_replays(tmp_path: Pat
     assert ticks["n_active"].max() > 0  # the wall was touched ...
     assert ticks["wrench_command"][:, 0].min() < -1.0  # ... and pushed the device back
     assert api.replays_identically(log)
+
+
+@pytest.mark.processes
+@pytest.mark.parametrize("name", ["touch_bouncing_balls", "touch_vertical_stack", "touch_pyramid"])
+def test_the_examples_run_live_and_replay(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], name: str
+) -> None:
+    """Each pymunk example with --live: 3 s with the ideal device, no watchdog trip, no fault
+    tick, and its log replays bit for bit."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parent.parent / "examples" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    log = tmp_path / f"{name}.mcap"
+    assert example.main(["--live", "--seconds", "3", "--log", str(log)]) == 0
+    out = capsys.readouterr().out
+    assert "watchdog trips 0" in out and "fault ticks 0" in out, out
+    assert api.replays_identically(log)
