@@ -148,20 +148,24 @@ class SimServer:
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         k = keys(self.network.namespace)
         session = open_session(self.network.sim, self.zenoh_extra, self.network.namespace)
-        # this session's liveliness binds the epoch to it: while it lives, the haptic server
-        # takes no other sim's epoch (haptic_server/sidecar.py SimLiveliness)
-        alive = session.liveliness().declare_token(f"{k.alive}/{self.epoch}")
-        # express: sent at once, not held back to batch with other messages (STACK-NOTES)
-        pub = session.declare_publisher(
-            k.update, congestion_control=zenoh.CongestionControl.DROP, express=True
-        )
-        # room for the proxy states of a stalled step or two: each carries impulses
-        sub = session.declare_subscriber(k.proxy, zenoh.handlers.RingChannel(PROXY_RING))
-        # a train's tables, latched: re-published every STATIC_PERIOD_S for late joiners
-        static = session.declare_publisher(k.static) if has_mechanism(self.scene) else None
-        static_bytes = encode_static(self.scene) if static is not None else b""
-        static_due = 0
-        view = WorldView(session, k.view, self)
+        try:  # a failure before the loop's own `finally` must not leave the session open
+            # this session's liveliness binds the epoch to it: while it lives, the haptic server
+            # takes no other sim's epoch (haptic_server/sidecar.py SimLiveliness)
+            alive = session.liveliness().declare_token(f"{k.alive}/{self.epoch}")
+            # express: sent at once, not held back to batch with other messages (STACK-NOTES)
+            pub = session.declare_publisher(
+                k.update, congestion_control=zenoh.CongestionControl.DROP, express=True
+            )
+            # room for the proxy states of a stalled step or two: each carries impulses
+            sub = session.declare_subscriber(k.proxy, zenoh.handlers.RingChannel(PROXY_RING))
+            # a train's tables, latched: re-published every STATIC_PERIOD_S for late joiners
+            static = session.declare_publisher(k.static) if has_mechanism(self.scene) else None
+            static_bytes = encode_static(self.scene) if static is not None else b""
+            static_due = 0
+            view = WorldView(session, k.view, self)
+        except BaseException:
+            session.close()
+            raise
         period_ns = round(1e9 / self.scene.sim_rate_hz)
         # the first step and local model load the kernels (about a second on a busy machine):
         # do it before saying ready, so a ready sim publishes within one period

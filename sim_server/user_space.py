@@ -303,6 +303,10 @@ class UserSpaceWorld:
         self.space, self.tool_body = space, tool
         self.held_chain = chain
         self._tool_bodies = list(chain.bodies) if chain is not None else [tool]
+        # the live view's names and tools (sim_server/world_view.py): the user's bodies are
+        # drawn by their index, the held one (or its chain) as the tool
+        self.tool_bodies = self._tool_bodies
+        self.body_names: dict[pymunk.Body, str] = {tool: "tool"}
         materials: dict[tuple[float, float], Material] = {}
         for shape in rendered:
             _shape_material(shape, contact, materials)
