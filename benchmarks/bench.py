@@ -17,6 +17,7 @@ Writes report.md with PNG plots into --out (./runs/bench by default; the project
 report is docs/bench: `haptic-bench --out docs/bench`); `--quick` runs a subset.
 
     haptic-bench [--quick] [--out DIR]
+    haptic-bench --suite hapticbench [--repeat 3] [--out DIR]   (benchmarks/hapticbench.py)
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from haptic_local_model.benchmarks import hapticbench
 from haptic_local_model.benchmarks.coaster import (
     PUSH_SCENE,
     PUSH_USER,
@@ -421,9 +423,22 @@ def main(argv: list[str] | None = None) -> int:
         "--out", type=Path, default=Path("runs/bench"),
         help="report directory (default ./runs/bench; the project's own: docs/bench)",
     )  # fmt: skip
+    parser.add_argument(
+        "--suite", choices=tuple(hapticbench.SUITES),
+        help="run only the named hapticbench suite (every registered method): writes"
+        " hapticbench.md, .json, .schema.json and .png into --out",
+    )  # fmt: skip
+    parser.add_argument(
+        "--repeat", type=int, default=3, help="--suite: rounds per run for its cost spread"
+    )
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
+    if args.suite:
+        doc = hapticbench.run_suite(hapticbench.SUITES[args.suite], args.repeat)
+        command = f"haptic-bench --suite {args.suite} --repeat {args.repeat}"
+        print(hapticbench.write(doc, args.out, command, time.perf_counter() - started))
+        return 0
     seconds = 2.0 if args.quick else args.seconds
     acc = accuracy_runs(seconds, args.quick)
     mechanisms = mechanism_runs(args.quick)

@@ -1,0 +1,500 @@
+"""hapticbench: a named suite of haptic rendering cases with a versioned JSON result.
+
+A **case** is a scene, a simulated device, a simulated hand and a run length, with the
+reference its error is taken against and the metrics it reports (benchmarks/front.py says
+how each reference is made):
+
+- `wall_impact_push`: a 2 N push into a stiff wall; the device's penetration against the
+  closed form F/K (peak at impact, error after 2 s, settling, contact losses, port energy);
+- `linkage_held`: the linkage held at its distal link, pushed with 0.4 N; the device against
+  the VM alone integrated independently (RNEA and solve_ivp);
+- `testbed_swing`: the hand swinging the tool into the testbed's walls; the device against
+  the same pymunk world stepped at 10 kHz with the hand's spring on the tool.
+
+A **method** (a baseline) is a function from a case to the records of its run
+(`MethodRun`: the haptic loop's TICK_DTYPE records, the scene as rendered, the cost): the
+built-ins are the local model and the three ways of benchmarks/front.py; another project's
+coupling is one more function given to `register_baseline`, and the suite's table and JSON
+carry it with no change here (docs/bench/hapticbench.md: "Submit your renderer").
+
+Every result carries `schema_version`, the build (package version and git commit), the
+machine and the seed, and passes `validate` against `RESULT_SCHEMA` (a subset of JSON
+Schema). Error figures are deterministic on one build and machine (the virtual clock);
+cost figures are wall-clock and vary run to run.
+
+    haptic-bench --suite hapticbench [--out DIR]   (or --suite reduced: two short cases)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import subprocess
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from haptic_local_model.benchmarks import front
+from haptic_local_model.benchmarks.linkage import reference_error_mm
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.harness.virtual import run_virtual
+from haptic_local_model.shared import __version__
+from haptic_local_model.shared.config import SceneConfig, load_scene, load_user
+
+SUITE_NAME = "hapticbench"
+SCHEMA_VERSION = 1
+#: the suite's seed: no shipped case draws random numbers (its devices are noiseless, its
+#: hands scripted); it is recorded so a case that does (a noisy device) is seeded from it
+SEED = 0
+
+
+@dataclass(frozen=True)
+class Case:
+    """One scene of the suite with its reference and the metric its table leads with."""
+
+    name: str
+    scene: str
+    device: str
+    user: str
+    seconds: float
+    reference: str
+    headline: str  # the error metric the table and the plot show
+
+
+@dataclass(frozen=True)
+class MethodRun:
+    """What a baseline hands back: the records the suite's metrics are computed over."""
+
+    ticks: np.ndarray  # TICK_DTYPE records, one per 1 ms tick
+    scene: SceneConfig  # the scene as the method rendered it (the reference reads it)
+    cost_ms_per_sim_s: float  # wall-clock ms per simulated second of the stages it needs
+    sim_hz: float
+    substeps: int
+
+
+Baseline = Callable[[Case], MethodRun]
+
+
+@dataclass(frozen=True)
+class Method:
+    name: str
+    description: str
+    run: Baseline
+
+
+CASES = (
+    Case("wall_impact_push", "wall_push", "ideal", "push_2n", 5.0,
+         "closed form: steady penetration F/K", "peak_over_fk"),
+    Case("linkage_held", "linkage_distal", "ideal_identity", "push_04n", 5.0,
+         "independent integration: the VM alone, RNEA and solve_ivp", "rms_mm"),
+    Case("testbed_swing", "testbed", "ideal", "swing", 5.0,
+         "fine-step simulation: pymunk at 10 kHz, the hand's spring on the tool", "rms_first_s_mm"),
+)  # fmt: skip
+#: the reduced suite `make test` runs (tests/test_hapticbench.py): two cases, short runs
+REDUCED = (
+    Case("wall_impact_push", "wall_push", "ideal", "push_2n", 2.5,
+         "closed form: steady penetration F/K", "peak_over_fk"),
+    Case("linkage_held", "linkage_distal", "ideal_identity", "push_04n", 1.0,
+         "independent integration: the VM alone, RNEA and solve_ivp", "rms_mm"),
+)  # fmt: skip
+SUITES = {"hapticbench": CASES, "reduced": REDUCED}
+
+#: the registry of methods, in table order: the built-ins below, then any plug-in
+BASELINES: dict[str, Method] = {}
+
+
+def register_baseline(name: str, description: str, run: Baseline) -> None:
+    """Add a method to every later run of the suite (a plug-in: another project's coupling)."""
+    if name in BASELINES:
+        raise ValueError(f"hapticbench: a baseline named {name!r} is already registered")
+    BASELINES[name] = Method(name, description, run)
+
+
+@contextmanager
+def baseline(name: str, description: str, run: Baseline) -> Iterator[None]:
+    """A baseline registered for the duration of a `with` block (tests, one-off runs)."""
+    register_baseline(name, description, run)
+    try:
+        yield
+    finally:
+        del BASELINES[name]
+
+
+def front_way(way: str, sim_hz: float) -> Baseline:
+    """A way of benchmarks/front.py as a baseline: its configuration (with the substeps its
+    coupling needs to be stable, doubled until the run is), its device hold, its cost."""
+
+    configured: dict[Case, SceneConfig] = {}  # the stable configuration, found once a case
+
+    def run(case: Case) -> MethodRun:
+        if case not in configured:
+            configured[case] = front.stable_configuration(
+                load_scene(case.scene), way, sim_hz, case.device, case.user, case.seconds
+            )
+        scene = configured[case]
+        device = front.device_for(case.device, way)
+        result = run_virtual(scene, device, load_user(case.user), case.seconds)
+        return MethodRun(
+            result.ticks, scene, front.cost_ms(result, way), scene.sim_rate_hz, scene.sim_substeps
+        )
+
+    return run
+
+
+#: the built-in methods: benchmarks/front.py's ways, the local model at 60 Hz
+BUILT_IN = (("local_model", 60.0), ("pymunk_in_loop", front.HAPTIC_HZ), ("vc_zoh", 60.0),
+            ("vc_foh", 60.0))  # fmt: skip
+for way, hz in BUILT_IN:
+    register_baseline(way, front.WAYS[way], front_way(way, hz))
+
+
+def case_errors(case: Case, run: MethodRun, reference: np.ndarray | None) -> dict[str, float]:
+    """The case's error metrics over the run's records (None in JSON where undefined)."""
+    ticks = run.ticks
+    if case.scene == "wall_push":
+        return front.wall_transient(run.scene, ticks)
+    if case.scene == "linkage_distal":
+        err = reference_error_mm(run.scene, ticks, float(ticks["t"][-1]) + 1e-9, "device_pose")
+        return {"rms_mm": float(np.sqrt(np.mean(err**2))), "max_mm": float(err.max())}
+    if reference is None:
+        raise ValueError(f"hapticbench: case {case.name!r} needs its fine-step reference")
+    n = min(len(reference), len(ticks))
+    err = 1e3 * np.hypot(*(ticks["device_pose"][:n, :2] - reference[:n]).T)
+    first = ticks["t"][:n] < front.TESTBED_FIRST_S
+    apart = np.flatnonzero(err > front.TESTBED_BAND_MM)
+    return {
+        "rms_first_s_mm": float(np.sqrt(np.mean(err[first] ** 2))),
+        "follows_ms": 1e3 * float(ticks["t"][apart[0]] if apart.size else ticks["t"][n - 1]),
+        "rms_mm": float(np.sqrt(np.mean(err**2))),
+    }
+
+
+def case_reference(case: Case) -> np.ndarray | None:
+    """The fine-step reference path of a case that needs one (computed once per case)."""
+    if case.scene != "testbed":
+        return None
+    return front.testbed_reference(case.scene, case.device, case.user, case.seconds)
+
+
+def _finite_or_none(errors: dict[str, float]) -> dict[str, float | None]:
+    return {k: (v if math.isfinite(v) else None) for k, v in errors.items()}
+
+
+def run_suite(cases: tuple[Case, ...], repeat: int = 1) -> dict[str, Any]:
+    """Every case rendered by every registered method: the result document (RESULT_SCHEMA).
+    The errors are the last round's (every round gives the same); the cost is the median
+    of `repeat` rounds with its spread (min, max)."""
+    methods = list(BASELINES.values())
+    first = cases[0]
+    # one short run first, thrown away: the first run of a process pays for loading the
+    # compiled kernels, which is not the cost of any method
+    run_virtual(load_scene(first.scene), load_device(first.device), load_user(first.user), 0.2)
+    rows = []
+    for case in cases:
+        reference = case_reference(case)
+        for method in methods:
+            costs = []
+            for _ in range(repeat):
+                run = method.run(case)
+                costs.append(run.cost_ms_per_sim_s)
+            rows.append({
+                "case": case.name, "method": method.name,
+                "sim_hz": run.sim_hz, "substeps": run.substeps,
+                "errors": _finite_or_none(case_errors(case, run, reference)),
+                "cost_ms_per_sim_s": {"median": float(np.median(costs)),
+                                      "min": min(costs), "max": max(costs), "runs": repeat},
+            })  # fmt: skip
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "suite": SUITE_NAME,
+        "build": build_info(),
+        "machine": machine_info(),
+        "seed": SEED,
+        "haptic_hz": front.HAPTIC_HZ,
+        "cases": [
+            {
+                "name": c.name,
+                "scene": c.scene,
+                "device": c.device,
+                "user": c.user,
+                "seconds": c.seconds,
+                "reference": c.reference,
+                "headline": c.headline,
+            }
+            for c in cases
+        ],
+        "methods": [{"name": m.name, "description": m.description} for m in methods],
+        "results": rows,
+    }
+
+
+def build_info() -> dict[str, Any]:
+    """The package version and, in a git checkout, the commit and whether it was modified."""
+    here = Path(__file__).resolve().parent
+    commit, dirty = None, None
+    try:
+        git = ["git", "-C", str(here)]
+        out = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True)
+        if out.returncode == 0:
+            commit = out.stdout.strip()
+            status = subprocess.run(
+                [*git, "status", "--porcelain", "--untracked-files=no"],
+                capture_output=True, text=True,
+            )  # fmt: skip
+            dirty = bool(status.stdout.strip())
+    except OSError:  # no git: an installed package, the version alone names the build
+        pass
+    return {"package_version": __version__, "git_commit": commit, "git_dirty": dirty}
+
+
+def machine_info() -> dict[str, Any]:
+    import numba
+
+    cpu = platform.processor()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {
+        "platform": platform.platform(), "machine": platform.machine(), "cpu": cpu,
+        "cpu_count": os.cpu_count() or 0, "python": platform.python_version(),
+        "numpy": np.__version__, "numba": numba.__version__,
+    }  # fmt: skip
+
+
+_NUMBER = {"type": "number"}
+_NULLABLE_NUMBER = {"type": ["number", "null"]}
+#: the result document, as JSON Schema (draft 2020-12 keywords: a subset `validate` checks;
+#: any JSON Schema validator accepts it too). Bump SCHEMA_VERSION on any change of meaning.
+RESULT_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "hapticbench result",
+    "type": "object",
+    "required": [
+        "schema_version",
+        "suite",
+        "build",
+        "machine",
+        "seed",
+        "haptic_hz",
+        "cases",
+        "methods",
+        "results",
+    ],
+    "additionalProperties": False,
+    "properties": {
+        "schema_version": {"const": SCHEMA_VERSION},
+        "suite": {"const": SUITE_NAME},
+        "build": {
+            "type": "object",
+            "required": ["package_version", "git_commit", "git_dirty"],
+            "additionalProperties": False,
+            "properties": {
+                "package_version": {"type": "string"},
+                "git_commit": {"type": ["string", "null"]},
+                "git_dirty": {"type": ["boolean", "null"]},
+            },
+        },
+        "machine": {
+            "type": "object",
+            "required": ["platform", "machine", "cpu", "cpu_count", "python", "numpy", "numba"],
+            "properties": {"cpu_count": {"type": "integer", "minimum": 0}},
+        },
+        "seed": {"type": "integer"},
+        "haptic_hz": _NUMBER,
+        "cases": {
+            "type": "array",
+            "minItems": 1,
+            "items": {
+                "type": "object",
+                "additionalProperties": False,
+                "required": ["name", "scene", "device", "user", "seconds", "reference", "headline"],
+                "properties": {
+                    "name": {"type": "string"},
+                    "scene": {"type": "string"},
+                    "device": {"type": "string"},
+                    "user": {"type": "string"},
+                    "seconds": {"type": "number", "exclusiveMinimum": 0},
+                    "reference": {"type": "string"},
+                    "headline": {"type": "string"},
+                },
+            },
+        },
+        "methods": {
+            "type": "array",
+            "minItems": 1,
+            "items": {
+                "type": "object",
+                "required": ["name", "description"],
+                "additionalProperties": False,
+                "properties": {"name": {"type": "string"}, "description": {"type": "string"}},
+            },
+        },
+        "results": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "additionalProperties": False,
+                "required": ["case", "method", "sim_hz", "substeps", "errors", "cost_ms_per_sim_s"],
+                "properties": {
+                    "case": {"type": "string"},
+                    "method": {"type": "string"},
+                    "sim_hz": {"type": "number", "exclusiveMinimum": 0},
+                    "substeps": {"type": "integer", "minimum": 1},
+                    "errors": {"type": "object", "additionalProperties": _NULLABLE_NUMBER},
+                    "cost_ms_per_sim_s": {
+                        "type": "object",
+                        "required": ["median", "min", "max", "runs"],
+                        "additionalProperties": False,
+                        "properties": {
+                            "median": _NUMBER,
+                            "min": _NUMBER,
+                            "max": _NUMBER,
+                            "runs": {"type": "integer", "minimum": 1},
+                        },
+                    },
+                },
+            },
+        },
+    },
+}
+
+_TYPES: dict[str, Callable[[Any], bool]] = {
+    "object": lambda v: isinstance(v, dict),
+    "array": lambda v: isinstance(v, list),
+    "string": lambda v: isinstance(v, str),
+    "boolean": lambda v: isinstance(v, bool),
+    "null": lambda v: v is None,
+    "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
+    "number": lambda v: isinstance(v, int | float) and not isinstance(v, bool),
+}
+
+
+def validate(doc: Any, schema: dict[str, Any] = RESULT_SCHEMA, where: str = "$") -> None:
+    """Raise ValueError naming the first place `doc` breaks `schema` (the keywords
+    RESULT_SCHEMA uses: type, const, required, properties, additionalProperties, items,
+    minItems, minimum, exclusiveMinimum)."""
+
+    def fail(message: str) -> None:
+        raise ValueError(f"hapticbench result: {where}: {message}")
+
+    types = schema.get("type")
+    if types is not None:
+        names = [types] if isinstance(types, str) else types
+        if not any(_TYPES[t](doc) for t in names):
+            fail(f"expected {' or '.join(names)}, got {type(doc).__name__}")
+    if "const" in schema and doc != schema["const"]:
+        fail(f"expected {schema['const']!r}, got {doc!r}")
+    if "minimum" in schema and doc < schema["minimum"]:
+        fail(f"{doc} is below {schema['minimum']}")
+    if "exclusiveMinimum" in schema and doc <= schema["exclusiveMinimum"]:
+        fail(f"{doc} is not above {schema['exclusiveMinimum']}")
+    if isinstance(doc, dict):
+        for key in schema.get("required", ()):
+            if key not in doc:
+                fail(f"missing key {key!r}")
+        props = schema.get("properties", {})
+        extra = schema.get("additionalProperties", True)
+        for key, value in doc.items():
+            if key in props:
+                validate(value, props[key], f"{where}.{key}")
+            elif extra is False:
+                fail(f"unknown key {key!r}")
+            elif isinstance(extra, dict):
+                validate(value, extra, f"{where}.{key}")
+    if isinstance(doc, list):
+        if len(doc) < schema.get("minItems", 0):
+            fail(f"fewer than {schema['minItems']} items")
+        for i, item in enumerate(doc):
+            validate(item, schema.get("items", {}), f"{where}[{i}]")
+
+
+def error_figures(doc: dict[str, Any]) -> dict[tuple[str, str], dict[str, float | None]]:
+    """The deterministic part of a result: every (case, method)'s errors."""
+    return {(r["case"], r["method"]): r["errors"] for r in doc["results"]}
+
+
+def table(doc: dict[str, Any]) -> list[str]:
+    """Markdown: one row per case and method, the headline error, cost and every metric."""
+    headline = {c["name"]: c["headline"] for c in doc["cases"]}
+    described = {m["name"]: m["description"] for m in doc["methods"]}
+    lines = [
+        "| case | method | sim Hz | substeps | headline error | cost ms / sim s (median, min-max) | errors |",
+        "|---|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for r in doc["results"]:
+        key = headline[r["case"]]
+        c = r["cost_ms_per_sim_s"]
+        errs = ", ".join(f"{k} {_fmt(v)}" for k, v in r["errors"].items())
+        lines.append(
+            f"| {r['case']} | {described[r['method']]} | {r['sim_hz']:g} | {r['substeps']} "
+            f"| {key} {_fmt(r['errors'].get(key))} | {c['median']:.1f} ({c['min']:.1f}-{c['max']:.1f}) "
+            f"| {errs} |"
+        )
+    return lines
+
+
+def _fmt(v: float | None) -> str:
+    return "n/a" if v is None else f"{v:.4g}"
+
+
+def plot(doc: dict[str, Any], out: Path) -> Path:
+    """The headline error against the cost, a panel per case, a marker per method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cases = doc["cases"]
+    fig, axes = plt.subplots(1, len(cases), figsize=(5.3 * len(cases), 4.6), squeeze=False)
+    marks = "osv^Dpx*+h"
+    order = [m["name"] for m in doc["methods"]]
+    for ax, case in zip(axes[0], cases, strict=True):
+        for r in doc["results"]:
+            value = r["errors"].get(case["headline"])
+            if r["case"] != case["name"] or value is None:
+                continue
+            mark = marks[order.index(r["method"]) % len(marks)]
+            ax.loglog(r["cost_ms_per_sim_s"]["median"], max(value, 1e-4), mark, ms=8,
+                      label=r["method"])  # fmt: skip
+        ax.set_xlabel("cost per simulated second (ms)")
+        ax.set_ylabel(case["headline"])
+        ax.set_title(f"{case['name']}: error against cost")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    path = out / "hapticbench.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def write(doc: dict[str, Any], out: Path, command: str, wall_s: float) -> str:
+    """The JSON, its schema, the plot and the markdown report in `out`; returns the report."""
+    validate(doc)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "hapticbench.json").write_text(json.dumps(doc, indent=1) + "\n")
+    (out / "hapticbench.schema.json").write_text(json.dumps(RESULT_SCHEMA, indent=1) + "\n")
+    plot(doc, out)
+    b = doc["build"]
+    text = "\n".join([
+        "# hapticbench", "",
+        f"`{command}` on the virtual clock (haptic {doc['haptic_hz']:g} Hz), {wall_s / 60:.1f} min"
+        f" on {time.strftime('%Y-%m-%d')}; build {b['package_version']} {b['git_commit'] or ''}"
+        f"{' (modified)' if b['git_dirty'] else ''}; {doc['machine']['cpu']}, "
+        f"{doc['machine']['cpu_count']} cores (shared); seed {doc['seed']}. Result:"
+        " hapticbench.json (schema hapticbench.schema.json, version"
+        f" {doc['schema_version']}). Cases and references: benchmarks/hapticbench.py.", "",
+        *table(doc), "", "![hapticbench](hapticbench.png)", "",
+    ])  # fmt: skip
+    (out / "hapticbench.md").write_text(text)
+    return text

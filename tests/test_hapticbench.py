@@ -1,0 +1,110 @@
+"""hapticbench (benchmarks/hapticbench.py): its result schema, its plug-in baselines and the
+reduced suite's error figures against a stored result, bit for bit."""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+
+import pytest
+
+from haptic_local_model.benchmarks import front, hapticbench
+from haptic_local_model.benchmarks.hapticbench import (
+    BASELINES,
+    BUILT_IN,
+    REDUCED,
+    Case,
+    MethodRun,
+    baseline,
+    error_figures,
+    run_suite,
+    table,
+    validate,
+)
+from haptic_local_model.device_models.registry import load_device
+from haptic_local_model.haptic_server.harness.virtual import run_virtual
+from haptic_local_model.shared.config import load_scene, load_user
+
+#: written by `haptic-bench --suite reduced --repeat 1 --out DIR` (DIR/hapticbench.json),
+#: on this project's build machine; rewrite it when a change is meant to move the figures
+STORED = Path(__file__).parent / "data" / "hapticbench_reduced.json"
+
+
+def stored() -> dict:
+    return json.loads(STORED.read_text())
+
+
+def test_the_stored_result_is_valid_and_carries_build_machine_and_seed() -> None:
+    doc = stored()
+    validate(doc)
+    assert doc["schema_version"] == hapticbench.SCHEMA_VERSION
+    assert doc["build"]["package_version"] and doc["machine"]["cpu_count"] > 0
+    assert doc["seed"] == hapticbench.SEED
+    cases = [c["name"] for c in doc["cases"]]
+    assert cases == [c.name for c in REDUCED]
+    # every case rendered by every built-in method, once
+    assert sorted(error_figures(doc)) == sorted((c, m) for c in cases for m, _ in BUILT_IN)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda d: d.pop("build"), "missing key 'build'"),
+        (lambda d: d.update(schema_version=0), "$.schema_version: expected 1"),
+        (lambda d: d["results"][1].update(substeps=0.5), "$.results[1].substeps: expected integer"),
+        (lambda d: d["results"][0]["errors"].update(rms_mm="small"), "errors.rms_mm: expected"),
+        (lambda d: d["cases"][0].update(seconds=0), "$.cases[0].seconds: 0 is not above 0"),
+        (lambda d: d.update(colour="red"), "unknown key 'colour'"),
+    ],
+)
+def test_a_result_that_breaks_the_schema_is_refused_where_it_breaks(change, message) -> None:
+    doc = copy.deepcopy(stored())
+    change(doc)
+    with pytest.raises(ValueError, match="hapticbench result") as caught:
+        validate(doc)
+    assert message in str(caught.value)
+
+
+def test_a_baseline_name_is_registered_once() -> None:
+    with pytest.raises(ValueError, match="'local_model' is already registered"):
+        hapticbench.register_baseline("local_model", "again", BASELINES["local_model"].run)
+
+
+def local_model_30hz(case: Case) -> MethodRun:
+    """A plug-in written as another project would, over run_virtual's records alone: the
+    local model with its sim at 30 Hz (the built-in runs it at 60)."""
+    scene = front.configure(load_scene(case.scene), "local_model", 30.0)
+    result = run_virtual(scene, load_device(case.device), load_user(case.user), case.seconds)
+    cost = 1e3 * sum(result.stage_ns.values()) / 1e9 / result.sim_s
+    return MethodRun(result.ticks, scene, cost, scene.sim_rate_hz, scene.sim_substeps)
+
+
+@pytest.mark.slow
+def test_a_plugged_in_baseline_appears_in_the_result_and_the_table(tmp_path: Path) -> None:
+    linkage = (REDUCED[1],)
+    with baseline("local_model_30", "local model, sim 30 Hz (a plug-in)", local_model_30hz):
+        doc = run_suite(linkage)
+        text = hapticbench.write(doc, tmp_path, "test", 0.0)
+    assert "local_model_30" not in BASELINES  # gone with its block
+    validate(json.loads((tmp_path / "hapticbench.json").read_text()))
+    figures = error_figures(doc)
+    theirs = figures[("linkage_held", "local_model_30")]
+    # the suite's metric over the plug-in's own records, not another method's
+    run = local_model_30hz(linkage[0])
+    assert theirs == hapticbench.case_errors(linkage[0], run, None)
+    assert theirs != figures[("linkage_held", "local_model")]
+    rows = [line for line in table(doc) if "(a plug-in)" in line]
+    assert len(rows) == 1 and rows[0] in text and f"{theirs['rms_mm']:.4g}" in rows[0]
+    assert (tmp_path / "hapticbench.png").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_the_reduced_suite_gives_the_stored_error_figures_bit_for_bit() -> None:
+    assert [m for m in BASELINES] == [m for m, _ in BUILT_IN]
+    doc = json.loads(json.dumps(run_suite(REDUCED)))  # as the JSON file holds it
+    validate(doc)
+    assert error_figures(doc) == error_figures(stored())
+    assert [(r["sim_hz"], r["substeps"]) for r in doc["results"]] == [
+        (r["sim_hz"], r["substeps"]) for r in stored()["results"]
+    ]
