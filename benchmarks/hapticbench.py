@@ -444,6 +444,32 @@ def table(doc: dict[str, Any]) -> list[str]:
     return lines
 
 
+def pareto(doc: dict[str, Any]) -> list[str]:
+    """A sentence per case: the methods on its error-vs-cost front (headline error against
+    median cost) and, for each method off it, one that beats it on both."""
+    lines = []
+    for case in doc["cases"]:
+        key = case["headline"]
+        points = [
+            (r["method"], r["errors"].get(key), r["cost_ms_per_sim_s"]["median"])
+            for r in doc["results"]
+            if r["case"] == case["name"] and r["errors"].get(key) is not None
+        ]
+        on, off = [], []
+        for name, err, cost in points:
+            better = [n for n, e, c in points if n != name and e <= err and c <= cost
+                      and (e < err or c < cost)]  # fmt: skip
+            if better:
+                off.append(f"{name} (beaten by {better[0]})")
+            else:
+                on.append(name)
+        lines.append(
+            f"- {case['name']} ({key} against cost): on the front {', '.join(on)}"
+            + (f"; off it {', '.join(off)}" if off else "")
+        )
+    return lines
+
+
 def _fmt(v: float | None) -> str:
     return "n/a" if v is None else f"{v:.4g}"
 
@@ -494,7 +520,9 @@ def write(doc: dict[str, Any], out: Path, command: str, wall_s: float) -> str:
         f"{doc['machine']['cpu_count']} cores (shared); seed {doc['seed']}. Result:"
         " hapticbench.json (schema hapticbench.schema.json, version"
         f" {doc['schema_version']}). Cases and references: benchmarks/hapticbench.py.", "",
-        *table(doc), "", "![hapticbench](hapticbench.png)", "",
+        *table(doc), "", "The front per case (a method is on it when no other has both a lower"
+        " headline error and a lower median cost):", "", *pareto(doc), "",
+        "![hapticbench](hapticbench.png)", "",
     ])  # fmt: skip
     (out / "hapticbench.md").write_text(text)
     return text

@@ -108,3 +108,18 @@ def test_the_reduced_suite_gives_the_stored_error_figures_bit_for_bit() -> None:
     assert [(r["sim_hz"], r["substeps"]) for r in doc["results"]] == [
         (r["sim_hz"], r["substeps"]) for r in stored()["results"]
     ]
+
+
+def test_the_front_names_who_beats_a_method_on_both_error_and_cost() -> None:
+    doc = copy.deepcopy(stored())
+    doc["cases"] = doc["cases"][:1]
+    headline = doc["cases"][0]["headline"]
+    points = (("a", 1.0, 10.0), ("b", 2.0, 5.0), ("c", 3.0, 20.0), ("d", 1.0, 10.0))
+    doc["results"] = [
+        {"case": doc["cases"][0]["name"], "method": name, "errors": {headline: err},
+         "cost_ms_per_sim_s": {"median": cost}}
+        for name, err, cost in points
+    ]  # fmt: skip
+    (line,) = hapticbench.pareto(doc)
+    # a and d tie (neither beats the other on both); c loses to a on both; b is cheapest
+    assert line.endswith("on the front a, b, d; off it c (beaten by a)")
