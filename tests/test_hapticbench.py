@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from haptic_local_model.benchmarks import front, hapticbench
+from haptic_local_model.benchmarks.bench import main as bench_main
 from haptic_local_model.benchmarks.hapticbench import (
     BASELINES,
     BUILT_IN,
@@ -100,14 +101,17 @@ def test_a_plugged_in_baseline_appears_in_the_result_and_the_table(tmp_path: Pat
 
 
 @pytest.mark.slow
-def test_the_reduced_suite_gives_the_stored_error_figures_bit_for_bit() -> None:
+def test_the_reduced_suite_gives_the_stored_error_figures_bit_for_bit(tmp_path: Path) -> None:
     assert [m for m in BASELINES] == [m for m, _ in BUILT_IN]
-    doc = json.loads(json.dumps(run_suite(REDUCED)))  # as the JSON file holds it
+    assert bench_main(["--suite", "reduced", "--repeat", "1", "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "hapticbench.json").read_text())
     validate(doc)
     assert error_figures(doc) == error_figures(stored())
     assert [(r["sim_hz"], r["substeps"]) for r in doc["results"]] == [
         (r["sim_hz"], r["substeps"]) for r in stored()["results"]
     ]
+    schema = json.loads((tmp_path / "hapticbench.schema.json").read_text())
+    assert schema == json.loads(json.dumps(hapticbench.RESULT_SCHEMA))
 
 
 def test_the_front_names_who_beats_a_method_on_both_error_and_cost() -> None:
