@@ -13,7 +13,8 @@ how each reference is made):
 
 A **method** (a baseline) is a function from a case to the records of its run
 (`MethodRun`: the haptic loop's TICK_DTYPE records, the scene as rendered, the cost): the
-built-ins are the local model and the three ways of benchmarks/front.py; another project's
+built-ins are the local model, the three ways of benchmarks/front.py and Isaac Lab's Haply
+coupling (benchmarks/peers.py); another project's
 coupling is one more function given to `register_baseline`, and the suite's table and JSON
 carry it with no change here (docs/bench/hapticbench.md: "Submit your renderer").
 
@@ -41,8 +42,9 @@ from typing import Any
 
 import numpy as np
 
-from haptic_local_model.benchmarks import front
+from haptic_local_model.benchmarks import front, peers
 from haptic_local_model.benchmarks.linkage import reference_error_mm
+from haptic_local_model.benchmarks.suite_records import Case, MethodRun
 from haptic_local_model.device_models.registry import load_device
 from haptic_local_model.haptic_server.harness.virtual import run_virtual
 from haptic_local_model.shared import __version__
@@ -53,30 +55,6 @@ SCHEMA_VERSION = 1
 #: the suite's seed: no shipped case draws random numbers (its devices are noiseless, its
 #: hands scripted); it is recorded so a case that does (a noisy device) is seeded from it
 SEED = 0
-
-
-@dataclass(frozen=True)
-class Case:
-    """One scene of the suite with its reference and the metric its table leads with."""
-
-    name: str
-    scene: str
-    device: str
-    user: str
-    seconds: float
-    reference: str
-    headline: str  # the error metric the table and the plot show
-
-
-@dataclass(frozen=True)
-class MethodRun:
-    """What a baseline hands back: the records the suite's metrics are computed over."""
-
-    ticks: np.ndarray  # TICK_DTYPE records, one per 1 ms tick
-    scene: SceneConfig  # the scene as the method rendered it (the reference reads it)
-    cost_ms_per_sim_s: float  # wall-clock ms per simulated second of the stages it needs
-    sim_hz: float
-    substeps: int
 
 
 Baseline = Callable[[Case], MethodRun]
@@ -148,11 +126,14 @@ def front_way(way: str, sim_hz: float) -> Baseline:
     return run
 
 
-#: the built-in methods: benchmarks/front.py's ways, the local model at 60 Hz
+#: the built-in methods: benchmarks/front.py's ways, the local model at 60 Hz; then the
+#: peers written as they write them (benchmarks/peers.py)
 BUILT_IN = (("local_model", 60.0), ("pymunk_in_loop", front.HAPTIC_HZ), ("vc_zoh", 60.0),
             ("vc_foh", 60.0))  # fmt: skip
 for way, hz in BUILT_IN:
     register_baseline(way, front.WAYS[way], front_way(way, hz))
+register_baseline("isaac_haply", peers.ISAAC_HAPLY, peers.isaac_haply)
+BUILT_IN_NAMES = tuple(BASELINES)  # what a run without plug-ins renders every case with
 
 
 def case_errors(case: Case, run: MethodRun, reference: np.ndarray | None) -> dict[str, float]:

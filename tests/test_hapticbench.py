@@ -7,13 +7,14 @@ import copy
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from haptic_local_model.benchmarks import front, hapticbench
+from haptic_local_model.benchmarks import front, hapticbench, peers
 from haptic_local_model.benchmarks.bench import main as bench_main
 from haptic_local_model.benchmarks.hapticbench import (
     BASELINES,
-    BUILT_IN,
+    BUILT_IN_NAMES,
     REDUCED,
     Case,
     MethodRun,
@@ -45,7 +46,7 @@ def test_the_stored_result_is_valid_and_carries_build_machine_and_seed() -> None
     cases = [c["name"] for c in doc["cases"]]
     assert cases == [c.name for c in REDUCED]
     # every case rendered by every built-in method, once
-    assert sorted(error_figures(doc)) == sorted((c, m) for c in cases for m, _ in BUILT_IN)
+    assert sorted(error_figures(doc)) == sorted((c, m) for c in cases for m in BUILT_IN_NAMES)
 
 
 @pytest.mark.parametrize(
@@ -102,7 +103,7 @@ def test_a_plugged_in_baseline_appears_in_the_result_and_the_table(tmp_path: Pat
 
 @pytest.mark.slow
 def test_the_reduced_suite_gives_the_stored_error_figures_bit_for_bit(tmp_path: Path) -> None:
-    assert [m for m in BASELINES] == [m for m, _ in BUILT_IN]
+    assert tuple(BASELINES) == BUILT_IN_NAMES
     assert bench_main(["--suite", "reduced", "--repeat", "1", "--out", str(tmp_path)]) == 0
     doc = json.loads((tmp_path / "hapticbench.json").read_text())
     validate(doc)
@@ -127,3 +128,25 @@ def test_the_front_names_who_beats_a_method_on_both_error_and_cost() -> None:
     (line,) = hapticbench.pareto(doc)
     # a and d tie (neither beats the other on both); c loses to a on both; b is cheapest
     assert line.endswith("on the front a, b, d; off it c (beaten by a)")
+
+
+@pytest.mark.slow
+def test_the_isaac_haply_way_sends_only_the_clipped_contact_force() -> None:
+    wall, linkage = REDUCED
+    # the held linkage never touches anything: the device feels no force at all, and the
+    # hand's 0.4 N accelerates the ideal device's 1 kg as a free mass (semi-implicit Euler
+    # of the device: x_n = a dt^2 n (n + 1) / 2 exactly, to rounding)
+    run = peers.isaac_haply(linkage)
+    assert not run.ticks["contact_force_world"].any()
+    x = run.ticks["device_pose"][:, 0] - run.ticks["device_pose"][0, 0]
+    n = np.arange(len(x))
+    dt, a = 1e-3, 0.4 / 1.0  # configs/users/push_04n.toml, configs/devices/ideal_identity.toml
+    closed = a * dt**2 * n * (n + 1) / 2
+    assert np.max(np.abs(x - closed)) < 1e-9
+    # the wall: a force only after the first contact, never above Haply's limit, read after
+    # each fifth 5 ms physics step (ticks 20, 45, 70, ...) and held in between
+    run = peers.isaac_haply(wall)
+    f = np.hypot(*run.ticks["contact_force_world"][:, :2].T)
+    assert 0 < f.max() <= peers.HAPLY_LIMIT_FORCE_N + 1e-12
+    changes = np.flatnonzero(np.diff(f) != 0) + 1
+    assert changes.size and np.all(changes % 25 == 20)
