@@ -1,17 +1,18 @@
 """Baselines written as peers write them, for hapticbench (benchmarks/hapticbench.py).
 
 **Isaac Lab + Haply** (`isaac_haply`): the sim's contact force sent straight to the device
-and clipped, as Isaac Lab's `scripts/demos/haply_teleoperation.py` does it: physics at
-200 Hz (`SimulationCfg(dt=1 / 200)`), five physics steps per pass of its loop, then the
-net contact force on the tool read and sent to the device (`set_force_feedback`), clipped at
-2 N (`HaplyDeviceCfg(limit_force=2.0)`); the tool is driven to the device's pose by a stiff
+and clipped, as Isaac Lab's `scripts/demos/haply_teleoperation.py` does it: physics at 200
+Hz (`SimulationCfg(dt=1 / 200)`), five physics steps per pass of its loop, then the net
+contact force on the tool read and sent to the device (`set_force_feedback`), clipped at 2 N
+(`HaplyDeviceCfg(limit_force=2.0)`); the tool is driven to the device's pose by a stiff
 position drive (its Franka's high-gain PD and IK). Here: the scene's pymunk world at 200 Hz,
 the tool's operational point pulled to the device's pose by seed 002's coupling spring and
 damper (the scene's `foh_spring_*`, with the substeps that spring needs to be stable), the
-contact impulses on the tool over the last pymunk substep (over its length) as the force, held for the 25 ms
-until the next, clipped at 2 N in magnitude. No local model and no force between contacts:
-the device feels the world only through the contact force, so a mechanism the tool holds
-(the linkage) is not rendered at all. The device and the hand are the case's, at 1 kHz.
+contact impulses on the tool over the last pymunk substep (over its length) as the force,
+held for the 25 ms until the next, clipped at 2 N in magnitude. No local model and no force
+between contacts: the device feels the world only through the contact force, so a mechanism
+the tool holds (the linkage) is not rendered at all. The device and the hand are the case's,
+at 1 kHz.
 """
 
 from __future__ import annotations
