@@ -13,7 +13,8 @@ import pymunk
 import pytest
 
 from haptic_local_model import api
-from haptic_local_model.shared.config import LinkageSpec, load_scene
+from haptic_local_model.benchmarks.user_chain import plain_arm
+from haptic_local_model.shared.config import load_scene
 from haptic_local_model.shared.protocol.layout import MAX_CONTACTS
 from haptic_local_model.shared.protocol.update import decode_update
 from haptic_local_model.sim_server.user_space import UserSpaceWorld
@@ -118,26 +119,6 @@ def test_a_link_pivoted_off_its_origin_is_refused() -> None:
         api.check_space(space, tool)
 
 
-def _arm(space: pymunk.Space, lk: LinkageSpec) -> list[pymunk.Body]:
-    """A linkage table built as a user would in plain pymunk: a body per link, its origin at
-    its pivot, a PivotJoint to the previous one (the first to the static body)."""
-    bodies: list[pymunk.Body] = []
-    pos, angle = np.array(lk.base, dtype=float), lk.base_angle
-    for i, length in enumerate(lk.lengths):
-        body = pymunk.Body(lk.masses[i], lk.inertias[i])
-        body.center_of_gravity = lk.com_offsets[i]
-        angle += lk.initial_angles[i]
-        body.angle = angle
-        body.position = tuple(pos)
-        prev = bodies[-1] if bodies else space.static_body
-        joint = pymunk.PivotJoint(prev, body, tuple(pos))
-        joint.collide_bodies = False
-        space.add(body, pymunk.Segment(body, (0.0, 0.0), (length, 0.0), lk.radius), joint)
-        bodies.append(body)
-        pos = pos + length * np.array([math.cos(angle), math.sin(angle)])
-    return bodies
-
-
 def test_a_held_chain_builds_our_linkage_scenes_model() -> None:
     """Seed 000's three-link arm (linkage_distal) in a plain space, its distal link held: the
     same D, G, Λ⁻¹, resisted directions, q and tool pose as the scene's own world builds
@@ -146,7 +127,7 @@ def test_a_held_chain_builds_our_linkage_scenes_model() -> None:
     ours = SimWorld(scene)
     ours.model.build()
     space = pymunk.Space()
-    arm = _arm(space, scene.tool_linkage)
+    arm = plain_arm(space, scene.tool_linkage)
     theirs = UserSpaceWorld(space, arm[scene.tool.link])
     theirs.model.build()
     a, b = ours.model.record[0], theirs.model.record[0]
@@ -314,7 +295,7 @@ def test_a_held_chain_runs_offline_and_replays_bit_for_bit(tmp_path: Path) -> No
     every update installed (none refused by the scene's checks), no fault, replay identical."""
     scene = load_scene("linkage_distal")
     space = pymunk.Space()
-    arm = _arm(space, scene.tool_linkage)
+    arm = plain_arm(space, scene.tool_linkage)
     log = tmp_path / "arm.mcap"
     run = api.run_offline(space, arm[scene.tool.link], 3.0, log=log)
     assert run.updates == 3 * 60 and run.refused == {}

@@ -177,6 +177,12 @@ def _note_squeeze(s):
 
 
 @njit(cache=True, inline="always")
+def _damping(s, c):
+    """The coupling's damping on axis c: the world's, clamped to the station's own scene's."""
+    return min(s.damping[c], s.max_damping[c])
+
+
+@njit(cache=True, inline="always")
 def _left(s, c):
     """The spring the station comes back into on axis c: the one it left with (once it has
     been fully coupled), else the live one."""
@@ -184,7 +190,7 @@ def _left(s, c):
 
 
 @njit(cache=True)
-def _brakes(s, fresh):
+def _brakes(s):
     """Whether the station, rendering a fresh tool state again after its safe state (or at
     its first), still brakes its device before it couples: the user pushed the device while
     it was safe and it may still be moving (about 50 mm/s after a stall), which the
@@ -192,7 +198,7 @@ def _brakes(s, fresh):
     SAFE, so the world keeps re-indexing it (the tool moves with the device in the station's
     frame); it couples once the coupling's damping on the device's motion would be within
     the brake's cap (and BRAKE_FLOOR of its limit), or after BRAKE_MAX_S."""
-    if fresh == 0:
+    if s.fresh == 0:
         s.braking = 1
         s.brake_s = 0.0
         return 0
@@ -200,9 +206,8 @@ def _brakes(s, fresh):
         return s.braking
     if s.brake_s < BRAKE_MAX_S:
         for c in range(3):
-            b = min(s.damping[c], s.max_damping[c])
             if (
-                b * abs(s.world[0].twist[c])
+                _damping(s, c) * abs(s.world[0].twist[c])
                 > BRAKE_SHARE * abs(_left(s, c)) + BRAKE_FLOOR * s.limits[c]
             ):
                 s.brake_s += s.dt
@@ -219,7 +224,7 @@ def _rejoin_coupling(s):
     the live spring and the whole damping over `ramp_s` (then the coupling as before, bit
     for bit). The live spring's lag behind a moving device (the round trip at 50 mm/s:
     0.2 N on the maglev's 2 kN/m) is not rendered."""
-    braking = _brakes(s, s.fresh)
+    braking = _brakes(s)
     if braking == 1 or s.fresh == 0:
         s.damping_gain = 0.0
     else:
@@ -233,7 +238,7 @@ def _rejoin_coupling(s):
         cap = BRAKE_SHARE * abs(base)
         damp = s.coupling[c] - s.spring[c]
         if braking == 1:
-            damp = -min(s.damping[c], s.max_damping[c]) * s.world[0].twist[c]
+            damp = -_damping(s, c) * s.world[0].twist[c]
         held = min(cap, max(-cap, damp))
         s.coupling[c] = spring + held + g * (damp - held)
         s.spring[c] = spring  # as rendered (the log's), the live one was _rejoins' to judge
@@ -258,7 +263,7 @@ def station_tick(station, dev):
         s.spring[c] = 0.0
         if s.cut == 0 and s.have_tool == 1:
             k = min(s.stiffness[c], s.max_stiffness[c])
-            b = min(s.damping[c], s.max_damping[c])
+            b = _damping(s, c)
             err = s.tool_pose[c] + s.tool_twist[c] * ahead - w.pose[c]
             if c == 2:
                 err = wrap_angle(err)
