@@ -48,6 +48,7 @@ from haptic_local_model.benchmarks.kernel_cost import engine_with_contacts
 from haptic_local_model.device_models.ideal import IdealDevice, IdealDeviceConfig
 from haptic_local_model.haptic_server.engine import HapticEngine
 from haptic_local_model.haptic_server.harness.virtual import run_virtual
+from haptic_local_model.haptic_server.world import run_ticks
 from haptic_local_model.shared.cli import add_version
 from haptic_local_model.shared.config import SceneConfig, UserConfig, load_scene, load_user
 from haptic_local_model.shared.kinematics import free_body_chain
@@ -273,7 +274,7 @@ def wall_bounce_gain(
     settle_s = LOCAL_SETTLE_S if method == LOCAL_MODEL else 0.0
     ticks = int((3.0 * contact_s + settle_s) / period) + 10 * SETTLE_TICKS
     rows = np.zeros(ticks, engine.row.dtype)
-    engine.run_ticks(period, rows, 0, ticks)
+    run_ticks(engine, rows, 0, ticks)
     inside = np.flatnonzero(rows["n_active"] > 0)
     if inside.size == 0:
         raise RuntimeError(f"the device never reached the wall ({method}, K={stiffness:g})")

@@ -9,18 +9,26 @@ from __future__ import annotations
 
 import itertools
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from haptic_local_model.device_models.base import Device, SimulatedDevice, world_map_of
+from haptic_local_model.device_models.base import (
+    Device,
+    SimulatedDevice,
+    world_limits,
+    world_map_of,
+)
 from haptic_local_model.device_models.common import refill_noise
+from haptic_local_model.haptic_server.log import TICK_SCHEMA_NAME, TICK_TOPIC
 from haptic_local_model.haptic_server.model import (
     CLOCK_DTYPE,
     DATA_DTYPE,
     DEVICE_IO_DTYPE,
     INSTALL_DTYPE,
     MODEL_DTYPE,
+    TICK_DTYPE,
     envelope_record,
     god_record,
     params_record,
@@ -37,6 +45,7 @@ from haptic_local_model.haptic_server.stages.install import (
 from haptic_local_model.haptic_server.stages.tick import engine_step, store_applied
 from haptic_local_model.haptic_server.stages.train import restart_train, train_model
 from haptic_local_model.haptic_server.users import USER_GIVEN, USER_POINTER, user_record
+from haptic_local_model.haptic_server.world import WorldKind
 from haptic_local_model.shared.config import ConfigError, SceneConfig, UserConfig
 from haptic_local_model.shared.kinematics import (
     MAX_DOF,
@@ -53,6 +62,13 @@ from haptic_local_model.shared.protocol.update import MAX_UPDATE_BYTES
 CONTACT_MATCH_RADIUS_M = 2.0e-3  # a contact keeps its state if its tool point moved less
 #: the receive buffer: the largest valid update (12 DOF, 64 contacts, 64 shapes)
 RECEIVE_BUFFER_BYTES = MAX_UPDATE_BYTES
+
+#: A single device on a sim's world (a local model or a god-object) as a world kind: its
+#: rows are the ticks' rows; its log replays with the sim's updates it holds, through
+#: `haptic-replay` (harness/replay.py), not from the rows alone (no `replay` of rows).
+LOCAL_MODEL_KIND = WorldKind(
+    "local_model", TICK_TOPIC, TICK_SCHEMA_NAME, TICK_DTYPE, SceneConfig, 1, None
+)
 
 
 @dataclass
@@ -477,17 +493,42 @@ class HapticEngine:
         self._clock_seq[0] = self._update_seq = seq
         self._clock_age[0] = self._update_age_ms = age_ms
 
-    def run_ticks(self, dt: float, rows: np.ndarray, start: int, stop: int) -> None:
-        """Ticks start..stop-1 of a simulated device at a fixed dt with the simulated user, in
-        compiled bursts (one per refill of the device's noise block), row k into rows[k]."""
-        sim = self.sim_device
-        if sim is None:
-            raise TypeError(f"run_ticks needs a simulated device, not {self.device.name!r}")
-        k = start
-        while k < stop:
-            k = run_ticks(self.recs, sim.records, self.user, dt, rows, k, stop)
-            if k < stop:
-                refill_noise(sim.noise, sim.records, dt)  # raises if a block cannot cover dt
+    # --- the World protocol (haptic_server/world.py), with a simulated device -----------
+    @property
+    def kind(self) -> WorldKind:
+        return LOCAL_MODEL_KIND
+
+    @property
+    def devices(self) -> Sequence[SimulatedDevice]:
+        return [self._simulated()]
+
+    @property
+    def period_s(self) -> float:
+        return self.dt_nominal
+
+    def burst(self, rows: np.ndarray, start: int, stop: int) -> int:
+        """Ticks start..stop-1 of the simulated device and user in one compiled call, row k
+        into rows[k]; the first tick not run (earlier than stop when the device's noise
+        block needs a refill). A sim's updates are installed between bursts (receive)."""
+        return run_ticks(self.recs, self._simulated().records, self.user, self.dt_nominal,
+                         rows, start, stop)  # fmt: skip
+
+    def limits(self) -> list[list[float]]:
+        return [[float(v) for v in world_limits(self.device)]]
+
+    def summary_lines(self, rows: np.ndarray, wall_s: float) -> list[str]:
+        last = rows[-min(len(rows), round(self.scene.haptic_rate_hz)) :]
+        cmd = last["wrench_command"][:, :2]
+        return [
+            f"{len(rows)} ticks, {len(rows) * self.dt_nominal:.3f} s in {wall_s:.2f} s of wall "
+            f"time; mean command over the last second ({cmd[:, 0].mean():+.3f}, "
+            f"{cmd[:, 1].mean():+.3f}) N"
+        ]
+
+    def _simulated(self) -> SimulatedDevice:
+        if self.sim_device is None:
+            raise TypeError(f"a world's ticks need a simulated device, not {self.device.name!r}")
+        return self.sim_device
 
     def proxy_pose(self) -> tuple[np.ndarray, np.ndarray]:
         d = int(self.slots[0]["dof"])

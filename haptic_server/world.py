@@ -10,13 +10,14 @@ tick. What a world kind's log is and how it replays is its `WorldKind`.
 
 The runners are written once for every world:
 - `run_ticks`: ticks start..stop-1, each device's noise block refilled when a burst says so;
-- `run_virtual`: the virtual clock, as fast as the ticks compute;
+- `run_virtual`: the virtual clock, as fast as the ticks compute, with what reaches the world
+  between its ticks (a `Feed`: a sim's updates) if it has any;
 - `run_real_time`: the wall clock, one tick a period (shared.timing.Pacer, the paced loop of
   the network's processes too), after the kernels are compiled on a spare world.
 
-The single-device engine (a local model, a god-object, from a sim's updates) keeps its own
-real-time loop (haptic_server.loop, the compiled burst with the supervisor) and virtual
-clock (harness.virtual): its ticks take the sim's updates between them.
+The single-device engine (a local model, a god-object, from a sim's updates; engine.py) is a
+world too on the virtual clock, its sim's steps and updates its feed (harness.virtual); it
+keeps its own real-time loop (haptic_server.loop, the compiled burst with the supervisor).
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ class WorldKind:
     rows: np.dtype  # one tick's row
     scene: type  # the scene's config class (PortSceneConfig, HandSceneConfig)
     ports: int | None  # the ports it has (None: as many as its scene declares)
-    replay: Replay
+    replay: Replay | None  # None: its rows alone do not replay (a sim's updates feed its ticks)
 
 
 class World(Protocol):
@@ -92,11 +93,28 @@ def run_ticks(world: World, rows: np.ndarray, start: int, stop: int) -> int:
     return stop
 
 
-def run_virtual(world: World, duration_s: float) -> tuple[np.ndarray, float]:
-    """`duration_s` of virtual time as fast as it computes: (every tick's row, wall s)."""
+class Feed(Protocol):
+    """What reaches a world between its ticks on the virtual clock: for a single device on a
+    sim, the sim steps and its update is installed (harness/virtual.py)."""
+
+    def __call__(self, k: int, rows: np.ndarray) -> int:
+        """Before tick k (rows[:k] are the ticks run): what arrives by then, taken in. The
+        next tick before which something arrives (> k; len(rows) or more: nothing more)."""
+        ...
+
+
+def run_virtual(
+    world: World, duration_s: float, feed: Feed | None = None
+) -> tuple[np.ndarray, float]:
+    """`duration_s` of virtual time as fast as it computes: (every tick's row, wall s). With
+    a `feed`, the ticks run in bursts between its arrivals."""
     rows = np.zeros(round(duration_s / world.period_s), world.kind.rows)
+    rows.fill(0)  # the pages mapped now, before the clock starts (np.zeros maps them lazily)
     entered = time.perf_counter()
-    run_ticks(world, rows, 0, len(rows))
+    k = 0
+    while k < len(rows):
+        stop = len(rows) if feed is None else min(len(rows), feed(k, rows))
+        k = run_ticks(world, rows, k, stop)
     return rows, time.perf_counter() - entered
 
 

@@ -264,6 +264,7 @@ def replay_log(path: Path) -> tuple[int, int | None]:
     if len(limits) != ports or len(scene.ports) != ports:
         found = f"{len(limits)} limits for {len(scene.ports)} ports"
         raise ConfigError(str(path), "limits.max_wrench", found)
+    assert kind.replay is not None  # every kind of WORLD_KINDS replays from its rows
     return kind.replay(scene, limits, rows)
 
 

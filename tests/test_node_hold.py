@@ -26,6 +26,7 @@ from haptic_local_model.haptic_server.stages.god_object import (
     install_clock,
     install_shapes,
 )
+from haptic_local_model.haptic_server.world import run_ticks
 from haptic_local_model.shared.config import load_scene, load_user
 from haptic_local_model.shared.protocol.proxy import ShapeImpulses
 from haptic_local_model.shared.shapes import Motion, ShapeKind, set_core, shape_array
@@ -387,7 +388,7 @@ def test_a_reinitialisation_starts_the_string_hold_at_the_new_sample() -> None:
         if target is None:
             continue
         assert engine.receive(raw) == ""
-        engine.run_ticks(1e-3, np.zeros(16, TICK_DTYPE), 0, 16)
+        run_ticks(engine, np.zeros(16, TICK_DTYPE), 0, 16)
     stale = engine.data[0]["god"]["node_start"].copy()
     engine.set_stale()
     assert engine.receive(raw) == ""  # the first update after the outage: a new sample

@@ -25,6 +25,8 @@ from haptic_local_model.haptic_server.log import run_metadata
 from haptic_local_model.haptic_server.logger import LogFeed
 from haptic_local_model.haptic_server.model import TICK_DTYPE
 from haptic_local_model.haptic_server.supervisor import InstallOnly, supervise
+from haptic_local_model.haptic_server.world import run_ticks
+from haptic_local_model.haptic_server.world import run_virtual as run_virtual_world
 from haptic_local_model.shared.config import (
     SceneConfig,
     UserConfig,
@@ -66,6 +68,75 @@ class VirtualResult:
         return self.sim_s / self.wall_s if self.wall_s > 0 else float("inf")
 
 
+class SimFeed:
+    """The sim's steps and updates as a single-device world's feed (world.Feed): before each
+    tick at which the haptic time reaches the sim's next period, the sim steps over the
+    coming period from the proxy state it would receive, and its update goes through the
+    same encode/decode path as over Zenoh and is installed; the log gets the ticks before
+    it, then the update."""
+
+    def __init__(self, world: SimWorld | UserSpaceWorld, engine: HapticEngine,
+                 log: LogFeed | None) -> None:  # fmt: skip
+        self.world, self.engine, self.log = world, engine, log
+        self.sim_period = 1.0 / engine.scene.sim_rate_hz
+        self.next_sim_t = 0.0
+        self.seq = 0
+        self.coupled = engine.method == Method.VIRTUAL_COUPLING_FOH
+        self.stage = dict.fromkeys(("sim_step", "local_model", "install"), 0)
+        self.sizes: list[int] = []
+        self.refused: dict[str, int] = {}
+        self.svd_steps = 0
+        self.logged = 0  # the ticks logged (and whose impulses on shapes the sim applied)
+        self.log_ns = 0  # writing the log: no stage's
+
+    def _log_ticks(self, rows: np.ndarray) -> None:
+        if self.log is not None:
+            t0 = time.perf_counter_ns()
+            self.log.ticks(rows)
+            self.log_ns += time.perf_counter_ns() - t0
+
+    def __call__(self, k: int, rows: np.ndarray) -> int:
+        dt, clock = self.engine.dt_nominal, time.perf_counter_ns
+        t = k * dt
+        if t >= self.next_sim_t - 1e-12:
+            self._log_ticks(rows[self.logged : k])
+            t0 = clock()
+            # every step covers the coming period [seq P, (seq + 1) P] of the one clock: the
+            # first from rest (the real sim has no proxy state yet), the others with the
+            # impulses of the ticks since the last step, as the real sim gets them
+            seq, engine = self.seq, self.engine
+            target = _target(engine, self.coupled, rows[self.logged : k]) if seq > 0 else None
+            self.world.step(target)
+            self.logged = k
+            # the world now holds at world.time: that far ahead of this tick (the phase
+            # between the sim's period and the ticks included)
+            lead = self.world.time - t
+            t1 = clock()
+            t_ns = round(t * 1e9)  # published (and received) at the virtual time
+            raw = self.world.local_model_bytes(VIRTUAL_EPOCH, seq, t_ns, lead)  # built, encoded
+            self.svd_steps += self.world.stats.svd  # a linkage's has resisted directions to find
+            t2 = clock()
+            supervise(engine, InstallOnly(partial(_install_own, engine, raw, self.refused)))
+            self.stage["sim_step"] += t1 - t0
+            self.stage["local_model"] += t2 - t1
+            t3 = clock()
+            self.stage["install"] += t3 - t2
+            self.sizes.append(len(raw))
+            if self.log is not None:
+                self.log.update(k, raw, t_ns)
+                self.log_ns += clock() - t3
+            engine.set_update(seq, 0.0)
+            self.seq += 1
+            self.next_sim_t += self.sim_period
+        return _next_step_tick(k + 1, dt, self.next_sim_t)  # the ticks to it in one burst
+
+    def close(self, rows: np.ndarray) -> None:
+        """The ticks after the last update logged, and the log closed."""
+        if self.log is not None:
+            self.log.ticks(rows[self.logged :])
+            self.log.close()
+
+
 def run_virtual(
     scene: SceneConfig,
     device: SimulatedDevice,
@@ -75,76 +146,30 @@ def run_virtual(
     configs: dict[str, str] | None = None,
     world: SimWorld | UserSpaceWorld | None = None,
 ) -> VirtualResult:
-    """Run `duration_s` of simulated time; returns every tick record (and logs if asked).
+    """Run `duration_s` of simulated time; returns every tick record (and logs if asked): the
+    one virtual-clock runner (world.run_virtual) on the engine, the sim its feed.
 
     world: the sim's world of `scene` (default: the scene's own, SimWorld(scene); a user's
     space, UserSpaceWorld, with its own scene)."""
     entered = time.perf_counter()
     world = SimWorld(scene) if world is None else world
     engine = HapticEngine(scene, device, user)
-    dt = engine.dt_nominal
-    n_ticks = round(duration_s / dt)
-    rows = np.zeros(n_ticks, TICK_DTYPE)
-    rows.fill(0)  # the pages mapped now, before the clock starts (np.zeros maps them lazily)
     log = LogFeed(log_path, run_metadata(configs or {}, {"clock": "virtual"})) if log_path else None
-    sim_period = 1.0 / scene.sim_rate_hz
-    next_sim_t = 0.0
-    seq = 0
-    coupled = engine.method == Method.VIRTUAL_COUPLING_FOH
-    stage = dict.fromkeys(("sim_step", "local_model", "install", "tick"), 0)
-    sizes: list[int] = []
-    refused: dict[str, int] = {}
-    svd_steps = 0
-    runs_svd = world.stats.svd  # a linkage's local model has resisted directions to find
-    clock = time.perf_counter_ns
+    feed = SimFeed(world, engine, log)
     started = time.perf_counter()
-    impulses_from = 0  # the ticks whose impulses on shapes the sim has applied
+    rows = np.zeros(0, TICK_DTYPE)
     try:
-        k = 0
-        while k < n_ticks:
-            t = k * dt
-            if t >= next_sim_t - 1e-12:
-                t0 = clock()
-                # every step covers the coming period [seq P, (seq + 1) P] of the one clock:
-                # the first from rest (the real sim has no proxy state yet), the others with
-                # the impulses of the ticks since the last step, as the real sim gets them
-                target = _target(engine, coupled, rows[impulses_from:k]) if seq > 0 else None
-                world.step(target)
-                impulses_from = k
-                # the world now holds at world.time: that far ahead of this tick (the phase
-                # between the sim's period and the ticks included)
-                lead = world.time - t
-                t1 = clock()
-                t_ns = round(t * 1e9)  # published (and received) at the virtual time
-                raw = world.local_model_bytes(VIRTUAL_EPOCH, seq, t_ns, lead)  # built, encoded
-                svd_steps += runs_svd
-                t2 = clock()
-                supervise(engine, InstallOnly(partial(_install_own, engine, raw, refused)))
-                t3 = clock()
-                stage["sim_step"] += t1 - t0
-                stage["local_model"] += t2 - t1
-                stage["install"] += t3 - t2
-                sizes.append(len(raw))
-                if log is not None:
-                    log.update(k, raw, t_ns)
-                engine.set_update(seq, 0.0)
-                seq += 1
-                next_sim_t += sim_period
-            # the ticks up to the next sim step, in one compiled burst
-            stop = min(n_ticks, _next_step_tick(k + 1, dt, next_sim_t))
-            t5 = clock()
-            engine.run_ticks(dt, rows, k, stop)
-            stage["tick"] += clock() - t5
-            if log is not None:
-                log.ticks(rows[k:stop])
-            k = stop
+        rows, wall = run_virtual_world(engine, duration_s, feed)
     finally:
         if log is not None:
-            log.close()
-    wall = time.perf_counter() - started
+            feed.close(rows)
+    # the ticks' time: the runner's outside its feed's stages and the log's writing
+    fed = sum(feed.stage.values()) + feed.log_ns
+    stage = {**feed.stage, "tick": max(0, round(wall * 1e9) - fed)}
+    sim_s = len(rows) * engine.dt_nominal
     return VirtualResult(
-        rows, seq, world, stage, sizes, svd_steps, wall, n_ticks * dt,
-        Path(log_path) if log_path else None, setup_s=started - entered, refused=refused,
+        rows, feed.seq, world, stage, feed.sizes, feed.svd_steps, wall, sim_s,
+        Path(log_path) if log_path else None, setup_s=started - entered, refused=feed.refused,
     )  # fmt: skip
 
 
@@ -228,4 +253,4 @@ def warm_virtual(scene: SceneConfig, device: SimulatedDevice, user: UserConfig) 
     """Load every kernel a virtual-clock run calls, on a spare world, engine and `device`."""
     warm_sim_kernels(scene)
     engine = warm_engine_kernels(scene, device, user)  # a tick's and an install's
-    engine.run_ticks(engine.dt_nominal, np.zeros(1, TICK_DTYPE), 0, 1)  # the burst's
+    run_ticks(engine, np.zeros(1, TICK_DTYPE), 0, 1)  # the burst's
