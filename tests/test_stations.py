@@ -162,6 +162,28 @@ def test_each_station_may_drive_only_its_own_port() -> None:
     assert left_keys == set(port_keys(config.namespace, "left"))
 
 
+def test_a_one_port_scene_has_its_station_on_the_shipped_loopback_network(ring: Any) -> None:
+    """box_push's one port, `pusher`: its station builds on stations_loopback, the world
+    couples the port as it couples a grasp's, and the router lets station_pusher drive only
+    its own port."""
+    scene = load_port_scene("box_push")
+    pusher = load_station_network("stations_loopback", "pusher")
+    Station(scene, pusher, "pusher", load_simulated_device("ideal"), load_user("hold_still"), 10)
+    world = SharedWorld(scene, load_station_network("stations_loopback", "world"), 10)
+    now = time.perf_counter_ns()
+    for seq, flags in ((1, SAFE), (2, 0)):
+        world.receive(0, ring([encode_device(DeviceState(0, 7, seq, 0, (0, 0, 0), (0, 0, 0),
+                                                         flags))]), now)  # fmt: skip
+        world.step(now, 0.0, seq)
+    assert world.state(0) == "coupled"
+    config = load_station_network("stations_loopback", "router")
+    acl = access_control(config, sorted(config.station_users))
+    rules = {r["id"]: r for r in acl["rules"]}
+    by_subject = {p["subjects"][0]: p["rules"] for p in acl["policies"]}
+    keys = {k for r in by_subject["station_pusher"] for k in rules[r]["key_exprs"]}
+    assert keys == set(port_keys(config.namespace, "pusher"))
+
+
 def _station(device: str = "ideal") -> Station:
     scene = load_port_scene(SCENE)
     network = load_station_network("stations_loopback", "left")
@@ -550,6 +572,35 @@ def test_a_killed_station_leaves_the_box_held_and_a_late_one_joins_without_a_jum
     print(f"\nstations, loopback: largest command step {jump * 1e3:.1f} mN a tick as the late "
           f"station joined (steady {steady * 1e3:.1f} mN); box lowest "
           f"{(box['lowest_y'] - box['start'][1]) * 1e3:+.2f} mm")  # fmt: skip
+
+
+@pytest.mark.processes
+def test_one_station_pushes_the_box_of_a_one_port_scene_into_its_wall(
+    tmp_path: Path, start_server: Any
+) -> None:
+    """box_push over the router: the pusher's station couples and its user's 2 N slide the
+    box across its 10 mm gap into the wall (box x from 0 to +10 mm, its half-width short of
+    the wall's face); the station's log replays bit for bit."""
+    mod = "haptic_local_model.haptic_server.stations_cli"
+    net = ["--network", loopback_network(tmp_path), "--scene", "box_push"]
+    router = start_server(mod, "router", net[0], net[1])
+    router.wait_ready(READY_S)
+    world_json = tmp_path / "world.json"
+    world = start_server(mod, "world", *net, "--duration", "9", "--json", str(world_json))
+    world.wait_ready(READY_S)
+    log = tmp_path / "pusher.mcap"
+    station = start_server(mod, "station", *net, "--port", "pusher", "--duration", "5",
+                           "--log", str(log))  # fmt: skip
+    station.wait_ready(READY_S)
+    for p in (station, world):
+        assert p.proc.wait(STOP_S) == 0
+    summary = json.loads(world_json.read_text())
+    assert [e["to"] for e in summary["events"] if e["port"] == "pusher"][:2] == [
+        "indexing", "coupled"
+    ]  # fmt: skip
+    box = summary["bodies"]["box"]
+    assert box["end"][0] == pytest.approx(0.010, abs=1e-3), box  # at the wall: 0.035-0.005-0.02
+    assert replay_log(log) == (len(station_rows(log)), None)
 
 
 STALLS_S = (0.2, 0.5, 2.0)  # the world stopped this long, in turn (its watchdog: 100 ms)
