@@ -32,7 +32,7 @@ import numpy as np
 import pymunk
 
 from haptic_local_model.device_models.registry import device_config, load_simulated_device
-from haptic_local_model.haptic_server.harness.live_space import run_live as _run_live
+from haptic_local_model.haptic_server.harness.live_space import LiveSpace
 from haptic_local_model.haptic_server.harness.log_arrays import LogArrays, Table, read_arrays
 from haptic_local_model.haptic_server.harness.replay import replay
 from haptic_local_model.haptic_server.harness.virtual import run_virtual, warm_virtual
@@ -55,6 +55,7 @@ __all__ = [
     "OfflineRun",
     "SpaceWarning",
     "Table",
+    "Touch",
     "TouchOptions",
     "Units",
     "UnsupportedSpaceError",
@@ -64,6 +65,8 @@ __all__ = [
     "run_live",
     "run_offline",
     "scale_space",
+    "scene_file",
+    "touch",
 ]
 
 
@@ -185,6 +188,86 @@ class LiveRun:
         )
 
 
+class Touch:
+    """A user's space held live while the user's own loop runs: `with api.touch(space, tool)
+    as hand:` then, each pass of their loop, `hand.step()` in place of `space.step(dt)`. A
+    step waits for its deadline (`options.rate_hz`: the user's loop is paced by it), steps
+    the space over the coming period in `options.substeps` pymunk steps with `tool` driven
+    toward the haptic proxy, and publishes its local model; it returns the space's time (s).
+    A loop slower than the period is counted as overruns (`result.sim_overruns`), not
+    caught up. After the `with`, `result` holds the run's figures (`LiveRun`)."""
+
+    def __init__(self, live: LiveSpace, log: Path | str | None) -> None:
+        self._live, self._log = live, log
+        self.result: LiveRun | None = None
+
+    def __enter__(self) -> Touch:
+        try:
+            self._live.open()
+        except BaseException:
+            self._live.close()
+            raise
+        return self
+
+    def step(self) -> float:
+        return self._live.step()
+
+    def __exit__(self, *_: object) -> None:
+        s = self._live.close()
+        sim = s.get("sim") or {}
+        self.result = LiveRun(
+            ticks=int(s.get("ticks", 0)),
+            tick_rate_hz=float(s.get("tick_rate_hz", 0.0)),
+            update_age_ms=dict(s.get("update_age_ms") or {}),
+            updates_installed=int(s.get("updates_installed", 0)),
+            updates_rejected=dict(s.get("updates_rejected") or {}),
+            watchdog_trips=int(s.get("watchdog_trips", 0)),
+            sim_steps=int(sim.get("steps", 0)),
+            sim_overruns=int(sim.get("overruns", 0)),
+            log_path=Path(self._log) if self._log is not None else None,
+            summary=s,
+        )
+
+
+def touch(
+    space: pymunk.Space,
+    tool: pymunk.Body,
+    *,
+    device: str = "ideal",
+    user: str = "swing",
+    log: Path | str | None = None,
+    options: TouchOptions | None = None,
+    network: str = "loopback",
+    start_server: bool = True,
+) -> Touch:
+    """Hold `tool` live, the user's loop stepping the space (`Touch`). With `start_server`
+    (the default) the haptic server (the same process as `haptic-run`'s) is started on
+    `device` (a simulated one moved by the simulated `user`) over the `network` on a free
+    port, logging to `log` if given, and stopped at the end. Without it, the haptic server
+    the user runs is reached over `network` (default: this host's authenticated loopback
+    one): start it with the space's scene, `haptic-server --scene FILE --device NAME`, FILE
+    written by `scene_file` with the same options, NAME any device model, a real one
+    included (`device`, `user` and `log` are then that server's business)."""
+    opts = options or TouchOptions()
+    world_options = (opts.rate_hz, opts.substeps, opts.contact, opts.margin_m, opts.after_step)
+    live = LiveSpace(space, tool, world_options, device, user, log, network, start_server)
+    return Touch(live, log if start_server else None)
+
+
+def scene_file(
+    space: pymunk.Space, tool: pymunk.Body, path: Path | str, options: TouchOptions | None = None
+) -> Path:
+    """Write the scene `space` is rendered with, holding `tool` (its materials, held body or
+    chain, rates and bounds), to `path` (TOML): for a haptic server the user starts
+    (`haptic-server --scene PATH`) that `touch(..., start_server=False)` then reaches, with
+    the same `options`. Returns the path."""
+    opts = options or TouchOptions()
+    world = UserSpaceWorld(space, tool, opts.rate_hz, opts.substeps, opts.contact, opts.margin_m)
+    out = Path(path)
+    out.write_text(world.text)
+    return out
+
+
 def run_live(
     space: pymunk.Space,
     tool: pymunk.Body,
@@ -196,28 +279,18 @@ def run_live(
     options: TouchOptions | None = None,
     network: str = "loopback",
 ) -> LiveRun:
-    """Hold `tool` live for `seconds` of wall time: start the haptic server (the same process
-    as `haptic-run`'s) on `device` (a simulated one moved by the simulated `user`) over the
-    `network` (default: the authenticated loopback one, on a free port), then step the user's
-    space at `options.rate_hz` in this process and publish its local model each step with the
-    sim's own server; stop the haptic server at the end (its log, if `log`, replays with
-    `haptic-replay`)."""
-    opts = options or TouchOptions()
-    world_options = (opts.rate_hz, opts.substeps, opts.contact, opts.margin_m, opts.after_step)
-    s = _run_live(space, tool, seconds, device, user, log, world_options, network)
-    sim = s.get("sim") or {}
-    return LiveRun(
-        ticks=int(s.get("ticks", 0)),
-        tick_rate_hz=float(s.get("tick_rate_hz", 0.0)),
-        update_age_ms=dict(s.get("update_age_ms") or {}),
-        updates_installed=int(s.get("updates_installed", 0)),
-        updates_rejected=dict(s.get("updates_rejected") or {}),
-        watchdog_trips=int(s.get("watchdog_trips", 0)),
-        sim_steps=int(sim.get("steps", 0)),
-        sim_overruns=int(sim.get("overruns", 0)),
-        log_path=Path(log) if log is not None else None,
-        summary=s,
-    )
+    """Hold `tool` live for `seconds` of wall time, the library's loop stepping the space
+    (`touch` with a loop of `step()` only; `options.after_step` is the user's code of a
+    step): start the haptic server on `device` (a simulated one moved by the simulated
+    `user`) over the `network` on a free port, stop it at the end (its log, if `log`,
+    replays with `haptic-replay`)."""
+    with touch(space, tool, device=device, user=user, log=log, options=options,
+               network=network) as hand:  # fmt: skip
+        steps = max(1, round(seconds * (options or TouchOptions()).rate_hz))
+        for _ in range(steps):
+            hand.step()
+    assert hand.result is not None  # set by the with's exit
+    return hand.result
 
 
 def replays_identically(log: Path | str) -> bool:

@@ -146,86 +146,112 @@ class SimServer:
         )  # fmt: skip
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
+        """Connect, say `ready`, step paced until stopped or `duration_s` has passed, close:
+        the run's figures (summary)."""
+        self.connect()
+        try:
+            if ready is not None:
+                ready()
+            end = self.started_ns + int(duration_s * 1e9) if duration_s else None
+            while not self._stop:
+                now = self.step()
+                if end is not None and now >= end:
+                    break
+        finally:
+            self.close()
+        return self.summary()
+
+    def connect(self) -> None:
+        """The Zenoh session, its publishers and subscriber, the kernels loaded: after it, a
+        step publishes within one period. The clock of the steps starts here."""
         k = keys(self.network.namespace)
         session = open_session(self.network.sim, self.zenoh_extra, self.network.namespace)
         try:  # a failure before the loop's own `finally` must not leave the session open
             # this session's liveliness binds the epoch to it: while it lives, the haptic server
             # takes no other sim's epoch (haptic_server/sidecar.py SimLiveliness)
-            alive = session.liveliness().declare_token(f"{k.alive}/{self.epoch}")
+            self._alive = session.liveliness().declare_token(f"{k.alive}/{self.epoch}")
             # express: sent at once, not held back to batch with other messages (STACK-NOTES)
-            pub = session.declare_publisher(
+            self._pub = session.declare_publisher(
                 k.update, congestion_control=zenoh.CongestionControl.DROP, express=True
             )
             # room for the proxy states of a stalled step or two: each carries impulses
-            sub = session.declare_subscriber(k.proxy, zenoh.handlers.RingChannel(PROXY_RING))
+            self._sub = session.declare_subscriber(k.proxy, zenoh.handlers.RingChannel(PROXY_RING))
             # a train's tables, latched: re-published every STATIC_PERIOD_S for late joiners
-            static = session.declare_publisher(k.static) if has_mechanism(self.scene) else None
-            static_bytes = encode_static(self.scene) if static is not None else b""
-            static_due = 0
-            view = WorldView(session, k.view, self)
+            self._static = (
+                session.declare_publisher(k.static) if has_mechanism(self.scene) else None
+            )
+            self._static_bytes = encode_static(self.scene) if self._static is not None else b""
+            self._view = WorldView(session, k.view, self)
+            # the first step and local model load the kernels (about a second on a busy
+            # machine): done before the clock starts, so a step publishes within one period
+            warm_kernels(self.scene)
         except BaseException:
             session.close()
             raise
-        period_ns = round(1e9 / self.scene.sim_rate_hz)
-        # the first step and local model load the kernels (about a second on a busy machine):
-        # do it before saying ready, so a ready sim publishes within one period
-        warm_kernels(self.scene)
+        self._session = session
+        self._static_due = 0
         gc.collect()  # what lives as long as the process: out of the collector's sight, so a
         gc.freeze()  # full collection does not stall a step for tens of ms
-        if ready is not None:
-            ready()
-        start = time.perf_counter_ns()
-        end = start + int(duration_s * 1e9) if duration_s else None
-        deadline = start
-        seq = 0
-        last_start = start
+        self.period_ns = round(1e9 / self.scene.sim_rate_hz)
+        self.started_ns = self._deadline = self._last_start = time.perf_counter_ns()
+        self._seq = 0
+
+    def step(self) -> int:
+        """One step at its deadline (waited for): the newest proxy state read, the world
+        stepped over the coming period and its local model published. A step that starts
+        more than a period late (an overrun: a stall, or a caller's loop slower than the
+        period) starts the deadlines afresh. Returns its start (perf_counter ns)."""
+        deadline, period_ns, seq = self._deadline, self.period_ns, self._seq
+        step_start = deadline + self.phase.shift_ns(deadline)  # within one haptic period
+        # slept, the newest target read, then spun to the start: a sleep wakes 0.1 ms late at
+        # the median, 0.4 / 0.8 ms at p90 / p99, which would move the update off the tick it
+        # aims at
+        self._read_proxies(self._sub, wait_until(step_start - PHASE_SPIN_NS, 0))
+        now = wait_until(step_start, PHASE_SPIN_NS)
+        if now - deadline > period_ns:  # stalled (or stopped): start afresh from now, or
+            self.stats.overruns += 1  # the state's lead would count the stall (beyond 1 s:
+            deadline = step_start = now  # rejected as a magnitude)
+        t0 = now
+        if seq > 0:
+            self.interval_ms.add((t0 - self._last_start) / 1e6)
+        # every step, the first too (from rest: no proxy state yet), covers the coming period:
+        # the sim's clock and its kinematic laws run with the wall's, not one period behind
+        self.world.step(self.target(t0) if seq > 0 else None)
+        self._last_start = t0
+        raw_update = bytearray(self.world.local_model_bytes(self.epoch, seq, 0))
+        # stamped at the put: the step covered [step_start, step_start + period], so the
+        # state holds one period after its start, lead_s from now
+        put_ns = time.perf_counter_ns()
+        lead_s = (step_start + period_ns - put_ns) / 1e9
+        publish_ns = time.time_ns()
+        if self.clock_jump is not None:
+            publish_ns += self.clock_jump.offset_ns((t0 - self.started_ns) / 1e9)
+        stamp_publication(raw_update, publish_ns, lead_s)
+        self._pub.put(bytes(raw_update))
+        if self._static is not None and put_ns >= self._static_due:
+            self._static.put(self._static_bytes)
+            self._static_due = put_ns + int(STATIC_PERIOD_S * 1e9)
+        self._view.publish(put_ns, seq * period_ns / 1e9)
+        self.check.published(seq, self.world.tool_pose, publish_ns)
+        self.phase.published(seq, step_start, put_ns)
+        self.step_ms.add((time.perf_counter_ns() - t0) / 1e6)
+        self.stats.update_bytes = len(raw_update)
+        self.stats.update_bytes_max = max(self.stats.update_bytes_max, len(raw_update))
+        self.stats.steps += 1
+        self._seq = seq + 1
+        self._deadline = deadline + period_ns
+        return now
+
+    def close(self) -> None:
+        """The view, the liveliness token and the session closed (the haptic server sees
+        the sim gone at once)."""
         try:
-            while not self._stop:
-                step_start = deadline + self.phase.shift_ns(deadline)  # within one haptic period
-                # slept, the newest target read, then spun to the start: a sleep wakes 0.1 ms
-                # late at the median, 0.4 / 0.8 ms at p90 / p99, which would move the update
-                # off the tick it aims at
-                self._read_proxies(sub, wait_until(step_start - PHASE_SPIN_NS, 0))
-                now = wait_until(step_start, PHASE_SPIN_NS)
-                if now - deadline > period_ns:  # stalled (or stopped): start afresh from now,
-                    self.stats.overruns += 1  # or the state's lead would count the stall
-                    deadline = step_start = now  # (beyond 1 s: rejected as a magnitude)
-                t0 = now
-                if seq > 0:
-                    self.interval_ms.add((t0 - last_start) / 1e6)
-                # every step, the first too (from rest: no proxy state yet), covers the coming
-                # period: the sim's clock and its kinematic laws run with the wall's, not one
-                # period behind
-                self.world.step(self.target(t0) if seq > 0 else None)
-                last_start = t0
-                raw_update = bytearray(self.world.local_model_bytes(self.epoch, seq, 0))
-                # stamped at the put: the step covered [step_start, step_start + period], so
-                # the state holds one period after its start, lead_s from now
-                put_ns = time.perf_counter_ns()
-                lead_s = (step_start + period_ns - put_ns) / 1e9
-                publish_ns = time.time_ns()
-                if self.clock_jump is not None:
-                    publish_ns += self.clock_jump.offset_ns((t0 - start) / 1e9)
-                stamp_publication(raw_update, publish_ns, lead_s)
-                pub.put(bytes(raw_update))
-                if static is not None and put_ns >= static_due:
-                    static.put(static_bytes)
-                    static_due = put_ns + int(STATIC_PERIOD_S * 1e9)
-                view.publish(put_ns, seq * period_ns / 1e9)
-                self.check.published(seq, self.world.tool_pose, publish_ns)
-                self.phase.published(seq, step_start, put_ns)
-                self.step_ms.add((time.perf_counter_ns() - t0) / 1e6)
-                self.stats.update_bytes = len(raw_update)
-                self.stats.update_bytes_max = max(self.stats.update_bytes_max, len(raw_update))
-                self.stats.steps += 1
-                seq += 1
-                deadline += period_ns
-                if end is not None and now >= end:
-                    break
+            self._view.close()
+            self._alive.undeclare()
         finally:
-            view.close()
-            alive.undeclare()
-            session.close()
+            self._session.close()
+
+    def summary(self) -> dict[str, Any]:
         q, _ = self.world.tool_state()
         return {
             "steps": self.stats.steps,
