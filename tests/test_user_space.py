@@ -337,3 +337,26 @@ def test_a_pixel_example_runs_offline_in_si_and_replays_identically(
         # push_block's 150 N/m over the rest of its 12 cm: the pyramid pushes back that much
         expected = 150.0 * (0.12 - travel)
         assert ticks["wrench_command"][-1, 0] == pytest.approx(-expected, rel=0.05), out
+
+
+@pytest.mark.slow
+def test_the_notebook_style_script_plots_the_force_that_holds_the_users_push(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """examples/plot_touch_force.py: the plot is written, and the force rendered once the disc
+    rests on the wall is the closed form of the user's 150 N/m spring held by a 15 kN/m
+    contact: F = 150 (0.12 - 0.035 - F/K), F = 12.75 / (1 + 150/K) N (0.035 m: the wall's
+    face 0.045 less the disc's radius)."""
+    spec = importlib.util.spec_from_file_location(
+        "plot_touch_force", EXAMPLES / "plot_touch_force.py"
+    )
+    assert spec is not None and spec.loader is not None
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    out_png = tmp_path / "force.png"
+    assert example.main(["--out", str(out_png)]) == 0
+    assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    out = capsys.readouterr().out
+    rendered = float(out.split("rendered ")[1].split(" N")[0])
+    held = 150.0 * (0.12 - 0.035) / (1.0 + 150.0 / api.DEFAULT_CONTACT.stiffness_n_per_m)
+    assert rendered == pytest.approx(-held, rel=1e-3), out
