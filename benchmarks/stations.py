@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from haptic_local_model.benchmarks.impair import Impairment
 from haptic_local_model.haptic_server.log import _iter_messages
 from haptic_local_model.haptic_server.stages.station import STATION_ROW_DTYPE
 from haptic_local_model.haptic_server.station_records import STATION_TOPIC
@@ -86,13 +87,16 @@ class Process:
     def __init__(self, argv: list[str]) -> None:
         self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
         self.ready = threading.Event()
+        self.events: list[dict[str, Any]] = []  # every JSON event line, in order
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self) -> None:
         assert self.proc.stdout is not None
         for line in self.proc.stdout:
-            with contextlib.suppress(json.JSONDecodeError):
-                if json.loads(line).get("event") == "ready":
+            with contextlib.suppress(json.JSONDecodeError, AttributeError):
+                event = json.loads(line)
+                self.events.append(event)
+                if event.get("event") == "ready":
                     self.ready.set()
 
     def wait_ready(self, timeout_s: float = READY_S) -> None:
@@ -112,11 +116,12 @@ class Process:
 
 
 class ThreeHosts:
-    """The world's namespace joined to each station's by its own veth pair: a context
-    manager that stops every process started in them by its pid and deletes them, however
-    the block ends."""
+    """The world's namespace joined to each station's by its own veth pair, or, for a port in
+    `impair`, by a TUN device in each namespace with the impairment forwarder between them
+    (benchmarks/impair.py): a context manager that stops every process started in them by
+    its pid and deletes them, however the block ends."""
 
-    def __init__(self, tag: str = "") -> None:
+    def __init__(self, tag: str = "", impair: dict[str, Impairment] | None = None) -> None:
         tag = tag or f"{os.getpid() % 100000}"
         self.world_ns = f"hlm{tag}w"
         self.station_ns = {p: f"hlm{tag}{p[0]}" for p in PORTS}
@@ -124,6 +129,8 @@ class ThreeHosts:
         self.processes: list[Process] = []
         self.namespaces: list[str] = []
         self.veths: list[str] = []
+        self.impair = impair or {}
+        self.forwarders: dict[str, Process] = {}
 
     def __enter__(self) -> ThreeHosts:
         try:
@@ -131,8 +138,11 @@ class ThreeHosts:
                 ip("netns", "add", ns)
                 self.namespaces.append(ns)
             for n, (port, (w_if, s_if)) in enumerate(self.links.items(), 1):
-                ip("link", "add", w_if, "type", "veth", "peer", "name", s_if)
-                self.veths.append(w_if)
+                if port in self.impair:
+                    self.forward(port)
+                else:
+                    ip("link", "add", w_if, "type", "veth", "peer", "name", s_if)
+                    self.veths.append(w_if)
                 for ns, dev, host in ((self.world_ns, w_if, 1), (self.station_ns[port], s_if, 2)):
                     ip("link", "set", dev, "netns", ns)
                     ip("-n", ns, "addr", "add", f"10.214.{n}.{host}/30", "dev", dev)
@@ -147,6 +157,16 @@ class ThreeHosts:
         self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.cleanup()
+
+    def forward(self, port: str) -> None:
+        """The port's impairment forwarder, in this namespace: its two TUN devices made (to
+        be moved into the world's and the station's namespaces), stopped by its pid."""
+        argv = [sys.executable, "-m", "haptic_local_model.benchmarks.impair",
+                "--tun", *self.links[port], *self.impair[port].argv()]  # fmt: skip
+        p = Process(argv)
+        self.processes.append(p)
+        self.forwarders[port] = p
+        p.wait_ready(IP_TIMEOUT_S)
 
     def start(self, ns: str, argv: list[str]) -> Process:
         """`ip netns exec` execs the command: the pid is the process's own."""

@@ -1,0 +1,211 @@
+"""The shared world and two stations over bad links (issue 46's baseline): the three-namespace
+set-up of benchmarks/stations.py with each station's link through the impairment forwarder
+(benchmarks/impair.py: one-way delay D ± jitter, loss L, each direction), `grasp_vertical`
+for `--seconds` a point, swept over `--delays-ms` × `--losses`. Per point, from the
+processes' own logs and summaries:
+
+- each port's energy out (J): the most work its command has done on its device so far,
+  max over t of ∫0^t out · twist dt (a passive coupling gives back no more than it stored);
+- each port's force above 5 Hz: the RMS (N) of its command's x-y force in the band above
+  5 Hz, and that over the same at the unimpaired point (the 0 ms, no-loss run);
+- the box: how far it sank below its start at worst and how far it ended from it (mm);
+- each station's watchdog trips (safe entries) and tool states refused;
+- the stall distribution of ToolStates at each station: the time between ticks that took a
+  new one (p50/p99/max, ms; 1 ms is every tick) and the age, since it arrived, of the one
+  rendered; the share of its ticks at the full coupling.
+
+Needs root (network namespaces, TUN devices); everything it creates is removed and every
+process it starts stopped by its pid, however it ends.
+
+    sudo .venv/bin/python -m haptic_local_model.benchmarks.station_links \
+        [--delays-ms 0 10 50] [--losses 0 0.05] [--jitter 0.2] [--seconds 15] \
+        [--network stations_three_hosts] [--json out.json] [--md out.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from haptic_local_model.benchmarks.impair import Impairment
+from haptic_local_model.benchmarks.stations import (
+    CLI,
+    PORTS,
+    STOP_S,
+    ThreeHosts,
+    netns_unavailable,
+    station_rows,
+)
+
+BAND_HZ = 5.0  # the force spectrum is summed above this (a grip's own motion is slower)
+SETTLE_S = 1.0  # the spectrum leaves out the first second the station renders (it joins)
+SUMMARY_WAIT_S = 2.0  # for the forwarder's last line after it stopped
+
+
+def energy_out_j(rows: np.ndarray) -> float:
+    """The most work the port's command has done on its device up to any tick (J):
+    max over t of ∫0^t out · twist dt, the rectangle rule on the tick's own period."""
+    dt = np.diff(rows["t"], prepend=rows["t"][0])
+    work = np.cumsum((rows["out"] * rows["twist"]).sum(axis=1) * dt)
+    return float(max(0.0, work.max())) if len(work) else 0.0
+
+
+def rms_above(x: np.ndarray, dt_s: float, band_hz: float) -> float:
+    """The RMS of x's (n, k) columns in the band above band_hz, by Parseval over the real
+    FFT of each (mean removed): sqrt(2/n² Σ_{f > band} |X(f)|²), summed over the columns."""
+    n = len(x)
+    if n < 2:
+        return 0.0
+    spec = np.fft.rfft(x - x.mean(axis=0), axis=0)
+    f = np.fft.rfftfreq(n, dt_s)
+    return float(np.sqrt(2.0 / n**2 * (np.abs(spec[f > band_hz]) ** 2).sum()))
+
+
+def stalls_ms(rows: np.ndarray) -> np.ndarray:
+    """The times (ms, the loop's clock) between the ticks that took a new ToolState."""
+    took = np.flatnonzero(np.diff(rows["received"]) > 0) + 1
+    return np.diff(rows["wall_ns"][took]) / 1e6
+
+
+def percentiles(x: np.ndarray) -> dict[str, float]:
+    if len(x) == 0:
+        return {"p50": float("nan"), "p99": float("nan"), "max": float("nan")}
+    p50, p99 = np.percentile(x, [50, 99])
+    return {"p50": float(p50), "p99": float(p99), "max": float(x.max())}
+
+
+def port_figures(rows: np.ndarray, summary: dict[str, Any]) -> dict[str, Any]:
+    """One station's figures (module docstring)."""
+    fresh = np.flatnonzero(rows["fresh"] == 1)
+    start = int(fresh[0]) if len(fresh) else len(rows)
+    dt = float(np.median(np.diff(rows["t"]))) if len(rows) > 1 else 1e-3
+    band = rows["out"][start + round(SETTLE_S / dt) :, :2]
+    return {
+        "energy_out_j": energy_out_j(rows),
+        "rms_above_5hz_n": rms_above(band, dt, BAND_HZ),
+        "stall_ms": percentiles(stalls_ms(rows)),
+        # since the tool state arrived (the station's extrapolation horizon), not since sent
+        "tool_age_ms": percentiles(rows["tool_age"][fresh] * 1e3),
+        # of its ticks from the first it rendered: those at the full coupling
+        "coupled_fraction": float(((rows["fresh"] == 1) & (rows["gain"] == 1.0))[start:].mean())
+        if start < len(rows)
+        else 0.0,
+        "watchdog_trips": summary["safe_entries"],
+        "tool_states_received": summary["tool_states_received"],
+        "tool_states_rejected": summary["tool_states_rejected"],
+        "ticks": summary["ticks"],
+    }
+
+
+def run(seconds: float, imp: Impairment, folder: Path, network: str) -> dict[str, Any]:
+    """`grasp_vertical` at two stations, each link through `imp`, for `seconds`: its
+    figures (module docstring)."""
+    with ThreeHosts(impair=dict.fromkeys(PORTS, imp)) as h:
+        net = ["--network", network]
+        h.start(h.world_ns, [*CLI, "router", *net]).wait_ready()
+        world_json = folder / "world.json"
+        world = h.start(h.world_ns, [*CLI, "world", *net, "--duration", str(seconds + 6.0),
+                                     "--json", str(world_json)])  # fmt: skip
+        world.wait_ready()
+        stations = {}
+        for p in PORTS:
+            args = ["--port", p, "--duration", str(seconds), "--log", str(folder / f"{p}.mcap"),
+                    "--json", str(folder / f"{p}.json")]  # fmt: skip
+            stations[p] = h.start(h.station_ns[p], [*CLI, "station", *net, *args])
+        for s in stations.values():
+            s.wait_ready()
+        codes = {p: s.proc.wait(seconds + STOP_S) for p, s in stations.items()}
+        codes["world"] = world.proc.wait(STOP_S + 10.0)
+    end = time.monotonic() + SUMMARY_WAIT_S
+    while time.monotonic() < end and not all(f.events[-1:] for f in h.forwarders.values()):
+        time.sleep(0.05)
+    figures: dict[str, Any] = {"exit_codes": codes, "left_over": h.leftovers()}
+    figures["impairment"] = {"delay_ms": imp.delay_s * 1e3, "jitter_ms": imp.jitter_s * 1e3,
+                             "loss": imp.loss, "reorder": imp.reorder}  # fmt: skip
+    for p in PORTS:
+        summary = json.loads((folder / f"{p}.json").read_text())
+        figures[p] = port_figures(station_rows(folder / f"{p}.mcap"), summary)
+        last = h.forwarders[p].events[-1:]
+        figures[p]["link"] = last[0].get("counts") if last else None
+    box = json.loads(world_json.read_text())["bodies"]["box"]
+    figures["box_sank_mm"] = float(box["start"][1] - box["lowest_y"]) * 1e3
+    figures["box_moved_mm"] = float(np.hypot(*np.subtract(box["end"][:2], box["start"][:2]))) * 1e3
+    return figures
+
+
+def report(points: list[dict[str, Any]], seconds: float, command: str) -> str:
+    """The sweep as a Markdown table; the force above 5 Hz over the unimpaired point's."""
+    base = next((p for p in points if p["impairment"]["delay_ms"] == 0.0
+                 and p["impairment"]["loss"] == 0.0), None)  # fmt: skip
+    lines = [
+        f"`{command}` ({seconds:g} s a point, `grasp_vertical`, maglevs at both stations; the "
+        "machine's 2 cores shared with other work). Per station: left / right.",
+        "",
+        "| one-way ms | jitter ms | loss | energy out J | >5 Hz RMS N | ×0 ms | box sank / moved mm "
+        "| watchdog trips | ToolState gap ms p50 / p99 / max | age since arrival ms p50 / p99 |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for pt in points:
+        imp, lr = pt["impairment"], [pt[p] for p in PORTS]
+        ratio = [
+            f["rms_above_5hz_n"] / b["rms_above_5hz_n"] if base else float("nan")
+            for f, b in zip(lr, [base[p] for p in PORTS] if base else lr, strict=True)
+        ]
+        gap = " ; ".join(f"{f['stall_ms']['p50']:.0f} / {f['stall_ms']['p99']:.0f} / "
+                         f"{f['stall_ms']['max']:.0f}" for f in lr)  # fmt: skip
+        age = " ; ".join(
+            f"{f['tool_age_ms']['p50']:.1f} / {f['tool_age_ms']['p99']:.1f}" for f in lr
+        )
+        lines.append(
+            f"| {imp['delay_ms']:g} | {imp['jitter_ms']:g} | {imp['loss']:.0%} "
+            f"| {lr[0]['energy_out_j']:.3f} / {lr[1]['energy_out_j']:.3f} "
+            f"| {lr[0]['rms_above_5hz_n']:.3f} / {lr[1]['rms_above_5hz_n']:.3f} "
+            f"| {ratio[0]:.1f} / {ratio[1]:.1f} "
+            f"| {pt['box_sank_mm']:.1f} / {pt['box_moved_mm']:.1f} "
+            f"| {lr[0]['watchdog_trips']} / {lr[1]['watchdog_trips']} | {gap} | {age} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--delays-ms", type=float, nargs="+", default=[0.0, 10.0, 50.0])
+    ap.add_argument("--losses", type=float, nargs="+", default=[0.0, 0.05])
+    ap.add_argument("--jitter", type=float, default=0.2, help="jitter as a fraction of the delay")
+    ap.add_argument("--seconds", type=float, default=15.0, help="the stations' run a point (s)")
+    ap.add_argument("--network", default="stations_three_hosts", help="in configs/network")
+    ap.add_argument("--json", type=Path, default=None, help="write the figures here")
+    ap.add_argument("--md", type=Path, default=None, help="write the report's table here")
+    args = ap.parse_args(argv)
+    reason = netns_unavailable()
+    if reason:
+        print(f"station links benchmark: {reason}", file=sys.stderr)
+        return 2
+    points = []
+    for loss in args.losses:
+        for d in args.delays_ms:
+            imp = Impairment(d / 1e3, args.jitter * d / 1e3, loss)
+            with tempfile.TemporaryDirectory() as tmp:
+                points.append(run(args.seconds, imp, Path(tmp), args.network))
+            print(json.dumps(points[-1]), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(points, indent=2))
+    command = "python -m haptic_local_model.benchmarks.station_links " + " ".join(
+        argv if argv is not None else sys.argv[1:]
+    )
+    text = report(points, args.seconds, command.strip())
+    print(text)
+    if args.md:
+        args.md.write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
