@@ -41,6 +41,7 @@ TUNSETIFF = 0x400454CA
 IFF_TUN = 0x0001
 IFF_NO_PI = 0x1000
 MAX_PACKET = 65536
+IP_PROTOCOLS = {6: "tcp", 17: "udp"}  # IPv4 header byte 9
 IDLE_WAIT_S = 0.05  # how long the loop waits with nothing due (a stop is seen within this)
 
 
@@ -83,6 +84,7 @@ class Direction:
         self.last_release = -np.inf
         self.passed = 0
         self.dropped = 0
+        self.protocols = dict.fromkeys(IP_PROTOCOLS.values(), 0)  # IPv4 packets arrived
 
     def release_at(self, now_s: float) -> float | None:
         """The time a packet arriving at now_s leaves, or None if it is lost."""
@@ -130,7 +132,10 @@ class Forwarder:
         self.send_due(time.monotonic())
 
     def take(self, fd: int, packet: bytes, now_s: float) -> None:
-        t = self.directions[fd].release_at(now_s)
+        d = self.directions[fd]
+        if len(packet) > 9 and packet[0] >> 4 == 4 and packet[9] in IP_PROTOCOLS:
+            d.protocols[IP_PROTOCOLS[packet[9]]] += 1
+        t = d.release_at(now_s)
         if t is not None:
             self.sent += 1  # a tie-breaker: equal release times leave in arrival order
             heapq.heappush(self.in_flight, (t, self.sent, self.peer[fd], packet))
@@ -144,7 +149,7 @@ class Forwarder:
     def counts(self) -> dict[str, dict[str, int]]:
         a, b = self.fds
         return {
-            name: {"passed": d.passed, "dropped": d.dropped}
+            name: {"passed": d.passed, "dropped": d.dropped, **d.protocols}
             for name, d in (("a_to_b", self.directions[a]), ("b_to_a", self.directions[b]))
         }
 

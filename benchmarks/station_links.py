@@ -46,7 +46,8 @@ from haptic_local_model.benchmarks.stations import (
 
 BAND_HZ = 5.0  # the force spectrum is summed above this (a grip's own motion is slower)
 SETTLE_S = 1.0  # the spectrum leaves out the first second the station renders (it joins)
-SUMMARY_WAIT_S = 2.0  # for the forwarder's last line after it stopped
+SUMMARY_WAIT_S = 2.0
+FELL_MM = 100.0  # a box this far from its start has left the grip (the pads are 60 mm tall)  # for the forwarder's last line after it stopped
 
 
 def energy_out_j(rows: np.ndarray) -> float:
@@ -140,10 +141,22 @@ def run(seconds: float, imp: Impairment, folder: Path, network: str) -> dict[str
     return figures
 
 
-def report(points: list[dict[str, Any]], seconds: float, command: str) -> str:
-    """The sweep as a Markdown table; the force above 5 Hz over the unimpaired point's."""
-    base = next((p for p in points if p["impairment"]["delay_ms"] == 0.0
+def box_text(mm: float) -> str:
+    """A box's sag or drift in mm; `fell` once it is more than FELL_MM (out of the grip)."""
+    return "fell" if mm > FELL_MM else f"{mm:.1f}"
+
+
+def unimpaired(points: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The sweep's point at 0 ms and no loss, if it has one."""
+    return next((p for p in points if p["impairment"]["delay_ms"] == 0.0
                  and p["impairment"]["loss"] == 0.0), None)  # fmt: skip
+
+
+def report(
+    points: list[dict[str, Any]], seconds: float, command: str, base: dict[str, Any] | None
+) -> str:
+    """The sweep as a Markdown table; the force above 5 Hz over the `base` point's (the
+    unimpaired run)."""
     lines = [
         f"`{command}` ({seconds:g} s a point, `grasp_vertical`, maglevs at both stations; the "
         "machine's 2 cores shared with other work). Per station: left / right.",
@@ -168,7 +181,7 @@ def report(points: list[dict[str, Any]], seconds: float, command: str) -> str:
             f"| {lr[0]['energy_out_j']:.3f} / {lr[1]['energy_out_j']:.3f} "
             f"| {lr[0]['rms_above_5hz_n']:.3f} / {lr[1]['rms_above_5hz_n']:.3f} "
             f"| {ratio[0]:.1f} / {ratio[1]:.1f} "
-            f"| {pt['box_sank_mm']:.1f} / {pt['box_moved_mm']:.1f} "
+            f"| {box_text(pt['box_sank_mm'])} / {box_text(pt['box_moved_mm'])} "
             f"| {lr[0]['watchdog_trips']} / {lr[1]['watchdog_trips']} | {gap} | {age} |"
         )
     return "\n".join(lines) + "\n"
@@ -183,6 +196,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--network", default="stations_three_hosts", help="in configs/network")
     ap.add_argument("--json", type=Path, default=None, help="write the figures here")
     ap.add_argument("--md", type=Path, default=None, help="write the report's table here")
+    ap.add_argument("--base", type=Path, default=None,
+                    help="a sweep's JSON whose 0 ms, no-loss point the force above 5 Hz is "
+                         "compared with (default: this sweep's)")  # fmt: skip
     args = ap.parse_args(argv)
     reason = netns_unavailable()
     if reason:
@@ -200,7 +216,8 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m haptic_local_model.benchmarks.station_links " + " ".join(
         argv if argv is not None else sys.argv[1:]
     )
-    text = report(points, args.seconds, command.strip())
+    base = unimpaired(json.loads(args.base.read_text()) if args.base else points)
+    text = report(points, args.seconds, command.strip(), base)
     print(text)
     if args.md:
         args.md.write_text(text)
