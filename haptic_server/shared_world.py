@@ -76,6 +76,7 @@ from haptic_local_model.shared.net.stations import (
     StationNetworkConfig,
     open_client,
     port_keys,
+    state_publisher,
 )
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
 from haptic_local_model.shared.protocol.station import (
@@ -182,9 +183,7 @@ class SharedWorld:
             subs.append(
                 session.declare_subscriber(device_key, zenoh.handlers.RingChannel(DEVICE_RING))
             )
-            pubs.append(session.declare_publisher(
-                tool_key, congestion_control=zenoh.CongestionControl.DROP, express=True
-            ))  # fmt: skip
+            pubs.append(state_publisher(session, tool_key, self.network.state_reliability))
         if self.sim is not None:
             self.sim.open(session)
         pacer = Pacer(round(self.engine.dt * 1e9), SPIN_NS, duration_s)

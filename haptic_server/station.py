@@ -47,6 +47,7 @@ from haptic_local_model.shared.net.stations import (
     StationNetworkConfig,
     open_client,
     port_keys,
+    state_publisher,
 )
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
 from haptic_local_model.shared.protocol.station import TOOL_RECORD, device_record
@@ -118,9 +119,7 @@ class Station:
         device_key, tool_key = port_keys(self.network.namespace, self.port)
         session = open_client(self.network.station(self.port))
         sub = session.declare_subscriber(tool_key, zenoh.handlers.RingChannel(TOOL_RING))
-        pub = session.declare_publisher(
-            device_key, congestion_control=zenoh.CongestionControl.DROP, express=True
-        )
+        pub = state_publisher(session, device_key, self.network.state_reliability)
         pacer = Pacer(round(float(self.station[0]["dt"]) * 1e9), SPIN_NS, duration_s)
         self.pacer = pacer
         enter_loop(self.warm, ready)

@@ -9,13 +9,17 @@ import struct
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+import zenoh
 
 from haptic_local_model.benchmarks import station_links
 from haptic_local_model.benchmarks.impair import Direction, Forwarder, Impairment
 from haptic_local_model.benchmarks.stations import PORTS, netns_unavailable
+from haptic_local_model.shared.config import ConfigError, resolve
+from haptic_local_model.shared.net.stations import load_station_network, state_publisher
 
 N = 20000
 SIGMAS = 4.0  # a sampled figure within this many standard errors of its closed form
@@ -133,3 +137,51 @@ def test_a_station_pair_couples_through_the_impaired_links_at_10_ms(tmp_path: Pa
         assert all(d["dropped"] == 0 for d in link.values()), s
         assert s["energy_out_j"] <= 0.05, s  # issue 46's bound
     assert f["box_sank_mm"] < 3.0, f  # as tests/test_stations.py's three hosts
+
+
+def test_state_reliability_is_checked_by_name_and_reaches_the_publishers(tmp_path: Path) -> None:
+    """The network's state_reliability: a wrong value is refused naming its key; the shipped
+    UDP network sends states best effort, the others reliably; state_publisher declares
+    them so (a recording stand-in for the session)."""
+    shipped = resolve("network", "stations_three_hosts_udp")
+    src = shipped.read_text().replace("../credentials", str(shipped.parent.parent / "credentials"))
+    bad = tmp_path / "bad.toml"
+    bad.write_text(src.replace('state_reliability = "best_effort"', 'state_reliability = "fast"'))
+    with pytest.raises(ConfigError) as err:
+        load_station_network(str(bad), "router")
+    assert err.value.key == "state_reliability", err.value
+    assert load_station_network("stations_three_hosts_udp", "left").state_reliability == (
+        "best_effort"
+    )
+    assert load_station_network("stations_three_hosts", "left").state_reliability == "reliable"
+
+    class Session:
+        def declare_publisher(self, key: str, **qos: Any) -> dict[str, Any]:
+            return {"key": key, **qos}
+
+    pub = state_publisher(Session(), "k", "best_effort")  # type: ignore[arg-type]
+    assert pub["reliability"] == zenoh.Reliability.BEST_EFFORT
+    assert pub["congestion_control"] == zenoh.CongestionControl.DROP and pub["express"]
+    assert state_publisher(Session(), "k", "reliable")["reliability"] == (  # type: ignore[arg-type]
+        zenoh.Reliability.RELIABLE
+    )
+
+
+@pytest.mark.processes
+def test_best_effort_states_over_udp_hold_the_box_at_5_percent_loss(tmp_path: Path) -> None:
+    """stations_three_hosts_udp at 10 ms ± 2 ms one way and 5 % loss: every packet of each
+    link is UDP, so none waits behind a TCP retransmission, and some were lost; both
+    stations couple through it. (Whether the box is held is the benchmark's: in 1 of 6 runs
+    of 8 s here it fell, docs/bench/station_links.md.)"""
+    reason = netns_unavailable()
+    if reason:
+        pytest.skip(reason)
+    f = station_links.run(8.0, Impairment(0.01, 0.002, 0.05), tmp_path, "stations_three_hosts_udp")
+    assert f["left_over"] == [] and set(f["exit_codes"].values()) == {0}, f
+    for p in PORTS:
+        s = f[p]
+        link = s["link"]
+        assert link is not None, s
+        for d in link.values():
+            assert d["tcp"] == 0 and d["udp"] > 1000 and d["dropped"] > 0, s
+        assert s["coupled_fraction"] > 0.0 and s["tool_states_rejected"] == 0, s

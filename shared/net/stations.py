@@ -43,6 +43,10 @@ from haptic_local_model.shared.net.config import (
 from haptic_local_model.shared.net.transport import session_config
 
 PORT_NAME_CHARS = set("abcdefghijklmnopqrstuvwxyz0123456789_-")
+STATE_RELIABILITY = {
+    "reliable": zenoh.Reliability.RELIABLE,
+    "best_effort": zenoh.Reliability.BEST_EFFORT,
+}
 
 
 def port_keys(namespace: str, port: str) -> tuple[str, str]:
@@ -75,9 +79,19 @@ class StationNetworkConfig:
     sim: EndpointSpec = field(default_factory=EndpointSpec)
     # a router without authentication lets anyone drive the ports: refused unless set
     unauthenticated_insecure: bool = False
+    # how ToolStates and DeviceStates are sent: "reliable" (retransmitted: on a TCP link a
+    # lost packet holds every newer state behind it), or "best_effort" (a lost one stays
+    # lost; on a transport with a UDP link beside its TCP one they take the UDP link, and
+    # the declarations, the access control's and the sim's messages stay on TCP)
+    state_reliability: str = "reliable"
 
     def __post_init__(self) -> None:
         require_safe_state(self.namespace, self.watchdog_ms, self.safe_ramp_ms)
+        require(
+            self.state_reliability in STATE_RELIABILITY,
+            "state_reliability",
+            f"must be one of {sorted(STATE_RELIABILITY)}, not {self.state_reliability!r}",
+        )
         within(self.world_watchdog_ms, WATCHDOG_MS_RANGE, "world_watchdog_ms", "ms")
         require(bool(self.router.listen), "router.listen", "the router must listen somewhere")
         require(bool(self.world.connect), "world.connect", "the world must connect to the router")
@@ -118,6 +132,18 @@ class StationNetworkConfig:
             known = ", ".join(sorted(self.stations))
             raise ValueError(f"stations.{port}: no such station (known: {known})")
         return self.stations[port]
+
+
+def state_publisher(session: zenoh.Session, key: str, reliability: str) -> Any:
+    """A publisher of a port's states (ToolState or DeviceState): the newest matters, so a
+    congested link drops (it does not block the loop), express (not batched), with the
+    network's `state_reliability`."""
+    return session.declare_publisher(
+        key,
+        congestion_control=zenoh.CongestionControl.DROP,
+        express=True,
+        reliability=STATE_RELIABILITY[reliability],
+    )
 
 
 def access_control(config: StationNetworkConfig, ports: list[str]) -> dict[str, Any]:
