@@ -235,12 +235,7 @@ def test_the_bouncing_balls_example_runs_offline_and_replays_identically(
     """examples/touch_bouncing_balls.py as a user runs it: 3 s on the virtual clock with the
     ideal device and the swing user; the disc touches the platform or a ball, no fault, and
     its log replays bit for bit (so the README's example cannot rot)."""
-    spec = importlib.util.spec_from_file_location(
-        "touch_bouncing_balls", EXAMPLES / "touch_bouncing_balls.py"
-    )
-    assert spec is not None and spec.loader is not None
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
+    example = load_example("touch_bouncing_balls")
     log = tmp_path / "balls.mcap"
     assert example.main(["--seconds", "3", "--log", str(log)]) == 0
     out = capsys.readouterr().out
@@ -303,7 +298,8 @@ def test_a_held_chain_runs_offline_and_replays_bit_for_bit(tmp_path: Path) -> No
     assert api.replays_identically(log)
 
 
-def _load_example(name: str):  # type: ignore[no-untyped-def]
+def load_example(name: str):  # type: ignore[no-untyped-def]
+    """examples/<name>.py as a module (the examples are scripts, not a package)."""
     spec = importlib.util.spec_from_file_location(name, EXAMPLES / f"{name}.py")
     assert spec is not None and spec.loader is not None
     example = importlib.util.module_from_spec(spec)
@@ -321,7 +317,7 @@ def test_a_pixel_example_runs_offline_in_si_and_replays_identically(
     disc into the boxes; no fault, the log replays bit for bit, and the push is felt (the
     stack gives way: a box moves; the pyramid holds: the disc stops short of the user's 12 cm
     and the device commands the user's push back)."""
-    example = _load_example(name)
+    example = load_example(name)
     log = tmp_path / f"{name}.mcap"
     assert example.main(["--seconds", "3", "--log", str(log)]) == 0
     out = capsys.readouterr().out
@@ -347,12 +343,7 @@ def test_the_notebook_style_script_plots_the_force_that_holds_the_users_push(
     rests on the wall is the closed form of the user's 150 N/m spring held by a 15 kN/m
     contact: F = 150 (0.12 - 0.035 - F/K), F = 12.75 / (1 + 150/K) N (0.035 m: the wall's
     face 0.045 less the disc's radius)."""
-    spec = importlib.util.spec_from_file_location(
-        "plot_touch_force", EXAMPLES / "plot_touch_force.py"
-    )
-    assert spec is not None and spec.loader is not None
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
+    example = load_example("plot_touch_force")
     out_png = tmp_path / "force.png"
     assert example.main(["--out", str(out_png)]) == 0
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

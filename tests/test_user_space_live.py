@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pymunk
 import pytest
+from test_user_space import load_example
 
 from haptic_local_model import api
 from haptic_local_model.shared.config import resolve
@@ -48,13 +49,7 @@ def test_the_examples_run_live_and_replay(
 ) -> None:
     """Each pymunk example with --live: 3 s with the ideal device, no watchdog trip, no fault
     tick, and its log replays bit for bit."""
-    import importlib.util
-
-    path = Path(__file__).resolve().parent.parent / "examples" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(name, path)
-    assert spec is not None and spec.loader is not None
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
+    example = load_example(name)
     log = tmp_path / f"{name}.mcap"
     assert example.main(["--live", "--seconds", "3", "--log", str(log)]) == 0
     out = capsys.readouterr().out
