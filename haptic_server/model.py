@@ -120,6 +120,10 @@ SCRATCH_DTYPE = np.dtype(
         ("contact_damping_q", F8, (MAX_DOF, MAX_DOF)),  # sum J^T B J
         ("contact_stiff_vrel", F8, (MAX_DOF,)),  # sum J^T K v_rel (the implicit correction)
         ("contact_force", F8, (2,)),  # world force of all contacts on the proxy this tick
+        # J, this tick: the work the touched shapes' own motion did on the proxy (contact
+        # forces and impulses along the shapes' velocities): the passivity observer's budget
+        # for a moving world, as the god-object's env_work
+        ("env_work", F8),
         ("n_active", I8),  # contacts of the newest model in penetration
         ("penetration", F8),  # the deepest of them (m, >= 0)
         ("contact_ran", I8),  # the contact stage did work

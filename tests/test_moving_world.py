@@ -16,6 +16,7 @@ from haptic_local_model.benchmarks.moving_world import (
     MU_REL_TARGET,
     SLIP_TARGET_M,
     approaching_wall,
+    local_wall,
     rotating_box,
     sliding,
     stuck,
@@ -37,6 +38,19 @@ def test_a_held_finger_is_never_inside_an_approaching_wall(speed: float) -> None
     assert case.figure <= DEPTH_TARGET_M, case
     # the wall's push is the world's work, not the rendering's: the guard (0.5 J) holds
     # (at 0.5 m/s it tripped after 0.29 s, 0.65 J, when it counted the wall's work)
+    assert case.faults == 0 and case.port_energy_j <= 1e-3, case
+
+
+@pytest.mark.parametrize("speed", [0.05, 0.5])
+def test_the_local_models_tool_meets_an_approaching_wall_on_the_walls_law(speed: float) -> None:
+    """The local model (penalty contacts: inside by F/K by design): the penetration rendered
+    each tick equals the depth of the proxy's leading corner in the wall's law at that tick
+    within 10 um (a wall drawn one 60 Hz period late reads 0.85 mm / 8.5 mm shallower), and
+    the wall's push is the world's work: the guard holds (at 0.5 m/s it tripped at 0.134 s,
+    0.58 J, when it counted the wall's work on the proxy)."""
+    case = local_wall(speed)
+    assert not case.detail.startswith("0 ticks"), "the wall never reached the tool"
+    assert case.figure <= DEPTH_TARGET_M, case
     assert case.faults == 0 and case.port_energy_j <= 1e-3, case
 
 

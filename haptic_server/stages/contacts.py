@@ -119,6 +119,9 @@ def contact_stage(m, d, k, weight, detect):
         fy = f_n * ny + f_t * ty
         ws.contact_force[0] += weight * fx
         ws.contact_force[1] += weight * fy
+        ws.env_work += (
+            weight * dt * (fx * slot.c_env_velocity[i, 0] + fy * slot.c_env_velocity[i, 1])
+        )
         kt_eff = k_t if sticking else 0.0
         for a in range(n):
             ja_n = nx * ws.jac_point[0, a] + ny * ws.jac_point[1, a]
@@ -149,6 +152,7 @@ def contacts(m, d):
     w.n_colliding = 0
     w.contact_force[0] = 0.0
     w.contact_force[1] = 0.0
+    w.env_work = 0.0
     w.n_active = 0
     w.penetration = 0.0
     w.contact_ran = 0
@@ -196,6 +200,13 @@ def impulses(m, d):
                 v += ws.coll_rows[r, a] * ws.coll_minv_row[a]
             ws.coll_a[r, c] = v
     lcp(ws.coll_a, ws.coll_target, ws.coll_lambda, k)
+    slot = m.slots[0]
+    for c in range(k):  # a moving shape's share: lambda n . v_env (the world's, not ours)
+        i = ws.coll_index[c]
+        ws.env_work += ws.coll_lambda[c] * (
+            slot.c_normal[i, 0] * slot.c_env_velocity[i, 0]
+            + slot.c_normal[i, 1] * slot.c_env_velocity[i, 1]
+        )
     for a in range(n):
         v = 0.0
         for c in range(k):

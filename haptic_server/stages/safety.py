@@ -31,9 +31,11 @@ def runaway_guard(m, d):
       device's own kinetic energy 1/2 v^T M_d v (an inertia-compensating law drives the
       handle's mass, not the hand); forgotten over passivity_window_s. Above
       passivity_limit_j the rendering is generating energy (Fault.PASSIVITY). It omits
-      the device's own friction losses, so it errs toward tripping. Under the god-object,
-      the work the touched obstacles' own motion did on the finger (a wall driven into the
-      hand, a belt dragging it) is the world's, not the rendering's: it is taken out.
+      the device's own friction losses, so it errs toward tripping. The work the touched
+      obstacles' own motion did on the finger or the proxy (a wall driven into the hand, a
+      belt dragging it: the god-object's env_work, the local model's contacts' and
+      impulses' along the shapes' velocities) is the world's, not the rendering's: it is
+      taken out.
     A trip sends the device to the safe state at once and stops the proxy; the next
     installed update re-initialises it from the sim (HapticEngine.installed)."""
     p = m.params
@@ -51,8 +53,8 @@ def runaway_guard(m, d):
     if st.device_energy < 0.0:  # re-initialised: the device's energy so far is not the port's
         st.device_energy = kinetic
     given = work - (kinetic - st.device_energy)
-    if p.method == Method.GOD_OBJECT:  # a moving world's push is not the rendering's energy
-        given -= d.god.env_work
+    # a moving world's push is not the rendering's energy
+    given -= d.god.env_work if p.method == Method.GOD_OBJECT else d.scratch.env_work
     st.device_energy = kinetic
     st.port_energy = st.port_energy * math.exp(-d.dt / p.passivity_window_s) + given
     if st.fault != Fault.NONE:
