@@ -540,7 +540,8 @@ def log_frames(
 
 def view_log(path: Path, address: ViewAddress, stop: threading.Event, speed: float = 0.0) -> int:
     """Draw a log: every update, every event and the ticks at VIEW_HZ of log time, as fast
-    as they go (speed 0) or at `speed` x log time. Returns the frames drawn. The server
+    as they go (speed 0) or at `speed` x log time from the first installed update (what
+    comes before it, at once). Returns the frames drawn. The server
     keeps serving until `stop` is set."""
     from haptic_local_model.haptic_server.log import read_log
 
@@ -552,7 +553,9 @@ def view_log(path: Path, address: ViewAddress, stop: threading.Event, speed: flo
         rec = open_recording(address, "haptic-replay")
         view = SceneView(log.metadata.get("configs", {}).get("scene"), rec)
         print(f"live view: {address.url}", file=sys.stderr, flush=True)
-        wall0 = time.monotonic()
+        # paced from the first installed update: the seconds before the sim's first one
+        # (its start, its kernels loading) have no model to draw, and are drawn at once
+        wall0, t0 = time.monotonic(), None
         for row, updates, events, world in log_frames(log):
             for raw in updates:
                 view.update(raw)
@@ -561,8 +564,12 @@ def view_log(path: Path, address: ViewAddress, stop: threading.Event, speed: flo
             view.frame(row)
             for raw in world:  # at this frame's time, as live
                 view.world(raw)
-            if speed > 0:
-                time.sleep(max(0.0, wall0 + float(row["t"]) / speed - time.monotonic()))
+            if t0 is None and updates:
+                wall0, t0 = time.monotonic(), float(row["t"])
+                print(f"live view: the log's first {t0:.2f} s, before the sim's first update, "
+                      f"drawn at once", file=sys.stderr, flush=True)  # fmt: skip
+            if speed > 0 and t0 is not None:
+                time.sleep(max(0.0, wall0 + (float(row["t"]) - t0) / speed - time.monotonic()))
             if stop.is_set():
                 break
         layer = view.world_layer
