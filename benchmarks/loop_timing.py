@@ -13,6 +13,12 @@ vCPU now and then): the three runs are repeated `--repeat` times, interleaved, a
 targets are judged on the median of each figure over the repetitions. From the log of each
 logging run it also splits work per tick into the ticks that installed an update and the rest.
 
+With --view, also the system with its live view open in a headless Chromium (interleaved),
+and for the logging runs the CPU each group of processes took and waited for
+(`benchmarks/process_cpu.py`: the sim, the haptic server, the view, the Rerun server, the
+browser, the rest of the machine), the watchdog trips and the view's level changes
+(docs/live-view.md). HAPTIC_BENCH_KEEP_LOGS=DIR keeps each logging run's log there.
+
 With --stations, instead: a shared world and its two stations (docs/stations.md:
 haptic-router, haptic-world, two haptic-station processes) on loopback, for every shipped
 port scene (grasp_clutter: two ports and 64 shapes), interleaved: each process's tick rate,
@@ -28,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -124,7 +131,8 @@ def system(
     user: str | None = None,
 ) -> dict[str, Any]:
     """One haptic-run; with `view`, its live view open in a headless browser throughout (if
-    there is one: `benchmarks.browser`), and the view's own cost in `view`."""
+    there is one: `benchmarks.browser`), and the view's own cost in `view`. The CPU each
+    group of processes took per second (`benchmarks.process_cpu`) in `cpu_shares`."""
     with tempfile.TemporaryDirectory() as tmp:
         summary = Path(tmp) / "summary.json"
         log_path = Path(tmp) / "run.mcap"
@@ -137,10 +145,16 @@ def system(
         argv += ["--user", user] if user else []
         if view:
             argv += ViewAddress("127.0.0.1", *VIEW_PORTS).argv()
-            watched = _run_watched(argv)
+            watched, shares = _run_watched(argv)
         else:
-            subprocess.run(argv, check=True, stdout=subprocess.DEVNULL)
+            proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL)
+            shares = _sampled_until_done(proc)
         result: dict[str, Any] = json.loads(summary.read_text())
+        result["cpu_shares"] = shares
+        if KEEP_LOGS_ENV in os.environ and log:
+            kept = Path(os.environ[KEEP_LOGS_ENV])
+            kept.mkdir(parents=True, exist_ok=True)
+            shutil.copy(log_path, kept / f"{'view' if view else 'plain'}-{time.time_ns()}.mcap")
         if log:
             result["work_split_us"] = work_split(read_ticks(log_path))
         if view:
@@ -148,13 +162,33 @@ def system(
         return result
 
 
-def _run_watched(argv: list[str]) -> dict[str, Any]:
+KEEP_LOGS_ENV = "HAPTIC_BENCH_KEEP_LOGS"  # a directory: each logging run's log kept there
+SCREENSHOT_ENV = "HAPTIC_BENCH_SCREENSHOT"  # a PNG: each view run's last frame written there
+SHOT_SETTLE_S = 5.0  # the viewer, which lags the data on a machine without a GPU, catches up
+
+
+def _sampled_until_done(proc: subprocess.Popen[Any], poll_s: float = 0.2) -> dict[str, float]:
+    """Wait for a run, sampling every process's CPU while it runs; raise if it failed."""
+    from haptic_local_model.benchmarks.process_cpu import CpuSampler
+
+    sampler = CpuSampler().start()
+    while proc.poll() is None:
+        time.sleep(poll_s)
+    shares = sampler.stop()
+    if proc.wait() != 0:
+        raise RuntimeError(f"haptic-run failed (exit {proc.returncode})")
+    return shares
+
+
+def _run_watched(argv: list[str]) -> tuple[dict[str, Any], dict[str, float]]:
     """Run haptic-run --view with a headless browser on its view while it runs; returns
-    whether a browser watched and the view's own report."""
+    whether a browser watched and the view's own report, and the CPU per process group."""
     import threading
 
     from haptic_local_model.benchmarks.browser import chromium, open_page
+    from haptic_local_model.benchmarks.process_cpu import CpuSampler
 
+    sampler = CpuSampler().start()
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     browser = chromium()
     watched = threading.Event()
@@ -163,9 +197,14 @@ def _run_watched(argv: list[str]) -> dict[str, Any]:
 
     def watch(url: str) -> None:
         assert browser is not None
-        with open_page(url, browser):
+        with open_page(url, browser) as page:
             watched.set()
             proc.wait()
+            shot = os.environ.get(SCREENSHOT_ENV)
+            if shot:  # the viewer keeps the run's last frame after the run
+                time.sleep(SHOT_SETTLE_S)
+                Path(shot).parent.mkdir(parents=True, exist_ok=True)
+                page.screenshot(path=shot)
 
     assert proc.stderr is not None
     for line in proc.stderr:
@@ -176,19 +215,21 @@ def _run_watched(argv: list[str]) -> dict[str, Any]:
             watcher.start()
             watchers.append(watcher)
     code = proc.wait()
+    shares = sampler.stop()
     for watcher in watchers:  # its browser closed before the next run starts
         watcher.join(60)
     if code != 0:
         raise RuntimeError(f"haptic-run --view failed: {''.join(lines[-5:])}")
-    return {"browser": watched.is_set(), "report": _view_report(lines)}
+    return {"browser": watched.is_set(), "report": _view_report(lines)}, shares
 
 
 VIEW_PORTS = (19090, 19876)  # the view's web and data ports in this benchmark
 
 
-def _view_report(lines: list[str]) -> dict[str, float]:
+def _view_report(lines: list[str]) -> dict[str, Any]:
     """The view's own figures from its last line: frames, seconds, CPU ms per frame in the
-    view process and in the Rerun server."""
+    view process and in the Rerun server; and the levels it degraded to or restored
+    (view_degrade.py), as it said them."""
     import re
 
     for line in reversed(lines):
@@ -198,8 +239,13 @@ def _view_report(lines: list[str]) -> dict[str, float]:
         )  # fmt: skip
         if m:
             frames, secs, here, server = (float(g) for g in m.groups())
+            said = [
+                line.split("live view: ", 1)[1].strip()
+                for line in lines
+                if "live view: view degraded" in line or "live view: view restored" in line
+            ]
             return {"frames": frames, "seconds": secs, "cpu_ms_per_frame_view": here,
-                    "cpu_ms_per_frame_rerun_server": server}  # fmt: skip
+                    "cpu_ms_per_frame_rerun_server": server, "level_changes": said}  # fmt: skip
     return {}
 
 
@@ -253,6 +299,11 @@ def main(argv: list[str] | None = None) -> int:
         help="also the system with its live view open in a headless browser (interleaved)",
     )  # fmt: skip
     parser.add_argument(
+        "--screenshot", type=Path, default=None, metavar="PNG",
+        help="with --view: the browser's view at the end of each view run, written here (the "
+        "last run's stays; the README's docs/figures/live_view.png is made so)",
+    )  # fmt: skip
+    parser.add_argument(
         "--stations", action="store_true",
         help="instead: a shared world and two stations on loopback, every shipped port scene",
     )  # fmt: skip
@@ -260,6 +311,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.stations:
         return stations_timing(args.seconds, args.repeat, args.json)
     configs = (*CONFIGS, VIEW_CONFIG) if args.view else CONFIGS
+    if args.screenshot is not None:
+        os.environ[SCREENSHOT_ENV] = str(args.screenshot.resolve())
     if args.bare_only:
         realtime = try_realtime_priority()
         period_ns = round(1e9 / args.rate[0])
@@ -384,6 +437,12 @@ def _print_view(runs: dict[str, list[dict[str, Any]]], medians: dict[str, Any]) 
             f"{[r.get('updates_installed') for r in rs]}, world messages from the sim "
             f"{[(r.get('sim') or {}).get('view_messages') for r in rs]}"
         )
+    for name in ("system_log_on", VIEW_CONFIG):
+        groups = runs[name][0].get("cpu_shares") or {}
+        shares = {g: np.median([r["cpu_shares"].get(g, 0.0) for r in runs[name]]) for g in groups}
+        print(f"{name}: CPU s per s (median), " + ", ".join(
+            f"{g} {v:.2f}" for g, v in sorted(shares.items(), key=lambda kv: -kv[1])
+        ))  # fmt: skip
     reports = [r["view"]["report"] for r in runs[VIEW_CONFIG] if r["view"]["report"]]
     if reports:
         here = np.median([r["cpu_ms_per_frame_view"] for r in reports])
@@ -392,7 +451,8 @@ def _print_view(runs: dict[str, list[dict[str, Any]]], medians: dict[str, Any]) 
         browser = all(r["view"]["browser"] for r in runs[VIEW_CONFIG])
         print(
             f"view cost: {rate:.1f} frames/s; CPU per frame {here:.2f} ms in the view process, "
-            f"{server:.2f} ms in the Rerun server (browser watching: {browser})"
+            f"{server:.2f} ms in the Rerun server (browser watching: {browser}); level "
+            f"changes per run {[len(r.get('level_changes', [])) for r in reports]}"
         )
 
 

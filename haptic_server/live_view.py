@@ -46,6 +46,7 @@ from haptic_local_model.haptic_server.mailbox import (
     SharedBlock,
 )
 from haptic_local_model.haptic_server.view_board import ViewBoard
+from haptic_local_model.haptic_server.view_degrade import DegradePolicy, InstallGap
 from haptic_local_model.haptic_server.view_world import WorldLayer
 from haptic_local_model.shared.config import BodySpec, ConfigError, static_bodies
 from haptic_local_model.shared.protocol.layout import MAX_DOF
@@ -275,8 +276,9 @@ class SceneView:
     def set_time(self, t_s: float) -> None:
         _rr().set_time("time", duration=t_s, recording=self.rec)
 
-    def update(self, raw: bytes) -> None:
-        """An installed update: its linkage (joint types, lengths, base) and its contacts."""
+    def update(self, raw: bytes, contacts: bool = True) -> None:
+        """An installed update: its linkage (joint types, lengths, base) and its contacts
+        (unless a degraded view dropped them: `contacts`; they are then cleared once)."""
         rr = _rr()
         if self._parser is None:
             from haptic_local_model.shared.protocol.update import UpdateParser
@@ -287,23 +289,28 @@ class SceneView:
         out = self._parser.out[0]
         dof = int(out["dof"])
         self._chain = (out.copy(), dof)  # the parsed record: its tree and bases
+        if not contacts:
+            if self._contacts is not None:
+                self._log("world/contacts", rr.Clear(recursive=True))
+                self._contacts = None
+            return
         n = int(out["n_contacts"])
-        contacts = [
+        found = [
             (float(e[0]), float(e[1]), float(k[0]), float(k[1]))
             for e, k in zip(out["c_env"][:n], out["c_normal"][:n], strict=True)
         ]
-        if contacts == self._contacts:
+        if found == self._contacts:
             return
-        self._contacts = contacts
-        points = [(x, y) for x, y, _nx, _ny in contacts]
-        normals = [(nx * NORMAL_M, ny * NORMAL_M) for _x, _y, nx, ny in contacts]
+        self._contacts = found
+        points = [(x, y) for x, y, _nx, _ny in found]
+        normals = [(nx * NORMAL_M, ny * NORMAL_M) for _x, _y, nx, ny in found]
         self._log("world/contacts", rr.Points2D(points, radii=0.003, colors=[_CONTACT]))
         arrows = rr.Arrows2D(origins=points, vectors=normals, colors=[_CONTACT])
         self._log("world/contacts/normals", arrows)
 
-    def frame(self, row: np.void) -> None:
-        """One frame from a tick row: the device, the proxy, the linkage, the forces, the
-        penetration."""
+    def frame(self, row: np.void, forces: bool = True) -> None:
+        """One frame from a tick row: the device, the proxy, the linkage, the forces (unless
+        a degraded view dropped them: `forces`), the penetration."""
         from haptic_local_model.shared.kinematics import link_frames
 
         rr = _rr()
@@ -322,10 +329,11 @@ class SceneView:
             labels=["device", "proxy"], show_labels=False, draw_order=40,
         ))  # fmt: skip
         k = FORCE_M_PER_N
-        self._log("world/forces", rr.Arrows2D(
-            origins=[dev_xy, vm_xy], vectors=[(cx * k, cy * k), (fx * k, fy * k)],
-            colors=[_DEVICE, _PROXY],
-        ))  # fmt: skip
+        if forces:
+            self._log("world/forces", rr.Arrows2D(
+                origins=[dev_xy, vm_xy], vectors=[(cx * k, cy * k), (fx * k, fy * k)],
+                colors=[_DEVICE, _PROXY],
+            ))  # fmt: skip
         if self._chain is not None:
             model, dof = self._chain
             if 0 < dof == int(row["dof"]):
@@ -334,7 +342,8 @@ class SceneView:
                     _link_strips(model, self._frame_pos, self._frame_angle, dof),
                     radii=0.003, colors=[_LINKAGE],
                 ))  # fmt: skip
-        self._log("plots/force", rr.Scalars([cx, cy, fx, fy]))
+        if forces:
+            self._log("plots/force", rr.Scalars([cx, cy, fx, fy]))
         if "penetration" in (row.dtype.names or ()):
             self._log("plots/penetration", rr.Scalars([float(row["penetration"]) * 1e3]))
         self.frames += 1
@@ -420,12 +429,12 @@ def _live(config: dict[str, Any]) -> None:
         cpu0, server_cpu0, wall0 = time.process_time(), server.cpu_s(), time.monotonic()
         print(f"live view: {address.url}", file=sys.stderr, flush=True)
         board = ViewBoard.attach(config["view_board"]) if config.get("view_board") else None
-        feed = BlockFeed(block, view, board)
+        feed = BlockFeed(block, view, board, float(config.get("watchdog_ms", 100.0)))
         parent = int(config["parent_pid"])
-        period = 1.0 / VIEW_HZ
         next_frame = time.monotonic()
         while block.ctl[C_CLOSED] == 0 and os.getppid() == parent and not terminated.is_set():
             feed.poll()
+            period = 1.0 / min(VIEW_HZ, feed.policy.level.frame_hz)
             next_frame += period
             time.sleep(max(0.0, next_frame - time.monotonic()))
             next_frame = max(next_frame, time.monotonic() - period)
@@ -439,6 +448,10 @@ def _live(config: dict[str, Any]) -> None:
         print(
             f"live view: {view.world_layer.drawn} world frames; refused {view.world_layer.refused}",
             file=sys.stderr, flush=True,
+        )  # fmt: skip
+        print(
+            f"live view: {len(feed.changes)} level changes, ended at "
+            f"'{feed.policy.level.name}'", file=sys.stderr, flush=True,
         )  # fmt: skip
         print(
             f"live view: {view.frames} frames in {time.monotonic() - wall0:.1f} s; CPU per "
@@ -456,7 +469,9 @@ class BlockFeed:
     """The shared block's newest tick row, the loop's new verdicts and its new events, read
     without taking anything from the log writer or the sidecar."""
 
-    def __init__(self, block: SharedBlock, view: SceneView, board: ViewBoard | None) -> None:
+    def __init__(
+        self, block: SharedBlock, view: SceneView, board: ViewBoard | None, watchdog_ms: float
+    ) -> None:
         from haptic_local_model.haptic_server.model import TICK_DTYPE
 
         self.block, self.view = block, view
@@ -466,6 +481,9 @@ class BlockFeed:
         self.evt_seen = 0
         self.board = board
         self.world_seen = 0
+        self.policy = DegradePolicy(watchdog_ms)
+        self.gap = InstallGap()
+        self.changes: list[str] = []  # the level changes said
 
     def poll(self) -> None:
         b, ctl, view = self.block, self.block.ctl, self.view
@@ -477,22 +495,37 @@ class BlockFeed:
                 continue
             raw = b.updates[slot, :n].tobytes()
             if int(ctl[C_UPD_READ]) - i < MAILBOX_SLOTS:  # not reused while copied
-                view.update(raw)
+                view.update(raw, contacts=self.policy.level.forces)
         self.upd_seen = read
         evt_head = int(ctl[C_EVT_HEAD])
         for i in range(max(self.evt_seen, evt_head - EVENT_SLOTS + 1), evt_head):
             view.event(*b.event_at(i))
         self.evt_seen = evt_head
         head = int(ctl[C_TICK_HEAD])
+        level = self.policy.level
         if head > self.last_tick_head:
             self.row[0] = b.ticks[(head - 1) % RING_TICKS]
             if int(ctl[C_TICK_HEAD]) - (head - 1) < RING_TICKS:  # not overwritten meanwhile
-                view.frame(self.row[0])
+                view.frame(self.row[0], forces=level.forces)
+                self._judge(self.row[0])
             self.last_tick_head = head
         if self.board is not None:  # the sim's world, at the newest frame's time
             messages, self.world_seen = self.board.read_since(self.world_seen)
-            for _tick, raw in messages:
-                view.world(raw)
+            if level.world_hz > 0:  # read all the same: a restored view starts at the newest
+                view.world_layer.min_period_s = 1.0 / level.world_hz
+                for _tick, raw in messages:
+                    view.world(raw)
+
+    def _judge(self, row: np.void) -> None:
+        """The install gap into the degrade policy; a change of level said in the events
+        panel and on stderr."""
+        t = float(row["t"])
+        said = self.policy.observe(t, self.gap.gap_s(t, int(row["update_seq"])))
+        if said is not None:
+            kind = "view_degraded" if "degraded" in said else "view_restored"
+            self.view.event(int(row["tick"]), kind, said)
+            self.changes.append(said)
+            print(f"live view: {said}", file=sys.stderr, flush=True)
 
 
 # -- replay: a log drawn the same way -----------------------------------------------------

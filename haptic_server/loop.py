@@ -465,6 +465,7 @@ class HapticServer:
                 "static_id": int(self.engine.model[0]["train"]["static_id"]),
                 "view": None if view is None else {
                     **dataclasses.asdict(view), "scene_text": self.configs.get("scene"),
+                    "watchdog_ms": self.network.watchdog_ms,
                 },
             }
         )  # fmt: skip

@@ -49,6 +49,8 @@ class WorldLayer:
         self.drawn = 0  # poses messages drawn
         self.last_poses: WorldPoses | None = None
         self._static_layout = -1
+        self.min_period_s = 0.0  # poses closer than this (sim time) to the last drawn: skipped
+        self.thinned = 0  # poses skipped so (a degraded view: view_degrade.py)
 
     def take(self, raw: bytes, epoch: int) -> None:
         """A world message, drawn if it is the installed epoch's and its layout is known."""
@@ -68,6 +70,10 @@ class WorldLayer:
             return
         if len(message.poses) != len(self.shapes.bodies):
             self._refuse("size")
+            return
+        last = self.last_poses
+        if last is not None and 0.0 <= message.t - last.t < self.min_period_s:
+            self.thinned += 1
             return
         self._draw(self.shapes, message)
 

@@ -71,6 +71,28 @@ def try_realtime_priority(priority: int = REALTIME_PRIORITY) -> bool:
         return False
 
 
+SIM_PRIORITY = 1  # SCHED_RR, below the loop (REALTIME_PRIORITY) and its I/O process
+SIM_NICENESS = -5  # where real-time priority is not permitted
+
+
+def try_raise_priority(priority: int = SIM_PRIORITY, niceness: int = SIM_NICENESS) -> str:
+    """Best effort, for the sim, which needs little CPU (~6 % of one on the testbed) but
+    needs it each step: a browser drawing the live view on the CPU the loop leaves free kept
+    it waiting (docs/live-view.md). SCHED_RR at `priority` (ahead of every ordinary process,
+    behind the loop and its I/O), else `niceness`; threads started later inherit it.
+    Returns what it got: "rr", "nice" or "" (neither permitted: it runs as before)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(priority))
+        return "rr"
+    except (OSError, AttributeError):
+        pass
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, niceness)
+        return "nice"
+    except (OSError, AttributeError):
+        return ""
+
+
 def loop_cpu() -> int | None:
     """The CPU a real-time loop keeps to itself: the last one this process may run on, when
     there are at least two (None on one CPU: nothing to keep apart)."""

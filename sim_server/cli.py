@@ -21,6 +21,7 @@ from haptic_local_model.shared.cli import (
 )
 from haptic_local_model.shared.config import load_scene
 from haptic_local_model.shared.net.config import load_network, on_port
+from haptic_local_model.shared.timing import try_raise_priority
 
 
 def clock_jump(text: str) -> Any:
@@ -55,6 +56,7 @@ def main(argv: list[str] | None = None) -> int:
         "--inject-clock-jump", type=clock_jump, default=None, help=argparse.SUPPRESS
     )
     args = parser.parse_args(argv)
+    try_raise_priority()  # before Zenoh starts its threads: they inherit it
 
     def body() -> int:
         if args.mirror is not None:
