@@ -142,17 +142,25 @@ def _warm(spare: World, world: World, rows: np.ndarray) -> None:
 
 
 def run_real_time(
-    world: World, spare: World, duration_s: float, stopped: Callable[[], bool] = lambda: False
+    world: World,
+    spare: World,
+    duration_s: float,
+    stopped: Callable[[], bool] = lambda: False,
+    rows: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict[str, Any]]:
     """`duration_s` on the wall clock, one tick a period (a SIGINT or SIGTERM, or
     `stopped()`, ends it early): (the rows of the ticks run, the loop's figures). The
-    kernels are compiled (or loaded) on `spare`, a world built as `world` is, first.
+    kernels are compiled (or loaded) on `spare`, a world built as `world` is, first. The
+    rows go into `rows` if given (zeroed, one per tick: shared memory a live view reads).
 
     Ticks delivered is the ticks run over the periods that passed between the first tick
     and the last (a tick later than a whole period starts the deadlines afresh: the
     periods it skipped are lost, not caught up)."""
     n = round(duration_s / world.period_s)
-    rows = np.zeros(n, world.kind.rows)
+    if rows is None:
+        rows = np.zeros(n, world.kind.rows)
+    if rows.shape != (n,) or rows.dtype != world.kind.rows:
+        raise ValueError(f"rows: {rows.shape} of {rows.dtype}, not ({n},) of the world's rows")
     rows.view(np.uint8)[:] = 0  # every page touched now, not in the loop
     period_ns = round(world.period_s * 1e9)
     work = SampleWindow(n)

@@ -27,7 +27,7 @@ import sys
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from mcap.records import Channel
@@ -63,6 +63,9 @@ from haptic_local_model.shared.config import (
     resolve,
 )
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig, is_hand_scene
+
+if TYPE_CHECKING:
+    from haptic_local_model.haptic_server.live_view import ViewAddress
 
 PORT_TICK_TOPIC = PORT_KIND.topic
 HAND_TICK_TOPIC = HAND_KIND.topic
@@ -192,10 +195,15 @@ def port_scene(ref: str, devices: list[str] | None, users: list[str] | None) -> 
 
 
 def run_port_scene(
-    scene: PortScene, duration_s: float, clock: str, log: Path | None
+    scene: PortScene,
+    duration_s: float,
+    clock: str,
+    log: Path | None,
+    view: ViewAddress | None = None,
 ) -> dict[str, Any]:
     """Run a port scene's world on the virtual clock or in real time, print what it did,
-    write its log; the run's figures."""
+    write its log; the run's figures. With `view` (real time only), a live view of its
+    bodies and devices (port_view.py)."""
     world = scene.world()
     if round(duration_s / world.period_s) < 1:
         raise ConfigError("--duration", "--duration", "shorter than one tick")
@@ -205,6 +213,9 @@ def run_port_scene(
     if clock == "virtual":
         rows, wall_s = run_virtual(world, duration_s)
         figures: dict[str, Any] = {"ticks": len(rows), "wall_s": wall_s}
+    elif view is not None:
+        rows, figures = _run_viewed(scene, world, duration_s, view)
+        wall_s = figures["wall_s"]
     else:
         rows, figures = run_real_time(world, scene.world(), duration_s)
         wall_s = figures["wall_s"]
@@ -221,6 +232,29 @@ def run_port_scene(
         })  # fmt: skip
         print(f"log: {log}")
     return figures
+
+
+def _run_viewed(
+    scene: PortScene, world: World, duration_s: float, view: ViewAddress
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """run_real_time with the rows in shared memory and the port view reading them."""
+    from haptic_local_model.haptic_server.port_view import PortRows, PortViewProcess
+    from haptic_local_model.shared.timing import loop_cpu
+
+    if world.kind is not PORT_KIND:
+        raise ConfigError("command line", "--view", "draws the two-port scenes; "
+                          f"{scene.config.name} is a {world.kind.name} world")  # fmt: skip
+    shared = PortRows(round(duration_s / world.period_s), world.kind.rows)
+    child = PortViewProcess(shared, {
+        "bind": view.bind, "web_port": view.web_port, "grpc_port": view.grpc_port,
+        "scene_text": scene.text, "loop_cpu": loop_cpu(),
+    })  # fmt: skip
+    try:
+        rows, figures = run_real_time(world, scene.world(), duration_s, rows=shared.rows)
+        return rows.copy(), figures
+    finally:
+        child.stop()
+        shared.close(unlink=True)
 
 
 def _rows_topic(path: Path) -> str | None:

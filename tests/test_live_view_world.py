@@ -180,3 +180,75 @@ def test_the_block_and_the_shuttle_are_drawn_where_the_sim_has_them(
     (ARTIFACTS / "world-live.png").write_bytes(live_png)
     (ARTIFACTS / "world-replay.png").write_bytes(replay_png)
     _assert_drawn_as_sent(pixels(replay_png)[SCENE], shapes, all_poses, "replay")
+
+
+# -- a port scene: the port engine's own state, no sim ----------------------------------
+
+PORT_SCENE = "grasp_vertical"
+PORT_RUN_S = 20
+
+
+def _port_centres(img: np.ndarray, scene: Any, row: np.void) -> dict[str, Any]:
+    """The pads' centres against the box's, on screen and as the row's poses put them, in
+    px: the scale from the box's drawn height (its outline's outer edges: the box's height
+    and the line's; its sides may lie under the pads'), Rerun's fit of the camera being
+    unknown, one scale for x and y (Rerun keeps the aspect); y points up in the world."""
+    from haptic_local_model.haptic_server.port_view import LINE_M, OBJECT_COLOR, TOOL_COLOR
+
+    order = scene.cosim_order()
+    box = scene.body("box")
+    bx0, bx1, by0, by1 = _extent(_mask(img, OBJECT_COLOR))
+    sx = sy = (by1 - by0 + 1) / (box.size[1] + 2 * LINE_M)
+    box_px = ((bx0 + bx1 + 1) / 2, (by0 + by1 + 1) / 2)
+    tools = _mask(img, TOOL_COLOR)
+    q = row["q"]
+    i_box = order.index("box")
+    found = {}
+    for name, side in (("pad_left", slice(0, int(box_px[0]))),
+                       ("pad_right", slice(int(box_px[0]), None))):  # fmt: skip
+        half = np.zeros_like(tools)
+        half[:, side] = tools[:, side]
+        x0, x1, y0, y1 = _extent(half)
+        drawn = ((x0 + x1 + 1) / 2 - box_px[0], (y0 + y1 + 1) / 2 - box_px[1])
+        i = order.index(name)
+        dx, dy = float(q[3 * i] - q[3 * i_box]), float(q[3 * i + 1] - q[3 * i_box + 1])
+        found[name] = (drawn, (sx * dx, -sy * dy))
+    return found
+
+
+@pytest.mark.processes
+def test_a_port_scenes_box_and_pads_are_drawn_where_the_engine_has_them(
+    tmp_path: Path,
+    procs: list[Proc],  # noqa: F811
+) -> None:
+    """`haptic-run --scene grasp_vertical --view`: the box (object colour) and the two pads
+    (tool colour) drawn where one row of the run's log has them, relative to each other."""
+    from haptic_local_model.haptic_server.world_runs import port_scene, read_port_log
+
+    browser = _browser()
+    web, grpc = free_ports(2)
+    run = Proc(
+        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--scene",
+         PORT_SCENE, "--duration", str(PORT_RUN_S), "--log", "run.mcap", "--view",
+         "--view-port", str(web), "--view-grpc-port", str(grpc)],
+        tmp_path,
+    )  # fmt: skip
+    procs.append(run)
+    png = _shot(run.url(), browser, lambda: time.sleep(4.0))
+    assert run.proc.wait(PORT_RUN_S + 120) == 0, run.lines
+    frames = [line for line in run.lines if "live view:" in line and " frames in " in line]
+    assert frames and int(frames[0].split("live view: ")[1].split()[0]) > 0, run.lines
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    (ARTIFACTS / "port-live.png").write_bytes(png)
+    img = pixels(png)[SCENE]
+    rows, _meta = read_port_log(tmp_path / "run.mcap")
+    scene = port_scene(PORT_SCENE, None, None).config
+    picks = rows[:: max(1, len(rows) // 200)]  # every 0.1 s of the run
+    errors = [_error_px(_port_centres(img, scene, row)) for row in picks]
+    best = int(np.argmin(errors))
+    found = _port_centres(img, scene, picks[best])
+    print(f"port: row {best} of {len(picks)}, {errors[best]:.1f} px: {found}")
+    assert errors[best] < PIXEL_TOL, f"no row within {PIXEL_TOL} px: {found}"
+    # the check can tell: the pads sit a box's half-width and more from its centre
+    gap_px = min(abs(d[0]) for d, _e in found.values())
+    assert gap_px > 10 * PIXEL_TOL, f"the pads drawn {gap_px:.0f} px from the box's centre"

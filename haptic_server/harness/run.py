@@ -316,14 +316,15 @@ def run_port_world(args: argparse.Namespace) -> int:
     time or on the virtual clock (haptic_server.world_runs)."""
     from haptic_local_model.haptic_server.world_runs import port_scene, run_port_scene
 
-    for flag, given in (("--haptic-rate", args.haptic_rate), ("--port", args.port),
-                        ("--view", view_address(args))):  # fmt: skip
+    for flag, given in (("--haptic-rate", args.haptic_rate), ("--port", args.port)):
         if given is not None:
             raise ConfigError("command line", flag, "not for a port scene: it runs in this "
-                              "process at its scene's haptic_rate_hz, and the view does not "
-                              "draw port worlds")  # fmt: skip
+                              "process at its scene's haptic_rate_hz")  # fmt: skip
+    view = view_address(args)
+    if view is not None and args.clock == "virtual":
+        raise ConfigError("command line", "--view", "needs --clock real")
     scene = port_scene(args.scene, args.device, args.user)
-    figures = run_port_scene(scene, args.duration, args.clock, args.log)
+    figures = run_port_scene(scene, args.duration, args.clock, args.log, view)
     figures["log"] = str(args.log) if args.log else None
     if args.clock == "real":
         work, late = figures["work_us"], figures["late_us"]
