@@ -32,3 +32,12 @@ def test_box_outline_is_the_box_turned_and_moved() -> None:
     # a quarter turn: the 4 cm side along y, centred on the pose
     assert np.ptp(strip[:, 0]) == pytest.approx(0.02) and np.ptp(strip[:, 1]) == pytest.approx(0.04)
     assert strip[:4].mean(axis=0) == pytest.approx([0.1, -0.2])
+
+
+def test_a_world_the_port_view_does_not_draw_is_refused_by_name() -> None:
+    from haptic_local_model.haptic_server.live_view import ViewAddress
+    from haptic_local_model.haptic_server.world_runs import port_scene, run_port_scene
+    from haptic_local_model.shared.config import ConfigError
+
+    with pytest.raises(ConfigError, match="hand_grasp"):
+        run_port_scene(port_scene("hand_grasp", None, None), 1.0, "real", None, ViewAddress())
