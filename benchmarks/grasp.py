@@ -269,6 +269,13 @@ CREEP_TARGET_M = 2e-4  # a held box moves <= 0.2 mm along its pads over 10 s
 def creep(
     scene: PortSceneConfig, device: str, factor: float = CREEP_FACTOR, hold_s: float = 10.0
 ) -> dict:
+    """`creep_run`'s figures (its docstring)."""
+    return creep_run(scene, device, factor, hold_s)[1]
+
+
+def creep_run(
+    scene: PortSceneConfig, device: str, factor: float = CREEP_FACTOR, hold_s: float = 10.0
+) -> tuple[PortResult, dict]:
     """A box held at `factor` times its friction threshold (each pad squeezing
     factor m g / (2 mu)) on two `device`s for hold_s after 0.5 s to settle: how far its
     centre moved along the pads' faces (in each pad's frame, the two averaged), the net and
@@ -287,7 +294,7 @@ def creep(
         [to_frame(pose_of(res, p.tool), box_pose[:, :2])[:, 1] for p in scene.ports], axis=0
     )
     moved = along[k0:] - along[k0]
-    return {
+    return res, {
         "device": device, "squeeze_n": squeeze, "drift_m": float(moved[-1]),
         "max_m": float(np.abs(moved).max()),
         "rate_m_per_s": float(np.polyfit(t[k0:] - t[k0], moved, 1)[0]),

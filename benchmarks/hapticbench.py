@@ -42,16 +42,18 @@ from typing import Any
 
 import numpy as np
 
-from haptic_local_model.benchmarks import front, peers
+from haptic_local_model.benchmarks import front, peers, suite_metrics
 from haptic_local_model.benchmarks.linkage import reference_error_mm
-from haptic_local_model.benchmarks.suite_records import Case, MethodRun
+from haptic_local_model.benchmarks.suite_records import Case, MethodRun, NotApplicableError
 from haptic_local_model.device_models.registry import load_device
 from haptic_local_model.haptic_server.harness.virtual import run_virtual
 from haptic_local_model.shared import __version__
 from haptic_local_model.shared.config import SceneConfig, load_scene, load_user
 
 SUITE_NAME = "hapticbench"
-SCHEMA_VERSION = 1
+#: 2: the port energy and the passivity observer's margin in every row's errors, a row
+#: may say why its method does not apply instead of figures, cases have `ports`
+SCHEMA_VERSION = 2
 #: the suite's seed: no shipped case draws random numbers (its devices are noiseless, its
 #: hands scripted); it is recorded so a case that does (a noisy device) is seeded from it
 SEED = 0
@@ -74,6 +76,14 @@ CASES = (
          "independent integration: the VM alone, RNEA and solve_ivp", "rms_mm"),
     Case("testbed_swing", "testbed", "ideal", "swing", 5.0,
          "fine-step simulation: pymunk at 10 kHz, the hand's spring on the tool", "rms_first_s_mm"),
+    Case("slide_friction", "wall_slide", "ideal", "slide", 3.5,
+         "closed form: the rendered tangential force mu_k N while sliding", "mu_rel_error"),
+    Case("moving_wall", "wall_moving", "ideal", "push_2n", 5.0,
+         "the wall's motion law: the face at x0 + A sin(wt), inside it by (F - m a) / K",
+         "rms_mm"),
+    Case("grasp_two_devices", "grasp_vertical", "ideal", "squeeze_left_2n+squeeze_right_2n",
+         10.15, "closed form: the box slipping at g - 2 mu N / m; held above the cone, no drift",
+         "slip_accel_rel_error", ports=2),
 )  # fmt: skip
 #: the reduced suite `make test` runs (tests/test_hapticbench.py): two cases, short runs
 REDUCED = (
@@ -112,6 +122,13 @@ def front_way(way: str, sim_hz: float) -> Baseline:
     configured: dict[Case, SceneConfig] = {}  # the stable configuration, found once a case
 
     def run(case: Case) -> MethodRun:
+        if case.ports != 1:
+            if way == "local_model":  # this project's two devices: the ports' co-simulation
+                return suite_metrics.grasp_run(case)
+            raise NotApplicableError(
+                "a coupling of one device to the sim's tool: the case has two devices on one"
+                " object, which needs the tools and the object solved together at 1 kHz"
+            )
         if case not in configured:
             configured[case] = front.stable_configuration(
                 load_scene(case.scene), way, sim_hz, case.device, case.user, case.seconds
@@ -138,12 +155,29 @@ BUILT_IN_NAMES = tuple(BASELINES)  # what a run without plug-ins renders every c
 
 def case_errors(case: Case, run: MethodRun, reference: np.ndarray | None) -> dict[str, float]:
     """The case's error metrics over the run's records (None in JSON where undefined)."""
-    ticks = run.ticks
+    if case.ports != 1:
+        return suite_metrics.grasp_errors(case, run)
+    scene = run.scene
+    assert isinstance(scene, SceneConfig)
+    window = scene.safety.passivity_window_s
+    return {
+        **_case_errors(case, scene, run.ticks, reference),
+        **suite_metrics.port_metrics(run.ticks, window, case.device),
+    }
+
+
+def _case_errors(
+    case: Case, scene: SceneConfig, ticks: np.ndarray, reference: np.ndarray | None
+) -> dict[str, float]:
     if case.scene == "wall_push":
-        return front.wall_transient(run.scene, ticks)
+        return front.wall_transient(scene, ticks)
     if case.scene == "linkage_distal":
-        err = reference_error_mm(run.scene, ticks, float(ticks["t"][-1]) + 1e-9, "device_pose")
+        err = reference_error_mm(scene, ticks, float(ticks["t"][-1]) + 1e-9, "device_pose")
         return {"rms_mm": float(np.sqrt(np.mean(err**2))), "max_mm": float(err.max())}
+    if case.scene == "wall_slide":
+        return suite_metrics.slide_errors(scene, ticks)
+    if case.scene == "wall_moving":
+        return suite_metrics.moving_wall_errors(scene, case.device, ticks)
     if reference is None:
         raise ValueError(f"hapticbench: case {case.name!r} needs its fine-step reference")
     n = min(len(reference), len(ticks))
@@ -168,30 +202,39 @@ def _finite_or_none(errors: dict[str, float]) -> dict[str, float | None]:
     return {k: (v if math.isfinite(v) else None) for k, v in errors.items()}
 
 
+def _row(case: Case, method: Method, reference: np.ndarray | None, repeat: int) -> dict[str, Any]:
+    """A case rendered by a method `repeat` times: its result row (or why it does not apply)."""
+    costs = []
+    for _ in range(repeat):
+        try:
+            run = method.run(case)
+        except NotApplicableError as why:
+            return {"case": case.name, "method": method.name, "not_applicable": str(why)}
+        costs.append(run.cost_ms_per_sim_s)
+    return {
+        "case": case.name, "method": method.name,
+        "sim_hz": run.sim_hz, "substeps": run.substeps,
+        "errors": _finite_or_none(case_errors(case, run, reference)),
+        "cost_ms_per_sim_s": {"median": float(np.median(costs)),
+                              "min": min(costs), "max": max(costs), "runs": repeat},
+    }  # fmt: skip
+
+
 def run_suite(cases: tuple[Case, ...], repeat: int = 1) -> dict[str, Any]:
     """Every case rendered by every registered method: the result document (RESULT_SCHEMA).
     The errors are the last round's (every round gives the same); the cost is the median
-    of `repeat` rounds with its spread (min, max)."""
+    of `repeat` rounds with its spread (min, max). A method that raises NotApplicableError
+    for a case gives that case a row with its reason instead."""
     methods = list(BASELINES.values())
-    first = cases[0]
     # one short run first, thrown away: the first run of a process pays for loading the
     # compiled kernels, which is not the cost of any method
-    run_virtual(load_scene(first.scene), load_device(first.device), load_user(first.user), 0.2)
-    rows = []
+    warm = next((c for c in cases if c.ports == 1), None)
+    if warm is not None:
+        run_virtual(load_scene(warm.scene), load_device(warm.device), load_user(warm.user), 0.2)
+    rows: list[dict[str, Any]] = []
     for case in cases:
         reference = case_reference(case)
-        for method in methods:
-            costs = []
-            for _ in range(repeat):
-                run = method.run(case)
-                costs.append(run.cost_ms_per_sim_s)
-            rows.append({
-                "case": case.name, "method": method.name,
-                "sim_hz": run.sim_hz, "substeps": run.substeps,
-                "errors": _finite_or_none(case_errors(case, run, reference)),
-                "cost_ms_per_sim_s": {"median": float(np.median(costs)),
-                                      "min": min(costs), "max": max(costs), "runs": repeat},
-            })  # fmt: skip
+        rows.extend(_row(case, method, reference, repeat) for method in methods)
     return {
         "schema_version": SCHEMA_VERSION,
         "suite": SUITE_NAME,
@@ -208,6 +251,7 @@ def run_suite(cases: tuple[Case, ...], repeat: int = 1) -> dict[str, Any]:
                 "seconds": c.seconds,
                 "reference": c.reference,
                 "headline": c.headline,
+                "ports": c.ports,
             }
             for c in cases
         ],
@@ -299,7 +343,16 @@ RESULT_SCHEMA: dict[str, Any] = {
             "items": {
                 "type": "object",
                 "additionalProperties": False,
-                "required": ["name", "scene", "device", "user", "seconds", "reference", "headline"],
+                "required": [
+                    "name",
+                    "scene",
+                    "device",
+                    "user",
+                    "seconds",
+                    "reference",
+                    "headline",
+                    "ports",
+                ],
                 "properties": {
                     "name": {"type": "string"},
                     "scene": {"type": "string"},
@@ -308,6 +361,7 @@ RESULT_SCHEMA: dict[str, Any] = {
                     "seconds": {"type": "number", "exclusiveMinimum": 0},
                     "reference": {"type": "string"},
                     "headline": {"type": "string"},
+                    "ports": {"type": "integer", "minimum": 1},
                 },
             },
         },
@@ -326,10 +380,16 @@ RESULT_SCHEMA: dict[str, Any] = {
             "items": {
                 "type": "object",
                 "additionalProperties": False,
-                "required": ["case", "method", "sim_hz", "substeps", "errors", "cost_ms_per_sim_s"],
+                "required": ["case", "method"],
+                # a row has figures, or says why its method does not render its case
+                "oneOf": [
+                    {"required": ["not_applicable"]},
+                    {"required": ["sim_hz", "substeps", "errors", "cost_ms_per_sim_s"]},
+                ],
                 "properties": {
                     "case": {"type": "string"},
                     "method": {"type": "string"},
+                    "not_applicable": {"type": "string", "minLength": 1},
                     "sim_hz": {"type": "number", "exclusiveMinimum": 0},
                     "substeps": {"type": "integer", "minimum": 1},
                     "errors": {"type": "object", "additionalProperties": _NULLABLE_NUMBER},
@@ -364,7 +424,7 @@ _TYPES: dict[str, Callable[[Any], bool]] = {
 def validate(doc: Any, schema: dict[str, Any] = RESULT_SCHEMA, where: str = "$") -> None:
     """Raise ValueError naming the first place `doc` breaks `schema` (the keywords
     RESULT_SCHEMA uses: type, const, required, properties, additionalProperties, items,
-    minItems, minimum, exclusiveMinimum)."""
+    minItems, minLength, minimum, exclusiveMinimum, oneOf)."""
 
     def fail(message: str) -> None:
         raise ValueError(f"hapticbench result: {where}: {message}")
@@ -380,6 +440,8 @@ def validate(doc: Any, schema: dict[str, Any] = RESULT_SCHEMA, where: str = "$")
         fail(f"{doc} is below {schema['minimum']}")
     if "exclusiveMinimum" in schema and doc <= schema["exclusiveMinimum"]:
         fail(f"{doc} is not above {schema['exclusiveMinimum']}")
+    if "minLength" in schema and len(doc) < schema["minLength"]:
+        fail(f"shorter than {schema['minLength']}")
     if isinstance(doc, dict):
         for key in schema.get("required", ()):
             if key not in doc:
@@ -398,11 +460,27 @@ def validate(doc: Any, schema: dict[str, Any] = RESULT_SCHEMA, where: str = "$")
             fail(f"fewer than {schema['minItems']} items")
         for i, item in enumerate(doc):
             validate(item, schema.get("items", {}), f"{where}[{i}]")
+    if "oneOf" in schema:
+        matched = sum(_valid(doc, alternative) for alternative in schema["oneOf"])
+        if matched != 1:
+            fail(f"matches {matched} of oneOf's {len(schema['oneOf'])} alternatives, not 1")
 
 
-def error_figures(doc: dict[str, Any]) -> dict[tuple[str, str], dict[str, float | None]]:
-    """The deterministic part of a result: every (case, method)'s errors."""
-    return {(r["case"], r["method"]): r["errors"] for r in doc["results"]}
+def _valid(doc: Any, schema: dict[str, Any]) -> bool:
+    try:
+        validate(doc, schema)
+    except ValueError:
+        return False
+    return True
+
+
+def error_figures(doc: dict[str, Any]) -> dict[tuple[str, str], dict[str, Any]]:
+    """The deterministic part of a result: every (case, method)'s errors (or why the method
+    does not apply)."""
+    return {
+        (r["case"], r["method"]): r["errors"] if "errors" in r else {"n/a": r["not_applicable"]}
+        for r in doc["results"]
+    }
 
 
 def table(doc: dict[str, Any]) -> list[str]:
@@ -415,6 +493,10 @@ def table(doc: dict[str, Any]) -> list[str]:
     ]  # fmt: skip
     for r in doc["results"]:
         key = headline[r["case"]]
+        if "not_applicable" in r:
+            lines.append(f"| {r['case']} | {described[r['method']]} | - | - | does not apply:"
+                         f" {r['not_applicable']} | - | - |")  # fmt: skip
+            continue
         c = r["cost_ms_per_sim_s"]
         errs = ", ".join(f"{k} {_fmt(v)}" for k, v in r["errors"].items())
         lines.append(
@@ -434,8 +516,10 @@ def pareto(doc: dict[str, Any]) -> list[str]:
         points = [
             (r["method"], r["errors"].get(key), r["cost_ms_per_sim_s"]["median"])
             for r in doc["results"]
-            if r["case"] == case["name"] and r["errors"].get(key) is not None
+            if r["case"] == case["name"] and r.get("errors", {}).get(key) is not None
         ]
+        absent = [r["method"] for r in doc["results"]
+                  if r["case"] == case["name"] and "not_applicable" in r]  # fmt: skip
         on, off = [], []
         for name, err, cost in points:
             better = [n for n, e, c in points if n != name and e <= err and c <= cost
@@ -447,6 +531,7 @@ def pareto(doc: dict[str, Any]) -> list[str]:
         lines.append(
             f"- {case['name']} ({key} against cost): on the front {', '.join(on)}"
             + (f"; off it {', '.join(off)}" if off else "")
+            + (f"; does not apply {', '.join(absent)}" if absent else "")
         )
     return lines
 
@@ -468,7 +553,7 @@ def plot(doc: dict[str, Any], out: Path) -> Path:
     order = [m["name"] for m in doc["methods"]]
     for ax, case in zip(axes[0], cases, strict=True):
         for r in doc["results"]:
-            value = r["errors"].get(case["headline"])
+            value = r.get("errors", {}).get(case["headline"])
             if r["case"] != case["name"] or value is None:
                 continue
             mark = marks[order.index(r["method"]) % len(marks)]

@@ -22,7 +22,7 @@ import time
 import numpy as np
 
 from haptic_local_model.benchmarks.front import HAPTIC_HZ, coupling_substeps_needed
-from haptic_local_model.benchmarks.suite_records import Case, MethodRun
+from haptic_local_model.benchmarks.suite_records import Case, MethodRun, NotApplicableError
 from haptic_local_model.device_models.base import world_map_of
 from haptic_local_model.device_models.registry import load_device
 from haptic_local_model.haptic_server.model import TICK_DTYPE
@@ -79,6 +79,11 @@ class _Tool:
 
 def isaac_haply(case: Case) -> MethodRun:
     """The case rendered the Isaac Lab + Haply way (module docstring)."""
+    if case.ports != 1:
+        raise NotApplicableError(
+            "one device's contact force: the demo drives one Haply device, and the grasp's"
+            " two would each feel the box only through a clipped 25 ms sample"
+        )
     scene = load_scene(case.scene)
     substeps = max(scene.sim_substeps, coupling_substeps_needed(scene, ISAAC_PHYSICS_HZ))
     world = SimWorld(scene)

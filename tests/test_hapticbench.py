@@ -10,11 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from haptic_local_model.benchmarks import front, hapticbench, peers
+from haptic_local_model.benchmarks import front, hapticbench, peers, suite_metrics
 from haptic_local_model.benchmarks.bench import main as bench_main
 from haptic_local_model.benchmarks.hapticbench import (
     BASELINES,
     BUILT_IN_NAMES,
+    CASES,
     REDUCED,
     Case,
     MethodRun,
@@ -26,6 +27,7 @@ from haptic_local_model.benchmarks.hapticbench import (
 )
 from haptic_local_model.device_models.registry import load_device
 from haptic_local_model.haptic_server.harness.virtual import run_virtual
+from haptic_local_model.haptic_server.model import TICK_DTYPE
 from haptic_local_model.shared.config import load_scene, load_user
 
 #: written by `haptic-bench --suite reduced --repeat 1 --out DIR` (DIR/hapticbench.json),
@@ -53,11 +55,16 @@ def test_the_stored_result_is_valid_and_carries_build_machine_and_seed() -> None
     ("change", "message"),
     [
         (lambda d: d.pop("build"), "missing key 'build'"),
-        (lambda d: d.update(schema_version=0), "$.schema_version: expected 1"),
+        (lambda d: d.update(schema_version=1), "$.schema_version: expected 2"),
         (lambda d: d["results"][1].update(substeps=0.5), "$.results[1].substeps: expected integer"),
         (lambda d: d["results"][0]["errors"].update(rms_mm="small"), "errors.rms_mm: expected"),
         (lambda d: d["cases"][0].update(seconds=0), "$.cases[0].seconds: 0 is not above 0"),
         (lambda d: d.update(colour="red"), "unknown key 'colour'"),
+        # a row says why its method does not apply, or has figures: not both, not neither
+        (lambda d: d["results"][2].update(not_applicable="why"), "$.results[2]: matches 2 of"),
+        (lambda d: d["results"][3].pop("errors"), "$.results[3]: matches 0 of"),
+        (lambda d: d["results"][3].update(not_applicable=""), "not_applicable: shorter than 1"),
+        (lambda d: d["cases"][1].pop("ports"), "$.cases[1]: missing key 'ports'"),
     ],
 )
 def test_a_result_that_breaks_the_schema_is_refused_where_it_breaks(change, message) -> None:
@@ -150,3 +157,75 @@ def test_the_isaac_haply_way_sends_only_the_clipped_contact_force() -> None:
     assert 0 < f.max() <= peers.HAPLY_LIMIT_FORCE_N + 1e-12
     changes = np.flatnonzero(np.diff(f) != 0) + 1
     assert changes.size and np.all(changes % 25 == 20)
+
+
+def ticks_of(n: int) -> np.ndarray:
+    ticks = np.zeros(n, TICK_DTYPE)
+    ticks["dt"] = 1e-3
+    ticks["t"] = np.arange(n) * 1e-3
+    return ticks
+
+
+def test_the_slide_metric_is_the_ratio_of_the_rendered_forces_while_sliding() -> None:
+    scene = load_scene("wall_slide")
+    mu_k = scene.materials["floor"].friction
+    ticks = ticks_of(3500)
+    t = ticks["t"]
+    ticks["device_twist"][:, 0] = np.where((t > 0.5) & (t < 3.0), 0.08, 0.0)
+    normal = 1.0 + 0.5 * np.sin(7 * t)  # any normal force: the metric is the sums' ratio
+    ticks["wrench_command"][:, 1] = normal
+    ticks["wrench_command"][:, 0] = -1.1 * mu_k * normal
+    # outside the sliding ticks the hand holds the box still (static friction, any force)
+    ticks["wrench_command"][t < 0.7, 0] = 5.0
+    errors = suite_metrics.slide_errors(scene, ticks)
+    assert errors["mu_eff"] == pytest.approx(1.1 * mu_k, rel=1e-12)
+    assert errors["mu_rel_error"] == pytest.approx(0.1, rel=1e-9)
+    assert errors["unpressed_ms"] == 0.0
+    ticks["wrench_command"][(t > 1.0) & (t < 1.25), 1] = 0.0  # the floor lets go for 250 ms
+    assert suite_metrics.slide_errors(scene, ticks)["unpressed_ms"] == pytest.approx(250, abs=1)
+
+
+def test_a_device_riding_the_moving_walls_law_has_no_error() -> None:
+    scene = load_scene("wall_moving")
+    wall = next(b for b in scene.bodies if b.name == "wall")
+    # the metric's constants are the scene's
+    assert wall.position[0] == suite_metrics.WALL_X0 and wall.radius == suite_metrics.WALL_RADIUS
+    assert wall.oscillation_amplitude[0] == suite_metrics.WALL_AMPLITUDE
+    assert wall.oscillation_period_s == suite_metrics.WALL_PERIOD_S
+    ticks = ticks_of(5000)
+    face, accel = suite_metrics.wall_law(ticks["t"])
+    k = scene.materials["wall"].stiffness_n_per_m
+    inside = (2.0 - 1.5 * accel) / k  # push_2n on the ideal device (1 kg) and the 0.5 kg tool
+    ticks["device_pose"][:, 0] = face - suite_metrics.TOOL_HALF_X + inside
+    errors = suite_metrics.moving_wall_errors(scene, "ideal", ticks)
+    assert errors["rms_mm"] < 1e-9 and errors["contact_losses"] == 0
+    ticks["device_pose"][3000:3100, 0] -= 0.01  # 100 ms off the wall by 10 mm: one loss
+    errors = suite_metrics.moving_wall_errors(scene, "ideal", ticks)
+    assert errors["contact_losses"] == 1 and errors["max_mm"] == pytest.approx(10.0, rel=1e-6)
+
+
+@pytest.mark.slow
+def test_the_suites_passivity_observer_is_the_engines() -> None:
+    # recomputed from the records alone, the margin equals the one the local model's own
+    # safety stage logged (row port_energy), bit for bit: one observer grades every method
+    for case in (REDUCED[0], CASES[4]):
+        run = BASELINES["local_model"].run(case)
+        figures = hapticbench.case_errors(case, run, None)
+        assert run.ticks["port_energy"].max() > 0.0  # the impact gives the hand some energy
+        assert figures["passivity_margin_j"] == -run.ticks["port_energy"].max()
+
+
+@pytest.mark.slow
+def test_a_method_that_does_not_apply_says_why_in_the_row_and_the_table() -> None:
+    grasp = next(c for c in CASES if c.ports == 2)
+    doc = run_suite((grasp,))
+    validate(doc)
+    rows = {r["method"]: r for r in doc["results"]}
+    assert set(rows) == set(BUILT_IN_NAMES)
+    assert "errors" in rows["local_model"]
+    absent = [name for name, r in rows.items() if "not_applicable" in r]
+    assert sorted(absent) == sorted(set(BUILT_IN_NAMES) - {"local_model"})
+    lines = table(doc)
+    assert sum("does not apply: " in line for line in lines) == len(absent)
+    # the grasp's slip against g - 2 mu N / m = 1.81 m/s^2 (benchmarks/grasp.py: V4.2)
+    assert rows["local_model"]["errors"]["slip_accel_rel_error"] < 0.05

@@ -34,7 +34,7 @@ from haptic_local_model.sim_server.world import SimWorld
 
 SCENES = sorted(p.stem for p in (CONFIG_ROOT / "scenes").glob("*.toml"))
 USERS = {"crowd": "plough", "free_box": "waypoints", "maglev_scoop": "scoop",
-         "testbed_free_tool": "push_block", "wall_push": "push_2n",
+         "testbed_free_tool": "push_block", "wall_push": "push_2n", "wall_moving": "push_2n",
          "wall_push_penalty": "push_2n", "wall_slide": "slide"}  # fmt: skip
 OWN_RUN_S = 2.0
 #: a scene's own run stays this far inside every bound (benchmarks/envelope.py: worst 0.38,
