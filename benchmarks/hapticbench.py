@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from haptic_local_model.benchmarks import front, peers, suite_metrics
+from haptic_local_model.benchmarks import front, peers, suite_metrics, suite_stiffness
 from haptic_local_model.benchmarks.linkage import reference_error_mm
 from haptic_local_model.benchmarks.suite_records import Case, MethodRun, NotApplicableError
 from haptic_local_model.device_models.registry import load_device
@@ -220,11 +220,12 @@ def _row(case: Case, method: Method, reference: np.ndarray | None, repeat: int) 
     }  # fmt: skip
 
 
-def run_suite(cases: tuple[Case, ...], repeat: int = 1) -> dict[str, Any]:
+def run_suite(cases: tuple[Case, ...], repeat: int = 1, stiffness: bool = False) -> dict[str, Any]:
     """Every case rendered by every registered method: the result document (RESULT_SCHEMA).
     The errors are the last round's (every round gives the same); the cost is the median
     of `repeat` rounds with its spread (min, max). A method that raises NotApplicableError
-    for a case gives that case a row with its reason instead."""
+    for a case gives that case a row with its reason instead. With `stiffness`, every
+    method's stable wall stiffness at 250, 500 and 1000 Hz (benchmarks/suite_stiffness.py)."""
     methods = list(BASELINES.values())
     # one short run first, thrown away: the first run of a process pays for loading the
     # compiled kernels, which is not the cost of any method
@@ -235,6 +236,7 @@ def run_suite(cases: tuple[Case, ...], repeat: int = 1) -> dict[str, Any]:
     for case in cases:
         reference = case_reference(case)
         rows.extend(_row(case, method, reference, repeat) for method in methods)
+    stiff = {"stable_stiffness": suite_stiffness.stiffness_rows(methods)} if stiffness else {}
     return {
         "schema_version": SCHEMA_VERSION,
         "suite": SUITE_NAME,
@@ -257,6 +259,7 @@ def run_suite(cases: tuple[Case, ...], repeat: int = 1) -> dict[str, Any]:
         ],
         "methods": [{"name": m.name, "description": m.description} for m in methods],
         "results": rows,
+        **stiff,
     }
 
 
@@ -373,6 +376,27 @@ RESULT_SCHEMA: dict[str, Any] = {
                 "required": ["name", "description"],
                 "additionalProperties": False,
                 "properties": {"name": {"type": "string"}, "description": {"type": "string"}},
+            },
+        },
+        "stable_stiffness": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "additionalProperties": False,
+                "required": ["method", "rate_hz"],
+                "oneOf": [
+                    {"required": ["not_applicable"]},
+                    {"required": ["stable_to_n_per_m", "felt_n_per_m", "capped", "probes"]},
+                ],
+                "properties": {
+                    "method": {"type": "string"},
+                    "rate_hz": {"type": "number", "exclusiveMinimum": 0},
+                    "not_applicable": {"type": "string", "minLength": 1},
+                    "stable_to_n_per_m": _NULLABLE_NUMBER,
+                    "felt_n_per_m": _NULLABLE_NUMBER,
+                    "capped": {"type": "boolean"},
+                    "probes": {"type": "integer", "minimum": 1},
+                },
             },
         },
         "results": {
@@ -536,6 +560,40 @@ def pareto(doc: dict[str, Any]) -> list[str]:
     return lines
 
 
+def stiffness_table(doc: dict[str, Any]) -> list[str]:
+    """Markdown: the stable wall stiffness of every method at every rate, and what the hand
+    felt there (nothing when the result has none)."""
+    rows = doc.get("stable_stiffness")
+    if not rows:
+        return []
+    rates = sorted({r["rate_hz"] for r in rows})
+    lines = [
+        "The stable wall stiffness (benchmarks/suite_stiffness.py: the stiffest `wall_push`"
+        " wall the method renders with the device taking net energy from the hand and coming"
+        " to rest; >= at the top of the search; in brackets the stiffness the hand felt there,"
+        " the push over the device's steady depth):", "",
+        "| method | " + " | ".join(f"{r:g} Hz" for r in rates) + " |",
+        "|---|" + "---|" * len(rates),
+    ]  # fmt: skip
+    for name in dict.fromkeys(r["method"] for r in rows):
+        cells = []
+        for rate in rates:
+            r = next(x for x in rows if x["method"] == name and x["rate_hz"] == rate)
+            cells.append(_stiffness_cell(r))
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return [*lines, ""]
+
+
+def _stiffness_cell(r: dict[str, Any]) -> str:
+    if "not_applicable" in r:
+        return "does not apply"
+    if r["stable_to_n_per_m"] is None:
+        return "none stable"
+    felt = r["felt_n_per_m"]
+    felt_text = "not in the wall" if felt is None else f"{felt:.3g}"
+    return f"{'>= ' if r['capped'] else ''}{r['stable_to_n_per_m']:.3g} N/m ({felt_text})"
+
+
 def _fmt(v: float | None) -> str:
     return "n/a" if v is None else f"{v:.4g}"
 
@@ -588,7 +646,7 @@ def write(doc: dict[str, Any], out: Path, command: str, wall_s: float) -> str:
         f" {doc['schema_version']}). Cases and references: benchmarks/hapticbench.py.", "",
         *table(doc), "", "The front per case (a method is on it when no other has both a lower"
         " headline error and a lower median cost):", "", *pareto(doc), "",
-        "![hapticbench](hapticbench.png)", "",
+        *stiffness_table(doc), "![hapticbench](hapticbench.png)", "",
     ])  # fmt: skip
     (out / "hapticbench.md").write_text(text)
     return text

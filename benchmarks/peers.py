@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from haptic_local_model.benchmarks.front import HAPTIC_HZ, coupling_substeps_needed
+from haptic_local_model.benchmarks.front import coupling_substeps_needed
 from haptic_local_model.benchmarks.suite_records import Case, MethodRun, NotApplicableError
 from haptic_local_model.device_models.base import world_map_of
 from haptic_local_model.device_models.registry import load_device
@@ -100,10 +100,10 @@ def isaac_haply(case: Case) -> MethodRun:
     start, _ = tool.state()
     device.reset(np.zeros(3))
     user[0]["start_pose"] = start
-    n = round(case.seconds * HAPTIC_HZ)
+    haptic_hz = scene.haptic_rate_hz  # HAPTIC_HZ but in hapticbench's stiffness search
+    n = round(case.seconds * haptic_hz)
     ticks = np.zeros(n, TICK_DTYPE)
-    dt = 1.0 / HAPTIC_HZ
-    per_sim = round(HAPTIC_HZ / ISAAC_PHYSICS_HZ)
+    dt = 1.0 / haptic_hz
     pose, twist, hand = np.zeros(3), np.zeros(3), np.zeros(3)
     feedback, command = np.zeros(2), np.zeros(3)
     steps, sim_ns, tick_ns = 0, 0, 0
@@ -112,7 +112,9 @@ def isaac_haply(case: Case) -> MethodRun:
         t0 = time.perf_counter_ns()
         device.true_state(pose, twist)
         world_pose = pose + start
-        if i % per_sim == 0:  # a physics step: the tool pulled to the device's pose
+        # a physics step when one is due (every fifth tick at 1 kHz): the tool pulled to the
+        # device's pose
+        if i * ISAAC_PHYSICS_HZ >= steps * haptic_hz:
             q, qd = world.tool_state()
             world.step(ToolTarget(q, qd, world_pose, twist.copy(), True, True))
             steps += 1

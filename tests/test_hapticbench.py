@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from haptic_local_model.benchmarks import front, hapticbench, peers, suite_metrics
+from haptic_local_model.benchmarks import front, hapticbench, peers, suite_metrics, suite_stiffness
 from haptic_local_model.benchmarks.bench import main as bench_main
 from haptic_local_model.benchmarks.hapticbench import (
     BASELINES,
@@ -25,6 +25,7 @@ from haptic_local_model.benchmarks.hapticbench import (
     table,
     validate,
 )
+from haptic_local_model.benchmarks.wall_push import HALF_LENGTH, WALL_X
 from haptic_local_model.device_models.registry import load_device
 from haptic_local_model.haptic_server.harness.virtual import run_virtual
 from haptic_local_model.haptic_server.model import TICK_DTYPE
@@ -229,3 +230,40 @@ def test_a_method_that_does_not_apply_says_why_in_the_row_and_the_table() -> Non
     assert sum("does not apply: " in line for line in lines) == len(absent)
     # the grasp's slip against g - 2 mu N / m = 1.81 m/s^2 (benchmarks/grasp.py: V4.2)
     assert rows["local_model"]["errors"]["slip_accel_rel_error"] < 0.05
+
+
+def a_wall_stable_below(limit_n_per_m: float):
+    """A method rendering the stiffness search's wall: the device rests at F/K in it up to
+    `limit_n_per_m` and rings (5 mm at 20 Hz, the hand pumping it) above, at any rate."""
+
+    def run(case: Case) -> MethodRun:
+        scene = load_scene(case.scene)
+        stiffness = scene.materials["wall"].stiffness_n_per_m
+        assert scene.materials["tool"].stiffness_n_per_m == stiffness
+        ticks = np.zeros(round(case.seconds * scene.haptic_rate_hz), TICK_DTYPE)
+        ticks["dt"] = 1.0 / scene.haptic_rate_hz
+        ticks["t"] = np.arange(len(ticks)) * ticks["dt"]
+        depth = np.full(len(ticks), 2.0 / stiffness)
+        if stiffness > limit_n_per_m:
+            depth = 0.005 * np.sin(2 * np.pi * 20 * ticks["t"])
+            ticks["device_twist"][:, 0] = (
+                0.005 * 2 * np.pi * 20 * np.cos(2 * np.pi * 20 * ticks["t"])
+            )
+            ticks["wrench_command"][:, 0] = 3.0 * np.sign(ticks["device_twist"][:, 0])
+        ticks["device_pose"][:, 0] = depth + WALL_X - HALF_LENGTH
+        return MethodRun(ticks, scene, 1.0, 60.0, 1)
+
+    return run
+
+
+def test_the_stiffness_search_finds_the_stiffest_stable_wall_at_each_rate(tmp_path) -> None:
+    for limit in (7.7e3, 2.5e5):
+        for rate in (250.0, 1000.0):
+            found = suite_stiffness.stable_stiffness(a_wall_stable_below(limit), rate, tmp_path)
+            k = found["stable_to_n_per_m"]
+            assert limit / 1.1 < k <= limit and not found["capped"]  # 3 bisections: 9 %
+            assert found["felt_n_per_m"] == pytest.approx(k, rel=1e-9)  # F / (F / K)
+    assert suite_stiffness.stable_stiffness(a_wall_stable_below(1.0), 500.0, tmp_path)[
+        "stable_to_n_per_m"] is None  # fmt: skip
+    top = suite_stiffness.stable_stiffness(a_wall_stable_below(1e12), 500.0, tmp_path)
+    assert top["capped"] and top["stable_to_n_per_m"] == pytest.approx(suite_stiffness.K_HIGH)
