@@ -606,10 +606,14 @@ def plot(doc: dict[str, Any], out: Path) -> Path:
     import matplotlib.pyplot as plt
 
     cases = doc["cases"]
-    fig, axes = plt.subplots(1, len(cases), figsize=(5.3 * len(cases), 4.6), squeeze=False)
+    cols = min(3, len(cases))
+    rows = -(-len(cases) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(5.3 * cols, 4.6 * rows), squeeze=False)
+    for ax in axes.flat[len(cases) :]:
+        ax.set_visible(False)
     marks = "osv^Dpx*+h"
     order = [m["name"] for m in doc["methods"]]
-    for ax, case in zip(axes[0], cases, strict=True):
+    for ax, case in zip(axes.flat, cases, strict=False):
         for r in doc["results"]:
             value = r.get("errors", {}).get(case["headline"])
             if r["case"] != case["name"] or value is None:
