@@ -9,7 +9,15 @@ how each reference is made):
 - `linkage_held`: the linkage held at its distal link, pushed with 0.4 N; the device against
   the VM alone integrated independently (RNEA and solve_ivp);
 - `testbed_swing`: the hand swinging the tool into the testbed's walls; the device against
-  the same pymunk world stepped at 10 kHz with the hand's spring on the tool.
+  the same pymunk world stepped at 10 kHz with the hand's spring on the tool;
+- `slide_friction`, `moving_wall`, `grasp_two_devices`: the box slid along a floor against
+  mu_k N, the rectangle pushed onto an oscillating wall against the wall's law, two devices
+  squeezing a box against g - 2 mu N / m and its drift (benchmarks/suite_metrics.py).
+
+Every row carries the port energy and the passivity observer's margin; a method that cannot
+render a case (the grasp's two devices) raises NotApplicableError and its row says why. The
+full suite adds each method's stable wall stiffness at 250, 500 and 1000 Hz
+(benchmarks/suite_stiffness.py).
 
 A **method** (a baseline) is a function from a case to the records of its run
 (`MethodRun`: the haptic loop's TICK_DTYPE records, the scene as rendered, the cost): the

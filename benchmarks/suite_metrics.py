@@ -1,6 +1,7 @@
 """hapticbench's metrics over a method's records (benchmarks/hapticbench.py), for the cases
-whose references are closed forms: the slide with friction and the moving wall; and the
-port energy and the passivity observer's margin, which every case reports.
+whose references are closed forms: the slide with friction, the moving wall and the
+two-device grasp (its run too: only the ports' co-simulation renders it); and the port
+energy and the passivity observer's margin, which every case reports.
 
 They read only the haptic loop's records every method hands back (`MethodRun.ticks`:
 `t`, `dt`, `device_pose`, `device_twist`, `wrench_command`), so a plug-in's run is graded
