@@ -208,8 +208,10 @@ def test_a_device_riding_the_moving_walls_law_has_no_error() -> None:
 @pytest.mark.slow
 def test_the_suites_passivity_observer_is_the_engines() -> None:
     # recomputed from the records alone, the margin equals the one the local model's own
-    # safety stage logged (row port_energy), bit for bit: one observer grades every method
-    for case in (REDUCED[0], CASES[4]):
+    # safety stage logged (row port_energy), bit for bit: one observer grades every method.
+    # In a still world only: against a moving one the engine's also leaves out the world's
+    # own work on the proxy (scratch.env_work), which the records do not hold
+    for case in (REDUCED[0], CASES[1]):
         run = BASELINES["local_model"].run(case)
         figures = hapticbench.case_errors(case, run, None)
         assert run.ticks["port_energy"].max() > 0.0  # the impact gives the hand some energy
