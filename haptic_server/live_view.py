@@ -26,7 +26,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -400,25 +400,38 @@ class ViewProcess(BlockChild):
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m haptic_local_model.haptic_server.live_view CONFIG.json` (ViewProcess)."""
+    return view_main(argv, _live)
+
+
+def view_main(argv: list[str] | None, live: Callable[[dict[str, Any]], None]) -> int:
+    """A view process's entry (this one's, port_view's): its CONFIG.json read, SIGINT left
+    to the run, `live(config)` run; an error is said and ends the view, never the run."""
     args = sys.argv[1:] if argv is None else argv
     config = json.loads(Path(args[0]).read_text())
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run decides when the view ends
     try:
-        _live(config)
+        live(config)
     except Exception as exc:  # the view never stops the run: say why, and go
         print(f"live view stopped: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
     return 0
 
 
-def _live(config: dict[str, Any]) -> None:
+def enter_view_process(config: dict[str, Any]) -> threading.Event:
+    """A view process off the loop's way: niced below the sim and the sidecar, off the
+    loop's CPU; the event is set on SIGTERM (the run ending it)."""
     from haptic_local_model.shared.timing import avoid_cpu
 
     terminated = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: terminated.set())
     with contextlib.suppress(OSError):
-        os.nice(10)  # below the sim and the sidecar
+        os.nice(10)
     avoid_cpu(config.get("loop_cpu"))
+    return terminated
+
+
+def _live(config: dict[str, Any]) -> None:
+    terminated = enter_view_process(config)
     address = ViewAddress(config["bind"], int(config["web_port"]), int(config["grpc_port"]))
     block = SharedBlock.attach(config["shm_name"])
     shm = block.shm

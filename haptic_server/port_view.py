@@ -13,14 +13,11 @@ device. The loop never waits on it: it only writes the rows it always wrote.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import signal
 import sys
-import threading
 import time
 from multiprocessing import resource_tracker, shared_memory
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -29,7 +26,9 @@ from haptic_local_model.haptic_server.live_view import (
     VIEW_HZ,
     RerunServer,
     ViewAddress,
+    enter_view_process,
     open_recording,
+    view_main,
 )
 from haptic_local_model.haptic_server.logger import BlockChild
 from haptic_local_model.haptic_server.view_world import ROLE_COLORS
@@ -134,27 +133,14 @@ class PortViewProcess(BlockChild):
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m haptic_local_model.haptic_server.port_view CONFIG.json` (PortViewProcess)."""
-    args = sys.argv[1:] if argv is None else argv
-    config = json.loads(Path(args[0]).read_text())
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the run decides when the view ends
-    try:
-        _live(config)
-    except Exception as exc:  # the view never stops the run: say why, and go
-        print(f"live view stopped: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return 1
-    return 0
+    return view_main(argv, _live)
 
 
 def _live(config: dict[str, Any]) -> None:
     from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE
     from haptic_local_model.shared.config import load_config_text
-    from haptic_local_model.shared.timing import avoid_cpu
 
-    terminated = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: terminated.set())
-    with contextlib.suppress(OSError):
-        os.nice(10)
-    avoid_cpu(config.get("loop_cpu"))
+    terminated = enter_view_process(config)
     scene = load_config_text(PortSceneConfig, config["scene_text"], "the run's port scene")
     address = ViewAddress(config["bind"], int(config["web_port"]), int(config["grpc_port"]))
     rows = PortRows(int(config["n_rows"]), PORT_ROW_DTYPE, name=config["shm_name"])
