@@ -115,6 +115,9 @@ class SharedWorld:
         self.ports = port_links(n)  # PORT_LINK_DTYPE: each port's state, its last DeviceState
         self.clock = world_clock(n, self.engine.dt, network.world_watchdog_ms, network.safe_ramp_ms)
         self.clock[0]["object"] = self.engine.object_dof
+        # a port scene's ports' passivity controllers (the hands' engine has none)
+        tdpa = network.passivity == "tdpa" and isinstance(scene, PortSceneConfig)
+        self.clock[0]["passivity"] = int(tdpa)
         self.events = np.zeros(MAX_EVENTS, EVENT_DTYPE)
         self.events.view(np.uint8)[:] = 0  # touched now (as the rows), not page by page in the loop
         self.epoch = time.time_ns()

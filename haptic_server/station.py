@@ -77,8 +77,10 @@ class Station:
         self.scene, self.network, self.port, self.device = scene, network, port, device
         self.index = names.index(port)
         self.user = user
+        # a hand's palm is not yet observed at the world (its engine has no controller)
+        passivity = network.passivity == "tdpa" and isinstance(scene, PortSceneConfig)
         self.setup = StationSetup(scene, self.index, device, user, network.watchdog_ms / 1e3,
-                                  network.safe_ramp_ms / 1e3)  # fmt: skip
+                                  network.safe_ramp_ms / 1e3, passivity)  # fmt: skip
         self.station = station_record(self.setup)
         self._records, self._dt = device.records, float(self.station[0]["dt"])  # per tick
         self.rows = np.zeros(max_rows, STATION_ROW_DTYPE)

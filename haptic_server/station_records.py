@@ -23,6 +23,7 @@ from haptic_local_model.device_models.registry import device_from_text
 from haptic_local_model.haptic_server.port_scene import port_gains, tool_start
 from haptic_local_model.haptic_server.stages.port_io import rest_device
 from haptic_local_model.haptic_server.stages.station import (
+    PC_MAX_OVER_B,
     STATION_DTYPE,
     STATION_ROW_DTYPE,
     station_row,
@@ -42,10 +43,11 @@ STATION_SCHEMA = "haptic_server/StationTick"
 #: and a network hop; an older tool state is rendered where it was (DeviceState likewise)
 EXTRAPOLATE_S = 0.005
 #: what a tick renders against, as the loop set it: logged each tick, fed back by the replay
-TOOL_INPUTS = ("have_tool", "held", "tool_age", "tool_pose", "tool_twist", "stiffness", "damping")
+TOOL_INPUTS = ("have_tool", "held", "tool_age", "tool_pose", "tool_twist", "stiffness", "damping",
+               "budget")  # fmt: skip
 #: what a tick computes from them: compared bit for bit by the replay
 REPLAYED = ("pose", "twist", "hand", "coupling", "spring", "out", "gain", "fresh", "cut",
-            "invalid", "fault")  # fmt: skip
+            "invalid", "fault", "energy", "pc_damping")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -58,6 +60,7 @@ class StationSetup:
     user: UserConfig
     watchdog_s: float  # the station network's watchdog and safe ramp
     ramp_s: float
+    passivity: bool = False  # its passivity controller acts (a port scene's, "tdpa")
 
 
 def station_record(setup: StationSetup) -> np.ndarray:
@@ -76,6 +79,8 @@ def station_record(setup: StationSetup) -> np.ndarray:
     s["max_stiffness"] = stiffness
     s["max_damping"] = damping
     s["extrapolate_s"] = EXTRAPOLATE_S
+    s["passivity"] = int(setup.passivity)
+    s["pc_max"] = PC_MAX_OVER_B * np.asarray(damping, np.float64)
     s["map"][0] = world_map_of(device).record[0]
     place_station(st, setup)
     return st
@@ -100,6 +105,7 @@ def station_metadata(setup: StationSetup, texts: dict[str, str]) -> dict[str, st
         "port": setup.scene.ports[setup.index].name,
         "watchdog_s": json.dumps(setup.watchdog_s),
         "ramp_s": json.dumps(setup.ramp_s),
+        "passivity": json.dumps(setup.passivity),
         **{f"{key}_toml": text for key, text in texts.items()},
     }
 
@@ -131,7 +137,9 @@ def setup_from_log(path: Path, metadata: dict[str, dict[str, str]]) -> StationSe
             raise ConfigError(str(path), f"station.{key}", "not a number") from None
         if not seconds[-1] > 0.0:
             raise ConfigError(str(path), f"station.{key}", "not a positive number of seconds")
-    return StationSetup(scene, names.index(meta["port"]), device, user, seconds[0], seconds[1])
+    passivity = meta.get("passivity", "false") == "true"  # before issue 46: none
+    return StationSetup(scene, names.index(meta["port"]), device, user, seconds[0], seconds[1],
+                        passivity)  # fmt: skip
 
 
 def replay_station_rows(setup: StationSetup, rows: np.ndarray) -> tuple[int, int | None]:

@@ -18,6 +18,7 @@ import json
 import signal
 import sys
 import threading
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -46,8 +47,18 @@ from haptic_local_model.shared.config import (
     parse_toml_text,
     resolve,
 )
-from haptic_local_model.shared.net.stations import load_station_network, router_config
+from haptic_local_model.shared.net.stations import (
+    PASSIVITY,
+    StationNetworkConfig,
+    load_station_network,
+    router_config,
+)
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig, is_hand_scene
+
+
+def _passivity(network: StationNetworkConfig, passivity: str | None) -> StationNetworkConfig:
+    """The network, its `passivity` overridden by --passivity if given."""
+    return network if passivity is None else replace(network, passivity=passivity)
 
 
 def _common(parser: argparse.ArgumentParser, scene: bool = True) -> None:
@@ -56,6 +67,10 @@ def _common(parser: argparse.ArgumentParser, scene: bool = True) -> None:
         "--network", default="stations_loopback", help="station network in configs/network"
     )
     if scene:
+        parser.add_argument(
+            "--passivity", choices=PASSIVITY, default=None,
+            help="the port links' passivity controllers (default: the network's)",
+        )  # fmt: skip
         parser.add_argument(
             "--scene", default="grasp_vertical", help="port scene in configs/ports or a path"
         )
@@ -152,7 +167,7 @@ def world_main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     def body() -> int:
-        network = load_station_network(args.network, "world")
+        network = _passivity(load_station_network(args.network, "world"), args.passivity)
         scene, text = _scene(args.scene)
         world = SharedWorld(scene, network, _rows_for(args, scene.haptic_rate_hz))
         summary = _run_loop("haptic-world", world, args.duration)
@@ -185,7 +200,7 @@ def station_main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     def body() -> int:
-        network = load_station_network(args.network, args.port)
+        network = _passivity(load_station_network(args.network, args.port), args.passivity)
         scene, text = _scene(args.scene)
         spec = next((p for p in scene.ports if p.name == args.port), None)
         if spec is None:

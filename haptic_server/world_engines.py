@@ -43,6 +43,8 @@ from haptic_local_model.haptic_server.stages.world_ports import (
     GLOVE_HOLD,
     GLOVE_TAKE_START,
     fill_tool,
+    observe_axis,
+    port_passivity,
     step_ports,
     warm_records,
 )
@@ -106,6 +108,9 @@ def cosim_world_step(model, data, ports, clock, events, tools, rows, lowest):
     step_ports(ports, clock, events)
     m, d = model[0], data[0]
     for p in range(c.n_ports):
+        i = 3 * m.port_tool[p]
+        port_passivity(ports[p], c, m.coupling_stiffness[p], m.coupling_damping[p],
+                       d.q[i : i + 3], d.qd[i : i + 3])  # fmt: skip
         for a in range(3):
             d.device_pose[p, a] = ports[p].fed_pose[a]
             d.device_twist[p, a] = ports[p].fed_twist[a]
@@ -113,6 +118,10 @@ def cosim_world_step(model, data, ports, clock, events, tools, rows, lowest):
     o = c.object
     for p in range(c.n_ports):
         i = 3 * m.port_tool[p]
+        for a in range(3):  # the coupling's force on the tool over the step (port_commands')
+            force = m.coupling_stiffness[p, a] * (d.device_next[p, a] - d.q[i + a])
+            force += m.coupling_damping[p, a] * (d.device_next[p, a + 3] - d.qd[i + a])
+            observe_axis(ports[p], a, force, d.qd[i + a], c.dt)
         fill_tool(tools, p, ports[p], c, d.q[i : i + 3], d.qd[i : i + 3], d.q[o : o + 3])
     world_row(model, data, rows, c.k, c.t, lowest)
 

@@ -357,7 +357,10 @@ def test_the_world_holds_a_port_until_its_station_says_safe_and_refuses_old_epoc
     ring: Any,
 ) -> None:
     scene = load_port_scene(SCENE)
-    world = SharedWorld(scene, load_station_network("stations_loopback", "world"), 10)
+    # the port's states, not its passivity controller (a station here sends no energy)
+    network = dataclasses.replace(load_station_network("stations_loopback", "world"),
+                                  passivity="off")  # fmt: skip
+    world = SharedWorld(scene, network, 10)
     now = time.perf_counter_ns()
 
     def device(seq: int, epoch: int = 7, flags: int = 0, x: float = 0.0) -> bytes:

@@ -79,6 +79,7 @@ STATION_UNITS: dict[str, str] = {
     "tool_pose": POSE, "tool_twist": TWIST, "stiffness": "N/m, N·m/rad",
     "damping": "N·s/m, N·m·s/rad", "tool_age": "s", "have_tool": "", "held": "", "gain": "",
     "fresh": "", "cut": "", "invalid": "", "received": "", "rejected": "", "fault": "",
+    "budget": "J", "energy": "J", "pc_damping": "N·s/m, N·m·s/rad",
 }  # fmt: skip
 #: a port world's rows (docs/log-format.md, "Port logs"); `sim_bodies` is pose then twist
 PORT_UNITS: dict[str, str] = {

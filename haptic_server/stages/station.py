@@ -88,6 +88,12 @@ STATION_DTYPE = np.dtype(
         ("brake_s", F8),  # braked so far on this return
         ("rejoin_brakes", I8),  # ticks it braked so, all told
         ("damping_gain", F8),  # 0 braking, 1 coupled: the live spring and damping blended in
+        # the passivity observer and controller (_passivity; docs/stations.md, "Passivity")
+        ("passivity", I8),  # 1: the controller acts; 0: the observer only
+        ("pc_max", F8, (3,)),  # the controller's largest damping, N s/m (world frame)
+        ("budget", F8, (3,)),  # set by the loop: the world's end's energy, J (its ToolStates')
+        ("energy", F8, (3,)),  # the device's net work on the coupling, J, since the start
+        ("pc_damping", F8, (3,)),  # the controller's damping this tick, N s/m
     ]
 )
 
@@ -119,6 +125,9 @@ STATION_ROW_DTYPE = np.dtype(
         ("received", I8),  # tool states taken, all told
         ("rejected", I8),  # tool states refused (malformed, stale, another world's), all told
         ("fault", I8),  # the device's fault bits
+        ("budget", F8, (3,)),  # the world's end's energy, as the loop set it (an input)
+        ("energy", F8, (3,)),
+        ("pc_damping", F8, (3,)),
     ]
 )
 
@@ -244,6 +253,39 @@ def _rejoin_coupling(s):
         s.spring[c] = spring  # as rendered (the log's), the live one was _rejoins' to judge
 
 
+#: The passivity controller's damping is at most this many times the coupling's own
+#: (grasp_vertical: 5 x 40 N s/m; the delay's energy at 16 Hz and 2 kN/m is about 20 v^2 W)
+PC_MAX_OVER_B = 5.0
+
+
+@njit(cache=True)
+def _passivity(s):
+    """The station's end of the port link's passivity observer and controller
+    (docs/stations.md, "Passivity"; Ryu and Hannaford's PO/PC on the whole link, each end's
+    energy exchanged in the messages). Per axis, the net work the device has done on the
+    rendered coupling, -f v dt summed (world frame), is this end's `energy` (sent to the
+    world); with the world's end's (`budget`, a one-way delay old) it is the energy the link
+    holds. A tick whose output f v dt would leave the link with less than none gets the
+    damping alpha = deficit / (v^2 dt) (at most pc_max) against the device's motion, so
+    the link gives out no more than it holds. Observed always; the controller acts if
+    `passivity`."""
+    w = s.world[0]
+    for c in range(3):
+        s.pc_damping[c] = 0.0
+    if s.cut == 1 or s.gain == 0.0:
+        return
+    for c in range(3):
+        v = w.twist[c]
+        out = s.gain * s.coupling[c] * v * s.dt
+        held = s.energy[c] + s.budget[c] - out
+        if s.passivity == 1 and out > 0.0 and held < 0.0:
+            alpha = min(s.pc_max[c], -held / (s.gain * v * v * s.dt))
+            s.pc_damping[c] = alpha
+            s.coupling[c] -= alpha * v
+            out = s.gain * s.coupling[c] * v * s.dt
+        s.energy[c] -= out
+
+
 @njit(cache=True)
 def station_tick(station, dev):
     """One tick (module docstring)."""
@@ -276,6 +318,7 @@ def station_tick(station, dev):
     step = s.dt / s.ramp_s
     s.gain = min(1.0, s.gain + step) if s.fresh == 1 else max(0.0, s.gain - step)
     _note_squeeze(s)
+    _passivity(s)
     map_command_to_device(s.map, s.coupling, s.limits, s.scratch)
     for c in range(3):
         safe = -s.safe_damping[c] * sen.twist[c] if s.cut == 0 else 0.0
@@ -320,3 +363,7 @@ def station_row(station, rows, k, fault):
     row.cut = s.cut
     row.invalid = s.invalid
     row.fault = fault
+    for c in range(3):
+        row.budget[c] = s.budget[c]
+        row.energy[c] = s.energy[c]
+        row.pc_damping[c] = s.pc_damping[c]

@@ -35,6 +35,7 @@ from haptic_local_model.haptic_server.stages.station_messages import (
 from haptic_local_model.shared.protocol.station import CUT, GLOVE, HELD, SAFE
 
 I8 = np.int64
+TOOL_ENERGY = TOOL_FLOATS - 3  # a ToolState's energy: its last three numbers
 STATION_LINK_DTYPE = np.dtype([
     ("has_last", I8), ("epoch", np.uint64), ("seq", np.uint64),  # the last ToolState taken
     ("tool_ns", I8),  # when it was taken (the loop's clock)
@@ -42,6 +43,9 @@ STATION_LINK_DTYPE = np.dtype([
     ("t0_ns", I8),  # the loop's first tick: a hand's glove script's clock
     ("n_glove", I8),  # rows of a hand's glove script (0: not a hand's station)
     ("safe_entries", I8), ("was_safe", I8),  # times the ramp reached the safe state
+    # the world's end's energy (its ToolStates') minus this, the station's budget: set on each
+    # world's first ToolState so the budget carries on across worlds (station._passivity)
+    ("energy_base", np.float64, 3),
 ])  # fmt: skip
 
 
@@ -66,9 +70,14 @@ def take_tool(station, link, p, now_ns, raw):
         c.rejected += 1
         c.reasons[why] += 1
         return
+    f = message_floats(raw, TOOL_FLOATS)
+    if c.has_last == 0 or epoch != c.epoch:  # a world's first: its count starts anew
+        for a in range(3):
+            c.energy_base[a] = f[TOOL_ENERGY + a] - s.budget[a]
+    for a in range(3):
+        s.budget[a] = f[TOOL_ENERGY + a] - c.energy_base[a]
     c.epoch, c.seq, c.has_last, c.tool_ns = epoch, seq, 1, now_ns
     c.received += 1
-    f = message_floats(raw, TOOL_FLOATS)
     for a in range(3):
         s.tool_pose[a] = f[a]
         s.tool_twist[a] = f[3 + a]
@@ -95,6 +104,7 @@ def station_step(station, dev, link, msg, glove, now_ns, wall_ns, seq):
     for a in range(3):
         r.pose[a] = 0.0 if s.cut == 1 else w.pose[a]
         r.twist[a] = 0.0 if s.cut == 1 else w.twist[a]
+        r.energy[a] = s.energy[a]
     flags = (SAFE if s.fresh == 0 or s.braking == 1 else 0) | (CUT if s.cut == 1 else 0)
     if c.n_glove > 0:
         n = min(glove.shape[1] - 1, len(r.glove))  # a script wider than the message: cut

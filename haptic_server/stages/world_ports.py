@@ -48,6 +48,7 @@ HELD_STATE, INDEXING, COUPLED = 0, 1, 2
 STATE_NAMES = ("held", "indexing", "coupled")
 #: What an engine does with a hand's glove this tick (a tool has none).
 GLOVE_AS_BEFORE, GLOVE_TAKE_START, GLOVE_HOLD = 0, 1, 2
+DEVICE_ENERGY = DEVICE_FLOATS - 3  # a DeviceState's energy: its last three numbers
 EXTRAPOLATE_S = 0.005  # a device's pose carried on by its twist at most this (as a station's)
 MAX_EVENTS = 10_000  # port state changes kept for the summary and the log
 J = MAX_GLOVE_JOINTS
@@ -61,6 +62,11 @@ PORT_LINK_DTYPE = np.dtype([
     ("received", I8), ("rejected", I8), ("reasons", I8, len(REASONS)),
     # what this tick feeds the port's tool: the device's pose and twist, the glove's action
     ("fed_pose", F8, 3), ("fed_twist", F8, 3), ("glove_act", I8), ("glove_start", F8, J),
+    # the passivity observer and controller at the port's tool (port_passivity): the
+    # station's end's energy less energy_base (set on each station's first DeviceState, so
+    # the budget carries on across stations), the tool's net work on the coupling while
+    # coupled, and the controller's damping this tick
+    ("budget", F8, 3), ("energy_base", F8, 3), ("energy", F8, 3), ("pc_damping", F8, 3),
 ])  # fmt: skip
 WORLD_CLOCK_DTYPE = np.dtype([
     ("now_ns", I8),  # the tick's monotonic time (the loop's): ages and silence
@@ -72,6 +78,7 @@ WORLD_CLOCK_DTYPE = np.dtype([
     ("last_tick_ns", I8),  # the previous tick's now_ns (0 before the first)
     ("stalls", I8),  # ticks that came more than the watchdog after the one before
     ("held_until_ns", I8),  # after a stall every port is held until then
+    ("passivity", I8),  # 1: the ports' passivity controllers act; 0: observers only
 ])  # fmt: skip
 EVENT_DTYPE = np.dtype([("t", F8), ("port", I8), ("frm", I8), ("to", I8)])
 
@@ -109,8 +116,13 @@ def take_device(ports, clock, p, raw):
         ps.rejected += 1
         ps.reasons[why] += 1
         return
-    ps.epoch, ps.seq = epoch, seq
     f = message_floats(raw, DEVICE_FLOATS)
+    if ps.has_last == 0 or epoch != ps.epoch:  # a station's first: its count starts anew
+        for a in range(3):
+            ps.energy_base[a] = f[DEVICE_ENERGY + a] - ps.budget[a]
+    for a in range(3):
+        ps.budget[a] = f[DEVICE_ENERGY + a] - ps.energy_base[a]
+    ps.epoch, ps.seq = epoch, seq
     for a in range(3):
         ps.pose[a] = f[a]
         ps.twist[a] = f[3 + a]
@@ -216,8 +228,51 @@ def fill_tool(tools, p, ps, c, q, qd, obj):
         r.pose[a] = q[a] - ps.offset[a]
         r.twist[a] = qd[a] + (ps.twist[a] if ps.state == INDEXING else 0.0)
         r.object_pose[a] = obj[a]
+        r.energy[a] = ps.energy[a]
     r.pose[2] = math.atan2(math.sin(r.pose[2]), math.cos(r.pose[2]))
     r.flags = HELD if ps.state == HELD_STATE else 0
+
+
+#: The passivity controller's damping is at most this many times the coupling's own (as a
+#: station's, stages/station.py's PC_MAX_OVER_B)
+PC_MAX_OVER_B = 5.0
+
+
+@njit(cache=True)
+def port_passivity(ps, c, k, b, q, qd):
+    """The world's end of port ps's passivity observer and controller, before the tick
+    (docs/stations.md, "Passivity"): per axis, the power the coupling at the pose and twist
+    fed would give the tool (pose q, twist qd), K (x_fed - x) + B (v_fed - v) times v. If
+    it would leave the link with less than none (the tool's net work on it, `energy`, plus
+    the station's end's, `budget`, a one-way delay old), the tool gets the damping
+    alpha = deficit / (v^2 dt) (at most PC_MAX_OVER_B B) through the coupling: this tick's
+    pose fed moves by -alpha v / K. For this tick only (the next is fed from the device
+    again), so the controller's action is a force, never a drift of the pose fed from the
+    device's. Acts only if the clock's `passivity`."""
+    for a in range(3):
+        ps.pc_damping[a] = 0.0
+    if ps.state != COUPLED or c.passivity == 0:
+        return
+    for a in range(3):
+        if k[a] <= 0.0:
+            continue
+        v = qd[a]
+        force = k[a] * (ps.fed_pose[a] - q[a]) + b[a] * (ps.fed_twist[a] - v)
+        out = force * v * c.dt
+        held = ps.energy[a] + ps.budget[a] - out
+        if out > 0.0 and held < 0.0:
+            alpha = min(PC_MAX_OVER_B * b[a], -held / (v * v * c.dt))
+            ps.pc_damping[a] = alpha
+            ps.fed_pose[a] -= alpha * v / k[a]
+
+
+@njit(cache=True)
+def observe_axis(ps, a, force, v, dt):
+    """The world's passivity observer on port ps's axis a after the tick: the coupling's
+    `force` on the tool moving at `v`, while coupled: the tool's work on the coupling,
+    -force v dt, into `energy` (sent to the station)."""
+    if ps.state == COUPLED:
+        ps.energy[a] -= force * v * dt
 
 
 def warm_records(n_ports: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

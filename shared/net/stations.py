@@ -47,6 +47,7 @@ STATE_RELIABILITY = {
     "reliable": zenoh.Reliability.RELIABLE,
     "best_effort": zenoh.Reliability.BEST_EFFORT,
 }
+PASSIVITY = ("tdpa", "off")
 
 
 def port_keys(namespace: str, port: str) -> tuple[str, str]:
@@ -84,6 +85,10 @@ class StationNetworkConfig:
     # lost; on a transport with a UDP link beside its TCP one they take the UDP link, and
     # the declarations, the access control's and the sim's messages stay on TCP)
     state_reliability: str = "reliable"
+    # each port link's passivity controllers (docs/stations.md, "Passivity"): "tdpa" (the
+    # world's and the station's act on what the link would generate) or "off" (the
+    # observers only: the energies are still counted, exchanged and logged)
+    passivity: str = "tdpa"
 
     def __post_init__(self) -> None:
         require_safe_state(self.namespace, self.watchdog_ms, self.safe_ramp_ms)
@@ -91,6 +96,11 @@ class StationNetworkConfig:
             self.state_reliability in STATE_RELIABILITY,
             "state_reliability",
             f"must be one of {sorted(STATE_RELIABILITY)}, not {self.state_reliability!r}",
+        )
+        require(
+            self.passivity in PASSIVITY,
+            "passivity",
+            f"must be one of {sorted(PASSIVITY)}, not {self.passivity!r}",
         )
         within(self.world_watchdog_ms, WATCHDOG_MS_RANGE, "world_watchdog_ms", "ms")
         require(bool(self.router.listen), "router.listen", "the router must listen somewhere")

@@ -1,11 +1,11 @@
 """The two messages between a shared world and its haptic stations (docs/stations.md).
 
-- DeviceState `HSDV` v2, station -> world, every station tick on `<ns>/port/<name>/device`:
+- DeviceState `HSDV` v3, station -> world, every station tick on `<ns>/port/<name>/device`:
   the station's device pose and twist in its world frame (after its device-to-world map),
   whether it is SAFE (not rendering the world's coupling: its watchdog fired or the world
   holds it, and its command ramps to, or is at, the safe state), whether its reading
   was not finite, and, at a hand's station (GLOVE), its glove's joint angles and rates.
-- ToolState `HSTL` v2, world -> station, every world tick on `<ns>/port/<name>/tool`: the
+- ToolState `HSTL` v3, world -> station, every world tick on `<ns>/port/<name>/tool`: the
   port's tool pose and twist in the station's frame (the world re-indexes a station that
   joins, so its device meets its tool where the tool is), the coupling's stiffness and
   damping, the co-simulated object's pose (for views and logs) and whether the world holds
@@ -37,13 +37,17 @@ from haptic_local_model.shared.protocol.update import MessageError
 
 DEVICE_MAGIC = b"HSDV"
 TOOL_MAGIC = b"HSTL"
-STATION_VERSION = 2  # 2: DeviceState carries the glove
+STATION_VERSION = (
+    3  # 2: DeviceState carries the glove; 3: both carry the passivity observer's energy
+)
 MAX_GLOVE_JOINTS = 8  # a hand's at most 4 fingers of two phalanges
 GLOVE_ANGLE_LIMIT = 2.0 * math.pi  # rad
 #: poses beyond this many metres, rates beyond this many m/s or rad/s: not a device's
 POSE_LIMIT_M = 100.0
 TWIST_LIMIT = 1000.0
 GAIN_LIMIT = 1.0e7  # N/m, N s/m
+#: a port's running energy beyond this many joules is not a device's (a week at 1 kW)
+ENERGY_LIMIT = 1.0e9
 
 _HEAD = struct.Struct("<4sHHQQq")  # magic, version, port, epoch, seq, publish time (ns)
 HEAD_FIELDS = [("magic", "S4"), ("version", "<u2"), ("port", "<u2"), ("epoch", "<u8"),
@@ -73,6 +77,9 @@ class DeviceState:
     flags: int = 0
     glove: tuple[float, ...] = (0.0,) * MAX_GLOVE_JOINTS  # rad, the hand's joints in order
     glove_rate: tuple[float, ...] = (0.0,) * MAX_GLOVE_JOINTS  # rad/s
+    # the passivity observer's: the net work the station's device has done on the port's
+    # link (its coupling) since the station started (J, per axis, signed: docs/stations.md)
+    energy: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @property
     def safe(self) -> bool:
@@ -99,6 +106,9 @@ class ToolState:
     damping: tuple[float, float, float]
     object_pose: tuple[float, float, float]  # the co-simulated object, world frame
     flags: int = 0
+    # the passivity observer's: the net work the port's tool has done on the link (its
+    # coupling) while coupled, since the world started (J, per axis, signed: docs/stations.md)
+    energy: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @property
     def held(self) -> bool:
@@ -205,14 +215,15 @@ class StationMessage:
 DEVICE = StationMessage(
     "DeviceState", DEVICE_MAGIC,
     (_axes("pose", POSE_LIMIT_M), _axes("twist", TWIST_LIMIT),
-     _joints("glove", GLOVE_ANGLE_LIMIT), _joints("glove_rate", TWIST_LIMIT)),
+     _joints("glove", GLOVE_ANGLE_LIMIT), _joints("glove_rate", TWIST_LIMIT),
+     _axes("energy", ENERGY_LIMIT)),
     SAFE | CUT | GLOVE,
 )  # fmt: skip
 TOOL = StationMessage(
     "ToolState", TOOL_MAGIC,
     (_axes("pose", POSE_LIMIT_M), _axes("twist", TWIST_LIMIT),
      _axes("stiffness", GAIN_LIMIT, nonneg=True), _axes("damping", GAIN_LIMIT, nonneg=True),
-     _axes("object_pose", POSE_LIMIT_M)),
+     _axes("object_pose", POSE_LIMIT_M), _axes("energy", ENERGY_LIMIT)),
     HELD,
 )  # fmt: skip
 #: Each as a numpy record of exactly the message's bytes: a loop that publishes one every
