@@ -10,6 +10,8 @@ processes' own logs and summaries:
   5 Hz, and that over the same at the unimpaired point (the 0 ms, no-loss run);
 - the box: how far it sank below its start at worst and how far it ended from it (mm);
 - each station's watchdog trips (safe entries) and tool states refused;
+- each station's share of its ticks at the full coupling from the first it rendered (a box
+  thrown out of range leaves the stations safe: its figures after that are of no coupling);
 - the stall distribution of ToolStates at each station: the time between ticks that took a
   new one (p50/p99/max, ms; 1 ms is every tick) and the age, since it arrived, of the one
   rendered; the share of its ticks at the full coupling.
@@ -19,7 +21,10 @@ process it starts stopped by its pid, however it ends.
 
     sudo .venv/bin/python -m haptic_local_model.benchmarks.station_links \
         [--delays-ms 0 10 50] [--losses 0 0.05] [--jitter 0.2] [--seconds 15] \
-        [--network stations_three_hosts] [--json out.json] [--md out.md]
+        [--network stations_three_hosts] [--passivity tdpa off] [--json out.json] [--md out.md]
+
+`--passivity tdpa off` runs each point with the port links' passivity controllers and
+without (the observers only), one after the other (the machine is shared).
 """
 
 from __future__ import annotations
@@ -105,21 +110,24 @@ def port_figures(rows: np.ndarray, summary: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def run(seconds: float, imp: Impairment, folder: Path, network: str) -> dict[str, Any]:
-    """`grasp_vertical` at two stations, each link through `imp`, for `seconds`: its
-    figures (module docstring)."""
+def run(
+    seconds: float, imp: Impairment, folder: Path, network: str, passivity: str = "tdpa"
+) -> dict[str, Any]:
+    """`grasp_vertical` at two stations, each link through `imp`, for `seconds`, the links'
+    passivity controllers `passivity` ("tdpa" or "off"): its figures (module docstring)."""
     with ThreeHosts(impair=dict.fromkeys(PORTS, imp)) as h:
         net = ["--network", network]
+        roles = [*net, "--passivity", passivity]
         h.start(h.world_ns, [*CLI, "router", *net]).wait_ready()
         world_json = folder / "world.json"
-        world = h.start(h.world_ns, [*CLI, "world", *net, "--duration", str(seconds + 6.0),
+        world = h.start(h.world_ns, [*CLI, "world", *roles, "--duration", str(seconds + 6.0),
                                      "--json", str(world_json)])  # fmt: skip
         world.wait_ready()
         stations = {}
         for p in PORTS:
             args = ["--port", p, "--duration", str(seconds), "--log", str(folder / f"{p}.mcap"),
                     "--json", str(folder / f"{p}.json")]  # fmt: skip
-            stations[p] = h.start(h.station_ns[p], [*CLI, "station", *net, *args])
+            stations[p] = h.start(h.station_ns[p], [*CLI, "station", *roles, *args])
         for s in stations.values():
             s.wait_ready()
         codes = {p: s.proc.wait(seconds + STOP_S) for p, s in stations.items()}
@@ -127,7 +135,8 @@ def run(seconds: float, imp: Impairment, folder: Path, network: str) -> dict[str
     end = time.monotonic() + SUMMARY_WAIT_S
     while time.monotonic() < end and not all(f.events[-1:] for f in h.forwarders.values()):
         time.sleep(0.05)
-    figures: dict[str, Any] = {"exit_codes": codes, "left_over": h.leftovers()}
+    figures: dict[str, Any] = {"exit_codes": codes, "left_over": h.leftovers(),
+                               "passivity": passivity}  # fmt: skip
     figures["impairment"] = {"delay_ms": imp.delay_s * 1e3, "jitter_ms": imp.jitter_s * 1e3,
                              "loss": imp.loss, "reorder": imp.reorder}  # fmt: skip
     for p in PORTS:
@@ -147,7 +156,8 @@ def box_text(mm: float) -> str:
 
 
 def unimpaired(points: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """The sweep's point at 0 ms and no loss, if it has one."""
+    """The sweep's point at 0 ms and no loss (the first, with the controllers if both ran),
+    if it has one."""
     return next((p for p in points if p["impairment"]["delay_ms"] == 0.0
                  and p["impairment"]["loss"] == 0.0), None)  # fmt: skip
 
@@ -161,9 +171,10 @@ def report(
         f"`{command}` ({seconds:g} s a point, `grasp_vertical`, maglevs at both stations; the "
         "machine's 2 cores shared with other work). Per station: left / right.",
         "",
-        "| one-way ms | jitter ms | loss | energy out J | >5 Hz RMS N | ×0 ms | box sank / moved mm "
-        "| watchdog trips | ToolState gap ms p50 / p99 / max | age since arrival ms p50 / p99 |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| one-way ms | jitter ms | loss | PC | energy out J | >5 Hz RMS N | ×0 ms "
+        "| box sank / moved mm | coupled | watchdog trips | ToolState gap ms p50 / p99 / max "
+        "| age since arrival ms p50 / p99 |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for pt in points:
         imp, lr = pt["impairment"], [pt[p] for p in PORTS]
@@ -178,10 +189,12 @@ def report(
         )
         lines.append(
             f"| {imp['delay_ms']:g} | {imp['jitter_ms']:g} | {imp['loss']:.0%} "
+            f"| {pt.get('passivity', 'off')} "
             f"| {lr[0]['energy_out_j']:.3f} / {lr[1]['energy_out_j']:.3f} "
             f"| {lr[0]['rms_above_5hz_n']:.3f} / {lr[1]['rms_above_5hz_n']:.3f} "
             f"| {ratio[0]:.1f} / {ratio[1]:.1f} "
             f"| {box_text(pt['box_sank_mm'])} / {box_text(pt['box_moved_mm'])} "
+            f"| {lr[0]['coupled_fraction']:.0%} / {lr[1]['coupled_fraction']:.0%} "
             f"| {lr[0]['watchdog_trips']} / {lr[1]['watchdog_trips']} | {gap} | {age} |"
         )
     return "\n".join(lines) + "\n"
@@ -194,6 +207,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jitter", type=float, default=0.2, help="jitter as a fraction of the delay")
     ap.add_argument("--seconds", type=float, default=15.0, help="the stations' run a point (s)")
     ap.add_argument("--network", default="stations_three_hosts", help="in configs/network")
+    ap.add_argument(
+        "--passivity",
+        nargs="+",
+        default=["tdpa"],
+        choices=["tdpa", "off"],
+        help="the links' passivity controllers; both: each point with and without",
+    )
     ap.add_argument("--json", type=Path, default=None, help="write the figures here")
     ap.add_argument("--md", type=Path, default=None, help="write the report's table here")
     ap.add_argument("--base", type=Path, default=None,
@@ -208,9 +228,10 @@ def main(argv: list[str] | None = None) -> int:
     for loss in args.losses:
         for d in args.delays_ms:
             imp = Impairment(d / 1e3, args.jitter * d / 1e3, loss)
-            with tempfile.TemporaryDirectory() as tmp:
-                points.append(run(args.seconds, imp, Path(tmp), args.network))
-            print(json.dumps(points[-1]), flush=True)
+            for passivity in args.passivity:  # interleaved: the machine is shared
+                with tempfile.TemporaryDirectory() as tmp:
+                    points.append(run(args.seconds, imp, Path(tmp), args.network, passivity))
+                print(json.dumps(points[-1]), flush=True)
     if args.json:
         args.json.write_text(json.dumps(points, indent=2))
     command = "python -m haptic_local_model.benchmarks.station_links " + " ".join(
