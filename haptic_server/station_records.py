@@ -20,10 +20,10 @@ from haptic_local_model.device_models.base import SimulatedDevice, world_map_of
 from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.device_models.kernels import noise_ready
 from haptic_local_model.device_models.registry import device_from_text
+from haptic_local_model.haptic_server.physics.passivity import PC_MAX_OVER_B
 from haptic_local_model.haptic_server.port_scene import port_gains, tool_start
 from haptic_local_model.haptic_server.stages.port_io import rest_device
 from haptic_local_model.haptic_server.stages.station import (
-    PC_MAX_OVER_B,
     STATION_DTYPE,
     STATION_ROW_DTYPE,
     station_row,

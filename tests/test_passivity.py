@@ -18,11 +18,8 @@ from haptic_local_model.benchmarks import station_links
 from haptic_local_model.benchmarks.impair import Impairment
 from haptic_local_model.benchmarks.stations import PORTS, netns_unavailable
 from haptic_local_model.device_models.registry import load_simulated_device
-from haptic_local_model.haptic_server.stages.station import (
-    PC_MAX_OVER_B,
-    STATION_DTYPE,
-    _passivity,
-)
+from haptic_local_model.haptic_server.physics.passivity import PC_MAX_OVER_B
+from haptic_local_model.haptic_server.stages.station import STATION_DTYPE, _passivity
 from haptic_local_model.haptic_server.stages.station_link import station_link, take_tool
 from haptic_local_model.haptic_server.stages.world_ports import (
     COUPLED,

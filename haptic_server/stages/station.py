@@ -36,6 +36,7 @@ from haptic_local_model.device_models.world_map import (
     map_command_to_device,
     map_rate_step,
 )
+from haptic_local_model.haptic_server.physics.passivity import pc_damping
 from haptic_local_model.haptic_server.stages.port_io import read_device
 from haptic_local_model.haptic_server.users import USER_DTYPE
 from haptic_local_model.shared.kinematics import wrap_angle
@@ -253,11 +254,6 @@ def _rejoin_coupling(s):
         s.spring[c] = spring  # as rendered (the log's), the live one was _rejoins' to judge
 
 
-#: The passivity controller's damping is at most this many times the coupling's own
-#: (grasp_vertical: 5 x 40 N s/m; the delay's energy at 16 Hz and 2 kN/m is about 20 v^2 W)
-PC_MAX_OVER_B = 5.0
-
-
 @njit(cache=True)
 def _passivity(s):
     """The station's end of the port link's passivity observer and controller
@@ -278,8 +274,10 @@ def _passivity(s):
         v = w.twist[c]
         out = s.gain * s.coupling[c] * v * s.dt
         held = s.energy[c] + s.budget[c] - out
-        if s.passivity == 1 and out > 0.0 and held < 0.0:
-            alpha = min(s.pc_max[c], -held / (s.gain * v * v * s.dt))
+        alpha = 0.0
+        if s.passivity == 1:
+            alpha = pc_damping(held, out, s.gain * v * v * s.dt, s.pc_max[c])
+        if alpha > 0.0:
             s.pc_damping[c] = alpha
             s.coupling[c] -= alpha * v
             out = s.gain * s.coupling[c] * v * s.dt

@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from haptic_local_model.haptic_server.physics.passivity import carry_budget
 from haptic_local_model.haptic_server.stages.hand import glove_at
 from haptic_local_model.haptic_server.stages.station import station_row, station_tick
 from haptic_local_model.haptic_server.stages.station_messages import (
@@ -71,11 +72,8 @@ def take_tool(station, link, p, now_ns, raw):
         c.reasons[why] += 1
         return
     f = message_floats(raw, TOOL_FLOATS)
-    if c.has_last == 0 or epoch != c.epoch:  # a world's first: its count starts anew
-        for a in range(3):
-            c.energy_base[a] = f[TOOL_ENERGY + a] - s.budget[a]
-    for a in range(3):
-        s.budget[a] = f[TOOL_ENERGY + a] - c.energy_base[a]
+    # a world's first: its count starts anew, the budget carries on
+    carry_budget(c.energy_base, s.budget, f, TOOL_ENERGY, c.has_last == 0 or epoch != c.epoch)
     c.epoch, c.seq, c.has_last, c.tool_ns = epoch, seq, 1, now_ns
     c.received += 1
     for a in range(3):

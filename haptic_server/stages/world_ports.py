@@ -26,6 +26,11 @@ import math
 import numpy as np
 from numba import njit
 
+from haptic_local_model.haptic_server.physics.passivity import (
+    PC_MAX_OVER_B,
+    carry_budget,
+    pc_damping,
+)
 from haptic_local_model.haptic_server.stages.station_messages import (
     DEVICE_FLOATS,
     REASONS,
@@ -117,11 +122,8 @@ def take_device(ports, clock, p, raw):
         ps.reasons[why] += 1
         return
     f = message_floats(raw, DEVICE_FLOATS)
-    if ps.has_last == 0 or epoch != ps.epoch:  # a station's first: its count starts anew
-        for a in range(3):
-            ps.energy_base[a] = f[DEVICE_ENERGY + a] - ps.budget[a]
-    for a in range(3):
-        ps.budget[a] = f[DEVICE_ENERGY + a] - ps.energy_base[a]
+    # a station's first: its count starts anew, the budget carries on
+    carry_budget(ps.energy_base, ps.budget, f, DEVICE_ENERGY, ps.has_last == 0 or epoch != ps.epoch)
     ps.epoch, ps.seq = epoch, seq
     for a in range(3):
         ps.pose[a] = f[a]
@@ -233,11 +235,6 @@ def fill_tool(tools, p, ps, c, q, qd, obj):
     r.flags = HELD if ps.state == HELD_STATE else 0
 
 
-#: The passivity controller's damping is at most this many times the coupling's own (as a
-#: station's, stages/station.py's PC_MAX_OVER_B)
-PC_MAX_OVER_B = 5.0
-
-
 @njit(cache=True)
 def port_passivity(ps, c, k, b, q, qd):
     """The world's end of port ps's passivity observer and controller, before the tick
@@ -260,8 +257,8 @@ def port_passivity(ps, c, k, b, q, qd):
         force = k[a] * (ps.fed_pose[a] - q[a]) + b[a] * (ps.fed_twist[a] - v)
         out = force * v * c.dt
         held = ps.energy[a] + ps.budget[a] - out
-        if out > 0.0 and held < 0.0:
-            alpha = min(PC_MAX_OVER_B * b[a], -held / (v * v * c.dt))
+        alpha = pc_damping(held, out, v * v * c.dt, PC_MAX_OVER_B * b[a])
+        if alpha > 0.0:
             ps.pc_damping[a] = alpha
             ps.fed_pose[a] -= alpha * v / k[a]
 
