@@ -34,6 +34,7 @@ from haptic_local_model.haptic_server.mailbox import (
     C_UPD_HEAD,
     C_UPD_READ,
     C_WALL_START,
+    MAILBOX_SLOTS,
     compile_loop_kernels,
     push_row,
 )
@@ -64,6 +65,9 @@ FIRST_UPDATE_WAIT_S = 60.0  # --duration starts at the first update, or gives up
 # updates taken from the mailbox per tick: a flood of messages (garbage or not) costs the loop
 # at most this many validations (~10 us each) per tick; the rest wait in the mailbox
 MAX_UPDATES_PER_TICK = 8
+# ...but when the watchdog came due while the loop itself was stopped (SIGSTOP, a hypervisor
+# pause), everything that arrived meanwhile is judged in that tick before silence is: up to
+# the mailbox (~10 us each), once per such stall
 WINDOW_TICKS = 600_000  # percentiles over the newest 10 min at 1 kHz
 # the compiled burst hands back to Python this often (signals, stop requests): each return
 # costs Python work between two ticks, which at 10 kHz eats into a 100 us period (haptic-run
@@ -185,6 +189,7 @@ class HapticServer:
         self._io: LoopIO
         self._supervisor: WatchdogClock
         self._tick = 0
+        self._lateness_ns = 0  # the tick's (set by _ticks, read by the install step)
         self._duration_ns: int | None = None
         self._newest_seq = -1
         self._newest_age_ms = float("nan")
@@ -205,14 +210,15 @@ class HapticServer:
         """The supervisor's install step: validate and install what waits in the mailbox (one
         numba call; the engine's Python side only after a new epoch, the watchdog, or for FOH
         setpoints); the first install starts the run's duration."""
-        stats = self.stats
-        taken, installed, seq, latency_s = self._io.take_updates(
-            self.engine, self._tick, MAX_UPDATES_PER_TICK
-        )
+        stats, sup = self.stats, self._supervisor
+        budget = MAX_UPDATES_PER_TICK
+        if sup.now_ns > sup.trip_at_ns >= sup.now_ns - self._lateness_ns:
+            budget = MAILBOX_SLOTS  # due at a deadline the loop missed: its silence, not the sim's
+        taken, installed, seq, latency_s = self._io.take_updates(self.engine, self._tick, budget)
         stats.updates_received += taken
         if installed:
             if stats.updates_installed == 0 and self._duration_ns is not None:
-                sup = self._supervisor  # the duration counts from the first install
+                # the duration counts from the first install
                 sup.end_ns = sup.now_ns + self._duration_ns
             stats.updates_installed += installed
             self._newest_seq = seq
@@ -356,7 +362,7 @@ class HapticServer:
             ):
                 supervisor.now_ns = now
                 supervisor.stop_requested = self._stop
-                self._tick = tick
+                self._tick, self._lateness_ns = tick, lateness_ns
                 events = supervise(engine, supervisor)
                 if events.stop or events.reinitialised or events.watchdog_clear or events.watchdog:
                     self._log_events(io, tick, events, supervisor)
