@@ -12,8 +12,11 @@ tell them apart.
 
 from __future__ import annotations
 
+import grp
 import importlib
-from dataclasses import asdict, dataclass
+import os
+import stat
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from haptic_local_model.device_models.base import DeviceModel
@@ -30,6 +33,7 @@ EXIT_FORCE = 15  # the force pushes away from the spring's start (its sign is fl
 EXIT_DEVICE_FAILED = 16  # a binding call failed during the check
 EXIT_SAFE_STOP = 17  # the safe stop failed: the device may still apply force
 EXIT_FORCE_SCALE = 18  # the handle responds to a fraction or a multiple of the force sent
+EXIT_ACCESS = 19  # the device's files are there, but this account may not open any of them
 
 
 @dataclass
@@ -46,6 +50,9 @@ class ModelReport:
     problem: str = ""  # what is wrong, "" if nothing
     fix: str = ""  # what to do about it
     access: str = ""  # the permissions a user account needs (hardware)
+    #: the device files found (serial ports, USB nodes); None: the model has none to look for
+    nodes: list[str] | None = None
+    blocked: list[str] = field(default_factory=list)  # of those, what this account may not open
     exit_code: int = EXIT_OK  # what `check` of this model would stop with before opening
 
     def as_json(self) -> dict[str, Any]:
@@ -70,6 +77,29 @@ def _import_error(module: str) -> tuple[bool, str]:
     except Exception as exc:  # OSError from ctypes, the binding's own ImportError, ...
         return False, f"{type(exc).__name__}: {exc}"
     return False, ""
+
+
+def may_open(path: str) -> bool:
+    """Whether this account may read and write the device file (root may)."""
+    return os.access(path, os.R_OK | os.W_OK)
+
+
+def _blocked(path: str) -> str:
+    """ "" if this account may open the device file, else the file, its mode, its group and
+    whether this account is in it."""
+    if may_open(path):
+        return ""
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        return f"{path} ({exc.strerror})"
+    try:
+        group = grp.getgrgid(st.st_gid).gr_name
+    except KeyError:
+        group = str(st.st_gid)
+    member = st.st_gid == os.getegid() or st.st_gid in os.getgroups()
+    where = "" if member else ", which this account is not in"
+    return f"{path} ({stat.filemode(st.st_mode)}, group {group}{where})"
 
 
 def probe(name: str, model: DeviceModel) -> ModelReport:
@@ -97,6 +127,14 @@ def probe(name: str, model: DeviceModel) -> ModelReport:
         report.problem = f"the vendor runtime does not load ({error})"
         report.fix = bringup.runtime_fix if bringup else "install the vendor's runtime"
         return report
+    if bringup is not None and bringup.nodes is not None:
+        report.nodes = bringup.nodes()
+        report.blocked = [why for why in map(_blocked, report.nodes) if why]
+        if report.nodes and len(report.blocked) == len(report.nodes):
+            report.exit_code = EXIT_ACCESS
+            report.problem = f"this account may not open {'; '.join(report.blocked)}"
+            report.fix = bringup.access_fix
+            return report
     if bringup is None or bringup.detect is None:
         return report
     try:
@@ -138,13 +176,17 @@ def format_list(reports: list[ModelReport]) -> str:
         out.append(f"  binding {r.binding}: {'imports' if r.binding_ok else 'NOT INSTALLED'}")
         if r.binding_ok:
             out.append(f"  vendor runtime: {'found' if r.runtime_ok else 'NOT FOUND'}")
-        if r.binding_ok and r.runtime_ok:
+        if r.binding_ok and r.runtime_ok and r.exit_code != EXIT_ACCESS:
             if r.devices is None and not r.problem:
                 out.append("  devices: the binding cannot tell without opening one (run check)")
             else:
                 out.append(f"  devices: {len(r.devices or [])} detected")
                 for d in r.devices or []:
                     out.append(f"    {d}")
+        if r.nodes is not None and r.exit_code != EXIT_ACCESS:  # else the problem says it
+            shown = ", ".join(r.nodes) or "none"
+            out.append(f"  device files: {shown}")
+            out.extend(f"    may not open {why}" for why in r.blocked)
         if r.problem:
             out.append(f"  problem: {r.problem}")
             out.append(f"  fix: {r.fix}")

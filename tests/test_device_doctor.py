@@ -4,6 +4,7 @@ with its message and exit code (issue 49)."""
 
 from __future__ import annotations
 
+import grp
 import importlib
 import importlib.util
 import json
@@ -20,6 +21,7 @@ import numpy as np
 import pytest
 
 from haptic_local_model.device_models import doctor
+from haptic_local_model.device_models.hardware.base import serial_ports, usb_nodes
 from haptic_local_model.haptic_server.harness.device_doctor import main
 
 FAKES = Path(__file__).resolve().parent / "fake_vendors"
@@ -114,6 +116,92 @@ def test_list_no_device(
         assert r["exit_code"] == doctor.EXIT_NO_DEVICE
     assert "dialout" in reports["haply_inverse3"]["fix"]
     assert "udev" in reports["forcedimension"]["fix"]
+
+
+def test_device_files_are_found_without_the_binding(tmp_path: Path) -> None:
+    """The serial ports by their glob; a vendor's USB nodes from sysfs (bus and device
+    numbers), another vendor's and an unreadable entry left out."""
+    for name in ("ttyACM1", "ttyACM0", "ttyUSB0"):
+        (tmp_path / name).touch()
+    assert serial_ports(str(tmp_path / "ttyACM*")) == [str(tmp_path / f"ttyACM{i}") for i in (0, 1)]
+    sysfs = tmp_path / "usb"
+    for entry, vendor, bus, dev in (("1-2", "1451", 1, 7), ("2-1", "046d", 2, 3),
+                                    ("3-1", "1451", 3, 12), ("4-1", "1451", "x", 1)):  # fmt: skip
+        (sysfs / entry).mkdir(parents=True)
+        (sysfs / entry / "idVendor").write_text(f"{vendor}\n")
+        (sysfs / entry / "busnum").write_text(f"{bus}\n")
+        (sysfs / entry / "devnum").write_text(f"{dev}\n")
+    assert usb_nodes("1451", str(sysfs)) == ["/dev/bus/usb/001/007", "/dev/bus/usb/003/012"]
+
+
+def _with_nodes(monkeypatch: pytest.MonkeyPatch, model: str, nodes: list[str],
+                blocked: set[str]) -> None:  # fmt: skip
+    """The model's device files are `nodes`, of which this account may not open `blocked`
+    (the tests run as root, who may open anything)."""
+    module = importlib.import_module(f"haptic_local_model.device_models.hardware.{model}")
+    monkeypatch.setattr(module, "BRINGUP", module.BRINGUP._replace(nodes=lambda: nodes))
+    monkeypatch.setattr(doctor, "may_open", lambda path: path not in blocked)
+
+
+def test_list_device_files_this_account_may_not_open(
+    fakes: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:  # fmt: skip
+    """Every device file found but none this account may open: exit 19, each named with its
+    mode and group, the fix the model's (dialout); one of two blocked: listed, not a fault."""
+    port = tmp_path / "ttyACM0"
+    port.touch()
+    port.chmod(0o660)
+    group = grp.getgrgid(port.stat().st_gid).gr_name  # root's: this account is in it
+    _with_nodes(monkeypatch, "haply", [str(port)], {str(port)})
+    r = _list_json(capsys)["haply_inverse3"]
+    assert r["exit_code"] == doctor.EXIT_ACCESS and r["blocked"] == [
+        f"{port} (-rw-rw----, group {group})"
+    ]
+    assert r["problem"] == f"this account may not open {port} (-rw-rw----, group {group})"
+    assert "dialout" in r["fix"]
+    assert main(["list"]) == 0
+    assert f"problem: this account may not open {port}" in capsys.readouterr().out
+    other = tmp_path / "ttyACM1"
+    other.touch()
+    _with_nodes(monkeypatch, "haply", [str(port), str(other)], {str(port)})
+    r = _list_json(capsys)["haply_inverse3"]
+    assert r["exit_code"] == 0 and len(r["blocked"]) == 1 and r["nodes"] == [str(port), str(other)]
+    main(["list"])
+    text = capsys.readouterr().out
+    assert f"device files: {port}, {other}" in text and f"may not open {port} (" in text
+
+
+def test_a_blocked_file_names_a_group_this_account_is_not_in(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    port = tmp_path / "ttyACM0"
+    port.touch()
+    port.chmod(0o660)
+    os.chown(port, -1, 54321)  # a group without a name, this account not in it (root may)
+    monkeypatch.setattr(doctor, "may_open", lambda path: False)
+    assert doctor._blocked(str(port)) == (
+        f"{port} (-rw-rw----, group 54321, which this account is not in)"
+    )
+
+
+def test_check_stops_before_opening_a_device_file_it_may_not_open(
+    fakes: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The Force Dimension's USB node is there but not this account's: exit 19 before the
+    device is opened, with the udev rule as the fix; a missing file is named so."""
+    _with_nodes(
+        monkeypatch,
+        "forcedimension",
+        ["/nonexistent/bus/usb/001/007"],
+        {"/nonexistent/bus/usb/001/007"},
+    )
+    code, out = _check(capsys, "--device", "forcedimension")
+    assert code == doctor.EXIT_ACCESS, out
+    assert (
+        "find: FAILED: this account may not open /nonexistent/bus/usb/001/007 (No such file" in out
+    )
+    assert "udev rule" in out and "open:" not in out
 
 
 @pytest.mark.processes

@@ -20,11 +20,13 @@ haptic server calls it on every way out (the end of a run, SIGINT/SIGTERM, an ex
 from __future__ import annotations
 
 import contextlib
+import glob
 import importlib.util
 import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, ClassVar, NamedTuple, Protocol, Self
 
 import numpy as np
@@ -137,6 +139,27 @@ class Bringup(NamedTuple):
     #: the devices attached, one line each, without opening them; None: the binding cannot
     #: tell without opening one
     detect: Callable[[], list[str]] | None = None
+    #: the device files this account must read and write to open one (serial ports, USB
+    #: nodes), found without the binding; None: the binding finds its device its own way
+    nodes: Callable[[], list[str]] | None = None
+
+
+def serial_ports(pattern: str = "/dev/ttyACM*") -> list[str]:
+    """The USB serial ports (CDC ACM) attached: where the Inverse3 and the Touch appear."""
+    return sorted(glob.glob(pattern))
+
+
+def usb_nodes(vendor_id: str, sysfs: str = "/sys/bus/usb/devices") -> list[str]:
+    """The USB device files (/dev/bus/usb/BUS/DEV) of the attached devices of one vendor
+    (its USB vendor id, 4 hex digits, as sysfs writes it), read from sysfs."""
+    found = []
+    for vendor in sorted(Path(sysfs).glob("*/idVendor")):
+        with contextlib.suppress(OSError, ValueError):
+            if vendor.read_text().strip().lower() == vendor_id.lower():
+                bus = int((vendor.parent / "busnum").read_text())
+                dev = int((vendor.parent / "devnum").read_text())
+                found.append(f"/dev/bus/usb/{bus:03d}/{dev:03d}")
+    return found
 
 
 class VendorLink(Protocol):

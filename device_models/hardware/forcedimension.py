@@ -25,8 +25,10 @@ from haptic_local_model.device_models.hardware.base import (
     Bringup,
     HardwareConfig,
     PlanarHardware,
+    usb_nodes,
 )
 
+USB_VENDOR_ID = "1451"  # Force Dimension's (its udev rule matches it)
 BINDING = "forcedimension_core"
 SDK_ERROR = -1
 
@@ -121,6 +123,7 @@ BRINGUP = Bringup(
     access_fix="USB access: install the SDK's udev rule (its README) or the device is seen "
     "but cannot be opened",
     detect=detect,
+    nodes=lambda: usb_nodes(USB_VENDOR_ID),
 )
 
 

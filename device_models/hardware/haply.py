@@ -25,6 +25,7 @@ from haptic_local_model.device_models.hardware.base import (
     Bringup,
     HardwareConfig,
     PlanarHardware,
+    serial_ports,
 )
 
 BINDING = "HaplyHardwareAPI"
@@ -94,6 +95,7 @@ BRINGUP = Bringup(
     access_fix="the serial port (/dev/ttyACM*) must be readable: sudo usermod -aG dialout "
     "$USER, then log in again",
     detect=detect,
+    nodes=serial_ports,
 )
 
 

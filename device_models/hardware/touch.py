@@ -33,6 +33,7 @@ from haptic_local_model.device_models.hardware.base import (
     Bringup,
     HardwareConfig,
     PlanarHardware,
+    serial_ports,
 )
 from haptic_local_model.shared.config import within
 from haptic_local_model.shared.timing import GIL_SWITCH_INTERVAL_S
@@ -170,6 +171,7 @@ BRINGUP = Bringup(
     access_fix="the Touch's port (/dev/ttyACM*) must be readable: sudo usermod -aG dialout "
     "$USER, then log in again",
     detect=None,  # OpenHaptics finds a device only by initialising it (hdInitDevice)
+    nodes=serial_ports,
 )
 
 
