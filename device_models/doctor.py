@@ -111,6 +111,9 @@ def probe(name: str, model: DeviceModel) -> ModelReport:
     report.binding = binding
     bringup = bringup_of(model)
     report.access = bringup.access_fix if bringup else ""
+    if bringup is not None and bringup.nodes is not None:  # shown whatever else is missing
+        report.nodes = bringup.nodes()
+        report.blocked = [why for why in map(_blocked, report.nodes) if why]
     missing, error = _import_error(binding)
     if missing:
         extra = getattr(model.config_cls, "extra", "") or name
@@ -127,14 +130,11 @@ def probe(name: str, model: DeviceModel) -> ModelReport:
         report.problem = f"the vendor runtime does not load ({error})"
         report.fix = bringup.runtime_fix if bringup else "install the vendor's runtime"
         return report
-    if bringup is not None and bringup.nodes is not None:
-        report.nodes = bringup.nodes()
-        report.blocked = [why for why in map(_blocked, report.nodes) if why]
-        if report.nodes and len(report.blocked) == len(report.nodes):
-            report.exit_code = EXIT_ACCESS
-            report.problem = f"this account may not open {'; '.join(report.blocked)}"
-            report.fix = bringup.access_fix
-            return report
+    if report.nodes and len(report.blocked) == len(report.nodes):
+        report.exit_code = EXIT_ACCESS
+        report.problem = f"this account may not open {'; '.join(report.blocked)}"
+        report.fix = report.access
+        return report
     if bringup is None or bringup.detect is None:
         return report
     try:

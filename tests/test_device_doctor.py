@@ -172,6 +172,23 @@ def test_list_device_files_this_account_may_not_open(
     assert f"device files: {port}, {other}" in text and f"may not open {port} (" in text
 
 
+def test_the_device_files_are_listed_before_the_binding_is_installed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A user who has plugged the device in but not installed the binding sees its port,
+    and the binding's fix stays the problem (exit 10, not 19)."""
+    _forget_fakes()
+    port = tmp_path / "ttyACM0"
+    port.touch()
+    _with_nodes(monkeypatch, "haply", [str(port)], {str(port)})
+    r = _list_json(capsys)["haply_inverse3"]
+    assert r["exit_code"] == doctor.EXIT_BINDING and r["nodes"] == [str(port)]
+    main(["list"])
+    text = capsys.readouterr().out
+    assert f"device files: {port}\n    may not open {port} (" in text
+    assert "fix: pip install 'haptic-local-model[haply]'" in text
+
+
 def test_a_blocked_file_names_a_group_this_account_is_not_in(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
