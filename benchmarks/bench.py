@@ -17,7 +17,8 @@ Writes report.md with PNG plots into --out (./runs/bench by default; the project
 report is docs/bench: `haptic-bench --out docs/bench`); `--quick` runs a subset.
 
     haptic-bench [--quick] [--out DIR]
-    haptic-bench --suite hapticbench [--repeat 3] [--out DIR]   (benchmarks/hapticbench.py)
+    haptic-bench --suite hapticbench [--repeat 3] [--cases NAME,..] [--out DIR]
+                                                        (benchmarks/hapticbench.py)
 """
 
 from __future__ import annotations
@@ -431,14 +432,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--repeat", type=int, default=3, help="--suite: rounds per run for its cost spread"
     )
+    parser.add_argument(
+        "--cases", type=lambda text: tuple(text.split(",")), default=(),
+        help="--suite: only these of its cases, comma-separated (no stable stiffness)",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     if args.suite:
         # the stable stiffness per rate (about 2 min) with the full suite, not the reduced
-        stiffness = args.suite == hapticbench.SUITE_NAME
-        doc = hapticbench.run_suite(hapticbench.SUITES[args.suite], args.repeat, stiffness)
-        command = f"haptic-bench --suite {args.suite} --repeat {args.repeat}"
+        stiffness = args.suite == hapticbench.SUITE_NAME and not args.cases
+        try:
+            cases = hapticbench.select(hapticbench.SUITES[args.suite], args.cases)
+        except ValueError as exc:
+            parser.error(str(exc))
+        doc = hapticbench.run_suite(cases, args.repeat, stiffness)
+        command = f"haptic-bench --suite {args.suite} --repeat {args.repeat}" + (
+            f" --cases {','.join(args.cases)}" if args.cases else ""
+        )
         print(hapticbench.write(doc, args.out, command, time.perf_counter() - started))
         return 0
     seconds = 2.0 if args.quick else args.seconds

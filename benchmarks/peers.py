@@ -11,7 +11,8 @@ damper (the scene's `foh_spring_*`, with the substeps that spring needs to be st
 contact impulses on the tool over the last pymunk substep (over its length) as the force,
 held for the 25 ms until the next, clipped at 2 N in magnitude. No local model and no force
 between contacts: the device feels the world only through the contact force, so a mechanism
-the tool holds (the linkage) is not rendered at all. The device and the hand are the case's,
+the tool holds (the linkage) is not rendered at all, and an avar train (the coaster) is not
+in pymunk to be pushed (its row says so). The device and the hand are the case's,
 at 1 kHz.
 """
 
@@ -22,6 +23,7 @@ import time
 import numpy as np
 
 from haptic_local_model.benchmarks.front import coupling_substeps_needed
+from haptic_local_model.benchmarks.suite_coaster import NO_TRAIN_IN_PYMUNK, has_mechanism
 from haptic_local_model.benchmarks.suite_records import Case, MethodRun, NotApplicableError
 from haptic_local_model.device_models.base import world_map_of
 from haptic_local_model.device_models.registry import load_device
@@ -85,6 +87,8 @@ def isaac_haply(case: Case) -> MethodRun:
             " two would each feel the box only through a clipped 25 ms sample"
         )
     scene = load_scene(case.scene)
+    if has_mechanism(scene):
+        raise NotApplicableError(NO_TRAIN_IN_PYMUNK)
     substeps = max(scene.sim_substeps, coupling_substeps_needed(scene, ISAAC_PHYSICS_HZ))
     world = SimWorld(scene)
     tool = _Tool(world)

@@ -4,13 +4,21 @@ reduced suite's error figures against a stored result, bit for bit."""
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from haptic_local_model.benchmarks import front, hapticbench, peers, suite_metrics, suite_stiffness
+from haptic_local_model.benchmarks import (
+    front,
+    hapticbench,
+    peers,
+    suite_coaster,
+    suite_metrics,
+    suite_stiffness,
+)
 from haptic_local_model.benchmarks.bench import main as bench_main
 from haptic_local_model.benchmarks.hapticbench import (
     BASELINES,
@@ -29,7 +37,9 @@ from haptic_local_model.benchmarks.wall_push import HALF_LENGTH, WALL_X
 from haptic_local_model.device_models.registry import load_device
 from haptic_local_model.haptic_server.harness.virtual import run_virtual
 from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.haptic_server.users import user_record
 from haptic_local_model.shared.config import load_scene, load_user
+from haptic_local_model.shared.reference_avar import ellipse_train
 
 #: written by `haptic-bench --suite reduced --repeat 1 --out DIR` (DIR/hapticbench.json),
 #: on this project's build machine; rewrite it when a change is meant to move the figures
@@ -269,3 +279,74 @@ def test_the_stiffness_search_finds_the_stiffest_stable_wall_at_each_rate(tmp_pa
         "stable_to_n_per_m"] is None  # fmt: skip
     top = suite_stiffness.stable_stiffness(a_wall_stable_below(1e12), 500.0, tmp_path)
     assert top["capped"] and top["stable_to_n_per_m"] == pytest.approx(suite_stiffness.K_HIGH)
+
+
+def test_the_coaster_metrics_against_a_run_whose_errors_are_known() -> None:
+    scene = load_scene(suite_coaster.SCENE)
+    coaster = suite_coaster.Coaster.of(scene, "ideal")
+    perimeter = coaster.loop.arc_length(2.0 * np.pi)
+    n = 4000
+    ref = np.zeros(n + 1, suite_coaster.REFERENCE_DTYPE)
+    ref["t"] = np.arange(n + 1) * 1e-3
+    # a swing through the bottom (s < 0: the rendered s wraps to the loop's far end)
+    ref["s"] = coaster.s0 + 0.03 * np.sin(3.0 * ref["t"])
+    ref["finger"] = (-0.03, -0.04)
+    ticks = ticks_of(n)
+    # the train 1 mm ahead of the reference at every tick (row i: the train at tick i + 1),
+    # the device 2 mm to the right of its finger
+    ticks["avar_s"] = np.mod(ref["s"][1:] + 1e-3, perimeter)
+    ticks["avar_sd"][-1] = 0.05
+    ticks["device_pose"][:, :2] = ref["finger"][:n] + np.array([0.002, 0.0])
+    # the reference's push gave the train twice the energy the rendered one did
+    start = coaster.energy_at(coaster.s0, 0.0)
+    given = coaster.energy_at(float(ref["s"][n]) + 1e-3, 0.05) - start
+    ref["energy"][0], ref["energy"][n] = start, start + 2.0 * given
+    errors = suite_coaster.coaster_errors(scene, "ideal", ticks, ref)
+    assert errors["rms_mm"] == pytest.approx(1.0, abs=1e-9)
+    assert errors["max_mm"] == pytest.approx(1.0, abs=1e-9)
+    assert errors["push_rms_mm"] == pytest.approx(1.0, abs=1e-9)
+    assert errors["device_push_rms_mm"] == pytest.approx(2.0, abs=1e-9)
+    assert errors["energy_given_rel_error"] == pytest.approx(0.5, rel=1e-9)
+    # 4 mm behind it for the 100 ms of the push from 1.0 s: the push's RMS, not the run's
+    late = (ticks["t"] >= 1.0) & (ticks["t"] < 1.1)
+    ticks["avar_s"][late] = np.mod(ref["s"][1:][late] - 4e-3, perimeter)
+    errors = suite_coaster.coaster_errors(scene, "ideal", ticks, ref)
+    assert errors["max_mm"] == pytest.approx(4.0, abs=1e-9)
+    push_ticks = 1200  # 0.3 s to 1.5 s
+    assert errors["push_rms_mm"] == pytest.approx(np.sqrt((1100 + 100 * 16) / push_ticks))
+    assert errors["rms_mm"] == pytest.approx(np.sqrt((3900 + 100 * 16) / n))
+
+
+def test_the_coaster_reference_rides_free_as_the_dop853_lagrangian() -> None:
+    # the reference's own train (RK4 at 10 kHz in the ellipse's parameter, the finger held at
+    # the loop's centre, out of reach) against shared/reference_avar.py's DOP853
+    scene = load_scene(suite_coaster.SCENE)
+    coaster = dataclasses.replace(suite_coaster.Coaster.of(scene, "ideal"), start=(0.0, 0.0))
+    user = user_record(load_user("hold_still"))
+    ride = suite_coaster.integrate(coaster, user, np.zeros(2), 0.3, 1e-4, s0=0.03, sd0=0.5)
+    assert np.all(ride["finger"] == 0.0)
+    every = slice(0, None, 20)
+    points, energy = ellipse_train(coaster.loop, 3, coaster.spacing, 0.5, ride["t"][every], 0.03)
+    ours = coaster.loop.point(np.array([coaster.loop.u_at(s) for s in ride["s"][every]]))
+    assert np.max(np.hypot(*(ours - points).T)) < 1e-8  # m
+    assert np.ptp(ride["s"]) > 0.02  # it swung 20 mm and more up the loop and back
+    assert np.max(np.abs(ride["energy"][every] - energy)) < 1e-9 * np.ptp(energy) + 1e-12
+
+
+@pytest.mark.slow
+def test_the_coaster_is_rendered_by_the_local_model_alone_and_close_to_the_reference() -> None:
+    coaster = next(c for c in CASES if c.name == "coaster")
+    doc = run_suite((coaster,))
+    validate(doc)
+    rows = {r["method"]: r for r in doc["results"]}
+    absent = {name for name, r in rows.items() if "not_applicable" in r}
+    assert absent == set(BUILT_IN_NAMES) - {"local_model"}
+    assert all("pymunk holds no train" in rows[name]["not_applicable"] for name in absent)
+    errors = rows["local_model"]["errors"]
+    # the push moves the train 22 mm: the god-object's 1 kN/m finger follows the transparent
+    # device's to a fraction of a millimetre, and gives the train its energy within 5 %
+    assert errors["rms_mm"] < 0.3 and errors["energy_given_rel_error"] < 0.05
+    assert errors["port_energy_j"] < 0.0  # the hand did the work, the device gave none net
+    text = "\n".join(hapticbench.case_paragraphs(doc))
+    assert "**coaster**: local_model follows the lead car" in text
+    assert "pymunk_in_loop, vc_zoh, vc_foh, isaac_haply do not apply" in text
