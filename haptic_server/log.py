@@ -15,6 +15,7 @@ Chunks are small and flushed often so a log cut by SIGKILL is recoverable record
 from __future__ import annotations
 
 import base64
+import itertools
 import json
 import os
 import time
@@ -30,6 +31,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer  # recover_log's
 
 from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.shared.config import ConfigError
 from haptic_local_model.shared.protocol.update import UpdateParser
 
 TICK_TOPIC = "/haptic/tick"
@@ -353,6 +355,46 @@ def is_indexed(path: Path | str) -> bool:
             return False
 
 
+#: the first bytes of every MCAP file
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def require_mcap(path: Path, key: str = "log", why: str = "") -> None:
+    """Refuse by name (a ConfigError naming the file and `key`) a missing file or one that
+    is not MCAP; `why` is added to the latter's problem."""
+    if not path.is_file():
+        raise ConfigError(str(path), key, "no such file")
+    with path.open("rb") as fh:
+        if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise ConfigError(str(path), key, f"not an MCAP file{why}")
+
+
+def whole_log_metadata(
+    path: Path, why: str = "", unfinished: str = "the run did not finish it"
+) -> dict[str, dict[str, str]]:
+    """The metadata of a whole log (require_mcap's checks, `why` added to the MCAP one);
+    a log cut short (no summary) is refused by name, `unfinished` saying why it should not be."""
+    require_mcap(path, why=why)
+    if not is_indexed(path):
+        raise ConfigError(str(path), "log", f"cut short (no summary): {unfinished}")
+    return read_metadata(path)
+
+
+def read_topic_rows(path: Path, topic: str, dtype: np.dtype, noun: str = "row") -> np.ndarray:
+    """Every message on `topic` of a log as one array of `dtype` records (none: empty);
+    records of another layout (their schema) or size are refused by name."""
+    chunks, schema_text = [], None
+    for name, data, schema in _iter_messages(path):
+        if name == topic:
+            chunks.append(data)
+            schema_text = schema.data.decode() if schema else None
+    if chunks and schema_text != ros1msg_schema(dtype):
+        raise ConfigError(str(path), topic, f"{noun}s of another layout (another release)")
+    if any(len(c) != dtype.itemsize for c in chunks):
+        raise ConfigError(str(path), topic, f"a {noun} of the wrong size")
+    return np.frombuffer(b"".join(chunks), dtype)
+
+
 def read_json_topic(path: Path | str, topic: str) -> list[dict[str, Any]]:
     return [json.loads(data) for t, data in iter_messages(path) if t == topic]
 
@@ -373,6 +415,16 @@ def stream_records(path: Path | str) -> Iterator[McapRecord]:
             yield from reader.records
         except Exception:  # a cut record: short read, short zstd frame, bad length
             return
+
+
+#: records read from a log's start to tell what it holds (its metadata and channels lead)
+HEAD_RECORDS = 1000
+
+
+def head_records(path: Path) -> Iterator[McapRecord]:
+    """The first HEAD_RECORDS complete records of a log (none where there is no such file)."""
+    if path.is_file():
+        yield from itertools.islice(stream_records(path), HEAD_RECORDS)
 
 
 @dataclass

@@ -36,11 +36,10 @@ from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.haptic_server.hand_grasp_ports import HAND_GRASP_KIND, HandGraspRun
 from haptic_local_model.haptic_server.hand_ports import HAND_KIND, HandPortRun
 from haptic_local_model.haptic_server.log import (
-    _iter_messages,
-    is_indexed,
+    head_records,
     read_metadata,
-    ros1msg_schema,
-    stream_records,
+    read_topic_rows,
+    whole_log_metadata,
     write_rows_log,
 )
 from haptic_local_model.haptic_server.one_port import OnePortRun
@@ -70,16 +69,12 @@ if TYPE_CHECKING:
 PORT_TICK_TOPIC = PORT_KIND.topic
 HAND_TICK_TOPIC = HAND_KIND.topic
 HAND_GRASP_TOPIC = HAND_GRASP_KIND.topic
-CHANNEL_SCAN = 1000  # records read to find a world's channel (its log declares it first)
 
 
 def write_port_log(path: Path, rows: np.ndarray, metadata: dict[str, dict[str, str]]) -> None:
     """Every row and the metadata, into a temporary file renamed to `path` when whole (and
     removed if the writing fails)."""
     write_rows_log(path, rows, PORT_KIND.topic, PORT_KIND.schema, metadata)
-
-
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def read_port_log(
@@ -89,27 +84,10 @@ def read_port_log(
 ) -> tuple[np.ndarray, dict[str, dict[str, str]]]:
     """The rows (on `topic`, of `dtype`) and metadata of a whole port log; a file that is
     not one, or is cut short, is refused by name."""
-    if not path.is_file():
-        raise ConfigError(str(path), "log", "no such file")
-    with path.open("rb") as fh:
-        if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-            raise ConfigError(str(path), "log", "not an MCAP file")
-    if not is_indexed(path):
-        raise ConfigError(str(path), "log", "cut short (no summary): the run did not finish it")
-    chunks = []
-    schema_text = None
-    for name, data, schema in _iter_messages(path):
-        if name == topic:
-            chunks.append(data)
-            schema_text = schema.data.decode() if schema else None
-    metadata = read_metadata(path)
-    if not chunks:
+    metadata = whole_log_metadata(path)
+    rows = read_topic_rows(path, topic, dtype)
+    if not len(rows):
         raise ConfigError(str(path), topic, "no port ticks: not a port world's log")
-    if schema_text != ros1msg_schema(dtype):
-        raise ConfigError(str(path), topic, "rows of another layout (another release)")
-    if any(len(c) != dtype.itemsize for c in chunks):
-        raise ConfigError(str(path), topic, "a row of the wrong size")
-    rows = np.frombuffer(b"".join(chunks), dtype)
     try:
         expected = int(metadata["run"]["ticks"])
     except (KeyError, ValueError):
@@ -260,15 +238,11 @@ def _run_viewed(
 def _rows_topic(path: Path) -> str | None:
     """The topic of a world's or a station's rows in a log, told by its channels (None:
     neither). That channel comes before its first row."""
-    if not path.is_file():
-        return None
-    for n, record in enumerate(stream_records(path)):
+    for record in head_records(path):
         if isinstance(record, Channel) and (
             record.topic in WORLD_KINDS or record.topic == STATION_TOPIC
         ):
             return str(record.topic)
-        if n > CHANNEL_SCAN:
-            break
     return None
 
 

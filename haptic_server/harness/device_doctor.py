@@ -14,7 +14,6 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
 from mcap.records import Channel, Metadata
 
 from haptic_local_model.device_models import doctor
@@ -35,11 +34,9 @@ from haptic_local_model.device_models.doctor_replay import (
 )
 from haptic_local_model.device_models.registry import device_config
 from haptic_local_model.haptic_server.log import (
-    _iter_messages,
-    is_indexed,
-    read_metadata,
-    ros1msg_schema,
-    stream_records,
+    head_records,
+    read_topic_rows,
+    whole_log_metadata,
     write_rows_log,
 )
 from haptic_local_model.shared.cli import EXIT_LOG_FAILED, add_version, log_file, run_main, seconds
@@ -115,53 +112,29 @@ def write_log(path: Path, device: str, result: CheckResult, options: CheckOption
     return True
 
 
-#: records read from a log's start to tell a bring-up log (its metadata and channel lead)
-SCAN_RECORDS = 1000
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-
-
 def is_bringup_log(path: Path) -> bool:
     """A bring-up log (`check --log`): its device_doctor metadata or its samples' channel
     among the first records."""
-    if not path.is_file():
-        return False
-    for n, record in enumerate(stream_records(path)):
-        if isinstance(record, Metadata) and record.name == "device_doctor":
-            return True
-        if isinstance(record, Channel) and record.topic == LOG_TOPIC:
-            return True
-        if n > SCAN_RECORDS:
-            break
-    return False
+    return any(
+        (isinstance(record, Metadata) and record.name == "device_doctor")
+        or (isinstance(record, Channel) and record.topic == LOG_TOPIC)
+        for record in head_records(path)
+    )
 
 
 def read_bringup_log(path: Path) -> BringupLog:
     """A whole bring-up log's samples and metadata; anything else is refused by name (a
     ConfigError naming the file)."""
     where = str(path)
-    if not path.is_file():
-        raise ConfigError(where, "log", "no such file")
-    with path.open("rb") as fh:
-        if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-            raise ConfigError(where, "log", "not an MCAP file, so not a bring-up log")
-    metadata = read_metadata(path)
+    metadata = whole_log_metadata(
+        path, ", so not a bring-up log", "a bring-up log is written whole"
+    )
     doctor_record = metadata.get("device_doctor")
     if doctor_record is None:
         raise ConfigError(where, "log", (
             "not a bring-up log: it has no device_doctor metadata (`haptic-device check --log "
             "OUT.mcap` writes one)"))  # fmt: skip
-    if not is_indexed(path):
-        raise ConfigError(where, "log", "cut short (no summary): a bring-up log is written whole")
-    chunks, schema_text = [], None
-    for topic, data, schema in _iter_messages(path):
-        if topic == LOG_TOPIC:
-            chunks.append(data)
-            schema_text = schema.data.decode() if schema else None
-    if chunks and schema_text != ros1msg_schema(SAMPLE_DTYPE):
-        raise ConfigError(where, LOG_TOPIC, "samples of another layout (another release)")
-    if any(len(c) != SAMPLE_DTYPE.itemsize for c in chunks):
-        raise ConfigError(where, LOG_TOPIC, "a sample of the wrong size")
-    rows = np.frombuffer(b"".join(chunks), SAMPLE_DTYPE).copy()
+    rows = read_topic_rows(path, LOG_TOPIC, SAMPLE_DTYPE, "sample").copy()
     try:
         expected = int(doctor_record["samples"])
         options = options_from_json(json.loads(doctor_record["options"]))

@@ -26,6 +26,7 @@ from haptic_local_model.haptic_server.log import (
     EVENT_TOPIC,
     TICK_TOPIC,
     UPDATE_TOPIC,
+    require_mcap,
     ros1msg_dtype,
     ros1msg_schema,
     stream_records,
@@ -34,7 +35,7 @@ from haptic_local_model.haptic_server.log import (
 from haptic_local_model.haptic_server.model import MAX_DOF
 from haptic_local_model.haptic_server.stages.station import STATION_ROW_DTYPE
 from haptic_local_model.haptic_server.station_records import STATION_TOPIC
-from haptic_local_model.haptic_server.world_runs import MCAP_MAGIC, WORLD_KINDS
+from haptic_local_model.haptic_server.world_runs import WORLD_KINDS
 from haptic_local_model.shared.config import ConfigError
 
 POSE, TWIST, WRENCH = "m, rad", "m/s, rad/s", "N, N·m"
@@ -215,11 +216,7 @@ def read_arrays(path: Path | str) -> LogArrays:
     """Every table of the log at `path` (whole or cut short: every complete record), by
     field with units. A file that is not an MCAP log is refused naming it."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(str(path), "", "no such file")
-    with path.open("rb") as fh:
-        if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-            raise ConfigError(str(path), "", "not an MCAP file")
+    require_mcap(path, "")
     channels: dict[int, Channel] = {}
     schemas: dict[int, Schema] = {}
     rows: dict[str, list[bytes]] = {}
