@@ -145,6 +145,13 @@ def read_toml(path: Path | str) -> dict[str, Any]:
         raise ConfigError(str(p), "", f"not valid TOML: {exc}") from None
 
 
+def load_config_file(cls: Any, kind: str, name_or_path: str) -> tuple[Any, Path]:
+    """The config dataclass `cls` from a file of `kind` by name or path (resolve), and that
+    file's path; every failure is a ConfigError naming the file."""
+    path = resolve(kind, name_or_path)
+    return load_dataclass(cls, read_toml(path), str(path)), path
+
+
 def parse_toml_text(text: str, source: str) -> dict[str, Any]:
     """Parse TOML text (e.g. a config file's text stored in a log) into a table."""
     try:
@@ -1244,7 +1251,7 @@ def load_scene(name_or_path: str, haptic_rate_hz: float | None = None) -> SceneC
     --haptic-rate), checked like the file's own value."""
     path = resolve("scenes", name_or_path)
     if haptic_rate_hz is None:
-        return load_dataclass(SceneConfig, read_toml(path), str(path))
+        return load_config_file(SceneConfig, "scenes", name_or_path)[0]
     return load_config_text(
         SceneConfig, scene_text(path, haptic_rate_hz), f"{path} (--haptic-rate)"
     )
@@ -1264,8 +1271,7 @@ def scene_text(path: Path, haptic_rate_hz: float | None = None) -> str:
 
 
 def load_user(name_or_path: str) -> UserConfig:
-    path = resolve("users", name_or_path)
-    return load_dataclass(UserConfig, read_toml(path), str(path))
+    return load_config_file(UserConfig, "users", name_or_path)[0]
 
 
 def load_model_config(cls: Any, data: dict[str, Any], source: str, model: str) -> Any:

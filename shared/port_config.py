@@ -23,7 +23,7 @@ from haptic_local_model.shared.config import (
     BodySpec,
     Vec2,
     Vec3,
-    load_dataclass,
+    load_config_file,
     read_toml,
     require,
     resolve,
@@ -210,9 +210,7 @@ class PortSceneConfig:
 
 def load_port_scene(name_or_path: str) -> PortSceneConfig:
     """A port scene by name (`configs/ports/<name>.toml`) or path."""
-    path = resolve("ports", name_or_path)
-    data: dict[str, Any] = read_toml(path)
-    return load_dataclass(PortSceneConfig, data, str(path))
+    return load_config_file(PortSceneConfig, "ports", name_or_path)[0]
 
 
 @dataclass(frozen=True)
@@ -367,8 +365,7 @@ def is_hand_scene(data: dict[str, Any]) -> bool:
 
 def load_hand_scene(name_or_path: str) -> HandSceneConfig:
     """A hand scene by name (`configs/ports/<name>.toml`) or path."""
-    path = resolve("ports", name_or_path)
-    return load_dataclass(HandSceneConfig, read_toml(path), str(path))
+    return load_config_file(HandSceneConfig, "ports", name_or_path)[0]
 
 
 def shipped_port_scenes(hands: bool) -> list[str]:

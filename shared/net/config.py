@@ -9,14 +9,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from haptic_local_model.shared.config import (
-    ConfigError,
-    load_dataclass,
-    read_toml,
-    require,
-    resolve,
-    within,
-)
+from haptic_local_model.shared.config import ConfigError, load_config_file, require, within
 from haptic_local_model.shared.net.credentials import LOCAL, CredentialsError, local_credentials
 from haptic_local_model.shared.protocol.layout import (
     DEFAULT_CLOCK_SKEW_MS,
@@ -102,6 +95,21 @@ class EndpointSpec:
         """The files this endpoint reads, by key."""
         names = ("password_file", "users_file")
         return {k: getattr(self, k) for k in names if getattr(self, k)}
+
+    def under(self, folder: Path) -> EndpointSpec:
+        """This endpoint with its files made absolute, relative to `folder` (its config's);
+        "@local" (this installation's own credentials) stays as it is."""
+        return dataclasses.replace(
+            self,
+            password_file=_absolute(folder, self.password_file),
+            users_file=_absolute(folder, self.users_file),
+        )
+
+    def require_files(self, source: str, key: str) -> None:
+        """Every file this endpoint reads exists (else a ConfigError naming `key`.<its key>)."""
+        for name, file in self.files().items():
+            if not Path(file).is_file():
+                raise ConfigError(source, f"{key}.{name}", f"file not found: {file}")
 
 
 # Zenoh config paths the endpoint keys set; the `zenoh` table may not override them
@@ -219,8 +227,8 @@ def free_loopback_port() -> int:
 def load_network(name_or_path: str, roles: tuple[str, ...] = ("haptic", "sim")) -> NetworkConfig:
     """Load a network config; credential files are made absolute (relative to the config's
     folder) and those of `roles` must exist, so a host needs only its own secrets."""
-    path = resolve("network", name_or_path)
-    network: NetworkConfig = load_dataclass(NetworkConfig, read_toml(path), str(path))
+    network: NetworkConfig
+    network, path = load_config_file(NetworkConfig, "network", name_or_path)
     specs = {}
     for role in ("haptic", "sim"):
         spec: EndpointSpec = getattr(network, role)
@@ -237,14 +245,9 @@ def load_network(name_or_path: str, roles: tuple[str, ...] = ("haptic", "sim")) 
                 ),
                 users_file=str(local_users) if spec.users_file == LOCAL else spec.users_file,
             )
-        spec = dataclasses.replace(  # another host's "@local" stays as it is: not needed here
-            spec,
-            password_file=_absolute(path.parent, spec.password_file),
-            users_file=_absolute(path.parent, spec.users_file),
-        )
-        for key, file in spec.files().items():
-            if role in roles and not Path(file).is_file():
-                raise ConfigError(str(path), f"{role}.{key}", f"file not found: {file}")
+        spec = spec.under(path.parent)  # another host's "@local" stays: not needed here
+        if role in roles:
+            spec.require_files(str(path), role)
         specs[role] = spec
     network = dataclasses.replace(network, haptic=specs["haptic"], sim=specs["sim"])
     from haptic_local_model.shared.net.transport import (

@@ -21,19 +21,11 @@ from __future__ import annotations
 import dataclasses
 import json
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import zenoh
 
-from haptic_local_model.shared.config import (
-    ConfigError,
-    load_dataclass,
-    read_toml,
-    require,
-    resolve,
-    within,
-)
+from haptic_local_model.shared.config import ConfigError, load_config_file, require, within
 from haptic_local_model.shared.net.config import (
     WATCHDOG_MS_RANGE,
     EndpointSpec,
@@ -237,24 +229,14 @@ def load_station_network(name_or_path: str, role: str) -> StationNetworkConfig:
     """Load a station network; its files made absolute (relative to the config's folder).
     `role` ("router", "world" or a port's name) names the files that must exist here: a
     host needs only its own."""
-    path = resolve("network", name_or_path)
-    raw = read_toml(path)
-    config: StationNetworkConfig = load_dataclass(StationNetworkConfig, raw, str(path))
-
-    def absolute(spec: EndpointSpec) -> EndpointSpec:
-        def one(file: str) -> str:
-            return str((path.parent / file).resolve()) if file else file
-
-        return dataclasses.replace(
-            spec, password_file=one(spec.password_file), users_file=one(spec.users_file)
-        )
-
+    config: StationNetworkConfig
+    config, path = load_config_file(StationNetworkConfig, "network", name_or_path)
     config = dataclasses.replace(
         config,
-        router=absolute(config.router),
-        world=absolute(config.world),
-        sim=absolute(config.sim),
-        stations={p: absolute(s) for p, s in config.stations.items()},
+        router=config.router.under(path.parent),
+        world=config.world.under(path.parent),
+        sim=config.sim.under(path.parent),
+        stations={p: s.under(path.parent) for p, s in config.stations.items()},
     )
     if role == "router":
         key, spec = "router", config.router
@@ -268,9 +250,7 @@ def load_station_network(name_or_path: str, role: str) -> StationNetworkConfig:
         sim = ["sim"] if config.sim.connect else []
         known = ", ".join(["router", "world", *sim, *sorted(config.stations)])
         raise ConfigError(str(path), "stations", f"no role {role!r} (known: {known})")
-    for name, file in spec.files().items():
-        if not Path(file).is_file():
-            raise ConfigError(str(path), f"{key}.{name}", f"file not found: {file}")
+    spec.require_files(str(path), key)
     if role == "router" and config.router.users_file:
         users = _read_users(config.router.users_file, str(path))
         sim_user = [config.sim_user] if config.sim.connect else []
