@@ -34,18 +34,11 @@ from haptic_local_model.shared.config import (
     load_config_text,
 )
 from haptic_local_model.shared.tool_chain import tool_chain
-from haptic_local_model.sim_server.drive import (
-    DRIVE_PROXY,
-    DRIVE_REST,
-    KINEMATIC_DTYPE,
-    TARGET_DTYPE,
-    drive_work,
-    set_target,
-    step_world,
-)
+from haptic_local_model.sim_server.drive import DRIVE_PROXY, KINEMATIC_DTYPE
 from haptic_local_model.sim_server.held_chain import ChainError, HeldChain, find_held_chain
 from haptic_local_model.sim_server.local_model import TOOL_GROUP, StageStats
 from haptic_local_model.sim_server.space_model import SpaceLocalModel
+from haptic_local_model.sim_server.tool_drive import ToolDrive
 from haptic_local_model.sim_server.world import TOOL_FRICTION, ToolTarget
 
 #: what a contact of a user's space feels like where pymunk has no number for it
@@ -324,9 +317,7 @@ class UserSpaceWorld:
         self._chain = tool_chain(self.scene)
         self._contact = contact
         self._build(rendered)
-        self._target = np.zeros(1, TARGET_DTYPE)
-        self._kinematic = np.zeros(0, KINEMATIC_DTYPE)  # the user moves their own
-        self._work = drive_work()
+        self._drive = ToolDrive(np.zeros(0, KINEMATIC_DTYPE))  # the user moves their own
 
     def _build(self, rendered: list[pymunk.Shape]) -> None:
         """The local model's builder over the space's shapes now (`rendered`: those of the
@@ -361,17 +352,8 @@ class UserSpaceWorld:
     def step(self, target: ToolTarget | None) -> None:
         """One period: the tool driven toward the proxy (held at rest without a fresh
         target) and the user's space stepped `substeps` times (one compiled call)."""
-        if target is None or not target.fresh:
-            self._target[0]["mode"] = DRIVE_REST
-        else:
-            set_target(
-                self._target, DRIVE_PROXY, target.q, target.qd, target.device_pose,
-                target.device_twist,
-            )  # fmt: skip
-        step_world(
-            self.model.tool, self._target, self._chain.chain, self._kinematic, self.time,
-            self.period, self.substeps, self._work,
-        )  # fmt: skip
+        self._drive.aim(target, DRIVE_PROXY)
+        self._drive.step(self.model.tool, self._chain.chain, self.time, self.period, self.substeps)
         self.time += self.period
         if self.after_step is not None:
             self.after_step(self.time)

@@ -31,12 +31,7 @@ from haptic_local_model.sim_server.chipmunk import body_ptr, set_velocity_functi
 from haptic_local_model.sim_server.drive import (
     DRIVE_DEVICE,
     DRIVE_PROXY,
-    DRIVE_REST,
     KINEMATIC_DTYPE,
-    TARGET_DTYPE,
-    drive_work,
-    set_target,
-    step_world,
     table_drag,
 )
 from haptic_local_model.sim_server.local_model import TOOL_GROUP, StageStats
@@ -44,6 +39,7 @@ from haptic_local_model.sim_server.membrane import Membrane
 from haptic_local_model.sim_server.shapes import LocalShapes
 from haptic_local_model.sim_server.space_model import MAX_UPDATE_BYTES, SpaceLocalModel
 from haptic_local_model.sim_server.tool import tool_state
+from haptic_local_model.sim_server.tool_drive import ToolDrive
 from haptic_local_model.sim_server.train import SimTrain
 
 #: the most haptic time of impulses a step keeps for the next (in steps): enough to even out
@@ -122,9 +118,8 @@ class SimWorld:
             scene.tool, scene.rendering,
         )  # fmt: skip
         self.tool = self.model.tool
-        self._target = np.zeros(1, TARGET_DTYPE)
-        self._kinematic_rec = _kinematic_records(self._kinematic)
-        self._drive_work = drive_work(self.train.record if self.train else None)
+        train = self.train.record if self.train else None
+        self._drive = ToolDrive(_kinematic_records(self._kinematic), train)
         self._local = self.model.kernel
         # a god_object tool is rendered against the shapes near it (DESIGN-WAVE2 C2)
         self.local_shapes = (
@@ -313,27 +308,18 @@ class SimWorld:
     def step(self, target: ToolTarget | None) -> None:
         """Advance one sim period: drive the tool, move kinematic bodies, substep pymunk (one
         compiled call)."""
-        tg = self._target[0]
-        tg["env_body"] = 0
+        self._drive.target[0]["env_body"] = 0
         self._proxy = None
         if self.local_shapes is not None:  # delivered to the hand: applied, fresh or not
             self._touched(self._deliver(target))
         if self.train is not None and target is not None and target.fresh:
             self.train.follow(target.train, target.train_age_s)
-        if target is None or not target.fresh:
-            tg["mode"] = DRIVE_REST
-        else:
-            mode = DRIVE_DEVICE if target.coupled_to_device else DRIVE_PROXY
-            set_target(
-                self._target, mode, target.q, target.qd, target.device_pose, target.device_twist
-            )
-            if self.local_shapes is not None:
-                radius = self.scene.tool_body.radius
-                self._proxy = (float(target.q[0]), float(target.q[1]), radius)
-        step_world(
-            self.tool, self._target, self.chain, self._kinematic_rec, self.time, self.period,
-            self.substeps, self._drive_work,
-        )  # fmt: skip
+        coupled = target is not None and target.coupled_to_device
+        aimed = self._drive.aim(target, DRIVE_DEVICE if coupled else DRIVE_PROXY)
+        if aimed and target is not None and self.local_shapes is not None:
+            radius = self.scene.tool_body.radius
+            self._proxy = (float(target.q[0]), float(target.q[1]), radius)
+        self._drive.step(self.tool, self.chain, self.time, self.period, self.substeps)
         self.time += self.period
         for mem in self.membranes:
             mem.stepped()
@@ -361,7 +347,7 @@ class SimWorld:
         """The god-object's impulses on dynamic bodies into the step's target, each as the
         force that delivers it over the step (by shape key; a membrane's segment passes its
         force to its two nodes)."""
-        tg = self._target[0]
+        tg = self._drive.target[0]
         slot = 0
         for j in range(imp.count):
             key = int(imp.keys[j])
