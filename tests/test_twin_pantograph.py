@@ -26,17 +26,21 @@ from haptic_local_model.device_models.twin_pantograph import (
     SimulationSection,
     TwinPantograph,
     TwinPantographConfig,
-    christoffel_matrix,
-    forward_kinematics,
-    inertia_gradient,
-    inverse_kinematics,
-    motor_jacobian,
     pack_parameters,
-    pose_faults,
-    resolve_torques,
-    singularity_measures,
+)
+from haptic_local_model.device_models.twin_pantograph.dynamics import (
+    christoffel_matrix,
+    inertia_gradient,
     task_inertia,
 )
+from haptic_local_model.device_models.twin_pantograph.kinematics import (
+    forward_kinematics,
+    inverse_kinematics,
+    motor_jacobian,
+    pose_faults,
+    singularity_measures,
+)
+from haptic_local_model.device_models.twin_pantograph.torques import resolve_torques
 
 CONFIG_PATH = (
     Path(__file__).resolve().parent.parent / "configs" / "devices" / "twin_pantograph.toml"

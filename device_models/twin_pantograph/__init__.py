@@ -18,7 +18,9 @@ midpoint, inertia about it), the handle bar (joint masses lumped into it). Per-t
 in numba kernels over the preallocated records PARAMS_DTYPE, STATE_DTYPE and WORK_DTYPE.
 
 Modules: config (constants, records, config sections, pack_parameters), kinematics,
-dynamics, torques (redundancy resolution), device (tick kernels and the device class).
+dynamics, torques (redundancy resolution), device (tick kernels and the device class); the
+package names the config, the records and the device, the kernels are imported from their
+modules.
 """
 
 from haptic_local_model.device_models.base import DeviceModel
@@ -33,20 +35,6 @@ from haptic_local_model.device_models.twin_pantograph.config import (
     pack_parameters,
 )
 from haptic_local_model.device_models.twin_pantograph.device import AUX_NAMES, TwinPantograph
-from haptic_local_model.device_models.twin_pantograph.dynamics import (
-    christoffel_matrix,
-    inertia_gradient,
-    task_inertia,
-)
-from haptic_local_model.device_models.twin_pantograph.kinematics import (
-    forward_kinematics,
-    inverse_kinematics,
-    motor_jacobian,
-    pose_faults,
-    singularity_measures,
-    torques_to_wrench,
-)
-from haptic_local_model.device_models.twin_pantograph.torques import resolve_torques
 
 #: The entry point of this model (pyproject.toml, group haptic_local_model.devices).
 MODEL = DeviceModel(
@@ -67,15 +55,5 @@ __all__ = [
     "SimulationSection",
     "TwinPantograph",
     "TwinPantographConfig",
-    "christoffel_matrix",
-    "forward_kinematics",
-    "inertia_gradient",
-    "inverse_kinematics",
-    "motor_jacobian",
     "pack_parameters",
-    "pose_faults",
-    "resolve_torques",
-    "singularity_measures",
-    "task_inertia",
-    "torques_to_wrench",
 ]
