@@ -27,10 +27,9 @@ from haptic_local_model.haptic_server.stages.station import station_row, station
 from haptic_local_model.haptic_server.stages.station_messages import (
     REASONS,
     TOOL_FLOATS,
+    admit,
     message_flags,
     message_floats,
-    message_order,
-    order_code,
     tool_refusal,
 )
 from haptic_local_model.shared.protocol.station import CUT, GLOVE, HELD, SAFE
@@ -62,18 +61,13 @@ def take_tool(station, link, p, now_ns, raw):
     """Port p's ToolState `raw` (bytes) at now_ns, taken or refused and counted (module
     docstring)."""
     s, c = station[0], link[0]
-    why = tool_refusal(raw, p)
-    if why < 0:
-        epoch, seq = message_order(raw)
-        silent = now_ns - c.tool_ns >= s.watchdog_s * 1e9  # the station's own watchdog
-        why = order_code(c.has_last, c.epoch, c.seq, epoch, seq, silent)
-    if why >= 0:
-        c.rejected += 1
-        c.reasons[why] += 1
+    silent = now_ns - c.tool_ns >= s.watchdog_s * 1e9  # the station's own watchdog
+    taken, epoch, seq, first = admit(c, raw, tool_refusal(raw, p), silent)
+    if not taken:
         return
     f = message_floats(raw, TOOL_FLOATS)
     # a world's first: its count starts anew, the budget carries on
-    carry_budget(c.energy_base, s.budget, f, TOOL_ENERGY, c.has_last == 0 or epoch != c.epoch)
+    carry_budget(c.energy_base, s.budget, f, TOOL_ENERGY, first)
     c.epoch, c.seq, c.has_last, c.tool_ns = epoch, seq, 1, now_ns
     c.received += 1
     for a in range(3):

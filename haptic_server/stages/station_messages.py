@@ -106,6 +106,24 @@ def order_code(has_last, last_epoch, last_seq, epoch, seq, silent):
     return -1
 
 
+@njit(cache=True)
+def admit(link, raw, why, silent):
+    """A message that its own check gave `why` (a REASONS code, -1: passed) judged by the
+    order rule (order_code) against the last one `link` took (a record with has_last, epoch,
+    seq, rejected and reasons; `silent`: its sender's silence rule): (taken, its epoch, its
+    seq, the first of its sender's epoch: nothing taken before, or another epoch). A refused
+    one is counted in `link`; a taken one is the caller's to record."""
+    epoch, seq = np.uint64(0), np.uint64(0)
+    if why < 0:
+        epoch, seq = message_order(raw)
+        why = order_code(link.has_last, link.epoch, link.seq, epoch, seq, silent)
+    if why >= 0:
+        link.rejected += 1
+        link.reasons[why] += 1
+        return False, epoch, seq, False
+    return True, epoch, seq, link.has_last == 0 or epoch != link.epoch
+
+
 def reason_counts(counts: np.ndarray) -> dict[str, int]:
     """Refusals counted by REASONS code, as a dict of those that happened."""
     return {r: int(counts[i]) for i, r in enumerate(REASONS) if counts[i]}

@@ -34,11 +34,10 @@ from haptic_local_model.haptic_server.physics.passivity import (
 from haptic_local_model.haptic_server.stages.station_messages import (
     DEVICE_FLOATS,
     REASONS,
+    admit,
     device_refusal,
     message_flags,
     message_floats,
-    message_order,
-    order_code,
 )
 from haptic_local_model.shared.protocol.station import (
     CUT,
@@ -113,17 +112,12 @@ def take_device(ports, clock, p, raw):
     restarted station, or a second one on the port) only once the present one is silent."""
     c = clock[0]
     ps = ports[p]
-    why = device_refusal(raw, p)
-    if why < 0:
-        epoch, seq = message_order(raw)
-        why = order_code(ps.has_last, ps.epoch, ps.seq, epoch, seq, silent(ps, c))
-    if why >= 0:
-        ps.rejected += 1
-        ps.reasons[why] += 1
+    taken, epoch, seq, first = admit(ps, raw, device_refusal(raw, p), silent(ps, c))
+    if not taken:
         return
     f = message_floats(raw, DEVICE_FLOATS)
     # a station's first: its count starts anew, the budget carries on
-    carry_budget(ps.energy_base, ps.budget, f, DEVICE_ENERGY, ps.has_last == 0 or epoch != ps.epoch)
+    carry_budget(ps.energy_base, ps.budget, f, DEVICE_ENERGY, first)
     ps.epoch, ps.seq = epoch, seq
     for a in range(3):
         ps.pose[a] = f[a]
