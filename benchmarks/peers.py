@@ -44,7 +44,7 @@ HAPLY_LIMIT_FORCE_N = 2.0  # HaplyDeviceCfg(limit_force=2.0)
 ISAAC_HAPLY = "contact force to the device every 25 ms, clipped at 2 N (Isaac Lab + Haply way)"
 
 
-class _Tool:
+class ToolPoint:
     """The operational point of a SimWorld's tool: its pose, its velocity, a force on it."""
 
     def __init__(self, world: SimWorld) -> None:
@@ -91,7 +91,7 @@ def isaac_haply(case: Case) -> MethodRun:
         raise NotApplicableError(NO_TRAIN_IN_PYMUNK)
     substeps = max(scene.sim_substeps, coupling_substeps_needed(scene, ISAAC_PHYSICS_HZ))
     world = SimWorld(scene)
-    tool = _Tool(world)
+    tool = ToolPoint(world)
     world.period, world.substeps = 1.0 / ISAAC_PHYSICS_HZ, substeps
     step_s = world.period / substeps
     device = load_device(case.device)
