@@ -25,9 +25,9 @@ full suite adds each method's stable wall stiffness at 250, 500 and 1000 Hz
 
 A **method** (a baseline) is a function from a case to the records of its run
 (`MethodRun`: the haptic loop's TICK_DTYPE records, the scene as rendered, the cost): the
-built-ins are the local model, the three ways of benchmarks/front.py and Isaac Lab's Haply
-coupling (benchmarks/peers.py); another project's
-coupling is one more function given to `register_baseline`, and the suite's table and JSON
+built-ins are the local model, the three ways of benchmarks/front.py, Isaac Lab's Haply
+coupling (benchmarks/peers.py) and SOFA's LCPForceFeedback (benchmarks/peers_sofa.py);
+another project's coupling is one more function given to `register_baseline`, and the suite's table and JSON
 carry it with no change here (docs/bench/hapticbench.md: "Submit your renderer").
 
 Every result carries `schema_version`, the build (package version and git commit), the
@@ -61,6 +61,7 @@ import numpy as np
 from haptic_local_model.benchmarks import (
     front,
     peers,
+    peers_sofa,
     suite_coaster,
     suite_metrics,
     suite_stiffness,
@@ -192,12 +193,13 @@ def _configured(case: Case, way: str, sim_hz: float) -> SceneConfig:
 
 
 #: the built-in methods: benchmarks/front.py's ways, the local model at 60 Hz; then the
-#: peers written as they write them (benchmarks/peers.py)
+#: peers written as they write them (benchmarks/peers.py, benchmarks/peers_sofa.py)
 BUILT_IN = (("local_model", 60.0), ("pymunk_in_loop", front.HAPTIC_HZ), ("vc_zoh", 60.0),
             ("vc_foh", 60.0))  # fmt: skip
 for way, hz in BUILT_IN:
     register_baseline(way, front.WAYS[way], front_way(way, hz))
 register_baseline("isaac_haply", peers.ISAAC_HAPLY, peers.isaac_haply)
+register_baseline("sofa_lcp", peers_sofa.SOFA_LCP, peers_sofa.sofa_lcp)
 BUILT_IN_NAMES = tuple(BASELINES)  # what a run without plug-ins renders every case with
 
 

@@ -15,6 +15,7 @@ from haptic_local_model.benchmarks import (
     front,
     hapticbench,
     peers,
+    peers_sofa,
     suite_coaster,
     suite_metrics,
     suite_stiffness,
@@ -350,3 +351,90 @@ def test_the_coaster_is_rendered_by_the_local_model_alone_and_close_to_the_refer
     text = "\n".join(hapticbench.case_paragraphs(doc))
     assert "**coaster**: local_model follows the lead car" in text
     assert "pymunk_in_loop, vc_zoh, vc_foh, isaac_haply do not apply" in text
+
+
+#: the Gauss-Seidel's own stopping rule: the violations move by less than this a sweep (m);
+#: the forces below are then within RESOLVED of the closed form (W ~ 1e-6 m/N: 1e-3 N)
+GS_TOLERANCE, RESOLVED = 1e-12, 1e-3
+
+
+def solved(d_free, w, mu, warm=None) -> np.ndarray:
+    f = np.zeros(len(d_free)) if warm is None else np.array(warm, float)
+    iterations = peers_sofa.gauss_seidel(
+        np.array(d_free, float), np.array(w, float), np.array(mu, float), f, GS_TOLERANCE, 1000
+    )
+    assert iterations < 1000  # converged, not cut off
+    return f
+
+
+def test_sofas_gauss_seidel_gives_one_contact_its_closed_form() -> None:
+    w = np.diag([2e-6, 3e-6])  # rows: normal, tangent (m/N)
+    # pressed 0.1 mm: lambda = max(0, -violation / W), no tangential force without a slip
+    assert solved([-1e-4, 0.0], w, [0.5]) == pytest.approx([50.0, 0.0], abs=RESOLVED)
+    # warm-started from a wrong answer (SOFA's useInitialF): the same
+    assert solved([-1e-4, 0.0], w, [0.5], warm=[7.0, -3.0]) == pytest.approx([50.0, 0.0])
+    # apart by 0.1 mm: no force, whatever the warm start
+    assert not solved([1e-4, 0.0], w, [0.5], warm=[7.0, 1.0]).any()
+
+
+def test_sofas_gauss_seidel_solves_two_coupled_contacts() -> None:
+    # two normals coupled through one body (W_12 = W_11 / 2), frictionless, tangents apart
+    w = np.zeros((4, 4))
+    w[np.ix_([0, 2], [0, 2])] = [[1e-6, 0.5e-6], [0.5e-6, 1e-6]]
+    w[1, 1] = w[3, 3] = 1e-6
+    # both pressed: W_nn f = -d_free, f = (200 / 3, 200 / 3) N
+    f = solved([-1e-4, 0.0, -1e-4, 0.0], w, [0.0, 0.0])
+    assert f[0::2] == pytest.approx([200 / 3, 200 / 3], abs=RESOLVED)
+    # the second 20 um apart: the first's 100 N opens it further (7e-5 m), so it takes none
+    d_free = np.array([-1e-4, 0.0, 2e-5, 0.0])
+    f = solved(d_free, w, [0.0, 0.0])
+    assert f[0::2] == pytest.approx([100.0, 0.0], abs=RESOLVED)
+    d = d_free + w @ f  # complementarity: f >= 0, d >= 0, f d = 0 on every normal row
+    assert np.all(f[0::2] >= 0) and np.all(d[0::2] >= -1e-12)
+    assert np.abs(f[0::2] * d[0::2]).max() < 1e-9
+
+
+def test_sofas_gauss_seidel_holds_friction_in_its_cone() -> None:
+    w = np.diag([1e-6, 1e-6])
+    # 10 um tangential: sticking needs 10 N, inside mu f_n = 0.3 * 100 N
+    assert solved([-1e-4, -1e-5], w, [0.3]) == pytest.approx([100.0, 10.0], abs=RESOLVED)
+    # 1 mm tangential: sticking would need 1000 N, the cone saturates at mu f_n, against it
+    assert solved([-1e-4, -1e-3], w, [0.3]) == pytest.approx([100.0, 30.0], abs=RESOLVED)
+    assert solved([-1e-4, 1e-3], w, [0.3]) == pytest.approx([100.0, -30.0], abs=RESOLVED)
+
+
+def test_the_tools_compliance_is_implicit_eulers_over_one_frame() -> None:
+    m, moment, period = 0.5, 1e-4, 1 / 60
+    stiffness, damping = np.array([1e5, 1e5, 800.0]), np.array([1e4, 1e4, 20.0])
+    w = peers_sofa.operational_compliance(np.diag([1 / m, 1 / m, 1 / moment]), stiffness,
+                                          damping, period)  # fmt: skip
+    mass = np.array([m, m, moment])
+    closed = 1.0 / (mass / period**2 + damping / period + stiffness)
+    assert np.diag(w) == pytest.approx(closed, rel=1e-12)
+    assert np.abs(w - np.diag(np.diag(w))).max() == 0.0
+    # a direction of infinite mass (a linkage at its singularity): no compliance along it
+    w = peers_sofa.operational_compliance(np.diag([1 / m, 0.0, 1 / moment]), stiffness,
+                                          damping, period)  # fmt: skip
+    assert w[1, 1] == 0.0 and w[0, 0] == pytest.approx(closed[0], rel=1e-12)
+
+
+def test_sofas_way_says_why_it_does_not_render_two_devices_or_a_train() -> None:
+    grasp = next(c for c in CASES if c.ports == 2)
+    with pytest.raises(hapticbench.NotApplicableError, match="one instrument"):
+        peers_sofa.sofa_lcp(grasp)
+    coaster = Case("coaster", "coaster_loop", "ideal", "push_2n", 1.0, "-", "rms_mm")
+    with pytest.raises(hapticbench.NotApplicableError, match="track or crank"):
+        peers_sofa.sofa_lcp(coaster)
+
+
+@pytest.mark.slow
+def test_sofas_way_pushes_back_only_from_the_frames_contacts() -> None:
+    wall, linkage = REDUCED
+    # the held linkage touches nothing: no force at all, the device a free 1 kg mass
+    run = peers_sofa.sofa_lcp(linkage)
+    assert not run.ticks["contact_force_world"].any()
+    # the wall: a force only once a frame has the tool in contact, along the wall's normal
+    # (-x) alone, and more than the push at the impact (the device arrives moving)
+    run = peers_sofa.sofa_lcp(wall)
+    f = run.ticks["contact_force_world"][:, :2]
+    assert f[:, 1].max() == 0.0 and f[:, 0].max() <= 0.0 and f[:, 0].min() < -2.0
