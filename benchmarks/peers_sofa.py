@@ -49,6 +49,11 @@ the joints (the LCP solver's problem holds unilateral contacts only: a mechanism
 holds is not felt, as with the Isaac Lab way); SOFA's alarm distance (a contact not in the
 frame's problem is not felt before the next frame). The Gauss-Seidel is written in Python,
 as the other peers are, not compiled: its cost is counted as it is.
+
+Not rendered (NotApplicableError, with the reason): two devices (the grasp), a scene driven
+along a track or crank (the coaster, the crank, the Ferris wheel: the haptic side's
+animation variables), and a tool too light for the coupling's spring (a god-object's point:
+more substeps a frame than a scene may take).
 """
 
 from __future__ import annotations
@@ -79,6 +84,8 @@ SIM_MAX_IT = 1000
 HAPTIC_TOLERANCE = GAUSS_SEIDEL_TOLERANCE * 1e-3
 #: the coupling's substeps are doubled up to this factor until the tool stays in bounds
 MAX_SUBSTEP_FACTOR = 64
+#: the most substeps a scene may take (SceneConfig's bound on sim_substeps)
+MAX_SIM_SUBSTEPS = 100_000
 #: the tool's speed (m/s) past which a frame is taken as pymunk's coupling blowing up
 #: (the wire protocol's bound on a tool's speed, shared/config.py)
 RUNAWAY_SPEED = 100.0
@@ -260,6 +267,12 @@ def sofa_lcp(case: Case) -> MethodRun:
             " variables): its constraint is not a contact, which the LCP of contacts does"
             " not hold"
         )
+    needed = front.coupling_substeps_needed(scene, scene.sim_rate_hz)
+    if needed > MAX_SIM_SUBSTEPS:
+        raise NotApplicableError(
+            f"a tool pymunk cannot hold on the coupling's spring: {needed} substeps a frame"
+            f" at {scene.sim_rate_hz:g} Hz, above the sim's {MAX_SIM_SUBSTEPS}"
+        )
     factor = 1
     while True:
         # the coupling as a virtual coupling has it: its damper on the relative velocity
@@ -267,7 +280,7 @@ def sofa_lcp(case: Case) -> MethodRun:
         try:
             return _run(case, configured)
         except RuntimeError:
-            if factor >= MAX_SUBSTEP_FACTOR:
+            if factor >= MAX_SUBSTEP_FACTOR or 2 * factor * needed > MAX_SIM_SUBSTEPS:
                 raise
             factor *= 2
 
