@@ -87,7 +87,7 @@ MAX_SUBSTEP_FACTOR = 64
 #: the most substeps a scene may take (SceneConfig's bound on sim_substeps)
 MAX_SIM_SUBSTEPS = 100_000
 #: the tool's speed (m/s) past which a frame is taken as pymunk's coupling blowing up
-#: (the wire protocol's bound on a tool's speed, shared/config.py)
+#: (the protocol's MessageLimits bound on velocities, shared/config.py)
 RUNAWAY_SPEED = 100.0
 SOFA_LCP = "the last contact problem re-solved every 1 ms (SOFA's LCPForceFeedback way)"
 
