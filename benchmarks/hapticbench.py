@@ -8,6 +8,9 @@ how each reference is made):
   closed form F/K (peak at impact, error after 2 s, settling, contact losses, port energy);
 - `linkage_held`: the linkage held at its distal link, pushed with 0.4 N; the device against
   the VM alone integrated independently (RNEA and solve_ivp);
+- `linkage_singular`: the same hold pushed with 0.4 N along +y, which straightens the elbow
+  through the hold's rank loss; the device against the same reference over the run and
+  within 0.25 s of the reference's smallest singular value (benchmarks/suite_metrics.py);
 - `testbed_swing`: the hand swinging the tool into the testbed's walls; the device against
   the same pymunk world stepped at 10 kHz with the hand's spring on the tool;
 - `slide_friction`, `moving_wall`, `grasp_two_devices`: the box slid along a floor against
@@ -97,6 +100,9 @@ CASES = (
          "closed form: steady penetration F/K", "peak_over_fk"),
     Case("linkage_held", "linkage_distal", "ideal_identity", "push_04n", 5.0,
          "independent integration: the VM alone, RNEA and solve_ivp", "rms_mm"),
+    Case("linkage_singular", "linkage_distal", "ideal_identity", "push_04n_up", 5.0,
+         "independent integration: the VM alone, RNEA and solve_ivp, through the elbow's"
+         " rank loss at 1.81 s", "rms_singular_mm"),
     Case("testbed_swing", "testbed", "ideal", "swing", 5.0,
          "fine-step simulation: pymunk at 10 kHz, the hand's spring on the tool", "rms_first_s_mm"),
     Case("slide_friction", "wall_slide", "ideal", "slide", 3.5,
@@ -221,6 +227,8 @@ def _case_errors(
 ) -> dict[str, float]:
     if case.scene == "wall_push":
         return front.wall_transient(scene, ticks)
+    if case.headline == "rms_singular_mm":
+        return suite_metrics.singular_errors(scene, case.user, ticks)
     if case.scene == "linkage_distal":
         err = reference_error_mm(scene, ticks, float(ticks["t"][-1]) + 1e-9, "device_pose")
         return {"rms_mm": float(np.sqrt(np.mean(err**2))), "max_mm": float(err.max())}

@@ -27,7 +27,7 @@ from scipy.signal import find_peaks
 from haptic_local_model.device_models.registry import load_device
 from haptic_local_model.haptic_server.harness.virtual import run_virtual
 from haptic_local_model.shared.config import SceneConfig, load_scene, load_user
-from haptic_local_model.shared.reference import ChainSpec, Hold, simulate
+from haptic_local_model.shared.reference import ChainSpec, Hold, ReferenceSolution, simulate
 
 METHODS = ("local_model", "impedance_only", "virtual_coupling")
 HOLDS = ("linkage_middle", "linkage_distal")
@@ -88,16 +88,22 @@ def reference_error_mm(
     """Distance (mm) of the VM's operational point (or the row's `field`: the device's, what
     the hand holds) from the independent reference's at each tick: the linkage released at
     rest from its initial angles under USER's constant push, integrated to t_end."""
+    ref = reference_path(scene, ticks["t"], t_end, USER)
+    return 1e3 * np.hypot(*(ticks[field][:, :2] - ref.pose[:, :2]).T)
+
+
+def reference_path(scene: SceneConfig, t: np.ndarray, t_end: float, user: str) -> ReferenceSolution:
+    """The independent reference at times t: the scene's linkage released at rest from its
+    initial angles under the constant push of `user` (a constant_wrench hand) at its hold."""
     lk = scene.tool_linkage
-    ref = simulate(
+    return simulate(
         chain_spec(scene),
         np.array(lk.initial_angles),
         np.zeros(len(lk.lengths)),
-        Hold(np.array(load_user(USER).wrench), scene.tool.link, np.array(scene.tool.point)),
+        Hold(np.array(load_user(user).wrench), scene.tool.link, np.array(scene.tool.point)),
         t_end,
-        ticks["t"],
+        t,
     )
-    return 1e3 * np.hypot(*(ticks[field][:, :2] - ref.pose[:, :2]).T)
 
 
 def reference_error(scene: SceneConfig, seconds: float, sim_hz: float) -> dict[str, float]:

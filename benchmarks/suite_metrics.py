@@ -1,7 +1,9 @@
 """hapticbench's metrics over a method's records (benchmarks/hapticbench.py), for the cases
 whose references are closed forms: the slide with friction, the moving wall and the
-two-device grasp (its run too: only the ports' co-simulation renders it); and the port
-energy and the passivity observer's margin, which every case reports.
+two-device grasp (its run too: only the ports' co-simulation renders it); the held linkage
+through its singularity against the independent integration (benchmarks/linkage.py), over
+the run and around the reference's rank loss; and the port energy and the passivity
+observer's margin, which every case reports.
 
 They read only the haptic loop's records every method hands back (`MethodRun.ticks`:
 `t`, `dt`, `device_pose`, `device_twist`, `wrench_command`), so a plug-in's run is graded
@@ -17,11 +19,13 @@ import tomllib
 import numpy as np
 
 from haptic_local_model.benchmarks import grasp
+from haptic_local_model.benchmarks.linkage import chain_spec, reference_path
 from haptic_local_model.benchmarks.suite_records import Case, MethodRun
 from haptic_local_model.device_models.registry import device_config
 from haptic_local_model.haptic_server.model import TICK_DTYPE
 from haptic_local_model.shared.config import SafetySpec, SceneConfig, load_user
 from haptic_local_model.shared.port_config import load_port_scene
+from haptic_local_model.shared.reference import point_jacobian
 
 #: the slide (configs/users/slide.toml): the hand drags at 8 cm/s between 0.5 s and 3.0 s;
 #: a tick is sliding when the device moves along x faster than this, after the first 0.2 s
@@ -36,6 +40,10 @@ WALL_X0, WALL_RADIUS, WALL_AMPLITUDE, WALL_PERIOD_S = 0.055, 0.005, 0.01, 1.0
 TOOL_HALF_X, TOOL_MASS = 0.03, 0.5
 #: the wall's error is taken once the first impact has settled
 WALL_SETTLED_S = 1.0
+
+#: the linkage through its singularity: the transient is graded over this much either side of
+#: the instant the reference's hold is nearest rank loss
+SINGULAR_HALF_WINDOW_S = 0.25
 
 #: the grasp (configs/ports/grasp_vertical.toml, the case's device on both ports): the slip
 #: below the friction cone (V4.2, a 0.15 s run) and the hold at 1.25x the threshold (creep)
@@ -172,4 +180,43 @@ def grasp_errors(case: Case, run: MethodRun) -> dict[str, float]:
         "drift_max_mm": 1e3 * drift["max_m"],
         "contacts_min": float(drift["contacts_min"]),
         "passivity_margin_j": margin,
+    }
+
+
+def relative_sigma_min(scene: SceneConfig, q: np.ndarray) -> np.ndarray:
+    """The smallest relative singular value of diag(1, 1, L) J_h at each row of joint angles
+    q (the hold's rank test, benchmarks/holds.py): 0 where the hold has lost rank."""
+    spec = chain_spec(scene)
+    tool = scene.tool
+    scale = np.array([1.0, 1.0, tool.characteristic_length_m])[:, None]
+    out = np.empty(len(q))
+    for i, qi in enumerate(q):
+        s = np.linalg.svd(scale * point_jacobian(spec, qi, tool.link, tool.point), compute_uv=False)
+        out[i] = s[-1] / s[0] if len(s) == 3 else 0.0
+    return out
+
+
+def window_rms(t: np.ndarray, err: np.ndarray, t0: float, half: float) -> float:
+    """RMS of err over the samples with |t - t0| <= half."""
+    inside = np.abs(t - t0) <= half
+    if not inside.any():
+        raise ValueError(f"hapticbench: no sample within {half} s of t = {t0} s")
+    return float(np.sqrt(np.mean(err[inside] ** 2)))
+
+
+def singular_errors(scene: SceneConfig, user: str, ticks: np.ndarray) -> dict[str, float]:
+    """The device (what the hand holds) against the linkage driven by `user`'s push alone,
+    over the run and within SINGULAR_HALF_WINDOW_S of the instant the reference's hold is
+    nearest rank loss (its smallest relative singular value)."""
+    t = ticks["t"]
+    ref = reference_path(scene, t, float(t[-1]) + 1e-9, user)
+    err = 1e3 * np.hypot(*(ticks["device_pose"][:, :2] - ref.pose[:, :2]).T)
+    sigma = relative_sigma_min(scene, ref.q)
+    i = int(np.argmin(sigma))
+    return {
+        "rms_mm": float(np.sqrt(np.mean(err**2))),
+        "max_mm": float(err.max()),
+        "rms_singular_mm": window_rms(t, err, float(t[i]), SINGULAR_HALF_WINDOW_S),
+        "singular_t_s": float(t[i]),
+        "sigma_min_rel": float(sigma[i]),
     }

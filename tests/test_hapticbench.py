@@ -14,6 +14,7 @@ import pytest
 from haptic_local_model.benchmarks import (
     front,
     hapticbench,
+    linkage,
     peers,
     peers_sofa,
     suite_coaster,
@@ -453,3 +454,44 @@ def test_sofas_way_pushes_back_only_from_the_frames_contacts() -> None:
     pushed = f[:, 0] < 0.0
     assert depth[pushed].min() > slop
     assert np.any(~pushed & (depth > 2 * slop))
+
+
+def test_the_linkage_rank_test_is_zero_for_the_straight_arm_and_not_for_the_folded_one() -> None:
+    scene = load_scene("linkage_distal")
+    sigma = suite_metrics.relative_sigma_min(
+        scene, np.array([[np.pi / 2, 0.0, 0.0], [0.3, 0.0, 1.0], [np.pi / 2, -np.pi / 2, 0.4]])
+    )
+    # the elbow straight: link 0's and link 1's joints move the hold the same way
+    assert sigma[0] < 1e-12 and sigma[1] < 1e-12
+    assert sigma[2] > scene.tool.rank_tolerance
+
+
+def test_the_singular_window_rms_is_taken_around_the_given_instant() -> None:
+    t = np.arange(1001) * 1e-3
+    err = np.where(np.abs(t - 0.5) <= 0.1 + 1e-9, 3.0, 1.0)
+    assert suite_metrics.window_rms(t, err, 0.5, 0.1) == pytest.approx(3.0, abs=1e-12)
+    assert suite_metrics.window_rms(t, err, 0.0, 0.1) == pytest.approx(1.0, abs=1e-12)
+    with pytest.raises(ValueError, match="no sample within"):
+        suite_metrics.window_rms(t, err, 3.0, 0.1)
+
+
+def test_the_singular_linkage_metrics_against_a_device_off_the_reference_by_known_amounts() -> None:
+    case = next(c for c in CASES if c.name == "linkage_singular")
+    scene = load_scene(case.scene)
+    ticks = ticks_of(2500)  # 2.5 s: the push_04n_up reference straightens the elbow at 1.81 s
+    t = ticks["t"]
+    ref = linkage.reference_path(scene, t, float(t[-1]) + 1e-9, case.user)
+    # the instant of rank loss is where the elbow angle crosses 0
+    crossing = t[np.argmin(np.abs(ref.q[:, 1]))]
+    near = np.abs(t - crossing) <= suite_metrics.SINGULAR_HALF_WINDOW_S
+    # 1 mm off along x near the singular instant, 2 mm off along y elsewhere
+    ticks["device_pose"][:, :2] = ref.pose[:, :2]
+    ticks["device_pose"][near, 0] += 1e-3
+    ticks["device_pose"][~near, 1] += 2e-3
+    errors = suite_metrics.singular_errors(scene, case.user, ticks)
+    assert errors["singular_t_s"] == pytest.approx(crossing, abs=2e-3)
+    assert errors["sigma_min_rel"] < scene.tool.rank_tolerance / 100
+    assert errors["rms_singular_mm"] == pytest.approx(1.0, abs=1e-6)
+    assert errors["max_mm"] == pytest.approx(2.0, abs=1e-6)
+    k = int(near.sum())
+    assert errors["rms_mm"] == pytest.approx(np.sqrt((k + 4.0 * (len(t) - k)) / len(t)), abs=1e-6)
