@@ -31,6 +31,12 @@ Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
 
 
+def coordination_bound(stiffness: float, damping: float, dt: float) -> float:
+    """K dt^2 + 2 B dt of a coordination coupling's axis: it must stay below twice the
+    held body's mass (moment) on that axis (SceneConfig._check_coordination)."""
+    return stiffness * dt * dt + 2.0 * damping * dt
+
+
 class ConfigError(ValueError):
     """A config file is missing, unreadable or wrong: names the file, the key and the problem."""
 
@@ -1001,6 +1007,8 @@ class SceneConfig:
             self._check_god_object()
         if self.tracks or self.cars:
             self._check_train()
+        if self.rendering.method == "local_model" and self.tool.kind == "body":
+            self._check_coordination(match[0])
         if self.crank is not None:
             self._check_crank(self.crank)
         if self.avar_tree is not None:
@@ -1109,6 +1117,31 @@ class SceneConfig:
                     f"at {self.haptic_rate_hz:g} Hz: K dt^2 + 2 B dt < 4 m for the heaviest "
                     f"device admitted ({m:g}) gives B < {b_max:.4g}",
                 )
+
+    def _check_coordination(self, tool: BodySpec) -> None:
+        """The coordination coupling also acts on the proxy, a copy of the held body: on its
+        mass (its moment about the third axis) the step is stable only if
+        K dt^2 + 2 B dt < 2 m, half the undelayed bound of _check_gains, since the device's
+        answer reaches the proxy a tick later (coordination_bound). Measured on the ideal
+        device with the default gains at 1 kHz (api.run_offline, a disc alone, moved): one
+        of 0.065 kg commanded +-50 N, tick by tick, with no fault; 0.072 kg was quiet; the
+        bound says 0.070. Refused by its own key, naming the held body."""
+        r = self.rendering
+        dt = 1.0 / self.haptic_rate_hz
+        for axis, (k, b) in enumerate(
+            zip(r.coordination_stiffness, r.coordination_damping, strict=True)
+        ):
+            m = tool.moment if axis == 2 else tool.mass
+            unit = "kg m^2 (its moment)" if axis == 2 else "kg"
+            key = "stiffness" if k * dt * dt >= 2.0 * m else "damping"
+            require(
+                coordination_bound(k, b, dt) < 2.0 * m,
+                f"rendering.coordination_{key}",
+                f"({k:g}, {b:g}) on axis {axis} cannot be stable on the held body "
+                f"{tool.name!r} of {m:g} {unit} at {self.haptic_rate_hz:g} Hz: "
+                f"K dt^2 + 2 B dt < 2 m gives B < {max(0.0, m - 0.5 * k * dt * dt) / dt:.4g} "
+                f"(or a body of at least {0.5 * coordination_bound(k, b, dt):.4g} {unit})",
+            )
 
     def _check_god_object(self) -> None:
         """A god-object is a disc held as a free body, and its coupling is passive (Colgate:

@@ -30,7 +30,9 @@ import pymunk
 from haptic_local_model.shared.config import (
     FRICTION_RANGE,
     Material,
+    RenderingSpec,
     SceneConfig,
+    coordination_bound,
     load_config_text,
 )
 from haptic_local_model.shared.tool_chain import tool_chain
@@ -230,6 +232,39 @@ def _tool_shape_toml(tool: pymunk.Body) -> str:
     return f'shape = "box"\nsize = [{side!r}, {side!r}]\n'
 
 
+#: a light held body's coordination coupling is softened to this share of its bound
+COORDINATION_MARGIN = 0.8
+
+
+def coordination_gains(tool: pymunk.Body, rate_hz: float) -> tuple[str, str]:
+    """The `[rendering]` lines of a held free body's coordination coupling ("" when the
+    defaults are stable on it) and, if softened, the warning that says so. The coupling acts
+    on the proxy, a copy of the held body: SceneConfig._check_coordination's bound
+    K dt^2 + 2 B dt < 2 m on each axis (the mass, or the moment about the third); a body
+    too light for the defaults gets both gains of that axis scaled to COORDINATION_MARGIN
+    of it, so the device follows the proxy more loosely instead of chattering."""
+    dt = 1.0 / rate_hz
+    defaults = RenderingSpec()
+    ks, bs = list(defaults.coordination_stiffness), list(defaults.coordination_damping)
+    softened = []
+    for axis, m in enumerate((tool.mass, tool.mass, tool.moment)):
+        bound = coordination_bound(ks[axis], bs[axis], dt)
+        if bound >= COORDINATION_MARGIN * 2.0 * m:
+            scale = COORDINATION_MARGIN * 2.0 * m / bound
+            ks[axis], bs[axis] = ks[axis] * scale, bs[axis] * scale
+            softened.append(f"{0.5 * bound:.3g} {'kg m^2' if axis == 2 else 'kg'}")
+    if not softened:
+        return "", ""
+    lines = f"coordination_stiffness = {ks!r}\ncoordination_damping = {bs!r}\n"
+    return lines, (
+        f"the held body ({tool.mass:g} kg, {tool.moment:g} kg m^2) is lighter than the "
+        f"coordination coupling's default gains render stably at {rate_hz:g} Hz (a body of "
+        f"at least {' and '.join(dict.fromkeys(softened))}): its coupling is softened to "
+        f"stiffness {[float(f'{k:.4g}') for k in ks]}, damping "
+        f"{[float(f'{b:.4g}') for b in bs]} (the device follows it more loosely)"
+    )
+
+
 def scene_text(
     space: pymunk.Space,
     tool: pymunk.Body,
@@ -238,6 +273,7 @@ def scene_text(
     touched: Material,
     margin_m: float,
     chain: HeldChain | None = None,
+    coordination: str = "",
 ) -> str:
     """The scene the haptic side renders a user's space with, as TOML: the rates, the held
     body (its mass, moment and pose) and `touched`, the material whose friction and
@@ -266,7 +302,7 @@ def scene_text(
         f"sim_rate_hz = {float(rate_hz)!r}\nsim_substeps = {int(substeps)}\n\n"
         f'[tool]\nkind = {kind}\nname = "{USER_TOOL}"\n'
         f"neighbourhood_margin_m = {float(margin_m)!r}\n\n"
-        '[rendering]\nmethod = "local_model"\n\n'
+        f'[rendering]\nmethod = "local_model"\n{coordination}\n'
         f"[materials.{USER_TOOL}]\n"
         f"stiffness_n_per_m = {contact.stiffness_n_per_m!r}\n"
         f"damping_ns_per_m = {contact.damping_ns_per_m!r}\n"
@@ -306,7 +342,15 @@ class UserSpaceWorld:
         friction = max((f for f, _ in materials), default=0.0)
         restitution = max((e for _, e in materials), default=0.0)
         self._touched = _shape_material(_Surface(friction, restitution), contact, {})
-        self.text = scene_text(space, tool, rate_hz, substeps, self._touched, margin_m, chain)
+        coordination, softened = "", ""
+        if chain is None:
+            coordination, softened = coordination_gains(tool, SceneConfig.haptic_rate_hz)
+        if softened:
+            name = _name(tool, list(space.bodies).index(tool))
+            warnings.warn(f"body {name}: {softened}", SpaceWarning, stacklevel=2)
+        self.text = scene_text(
+            space, tool, rate_hz, substeps, self._touched, margin_m, chain, coordination
+        )
         self.scene: SceneConfig = load_config_text(SceneConfig, self.text, "user space")
         self.time = 0.0
         self.period = 1.0 / self.scene.sim_rate_hz

@@ -200,3 +200,33 @@ def test_a_gain_no_device_could_render_stably_is_refused_by_its_key(
     change = {f"{name}_stiffness": (stiffness,) * dims, f"{name}_damping": (damping,) * dims}
     with pytest.raises(ValueError, match=f"rendering.{key}: .* gives [KB] <"):
         dataclasses.replace(scene, rendering=dataclasses.replace(scene.rendering, **change))
+
+
+@pytest.mark.parametrize(
+    ("mass", "moment", "refused"),
+    [
+        (0.065, 5e-4, r"coordination_damping: \(100, 70\) on axis 0 .* 'rectangle' of 0.065 kg"),
+        (0.072, 5e-4, None),  # quiet on the ideal device (0.065 kg: +-50 N a tick, no fault)
+        (0.5, 1.1e-5, None),
+        (0.5, 1e-5, r"coordination_damping: \(0.05, 0.01\) on axis 2 .* 1e-05 kg m\^2"),
+    ],
+)
+def test_a_held_body_too_light_for_the_coordination_coupling_is_refused_by_its_key(
+    mass: float, moment: float, refused: str | None
+) -> None:
+    """The coordination coupling acts on the proxy, a copy of the held body: K dt^2 + 2 B dt
+    < 2 m on each axis (SceneConfig._check_coordination). wall_push's gains at 1 kHz: a body
+    of at least 0.0701 kg, and 1.0025e-5 kg m^2 about its centre (its own rotational
+    gains); refused by the key, naming the body."""
+    import dataclasses
+
+    scene = load_scene("wall_push")
+    bodies = tuple(
+        dataclasses.replace(b, mass=mass, moment_kg_m2=moment) if b.name == scene.tool.name else b
+        for b in scene.bodies
+    )
+    if refused is None:
+        assert dataclasses.replace(scene, bodies=bodies).tool_body.mass == mass  # loads
+        return
+    with pytest.raises(ValueError, match=f"rendering.{refused}"):
+        dataclasses.replace(scene, bodies=bodies)

@@ -20,11 +20,13 @@ from haptic_local_model.shared.protocol.update import decode_update
 from haptic_local_model.sim_server.user_space import UserSpaceWorld
 from haptic_local_model.sim_server.world import SimWorld
 
-RADIUS_M, MASS_KG = 0.01, 0.05
+#: the held finger: heavy enough for the coordination coupling's default gains (a body of at
+#: least 0.07 kg and 3.75e-4 kg m^2 at 1 kHz: lighter ones are softened, with a warning)
+RADIUS_M, MASS_KG, MOMENT_KG_M2 = 0.01, 0.1, 5e-4
 
 
 def _finger(space: pymunk.Space, at: tuple[float, float] = (0.0, 0.0)) -> pymunk.Body:
-    body = pymunk.Body(MASS_KG, pymunk.moment_for_circle(MASS_KG, 0.0, RADIUS_M))
+    body = pymunk.Body(MASS_KG, MOMENT_KG_M2)
     body.position = at
     space.add(body, pymunk.Circle(body, RADIUS_M))
     return body
@@ -170,8 +172,7 @@ def test_the_local_model_is_the_walls_gap_and_the_shapes_own_friction() -> None:
     np.testing.assert_allclose(m["c_normal"][0], [-1.0, 0.0], atol=1e-12)
     assert float(m["c_friction"][0]) == pytest.approx(0.4)
     assert float(m["c_restitution"][0]) == pytest.approx(0.3)
-    moment = pymunk.moment_for_circle(MASS_KG, 0.0, RADIUS_M)
-    np.testing.assert_allclose(np.diag(m["mass"][:3, :3]), [MASS_KG, MASS_KG, moment])
+    np.testing.assert_allclose(np.diag(m["mass"][:3, :3]), [MASS_KG, MASS_KG, MOMENT_KG_M2])
 
 
 def _tool_point_world(body: pymunk.Body, local: np.ndarray) -> np.ndarray:
@@ -186,9 +187,12 @@ def test_a_scene_world_and_a_user_space_build_the_same_model() -> None:
     ours = SimWorld(scene)
     ours.set_tool_state(np.array([-0.01, 0.0, 0.0]), np.zeros(3))  # 5 mm from the block
     ours.model.build()
-    theirs = UserSpaceWorld(
-        ours.space, ours.tool_bodies[0], margin_m=scene.tool.neighbourhood_margin_m
-    )
+    # the scene's own rotational coupling is softer than a user space's default (the box's
+    # 1.04e-4 kg m^2 is below the default's 3.75e-4): softened, and said so
+    with pytest.warns(api.SpaceWarning, match=r"at least 0.000375 kg m\^2\): its coupling"):
+        theirs = UserSpaceWorld(
+            ours.space, ours.tool_bodies[0], margin_m=scene.tool.neighbourhood_margin_m
+        )
     theirs.model.build()
     a, b = ours.model.record[0], theirs.model.record[0]
     n = int(a["n_contacts"])
@@ -201,6 +205,24 @@ def test_a_scene_world_and_a_user_space_build_the_same_model() -> None:
 
 
 # --- offline --------------------------------------------------------------------------------
+
+
+def test_a_held_body_too_light_for_the_coordination_coupling_is_softened_not_chattering() -> None:
+    """A 50 g disc alone in the space, moved by the hand at 8 cm/s: with the default
+    coordination gains its proxy step is unstable (K dt^2 + 2 B dt = 0.14 > 2 m = 0.1) and
+    the ideal device was commanded +-50 N tick by tick, with no fault. The gains are
+    softened to 80 % of the bound, with a warning naming the body: the device follows the
+    proxy (within a micron) and, at constant speed, needs no force."""
+    space = pymunk.Space()
+    tool = pymunk.Body(0.05, pymunk.moment_for_circle(0.05, 0.0, RADIUS_M))
+    space.add(tool, pymunk.Circle(tool, RADIUS_M))
+    with pytest.warns(api.SpaceWarning, match=r"Body #0: the held body \(0.05 kg.*softened"):
+        run = api.run_offline(space, tool, 2.0, user="push_block")
+    cruise = (run.times_s > 0.5) & (run.times_s < 1.5)  # the hand at 8 cm/s
+    assert not run.faults.any() and run.n_contacts.max() == 0
+    assert np.abs(run.wrench_command[cruise, :2]).max() < 0.05  # was 50 N
+    assert np.abs(run.proxy_pose[:, :2] - run.device_pose[:, :2]).max() < 1e-5
+    assert abs(run.device_pose[-1, 0] - 0.12) < 1e-3  # the hand's 12 cm, followed
 
 
 @pytest.mark.slow
