@@ -34,6 +34,7 @@ from haptic_local_model.haptic_server.stages.cosim import (
     cosim_order,
     cosim_records,
     cosim_tick,
+    coupling_reaction,
     drain_impulse,
 )
 from haptic_local_model.haptic_server.stages.hand import glove_at
@@ -118,10 +119,8 @@ def cosim_world_step(model, data, ports, clock, events, tools, rows, lowest):
     o = c.object
     for p in range(c.n_ports):
         i = 3 * m.port_tool[p]
-        for a in range(3):  # the coupling's force on the tool over the step (port_commands')
-            force = m.coupling_stiffness[p, a] * (d.device_next[p, a] - d.q[i + a])
-            force += m.coupling_damping[p, a] * (d.device_next[p, a + 3] - d.qd[i + a])
-            observe_axis(ports[p], a, force, d.qd[i + a], c.dt)
+        for a in range(3):  # the coupling's force on the tool over the step
+            observe_axis(ports[p], a, -coupling_reaction(m, d, p, a), d.qd[i + a], c.dt)
         fill_tool(tools, p, ports[p], c, d.q[i : i + 3], d.qd[i : i + 3], d.q[o : o + 3])
     world_row(model, data, rows, c.k, c.t, lowest)
 

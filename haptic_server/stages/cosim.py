@@ -601,6 +601,17 @@ def step_bodies(m, d):
 
 
 @njit(cache=True)
+def coupling_reaction(m, d, p, c):
+    """Port p's coupling on axis c over the step, as its device takes it: the reaction of
+    the force on the tool, K (q - x_dev) + B (qd - v_dev) at the new tool state and the
+    device's predicted one (minus the force on the tool, bit for bit)."""
+    a = 3 * m.port_tool[p] + c
+    u = m.coupling_stiffness[p, c] * (d.q[a] - d.device_next[p, c])
+    u += m.coupling_damping[p, c] * (d.qd[a] - d.device_next[p, c + 3])
+    return u
+
+
+@njit(cache=True)
 def port_commands(m, d):
     """Each device's command: the reaction of the force its tool took over the step (the
     coupling at the new tool state and the device's predicted one: the pair the implicit
@@ -608,12 +619,9 @@ def port_commands(m, d):
     pose instead, a tool moving at v would leave K v dt out of the command (0.12 N in a
     60 mm/s lift at 2 kN/m)."""
     for p in range(m.n_ports):
-        a0 = 3 * m.port_tool[p]
         bad = d.port_cut[p] == 1
         for c in range(3):
-            a = a0 + c
-            u = m.coupling_stiffness[p, c] * (d.q[a] - d.device_next[p, c])
-            u += m.coupling_damping[p, c] * (d.qd[a] - d.device_next[p, c + 3])
+            u = coupling_reaction(m, d, p, c)
             if not math.isfinite(u):
                 bad = True
             lim = m.max_wrench[p, c]

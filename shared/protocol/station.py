@@ -37,9 +37,8 @@ from haptic_local_model.shared.protocol.update import MessageError
 
 DEVICE_MAGIC = b"HSDV"
 TOOL_MAGIC = b"HSTL"
-STATION_VERSION = (
-    3  # 2: DeviceState carries the glove; 3: both carry the passivity observer's energy
-)
+# 2: DeviceState carries the glove; 3: both carry the passivity observer's energy
+STATION_VERSION = 3
 MAX_GLOVE_JOINTS = 8  # a hand's at most 4 fingers of two phalanges
 GLOVE_ANGLE_LIMIT = 2.0 * math.pi  # rad
 #: poses beyond this many metres, rates beyond this many m/s or rad/s: not a device's
