@@ -13,7 +13,7 @@ import hashlib
 import os
 from pathlib import Path
 
-__version__ = "0.12.0"
+__version__ = "0.13.0"
 
 _ROOT = Path(__file__).resolve().parent.parent
 _PACKAGES = ("shared", "haptic_server", "sim_server", "device_models", "benchmarks")

@@ -123,27 +123,34 @@ GOLDEN_09 = Path(__file__).parent / "golden" / "logs-0.9"
 LOGS_09 = sorted(GOLDEN_09.glob("*.mcap"))
 GOLDEN_10 = Path(__file__).parent / "golden" / "logs-0.10"
 LOGS_10 = sorted(GOLDEN_10.glob("*.mcap"))
+GOLDEN_13 = Path(__file__).parent / "golden" / "logs-0.13"
+LOGS_13 = sorted(GOLDEN_13.glob("*.mcap"))
 VIRTUAL_LOGS = [
     *sorted(GOLDEN.glob("vc_*.mcap")),
     *sorted(GOLDEN_02.glob("vc_*.mcap")),
     *LOGS_07,
     *LOGS_09,
     *LOGS_10,
+    *LOGS_13,
 ]
 
 
-#: Runs whose sim 0.10 changed (tests/golden/logs-0.10/README.md): the sim's tool shapes
-#: take the touched material's friction (pymunk's product with 1), and testbed's arm slides
-#: along a wall in these
-CHANGED_IN_0_10 = {"vc_testbed_twin_swing"}
+#: The runs whose sim a version changed, so that an older log of them no longer reruns to its
+#: ticks (it still replays): 0.10 the sim's tool shapes take the touched material's friction
+#: (tests/golden/logs-0.10/README.md: testbed's arm slides along a wall); 0.13 the sim's
+#: oscillating bodies ride their laws (tests/golden/logs-0.13/README.md: the finger on the shuttle)
+CHANGED_IN = {
+    (0, 10): {"vc_testbed_twin_swing"},
+    (0, 13): {"vc_god_testbed_press"},
+}
 
 
 def _sim_changed_since(log_version: str, scene_text: str, stem: str) -> bool:
     """0.7 placed the sim's linkage links on their joints (tests/golden/logs-0.7/README.md):
-    a rerun of an older run with a linkage no longer gives its ticks; 0.10 changed the
-    friction of the sim's tool (CHANGED_IN_0_10)."""
+    a rerun of an older run with a linkage no longer gives its ticks; 0.10 and 0.13 changed
+    the runs of CHANGED_IN."""
     major, minor = (int(v) for v in log_version.split(".")[:2])
-    if (major, minor) < (0, 10) and stem in CHANGED_IN_0_10:
+    if any((major, minor) < since and stem in stems for since, stems in CHANGED_IN.items()):
         return True
     return (major, minor) < (0, 7) and "[[linkages]]" in scene_text
 
@@ -196,14 +203,15 @@ def test_virtual_clock_reruns_the_golden_runs_exactly(path: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    "path", LOGS_07 + LOGS_09 + LOGS_10,
-    ids=[f"{p.parent.name}/{p.stem}" for p in LOGS_07 + LOGS_09 + LOGS_10],
+    "path", LOGS_07 + LOGS_09 + LOGS_10 + LOGS_13,
+    ids=[f"{p.parent.name}/{p.stem}" for p in LOGS_07 + LOGS_09 + LOGS_10 + LOGS_13],
 )  # fmt: skip
-def test_version_07_09_and_010_logs_replay_exactly(path: Path) -> None:
+def test_version_07_09_010_and_013_logs_replay_exactly(path: Path) -> None:
     """Logs of 0.7's sim (its linkages on their joints; a tree's CHAINS trailer), of 0.9's
     impulse solve (the complementarity problem on the single-device path) and of 0.10's
-    moving worlds (a sliding proxy carried by its obstacle): every field, every tick, to the
-    bit (0.7's up to their first colliding tick, IMPULSE_BOUND after)."""
+    moving worlds (a sliding proxy carried by its obstacle) and 0.13's (the sim's oscillating
+    bodies on their laws): every field, every tick, to the bit (0.7's up to their first
+    colliding tick, IMPULSE_BOUND after)."""
     log = read_log(path)
     version = log.metadata["run"]["version"]
     assert version.startswith(path.parent.name.removeprefix("logs-"))

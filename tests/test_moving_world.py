@@ -25,9 +25,12 @@ from haptic_local_model.haptic_server.stages.god_object import god_data, god_obj
 from haptic_local_model.shared.shapes import shape_array
 
 
+@pytest.mark.parametrize("rate_hz", [30.0, 60.0])
 @pytest.mark.parametrize("kind", ["platform", "belt"])
-def test_a_stuck_finger_rides_the_surface(kind: str) -> None:
-    case = stuck(kind)
+def test_a_stuck_finger_rides_the_surface(kind: str, rate_hz: float) -> None:
+    """At 30 Hz too, the slowest sim rate: the platform's 107 um there was the
+    sim's shuttle off its law (pymunk moved it at the law's velocity at each substep's end)."""
+    case = stuck(kind, rate_hz)
     assert case.figure <= SLIP_TARGET_M, case
 
 

@@ -9,6 +9,7 @@ matches within a few ulps that the contacts of a 2 s run do not grow past REL_TO
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -34,9 +35,10 @@ def _reference_step(world: SimWorld, target: ToolTarget | None) -> None:
         for body, spec in world._kinematic:  # the oscillating obstacles
             if spec.oscillation_period_s > 0.0:
                 om = 2.0 * math.pi / spec.oscillation_period_s
+                mean = (math.sin(om * (t + h)) - math.sin(om * t)) / h  # the law's, over [t, t + h]
                 body.velocity = (
-                    spec.velocity[0] + spec.oscillation_amplitude[0] * om * math.cos(om * (t + h)),
-                    spec.velocity[1] + spec.oscillation_amplitude[1] * om * math.cos(om * (t + h)),
+                    spec.velocity[0] + spec.oscillation_amplitude[0] * mean,
+                    spec.velocity[1] + spec.oscillation_amplitude[1] * mean,
                 )
         t_ahead = k * h
         if scene.tool.kind == "body":
@@ -67,6 +69,14 @@ def _reference_step(world: SimWorld, target: ToolTarget | None) -> None:
                     world.tool_bodies[i - 1].torque -= float(tau[i])
         world.space.step(h)
     world.time += world.period
+    for body, spec in world._kinematic:  # published: the law's own velocity at the step's end
+        if spec.oscillation_period_s > 0.0:
+            om = 2.0 * math.pi / spec.oscillation_period_s
+            rate = om * math.cos(om * world.time)
+            body.velocity = (
+                spec.velocity[0] + spec.oscillation_amplitude[0] * rate,
+                spec.velocity[1] + spec.oscillation_amplitude[1] * rate,
+            )
 
 
 def _python_drag(rate_per_s: float):  # type: ignore[no-untyped-def]
@@ -139,3 +149,27 @@ def test_a_crowd_sleeps_and_only_the_neighbourhood_is_published() -> None:
 def _tool_points_world(world: SimWorld, local: np.ndarray) -> np.ndarray:
     body = world.tool_bodies[0]
     return np.array([list(body.local_to_world(tuple(p))) for p in local])
+
+
+@pytest.mark.parametrize("rate_hz", [30.0, 60.0])
+def test_an_oscillating_body_is_on_its_law_at_every_step(rate_hz: float) -> None:
+    """The testbed's shuttle against its closed form x(t) = x0 + v t + A sin(w t) at every
+    period's end (each substep moves it by the law's mean velocity over the substep), and the
+    twist the update publishes is the law's own at that time. With the law's velocity at the
+    substep's end instead, the shuttle was (h / 2)(v(t) - v(0)) off: 105 um for a 5 mm,
+    1 Hz platform at 30 Hz."""
+    config = load_scene("testbed")
+    config = dataclasses.replace(config, sim_rate_hz=rate_hz)
+    world = SimWorld(config)
+    (body, spec), *_ = [(b, s) for b, s in world._kinematic if s.oscillation_period_s > 0.0]
+    x0 = np.array(body.position)
+    om = 2.0 * math.pi / spec.oscillation_period_s
+    amp, vel = np.array(spec.oscillation_amplitude), np.array(spec.velocity)
+    worst = 0.0
+    for _ in range(int(2 * rate_hz)):
+        world.step(None)
+        t = world.time
+        law = x0 + vel * t + amp * math.sin(om * t)
+        worst = max(worst, float(np.abs(np.array(body.position) - law).max()))
+        np.testing.assert_allclose(body.velocity, vel + amp * om * math.cos(om * t), atol=1e-12)
+    assert worst < 1e-12, f"{worst * 1e6:.3f} um off the law"
