@@ -1,6 +1,8 @@
 """The live view of a port scene (`haptic-run --scene grasp_vertical --view`): the
 co-simulated bodies (the object and the tools the devices hold) where the port engine has
-them, and each device, drawn from the run's own rows.
+them, and each device, drawn from the run's own rows. A hand scene (`--scene hand_grasp`,
+`hand_press`) the same way: its box, each mass-spring hand (the palm's outline, each finger's
+phalanges at their capsules' radius) and each device's measured position (the tracked palm).
 
 A port scene runs its world in the haptic-run process (haptic_server.world_runs), so there is
 no sim and no world message: the rows the loop fills are the state. With --view they live in
@@ -32,12 +34,14 @@ from haptic_local_model.haptic_server.live_view import (
 )
 from haptic_local_model.haptic_server.logger import BlockChild
 from haptic_local_model.haptic_server.view_world import ROLE_COLORS
-from haptic_local_model.shared.config import BodySpec
-from haptic_local_model.shared.port_config import PortSceneConfig
+from haptic_local_model.shared.config import BodySpec, load_config_text
+from haptic_local_model.shared.kinematics import MAX_DOF
+from haptic_local_model.shared.port_config import HandSceneConfig, HandSpec, PortSceneConfig
 from haptic_local_model.shared.protocol.world_view import ROLE_DYNAMIC, ROLE_STATIC
 
 TOOL_COLOR = (242, 89, 51)  # a port's tool (a pad): the proxy's orange of the single view
 DEVICE_COLOR = (51, 115, 242)
+FINGER_COLOR = (190, 60, 35)  # a hand's phalanges: darker than its palm's outline
 OBJECT_COLOR = ROLE_COLORS[ROLE_DYNAMIC]
 WALL_COLOR = ROLE_COLORS[ROLE_STATIC]
 LINE_M = 0.0002  # outline half-width: thin, the pads' and the box's sides touch
@@ -70,7 +74,14 @@ class PortRows:
 
 def box_outline(body: BodySpec, x: float, y: float, angle: float) -> list[tuple[float, float]]:
     """A box body's outline at pose (x, y, angle), closed."""
-    hx, hy = body.size[0] / 2, body.size[1] / 2
+    return rect_outline(body.size, x, y, angle)
+
+
+def rect_outline(
+    size: tuple[float, float], x: float, y: float, angle: float
+) -> list[tuple[float, float]]:
+    """A rectangle's outline (width, height `size`, centred on its pose), closed."""
+    hx, hy = size[0] / 2, size[1] / 2
     c, s = np.cos(angle), np.sin(angle)
     corners = ((-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy), (-hx, -hy))
     return [(x + c * px - s * py, y + s * px + c * py) for px, py in corners]
@@ -116,6 +127,83 @@ class PortSceneView:
         self.frames += 1
 
 
+def hand_strips(
+    hand: HandSpec, q: np.ndarray
+) -> tuple[list[tuple[float, float]], list[list[tuple[float, float]]]]:
+    """A hand at joint coordinates q (palm x, y, angle, then each finger's two phalanx
+    angles; stages/hand.py `hand_chain`): its palm's outline, closed, and each finger's
+    polyline from the middle of the palm's front edge through its two phalanges."""
+    x, y, angle = float(q[0]), float(q[1]), float(q[2])
+    w, h = hand.palm_size
+    palm = rect_outline((w, h), x, y, angle)
+    root = (x + w / 2 * np.cos(angle), y + w / 2 * np.sin(angle))
+    fingers = []
+    for i, finger in enumerate(hand.fingers):
+        phi, points = angle, [root]
+        for j in range(2):
+            phi += float(q[3 + 2 * i + j])
+            px, py = points[-1]
+            points.append(
+                (px + finger.lengths[j] * np.cos(phi), py + finger.lengths[j] * np.sin(phi))
+            )
+        fingers.append(points)
+    return palm, fingers
+
+
+class HandSceneView:
+    """What is drawn of a hand run (one hand, or two on a box), from its rows."""
+
+    def __init__(self, scene: HandSceneConfig, recording: Any) -> None:
+        import rerun as rr
+
+        self.rr, self.rec = rr, recording
+        self.hands = [scene.hand_of(p) for p in range(len(scene.ports))]
+        self.box = scene.box
+        for body in scene.bodies:
+            if body.shape != "box":
+                raise ValueError(f"{scene.name}: body {body.name!r} is a {body.shape}; the "
+                                 "hand view draws boxes")  # fmt: skip
+        self._log("world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
+        walls = [box_outline(b, *b.position, b.angle) for b in scene.walls]
+        if walls:
+            self._log("world/static/walls", rr.LineStrips2D(
+                walls, radii=LINE_M * 5, colors=[WALL_COLOR]), static=True)  # fmt: skip
+        self.frames = 0
+
+    def _log(self, path: str, archetype: Any, static: bool = False) -> None:
+        self.rr.log(path, archetype, static=static, recording=self.rec)
+
+    def frame(self, row: np.void) -> None:
+        """One row: the box (a two-hand row's `box_q`), each hand at `q`, each device's
+        tracked palm at `target`."""
+        rr = self.rr
+        rr.set_time("time", duration=float(row["t"]), recording=self.rec)
+        n = len(self.hands)
+        q = np.asarray(row["q"]).reshape(-1, MAX_DOF)[:n]
+        target = np.asarray(row["target"]).reshape(-1, MAX_DOF)[:n]
+        palms, fingers, finger_radii = [], [], []
+        for hand, hand_q in zip(self.hands, q, strict=True):
+            palm, hand_fingers = hand_strips(hand, hand_q)
+            palms.append(palm)
+            fingers += hand_fingers
+            finger_radii += [f.radius for f in hand.fingers]
+        self._log("world/bodies/tools", rr.LineStrips2D(
+            palms, radii=LINE_M, colors=[TOOL_COLOR], draw_order=21,
+        ))  # fmt: skip
+        self._log("world/bodies/fingers", rr.LineStrips2D(
+            fingers, radii=finger_radii, colors=[FINGER_COLOR], draw_order=19,
+        ))  # fmt: skip
+        if self.box is not None:
+            bq = row["box_q"]
+            outline = box_outline(self.box, float(bq[0]), float(bq[1]), float(bq[2]))
+            self._log("world/bodies/objects", rr.LineStrips2D(
+                [outline], radii=LINE_M, colors=[OBJECT_COLOR], draw_order=20,
+            ))  # fmt: skip
+        devices = [(float(p[0]), float(p[1])) for p in target]
+        self._log("world/devices", rr.Points2D(devices, radii=DEVICE_M, colors=[DEVICE_COLOR]))
+        self.frames += 1
+
+
 class PortViewProcess(BlockChild):
     """Starts the port view on the rows' shared memory; it says where it serves on stderr."""
 
@@ -136,18 +224,33 @@ def main(argv: list[str] | None = None) -> int:
     return view_main(argv, _live)
 
 
-def _live(config: dict[str, Any]) -> None:
-    from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE
-    from haptic_local_model.shared.config import load_config_text
+def scene_view(topic: str, scene_text: str, recording: Any) -> PortSceneView | HandSceneView:
+    """The view of a world kind (by its rows' topic) from its scene."""
+    kind = viewed_kinds()[topic]
+    scene = load_config_text(kind.scene, scene_text, f"the run's {kind.name} scene")
+    if isinstance(scene, HandSceneConfig):
+        return HandSceneView(scene, recording)
+    return PortSceneView(scene, recording)
 
+
+def viewed_kinds() -> dict[str, Any]:
+    """The world kinds this view draws, by their rows' topic (world_runs.WORLD_KINDS's)."""
+    from haptic_local_model.haptic_server.hand_grasp_ports import HAND_GRASP_KIND
+    from haptic_local_model.haptic_server.hand_ports import HAND_KIND
+    from haptic_local_model.haptic_server.ports import PORT_KIND
+
+    return {kind.topic: kind for kind in (PORT_KIND, HAND_KIND, HAND_GRASP_KIND)}
+
+
+def _live(config: dict[str, Any]) -> None:
     terminated = enter_view_process(config)
-    scene = load_config_text(PortSceneConfig, config["scene_text"], "the run's port scene")
+    topic = str(config["topic"])
     address = ViewAddress(config["bind"], int(config["web_port"]), int(config["grpc_port"]))
-    rows = PortRows(int(config["n_rows"]), PORT_ROW_DTYPE, name=config["shm_name"])
+    rows = PortRows(int(config["n_rows"]), viewed_kinds()[topic].rows, name=config["shm_name"])
     server = RerunServer(address)
     try:
         rec = open_recording(address, "haptic-run")
-        view = PortSceneView(scene, rec)
+        view = scene_view(topic, config["scene_text"], rec)
         print(f"live view: {address.url}", file=sys.stderr, flush=True)
         parent, seen, wall0 = int(config["parent_pid"]), -1, time.monotonic()
         while os.getppid() == parent and not terminated.is_set():

@@ -219,13 +219,10 @@ def _run_viewed(
     from haptic_local_model.haptic_server.port_view import PortRows, PortViewProcess
     from haptic_local_model.shared.timing import loop_cpu
 
-    if world.kind is not PORT_KIND:
-        raise ConfigError("command line", "--view", "draws the two-port scenes; "
-                          f"{scene.config.name} is a {world.kind.name} world")  # fmt: skip
     shared = PortRows(round(duration_s / world.period_s), world.kind.rows)
     child = PortViewProcess(shared, {
         "bind": view.bind, "web_port": view.web_port, "grpc_port": view.grpc_port,
-        "scene_text": scene.text, "loop_cpu": loop_cpu(),
+        "scene_text": scene.text, "topic": world.kind.topic, "loop_cpu": loop_cpu(),
     })  # fmt: skip
     try:
         rows, figures = run_real_time(world, scene.world(), duration_s, rows=shared.rows)

@@ -252,3 +252,93 @@ def test_a_port_scenes_box_and_pads_are_drawn_where_the_engine_has_them(
     # the check can tell: the pads sit a box's half-width and more from its centre
     gap_px = min(abs(d[0]) for d, _e in found.values())
     assert gap_px > 10 * PIXEL_TOL, f"the pads drawn {gap_px:.0f} px from the box's centre"
+
+
+# -- a hand scene: two mass-spring hands on a box, no sim ------------------------------
+
+HAND_SCENE = "hand_grasp"
+
+
+def _hand_centres(img: np.ndarray, scene: Any, row: np.void) -> dict[str, Any]:
+    """Each palm's, each device's and each hand's fingers' drawn centre against the box's, on
+    screen and as the row puts them (px), the scale from the box's drawn height as in the
+    port case; the left hand's left of the box's centre, the right's right of it. The
+    fingers by their x only: Rerun's camera fits the outlines and cuts the fingers' capsules
+    off at the top and the bottom of the view."""
+    from haptic_local_model.haptic_server.port_view import (
+        DEVICE_COLOR,
+        FINGER_COLOR,
+        LINE_M,
+        OBJECT_COLOR,
+        TOOL_COLOR,
+        hand_strips,
+    )
+
+    box = scene.box
+    bx0, bx1, by0, by1 = _extent(_mask(img, OBJECT_COLOR))
+    s = (by1 - by0 + 1) / (box.size[1] + 2 * LINE_M)
+    box_px = ((bx0 + bx1 + 1) / 2, (by0 + by1 + 1) / 2)
+    bq = row["box_q"]
+    found = {}
+    for p, side in enumerate((slice(0, int(box_px[0])), slice(int(box_px[0]), None))):
+        hand = scene.hand_of(p)
+        palm, fingers = hand_strips(hand, row["q"][p])
+        finger_x = [x + sign * f.radius for strip, f in zip(fingers, hand.fingers, strict=True)
+                    for x, _y in strip for sign in (-1, 1)]  # fmt: skip
+        expected = {
+            "palm": np.mean(palm[:4], axis=0),
+            "device": row["target"][p, :2],
+            "fingers": ((min(finger_x) + max(finger_x)) / 2, None),
+        }
+        for what, colour in (("palm", TOOL_COLOR), ("device", DEVICE_COLOR),
+                             ("fingers", FINGER_COLOR)):  # fmt: skip
+            mask = _mask(img, colour)
+            half = np.zeros_like(mask)
+            half[:, side] = mask[:, side]
+            x0, x1, y0, y1 = _extent(half)
+            ex, ey = expected[what]
+            drawn_y = 0.0 if ey is None else (y0 + y1 + 1) / 2 - box_px[1]
+            wanted_y = 0.0 if ey is None else -s * (float(ey) - float(bq[1]))
+            drawn = ((x0 + x1 + 1) / 2 - box_px[0], drawn_y)
+            found[f"{scene.ports[p].name} {what}"] = (drawn, (s * (float(ex) - bq[0]), wanted_y))
+    return found
+
+
+@pytest.mark.processes
+def test_a_hand_scenes_box_hands_and_devices_are_drawn_where_the_rows_have_them(
+    tmp_path: Path,
+    procs: list[Proc],  # noqa: F811
+) -> None:
+    """`haptic-run --scene hand_grasp --view`: the box (object colour), both hands (palm,
+    tool colour; fingers, finger colour) and both devices' tracked palms (device colour)
+    drawn where one row of the run's log has them, relative to the box."""
+    from haptic_local_model.haptic_server.hand_grasp_ports import HAND_GRASP_KIND
+    from haptic_local_model.haptic_server.world_runs import port_scene, read_port_log
+
+    browser = _browser()
+    web, grpc = free_ports(2)
+    run = Proc(
+        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--scene",
+         HAND_SCENE, "--duration", str(PORT_RUN_S), "--log", "run.mcap", "--view",
+         "--view-port", str(web), "--view-grpc-port", str(grpc)],
+        tmp_path,
+    )  # fmt: skip
+    procs.append(run)
+    png = _shot(run.url(), browser, lambda: time.sleep(4.0))
+    assert run.proc.wait(PORT_RUN_S + 120) == 0, run.lines
+    frames = [line for line in run.lines if "live view:" in line and " frames in " in line]
+    assert frames and int(frames[0].split("live view: ")[1].split()[0]) > 0, run.lines
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    (ARTIFACTS / "hand-live.png").write_bytes(png)
+    img = pixels(png)[SCENE]
+    rows, _meta = read_port_log(tmp_path / "run.mcap", HAND_GRASP_KIND.topic, HAND_GRASP_KIND.rows)
+    scene = port_scene(HAND_SCENE, None, None).config
+    picks = rows[:: max(1, len(rows) // 200)]  # every 0.1 s of the run
+    errors = [_error_px(_hand_centres(img, scene, row)) for row in picks]
+    best = int(np.argmin(errors))
+    found = _hand_centres(img, scene, picks[best])
+    print(f"hands: row {best} of {len(picks)}, {errors[best]:.1f} px: {found}")
+    assert errors[best] < PIXEL_TOL, f"no row within {PIXEL_TOL} px: {found}"
+    # the check can tell: the hands and devices sit a box's half-width and more off its centre
+    gap_px = min(abs(d[0]) for d, _e in found.values())
+    assert gap_px > 10 * PIXEL_TOL, f"drawn {gap_px:.0f} px from the box's centre"
