@@ -42,6 +42,13 @@ def chromium() -> str | None:
 def open_page(url: str, executable: str, viewer: bool = True) -> Iterator[Any]:
     """A page on `url` in a fresh headless Chromium (its own empty profile); with `viewer`,
     once the Rerun viewer's canvas shows."""
+    with open_pages([url], executable, viewer) as pages:
+        yield pages[0]
+
+
+@contextlib.contextmanager
+def open_pages(urls: list[str], executable: str, viewer: bool = True) -> Iterator[list[Any]]:
+    """A page on each of `urls`, in one fresh headless Chromium (open_page's)."""
     from playwright.sync_api import sync_playwright
 
     # the profile's cache may still be written to as the browser closes
@@ -51,11 +58,14 @@ def open_page(url: str, executable: str, viewer: bool = True) -> Iterator[Any]:
             viewport=VIEWPORT,
         )  # fmt: skip
         try:
-            page = browser.new_page()
-            page.goto(url)
+            pages = []
+            for url in urls:
+                pages.append(browser.new_page())
+                pages[-1].goto(url)
             if viewer:  # its canvas shown (a hidden one precedes it while it loads)
-                page.locator("canvas").filter(visible=True).first.wait_for(timeout=60_000)
-            yield page
+                for page in pages:
+                    page.locator("canvas").filter(visible=True).first.wait_for(timeout=60_000)
+            yield pages
         finally:
             browser.close()
 

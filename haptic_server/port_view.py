@@ -10,6 +10,12 @@ shared memory (`PortRows`), and a process of its own (`python -m
 haptic_local_model.haptic_server.port_view CONFIG.json`, niced, off the loop's CPU) reads the
 newest finished row at VIEW_HZ and draws it with Rerun, as live_view.py does for a single
 device. The loop never waits on it: it only writes the rows it always wrote.
+
+The shared world (`haptic-world --view`) and a station (`haptic-station --view`) are drawn the
+same way from the rows their loops keep (a ring: `rows_viewed`): the world's are a port
+world's or a two-hands world's rows (its bodies, every station's tool and device as fed);
+a station's are its own (`StationView`: its device, and its tool where the last ToolState it
+took puts it, both in the station's frame). The view calls no compiled kernel.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ import os
 import signal
 import sys
 import time
+from collections.abc import Iterator
 from multiprocessing import resource_tracker, shared_memory
 from typing import Any
 
@@ -59,10 +66,14 @@ class PortRows:
         self.rows: np.ndarray = np.ndarray((n,), dtype, buffer=self.shm.buf)
 
     def newest(self) -> int:
-        """The newest finished row (-1: none yet): the row before the last one written (a
-        written row's time is after 0; the last may be being written)."""
-        written = np.flatnonzero(self.rows["t"] > 0.0)
-        return int(written[-1]) - 1 if len(written) else -1
+        """The newest finished row (-1: none yet): the row before the latest (a written row's
+        time is after 0, and later than the row's before it in the ring; the latest may be
+        being written). The rows may be a ring (the shared world's, a station's)."""
+        t = self.rows["t"]
+        latest = int(np.argmax(t))
+        if t[latest] <= 0.0 or (latest == 0 and t[-1] <= 0.0):
+            return -1
+        return (latest - 1) % len(t)
 
     def close(self, unlink: bool) -> None:
         del self.rows
@@ -204,6 +215,76 @@ class HandSceneView:
         self.frames += 1
 
 
+class StationView:
+    """What is drawn of a station, from its rows (STATION_ROW_DTYPE): its device's pose and
+    its tool (a pad's outline, or a palm's) where the last ToolState it took puts it, with
+    the coupling's stretch between them; the tool is cleared while it has none."""
+
+    def __init__(self, scene: PortSceneConfig | HandSceneConfig, port: str, recording: Any) -> None:
+        import rerun as rr
+
+        self.rr, self.rec = rr, recording
+        index = [p.name for p in scene.ports].index(port)
+        if isinstance(scene, HandSceneConfig):
+            self.tool_size = scene.hand_of(index).palm_size
+        else:
+            tool = scene.body(scene.ports[index].tool)
+            if tool.shape != "box":
+                raise ValueError(f"{scene.name}: tool {tool.name!r} is a {tool.shape}; the "
+                                 "station view draws boxes")  # fmt: skip
+            self.tool_size = tool.size
+        self._log("world", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
+        self.frames = 0
+        self._tool_shown = False
+
+    def _log(self, path: str, archetype: Any, static: bool = False) -> None:
+        self.rr.log(path, archetype, static=static, recording=self.rec)
+
+    def frame(self, row: np.void) -> None:
+        rr = self.rr
+        rr.set_time("time", duration=float(row["t"]), recording=self.rec)
+        device = (float(row["pose"][0]), float(row["pose"][1]))
+        self._log("world/devices", rr.Points2D([device], radii=DEVICE_M, colors=[DEVICE_COLOR]))
+        if int(row["have_tool"]):
+            x, y, angle = (float(v) for v in row["tool_pose"])
+            self._log("world/bodies/tools", rr.LineStrips2D(
+                [rect_outline(self.tool_size, x, y, angle), [device, (x, y)]],
+                radii=LINE_M, colors=[TOOL_COLOR, DEVICE_COLOR], draw_order=21,
+            ))  # fmt: skip
+            self._tool_shown = True
+        elif self._tool_shown:
+            self._log("world/bodies/tools", rr.Clear(recursive=False))
+            self._tool_shown = False
+        self.frames += 1
+
+
+@contextlib.contextmanager
+def rows_viewed(
+    loop: Any, view: ViewAddress | None, scene_text: str, topic: str, port: str = ""
+) -> Iterator[None]:
+    """With a `view`: the loop's rows (`loop.rows`, a ring it fills) moved into shared memory
+    and the port view drawing them until the block ends, when the rows are copied back out
+    (the summary and the log read them after). Without: nothing."""
+    from haptic_local_model.shared.timing import loop_cpu
+
+    if view is None:
+        yield
+        return
+    shared = PortRows(len(loop.rows), loop.rows.dtype)
+    shared.rows.view(np.uint8)[:] = 0  # every page touched now, not in the loop
+    loop.rows = shared.rows
+    child = PortViewProcess(shared, {
+        "bind": view.bind, "web_port": view.web_port, "grpc_port": view.grpc_port,
+        "scene_text": scene_text, "topic": topic, "port": port, "loop_cpu": loop_cpu(),
+    })  # fmt: skip
+    try:
+        yield
+    finally:
+        loop.rows = shared.rows.copy()
+        child.stop()
+        shared.close(unlink=True)
+
+
 class PortViewProcess(BlockChild):
     """Starts the port view on the rows' shared memory; it says where it serves on stderr."""
 
@@ -224,13 +305,32 @@ def main(argv: list[str] | None = None) -> int:
     return view_main(argv, _live)
 
 
-def scene_view(topic: str, scene_text: str, recording: Any) -> PortSceneView | HandSceneView:
-    """The view of a world kind (by its rows' topic) from its scene."""
+def scene_view(
+    topic: str, scene_text: str, recording: Any, port: str = ""
+) -> PortSceneView | HandSceneView | StationView:
+    """The view of a world kind or of a station (by its rows' topic) from its scene."""
+    from haptic_local_model.haptic_server.station_records import STATION_TOPIC
+    from haptic_local_model.shared.config import parse_toml_text
+    from haptic_local_model.shared.port_config import is_hand_scene
+
+    if topic == STATION_TOPIC:
+        hands = is_hand_scene(parse_toml_text(scene_text, "the station's scene"))
+        scene_type = HandSceneConfig if hands else PortSceneConfig
+        station_scene = load_config_text(scene_type, scene_text, "the station's scene")
+        return StationView(station_scene, port, recording)
     kind = viewed_kinds()[topic]
     scene = load_config_text(kind.scene, scene_text, f"the run's {kind.name} scene")
     if isinstance(scene, HandSceneConfig):
         return HandSceneView(scene, recording)
     return PortSceneView(scene, recording)
+
+
+def row_dtype(topic: str) -> np.dtype:
+    """The rows of a world kind or of a station, by their topic."""
+    from haptic_local_model.haptic_server.stages.station import STATION_ROW_DTYPE
+    from haptic_local_model.haptic_server.station_records import STATION_TOPIC
+
+    return STATION_ROW_DTYPE if topic == STATION_TOPIC else viewed_kinds()[topic].rows
 
 
 def viewed_kinds() -> dict[str, Any]:
@@ -246,18 +346,20 @@ def _live(config: dict[str, Any]) -> None:
     terminated = enter_view_process(config)
     topic = str(config["topic"])
     address = ViewAddress(config["bind"], int(config["web_port"]), int(config["grpc_port"]))
-    rows = PortRows(int(config["n_rows"]), viewed_kinds()[topic].rows, name=config["shm_name"])
+    rows = PortRows(int(config["n_rows"]), row_dtype(topic), name=config["shm_name"])
     server = RerunServer(address)
     try:
         rec = open_recording(address, "haptic-run")
-        view = scene_view(topic, config["scene_text"], rec)
+        view = scene_view(topic, config["scene_text"], rec, str(config.get("port", "")))
         print(f"live view: {address.url}", file=sys.stderr, flush=True)
-        parent, seen, wall0 = int(config["parent_pid"]), -1, time.monotonic()
+        parent, seen_t, wall0 = int(config["parent_pid"]), 0.0, time.monotonic()
         while os.getppid() == parent and not terminated.is_set():
             newest = rows.newest()
-            if newest > seen:
-                view.frame(rows.rows[newest].copy())
-                seen = newest
+            if newest >= 0:
+                row = rows.rows[newest].copy()
+                if float(row["t"]) > seen_t:  # a later row (the rows may be a ring)
+                    view.frame(row)
+                    seen_t = float(row["t"])
             time.sleep(1.0 / VIEW_HZ)
         rec.flush(timeout_sec=5.0)
         rec.disconnect()

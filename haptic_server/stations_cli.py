@@ -26,11 +26,14 @@ import zenoh
 
 from haptic_local_model.device_models.registry import device_config, load_simulated_device
 from haptic_local_model.haptic_server.hand_grasp_ports import HAND_GRASP_KIND
+from haptic_local_model.haptic_server.live_view import add_view_args, view_address
 from haptic_local_model.haptic_server.log import write_rows_log
 from haptic_local_model.haptic_server.port_scene import load_glove_users
+from haptic_local_model.haptic_server.port_view import rows_viewed
 from haptic_local_model.haptic_server.ports import PORT_KIND
 from haptic_local_model.haptic_server.shared_world import SharedWorld
 from haptic_local_model.haptic_server.station import MAX_LOG_S, RING_S, Station
+from haptic_local_model.haptic_server.station_records import STATION_TOPIC
 from haptic_local_model.shared import __version__
 from haptic_local_model.shared.cli import (
     add_version,
@@ -164,19 +167,20 @@ def router_main(argv: list[str] | None = None) -> int:
 def world_main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="haptic-world", description="The stations' shared world")
     _common(parser)
+    add_view_args(parser, "the world's bodies and every station's tool and device")
     args = parser.parse_args(argv)
 
     def body() -> int:
         network = _passivity(load_station_network(args.network, "world"), args.passivity)
         scene, text = _scene(args.scene)
         world = SharedWorld(scene, network, _rows_for(args, scene.haptic_rate_hz))
-        summary = _run_loop("haptic-world", world, args.duration)
+        kind = HAND_GRASP_KIND if isinstance(scene, HandSceneConfig) else PORT_KIND
+        with rows_viewed(world, view_address(args), text, kind.topic):
+            summary = _run_loop("haptic-world", world, args.duration)
         if summary is None:
             return 1
         if args.log is not None:
             rows = world.logged_rows()
-            hands = isinstance(scene, HandSceneConfig)
-            kind = HAND_GRASP_KIND if hands else PORT_KIND
             write_rows_log(args.log, rows, kind.topic, kind.schema, {
                 "configs": {"ports": text,
                             "devices": json.dumps([p.device for p in scene.ports]),
@@ -197,6 +201,7 @@ def station_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--port", required=True, help="the scene's port this station drives")
     parser.add_argument("--device", default=None, help="a simulated device (default: the port's)")
     parser.add_argument("--user", default=None, help="a simulated user (default: the port's)")
+    add_view_args(parser, "this station's device and its tool as the world last sent it")
     args = parser.parse_args(argv)
 
     def body() -> int:
@@ -210,7 +215,8 @@ def station_main(argv: list[str] | None = None) -> int:
         device, user = load_simulated_device(device_name), load_user(user_name)
         rows = _rows_for(args, scene.haptic_rate_hz)
         station = Station(scene, network, args.port, device, user, rows)
-        summary = _run_loop("haptic-station", station, args.duration)
+        with rows_viewed(station, view_address(args), text, STATION_TOPIC, args.port):
+            summary = _run_loop("haptic-station", station, args.duration)
         if summary is None:
             return 1
         if args.log is not None:

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from test_live_view import ARTIFACTS, SCENE, SETTLE_S, Proc, _browser, procs  # noqa: F401
 
-from haptic_local_model.benchmarks.browser import free_ports, open_page, pixels
+from haptic_local_model.benchmarks.browser import free_ports, open_page, open_pages, pixels
 from haptic_local_model.haptic_server.log import read_log
 from haptic_local_model.haptic_server.view_world import ROLE_COLORS, world_vertices
 from haptic_local_model.shared.protocol.world_view import (
@@ -342,3 +342,88 @@ def test_a_hand_scenes_box_hands_and_devices_are_drawn_where_the_rows_have_them(
     # the check can tell: the hands and devices sit a box's half-width and more off its centre
     gap_px = min(abs(d[0]) for d, _e in found.values())
     assert gap_px > 10 * PIXEL_TOL, f"drawn {gap_px:.0f} px from the box's centre"
+
+
+# -- a shared world and its stations: each drawn from its own process's rows --------------
+
+STATIONS_RUN_S = 30  # the stations' run (two views loaded in turn); the world runs past it
+
+
+def _wait_event(proc: Proc, event: str, timeout_s: float = 120.0) -> None:
+    """Until `proc` printed its JSON `event` line on stdout (stations_cli's `ready`)."""
+    end = time.monotonic() + timeout_s
+    while not any(f'"event": "{event}"' in line for line in proc.out):
+        assert proc.proc.poll() is None, f"exited {proc.proc.returncode}: {proc.lines}"
+        assert time.monotonic() < end, f"no {event} in {timeout_s} s: {proc.lines}"
+        time.sleep(0.1)
+
+
+def _frames(proc: Proc) -> int:
+    said = [line for line in proc.lines if "live view:" in line and " frames in " in line]
+    assert said, proc.lines
+    return int(said[0].split("live view: ")[1].split()[0])
+
+
+@pytest.mark.processes
+def test_a_shared_worlds_box_and_pads_are_drawn_from_the_worlds_process(
+    tmp_path: Path,
+    procs: list[Proc],  # noqa: F811
+) -> None:
+    """`haptic-world --view` on loopback with both stations (the left one with `--view`
+    too): the world's view draws the box and both stations' pads where one row of the
+    world's log has them (as the port case); the station's view draws its device and its
+    tool, and both views count their frames."""
+    from haptic_local_model.benchmarks.stations import loopback_network
+    from haptic_local_model.haptic_server.port_view import DEVICE_COLOR
+    from haptic_local_model.haptic_server.world_runs import port_scene, read_port_log
+
+    browser = _browser()
+    cli = [sys.executable, "-m", "haptic_local_model.haptic_server.stations_cli"]
+    net = ["--network", loopback_network(tmp_path)]
+    router = Proc([*cli, "router", *net], tmp_path)
+    procs.append(router)
+    _wait_event(router, "ready")
+    web, grpc, s_web, s_grpc = free_ports(4)
+    world = Proc(
+        [*cli, "world", *net, "--duration", str(STATIONS_RUN_S + 6), "--log", "world.mcap",
+         "--view", "--view-port", str(web), "--view-grpc-port", str(grpc)],
+        tmp_path,
+    )  # fmt: skip
+    procs.append(world)
+    _wait_event(world, "ready")
+    stations = [
+        Proc(
+            [*cli, "station", *net, "--port", port, "--duration", str(STATIONS_RUN_S), *extra],
+            tmp_path,
+        )
+        for port, extra in (
+            ("left", ["--view", "--view-port", str(s_web), "--view-grpc-port", str(s_grpc)]),
+            ("right", []),
+        )
+    ]
+    procs.extend(stations)
+    with open_pages([world.url(), stations[0].url()], browser) as pages:
+        time.sleep(SETTLE_S + 4.0)  # both at once: each view lives as long as its run
+        png, station_png = (page.screenshot() for page in pages)
+    for proc in (*stations, world):
+        assert proc.proc.wait(STATIONS_RUN_S + 120) == 0, proc.lines
+    assert _frames(world) > 0 and _frames(stations[0]) > 0
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    (ARTIFACTS / "world-stations-live.png").write_bytes(png)
+    (ARTIFACTS / "station-live.png").write_bytes(station_png)
+    img = pixels(png)[SCENE]
+    rows, _meta = read_port_log(tmp_path / "world.mcap")
+    scene = port_scene("grasp_vertical", None, None).config
+    picks = rows[:: max(1, len(rows) // 200)]
+    errors = [_error_px(_port_centres(img, scene, row)) for row in picks]
+    best = int(np.argmin(errors))
+    found = _port_centres(img, scene, picks[best])
+    print(f"world: row {best} of {len(picks)}, {errors[best]:.1f} px: {found}")
+    assert errors[best] < PIXEL_TOL, f"no row within {PIXEL_TOL} px: {found}"
+    gap_px = min(abs(d[0]) for d, _e in found.values())
+    assert gap_px > 10 * PIXEL_TOL, f"the pads drawn {gap_px:.0f} px from the box's centre"
+    station_img = pixels(station_png)[SCENE]
+    from haptic_local_model.haptic_server.port_view import TOOL_COLOR
+
+    for name, colour in (("tool", TOOL_COLOR), ("device", DEVICE_COLOR)):
+        assert _mask(station_img, colour).sum() > 50, f"the station's {name} is not drawn"

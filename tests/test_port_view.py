@@ -25,6 +25,19 @@ def test_newest_is_the_row_before_the_last_written() -> None:
         shared.close(unlink=True)
 
 
+def test_newest_follows_a_ring_past_its_wrap() -> None:
+    """The shared world's and a station's rows are a ring: past its end the newest finished
+    row is the one before the latest time, wherever it lies."""
+    shared = PortRows(5, PORT_ROW_DTYPE)
+    try:
+        shared.rows["t"][:] = [6e-3, 7e-3, 3e-3, 4e-3, 5e-3]  # 7 written: row 1 the latest
+        assert shared.newest() == 0
+        shared.rows["t"][0] = 8e-3  # row 0 the latest: the one before is the ring's last
+        assert shared.newest() == 4
+    finally:
+        shared.close(unlink=True)
+
+
 def test_box_outline_is_the_box_turned_and_moved() -> None:
     body = BodySpec(name="box", kind="dynamic", shape="box", material="pad", size=(0.04, 0.02))
     strip = np.array(box_outline(body, 0.1, -0.2, math.pi / 2))
