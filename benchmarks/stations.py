@@ -208,17 +208,20 @@ def loopback_network(folder: Path) -> str:
     return str(path)
 
 
-def loopback_run(scene: str, seconds: float, folder: Path) -> dict[str, Any]:
-    """The router, the world and both stations on this host's loopback for `seconds`, no
-    logs: the world's summary and each station's (benchmarks/loop_timing.py --stations);
-    for a scene with sim bodies, its sim too (`sim-server --mirror`)."""
+def loopback_run(
+    scene: str, seconds: float, folder: Path, world_args: tuple[str, ...] = ()
+) -> dict[str, Any]:
+    """The router, the world (with `world_args`, e.g. its --view) and both stations on this
+    host's loopback for `seconds`, no logs: the world's summary and each station's
+    (benchmarks/loop_timing.py --stations, world_view.py); for a scene with sim bodies, its
+    sim too (`sim-server --mirror`)."""
     net = ["--network", loopback_network(folder)]
     sim = [sys.executable, "-m", "haptic_local_model.sim_server.cli", "--mirror", scene, *net]
     started: list[Process] = []
     try:
         for argv in ([*CLI, "router", *net],
                      [*CLI, "world", *net, "--scene", scene, "--duration", str(seconds + 60.0),
-                      "--json", str(folder / "world.json")],
+                      "--json", str(folder / "world.json"), *world_args],
                      *([sim] if _has_sim_bodies(scene) else [])):  # fmt: skip
             started.append(Process(argv))
             started[-1].wait_ready()
