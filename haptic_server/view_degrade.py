@@ -70,12 +70,12 @@ class DegradePolicy:
             return None
         quiet = now_s - max(self._last_strain_s, self._last_change_s)
         if self.index > 0 and quiet >= QUIET_S:
-            restored = LEVELS[self.index].dropped
+            left = LEVELS[self.index]
             self.index -= 1
             self._last_change_s = now_s
             return (
-                f"view restored to '{self.level.name}': back {restored} "
-                f"(no strain for {quiet:.0f} s)"
+                f"view restored to '{self.level.name}': undid '{left.name}', which dropped "
+                f"{left.dropped} (no strain for {quiet:.0f} s)"
             )
         return None
 

@@ -174,7 +174,7 @@ def test_a_stopped_sim_lowers_the_live_view_and_quiet_restores_it(
     back_after_s = time.monotonic() - stalled_at
     assert restored, f"not restored {QUIET_S + 15.0} s after: {run.lines[since:]}"
     print(f"{restored.strip()} ({back_after_s:.1f} s after the stall)")
-    assert f"to '{LEVELS[0].name}': back {LEVELS[1].dropped}" in restored
+    assert f"to '{LEVELS[0].name}': undid '{LEVELS[1].name}', which dropped" in restored
     assert back_after_s >= QUIET_S, back_after_s  # not before the quiet period
     assert run.stop() == 0, run.lines
     changes = _said(run, "level changes, ended at")
