@@ -8,12 +8,14 @@ time for both.
 
 The sweep (`--sweep`): stiffnesses 5, 15 and 50 kN/m x pushes of 1, 2 and 5 N with impulses,
 on the `ideal` device at its shipped 50 N limit (the 1 kg device cannot be stopped in one
-tick: 280-660 N would be needed), today's impulse law against version 0.1's: contact losses,
+tick: 280-660 N would be needed), the impulse laws of versions 0.1, 0.2 and 0.13: contact losses,
 the VM's largest speed away from the wall in the 10 ticks after the impact relative to the
 impact speed (restitution is 0: no more than the spring-back of the depth at which the
 impact was detected, sqrt(K/m) (depth - F/K), may push it out), the VM's and the device's penetration over the last half second
-relative to F/K, and the energy the device put into the hand's port (the integral of
-command . twist; passive if <= 0).
+relative to F/K, the device's peak penetration after the impact relative to F/K (0.2: the
+device's stopping distance at its limit, m v^2 / 2 (F_max - F_h), past the proxy; 0.13: paid
+half ahead, it stops where the proxy does), and the energy the device put into the hand's port
+(the integral of command . twist; passive if <= 0).
 
     python -m haptic_local_model.benchmarks.wall_push [--seconds 3] [--out docs/figures/wall_push.png] [--sweep]
 """
@@ -125,7 +127,7 @@ def sweep_case(stiffness: float, push: float, law: str, seconds: float = 3.0) ->
     return {
         "stiffness_n_per_m": stiffness,
         "push_n": push,
-        "law": float(law),
+        "law": law,
         "device_settle_s": device_settle_s if settled else float("inf"),
         "coupling_time_constant_s": coupling_time_constant(scene),
         "contact_losses": losses,
@@ -139,6 +141,10 @@ def sweep_case(stiffness: float, push: float, law: str, seconds: float = 3.0) ->
         "device_penetration_ratio": float(device.mean() / expected),
         "port_energy_j": port_energy_j(ticks),
         "peak_command_n": float(np.abs(ticks["wrench_command"][:, 0]).max()),
+        "device_peak_ratio": float(depth_of_device[first:].max() / expected),
+        "vm_peak_ratio": float(
+            (ticks["vm_pose"][first:, 0] + HALF_LENGTH - WALL_X).max() / expected
+        ),
     }
 
 
@@ -169,7 +175,7 @@ def sweep(seconds: float) -> list[dict[str, float]]:
         sweep_case(k, f, law, seconds)
         for k in SWEEP_STIFFNESS
         for f in SWEEP_PUSH
-        for law in ("0.1", "0.2")
+        for law in ("0.1", "0.2", "0.13")
     ]
 
 
@@ -232,14 +238,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sweep", action="store_true", help="stiffness x push, both laws")
     args = parser.parse_args(argv)
     if args.sweep:
-        print(f"{'K N/m':>8}{'push N':>8}{'law':>5}{'losses':>8}{'push-out':>10}{'VM/(F/K)':>10}"
-              f"{'dev/(F/K)':>11}{'dev settles s':>15}{'port J':>9}")  # fmt: skip
+        print(f"{'K N/m':>8}{'push N':>8}{'law':>6}{'losses':>8}{'push-out':>10}{'VM/(F/K)':>10}"
+              f"{'dev/(F/K)':>11}{'dev peak':>10}{'dev settles s':>15}{'port J':>9}")  # fmt: skip
         rows = sweep(args.seconds)
         for r in rows:
             print(
-                f"{r['stiffness_n_per_m']:>8.0f}{r['push_n']:>8.1f}{r['law']:>5.1f}"
+                f"{r['stiffness_n_per_m']:>8.0f}{r['push_n']:>8.1f}{r['law']:>6}"
                 f"{r['contact_losses']:>8}{r['push_out']:>10.3f}{r['vm_penetration_ratio']:>10.4f}"
-                f"{r['device_penetration_ratio']:>11.3f}{r['device_settle_s']:>15.2f}"
+                f"{r['device_penetration_ratio']:>11.3f}{r['device_peak_ratio']:>10.2f}"
+                f"{r['device_settle_s']:>15.2f}"
                 f"{r['port_energy_j']:>9.4f}"
             )
         if args.json:

@@ -350,6 +350,13 @@ class HapticEngine:
         st["port_energy"] = 0.0  # the passivity observer starts afresh
         st["device_energy"] = -1.0
         st["last_command"] = 0.0
+        # the impact ledger's offset is against the old proxy and device: it starts afresh
+        # (law 3 only: logs of the earlier laws replay with the carry they kept)
+        if int(self.params[0]["impulse_law"]) == 3:
+            st["impulse_carry"] = 0.0
+        st["impulse_prepaid"] = 0.0
+        st["impact_offset"] = 0.0
+        st["impact_offset_rate"] = 0.0
         st["foh_goal"] = m["tool_pose"]
         st["foh_steps_left"] = 0
         if self.method == Method.GOD_OBJECT:

@@ -50,7 +50,8 @@ PARAMS_DTYPE = np.dtype(
         ("jdot_qd", I8),  # 1: M_d J_h_dot qd in the control law (DESIGN §4.3)
         ("impulses", I8),  # 1: colliding contacts are resolved by impulses (never for FOH)
         ("collision_speed", F8),
-        ("impulse_law", I8),  # 2: forces after impulses, device-aware carry; 1: version 0.1
+        ("impulse_law", I8),  # 3: 2 + the device's impact ledger; 2: forces after impulses,
+        # device-aware carry; 1: version 0.1
         ("blend_s", F8),
         ("foh_stiffness", F8, (3,)),  # K_p of seed 002
         ("foh_damping", F8, (3,)),  # K_v
@@ -80,6 +81,13 @@ STATE_DTYPE = np.dtype(
         ("fault", I8),  # shared.protocol.codes.Fault
         ("prev_device_twist", F8, (3,)),  # to predict the device's motion over a step
         ("impulse_carry", F8, (3,)),  # impulse (N s) held back by the device limits
+        # impulse_law 3 (stages/control.py impact_ledger): the device's share of a predicted
+        # impact's impulse delivered before it (N s), and the reference deviation of the
+        # device from the path an unlimited device would take: offset D (m) and the
+        # velocity the ledger no longer holds (m/s), returned by feedforward
+        ("impulse_prepaid", F8, (3,)),
+        ("impact_offset", F8, (3,)),
+        ("impact_offset_rate", F8, (3,)),
         ("foh_goal", F8, (3,)),
         ("foh_step", F8, (3,)),
         ("foh_steps_left", I8),
@@ -136,6 +144,8 @@ SCRATCH_DTYPE = np.dtype(
         ("coll_a", F8, (MAX_CONTACTS, MAX_CONTACTS)),  # J_n D^-1 J_n^T
         ("coll_lambda", F8, (MAX_CONTACTS,)),  # the impulses, N s (physics.impulses)
         ("impulse_q", F8, (MAX_DOF,)),  # P_cs = J_n^T lambda
+        ("impact_eta", F8),  # s to the nearest predicted collision (inf: none; impulse_law 3)
+        ("impulse_pred_q", F8, (MAX_DOF,)),  # its predicted P_cs
         ("impulse_dqd", F8, (MAX_DOF,)),  # D^-1 P_cs
         ("jac_row", F8, (MAX_DOF,)),  # a row of J_h, then D^-1 of it
         ("minv_jac_row", F8, (MAX_DOF,)),
@@ -157,6 +167,9 @@ SCRATCH_DTYPE = np.dtype(
         ("device_twist_eff", F8, (3,)),  # its twist as if the carried impulse were delivered
         ("inertia_chol", F8, (3, 3)),  # Cholesky factor of M_d (the carry's velocity)
         ("carry_velocity", F8, (3,)),  # M_d^-1 impulse_carry
+        ("device_pose_eff", F8, (3,)),  # its pose less the impact offset (impulse_law 3)
+        ("offset_velocity", F8, (3,)),  # twist - device_twist_eff (impulse_law 3)
+        ("prepay_task", F8, (3,)),  # M_d J_h D^-1 of the predicted P_cs (N s), then its force
         ("proxy_damping", F8, (MAX_DOF, MAX_DOF)),  # its B: contacts' + J_h^T (B_c + dt K_c) J_h
         ("proxy_system", F8, (MAX_DOF, MAX_DOF)),  # D + dt B + dt^2 K of the proxy step
         ("proxy_chol", F8, (MAX_DOF, MAX_DOF)),
@@ -367,6 +380,10 @@ INSTALL_DTYPE = np.dtype(
 )
 
 
+#: [rendering] impulse_law -> the kernels' code (stages/control.py, contacts.py, safety.py)
+IMPULSE_LAWS = {"0.1": 1, "0.2": 2, "0.13": 3}
+
+
 def params_record(
     rendering: RenderingSpec,
     max_wrench: np.ndarray,
@@ -408,7 +425,7 @@ def params_record(
     p["jdot_qd"] = 1 if rendering.jdot_qd else 0
     p["impulses"] = 1 if rendering.impulses and method != Method.VIRTUAL_COUPLING_FOH else 0
     p["collision_speed"] = rendering.collision_speed_m_per_s
-    p["impulse_law"] = 1 if rendering.impulse_law == "0.1" else 2
+    p["impulse_law"] = IMPULSE_LAWS[rendering.impulse_law]
     p["blend_s"] = rendering.blend_ms / 1000.0
     p["foh_stiffness"] = np.array(dev.foh_stiffness) * per_gain
     p["foh_damping"] = np.array(dev.foh_damping) * per_gain

@@ -828,8 +828,12 @@ class RenderingSpec:
     # the version of the impulse handling: "0.2" computes a colliding tick's contact forces
     # from the velocity its impulses leave, and spreads an impulse the device cannot deliver
     # in one tick over the next ones without the coordination coupling braking the device a
-    # second time; "0.1" as version 0.1 did (kept to replay its logs)
-    impulse_law: Literal["0.1", "0.2"] = "0.2"
+    # second time; "0.13" adds the device's impact ledger (stages/control.py impact_ledger):
+    # the device's share of an impulse it cannot take in one tick is delivered half before
+    # the predicted impact, and the displacement its limits cause is returned by feedforward
+    # instead of by the coordination coupling's slow pole; "0.1" as version 0.1 did (kept to
+    # replay its logs)
+    impulse_law: Literal["0.1", "0.2", "0.13"] = "0.13"
     blend_ms: float = 8.0  # cross-fade of old and new geometry after an update
     virtual_coupling_stiffness: Vec3 = (50.0, 50.0, 0.2)  # seed 000 §VIII baseline
     virtual_coupling_damping: Vec3 = (3.0, 3.0, 0.005)

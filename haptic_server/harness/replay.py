@@ -103,6 +103,11 @@ ADMISSION_0_3 = (0, 3, 0)
 #: guards the loop against a runaway proxy and an active port (stages/safety.py): before,
 #: any valid update was rendered and a NaN fault kept the device safe until the watchdog.
 GUARD_0_4 = (0, 4, 0)
+#: The first version whose default impulse law pays the device's share of an impact ahead
+#: and returns the offset its limits cause (`[rendering] impulse_law = "0.13"`,
+#: stages/control.py impact_ledger); a log of an earlier build that did not name its law
+#: rendered "0.2".
+LAW_0_13 = (0, 13, 0)
 
 
 def _version(text: str | None) -> tuple[int, ...]:
@@ -116,8 +121,12 @@ def scene_of_run(scene_text: str, run: dict[str, str] | None) -> SceneConfig:
     """The scene a run rendered: its config text, read with the defaults of the build that
     recorded it (`run` is the log's run metadata: its version)."""
     scene = load_config_text(SceneConfig, scene_text, "log:configs.scene")
-    if _version((run or {}).get("version")) < LAW_0_2:
+    version = _version((run or {}).get("version"))
+    if version < LAW_0_2:
         rendering = dataclasses.replace(scene.rendering, jdot_qd=False, impulse_law="0.1")
+        scene = dataclasses.replace(scene, rendering=rendering)
+    elif version < LAW_0_13 and scene.rendering.impulse_law == "0.13":
+        rendering = dataclasses.replace(scene.rendering, impulse_law="0.2")
         scene = dataclasses.replace(scene, rendering=rendering)
     return scene
 

@@ -3,6 +3,8 @@ contacts, detection of colliding ones, and their simultaneous resolution by impu
 
 from __future__ import annotations
 
+import math
+
 from numba import njit
 
 from haptic_local_model.haptic_server.physics.contact_law import penalty_friction
@@ -10,6 +12,7 @@ from haptic_local_model.haptic_server.physics.implicit import clear_terms
 from haptic_local_model.haptic_server.physics.impulses import lcp
 from haptic_local_model.shared.kinematics import point_jacobian, point_on_link
 from haptic_local_model.shared.linalg import cholesky_solve
+from haptic_local_model.shared.protocol.codes import Method
 
 
 @njit(cache=True)
@@ -157,11 +160,14 @@ def contacts(m, d):
     w.penetration = 0.0
     w.contact_ran = 0
     old = m.slots[1]
-    after = m.params.impulse_law == 2
+    after = m.params.impulse_law >= 2
+    w.impact_eta = math.inf
     if after:
         if m.params.impulses == 1 and m.slots[0].n_contacts > 0:
             collisions(m, d)
         impulses(m, d)
+        if m.params.impulse_law == 3 and w.n_colliding == 0 and w.mass_ok == 1 and paid_ahead(m):
+            predict_impact(m, d)
     if m.slots[0].n_contacts > 0:
         w.n_active += contact_stage(m, d, 0, w.alpha, not after)
         w.contact_ran = 1
@@ -172,6 +178,28 @@ def contacts(m, d):
         impulses(m, d)
     d.contacts[0].age_s += d.dt
     d.contacts[1].age_s += d.dt
+
+
+@njit(cache=True)
+def resolve_rows(ws, n, k, out):
+    """The impulses of the k contacts queued in ws.coll_rows / coll_target, resolved
+    together: A = J_n D^-1 J_n^T (rows of D^-1 J_n^T via the Cholesky factor of D), lambda
+    of the complementarity problem (physics.impulses), out = J_n^T lambda (P_cs)."""
+    for c in range(k):
+        for a in range(n):
+            ws.coll_row[a] = ws.coll_rows[c, a]
+        cholesky_solve(ws.mass_chol, n, ws.coll_row, ws.coll_minv_row)
+        for r in range(k):
+            v = 0.0
+            for a in range(n):
+                v += ws.coll_rows[r, a] * ws.coll_minv_row[a]
+            ws.coll_a[r, c] = v
+    lcp(ws.coll_a, ws.coll_target, ws.coll_lambda, k)
+    for a in range(n):
+        v = 0.0
+        for c in range(k):
+            v += ws.coll_rows[c, a] * ws.coll_lambda[c]
+        out[a] = v
 
 
 @njit(cache=True)
@@ -189,17 +217,7 @@ def impulses(m, d):
         ws.impulse_q[a] = 0.0
     if k == 0:
         return
-    # rows of D^-1 J_n^T, one per colliding contact, via the Cholesky factor of D
-    for c in range(k):
-        for a in range(n):
-            ws.coll_row[a] = ws.coll_rows[c, a]
-        cholesky_solve(ws.mass_chol, n, ws.coll_row, ws.coll_minv_row)
-        for r in range(k):
-            v = 0.0
-            for a in range(n):
-                v += ws.coll_rows[r, a] * ws.coll_minv_row[a]
-            ws.coll_a[r, c] = v
-    lcp(ws.coll_a, ws.coll_target, ws.coll_lambda, k)
+    resolve_rows(ws, n, k, ws.impulse_q)
     slot = m.slots[0]
     for c in range(k):  # a moving shape's share: lambda n . v_env (the world's, not ours)
         i = ws.coll_index[c]
@@ -207,11 +225,64 @@ def impulses(m, d):
             slot.c_normal[i, 0] * slot.c_env_velocity[i, 0]
             + slot.c_normal[i, 1] * slot.c_env_velocity[i, 1]
         )
-    for a in range(n):
-        v = 0.0
-        for c in range(k):
-            v += ws.coll_rows[c, a] * ws.coll_lambda[c]
-        ws.impulse_q[a] = v
     cholesky_solve(ws.mass_chol, n, ws.impulse_q, ws.impulse_dqd)
     for a in range(n):
         state.qd[a] += ws.impulse_dqd[a]
+
+
+@njit(cache=True)
+def paid_ahead(m):
+    """impulse_law 3's prediction is needed: impulses on, and a law that gives the device
+    its share of them (seed 000's, stages/control.py control_impedance_only)."""
+    p = m.params
+    law = p.method == Method.LOCAL_MODEL or p.method == Method.IMPEDANCE_ONLY
+    return law and p.impulses == 1 and m.slots[0].n_contacts > 0
+
+
+@njit(cache=True)
+def approach_eta(m, d, i):
+    """Contact i of the newest slot: the time until it collides (DESIGN §4.1) at today's
+    relative velocity, inf if it is touching, not approaching faster than collision_speed,
+    or at a point the tool's joints cannot move along its normal (no impulse could stop
+    it); its kinematics are left in scratch (contact_kinematics)."""
+    if d.contacts[0].in_contact[i] == 1:
+        return math.inf
+    gap, vn, _vt = contact_kinematics(m, d, 0, i)
+    if not (gap > 0.0 and vn < -m.params.collision_speed):
+        return math.inf
+    slot = m.slots[0]
+    jac = d.scratch.jac_point
+    for j in range(slot.dof):  # the tool's joints must move the point along the normal
+        if slot.c_normal[i, 0] * jac[0, j] + slot.c_normal[i, 1] * jac[1, j] != 0.0:
+            return gap / -vn
+    return math.inf
+
+
+@njit(cache=True)
+def predict_impact(m, d):
+    """impulse_law 3: the newest slot's next collision, as if it were now (the contacts
+    that reach their surface within a tick of the first, resolved together as `impulses`
+    would): scratch.impact_eta, the time to it, and impulse_pred_q, its P_cs. The proxy's
+    velocity is not changed: the control law pays the device's share ahead (impact_ledger).
+    Runs on ticks without a collision; the coll_* scratch is free then."""
+    ws = d.scratch
+    slot = m.slots[0]
+    n = slot.dof
+    eta = math.inf
+    for i in range(slot.n_contacts):
+        eta = min(eta, approach_eta(m, d, i))
+    if eta == math.inf:
+        return
+    k = 0
+    for i in range(slot.n_contacts):
+        if k == ws.coll_target.shape[0] or approach_eta(m, d, i) > eta + d.dt:
+            continue
+        _gap, vn, _vt = contact_kinematics(m, d, 0, i)
+        for j in range(n):
+            ws.coll_rows[k, j] = (
+                slot.c_normal[i, 0] * ws.jac_point[0, j] + slot.c_normal[i, 1] * ws.jac_point[1, j]
+            )
+        ws.coll_target[k] = -(1.0 + slot.c_restitution[i]) * vn
+        k += 1
+    resolve_rows(ws, n, k, ws.impulse_pred_q)
+    ws.impact_eta = eta

@@ -7,6 +7,8 @@ and scratch.pull, the task-space force the proxy step applies to the proxy.
 
 from __future__ import annotations
 
+import math
+
 from numba import njit
 
 from haptic_local_model.haptic_server.stages.kinematics import fading
@@ -34,6 +36,10 @@ def effective_device_twist(m, d):
     carry = d.state.impulse_carry
     for c in range(3):
         w.device_twist_eff[c] = sen.twist[c]
+        w.device_pose_eff[c] = sen.pose[c]
+    if m.params.impulse_law == 3:
+        impact_reference(m, d)
+        return
     if m.params.impulse_law != 2 or (carry[0] == 0.0 and carry[1] == 0.0 and carry[2] == 0.0):
         return
     if not cholesky_inplace(sen.inertia, 3, w.inertia_chol):
@@ -43,6 +49,231 @@ def effective_device_twist(m, d):
         w.device_twist_eff[c] += w.carry_velocity[c]
 
 
+#: impulse_law 3 (impact_ledger). The share of an impact's momentum change the device gets
+#: before the impact: a device stopped at a uniform rate over a window centred on the
+#: impact comes to rest where the proxy stopped (half the velocity step before, half after:
+#: it lags the proxy by v T / 8 at the impact, T the window, and overshoots it by nothing).
+PREPAY_SHARE = 0.5
+#: The part of each axis's device limit the payment ahead may take: all of what the law's
+#: other terms this tick leave of it in its direction (PREPAY_HEADROOM of it), so the
+#: command is not clipped and the device brakes as planned.
+PREPAY_HEADROOM = 1.0
+#: ... but never less than this part of the limit (what the clip then keeps back of the
+#: payment is carried: the ledger stays exact, the window a little off).
+PREPAY_ROOM_FLOOR = 0.2
+#: A payment begun stays on while the impact is predicted within this many times the time
+#: ahead it would begin at (a user slowing down shortens it; no chattering at its edge).
+PREPAY_HOLD = 2.0
+#: The rate (1/s) at which the device's impact offset returns, critically damped, by
+#: feedforward: from the 1.7 mm a 1 kg device at 0.4 m/s overshoots at 50 N to within
+#: 5 % of F/K (7 um) in 0.2 s. Its force M_d (w^2 D + 2 w V) is 2.4 N for that overshoot.
+RETURN_RATE = 40.0
+#: An offset smaller than this (m, rad; and its rate in m/s, rad/s) is returned: zero.
+RETURN_FLOOR = 1e-12
+
+
+@njit(cache=True)
+def impact_reference(m, d):
+    """impulse_law 3: the device as an unlimited one would be (impact_ledger). Its velocity
+    differs from that one's by V = M_d^-1 (prepaid - carry) + impact_offset_rate (what was
+    paid ahead of an impact, less what the limits still owe of one, plus what the return
+    has not yet removed), and its pose by the offset D, which integrates V. The coupling
+    sees pose - D and twist - V (device_pose_eff, device_twist_eff): it neither brakes the
+    device's impact nor drags the VM after the displacement the device limits caused."""
+    w = d.scratch
+    sen = d.sensors[0]
+    st = d.state
+    owed = False
+    for c in range(3):
+        w.prepay_task[c] = st.impulse_prepaid[c] - st.impulse_carry[c]
+        w.offset_velocity[c] = 0.0
+        owed = owed or w.prepay_task[c] != 0.0
+    if owed and cholesky_inplace(sen.inertia, 3, w.inertia_chol):
+        cholesky_solve(w.inertia_chol, 3, w.prepay_task, w.offset_velocity)
+    for c in range(3):
+        v = w.offset_velocity[c] + st.impact_offset_rate[c]
+        w.offset_velocity[c] = v
+        st.impact_offset[c] += v * d.dt
+        w.device_twist_eff[c] = sen.twist[c] - v
+        w.device_pose_eff[c] = sen.pose[c] - st.impact_offset[c]
+
+
+@njit(cache=True)
+def impact_ledger(m, d, carried):
+    """impulse_law 3: the device's share of an impulse it cannot take in one tick.
+
+    The impact predicted (contacts.predict_impact), the device is paid PREPAY_SHARE of its
+    momentum change ahead, at a rate that leaves it at the impact (prepay); the impact's
+    tick nets what was paid against the impulse (the rest is carried at the limit, as in
+    law 2). A prediction that lapses leaves the velocity paid to the return. With nothing
+    owed (no carry, nothing paid ahead), the offset D returns by feedforward (return_offset).
+    All of it is in f_impulse and clipped and carried with it (stages/safety.py)."""
+    w = d.scratch
+    st = d.state
+    r = d.row
+    if w.n_colliding > 0:
+        for c in range(3):
+            r.f_impulse[c] -= st.impulse_prepaid[c] / d.dt
+            st.impulse_prepaid[c] = 0.0
+        return
+    if prepay(m, d):
+        return
+    paid = st.impulse_prepaid
+    if paid[0] != 0.0 or paid[1] != 0.0 or paid[2] != 0.0:
+        # no impact came: the velocity paid is the offset's now, for the return to take back
+        if cholesky_inplace(d.sensors[0].inertia, 3, w.inertia_chol):
+            cholesky_solve(w.inertia_chol, 3, paid, w.prepay_task)
+            for c in range(3):
+                st.impact_offset_rate[c] += w.prepay_task[c]
+        for c in range(3):
+            paid[c] = 0.0
+        return
+    if not carried:
+        return_offset(m, d)
+
+
+@njit(cache=True)
+def prepay_room(m, d, c):
+    """What axis c's device limit leaves to a payment in the direction of the predicted
+    impulse (scratch.prepay_task) after the law's terms already in the row (the user's,
+    contacts', bias and coordination forces): PREPAY_HEADROOM of the limit, less those terms'
+    part along the payment (a term against it leaves the whole limit), at least
+    PREPAY_ROOM_FLOOR of the limit."""
+    r = d.row
+    other = r.f_user[c] + r.f_contact[c] + r.f_bias[c] + r.f_coordination[c]
+    along = other if d.scratch.prepay_task[c] * other > 0.0 else 0.0
+    lim = m.params.max_wrench[c]
+    return max(PREPAY_HEADROOM * lim - abs(along), PREPAY_ROOM_FLOOR * lim)
+
+
+@njit(cache=True)
+def lead_time(m, d):
+    """How far ahead of the VM (s) the device runs toward the predicted impact: its lead
+    along the approach (the coupling's error, -e, taken along the direction of the
+    predicted velocity step J_h D^-1 P_pred in scratch.damping_task) over the VM's speed
+    along it. 0 without a translational step or an approach."""
+    w = d.scratch
+    dvx = w.damping_task[0]
+    dvy = w.damping_task[1]
+    size = math.hypot(dvx, dvy)
+    if size == 0.0:
+        return 0.0
+    ux = -dvx / size  # the direction of the approach
+    uy = -dvy / size
+    speed = w.xd_vm[0] * ux + w.xd_vm[1] * uy
+    if speed <= 0.0:
+        return 0.0
+    return -(w.e[0] * ux + w.e[1] * uy) / speed
+
+
+@njit(cache=True)
+def braking_only(d):
+    """The payment ahead (scratch.prepay_task) cut to what brakes the device's own motion:
+    at most the momentum it had along the payment before it (M_d xd_h less what was paid).
+    A device at rest, or moving away, that a shape approaches is paid nothing: no force
+    from nothing before the contact, and no work into the hand. False when nothing is left."""
+    w = d.scratch
+    st = d.state
+    mat3_vec(d.sensors[0].inertia, d.sensors[0].twist, w.carry_velocity, 1.0)
+    size = 0.0
+    own = 0.0
+    for c in range(3):
+        size += w.prepay_task[c] * w.prepay_task[c]
+        own -= w.prepay_task[c] * (w.carry_velocity[c] - st.impulse_prepaid[c])
+    size = math.sqrt(size)
+    if size == 0.0 or own <= 0.0:
+        return False
+    own /= size  # the momentum the payment opposes, N s
+    if own < size:
+        for c in range(3):
+            w.prepay_task[c] *= own / size
+    return True
+
+
+@njit(cache=True)
+def prepay(m, d):
+    """The device's share of the predicted impulse, M_d J_h D^-1 P_pred (N s), paid ahead.
+    T is the window that pays all of it at PREPAY_HEADROOM of the limits; paying from
+    tau = PREPAY_SHARE T before the collision's tick, at that rate, the device comes to
+    rest where the VM does. A device running ahead of the VM by lead_time starts that much
+    earlier (tau within [0, T]). Each tick pays what leaves tau / T of it paid at the
+    collision's tick, its direction kept, within PREPAY_HEADROOM of each limit. Nothing is
+    paid when T is a tick or less (the impact's own tick delivers it all): a device that can
+    stop within a tick feels no force before the contact. Before it, the device is given at
+    most tau / T (PREPAY_SHARE, more by the lead) of the predicted momentum change, within
+    the limits, over at most T. Returns whether it paid."""
+    w = d.scratch
+    st = d.state
+    eta = w.impact_eta
+    if eta == math.inf or w.mass_ok == 0 or st.safe != 0.0:
+        return False  # nothing predicted, or the law not wholly in command
+    n = m.slots[0].dof
+    for c in range(3):
+        v = 0.0
+        for a in range(n):
+            v += w.minv_jt[a, c] * w.impulse_pred_q[a]
+        w.damping_task[c] = v  # J_h D^-1 P_pred (damping_task is free until f_damping)
+    mat3_vec(d.sensors[0].inertia, w.damping_task, w.prepay_task, 1.0)
+    if not braking_only(d):
+        return False
+    window = 0.0
+    for c in range(3):
+        room = prepay_room(m, d, c)
+        if room > 0.0:
+            window = max(window, abs(w.prepay_task[c]) / room)
+    if window <= d.dt:
+        return False  # the impact's own tick can deliver it all: nothing is paid before it
+    ahead = min(window, max(0.0, PREPAY_SHARE * window + lead_time(m, d)))
+    paying = st.impulse_prepaid[0] != 0.0 or st.impulse_prepaid[1] != 0.0
+    paying = paying or st.impulse_prepaid[2] != 0.0
+    # the window opens on the tick nearest its start (eta is checked once a tick)
+    if eta > ahead + 0.5 * d.dt and not (paying and eta <= PREPAY_HOLD * ahead + d.dt):
+        return False
+    share = ahead / window
+    span = max(math.ceil(eta / d.dt), 1.0) * d.dt  # the ticks before the collision's
+    scale = 1.0
+    for c in range(3):
+        f = (share * w.prepay_task[c] - st.impulse_prepaid[c]) / span
+        w.prepay_task[c] = f
+        room = prepay_room(m, d, c)
+        if abs(f) > room:
+            scale = min(scale, room / abs(f))
+    for c in range(3):
+        f = scale * w.prepay_task[c]
+        d.row.f_impulse[c] += f
+        st.impulse_prepaid[c] += f * d.dt
+    return True
+
+
+@njit(cache=True)
+def return_offset(m, d):
+    """The impact offset D back to zero, critically damped at RETURN_RATE: the device is
+    given M_d A, A = -w^2 D - 2 w V_r, and its offset rate V_r takes A (feedforward: the
+    coupling, which sees pose - D, closes the loop on whatever the device did not follow)."""
+    st = d.state
+    w = d.scratch
+    off = st.impact_offset
+    rate = st.impact_offset_rate
+    big = 0.0
+    for c in range(3):
+        big = max(big, abs(off[c]), abs(rate[c]))
+    if big == 0.0:
+        return
+    if big < RETURN_FLOOR:
+        for c in range(3):
+            off[c] = 0.0
+            rate[c] = 0.0
+        return
+    k = RETURN_RATE * RETURN_RATE
+    b = 2.0 * RETURN_RATE
+    for c in range(3):
+        w.damping_task[c] = -k * off[c] - b * rate[c]
+        rate[c] += w.damping_task[c] * d.dt
+    mat3_vec(d.sensors[0].inertia, w.damping_task, w.prepay_task, 1.0)
+    for c in range(3):
+        d.row.f_impulse[c] += w.prepay_task[c]
+
+
 @njit(cache=True)
 def coupling_errors(m, d):
     """e = x_VM - x_h, ed = xd_VM - xd_h (the device's effective twist), the device-proxy
@@ -50,11 +281,10 @@ def coupling_errors(m, d):
     parts start at zero."""
     p = m.params
     w = d.scratch
-    sen = d.sensors[0]
     r = d.row
     effective_device_twist(m, d)
     for c in range(3):
-        w.e[c] = w.x_vm[c] - sen.pose[c]
+        w.e[c] = w.x_vm[c] - w.device_pose_eff[c]
         w.ed[c] = w.xd_vm[c] - w.device_twist_eff[c]
         w.f_coupling[c] = p.coupling_stiffness[c] * w.e[c] + p.coupling_damping[c] * w.ed[c]
     n_res = m.slots[0].n_resisted
@@ -138,9 +368,13 @@ def control_impedance_only(m, d):
     mat3_vec(M, w.acc_bias, r.f_bias, 1.0)
     mat3_vec(M, w.acc_impulse, r.f_impulse, 1.0)
     # what the device limits kept back of earlier impulses is delivered now
+    carried = False
     for c in range(3):
+        carried = carried or st.impulse_carry[c] != 0.0
         r.f_impulse[c] += st.impulse_carry[c] / dt
         st.impulse_carry[c] = 0.0
+    if m.params.impulse_law == 3:
+        impact_ledger(m, d, carried)
     # (C_d - M_d L^-1 b_d) xd_h - M_d L^-1 k_d x_h
     bd = m.params.desired_damping
     kd = m.params.desired_stiffness

@@ -31,7 +31,7 @@ def proxy_step(m, d):
     for c in range(3):
         w.hand_acc[c] = (vh[c] - st.prev_device_twist[c]) / dt
         st.prev_device_twist[c] = vh[c]
-    if p.impulse_law == 2:
+    if p.impulse_law >= 2:
         # this tick's new impulse is a step, not an acceleration to extrapolate: the next
         # tick's estimate starts from the twist it leaves (J_h D^-1 P_cs)
         for c in range(3):

@@ -156,7 +156,11 @@ def safety_and_limits(m, d):
                 # momentum: see effective_device_twist)
                 delivered = min(abs(f_imp), abs(clipped)) if clipped * f_imp > 0.0 else 0.0
                 carried = abs(f_imp) - delivered
-            else:  # version 0.1: all the excess, up to the impulse
+            else:
+                # version 0.1, and law 3: all the excess, up to the impulse. Under law 3 the
+                # carry is the momentum the device lacks against an unlimited one driven by
+                # the whole law (control.impact_reference: the coupling sees it, and does
+                # not brake it a second time)
                 carried = min(abs(excess), abs(f_imp))
             st.impulse_carry[c] = math.copysign(carried, f_imp) * d.dt
         r.wrench_command[c] = clipped
