@@ -37,6 +37,30 @@ def coordination_bound(stiffness: float, damping: float, dt: float) -> float:
     return stiffness * dt * dt + 2.0 * damping * dt
 
 
+#: a light held body's coordination coupling is softened to this share of its bound
+COORDINATION_MARGIN = 0.8
+
+
+def softened_coordination(
+    gains: tuple[Sequence[float], Sequence[float]], mass: float, moment: float, rate_hz: float
+) -> tuple[list[float], list[float], list[str]]:
+    """The coordination coupling's (stiffness, damping) for a held body of `mass` and
+    `moment` at rate_hz: an axis whose gains break SceneConfig._check_coordination's bound
+    K dt^2 + 2 B dt < 2 m has both scaled to COORDINATION_MARGIN of it, so the device
+    follows the body more loosely instead of chattering. Also: for each softened axis, the
+    lightest body its given gains are stable on ("0.07 kg")."""
+    dt = 1.0 / rate_hz
+    ks, bs = [float(k) for k in gains[0]], [float(b) for b in gains[1]]
+    softened = []
+    for axis, m in enumerate((mass, mass, moment)):
+        bound = coordination_bound(ks[axis], bs[axis], dt)
+        if bound >= COORDINATION_MARGIN * 2.0 * m:
+            scale = COORDINATION_MARGIN * 2.0 * m / bound
+            ks[axis], bs[axis] = ks[axis] * scale, bs[axis] * scale
+            softened.append(f"{0.5 * bound:.3g} {'kg m^2' if axis == 2 else 'kg'}")
+    return ks, bs, softened
+
+
 class ConfigError(ValueError):
     """A config file is missing, unreadable or wrong: names the file, the key and the problem."""
 

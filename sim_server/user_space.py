@@ -32,8 +32,8 @@ from haptic_local_model.shared.config import (
     Material,
     RenderingSpec,
     SceneConfig,
-    coordination_bound,
     load_config_text,
+    softened_coordination,
 )
 from haptic_local_model.shared.tool_chain import tool_chain
 from haptic_local_model.sim_server.drive import DRIVE_PROXY, KINEMATIC_DTYPE
@@ -232,27 +232,19 @@ def _tool_shape_toml(tool: pymunk.Body) -> str:
     return f'shape = "box"\nsize = [{side!r}, {side!r}]\n'
 
 
-#: a light held body's coordination coupling is softened to this share of its bound
-COORDINATION_MARGIN = 0.8
-
-
 def coordination_gains(tool: pymunk.Body, rate_hz: float) -> tuple[str, str]:
     """The `[rendering]` lines of a held free body's coordination coupling ("" when the
     defaults are stable on it) and, if softened, the warning that says so. The coupling acts
     on the proxy, a copy of the held body: SceneConfig._check_coordination's bound
     K dt^2 + 2 B dt < 2 m on each axis (the mass, or the moment about the third); a body
-    too light for the defaults gets both gains of that axis scaled to COORDINATION_MARGIN
-    of it, so the device follows the proxy more loosely instead of chattering."""
-    dt = 1.0 / rate_hz
+    too light for the defaults gets both gains of that axis softened
+    (shared.config.softened_coordination), so the device follows the proxy more loosely
+    instead of chattering."""
     defaults = RenderingSpec()
-    ks, bs = list(defaults.coordination_stiffness), list(defaults.coordination_damping)
-    softened = []
-    for axis, m in enumerate((tool.mass, tool.mass, tool.moment)):
-        bound = coordination_bound(ks[axis], bs[axis], dt)
-        if bound >= COORDINATION_MARGIN * 2.0 * m:
-            scale = COORDINATION_MARGIN * 2.0 * m / bound
-            ks[axis], bs[axis] = ks[axis] * scale, bs[axis] * scale
-            softened.append(f"{0.5 * bound:.3g} {'kg m^2' if axis == 2 else 'kg'}")
+    ks, bs, softened = softened_coordination(
+        (defaults.coordination_stiffness, defaults.coordination_damping),
+        tool.mass, tool.moment, rate_hz,
+    )  # fmt: skip
     if not softened:
         return "", ""
     lines = f"coordination_stiffness = {ks!r}\ncoordination_damping = {bs!r}\n"
