@@ -51,7 +51,6 @@ from haptic_local_model.haptic_server.harness.virtual import run_virtual
 from haptic_local_model.haptic_server.world import run_ticks
 from haptic_local_model.shared.cli import add_version
 from haptic_local_model.shared.config import (
-    ConfigError,
     SceneConfig,
     UserConfig,
     load_scene,
@@ -552,7 +551,7 @@ def _wall_scene(
         return dataclasses.replace(
             scene, materials=materials, bodies=bodies, haptic_rate_hz=rate_hz
         )
-    except ConfigError:  # a held body too light for the coordination coupling's gains
+    except ValueError:  # a held body too light for the coordination coupling's gains
         held = next(b for b in bodies if b.name == "rectangle")
         r = scene.rendering
         ks, bs, _ = softened_coordination(

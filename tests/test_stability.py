@@ -147,3 +147,17 @@ def test_ideal_device_viscous_damping_decays_as_the_closed_form() -> None:
     assert device.state[0]["pose"][0] == pytest.approx(x, rel=DAMPED_DEVICE_TOL)
     assert IdealDeviceConfig().viscous_damping == (0.0, 0.0, 0.0)  # the default: undamped
     assert IdealDeviceConfig().substeps == 1  # and one step per tick, as before
+
+
+@pytest.mark.parametrize("mass", [1e-3, 1e-2])
+def test_a_tool_too_light_for_the_coordination_gains_is_softened_not_refused(mass: float) -> None:
+    """The map's light tools get the coordination coupling a user's space would give them:
+    each axis at 80 % of the bound K dt^2 + 2 B dt < 2 m (mass; moment on the third)."""
+    scene = _wall_scene(15000.0, 20.0, mass=mass)
+    held = next(b for b in scene.bodies if b.name == "rectangle")
+    dt = 1.0 / scene.haptic_rate_hz
+    r = scene.rendering
+    for axis, m in enumerate((held.mass, held.mass, held.moment)):
+        k, b = r.coordination_stiffness[axis], r.coordination_damping[axis]
+        assert k * dt * dt + 2.0 * b * dt <= 0.8 * 2.0 * m * (1.0 + 1e-12)
+    assert r.coordination_damping[0] < load_scene("wall_push").rendering.coordination_damping[0]
