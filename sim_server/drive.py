@@ -112,7 +112,7 @@ def step_world(tool, target, chain, kinematic, sim_time, period, substeps, work)
             _drive_body(t, tg, k * h)
         cp.space_step(t.space, h)
     for i in range(kinematic.shape[0]):
-        _publish_kinematic(kinematic[i], sim_time + period)
+        _move_kinematic(kinematic[i], sim_time + period, 0.0)
 
 
 @njit(cache=True)
@@ -128,41 +128,32 @@ def _push_touched(tg):
             )
 
 
+@njit(cache=True, inline="always")
+def _sine_rate(w, t, h):
+    """The rate of sin(w t): at t (h = 0), or its mean over [t - h, t]."""
+    if h == 0.0:
+        return w * math.cos(w * t)
+    return (math.sin(w * t) - math.sin(w * (t - h))) / h
+
+
 @njit(cache=True)
 def _move_kinematic(kin, t, h):
     """The velocities of the substep ending at t: the law's mean over [t - h, t], so that
     pymunk's step (x += v h) lands the body on its law at every substep's end. The law's
     velocity at t instead (before 0.13) drew the body (h / 2)(v(t) - v(0)) off its law: a
-    platform of 5 mm at 1 Hz was 105 um off peak to peak at 30 Hz with 10 substeps."""
+    platform of 5 mm at 1 Hz was 105 um off peak to peak at 30 Hz with 10 substeps. With
+    h = 0, the law's own twist at t: what the update announcing the state at t publishes
+    (the mean of the last substep is the twist half a substep earlier)."""
     if kin.period_s > 0.0:
-        w = 2.0 * math.pi / kin.period_s
-        mean = (math.sin(w * t) - math.sin(w * (t - h))) / h
-        cp.body_set_velocity(
-            kin.body,
-            kin.velocity[0] + kin.amplitude[0] * mean,
-            kin.velocity[1] + kin.amplitude[1] * mean,
-        )
-    if kin.angle_period_s > 0.0:
-        w = 2.0 * math.pi / kin.angle_period_s
-        swing = kin.angle_amplitude * (math.sin(w * t) - math.sin(w * (t - h))) / h
-        cp.body_set_angular_velocity(kin.body, kin.spin + swing)
-
-
-@njit(cache=True)
-def _publish_kinematic(kin, t):
-    """The law's own twist at t, the period's end, for the update that announces the state
-    at t (the mean of the last substep is the twist a half substep earlier)."""
-    if kin.period_s > 0.0:
-        w = 2.0 * math.pi / kin.period_s
-        rate = w * math.cos(w * t)
+        rate = _sine_rate(2.0 * math.pi / kin.period_s, t, h)
         cp.body_set_velocity(
             kin.body,
             kin.velocity[0] + kin.amplitude[0] * rate,
             kin.velocity[1] + kin.amplitude[1] * rate,
         )
     if kin.angle_period_s > 0.0:
-        w = 2.0 * math.pi / kin.angle_period_s
-        cp.body_set_angular_velocity(kin.body, kin.spin + kin.angle_amplitude * w * math.cos(w * t))
+        swing = kin.angle_amplitude * _sine_rate(2.0 * math.pi / kin.angle_period_s, t, h)
+        cp.body_set_angular_velocity(kin.body, kin.spin + swing)
 
 
 @njit(cache=True)

@@ -216,6 +216,38 @@ def _port_centres(img: np.ndarray, scene: Any, row: np.void) -> dict[str, Any]:
     return found
 
 
+def _viewed_run(scene_name: str, artifact: str, tmp_path: Path, started: list[Proc]) -> Any:
+    """`haptic-run --scene NAME --log run.mcap --view` shot by Chromium 4 s in: (the scene's
+    pixels, the log's path, the port scene's config); the shot kept in ARTIFACTS."""
+    from haptic_local_model.haptic_server.world_runs import port_scene
+
+    browser = _browser()
+    web, grpc = free_ports(2)
+    run = Proc(
+        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--scene",
+         scene_name, "--duration", str(PORT_RUN_S), "--log", "run.mcap", "--view",
+         "--view-port", str(web), "--view-grpc-port", str(grpc)],
+        tmp_path,
+    )  # fmt: skip
+    started.append(run)
+    png = _shot(run.url(), browser, lambda: time.sleep(4.0))
+    assert run.proc.wait(PORT_RUN_S + 120) == 0, run.lines
+    frames = [line for line in run.lines if "live view:" in line and " frames in " in line]
+    assert frames and int(frames[0].split("live view: ")[1].split()[0]) > 0, run.lines
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    (ARTIFACTS / artifact).write_bytes(png)
+    return pixels(png)[SCENE], tmp_path / "run.mcap", port_scene(scene_name, None, None).config
+
+
+def _best_row(img: np.ndarray, scene: Any, rows: np.ndarray, centres: Any) -> tuple[float, Any]:
+    """The row of the run (one every 0.1 s) the drawing matches best: (its error in px, the
+    drawn centres against it)."""
+    picks = rows[:: max(1, len(rows) // 200)]
+    errors = [_error_px(centres(img, scene, row)) for row in picks]
+    best = int(np.argmin(errors))
+    return errors[best], centres(img, scene, picks[best])
+
+
 @pytest.mark.processes
 def test_a_port_scenes_box_and_pads_are_drawn_where_the_engine_has_them(
     tmp_path: Path,
@@ -223,32 +255,12 @@ def test_a_port_scenes_box_and_pads_are_drawn_where_the_engine_has_them(
 ) -> None:
     """`haptic-run --scene grasp_vertical --view`: the box (object colour) and the two pads
     (tool colour) drawn where one row of the run's log has them, relative to each other."""
-    from haptic_local_model.haptic_server.world_runs import port_scene, read_port_log
+    from haptic_local_model.haptic_server.world_runs import read_port_log
 
-    browser = _browser()
-    web, grpc = free_ports(2)
-    run = Proc(
-        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--scene",
-         PORT_SCENE, "--duration", str(PORT_RUN_S), "--log", "run.mcap", "--view",
-         "--view-port", str(web), "--view-grpc-port", str(grpc)],
-        tmp_path,
-    )  # fmt: skip
-    procs.append(run)
-    png = _shot(run.url(), browser, lambda: time.sleep(4.0))
-    assert run.proc.wait(PORT_RUN_S + 120) == 0, run.lines
-    frames = [line for line in run.lines if "live view:" in line and " frames in " in line]
-    assert frames and int(frames[0].split("live view: ")[1].split()[0]) > 0, run.lines
-    ARTIFACTS.mkdir(parents=True, exist_ok=True)
-    (ARTIFACTS / "port-live.png").write_bytes(png)
-    img = pixels(png)[SCENE]
-    rows, _meta = read_port_log(tmp_path / "run.mcap")
-    scene = port_scene(PORT_SCENE, None, None).config
-    picks = rows[:: max(1, len(rows) // 200)]  # every 0.1 s of the run
-    errors = [_error_px(_port_centres(img, scene, row)) for row in picks]
-    best = int(np.argmin(errors))
-    found = _port_centres(img, scene, picks[best])
-    print(f"port: row {best} of {len(picks)}, {errors[best]:.1f} px: {found}")
-    assert errors[best] < PIXEL_TOL, f"no row within {PIXEL_TOL} px: {found}"
+    img, log, scene = _viewed_run(PORT_SCENE, "port-live.png", tmp_path, procs)
+    best, found = _best_row(img, scene, read_port_log(log)[0], _port_centres)
+    print(f"port: {best:.1f} px: {found}")
+    assert best < PIXEL_TOL, f"no row within {PIXEL_TOL} px: {found}"
     # the check can tell: the pads sit a box's half-width and more from its centre
     gap_px = min(abs(d[0]) for d, _e in found.values())
     assert gap_px > 10 * PIXEL_TOL, f"the pads drawn {gap_px:.0f} px from the box's centre"
@@ -313,32 +325,13 @@ def test_a_hand_scenes_box_hands_and_devices_are_drawn_where_the_rows_have_them(
     tool colour; fingers, finger colour) and both devices' tracked palms (device colour)
     drawn where one row of the run's log has them, relative to the box."""
     from haptic_local_model.haptic_server.hand_grasp_ports import HAND_GRASP_KIND
-    from haptic_local_model.haptic_server.world_runs import port_scene, read_port_log
+    from haptic_local_model.haptic_server.world_runs import read_port_log
 
-    browser = _browser()
-    web, grpc = free_ports(2)
-    run = Proc(
-        [sys.executable, "-m", "haptic_local_model.haptic_server.harness.run", "--scene",
-         HAND_SCENE, "--duration", str(PORT_RUN_S), "--log", "run.mcap", "--view",
-         "--view-port", str(web), "--view-grpc-port", str(grpc)],
-        tmp_path,
-    )  # fmt: skip
-    procs.append(run)
-    png = _shot(run.url(), browser, lambda: time.sleep(4.0))
-    assert run.proc.wait(PORT_RUN_S + 120) == 0, run.lines
-    frames = [line for line in run.lines if "live view:" in line and " frames in " in line]
-    assert frames and int(frames[0].split("live view: ")[1].split()[0]) > 0, run.lines
-    ARTIFACTS.mkdir(parents=True, exist_ok=True)
-    (ARTIFACTS / "hand-live.png").write_bytes(png)
-    img = pixels(png)[SCENE]
-    rows, _meta = read_port_log(tmp_path / "run.mcap", HAND_GRASP_KIND.topic, HAND_GRASP_KIND.rows)
-    scene = port_scene(HAND_SCENE, None, None).config
-    picks = rows[:: max(1, len(rows) // 200)]  # every 0.1 s of the run
-    errors = [_error_px(_hand_centres(img, scene, row)) for row in picks]
-    best = int(np.argmin(errors))
-    found = _hand_centres(img, scene, picks[best])
-    print(f"hands: row {best} of {len(picks)}, {errors[best]:.1f} px: {found}")
-    assert errors[best] < PIXEL_TOL, f"no row within {PIXEL_TOL} px: {found}"
+    img, log, scene = _viewed_run(HAND_SCENE, "hand-live.png", tmp_path, procs)
+    rows, _meta = read_port_log(log, HAND_GRASP_KIND.topic, HAND_GRASP_KIND.rows)
+    best, found = _best_row(img, scene, rows, _hand_centres)
+    print(f"hands: {best:.1f} px: {found}")
+    assert best < PIXEL_TOL, f"no row within {PIXEL_TOL} px: {found}"
     # the check can tell: the hands and devices sit a box's half-width and more off its centre
     gap_px = min(abs(d[0]) for d, _e in found.values())
     assert gap_px > 10 * PIXEL_TOL, f"drawn {gap_px:.0f} px from the box's centre"
