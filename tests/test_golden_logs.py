@@ -236,3 +236,13 @@ def test_the_logs_of_09_hold_simultaneous_impulses() -> None:
     for path in LOGS_09:
         assert read_log(path).ticks["n_colliding"].max() >= 1, path.name
     assert read_log(GOLDEN_09 / "vc_wall_push.mcap").ticks["n_colliding"].max() == 2
+
+
+def test_the_013_wall_log_is_the_impact_ledgers() -> None:
+    """0.13's wall push replays to the bit as itself, and differs replayed as a 0.12 log
+    (impulse law 0.2, no payment ahead of the impact): the golden log covers the ledger."""
+    log = read_log(GOLDEN_13 / "vc_wall_push_ideal.mcap")
+    assert not replay(log).differing
+    as_old = dict(log.metadata["run"], version="0.12.0")
+    old = replay(dataclasses.replace(log, metadata={**log.metadata, "run": as_old}))
+    assert old.differing
