@@ -117,6 +117,10 @@ def test_the_fast_bar_is_sub_stepped(runs: dict[str, Path]) -> None:
     assert (ticks["god_contact"] > 0).any()
 
 
+#: how long the pressed string takes to settle after a stall of the loop (see below)
+STALL_SETTLE_S = 0.5
+
+
 @pytest.mark.processes
 def test_the_membrane_sampled_at_10_hz_yields_as_a_string(runs: dict[str, Path]) -> None:
     """V2.3 over Zenoh: the hand presses the string at mid-span while the sim samples it at
@@ -132,7 +136,17 @@ def test_the_membrane_sampled_at_10_hz_yields_as_a_string(runs: dict[str, Path])
     log = read_log(runs["membrane_10hz"])
     scene = load_scene("membrane_10hz")
     ready = log.ticks[log.ticks["update_seq"] >= 0]
-    press = press_figures(ready, scene, "node_foh")
+    # at rest means undisturbed: a stall of the loop itself (a missed deadline) sets the
+    # string swinging, which is the machine, not the rendering (in CI a 5 ms stall swung the
+    # force by +-0.015 N, back within 0.001 N in 0.4 s); the ticks within STALL_SETTLE_S
+    # after one are left out of the last 3 s, and most of them must remain
+    stalls = ready["t"][ready["lateness_us"] > 1e6 / scene.haptic_rate_hz]
+    after = np.zeros(len(ready), bool)
+    for t0 in stalls:
+        after |= (ready["t"] >= t0) & (ready["t"] < t0 + STALL_SETTLE_S)
+    end = ready["t"][ready["safe"] == 0][-1]
+    assert np.count_nonzero(~after & (ready["t"] > end - 3.0)) >= 1500, stalls
+    press = press_figures(ready[~after], scene, "node_foh")
     print(f"\nmembrane over Zenoh: {press}")
     assert press.force_n == pytest.approx(1.1, abs=0.1)
     assert abs(press.error) <= DEFLECTION_TOLERANCE, press
