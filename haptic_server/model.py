@@ -144,6 +144,7 @@ SCRATCH_DTYPE = np.dtype(
         ("coll_a", F8, (MAX_CONTACTS, MAX_CONTACTS)),  # J_n D^-1 J_n^T
         ("coll_lambda", F8, (MAX_CONTACTS,)),  # the impulses, N s (physics.impulses)
         ("impulse_q", F8, (MAX_DOF,)),  # P_cs = J_n^T lambda
+        ("contact_eta", F8, (MAX_CONTACTS,)),  # each contact's time to collide (predict_impact)
         ("impact_eta", F8),  # s to the nearest predicted collision (inf: none; impulse_law 3)
         ("impulse_pred_q", F8, (MAX_DOF,)),  # its predicted P_cs
         ("impulse_dqd", F8, (MAX_DOF,)),  # D^-1 P_cs

@@ -270,12 +270,13 @@ def predict_impact(m, d):
     n = slot.dof
     eta = math.inf
     for i in range(slot.n_contacts):
-        eta = min(eta, approach_eta(m, d, i))
+        ws.contact_eta[i] = approach_eta(m, d, i)
+        eta = min(eta, ws.contact_eta[i])
     if eta == math.inf:
         return
     k = 0
     for i in range(slot.n_contacts):
-        if k == ws.coll_target.shape[0] or approach_eta(m, d, i) > eta + d.dt:
+        if k == ws.coll_target.shape[0] or ws.contact_eta[i] > eta + d.dt:
             continue
         _gap, vn, _vt = contact_kinematics(m, d, 0, i)
         for j in range(n):
