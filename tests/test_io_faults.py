@@ -129,6 +129,16 @@ def _both(start_server: Any, network_file: Path, log_path: Path, summary_path: P
     return haptic, sim
 
 
+def _logged_event(log_path: Path, kind: str, timeout_s: float = 20.0) -> None:
+    """Wait until the log being written holds an event of `kind` (the log writer flushes
+    small chunks often: a cut-short read sees every complete record)."""
+    end = time.monotonic() + timeout_s
+    while not any(e["kind"] == kind for e in read_log(log_path).events):
+        if time.monotonic() > end:
+            raise AssertionError(f"no {kind} event logged within {timeout_s:g} s")
+        time.sleep(0.1)
+
+
 @pytest.mark.processes
 def test_a_starved_then_killed_sidecar(
     tmp_path: Path, network_file: Path, start_server: Any
@@ -146,6 +156,9 @@ def test_a_starved_then_killed_sidecar(
         watch.rendering(epoch, after_seq=watch.rendering(epoch).update_seq)
     finally:
         watch.close()
+    # the loop looks at its sidecar every IO_CHECK_S: killed sooner after it woke, the
+    # resumption is never seen (a clean-clone CI run killed it first); wait until it is said
+    _logged_event(log_path, "io_resumed")
     os.kill(sidecar, signal.SIGKILL)
     assert haptic.proc.wait(10.0) == 1  # the loop noticed, stopped the run, said so
     assert sim.stop() == 0
