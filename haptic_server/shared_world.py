@@ -265,6 +265,7 @@ class SharedWorld:
                 "lowest_y": float(self.engine.lowest[i]),
             }  # fmt: skip
         out["steps_held"] = self.engine.steps_held()
+        out["range_returns"] = self.engine.range_returns()
         if self.sim is not None:
             out["sim"] = self.sim.summary()
             # the world's work on the ticks that took or sent the sim's bodies, and the rest

@@ -204,6 +204,12 @@ class CosimWorld:
     def steps_held(self) -> int:
         return int(self.data[0]["singular"])
 
+    def range_returns(self) -> dict[str, int] | None:
+        """Objects put back at their start after leaving the scene's range, and the ticks
+        one waited there for its start to be clear (stages/cosim.py, step 5)."""
+        d = self.data[0]
+        return {"resets": int(d["resets"]), "parked_ticks": int(d["parked"])}
+
     def warm(self) -> None:
         model, data = cosim_records(self.scene, self.limits)
         carry_sim_bodies(model, data, np.zeros((MAX_SIM_BODIES, 6)), 0.0)  # a sim's bodies
@@ -256,6 +262,9 @@ class HandGraspWorld:
 
     def steps_held(self) -> int:
         return int(self._gd[0]["singular"])
+
+    def range_returns(self) -> dict[str, int] | None:
+        return None  # the hands' box is not kept in a range (not built)
 
     def warm(self) -> None:
         grasp = grasp_port_records(self.scene, self.limits)

@@ -37,6 +37,10 @@ MAX_COSIM_BODIES = 4  # co-simulated free bodies: the tools and the objects
 # static walls, floors and posts: with a box and two pads, 64 shapes (DESIGN-WAVE2 §8)
 MAX_STATIC_BODIES = 61
 MAX_SIM_BODIES = 4  # dynamic bodies the sim steps, moving shapes at 1 kHz (with the static)
+#: the largest scene range (`range_m`): half the station messages' POSE_LIMIT_M
+#: (shared/protocol/station.py), so a body within it is within a message's limit in any
+#: station's frame that is not farther off the world's origin than that
+RANGE_LIMIT_M = 50.0
 
 
 @dataclass(frozen=True)
@@ -113,9 +117,14 @@ class PortSceneConfig:
     # 1 kHz, which the mirror does not touch (one-way)
     sim_bodies: tuple[str, ...] = ()
     sim_contact: str = "wrench"
+    # an object beyond it (|x| or |y|, m) returns to its start pose (haptic_server/stages/
+    # cosim.py, step 5): a world with no floor does not throw its box out of what a
+    # station's messages can carry (POSE_LIMIT_M)
+    range_m: float = 10.0
 
     def __post_init__(self) -> None:
         within_all(self.gravity, (-100.0, 100.0), "gravity", "m/s^2")
+        within(self.range_m, (0.01, RANGE_LIMIT_M), "range_m", "m")
         within(self.haptic_rate_hz, (100.0, 20000.0), "haptic_rate_hz", "Hz")
         self._check_sim_bodies()
         require(

@@ -33,7 +33,12 @@ from haptic_local_model.haptic_server.stages.cosim import (
     kinetic_energy,
 )
 from haptic_local_model.shared.config import BodySpec, ConfigError, load_config_text
-from haptic_local_model.shared.port_config import PortSceneConfig, load_port_scene
+from haptic_local_model.shared.port_config import (
+    RANGE_LIMIT_M,
+    PortSceneConfig,
+    load_port_scene,
+)
+from haptic_local_model.shared.protocol.station import POSE_LIMIT_M
 
 LIMITS = [(50.0, 50.0, 6.0), (50.0, 50.0, 6.0)]
 
@@ -344,6 +349,8 @@ def test_commands_stay_within_the_ports_limits(scene):
         ("[contact]\nfriction = -1.0", "contact.friction"),
         ("[contact]\nrestitution = 1.5", "contact.restitution"),
         ("[contact]\ncollision_speed_m_per_s = -1.0", "contact.collision_speed_m_per_s"),
+        ("range_m = 0.0", "range_m"),
+        ("range_m = 60.0", "range_m"),
     ],
 )
 def test_a_bad_port_scene_names_its_key(text, key):
@@ -463,3 +470,54 @@ def res_devices(sc: PortSceneConfig) -> list[tuple[float, float, float]]:
     from haptic_local_model.device_models.registry import load_simulated_device
 
     return [load_simulated_device(p.device).limits().max_wrench for p in sc.ports]
+
+
+def test_the_scene_range_fits_in_a_station_message():
+    assert RANGE_LIMIT_M <= POSE_LIMIT_M / 2
+
+
+def _dropped(scene: PortSceneConfig, range_m: float):
+    """The box free of the pads (couplings cut, pads moved 0.1 m aside), the range set."""
+    sc = _free(scene, range_m=range_m)
+    model, data = cosim_records(sc, LIMITS)
+    d = data[0]
+    d["q"][0] -= 0.1  # pad_left
+    d["q"][3] += 0.1  # pad_right
+    return model, data, 3 * cosim_order(sc).index("box")
+
+
+def test_a_box_that_falls_out_of_the_range_returns_to_its_start_at_rest(scene):
+    """Free fall (y = -g t^2 / 2 to within a tick) to -range_m, then back at its start pose
+    at rest on that tick; and again each time it falls."""
+    r = 0.2
+    model, data, o = _dropped(scene, r)
+    d, start = data[0], model[0]["start_q"][o : o + 3].copy()
+    n = 600
+    y, resets = np.zeros(n), np.zeros(n, np.int64)
+    for k in range(n):
+        cosim_tick(model, data)
+        y[k], resets[k] = d["q"][o + 1], d["resets"]
+        if k and resets[k] > resets[k - 1]:
+            assert np.array_equal(d["q"][o : o + 3], start) and not d["qd"][o : o + 3].any()
+    assert np.all(np.abs(y) <= r) and int(d["parked"]) == 0
+    back = np.flatnonzero(np.diff(resets)) + 1  # the ticks it was put back on
+    fall = math.sqrt(2 * r / 9.81) / float(d["dt"])  # 202 ticks
+    assert len(back) == 2 and resets[-1] == 2, back
+    assert abs(back[0] - fall) <= 2 and abs(back[1] - back[0] - fall) <= 2, (back, fall)
+
+
+def test_a_box_whose_start_is_taken_waits_at_the_range_at_rest_until_it_is_clear(scene):
+    r = 0.2
+    model, data, o = _dropped(scene, r)
+    m, d = model[0], data[0]
+    for k in range(400):
+        if k >= 150:  # the box 0.11 m below: pad_left held where it started
+            d["q"][0:2] = m["start_q"][o : o + 2]
+            d["qd"][0:3] = 0.0
+        cosim_tick(model, data)
+    fall = math.sqrt(2 * r / 9.81) / float(d["dt"])  # ticks before it leaves the range
+    assert int(d["resets"]) == 0 and abs(int(d["parked"]) - (400 - fall)) <= 2
+    assert d["q"][o + 1] == -r and not d["qd"][o : o + 3].any()
+    d["q"][0] -= 0.1  # the pad moves away: the next tick puts the box back
+    cosim_tick(model, data)
+    assert int(d["resets"]) == 1 and d["q"][o + 1] == m["start_q"][o + 1]

@@ -40,6 +40,12 @@ The extended configuration q = (q_tool_0, q_tool_1, q_object, ...) holds free ri
    light object squeezed by stiff pads is stable at any K_c m_O ratio (V4.4).
 4. Each port's command: the reaction of the coupling force the tool took over the step,
    NaN replaced by zero (counted), clipped at the port's limits.
+5. The scene's range (`range_m`): an object (a dynamic body that is not a tool) that left
+   it, |x| or |y| beyond range_m (it fell out of the grip of a world with no floor), is put
+   back at its start pose, at rest, its contacts forgotten (`resets`), once no other
+   co-simulated body's bounding circle reaches it there; until then it is held at rest
+   where it left, clamped to the range (`parked`, ticks). So every pose the world sends
+   stays within what a station takes (shared/protocol/station.py's POSE_LIMIT_M).
 
 All functions are numba kernels over COSIM_DTYPE (the model) and COSIM_DATA_DTYPE (state,
 the per-port device inputs and commands, and scratch); nothing allocates.
@@ -107,6 +113,8 @@ COSIM_DTYPE = np.dtype(
         ("coupling_stiffness", F8, (MAX_PORTS, 3)),
         ("coupling_damping", F8, (MAX_PORTS, 3)),
         ("max_wrench", F8, (MAX_PORTS, 3)),  # world frame: the device's limits
+        ("range_m", F8),  # an object beyond it returns to its start (step 5)
+        ("start_q", F8, (MAX_COSIM_DOF,)),  # the bodies' start poses
     ]
 )
 
@@ -133,6 +141,8 @@ COSIM_DATA_DTYPE = np.dtype(
         ("penetration", F8),  # the deepest this tick, m
         ("invalid", I8),  # commands that were not finite (zero force sent instead)
         ("singular", I8),  # steps whose system did not factor (the bodies held)
+        ("resets", I8),  # objects put back at their start after leaving the range
+        ("parked", I8),  # ticks an object out of range waited for its start to be clear
         ("collisions", I8),  # colliding contacts since the start (each solved for; a
         # separating one takes a zero impulse)
         ("dt", F8),
@@ -203,6 +213,8 @@ def cosim_records(
         _set_core(m, i, b)
         d["q"][3 * i : 3 * i + 3] = (b.position[0], b.position[1], b.angle)
         d["qd"][3 * i : 3 * i + 3] = (b.velocity[0], b.velocity[1], b.angular_velocity)
+    m["start_q"] = d["q"]
+    m["range_m"] = scene.range_m
     for j, b in enumerate(statics):
         _set_core(m, MAX_COSIM_BODIES + j, b)
         d["wall_pose"][j] = (b.position[0], b.position[1], b.angle)
@@ -601,6 +613,45 @@ def step_bodies(m, d):
 
 
 @njit(cache=True)
+def _start_clear(m, d, i):
+    """No other co-simulated body's bounding circle reaches body i's at its start pose."""
+    a = 3 * i
+    reach_i = m.bound[i] + m.rounding[i]
+    for j in range(m.n_bodies):
+        if j == i:
+            continue
+        gap = math.hypot(d.q[3 * j] - m.start_q[a], d.q[3 * j + 1] - m.start_q[a + 1])
+        if gap <= reach_i + m.bound[j] + m.rounding[j]:
+            return False
+    return True
+
+
+@njit(cache=True)
+def keep_in_range(m, d):
+    """Step 5 of the module docstring: each object beyond the scene's range back at its
+    start pose at rest when its start is clear, else held at rest clamped to the range."""
+    r = m.range_m
+    for i in range(m.n_ports, m.n_bodies):  # the tools come first
+        a = 3 * i
+        if abs(d.q[a]) <= r and abs(d.q[a + 1]) <= r:
+            continue
+        if _start_clear(m, d, i):
+            for c in range(3):
+                d.q[a + c] = m.start_q[a + c]
+            for e in range(N_ELEMENTS):  # its contacts start afresh
+                for v in range(MAX_VERTICES):
+                    d.stick[i, e, v] = d.stick[e, i, v] = 0.0
+                    d.touching[i, e, v] = d.touching[e, i, v] = 0
+            d.resets += 1
+        else:
+            d.q[a] = min(r, max(-r, d.q[a]))
+            d.q[a + 1] = min(r, max(-r, d.q[a + 1]))
+            d.parked += 1
+        for c in range(3):
+            d.qd[a + c] = 0.0
+
+
+@njit(cache=True)
 def coupling_reaction(m, d, p, c):
     """Port p's coupling on axis c over the step, as its device takes it: the reaction of
     the force on the tool, K (q - x_dev) + B (qd - v_dev) at the new tool state and the
@@ -691,6 +742,7 @@ def cosim_tick(model, data):
     couple_ports(m, d)
     step_bodies(m, d)
     port_commands(m, d)
+    keep_in_range(m, d)
 
 
 def kinetic_energy(model: np.ndarray, qd: np.ndarray) -> np.ndarray:
