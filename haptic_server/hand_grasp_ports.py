@@ -138,7 +138,7 @@ def grasp_port_records(
         raise ValueError(f"{scene.name}: not a two-hand scene with a box")
     hands = [port_hand_records(scene, limits[p], p) for p in range(MAX_HANDS)]
     gm, gd = grasp_records(hands, box.size, box.mass, (*box.position, box.angle),
-                           scene_contact(scene))  # fmt: skip
+                           scene_contact(scene), scene.range_m)  # fmt: skip
     chains, models, datas = zip(*hands, strict=True)
     return tuple(chains), tuple(models), tuple(datas), gm, gd
 

@@ -204,7 +204,7 @@ class CosimWorld:
     def steps_held(self) -> int:
         return int(self.data[0]["singular"])
 
-    def range_returns(self) -> dict[str, int] | None:
+    def range_returns(self) -> dict[str, int]:
         """Objects put back at their start after leaving the scene's range, and the ticks
         one waited there for its start to be clear (stages/cosim.py, step 5)."""
         d = self.data[0]
@@ -263,8 +263,11 @@ class HandGraspWorld:
     def steps_held(self) -> int:
         return int(self._gd[0]["singular"])
 
-    def range_returns(self) -> dict[str, int] | None:
-        return None  # the hands' box is not kept in a range (not built)
+    def range_returns(self) -> dict[str, int]:
+        """The box put back at its start after leaving the range, and the ticks it waited
+        (stages/hand_grasp.py, keep_box_in_range)."""
+        gd = self._gd[0]
+        return {"resets": int(gd["resets"]), "parked_ticks": int(gd["parked"])}
 
     def warm(self) -> None:
         grasp = grasp_port_records(self.scene, self.limits)

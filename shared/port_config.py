@@ -321,9 +321,13 @@ class HandSceneConfig:
     ports: tuple[PortSpec, ...] = ()
     hands: tuple[HandTable, ...] = ()
     bodies: tuple[BodySpec, ...] = ()
+    # a box beyond it (|x| or |y|, m) returns to its start (stages/hand_grasp.py), as a port
+    # scene's objects do
+    range_m: float = 10.0
 
     def __post_init__(self) -> None:
         within_all(self.gravity, (-100.0, 100.0), "gravity", "m/s^2")
+        within(self.range_m, (0.01, RANGE_LIMIT_M), "range_m", "m")
         within(self.haptic_rate_hz, (100.0, 20000.0), "haptic_rate_hz", "Hz")
         require(1 <= len(self.ports) <= MAX_PORTS, "ports", f"a hand scene has 1 to {MAX_PORTS}")
         require(len(self.hands) == len(self.ports), "hands", "a hand scene has one hand a port")

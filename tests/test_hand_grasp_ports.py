@@ -6,6 +6,7 @@ on a box."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 from pathlib import Path
@@ -104,6 +105,26 @@ def test_a_reading_that_is_not_finite_cuts_that_palms_drive_and_the_other_holds(
     assert np.isfinite(rows["q"]).all() and np.isfinite(rows["command"]).all()
     assert abs(rows["command"][799, 0, 0]) > 1.5
     assert rows["n_contacts"][799] == 4
+
+
+def test_a_box_out_of_range_waits_for_the_hands_to_open_then_returns_to_its_start() -> None:
+    """The box put 1 cm beyond a 0.2 m range while both hands hold where it started: held at
+    rest at the range; the palms moved 0.5 m aside: back at its start, at rest, that tick."""
+    scene = dataclasses.replace(load_hand_scene(SCENE), range_m=0.2)
+    run = HandGraspRun(scene, [load_simulated_device("ideal")] * 2)
+    rows = np.zeros(400, HAND_GRASP_ROW_DTYPE)
+    run.ticks(rows, 0, 100)
+    gm, gd = run.gmodel[0], run.gdata[0]
+    start = gm["box_start"].copy()
+    gd["q_box"][1] = -0.21
+    run.ticks(rows, 100, 200)
+    assert int(gd["resets"]) == 0 and int(gd["parked"]) == 100
+    assert gd["q_box"][1] == -0.2 and not gd["qd_box"].any()
+    for p, side in enumerate((-1.0, 1.0)):
+        run.datas[p][0]["q"][0] += side * 0.5  # the palm, far aside
+    run.ticks(rows, 200, 201)
+    assert int(gd["resets"]) == 1 and np.array_equal(gd["q_box"], start)
+    assert not gd["qd_box"].any() and not gd["touching"].any()
 
 
 @pytest.mark.parametrize(

@@ -7,6 +7,9 @@ link of either hand with the box (both sides in q: the rows are n^T (J_link - J_
 one linearly implicit theta-step over the whole of q = (q_hand_0, q_hand_1, q_box), so the
 squeeze is as implicit as each hand's own drives. A tick whose sub-step turns any joint of
 either hand by more than the hands' MAX_TURN, or fails, runs again in 4, 16, 64 sub-steps.
+After the tick, a box beyond the scene's range is put back at its start at rest once no
+link of either hand reaches it there, held at rest at the range until then (`keep_box_in_
+range`; the port scenes' rule, stages/cosim.py step 5).
 """
 
 from __future__ import annotations
@@ -64,6 +67,8 @@ GRASP_DTYPE = np.dtype(
         ("friction", F8),
         ("tangential_stiffness", F8),
         ("theta", F8),
+        ("range_m", F8),  # a box beyond it returns to its start (keep_box_in_range)
+        ("box_start", F8, (3,)),
     ]
 )
 
@@ -86,6 +91,8 @@ GRASP_DATA_DTYPE = np.dtype(
         ("touching_tick", I8, (MAX_HANDS, MAX_DOF, 2, 4)),
         ("singular", I8),
         ("singular_tick", I8),
+        ("resets", I8),  # the box put back at its start after leaving the range
+        ("parked", I8),  # ticks it waited, out of range, for its start to be clear
         ("turn", F8),
         # the hand-box contacts' stiffness and damping over all of q, then (solve_all) the
         # hands' own blocks added: the step's K and B
@@ -112,10 +119,12 @@ def grasp_records(
     box_mass: float,
     box_pose: tuple[float, float, float],
     contact: tuple[float, float, float, float],
+    range_m: float = 10.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The coupling's model and data for these hands (each `hand_records`' (chain, model,
     data), in this order) and the box; contact: (stiffness, damping, friction, tangential
-    stiffness). The step's dt, theta and gravity are the hands' own, which must agree."""
+    stiffness); range_m: the scene's (keep_box_in_range). The step's dt, theta and gravity
+    are the hands' own, which must agree."""
     models = [h[1][0] for h in hands]
     datas = [h[2][0] for h in hands]
     for key, values in (
@@ -142,6 +151,8 @@ def grasp_records(
     m["theta"] = models[0]["theta"]
     data[0]["dt"] = datas[0]["dt"]
     data[0]["q_box"] = box_pose
+    m["box_start"] = box_pose
+    m["range_m"] = range_m
     return model, data
 
 
@@ -337,6 +348,49 @@ def grasp_tick(chains, hms, hds, gmodel, gdata):
         if n_sub > 1:
             hd.substepped += 1
         hand_outputs(hms[i][0], hd)
+    keep_box_in_range(chains, hms, hds, gm, gd)
+
+
+@njit(cache=True)
+def _box_start_clear(chains, hms, hds, gm):
+    """No shaped link of either hand (its frame's reach: the palm's corners, a phalanx's
+    length and radius) comes within the box's half diagonal of the box's start."""
+    bx, by = gm.box_start[0], gm.box_start[1]
+    half = math.hypot(gm.box_vertices[2, 0], gm.box_vertices[2, 1])
+    for i in range(gm.n_hands):
+        hm, hd = hms[i][0], hds[i][0]
+        for link in range(PALM, hm.dof):
+            if link == PALM:
+                reach = 0.0
+                for v in range(4):
+                    reach = max(reach, math.hypot(hm.palm_vertices[v, 0], hm.palm_vertices[v, 1]))
+            else:
+                reach = chains[i][0].lengths[link] + hm.radius[link]
+            gap = math.hypot(hd.frame_pos[link, 0] - bx, hd.frame_pos[link, 1] - by)
+            if gap <= half + reach:
+                return False
+    return True
+
+
+@njit(cache=True)
+def keep_box_in_range(chains, hms, hds, gm, gd):
+    """A box beyond the range (|x| or |y| > range_m) back at its start at rest, its contacts
+    forgotten, when no hand is there; else held at rest clamped to the range."""
+    r = gm.range_m
+    if abs(gd.q_box[0]) <= r and abs(gd.q_box[1]) <= r:
+        return
+    if _box_start_clear(chains, hms, hds, gm):
+        for k in range(3):
+            gd.q_box[k] = gm.box_start[k]
+        gd.stick[:] = 0.0
+        gd.touching[:] = 0
+        gd.resets += 1
+    else:
+        gd.q_box[0] = min(r, max(-r, gd.q_box[0]))
+        gd.q_box[1] = min(r, max(-r, gd.q_box[1]))
+        gd.parked += 1
+    for k in range(3):
+        gd.qd_box[k] = 0.0
 
 
 @njit(cache=True)
