@@ -23,9 +23,10 @@ report: docs/stability):
    stiffness 1e2..1e6 N/m and damping, tool masses and inertias over six decades, haptic
    time steps, exactly at and near singular configurations, 32+ simultaneous contacts,
    impact speeds up to 2 m/s, user forces up to the device limits. Each case is classified
-   stable / unstable by the energy at the device port (the controller's net work on the
-   device, which a passive rendering cannot make positive) and by bounded state; every
-   case is also checked for NaN/Inf reaching the device (the guards must prevent it).
+   stable / unstable by a passivity observer at the user's port (the energy stored in what
+   is rendered, the VM's kinetic energy, never above the hand's work on the device:
+   `classify`) and by bounded state; every case is also checked for NaN/Inf reaching the
+   device (the guards must prevent it).
 
     haptic-stability [--quick] [--out docs/stability] [--rates 1000 4000 10000]
 """
