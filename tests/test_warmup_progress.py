@@ -114,3 +114,19 @@ def test_a_cold_run_compiles_first_once_and_says_where(
     assert not warmup.runs_warmed(other)
     warmup._mark_warmed(tmp_path, warmup.ALL_WARMED)
     assert warmup.runs_warmed(other)
+
+
+def test_the_cold_start_benchmark_reads_what_the_warm_up_prints(
+    fake_groups: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """benchmarks/cold_start.py reads make demo's output for the kernels a warm-up compiled
+    and each group's seconds: the lines warm_all writes."""
+    from haptic_local_model.benchmarks.cold_start import _kernels, _parts
+
+    assert warmup.main([]) == 0
+    err = capsys.readouterr().err
+    assert _kernels(err) == 1
+    parts = _parts(err)
+    assert set(parts) == {"scene kernels", "device kernels", "warm-up total"}
+    assert all(v >= 0.0 for v in parts.values())
+    assert _kernels("numba kernels ready in 0.4 s (all loaded from the cache)") == 0
