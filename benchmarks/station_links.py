@@ -21,10 +21,14 @@ process it starts stopped by its pid, however it ends.
 
     sudo .venv/bin/python -m haptic_local_model.benchmarks.station_links \
         [--delays-ms 0 10 50] [--losses 0 0.05] [--jitter 0.2] [--seconds 15] \
-        [--network stations_three_hosts] [--passivity tdpa off] [--json out.json] [--md out.md]
+        [--network stations_three_hosts] [--passivity tdpa off] [--local-model on off] \
+        [--press] [--json out.json] [--md out.md]
 
 `--passivity tdpa off` runs each point with the port links' passivity controllers and
-without (the observers only), one after the other (the machine is shared).
+without (the observers only), one after the other (the machine is shared); `--local-model
+on off` likewise with the stations' local model and without. `--press`: the stations'
+users press their pads into the box and release (PRESS_USERS), and each station's felt
+stiffness is fitted (felt_stiffness).
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ import json
 import sys
 import tempfile
 import time
+from itertools import product
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +53,13 @@ from haptic_local_model.benchmarks.stations import (
     netns_unavailable,
     station_rows,
 )
+from haptic_local_model.haptic_server.station_records import local_geometry
+from haptic_local_model.shared.port_config import load_port_scene
 
+#: --press: each station's user presses its pad into the box and releases (their ramps'
+#: times: configs/users/press_*_ramp.toml), the felt stiffness fitted over PRESS_S
+PRESS_USERS = {"left": "press_left_ramp", "right": "press_right_ramp"}
+PRESS_S = (5.0, 12.0)
 BAND_HZ = 5.0  # the force spectrum is summed above this (a grip's own motion is slower)
 SETTLE_S = 1.0  # the spectrum leaves out the first second the station renders (it joins)
 SUMMARY_WAIT_S = 2.0
@@ -110,11 +121,38 @@ def port_figures(rows: np.ndarray, summary: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def felt_stiffness(rows: np.ndarray, reach_m: float) -> dict[str, float]:
+    """The stiffness the station rendered while its user pressed (PRESS_S): the slope (N/m)
+    of the least-squares line through the coupling's force along x (its magnitude, at the
+    full coupling) against the device's penetration into the object as the world last sent
+    it, reach_m - |x_dev - x_object| (reach_m: the pad's and the object's half widths), on
+    the ticks whose penetration is positive; and the force's range over them (N)."""
+    t = rows["t"]
+    sel = (t >= PRESS_S[0]) & (t <= PRESS_S[1]) & (rows["fresh"] == 1) & (rows["gain"] == 1.0)
+    depth = reach_m - np.abs(rows["pose"][:, 0] - rows["object_pose"][:, 0])
+    sel &= depth > 0.0
+    if sel.sum() < 100:
+        return {"n_per_m": float("nan"), "force_min_n": float("nan"),
+                "force_max_n": float("nan"), "ticks": int(sel.sum())}  # fmt: skip
+    force = np.abs(rows["coupling"][sel, 0])
+    slope = float(np.polyfit(depth[sel], force, 1)[0])
+    return {"n_per_m": slope, "force_min_n": float(force.min()),
+            "force_max_n": float(force.max()), "ticks": int(sel.sum())}  # fmt: skip
+
+
 def run(
-    seconds: float, imp: Impairment, folder: Path, network: str, passivity: str = "tdpa"
+    seconds: float,
+    imp: Impairment,
+    folder: Path,
+    network: str,
+    passivity: str = "tdpa",
+    local_model: str = "on",
+    press: bool = False,
 ) -> dict[str, Any]:
     """`grasp_vertical` at two stations, each link through `imp`, for `seconds`, the links'
-    passivity controllers `passivity` ("tdpa" or "off"): its figures (module docstring)."""
+    passivity controllers `passivity` ("tdpa" or "off"), the stations' local model
+    `local_model` ("on" or "off"); with `press` their users press into the box and release
+    (PRESS_USERS): its figures (module docstring)."""
     with ThreeHosts(impair=dict.fromkeys(PORTS, imp)) as h:
         net = ["--network", network]
         roles = [*net, "--passivity", passivity]
@@ -126,7 +164,8 @@ def run(
         stations = {}
         for p in PORTS:
             args = ["--port", p, "--duration", str(seconds), "--log", str(folder / f"{p}.mcap"),
-                    "--json", str(folder / f"{p}.json")]  # fmt: skip
+                    "--json", str(folder / f"{p}.json"), "--local-model", local_model,
+                    *(["--user", PRESS_USERS[p]] if press else [])]  # fmt: skip
             stations[p] = h.start(h.station_ns[p], [*CLI, "station", *roles, *args])
         for s in stations.values():
             s.wait_ready()
@@ -136,12 +175,18 @@ def run(
     while time.monotonic() < end and not all(f.events[-1:] for f in h.forwarders.values()):
         time.sleep(0.05)
     figures: dict[str, Any] = {"exit_codes": codes, "left_over": h.leftovers(),
-                               "passivity": passivity}  # fmt: skip
+                               "passivity": passivity, "local_model": local_model,
+                               "press": press}  # fmt: skip
     figures["impairment"] = {"delay_ms": imp.delay_s * 1e3, "jitter_ms": imp.jitter_s * 1e3,
                              "loss": imp.loss, "reorder": imp.reorder}  # fmt: skip
-    for p in PORTS:
+    scene = load_port_scene("grasp_vertical")
+    for i, p in enumerate(PORTS):
         summary = json.loads((folder / f"{p}.json").read_text())
-        figures[p] = port_figures(station_rows(folder / f"{p}.mcap"), summary)
+        rows = station_rows(folder / f"{p}.mcap")
+        figures[p] = port_figures(rows, summary)
+        geometry = local_geometry(scene, i)
+        if press and geometry is not None:
+            figures[p]["felt"] = felt_stiffness(rows, float(geometry[0][0] + geometry[1][0]))
         last = h.forwarders[p].events[-1:]
         figures[p]["link"] = last[0].get("counts") if last else None
     box = json.loads(world_json.read_text())["bodies"]["box"]
@@ -153,6 +198,13 @@ def run(
 def box_text(mm: float) -> str:
     """A box's sag or drift in mm; `fell` once it is more than FELL_MM (out of the grip)."""
     return "fell" if mm > FELL_MM else f"{mm:.1f}"
+
+
+def felt_text(ports: list[dict[str, Any]]) -> str:
+    """Each station's felt stiffness (a press run's), or a dash."""
+    if not all("felt" in f for f in ports):
+        return "–"
+    return " / ".join(f"{f['felt']['n_per_m']:.0f}" for f in ports)
 
 
 def unimpaired(points: list[dict[str, Any]]) -> dict[str, Any] | None:
@@ -171,10 +223,11 @@ def report(
         f"`{command}` ({seconds:g} s a point, `grasp_vertical`, maglevs at both stations; the "
         "machine's 2 cores shared with other work). Per station: left / right.",
         "",
-        "| one-way ms | jitter ms | loss | PC | energy out J | >5 Hz RMS N | ×0 ms "
-        "| box sank / moved mm | coupled | watchdog trips | ToolState gap ms p50 / p99 / max "
-        "| age since arrival ms p50 / p99 |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| one-way ms | jitter ms | loss | PC | local model | energy out J | >5 Hz RMS N "
+        "| ×0 ms | box sank / moved mm | coupled | watchdog trips "
+        "| ToolState gap ms p50 / p99 / max | age since arrival ms p50 / p99 "
+        "| felt stiffness N/m |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for pt in points:
         imp, lr = pt["impairment"], [pt[p] for p in PORTS]
@@ -189,13 +242,14 @@ def report(
         )
         lines.append(
             f"| {imp['delay_ms']:g} | {imp['jitter_ms']:g} | {imp['loss']:.0%} "
-            f"| {pt.get('passivity', 'off')} "
+            f"| {pt.get('passivity', 'off')} | {pt.get('local_model', 'off')} "
             f"| {lr[0]['energy_out_j']:.3f} / {lr[1]['energy_out_j']:.3f} "
             f"| {lr[0]['rms_above_5hz_n']:.3f} / {lr[1]['rms_above_5hz_n']:.3f} "
             f"| {ratio[0]:.1f} / {ratio[1]:.1f} "
             f"| {box_text(pt['box_sank_mm'])} / {box_text(pt['box_moved_mm'])} "
             f"| {lr[0]['coupled_fraction']:.0%} / {lr[1]['coupled_fraction']:.0%} "
-            f"| {lr[0]['watchdog_trips']} / {lr[1]['watchdog_trips']} | {gap} | {age} |"
+            f"| {lr[0]['watchdog_trips']} / {lr[1]['watchdog_trips']} | {gap} | {age} "
+            f"| {felt_text(lr)} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -214,6 +268,15 @@ def main(argv: list[str] | None = None) -> int:
         choices=["tdpa", "off"],
         help="the links' passivity controllers; both: each point with and without",
     )
+    ap.add_argument(
+        "--local-model",
+        nargs="+",
+        default=["on"],
+        choices=["on", "off"],
+        help="the stations' local model; both: each point with and without",
+    )
+    ap.add_argument("--press", action="store_true",
+                    help="the users press into the box and release: the felt stiffness")  # fmt: skip
     ap.add_argument("--json", type=Path, default=None, help="write the figures here")
     ap.add_argument("--md", type=Path, default=None, help="write the report's table here")
     ap.add_argument("--base", type=Path, default=None,
@@ -228,9 +291,10 @@ def main(argv: list[str] | None = None) -> int:
     for loss in args.losses:
         for d in args.delays_ms:
             imp = Impairment(d / 1e3, args.jitter * d / 1e3, loss)
-            for passivity in args.passivity:  # interleaved: the machine is shared
+            for passivity, local in product(args.passivity, args.local_model):  # interleaved
                 with tempfile.TemporaryDirectory() as tmp:
-                    points.append(run(args.seconds, imp, Path(tmp), args.network, passivity))
+                    points.append(run(args.seconds, imp, Path(tmp), args.network, passivity,
+                                      local, args.press))  # fmt: skip
                 print(json.dumps(points[-1]), flush=True)
     if args.json:
         args.json.write_text(json.dumps(points, indent=2))

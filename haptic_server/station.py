@@ -80,7 +80,8 @@ class Station:
         # a hand's palm is not yet observed at the world (its engine has no controller)
         passivity = network.passivity == "tdpa" and isinstance(scene, PortSceneConfig)
         self.setup = StationSetup(scene, self.index, device, user, network.watchdog_ms / 1e3,
-                                  network.safe_ramp_ms / 1e3, passivity)  # fmt: skip
+                                  network.safe_ramp_ms / 1e3, passivity,
+                                  network.local_model)  # fmt: skip
         self.station = station_record(self.setup)
         self._records, self._dt = device.records, float(self.station[0]["dt"])  # per tick
         self.rows = np.zeros(max_rows, STATION_ROW_DTYPE)
@@ -197,6 +198,8 @@ class Station:
             "rejoin_waits": int(self.station[0]["rejoin_waits"]),
             # ticks it braked its device, back from safe, before it coupled (_brakes)
             "rejoin_brakes": int(self.station[0]["rejoin_brakes"]),
+            # the pad's contact with the object rendered here (0: it has none, or it is off)
+            "local_model": int(self.station[0]["local_model"]),
             "mean_command_last_s": (
                 rows["out"][-min(len(rows), 1000) :].mean(axis=0).tolist() if len(rows) else []
             ),

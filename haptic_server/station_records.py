@@ -44,10 +44,17 @@ STATION_SCHEMA = "haptic_server/StationTick"
 EXTRAPOLATE_S = 0.005
 #: what a tick renders against, as the loop set it: logged each tick, fed back by the replay
 TOOL_INPUTS = ("have_tool", "held", "tool_age", "tool_pose", "tool_twist", "stiffness", "damping",
-               "budget")  # fmt: skip
+               "budget", "object_pose", "object_twist")  # fmt: skip
 #: what a tick computes from them: compared bit for bit by the replay
 REPLAYED = ("pose", "twist", "hand", "coupling", "spring", "out", "gain", "fresh", "cut",
-            "invalid", "fault", "energy", "pc_damping")  # fmt: skip
+            "invalid", "fault", "energy", "pc_damping", "contact_w", "depth",
+            "local_force")  # fmt: skip
+#: the local model's blend between the coupling's normal and the local contact: a few ticks
+#: (a step of the whole squeeze in one tick is what the fade is for)
+CONTACT_FADE_S = 0.005
+#: a pad's flat face on the object's flat side touches at two points (the world's contact
+#: per point is the scene's `contact.stiffness_n_per_m`): k_c = 2 k_point
+FACE_POINTS = 2
 
 
 @dataclass(frozen=True)
@@ -61,6 +68,23 @@ class StationSetup:
     watchdog_s: float  # the station network's watchdog and safe ramp
     ramp_s: float
     passivity: bool = False  # its passivity controller acts (a port scene's, "tdpa")
+    local_model: bool = False  # it renders its pad's contact with the object (local_geometry)
+
+
+def local_geometry(scene: PortSceneConfig | HandSceneConfig, index: int) -> tuple | None:
+    """The local model's geometry for port `index`: (its tool's half extents, the object's,
+    the world's contact stiffness on a pad's face), or None where it has none: a hand scene,
+    a scene without an object beside its tools, or a tool or object that is not a box."""
+    if not isinstance(scene, PortSceneConfig):
+        return None
+    order = scene.cosim_order()
+    if len(order) <= len(scene.ports):
+        return None
+    tool, obj = scene.body(scene.ports[index].tool), scene.body(order[len(scene.ports)])
+    if tool.shape != "box" or obj.shape != "box":
+        return None
+    k_c = FACE_POINTS * scene.contact.stiffness_n_per_m
+    return np.asarray(tool.size) / 2.0, np.asarray(obj.size) / 2.0, k_c
 
 
 def station_record(setup: StationSetup) -> np.ndarray:
@@ -82,6 +106,11 @@ def station_record(setup: StationSetup) -> np.ndarray:
     s["passivity"] = int(setup.passivity)
     s["pc_max"] = PC_MAX_OVER_B * np.asarray(damping, np.float64)
     s["map"][0] = world_map_of(device).record[0]
+    s["fade_s"] = CONTACT_FADE_S
+    geometry = local_geometry(scene, setup.index) if setup.local_model else None
+    if geometry is not None:
+        s["local_model"] = 1
+        s["pad_half"], s["object_half"], s["contact_stiffness"] = geometry
     place_station(st, setup)
     return st
 
@@ -106,6 +135,7 @@ def station_metadata(setup: StationSetup, texts: dict[str, str]) -> dict[str, st
         "watchdog_s": json.dumps(setup.watchdog_s),
         "ramp_s": json.dumps(setup.ramp_s),
         "passivity": json.dumps(setup.passivity),
+        "local_model": json.dumps(setup.local_model),
         **{f"{key}_toml": text for key, text in texts.items()},
     }
 
@@ -138,8 +168,9 @@ def setup_from_log(path: Path, metadata: dict[str, dict[str, str]]) -> StationSe
         if not seconds[-1] > 0.0:
             raise ConfigError(str(path), f"station.{key}", "not a positive number of seconds")
     passivity = meta.get("passivity", "false") == "true"  # before issue 46: none
+    local_model = meta.get("local_model", "false") == "true"  # before its local model: none
     return StationSetup(scene, names.index(meta["port"]), device, user, seconds[0], seconds[1],
-                        passivity)  # fmt: skip
+                        passivity, local_model)  # fmt: skip
 
 
 def replay_station_rows(setup: StationSetup, rows: np.ndarray) -> tuple[int, int | None]:

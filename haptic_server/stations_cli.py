@@ -64,6 +64,11 @@ def _passivity(network: StationNetworkConfig, passivity: str | None) -> StationN
     return network if passivity is None else replace(network, passivity=passivity)
 
 
+def _local_model(network: StationNetworkConfig, local: str | None) -> StationNetworkConfig:
+    """The network, its `local_model` overridden by --local-model (on, off) if given."""
+    return network if local is None else replace(network, local_model=local == "on")
+
+
 def _common(parser: argparse.ArgumentParser, scene: bool = True) -> None:
     add_version(parser)
     parser.add_argument(
@@ -201,11 +206,16 @@ def station_main(argv: list[str] | None = None) -> int:
     parser.add_argument("--port", required=True, help="the scene's port this station drives")
     parser.add_argument("--device", default=None, help="a simulated device (default: the port's)")
     parser.add_argument("--user", default=None, help="a simulated user (default: the port's)")
+    parser.add_argument(
+        "--local-model", choices=("on", "off"), default=None,
+        help="render the pad's contact with the object here (default: the network's)",
+    )  # fmt: skip
     add_view_args(parser, "this station's device and its tool as the world last sent it")
     args = parser.parse_args(argv)
 
     def body() -> int:
         network = _passivity(load_station_network(args.network, args.port), args.passivity)
+        network = _local_model(network, args.local_model)
         scene, text = _scene(args.scene)
         spec = next((p for p in scene.ports if p.name == args.port), None)
         if spec is None:

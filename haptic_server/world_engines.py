@@ -121,7 +121,9 @@ def cosim_world_step(model, data, ports, clock, events, tools, rows, lowest):
         i = 3 * m.port_tool[p]
         for a in range(3):  # the coupling's force on the tool over the step
             observe_axis(ports[p], a, -coupling_reaction(m, d, p, a), d.qd[i + a], c.dt)
-        fill_tool(tools, p, ports[p], c, d.q[i : i + 3], d.qd[i : i + 3], d.q[o : o + 3])
+        fill_tool(
+            tools, p, ports[p], c, d.q[i : i + 3], d.qd[i : i + 3], d.q[o : o + 3], d.qd[o : o + 3]
+        )
     world_row(model, data, rows, c.k, c.t, lowest)
 
 
@@ -163,7 +165,7 @@ def hand_world_step(grasp, io, ports, clock, events, tools, rows, lowest):
     gd = gdata[0]
     for p in range(c.n_ports):
         d = hds[p][0]
-        fill_tool(tools, p, ports[p], c, d.q, d.qd, gd.q_box)
+        fill_tool(tools, p, ports[p], c, d.q, d.qd, gd.q_box, gd.qd_box)
     hand_world_row(hds, gdata, io, rows, c.k, c.t, lowest)
 
 

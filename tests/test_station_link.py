@@ -24,6 +24,7 @@ from haptic_local_model.haptic_server.stages.station_link import (
 from haptic_local_model.haptic_server.stages.station_messages import (
     REASONS,
     TOOL_BYTES,
+    TOOL_FLOATS,
     tool_refusal,
 )
 from haptic_local_model.haptic_server.station import Station
@@ -35,6 +36,7 @@ from haptic_local_model.shared.protocol.station import (
     CUT,
     GLOVE,
     SAFE,
+    STATION_VERSION,
     ToolState,
     decode_device,
     decode_tool,
@@ -66,9 +68,10 @@ def _tool_messages(draw: Any) -> tuple[bytes, int]:
     """A ToolState's bytes as a world sends them, or mangled (as test_world_ports' devices)."""
     p = draw(st.integers(0, 1))
     f = draw(st.lists(st.one_of(st.sampled_from(EDGES), st.floats(-200.0, 200.0)),
-                      min_size=15, max_size=15))  # fmt: skip
+                      min_size=TOOL_FLOATS, max_size=TOOL_FLOATS))  # fmt: skip
     flags = draw(st.sampled_from([0, 1, 2, 3, 1 << 31]))
-    raw = struct.pack("<4sHHQQq15dI", b"HSTL", 2, draw(st.integers(0, 2)),
+    version = draw(st.sampled_from([STATION_VERSION, STATION_VERSION - 1]))
+    raw = struct.pack(f"<4sHHQQq{TOOL_FLOATS}dI", b"HSTL", version, draw(st.integers(0, 2)),
                       draw(st.integers(0, 2**64 - 1)), draw(st.integers(0, 2**64 - 1)), 0,
                       *f, flags)  # fmt: skip
     mangle = draw(st.sampled_from(["none", "byte", "cut", "pad"]))

@@ -195,8 +195,8 @@ def test_messages_are_taken_in_order_as_order_refusal_says(
 
 def test_the_world_publishes_each_tool_in_its_stations_frame(ring: Any) -> None:
     """A ToolState as decode_tool reads it: the tool's pose less the port's offset (its angle
-    wrapped to (-pi, pi]), its twist, the object's pose, the tick's seq; HELD while the port
-    is held, not once it is coupled."""
+    wrapped to (-pi, pi]), its twist, the object's pose likewise and its twist, the tick's
+    seq; HELD while the port is held, not once it is coupled."""
     scene = load_port_scene("grasp_vertical")
     world = SharedWorld(scene, load_station_network("stations_loopback", "world"), 10)
     now = time.perf_counter_ns()
@@ -224,6 +224,12 @@ def test_the_world_publishes_each_tool_in_its_stations_frame(ring: Any) -> None:
     unwrapped = q[2] - offset[2]  # about 2 pi - 0.1: the anchor's angle is about 0
     assert unwrapped > math.pi
     assert tool.pose[2] == math.atan2(math.sin(unwrapped), math.cos(unwrapped))
+    # the object likewise in the station's frame (its local model), its twist as it is
+    box = world.engine.poses()[2]
+    assert tool.object_pose[:2] == (box[0] - offset[0], box[1] - offset[1])
+    box_angle = box[2] - offset[2]
+    assert tool.object_pose[2] == math.atan2(math.sin(box_angle), math.cos(box_angle))
+    assert np.array_equal(tool.object_twist, world.engine.data[0]["qd"][6:9])
 
 
 def test_a_coupled_device_is_carried_on_by_its_twist_for_at_most_the_cap(ring: Any) -> None:

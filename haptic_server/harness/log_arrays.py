@@ -80,7 +80,8 @@ STATION_UNITS: dict[str, str] = {
     "tool_pose": POSE, "tool_twist": TWIST, "stiffness": "N/m, N·m/rad",
     "damping": "N·s/m, N·m·s/rad", "tool_age": "s", "have_tool": "", "held": "", "gain": "",
     "fresh": "", "cut": "", "invalid": "", "received": "", "rejected": "", "fault": "",
-    "budget": "J", "energy": "J", "pc_damping": "N·s/m, N·m·s/rad",
+    "budget": "J", "energy": "J", "pc_damping": "N·s/m, N·m·s/rad", "object_pose": POSE,
+    "object_twist": TWIST, "contact_w": "", "depth": "m", "local_force": WRENCH,
 }  # fmt: skip
 #: a port world's rows (docs/log-format.md, "Port logs"); `sim_bodies` is pose then twist
 PORT_UNITS: dict[str, str] = {

@@ -12,7 +12,9 @@ tool state is not carried on into a guess):
 mapped to the device, clipped at its limits. Without a fresh tool state (none for the
 watchdog's period, or the world says it holds the port) the command ramps over `ramp_s` to
 the safe state, damping on the handle's own motion; it ramps back the same way when tool
-states return (into about the squeeze it left with: _rejoins). A reading that is not finite
+states return (into about the squeeze it left with: _rejoins). With the local model on, the
+pad's contact with the object the world last sent is rendered here, and the coupling only
+along its tangent (_local_contact). A reading that is not finite
 renders zero for the tick; a coupling or a
 command that is not finite is zeroed and counted. No I/O: the loop
 (haptic_server/station.py) feeds the tool state and its age and publishes the device state
@@ -95,6 +97,18 @@ STATION_DTYPE = np.dtype(
         ("budget", F8, (3,)),  # set by the loop: the world's end's energy, J (its ToolStates')
         ("energy", F8, (3,)),  # the device's net work on the coupling, J, since the start
         ("pc_damping", F8, (3,)),  # the controller's damping this tick, N s/m
+        # the local model (_local_contact; docs/stations.md, "The local model at the station")
+        ("local_model", I8),  # 1: the pad's contact with the object rendered here
+        ("pad_half", F8, (2,)),  # the tool's (pad's) half extents, m
+        ("object_half", F8, (2,)),  # the object's (box's) half extents, m
+        ("contact_stiffness", F8),  # the world's contact on a pad's face (its points'), N/m
+        ("fade_s", F8),  # the blend between the coupling's normal and the local contact
+        ("object_pose", F8, (3,)),  # set by the loop: the newest ToolState's object
+        ("object_twist", F8, (3,)),
+        ("contact_w", F8),  # 0: the coupling whole, 1: its tangent and the local contact
+        ("normal", F8, (2,)),  # the contact's normal, from the object to the pad
+        ("depth", F8),  # the device's pad into the object, m (0: apart)
+        ("local_force", F8, (3,)),  # the local contact's force, world frame, before the blend
     ]
 )
 
@@ -129,6 +143,11 @@ STATION_ROW_DTYPE = np.dtype(
         ("budget", F8, (3,)),  # the world's end's energy, as the loop set it (an input)
         ("energy", F8, (3,)),
         ("pc_damping", F8, (3,)),
+        ("object_pose", F8, (3,)),  # the ToolState's object, as the loop set it (an input)
+        ("object_twist", F8, (3,)),
+        ("contact_w", F8),
+        ("depth", F8),
+        ("local_force", F8, (3,)),
     ]
 )
 
@@ -284,6 +303,80 @@ def _passivity(s):
         s.energy[c] -= out
 
 
+@njit(cache=True, inline="always")
+def _radius(half, angle, ax, ay):
+    """A rectangle's half extent (half-sizes `half`, turned by `angle`) along the axis (ax, ay)."""
+    c, s = math.cos(angle), math.sin(angle)
+    return half[0] * abs(c * ax + s * ay) + half[1] * abs(-s * ax + c * ay)
+
+
+@njit(cache=True)
+def pad_depth(s, x, y, angle, ahead):
+    """How deep the pad at (x, y, angle) is in the object, carried on by its twist for
+    `ahead` s (m; 0 if apart), by the separating axes of the two rectangles: the least
+    overlap over the four edge normals, its normal (from the object to the pad) in
+    s.normal. Kept as it was when apart (the fade out renders along the last one)."""
+    ox = s.object_pose[0] + s.object_twist[0] * ahead
+    oy = s.object_pose[1] + s.object_twist[1] * ahead
+    oa = s.object_pose[2] + s.object_twist[2] * ahead
+    dx, dy = x - ox, y - oy
+    best, nx, ny = math.inf, 0.0, 0.0
+    for k in range(4):
+        turn = angle if k < 2 else oa
+        ax, ay = (
+            (math.cos(turn), math.sin(turn)) if k % 2 == 0 else (-math.sin(turn), math.cos(turn))
+        )
+        d = dx * ax + dy * ay
+        overlap = _radius(s.pad_half, angle, ax, ay) + _radius(s.object_half, oa, ax, ay) - abs(d)
+        if overlap <= 0.0:
+            return 0.0
+        if overlap < best:
+            sign = 1.0 if d >= 0.0 else -1.0
+            best, nx, ny = overlap, sign * ax, sign * ay
+    s.normal[0], s.normal[1] = nx, ny
+    return best
+
+
+@njit(cache=True)
+def _local_contact(s, ahead):
+    """The local model (docs/stations.md, "The local model at the station"): the device's
+    pad against the object where the world last sent it (carried on by its twist for
+    `ahead`), rendered here at once with the coupling in series with the world's contact,
+    k_s = K_n k_c / (K_n + k_c), along the contact's normal n: F_loc = k_s depth n (it only
+    pushes). Where it is active the coupling keeps only its tangent: f <- f - w (f.n) n +
+    w F_loc, w fading over `fade_s` towards 1 in contact (fresh, coupled, no brake) and 0
+    out of it. The world's tool stays coupled to the device: it squeezes the object as at
+    0 ms. Before the ramp and the passivity controller, which see it as the coupling."""
+    for c in range(3):
+        s.local_force[c] = 0.0
+    s.depth = 0.0
+    on = s.local_model == 1 and s.cut == 0 and s.fresh == 1 and s.damping_gain == 1.0
+    w = s.world[0]
+    if on:
+        s.depth = pad_depth(s, w.pose[0], w.pose[1], w.pose[2], ahead)
+    target = 1.0 if s.depth > 0.0 else 0.0
+    step = s.dt / s.fade_s
+    s.contact_w += min(step, max(-step, target - s.contact_w))
+    if abs(target - s.contact_w) < 0.5 * step:  # the sum's rounding: the end exactly
+        s.contact_w = target
+    if not on:
+        s.contact_w = 0.0  # going safe, braking or cut: the coupling as before, bit for bit
+        return
+    if s.contact_w == 0.0:
+        return
+    nx, ny = s.normal[0], s.normal[1]
+    kn = (
+        min(s.stiffness[0], s.max_stiffness[0]) * nx * nx
+        + min(s.stiffness[1], s.max_stiffness[1]) * ny * ny
+    )
+    k_s = kn * s.contact_stiffness / (kn + s.contact_stiffness) if kn > 0.0 else 0.0
+    s.local_force[0], s.local_force[1] = k_s * s.depth * nx, k_s * s.depth * ny
+    along = s.coupling[0] * nx + s.coupling[1] * ny
+    g = s.contact_w
+    s.coupling[0] += g * (s.local_force[0] - along * nx)
+    s.coupling[1] += g * (s.local_force[1] - along * ny)
+
+
 @njit(cache=True)
 def station_tick(station, dev):
     """One tick (module docstring)."""
@@ -313,6 +406,7 @@ def station_tick(station, dev):
                 bad = True
     s.fresh = _rejoins(s, fresh)
     _rejoin_coupling(s)
+    _local_contact(s, ahead)
     step = s.dt / s.ramp_s
     s.gain = min(1.0, s.gain + step) if s.fresh == 1 else max(0.0, s.gain - step)
     _note_squeeze(s)
@@ -365,3 +459,8 @@ def station_row(station, rows, k, fault):
         row.budget[c] = s.budget[c]
         row.energy[c] = s.energy[c]
         row.pc_damping[c] = s.pc_damping[c]
+        row.object_pose[c] = s.object_pose[c]
+        row.object_twist[c] = s.object_twist[c]
+        row.local_force[c] = s.local_force[c]
+    row.contact_w = s.contact_w
+    row.depth = s.depth

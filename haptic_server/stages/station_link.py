@@ -2,8 +2,8 @@
 runs it; docs/stations.md):
 
 - `take_tool`: one ToolState received on the port's key, checked
-  (station_messages.tool_refusal) and ordered, its tool and gains into the station's record,
-  or refused and counted by reason. Within the world's epoch a message must be newer than
+  (station_messages.tool_refusal) and ordered, its tool, gains and object into the station's
+  record, or refused and counted by reason. Within the world's epoch a message must be newer than
   the last taken; another epoch (a world restarted, or a second one) is taken only once the
   present one has been silent for the station's watchdog;
 - `station_step`: the tool's age, the station's tick (stages/station.py) and the tick's
@@ -75,6 +75,8 @@ def take_tool(station, link, p, now_ns, raw):
         s.tool_twist[a] = f[3 + a]
         s.stiffness[a] = f[6 + a]
         s.damping[a] = f[9 + a]
+        s.object_pose[a] = f[12 + a]
+        s.object_twist[a] = f[15 + a]
     s.have_tool = 1
     s.held = 1 if message_flags(raw) & HELD else 0
 

@@ -212,20 +212,23 @@ def step_ports(ports, clock, events):
 
 
 @njit(cache=True)
-def fill_tool(tools, p, ps, c, q, qd, obj):
+def fill_tool(tools, p, ps, c, q, qd, obj, obj_twist):
     """Port p's ToolState in tools[p]: its tool (pose q[:3], twist qd[:3], world frame) in its
-    station's frame, and the object's pose `obj` (world frame). While the port is re-indexed
-    every tick (INDEXING) the tool moves with the device in the station's frame: its twist
-    there is its own plus the device's."""
+    station's frame, and the object's (pose `obj`, twist `obj_twist`, world frame) likewise,
+    for the station's local model. While the port is re-indexed every tick (INDEXING) the
+    tool moves with the device in the station's frame: its twist there is its own plus the
+    device's (the object's is its own: the station's local model is off until it couples)."""
     r = tools[p]
     r.seq = c.seq
     r.publish_time_ns = c.wall_ns
     for a in range(3):
         r.pose[a] = q[a] - ps.offset[a]
         r.twist[a] = qd[a] + (ps.twist[a] if ps.state == INDEXING else 0.0)
-        r.object_pose[a] = obj[a]
+        r.object_pose[a] = obj[a] - ps.offset[a]
+        r.object_twist[a] = obj_twist[a]
         r.energy[a] = ps.energy[a]
     r.pose[2] = math.atan2(math.sin(r.pose[2]), math.cos(r.pose[2]))
+    r.object_pose[2] = math.atan2(math.sin(r.object_pose[2]), math.cos(r.object_pose[2]))
     r.flags = HELD if ps.state == HELD_STATE else 0
 
 

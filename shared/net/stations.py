@@ -81,6 +81,9 @@ class StationNetworkConfig:
     # world's and the station's act on what the link would generate) or "off" (the
     # observers only: the energies are still counted, exchanged and logged)
     passivity: str = "tdpa"
+    # each station renders its tool's contact with the object on its own side (docs/
+    # stations.md, "The local model at the station"); false: the coupling alone, as before
+    local_model: bool = True
 
     def __post_init__(self) -> None:
         require_safe_state(self.namespace, self.watchdog_ms, self.safe_ramp_ms)

@@ -8,8 +8,9 @@
 - ToolState `HSTL` v3, world -> station, every world tick on `<ns>/port/<name>/tool`: the
   port's tool pose and twist in the station's frame (the world re-indexes a station that
   joins, so its device meets its tool where the tool is), the coupling's stiffness and
-  damping, the co-simulated object's pose (for views and logs) and whether the world holds
-  the port (its station was lost).
+  damping, the co-simulated object's pose and twist in the station's frame (the station's
+  local model renders its pad's contact with it) and whether the world holds the port (its
+  station was lost).
 - BodiesState, between the world and the sim that mirrors it (`sim-server --mirror`):
   `HSWB` world -> sim on `<ns>/world/bodies`, the co-simulated bodies (q's order), every few
   world ticks; `HSSB` sim -> world on `<ns>/sim/bodies`, the sim's bodies (the scene's
@@ -37,8 +38,9 @@ from haptic_local_model.shared.protocol.update import MessageError
 
 DEVICE_MAGIC = b"HSDV"
 TOOL_MAGIC = b"HSTL"
-# 2: DeviceState carries the glove; 3: both carry the passivity observer's energy
-STATION_VERSION = 3
+# 2: DeviceState carries the glove; 3: both carry the passivity observer's energy; 4: the
+# ToolState carries the object's twist, its pose in the station's frame (the local model)
+STATION_VERSION = 4
 MAX_GLOVE_JOINTS = 8  # a hand's at most 4 fingers of two phalanges
 GLOVE_ANGLE_LIMIT = 2.0 * math.pi  # rad
 #: poses beyond this many metres, rates beyond this many m/s or rad/s: not a device's
@@ -103,11 +105,12 @@ class ToolState:
     twist: tuple[float, float, float]
     stiffness: tuple[float, float, float]
     damping: tuple[float, float, float]
-    object_pose: tuple[float, float, float]  # the co-simulated object, world frame
+    object_pose: tuple[float, float, float]  # the co-simulated object, the station's frame
     flags: int = 0
     # the passivity observer's: the net work the port's tool has done on the link (its
     # coupling) while coupled, since the world started (J, per axis, signed: docs/stations.md)
     energy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    object_twist: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the object's, world frame
 
     @property
     def held(self) -> bool:
@@ -222,7 +225,8 @@ TOOL = StationMessage(
     "ToolState", TOOL_MAGIC,
     (_axes("pose", POSE_LIMIT_M), _axes("twist", TWIST_LIMIT),
      _axes("stiffness", GAIN_LIMIT, nonneg=True), _axes("damping", GAIN_LIMIT, nonneg=True),
-     _axes("object_pose", POSE_LIMIT_M), _axes("energy", ENERGY_LIMIT)),
+     _axes("object_pose", POSE_LIMIT_M), _axes("object_twist", TWIST_LIMIT),
+     _axes("energy", ENERGY_LIMIT)),
     HELD,
 )  # fmt: skip
 #: Each as a numpy record of exactly the message's bytes: a loop that publishes one every
