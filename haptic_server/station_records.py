@@ -44,7 +44,7 @@ STATION_SCHEMA = "haptic_server/StationTick"
 EXTRAPOLATE_S = 0.005
 #: what a tick renders against, as the loop set it: logged each tick, fed back by the replay
 TOOL_INPUTS = ("have_tool", "held", "tool_age", "tool_pose", "tool_twist", "stiffness", "damping",
-               "budget", "object_pose", "object_twist")  # fmt: skip
+               "budget", "object_pose", "object_twist", "indexed", "device_echo")  # fmt: skip
 #: what a tick computes from them: compared bit for bit by the replay
 REPLAYED = ("pose", "twist", "hand", "coupling", "spring", "out", "gain", "fresh", "cut",
             "invalid", "fault", "energy", "pc_damping", "contact_w", "depth",

@@ -108,7 +108,7 @@ ONE_OF_EACH = {  # a ToolState each reason refuses
               encode_tool(ToolState(0, 1, 1, 0, (0, 0, 0), (0, 0, 0), (1, 1, 1), (1, 1.1e7, 1),
                                     (0, 0, 0)))],
     "flags": [encode_tool(ToolState(0, 1, 1, 0, (0, 0, 0), (0, 0, 0), (1, 1, 1), (1, 1, 1),
-                                    (0, 0, 0), 2))],
+                                    (0, 0, 0), 4))],
 }  # fmt: skip
 
 

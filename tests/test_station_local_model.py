@@ -13,6 +13,8 @@ import pytest
 
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.haptic_server.stages.station import _local_contact, pad_depth
+from haptic_local_model.haptic_server.stages.station_link import take_tool
+from haptic_local_model.haptic_server.station import Station
 from haptic_local_model.haptic_server.station_records import (
     CONTACT_FADE_S,
     StationSetup,
@@ -20,7 +22,9 @@ from haptic_local_model.haptic_server.station_records import (
     station_record,
 )
 from haptic_local_model.shared.config import load_user
+from haptic_local_model.shared.net.stations import load_station_network
 from haptic_local_model.shared.port_config import load_hand_scene, load_port_scene
+from haptic_local_model.shared.protocol.station import INDEXED, ToolState, encode_tool
 
 K_SERIES = 2000.0 * 30000.0 / (2000.0 + 30000.0)  # N/m
 #: the left pad's centre at first touch of the box's left side (box half 20 mm, pad 3 mm)
@@ -134,3 +138,39 @@ def test_it_fades_in_and_out_over_the_fade() -> None:
         assert s["coupling"][0] == pytest.approx((1 - w) * 2.0, rel=1e-9)
         assert s["coupling"][1] == 0.5
     assert s["contact_w"] == 0.0
+
+
+def test_an_indexed_tool_state_renders_the_stretch_not_the_devices_motion() -> None:
+    """While the world re-indexes the port (INDEXED) the tool is where the device was when
+    the world took it (`device_pose`) plus the coupling's stretch: the station's spring is
+    K x that stretch, whatever its device did over the round trip; a coupled ToolState of
+    the same poses is rendered against the device as it is now."""
+    network = load_station_network("stations_loopback", "left")
+    scene = load_port_scene("grasp_vertical")
+    sta = Station(scene, network, "left", load_simulated_device("ideal"),
+                  load_user("squeeze_left_2n"), 10)  # fmt: skip
+    now = 10**12
+    x_dev = float(sta.station[0]["world"][0]["pose"][0])
+    was = (x_dev - 0.010, 0.0, 0.0)  # the device 10 mm back, a round trip ago
+    stretch = 0.001  # the anchor 1 mm into the box: 2 N at 2 kN/m
+    tool = (was[0] + stretch, 0.0, 0.0)
+    for seq, flags in ((1, INDEXED), (2, 0)):
+        m = ToolState(0, 1, seq, 0, tool, (0.0, 0.0, 0.0), (2000.0, 2000.0, 0.5),
+                      (40.0, 40.0, 0.01), (0.0, 0.0, 0.0), flags, device_pose=was)  # fmt: skip
+        take_tool(sta.station, sta.link, 0, now, encode_tool(m))
+        sta.step(now, seq)
+        s = sta.station[0]
+        x_now = float(s["world"][0]["pose"][0])
+        want = stretch if flags else tool[0] - x_now
+        assert s["indexed"] == (1 if flags else 0)
+        assert s["spring"][0] == pytest.approx(2000.0 * want, rel=1e-9, abs=1e-12), flags
+        now += 1_000_000
+
+
+def test_no_local_contact_while_the_world_re_indexes() -> None:
+    """INDEXED, the object's pose is relative to where the device was a round trip ago, not
+    where it is: the local model stays off and the coupling is rendered whole."""
+    st = _station()
+    st[0]["indexed"] = 1
+    s = _at(st, TOUCH_X + 1e-3)
+    assert s["contact_w"] == 0.0 and s["coupling"].tolist() == [2.0, 0.5, 0.01]

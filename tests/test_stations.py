@@ -78,6 +78,7 @@ def _tool(port: int = 0, **kw: Any) -> ToolState:
         port=port, epoch=1, seq=2, publish_time_ns=3, pose=(0.01, 0.02, 0.1),
         twist=(0.0, 0.1, 0.0), stiffness=(2000.0, 2000.0, 0.5), damping=(40.0, 40.0, 0.01),
         object_pose=(0.0, 0.0, 0.0), flags=0, object_twist=(0.001, -0.002, 0.3),
+        device_pose=(0.02, -0.01, 0.2),
     )  # fmt: skip
     base.update(kw)
     return ToolState(**base)
@@ -102,7 +103,7 @@ def test_messages_round_trip_and_malformed_ones_are_refused_by_field() -> None:
         assert err.value.reason == reason, err.value
     rec = tool_record(1, t.epoch)  # the world's in-place encoding: the same bytes
     for name in ("seq", "publish_time_ns", "pose", "twist", "stiffness", "damping",
-                 "object_pose", "object_twist", "flags"):  # fmt: skip
+                 "object_pose", "object_twist", "device_pose", "flags"):  # fmt: skip
         rec[name] = getattr(t, name)
     assert rec.tobytes() == raw
     with pytest.raises(MessageError, match=r"DeviceState\.twist\.y"):

@@ -60,6 +60,8 @@ STATION_DTYPE = np.dtype(
         # the newest tool state: set by the loop
         ("have_tool", I8),
         ("held", I8),  # the world holds this port (it lost us, or re-indexes us)
+        ("indexed", I8),  # the world re-indexes this port (we say SAFE): the tool is at
+        ("device_echo", F8, (3,)),  # the device pose it took, plus the coupling's stretch
         ("tool_age", F8),  # s since it arrived
         ("tool_pose", F8, (3,)),
         ("tool_twist", F8, (3,)),
@@ -133,6 +135,8 @@ STATION_ROW_DTYPE = np.dtype(
         ("tool_age", F8),
         ("have_tool", I8),
         ("held", I8),
+        ("indexed", I8),
+        ("device_echo", F8, (3,)),
         ("gain", F8),
         ("fresh", I8),
         ("cut", I8),
@@ -351,6 +355,7 @@ def _local_contact(s, ahead):
         s.local_force[c] = 0.0
     s.depth = 0.0
     on = s.local_model == 1 and s.cut == 0 and s.fresh == 1 and s.damping_gain == 1.0
+    on = on and s.indexed == 0  # re-indexed, the object is where the device was, not is
     w = s.world[0]
     if on:
         s.depth = pad_depth(s, w.pose[0], w.pose[1], w.pose[2], ahead)
@@ -398,6 +403,8 @@ def station_tick(station, dev):
             k = min(s.stiffness[c], s.max_stiffness[c])
             b = _damping(s, c)
             err = s.tool_pose[c] + s.tool_twist[c] * ahead - w.pose[c]
+            if s.indexed == 1:  # the stretch, not the device's motion over the round trip
+                err = s.tool_pose[c] - s.device_echo[c]
             if c == 2:
                 err = wrap_angle(err)
             s.spring[c] = k * err
@@ -452,6 +459,7 @@ def station_row(station, rows, k, fault):
     row.gain = s.gain
     row.fresh = s.fresh
     row.held = s.held
+    row.indexed = s.indexed
     row.cut = s.cut
     row.invalid = s.invalid
     row.fault = fault
@@ -461,6 +469,7 @@ def station_row(station, rows, k, fault):
         row.pc_damping[c] = s.pc_damping[c]
         row.object_pose[c] = s.object_pose[c]
         row.object_twist[c] = s.object_twist[c]
+        row.device_echo[c] = s.device_echo[c]
         row.local_force[c] = s.local_force[c]
     row.contact_w = s.contact_w
     row.depth = s.depth

@@ -32,7 +32,7 @@ from haptic_local_model.haptic_server.stages.station_messages import (
     message_floats,
     tool_refusal,
 )
-from haptic_local_model.shared.protocol.station import CUT, GLOVE, HELD, SAFE
+from haptic_local_model.shared.protocol.station import CUT, GLOVE, HELD, INDEXED, SAFE
 
 I8 = np.int64
 TOOL_ENERGY = TOOL_FLOATS - 3  # a ToolState's energy: its last three numbers
@@ -77,8 +77,11 @@ def take_tool(station, link, p, now_ns, raw):
         s.damping[a] = f[9 + a]
         s.object_pose[a] = f[12 + a]
         s.object_twist[a] = f[15 + a]
+        s.device_echo[a] = f[18 + a]
     s.have_tool = 1
-    s.held = 1 if message_flags(raw) & HELD else 0
+    flags = message_flags(raw)
+    s.held = 1 if flags & HELD else 0
+    s.indexed = 1 if flags & INDEXED else 0
 
 
 @njit(cache=True)

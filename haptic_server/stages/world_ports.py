@@ -43,6 +43,7 @@ from haptic_local_model.shared.protocol.station import (
     CUT,
     GLOVE,
     HELD,
+    INDEXED,
     MAX_GLOVE_JOINTS,
     SAFE,
     tool_record,
@@ -217,7 +218,9 @@ def fill_tool(tools, p, ps, c, q, qd, obj, obj_twist):
     station's frame, and the object's (pose `obj`, twist `obj_twist`, world frame) likewise,
     for the station's local model. While the port is re-indexed every tick (INDEXING) the
     tool moves with the device in the station's frame: its twist there is its own plus the
-    device's (the object's is its own: the station's local model is off until it couples)."""
+    device's (the object's is its own: the station's local model is off until it couples),
+    and the ToolState says INDEXED with the device pose it re-indexed on, so that the station
+    can tell the coupling's stretch from its device's motion over the round trip."""
     r = tools[p]
     r.seq = c.seq
     r.publish_time_ns = c.wall_ns
@@ -226,10 +229,11 @@ def fill_tool(tools, p, ps, c, q, qd, obj, obj_twist):
         r.twist[a] = qd[a] + (ps.twist[a] if ps.state == INDEXING else 0.0)
         r.object_pose[a] = obj[a] - ps.offset[a]
         r.object_twist[a] = obj_twist[a]
+        r.device_pose[a] = ps.pose[a]
         r.energy[a] = ps.energy[a]
     r.pose[2] = math.atan2(math.sin(r.pose[2]), math.cos(r.pose[2]))
     r.object_pose[2] = math.atan2(math.sin(r.object_pose[2]), math.cos(r.object_pose[2]))
-    r.flags = HELD if ps.state == HELD_STATE else 0
+    r.flags = HELD if ps.state == HELD_STATE else (INDEXED if ps.state == INDEXING else 0)
 
 
 @njit(cache=True)

@@ -9,8 +9,8 @@
   port's tool pose and twist in the station's frame (the world re-indexes a station that
   joins, so its device meets its tool where the tool is), the coupling's stiffness and
   damping, the co-simulated object's pose and twist in the station's frame (the station's
-  local model renders its pad's contact with it) and whether the world holds the port (its
-  station was lost).
+  local model renders its pad's contact with it), the device's pose it last took, whether the
+  world holds the port (its station was lost) and whether it re-indexes it (INDEXED).
 - BodiesState, between the world and the sim that mirrors it (`sim-server --mirror`):
   `HSWB` world -> sim on `<ns>/world/bodies`, the co-simulated bodies (q's order), every few
   world ticks; `HSSB` sim -> world on `<ns>/sim/bodies`, the sim's bodies (the scene's
@@ -65,6 +65,8 @@ SAFE = 1  # DeviceState flags: not rendering the world's coupling (ramping to th
 CUT = 2  # its device's reading was not finite this tick
 GLOVE = 4  # glove and glove_rate hold the station's glove (a hand's station)
 HELD = 1  # ToolState flags: the world holds the port's anchor (its station is lost)
+INDEXED = 2  # the world re-indexes the port this tick (its station says SAFE): the tool is
+# where the device was (device_pose) plus the coupling's stretch at the anchor
 
 
 @dataclass(frozen=True)
@@ -111,10 +113,17 @@ class ToolState:
     # coupling) while coupled, since the world started (J, per axis, signed: docs/stations.md)
     energy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     object_twist: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the object's, world frame
+    # the device's pose the world last took, as its station sent it (the station's frame):
+    # while INDEXED the tool is there plus the coupling's stretch
+    device_pose: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @property
     def held(self) -> bool:
         return bool(self.flags & HELD)
+
+    @property
+    def indexed(self) -> bool:
+        return bool(self.flags & INDEXED)
 
 
 AXES = ("x", "y", "angle")
@@ -226,8 +235,8 @@ TOOL = StationMessage(
     (_axes("pose", POSE_LIMIT_M), _axes("twist", TWIST_LIMIT),
      _axes("stiffness", GAIN_LIMIT, nonneg=True), _axes("damping", GAIN_LIMIT, nonneg=True),
      _axes("object_pose", POSE_LIMIT_M), _axes("object_twist", TWIST_LIMIT),
-     _axes("energy", ENERGY_LIMIT)),
-    HELD,
+     _axes("device_pose", POSE_LIMIT_M), _axes("energy", ENERGY_LIMIT)),
+    HELD | INDEXED,
 )  # fmt: skip
 #: Each as a numpy record of exactly the message's bytes: a loop that publishes one every
 #: tick fills its fields in place and sends `.tobytes()` (about 1 us; the encoders below,
