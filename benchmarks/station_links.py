@@ -53,7 +53,8 @@ from haptic_local_model.benchmarks.stations import (
     netns_unavailable,
     station_rows,
 )
-from haptic_local_model.haptic_server.station_records import local_geometry
+from haptic_local_model.haptic_server.stages.station import STATION_DTYPE, pad_depth
+from haptic_local_model.haptic_server.station_records import EXTRAPOLATE_S, local_geometry
 from haptic_local_model.shared.port_config import load_port_scene
 
 #: --press: each station's user presses its pad into the box and releases (their ramps'
@@ -121,15 +122,32 @@ def port_figures(rows: np.ndarray, summary: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def felt_stiffness(rows: np.ndarray, reach_m: float) -> dict[str, float]:
+def pad_depths(rows: np.ndarray, geometry: tuple) -> np.ndarray:
+    """Each row's device pad into the object as the tool state carried it (m, 0 apart): the
+    station's own geometry (stages/station.py pad_depth, the pad's and the object's half
+    extents `geometry`), the object carried on by its twist for the tool state's age up to
+    EXTRAPOLATE_S, as the station renders it (with its local model on or off)."""
+    st = np.zeros(1, STATION_DTYPE)
+    s = st[0]
+    s["pad_half"], s["object_half"] = geometry[0], geometry[1]
+    depth = np.zeros(len(rows))
+    for k, row in enumerate(rows):
+        s["object_pose"], s["object_twist"] = row["object_pose"], row["object_twist"]
+        x, y, a = row["pose"]
+        depth[k] = pad_depth(s, x, y, a, min(float(row["tool_age"]), EXTRAPOLATE_S))
+    return depth
+
+
+def felt_stiffness(rows: np.ndarray, geometry: tuple) -> dict[str, float]:
     """The stiffness the station rendered while its user pressed (PRESS_S): the slope (N/m)
     of the least-squares line through the coupling's force along x (its magnitude, at the
     full coupling) against the device's penetration into the object as the world last sent
-    it, reach_m - |x_dev - x_object| (reach_m: the pad's and the object's half widths), on
-    the ticks whose penetration is positive; and the force's range over them (N)."""
+    it (pad_depths), on the ticks where it is positive; and the force's range over them
+    (N)."""
     t = rows["t"]
     sel = (t >= PRESS_S[0]) & (t <= PRESS_S[1]) & (rows["fresh"] == 1) & (rows["gain"] == 1.0)
-    depth = reach_m - np.abs(rows["pose"][:, 0] - rows["object_pose"][:, 0])
+    depth = np.zeros(len(rows))
+    depth[sel] = pad_depths(rows[sel], geometry)
     sel &= depth > 0.0
     if sel.sum() < 100:
         return {"n_per_m": float("nan"), "force_min_n": float("nan"),
@@ -186,7 +204,7 @@ def run(
         figures[p] = port_figures(rows, summary)
         geometry = local_geometry(scene, i)
         if press and geometry is not None:
-            figures[p]["felt"] = felt_stiffness(rows, float(geometry[0][0] + geometry[1][0]))
+            figures[p]["felt"] = felt_stiffness(rows, geometry)
         last = h.forwarders[p].events[-1:]
         figures[p]["link"] = last[0].get("counts") if last else None
     box = json.loads(world_json.read_text())["bodies"]["box"]
