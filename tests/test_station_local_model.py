@@ -174,3 +174,14 @@ def test_no_local_contact_while_the_world_re_indexes() -> None:
     st[0]["indexed"] = 1
     s = _at(st, TOUCH_X + 1e-3)
     assert s["contact_w"] == 0.0 and s["coupling"].tolist() == [2.0, 0.5, 0.01]
+
+
+def test_the_couplings_damping_along_the_normal_comes_with_it_and_never_pulls() -> None:
+    """B_n = 40 N s/m times the depth's rate: the pad moving in at 10 mm/s adds 0.4 N; moving
+    out faster than the spring's push over B clips at zero, never a pull."""
+    d = 1e-3
+    for v_in, want in ((0.01, K_SERIES * d + 40.0 * 0.01), (-0.1, 0.0)):
+        st = _station()
+        st[0]["world"][0]["twist"] = (v_in, 0.0, 0.0)  # +x: the left pad into the box
+        s = _at(st, TOUCH_X + d)
+        assert -s["local_force"][0] == pytest.approx(want, rel=1e-12, abs=1e-15), v_in

@@ -350,7 +350,9 @@ def _local_contact(s, ahead):
     pushes). Where it is active the coupling keeps only its tangent: f <- f - w (f.n) n +
     w F_loc, w fading over `fade_s` towards 1 in contact (fresh, coupled, no brake) and 0
     out of it. The world's tool stays coupled to the device: it squeezes the object as at
-    0 ms. Before the ramp and the passivity controller, which see it as the coupling."""
+    0 ms. The coupling's damping along n comes with it, B_n (v_object - v_dev) . n, the sum
+    clipped at zero (it only pushes). Before the ramp and the passivity controller, which
+    see it as the coupling."""
     for c in range(3):
         s.local_force[c] = 0.0
     s.depth = 0.0
@@ -375,7 +377,11 @@ def _local_contact(s, ahead):
         + min(s.stiffness[1], s.max_stiffness[1]) * ny * ny
     )
     k_s = kn * s.contact_stiffness / (kn + s.contact_stiffness) if kn > 0.0 else 0.0
-    s.local_force[0], s.local_force[1] = k_s * s.depth * nx, k_s * s.depth * ny
+    # the coupling's damping along n goes with it: B_n times the rate of the depth
+    bn = _damping(s, 0) * nx * nx + _damping(s, 1) * ny * ny
+    rate = nx * (s.object_twist[0] - w.twist[0]) + ny * (s.object_twist[1] - w.twist[1])
+    push = max(0.0, k_s * s.depth + bn * rate)  # it only pushes
+    s.local_force[0], s.local_force[1] = push * nx, push * ny
     along = s.coupling[0] * nx + s.coupling[1] * ny
     g = s.contact_w
     s.coupling[0] += g * (s.local_force[0] - along * nx)
