@@ -172,8 +172,8 @@ def test_at_50_ms_and_5_percent_loss_no_port_gives_out_energy_nor_oscillates(
     10.2x in two 12 s runs) and the box's drift within BOX_DRIFT_MM: with the local model
     as without it the box leaves the grip within about 0.3 s of the stations coupling
     (their devices come to the join moving, after a round trip on their safe damping, and
-    the squeeze is lost as the world couples them), and they stay safe after: the energy
-    bound then covers those seconds of coupling. xfail, with the figures."""
+    the squeeze is lost as the world couples them); the box falls to the scene's range and
+    waits there, and the stations stay coupled. xfail, with the figures."""
     reason = netns_unavailable()
     if reason:
         pytest.skip(reason)
@@ -192,7 +192,8 @@ def test_at_50_ms_and_5_percent_loss_no_port_gives_out_energy_nor_oscillates(
     if ratio > OSCILLATION_RATIO or bad["box_moved_mm"] > BOX_DRIFT_MM:
         pytest.xfail(f"force above 5 Hz {ratio:.1f}x the unimpaired run's; the box moved "
                      f"{bad['box_moved_mm']:.1f} mm (sank {bad['box_sank_mm']:.1f}); the "
-                     f"stations were coupled {coupled:.0%} of the run (safe once the box is "
-                     "out of range): the controllers keep the ports from giving out energy; "
+                     f"stations were coupled {coupled:.0%} of the run (the box, out of the "
+                     "grip, waits at the scene's range: the pads closed on its start): the "
+                     "controllers keep the ports from giving out energy; "
                      "the local model does not keep the grip through the join at 50 ms "
                      "(docs/bench/station_links.md)")  # fmt: skip
