@@ -77,11 +77,10 @@ def test_the_demo_warms_the_run_make_demo_starts() -> None:
     defaults = parser.parse_args([])
     scene, device, user, _ = warmup.DEMO_RUN
     assert (defaults.scene, defaults.device, defaults.user) == (scene, device, user)
-    (_, sim), (_, loop) = warmup.run_groups(warmup.DEMO_RUN)
-    assert isinstance(sim, partial) and sim.func is warmup._sim_kernels
-    assert sim.args == (scene,)
-    assert isinstance(loop, partial) and loop.func is warmup._loop_then_run
-    assert loop.args == (warmup.DEMO_RUN,)
+    (_, run), (_, loop) = warmup.run_groups(warmup.DEMO_RUN)
+    assert isinstance(run, partial) and run.args == ([warmup.DEMO_RUN],)
+    assert isinstance(loop, partial) and loop.func is warmup._loop_kernels
+    assert loop.args == ([device],)
 
 
 def test_a_cold_run_compiles_first_once_and_says_where(

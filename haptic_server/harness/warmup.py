@@ -39,7 +39,6 @@ from haptic_local_model.haptic_server.station import Station
 from haptic_local_model.shared.config import load_scene, load_user
 from haptic_local_model.shared.net.stations import load_station_network
 from haptic_local_model.shared.port_config import load_hand_scene, load_port_scene
-from haptic_local_model.sim_server.world import warm_kernels
 
 #: (scene, user, seconds) run with the ideal device: every rendering stage and the sim
 SCENE_RUNS = (
@@ -117,28 +116,12 @@ DEMO_RUN: Run = ("testbed", "ideal", "swing", 1.0)
 ALL_WARMED = "all"
 
 
-def _sim_kernels(scene: str) -> None:
-    """The sim's step and local model for `scene` (sim_server.world.warm_kernels)."""
-    warm_kernels(load_scene(scene))
-
-
-def _loop_then_run(run: Run) -> None:
-    """The real-time loop's kernels for the run's device (with the rendering kernels its
-    tick calls), then what the run's virtual clock and replay add (the sim's are the other
-    lane's by then: it takes a third of the time)."""
-    _loop_kernels([run[1]])
-    _run_virtual([run])
-
-
 def run_groups(run: Run) -> list[tuple[str, Callable[[], None]]]:
-    """One run's kernels, a group a lane: its sim's, and its rendering and real-time loop.
-    Split so, the two processes compile no kernel twice (split as sim + rendering against
-    the loop, both compiled the rendering: 144 s of CPU against 105 s one after the other,
-    on the demo's run)."""
+    """One run's kernels: its sim and rendering, and its real-time loop."""
     scene, device = Path(run[0]).stem, Path(run[1]).stem
     return [
-        (f"sim kernels, {scene} scene", partial(_sim_kernels, run[0])),
-        (f"rendering + real-time loop kernels: {device} device", partial(_loop_then_run, run)),
+        (f"sim + rendering kernels, {scene} scene", partial(_run_virtual, [run])),
+        (f"real-time loop kernels: {device} device", partial(_loop_kernels, [run[1]])),
     ]
 
 
