@@ -203,5 +203,18 @@ class Station:
             "mean_command_last_s": (
                 rows["out"][-min(len(rows), 1000) :].mean(axis=0).tolist() if len(rows) else []
             ),
+            "passivity": passivity_summary(rows),
             "epoch": self.epoch,
         }
+
+
+def passivity_summary(rows: np.ndarray) -> dict[str, Any]:
+    """What the station's passivity controller did over the rows kept (docs/stations.md,
+    "Passivity"): the ticks it damped the device (its link would have given out energy it
+    did not hold: the station softened), their share, and its largest damping per axis."""
+    damped = (rows["pc_damping"] > 0.0).any(axis=1) if len(rows) else np.zeros(0, bool)
+    return {
+        "damped_ticks": int(damped.sum()),
+        "damped_share": round(float(damped.mean()), 6) if len(rows) else 0.0,
+        "max_damping": rows["pc_damping"].max(axis=0).tolist() if len(rows) else [0.0] * 3,
+    }

@@ -19,7 +19,11 @@ from haptic_local_model.benchmarks.impair import Impairment
 from haptic_local_model.benchmarks.stations import PORTS, netns_unavailable
 from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.haptic_server.physics.passivity import PC_MAX_OVER_B
-from haptic_local_model.haptic_server.stages.station import STATION_DTYPE, _passivity
+from haptic_local_model.haptic_server.stages.station import (
+    STATION_DTYPE,
+    STATION_ROW_DTYPE,
+    _passivity,
+)
 from haptic_local_model.haptic_server.stages.station_link import station_link, take_tool
 from haptic_local_model.haptic_server.stages.world_ports import (
     COUPLED,
@@ -28,7 +32,7 @@ from haptic_local_model.haptic_server.stages.world_ports import (
     port_passivity,
     world_clock,
 )
-from haptic_local_model.haptic_server.station import Station
+from haptic_local_model.haptic_server.station import Station, passivity_summary
 from haptic_local_model.shared.config import load_user
 from haptic_local_model.shared.net.stations import load_station_network
 from haptic_local_model.shared.port_config import load_port_scene
@@ -151,6 +155,18 @@ def test_a_stations_budget_counts_from_each_worlds_first_tool_state_and_carries_
     assert st[0]["budget"][0] == pytest.approx(0.2)
     take_tool(st, link, 0, silent + 1, tool(6, 2, -0.1))
     assert st[0]["budget"][0] == pytest.approx(0.5)
+
+
+def test_a_stations_summary_says_when_its_controller_softened_it() -> None:
+    """The ticks any axis was damped (the union over x, y and the angle), their share and
+    the largest damping per axis; nothing for a run with no rows."""
+    rows = np.zeros(10, STATION_ROW_DTYPE)
+    rows["pc_damping"][[1, 2, 3], 0] = (5.0, 50.0, 20.0)
+    rows["pc_damping"][[3, 7], 2] = (0.01, 0.02)
+    got = passivity_summary(rows)
+    assert got == {"damped_ticks": 4, "damped_share": 0.4, "max_damping": [50.0, 0.0, 0.02]}
+    none = passivity_summary(rows[:0])
+    assert none == {"damped_ticks": 0, "damped_share": 0.0, "max_damping": [0.0, 0.0, 0.0]}
 
 
 #: issue 46's bounds: energy out of a port over the run, the force above 5 Hz over the
