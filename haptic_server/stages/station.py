@@ -358,17 +358,16 @@ def _local_contact(s, ahead):
     s.depth = 0.0
     on = s.local_model == 1 and s.cut == 0 and s.fresh == 1 and s.damping_gain == 1.0
     on = on and s.indexed == 0  # re-indexed, the object is where the device was, not is
+    if not on:
+        s.contact_w = 0.0  # going safe, braking or cut: the coupling as before, bit for bit
+        return
     w = s.world[0]
-    if on:
-        s.depth = pad_depth(s, w.pose[0], w.pose[1], w.pose[2], ahead)
+    s.depth = pad_depth(s, w.pose[0], w.pose[1], w.pose[2], ahead)
     target = 1.0 if s.depth > 0.0 else 0.0
     step = s.dt / s.fade_s
     s.contact_w += min(step, max(-step, target - s.contact_w))
     if abs(target - s.contact_w) < 0.5 * step:  # the sum's rounding: the end exactly
         s.contact_w = target
-    if not on:
-        s.contact_w = 0.0  # going safe, braking or cut: the coupling as before, bit for bit
-        return
     if s.contact_w == 0.0:
         return
     nx, ny = s.normal[0], s.normal[1]
@@ -460,6 +459,13 @@ def station_row(station, rows, k, fault):
         row.tool_twist[c] = s.tool_twist[c]
         row.stiffness[c] = s.stiffness[c]
         row.damping[c] = s.damping[c]
+        row.budget[c] = s.budget[c]
+        row.energy[c] = s.energy[c]
+        row.pc_damping[c] = s.pc_damping[c]
+        row.object_pose[c] = s.object_pose[c]
+        row.object_twist[c] = s.object_twist[c]
+        row.device_echo[c] = s.device_echo[c]
+        row.local_force[c] = s.local_force[c]
     row.tool_age = s.tool_age
     row.have_tool = s.have_tool
     row.gain = s.gain
@@ -469,13 +475,5 @@ def station_row(station, rows, k, fault):
     row.cut = s.cut
     row.invalid = s.invalid
     row.fault = fault
-    for c in range(3):
-        row.budget[c] = s.budget[c]
-        row.energy[c] = s.energy[c]
-        row.pc_damping[c] = s.pc_damping[c]
-        row.object_pose[c] = s.object_pose[c]
-        row.object_twist[c] = s.object_twist[c]
-        row.device_echo[c] = s.device_echo[c]
-        row.local_force[c] = s.local_force[c]
     row.contact_w = s.contact_w
     row.depth = s.depth
