@@ -89,7 +89,7 @@ class FakeHandle:
         self.plane = os.environ.get("FAKE_VENDOR_PLANE", "x,y").split(",")
         self.read_fail_at = int(os.environ.get("FAKE_VENDOR_READ_FAIL_AT", "-1"))
         self.reads = 0
-        self._moving: tuple[int, float, int] | None = None  # axis, velocity, until (ns)
+        self._moving: tuple[int, float, float] | None = None  # axis, velocity, time left (s)
         self.force = [0.0, 0.0, 0.0]
         self.first_push = -1  # the index of the first force that was not zero
         self.calls: list[str] = []  # in order; a repeat of the previous call is not listed
@@ -110,15 +110,14 @@ class FakeHandle:
 
     def user_moves(self, scene_axis: str) -> None:
         """A user moves the handle USER_MOVE_M along the scene's +x or +y ("x", "y"), that is
-        along the device axis FAKE_VENDOR_PLANE names for it, over USER_MOVE_S."""
+        along the device axis FAKE_VENDOR_PLANE names for it, over USER_MOVE_S of the handle's
+        own time (the readings' steps, each at most MAX_STEP_S): a test process starved of the
+        CPU for longer than the move still sees the whole move, as a real hand would make it,
+        not a move cut short by the wall clock."""
         text = self.plane[0 if scene_axis == "x" else 1]
         sign = -1.0 if text.startswith("-") else 1.0
         speed = sign * USER_MOVE_M / USER_MOVE_S
-        self._moving = (
-            AXES[text.lstrip("+-")],
-            speed,
-            time.monotonic_ns() + int(USER_MOVE_S * 1e9),
-        )
+        self._moving = (AXES[text.lstrip("+-")], speed, USER_MOVE_S)
 
     def advance(self) -> None:
         """Move the handle over the wall time since the last call (a reading)."""
@@ -133,10 +132,9 @@ class FakeHandle:
         if self.frozen:
             return
         if self._moving is not None:  # the user's hand leads: it sets the velocity
-            axis, speed, until = self._moving
-            self.velocity[axis] = speed if now < until else 0.0
-            if now >= until:
-                self._moving = None
+            axis, speed, left = self._moving  # the hand stops on the reading after its move
+            self.velocity[axis] = speed * min(dt, left) / dt if left > 0 and dt > 0 else 0.0
+            self._moving = (axis, speed, max(0.0, left - dt)) if left > 0 else None
         for i in range(3):
             f = self.hand[i] + self.force_sign * self.force[i]
             self.velocity[i] += dt * (f - self.friction * self.velocity[i]) / self.mass
