@@ -4,9 +4,14 @@ needs; a marked one may do all of that. Run in a pytest of its own (a process)."
 
 from __future__ import annotations
 
+import os
+import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
+from conftest import OVERRUN_S
 
 CASES = """
 import socket
@@ -37,8 +42,14 @@ def test_unmarked_sleeps():
 
 
 def test_unmarked_overruns():
-    end = time.perf_counter() + 2.5
-    while time.perf_counter() < end:
+    end = time.thread_time() + 2.5
+    while time.thread_time() < end:
+        pass
+
+
+def test_unmarked_starved_but_quick():  # the waits for a CPU another process held: not its
+    end = time.thread_time() + 1.2
+    while time.thread_time() < end:
         pass
 
 
@@ -77,9 +88,23 @@ def test_the_fast_tier_refuses_what_needs_a_marker(pytester: pytest.Pytester) ->
     pytester.makeconftest(conftest)
     pytester.makeini("[pytest]\nmarkers =\n    slow: long\n    processes: processes and sockets\n")
     pytester.makepyfile(test_cases=CASES)
-    result = pytester.runpytest_subprocess("-q", "-p", "no:cacheprovider")
-    result.assert_outcomes(passed=4, failed=5)
+    # the cases share one CPU with a process that spins: the starved one takes about twice
+    # its 1.2 s of its own, past OVERRUN_S on the wall clock, and still passes
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    mine = os.sched_getaffinity(0)
+    cpu = min(mine)
+    try:
+        os.sched_setaffinity(hog.pid, {cpu})
+        os.sched_setaffinity(0, {cpu})  # the cases' pytest, started now, inherits it
+        result = pytester.runpytest_subprocess("-q", "-p", "no:cacheprovider", "--durations=0")
+    finally:
+        os.sched_setaffinity(0, mine)
+        hog.kill()
+        hog.wait(10)
+    result.assert_outcomes(passed=5, failed=5)
     out = result.stdout.str()
+    starved = re.search(r"([\d.]+)s call +test_cases.py::test_unmarked_starved_but_quick", out)
+    assert starved is not None and float(starved.group(1)) > OVERRUN_S, out
     for name, needs in (
         ("starts_a_process", "this test starts a process: mark it @pytest.mark.processes"),
         ("opens_a_socket", "this test opens a socket: mark it @pytest.mark.processes"),
