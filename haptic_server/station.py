@@ -57,6 +57,48 @@ TOOL_RING = 64  # tool states kept between two ticks: a stalled tick's worth and
 SPIN_NS = 100_000  # the wait's last 0.1 ms spins (several loops share two cores)
 MAX_LOG_S = 600.0  # the rows of at most this long stay in memory (--log: --duration <= this)
 RING_S = 60.0  # without --log: the last this long (the summary's figures)
+#: The station says it softened (docs/stations.md, "Passivity"): its passivity controller
+#: damped its device on at least SOFTENED_SHARE of the ticks of the last SOFTEN_WINDOW_S
+#: (the link gave out more than it held, often: what the station renders is no longer the
+#: coupling but the controller's damping); it says it is restored once that share is at
+#: most RESTORED_SHARE.
+SOFTEN_WINDOW_S = 0.5
+SOFTENED_SHARE = 0.2
+RESTORED_SHARE = 0.05
+
+
+class Softening:
+    """Whether a station's passivity controller is softening it, over a sliding window of
+    its ticks (one bit a tick, O(1) a tick): the `softened` and `restored` events."""
+
+    def __init__(self, window: int) -> None:
+        self.damped = np.zeros(window, np.bool_)
+        self.count = 0  # damped ticks in the window
+        self.ticks = 0
+        self.on = False
+        self.events: list[dict[str, Any]] = []
+
+    def add(self, damped: bool, t_s: float, damping: np.ndarray) -> dict[str, Any] | None:
+        """This tick: damped or not, at `t_s` of the run, with the controller's damping per
+        axis; the event it makes, if any (kept in `events` too)."""
+        i = self.ticks % len(self.damped)
+        self.count += int(damped) - int(self.damped[i])
+        self.damped[i] = damped
+        self.ticks += 1
+        if self.ticks < len(self.damped):
+            return None  # not a whole window yet
+        share = self.count / len(self.damped)
+        if not self.on and share >= SOFTENED_SHARE:
+            self.on = True
+        elif self.on and share <= RESTORED_SHARE:
+            self.on = False
+        else:
+            return None
+        event = {"event": "softened" if self.on else "restored", "t_s": round(t_s, 3),
+                 "damped_share": round(share, 3),
+                 "damping": [round(float(d), 3) for d in damping]}  # fmt: skip
+        self.events.append(event)
+        return event
 
 
 class Station:
@@ -91,6 +133,8 @@ class Station:
         self.refills = 0
         self.work_us = SampleWindow(100_000)
         self.pacer = Pacer(round(scene.period_s * 1e9), SPIN_NS, None)
+        self.softening = Softening(max(1, round(SOFTEN_WINDOW_S / scene.period_s)))
+        self.on_event: Any = None  # called with each softening event (haptic-station: emit)
         self.epoch = time.time_ns()
         self.message = device_record(self.index, self.epoch)  # the tick's DeviceState
         self._stop = False
@@ -151,9 +195,13 @@ class Station:
         """The tick's row (the ring's next), with its work since now_ns."""
         work_ns = time.perf_counter_ns() - now_ns
         self.work_us.add(work_ns / 1e3)
-        station_log(self.station, self.link, self.rows, self.n_rows % len(self.rows), now_ns,
-                    late_ns, work_ns)  # fmt: skip
+        k = self.n_rows % len(self.rows)
+        station_log(self.station, self.link, self.rows, k, now_ns, late_ns, work_ns)
         self.n_rows += 1
+        damping = self.rows[k]["pc_damping"]
+        event = self.softening.add(bool(damping.any()), self.n_rows * self._dt, damping)
+        if event is not None and self.on_event is not None:
+            self.on_event(event)  # rare (a transition), after the tick's DeviceState went out
 
     def warm(self) -> None:
         """Compile (or load) the tick on spare records and a spare device before the loop
@@ -203,7 +251,7 @@ class Station:
             "mean_command_last_s": (
                 rows["out"][-min(len(rows), 1000) :].mean(axis=0).tolist() if len(rows) else []
             ),
-            "passivity": passivity_summary(rows),
+            "passivity": {**passivity_summary(rows), "events": self.softening.events},
             "epoch": self.epoch,
         }
 

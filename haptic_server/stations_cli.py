@@ -7,8 +7,9 @@
 
 Each runs until SIGTERM or SIGINT (or --duration), then writes its log (a temporary file
 renamed when whole) and its summary (--json), and prints one JSON line per event on stdout
-(`ready`, `done`). The world's log is a port world's log and a station's holds the tool states
-it rendered against: `haptic-replay LOG` re-runs either bit for bit.
+(`ready`, `done`; a station's `softened` and `restored`: docs/stations.md, "Passivity"). The
+world's log is a port world's log and a station's holds the tool states it rendered
+against: `haptic-replay LOG` re-runs either bit for bit.
 """
 
 from __future__ import annotations
@@ -225,6 +226,9 @@ def station_main(argv: list[str] | None = None) -> int:
         device, user = load_simulated_device(device_name), load_user(user_name)
         rows = _rows_for(args, scene.haptic_rate_hz)
         station = Station(scene, network, args.port, device, user, rows)
+        station.on_event = lambda e: emit(
+            e["event"], prog="haptic-station", **{k: v for k, v in e.items() if k != "event"}
+        )
         with rows_viewed(station, view_address(args), text, STATION_TOPIC, args.port):
             summary = _run_loop("haptic-station", station, args.duration)
         if summary is None:
