@@ -48,7 +48,7 @@ TOOL_INPUTS = ("have_tool", "held", "tool_age", "tool_pose", "tool_twist", "stif
 #: what a tick computes from them: compared bit for bit by the replay
 REPLAYED = ("pose", "twist", "hand", "coupling", "spring", "out", "gain", "fresh", "cut",
             "invalid", "fault", "energy", "pc_damping", "contact_w", "depth",
-            "local_force")  # fmt: skip
+            "local_force", "hold_force")  # fmt: skip
 #: the local model's blend between the coupling's normal and the local contact: a few ticks
 #: (a step of the whole squeeze in one tick is what the fade is for)
 CONTACT_FADE_S = 0.005

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import signal
 import sys
 import time
@@ -265,6 +266,75 @@ def test_a_station_rejoins_only_into_about_the_squeeze_it_left_with() -> None:
             assert abs(rows["spring"][0, 0] - left) < 0.5
             assert waited == 0 and rows["gain"][39] == pytest.approx(1.0)
         s[0]["tool_pose"][0] -= far
+
+
+def _squeezing(wrench: float) -> Station:
+    """An ideal device's station (1 kg, no noise) whose user pushes a constant `wrench` along
+    x with no spring of its own (squeeze_left_2n's 2 N, or another)."""
+    user = dataclasses.replace(load_user("squeeze_left_2n"), wrench=(wrench, 0.0, 0.0))
+    network = load_station_network("stations_loopback", "left")
+    return Station(load_port_scene(SCENE), network, "left", load_simulated_device("ideal"),
+                   user, 10)  # fmt: skip
+
+
+def test_a_station_holds_its_device_until_its_first_tool_state_and_joins_without_a_jump() -> None:
+    """With no tool state yet (its world a round trip away) the station holds its device
+    where it first read it, by its scene's coupling to that pose, K (x_hold - x) - B v
+    (K = 2 kN/m, B = 40 N s/m): its user's constant 2 N push leaves it at rest F/K = 1 mm
+    on, its overshoot at most the second-order step's (zeta = (B + b_user) / 2 sqrt(K m)),
+    not running off on the safe damping at F / (b_safe + b_user) = 0.2 m/s. Its first tool
+    state, INDEXED on the pose it sent, the anchor's stretch s, ramps in with no step larger
+    than the ramp's share of |K s - F_hold| plus the two forces' own steps; at s = F/K (the
+    anchor squeezing as its user pushes) the command does not move."""
+    force, k, b, b_user, mass = 2.0, 2000.0, 40.0, 5.0, 1.0
+    zeta = (b + b_user) / (2.0 * math.sqrt(k * mass))
+    overshoot = math.exp(-math.pi * zeta / math.sqrt(1.0 - zeta**2))
+    for stretch in (force / k, 1.5 * force / k):
+        st = _squeezing(force)
+        rows = _ticks(st, 800, lambda k: None)
+        s = st.station[0]
+        x = rows["pose"][:, 0] - s["hold_pose"][0]
+        assert s["hold_pose"].tolist() == rows["pose"][0].tolist()  # where it first read it
+        assert x[-1] == pytest.approx(force / k, rel=1e-4)
+        assert x.max() <= force / k * (1.0 + overshoot) * 1.01
+        assert abs(rows["twist"][-1, 0]) < 1e-5 and rows["gain"].max() == 0.0
+        assert rows["out"][-1, 0] == pytest.approx(-force, rel=1e-4)  # the hold, at rest
+        s["indexed"], s["device_echo"] = 1, rows["pose"][-1]  # as the world re-indexed it
+        s["tool_pose"] = rows["pose"][-1] - np.array([stretch, 0.0, 0.0])
+        s["tool_twist"] = 0.0
+        join = _ticks(st, 200, lambda k: 0.0)
+        assert join["gain"][40] == 1.0 and s["joined"] == 1  # no brake: it came at rest
+        out = np.concatenate([rows["out"][-1:, 0], join["out"][:, 0]])
+        hold = np.concatenate([rows["hold_force"][-1:, 0], join["hold_force"][:40, 0]])
+        coupling = join["coupling"][:41, 0]
+        bound = (abs(k * stretch - force) / 40.0 + np.abs(np.diff(coupling)).max()
+                 + np.abs(np.diff(hold)).max())  # fmt: skip
+        assert np.abs(np.diff(out[:42])).max() <= bound + 1e-12
+        if stretch == force / k:
+            assert np.abs(out + force).max() < 1e-3  # 0.05 % of the squeeze
+        assert np.all(join["hold_force"][41:] == 0.0)  # joined: the hold is gone
+
+
+def test_the_hold_slips_past_its_cap_and_a_joined_station_goes_safe_on_damping_only() -> None:
+    """A user pushing 8 N, more than the hold's cap (a tenth of the ideal device's 50 N
+    limit): the hold's spring stays at the cap, its anchor slipping on with the device, so
+    the user meets at most 5 N plus the damping, never a spring wound up to the limit. Once
+    it has been fully coupled, the station's safe state is the damping only, as before."""
+    st = _squeezing(8.0)
+    rows = _ticks(st, 500, lambda k: None)
+    s = st.station[0]
+    cap = 0.1 * 50.0
+    spring = rows["hold_force"][:, 0] + 40.0 * rows["twist"][:, 0]
+    assert spring.min() == pytest.approx(-cap, rel=1e-12) and spring.min() >= -cap * (1 + 1e-12)
+    assert rows["pose"][-1, 0] - s["hold_pose"][0] == pytest.approx(cap / 2000.0, rel=1e-9)
+    st = _station()
+    st.station[0]["tool_pose"][0] += 0.001
+    _ticks(st, 100, lambda k: 0.0)
+    st.station[0]["held"] = 1
+    rows = _ticks(st, 100, lambda k: 0.0)
+    damping = st.device.rendering.safe_damping[0]
+    assert rows["out"][60:, 0] == pytest.approx(-damping * rows["twist"][60:, 0])
+    assert np.all(rows["hold_force"] == 0.0)
 
 
 def test_a_reading_or_a_coupling_that_is_not_finite_commands_zero() -> None:

@@ -82,7 +82,7 @@ STATION_UNITS: dict[str, str] = {
     "fresh": "", "cut": "", "invalid": "", "received": "", "rejected": "", "fault": "",
     "budget": "J", "energy": "J", "pc_damping": "N·s/m, N·m·s/rad", "object_pose": POSE,
     "object_twist": TWIST, "contact_w": "", "depth": "m", "local_force": WRENCH,
-    "indexed": "", "device_echo": POSE,
+    "indexed": "", "device_echo": POSE, "hold_force": WRENCH,
 }  # fmt: skip
 #: a port world's rows (docs/log-format.md, "Port logs"); `sim_bodies` is pose then twist
 PORT_UNITS: dict[str, str] = {

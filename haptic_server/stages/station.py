@@ -111,6 +111,13 @@ STATION_DTYPE = np.dtype(
         ("normal", F8, (2,)),  # the contact's normal, from the object to the pad
         ("depth", F8),  # the device's pad into the object, m (0: apart)
         ("local_force", F8, (3,)),  # the local contact's force, world frame, before the blend
+        # the hold (_hold; docs/stations.md, "The join"): until the station has been fully
+        # coupled once, its safe state holds the device where it was, not damping only
+        ("joined", I8),  # 1 once the ramp reached the full coupling
+        ("has_hold", I8),  # hold_pose is set (the first finite reading)
+        ("hold_pose", F8, (3,)),  # world frame: where the device is held (it slips past the cap)
+        ("hold_force", F8, (3,)),  # world frame: K (x_hold - x) - B v, clipped
+        ("hold_out", F8, (3,)),  # device frame: the hold mapped to the device
     ]
 )
 
@@ -152,6 +159,7 @@ STATION_ROW_DTYPE = np.dtype(
         ("contact_w", F8),
         ("depth", F8),
         ("local_force", F8, (3,)),
+        ("hold_force", F8, (3,)),  # the hold (before the ramp's blend; 0 once joined)
     ]
 )
 
@@ -387,6 +395,44 @@ def _local_contact(s, ahead):
     s.coupling[1] += g * (s.local_force[1] - along * ny)
 
 
+#: The hold's spring slips past this share of the device's limit (its anchor follows the
+#: device), so a user who pushes on with no world meets a bounded force: the maglev's 5 N,
+#: over twice the grasp's 2 N squeeze
+HOLD_SHARE = 0.1
+
+
+@njit(cache=True)
+def _hold(s):
+    """The station's safe state until it has been fully coupled once (docs/stations.md, "The
+    join"): its device held where it first read it, by its own scene's coupling (the spring
+    K and damper B of `max_stiffness`, `max_damping`, world frame) to a fixed pose,
+    F = K (x_hold - x) - B v, so that its user's push does not carry it off on the safe
+    damping for the round trip before its first tool state: it comes to the coupling at rest
+    and where the world re-indexed its tool. The spring is clipped at HOLD_SHARE of the
+    device's limit, its anchor slipping with the device past it (a friction element: what it
+    stores is at most cap^2 / 2K). A spring to a fixed pose and a damper are passive. Into
+    hold_force (world frame) and hold_out (device frame); zero once joined or on a cut."""
+    w = s.world[0]
+    for c in range(3):
+        s.hold_force[c] = 0.0
+    if s.joined == 0 and s.cut == 0:
+        if s.has_hold == 0:
+            s.has_hold = 1
+            for c in range(3):
+                s.hold_pose[c] = w.pose[c]
+        for c in range(3):
+            k = s.max_stiffness[c]
+            err = s.hold_pose[c] - w.pose[c]
+            if c == 2:
+                err = wrap_angle(err)
+            cap = HOLD_SHARE * s.limits[c]
+            if k * abs(err) > cap:  # slip: the anchor follows to the cap's stretch
+                err = math.copysign(cap / k, err)
+                s.hold_pose[c] = w.pose[c] + err
+            s.hold_force[c] = k * err - s.max_damping[c] * w.twist[c]
+    map_command_to_device(s.map, s.hold_force, s.limits, s.hold_out)
+
+
 @njit(cache=True)
 def station_tick(station, dev):
     """One tick (module docstring)."""
@@ -423,9 +469,14 @@ def station_tick(station, dev):
     s.gain = min(1.0, s.gain + step) if s.fresh == 1 else max(0.0, s.gain - step)
     _note_squeeze(s)
     _passivity(s)
+    _hold(s)
+    if s.gain == 1.0:
+        s.joined = 1
     map_command_to_device(s.map, s.coupling, s.limits, s.scratch)
     for c in range(3):
         safe = -s.safe_damping[c] * sen.twist[c] if s.cut == 0 else 0.0
+        if s.joined == 0:
+            safe = s.hold_out[c]  # zero on a cut
         v = s.gain * s.scratch[c] + (1.0 - s.gain) * safe
         if not math.isfinite(v):
             bad = True
@@ -466,6 +517,7 @@ def station_row(station, rows, k, fault):
         row.object_twist[c] = s.object_twist[c]
         row.device_echo[c] = s.device_echo[c]
         row.local_force[c] = s.local_force[c]
+        row.hold_force[c] = s.hold_force[c]
     row.tool_age = s.tool_age
     row.have_tool = s.have_tool
     row.gain = s.gain
