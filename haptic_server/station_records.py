@@ -52,6 +52,10 @@ REPLAYED = ("pose", "twist", "hand", "coupling", "spring", "out", "gain", "fresh
 #: the local model's blend between the coupling's normal and the local contact: a few ticks
 #: (a step of the whole squeeze in one tick is what the fade is for)
 CONTACT_FADE_S = 0.005
+#: the local contact renders the object low-passed with this time constant (stages/station.py
+#: _see_object: the object's reported motion, the devices' own a round trip late, rang at
+#: 150 ms one way; a model of the common mode decays at every round trip to 360 ms with it)
+OBJECT_TAU_S = 0.05
 #: a pad's flat face on the object's flat side touches at two points (the world's contact
 #: per point is the scene's `contact.stiffness_n_per_m`): k_c = 2 k_point
 FACE_POINTS = 2
@@ -107,6 +111,7 @@ def station_record(setup: StationSetup) -> np.ndarray:
     s["pc_max"] = PC_MAX_OVER_B * np.asarray(damping, np.float64)
     s["map"][0] = world_map_of(device).record[0]
     s["fade_s"] = CONTACT_FADE_S
+    s["object_tau"] = OBJECT_TAU_S
     geometry = local_geometry(scene, setup.index) if setup.local_model else None
     if geometry is not None:
         s["local_model"] = 1

@@ -17,6 +17,7 @@ from haptic_local_model.haptic_server.stages.station_link import take_tool
 from haptic_local_model.haptic_server.station import Station
 from haptic_local_model.haptic_server.station_records import (
     CONTACT_FADE_S,
+    OBJECT_TAU_S,
     StationSetup,
     local_geometry,
     station_record,
@@ -185,3 +186,27 @@ def test_the_couplings_damping_along_the_normal_comes_with_it_and_never_pulls() 
         st[0]["world"][0]["twist"] = (v_in, 0.0, 0.0)  # +x: the left pad into the box
         s = _at(st, TOUCH_X + d)
         assert -s["local_force"][0] == pytest.approx(want, rel=1e-12, abs=1e-15), v_in
+
+
+def test_the_object_is_rendered_low_passed_from_where_it_was_when_contact_began() -> None:
+    """The local contact renders the object where the world last sent it, low-passed with
+    OBJECT_TAU_S (pose and twist): taken as it is on the first tick of contact; a reported
+    step of 0.5 mm away from the pad is followed as 1 - (1 - dt/tau)^n, and the force with
+    it, k_s (d - seen); leaving contact (a tick not fresh) drops what it had seen."""
+    st = _station()
+    s = st[0]
+    d, step, dt = 1e-3, 5e-4, float(s["dt"])
+    assert s["object_tau"] == OBJECT_TAU_S
+    s = _at(st, TOUCH_X + d)
+    assert s["object_seen"].tolist() == [0.0, 0.0, 0.0] and s["depth"] == pytest.approx(d)
+    s["object_pose"][0] = step  # the box reported 0.5 mm further from the left pad
+    for n in range(1, 101):
+        s = _at(st, TOUCH_X + d)
+        seen = step * (1.0 - (1.0 - dt / OBJECT_TAU_S) ** n)
+        assert s["object_seen"][0] == pytest.approx(seen, rel=1e-9)
+        assert s["local_force"][0] == pytest.approx(-K_SERIES * (d - seen), rel=1e-9)
+    s["fresh"] = 0
+    _at(st, TOUCH_X + d)
+    s["fresh"] = 1
+    s = _at(st, TOUCH_X + d)  # back in contact: the object as it is
+    assert s["object_seen"][0] == step and s["depth"] == pytest.approx(d - step)

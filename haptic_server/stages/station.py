@@ -11,12 +11,13 @@ tool state is not carried on into a guess):
 
 mapped to the device, clipped at its limits. Without a fresh tool state (none for the
 watchdog's period, or the world says it holds the port) the command ramps over `ramp_s` to
-the safe state, damping on the handle's own motion; it ramps back the same way when tool
-states return (into about the squeeze it left with: _rejoins). With the local model on, the
-pad's contact with the object the world last sent is rendered here, and the coupling only
-along its tangent (_local_contact). A reading that is not finite
-renders zero for the tick; a coupling or a
-command that is not finite is zeroed and counted. No I/O: the loop
+the safe state, damping on the handle's own motion (until the station has been fully
+coupled once: a hold where its device first read, _hold); it ramps back the same way when
+tool states return (into about the squeeze it left with: _rejoins). With the local model
+on, the pad's contact with the object the world last sent (low-passed: _see_object) is
+rendered here, and the coupling only along its tangent (_local_contact). A reading that is
+not finite renders zero for the tick; a coupling or a command that is not finite is zeroed
+and counted. No I/O: the loop
 (haptic_server/station.py) feeds the tool state and its age and publishes the device state
 this leaves in `world`.
 """
@@ -111,6 +112,10 @@ STATION_DTYPE = np.dtype(
         ("normal", F8, (2,)),  # the contact's normal, from the object to the pad
         ("depth", F8),  # the device's pad into the object, m (0: apart)
         ("local_force", F8, (3,)),  # the local contact's force, world frame, before the blend
+        ("object_tau", F8),  # the low-pass on the object as rendered (s; <= dt: none)
+        ("has_seen", I8),  # object_seen is set (0: taken as it is on the next contact tick)
+        ("object_seen", F8, (3,)),  # the object as the local contact renders it: low-passed
+        ("object_seen_twist", F8, (3,)),
         # the hold (_hold; docs/stations.md, "The join"): until the station has been fully
         # coupled once, its safe state holds the device where it was, not damping only
         ("joined", I8),  # 1 once the ramp reached the full coupling
@@ -331,6 +336,12 @@ def pad_depth(s, x, y, angle, ahead):
     ox = s.object_pose[0] + s.object_twist[0] * ahead
     oy = s.object_pose[1] + s.object_twist[1] * ahead
     oa = s.object_pose[2] + s.object_twist[2] * ahead
+    return depth_at(s, x, y, angle, ox, oy, oa)
+
+
+@njit(cache=True)
+def depth_at(s, x, y, angle, ox, oy, oa):
+    """pad_depth against the object at (ox, oy, oa)."""
     dx, dy = x - ox, y - oy
     best, nx, ny = math.inf, 0.0, 0.0
     for k in range(4):
@@ -350,17 +361,37 @@ def pad_depth(s, x, y, angle, ahead):
 
 
 @njit(cache=True)
+def _see_object(s, ahead):
+    """The object as the local contact renders it (docs/stations.md, "The local model at the
+    station"): where the world last sent it, carried on by its twist for `ahead`, low-passed
+    with time constant `object_tau` (pose and twist alike): the object's reported motion is
+    the devices' own common motion a round trip late, and a spring about it rendered as it
+    comes closes a delayed loop through both stations that rings at the device's own
+    frequency on k_s (8.5 Hz on the maglev at 150 ms one way). Taken as it is on the first
+    tick of contact (has_seen 0)."""
+    a = 1.0 if s.has_seen == 0 or s.object_tau <= s.dt else s.dt / s.object_tau
+    s.has_seen = 1
+    for c in range(3):
+        target = s.object_pose[c] + s.object_twist[c] * ahead
+        err = target - s.object_seen[c]
+        if c == 2:
+            err = wrap_angle(err)
+        s.object_seen[c] += a * err
+        s.object_seen_twist[c] += a * (s.object_twist[c] - s.object_seen_twist[c])
+
+
+@njit(cache=True)
 def _local_contact(s, ahead):
-    """The local model (docs/stations.md, "The local model at the station"): the device's
-    pad against the object where the world last sent it (carried on by its twist for
-    `ahead`), rendered here at once with the coupling in series with the world's contact,
-    k_s = K_n k_c / (K_n + k_c), along the contact's normal n: F_loc = k_s depth n (it only
-    pushes). Where it is active the coupling keeps only its tangent: f <- f - w (f.n) n +
-    w F_loc, w fading over `fade_s` towards 1 in contact (fresh, coupled, no brake) and 0
-    out of it. The world's tool stays coupled to the device: it squeezes the object as at
-    0 ms. The coupling's damping along n comes with it, B_n (v_object - v_dev) . n, the sum
-    clipped at zero (it only pushes). Before the ramp and the passivity controller, which
-    see it as the coupling."""
+    """The local model (docs/stations.md, "The local model at the station"): the device's pad
+    against the object where the world last sent it (carried on by its twist for `ahead`,
+    low-passed: _see_object), rendered here at once with the coupling in series with the
+    world's contact, k_s = K_n k_c / (K_n + k_c), along the contact's normal n: F_loc = k_s
+    depth n (it only pushes). Where it is active the coupling keeps only its tangent: f <- f
+    - w (f.n) n + w F_loc, w fading over `fade_s` towards 1 in contact (fresh, coupled, no
+    brake) and 0 out of it. The world's tool stays coupled to the device: it squeezes the
+    object as at 0 ms. The coupling's damping along n comes with it, B_n (v_object - v_dev)
+    . n, the sum clipped at zero (it only pushes). Before the ramp and the passivity
+    controller, which see it as the coupling."""
     for c in range(3):
         s.local_force[c] = 0.0
     s.depth = 0.0
@@ -368,9 +399,12 @@ def _local_contact(s, ahead):
     on = on and s.indexed == 0  # re-indexed, the object is where the device was, not is
     if not on:
         s.contact_w = 0.0  # going safe, braking or cut: the coupling as before, bit for bit
+        s.has_seen = 0  # the object taken as it is when the contact comes back
         return
     w = s.world[0]
-    s.depth = pad_depth(s, w.pose[0], w.pose[1], w.pose[2], ahead)
+    _see_object(s, ahead)
+    o = s.object_seen
+    s.depth = depth_at(s, w.pose[0], w.pose[1], w.pose[2], o[0], o[1], o[2])
     target = 1.0 if s.depth > 0.0 else 0.0
     step = s.dt / s.fade_s
     s.contact_w += min(step, max(-step, target - s.contact_w))
@@ -386,7 +420,8 @@ def _local_contact(s, ahead):
     k_s = kn * s.contact_stiffness / (kn + s.contact_stiffness) if kn > 0.0 else 0.0
     # the coupling's damping along n goes with it: B_n times the rate of the depth
     bn = _damping(s, 0) * nx * nx + _damping(s, 1) * ny * ny
-    rate = nx * (s.object_twist[0] - w.twist[0]) + ny * (s.object_twist[1] - w.twist[1])
+    v = s.object_seen_twist
+    rate = nx * (v[0] - w.twist[0]) + ny * (v[1] - w.twist[1])
     push = max(0.0, k_s * s.depth + bn * rate)  # it only pushes
     s.local_force[0], s.local_force[1] = push * nx, push * ny
     along = s.coupling[0] * nx + s.coupling[1] * ny
