@@ -155,7 +155,12 @@ def test_only_the_configured_sim_drives_the_haptic_server(
     assert proxies_seen["unknown user"] == 0
     control_verdicts = [r["reason"] for r in by_epoch.get(control_epoch, [])]
     assert len(control_verdicts) >= UPDATES_PER_PEER * MIN_CONTROL_FRACTION
-    assert set(control_verdicts) == {"epoch"}  # another epoch while the sim's updates flow
+    # another epoch while the sim's updates flow: refused by the epoch rule; the age check
+    # comes first (stages/install.py admit_live), so one the loaded machine took more than
+    # the scene's max_update_age_ms after it was sent is refused as late (a clean-clone CI
+    # beside other work: {'epoch', 'late'}); none installs, most meet the epoch rule
+    assert set(control_verdicts) <= {"epoch", "late"}, control_verdicts
+    assert control_verdicts.count("epoch") > len(control_verdicts) / 2, control_verdicts
     installed_sim = [r for r in by_epoch.get(sim_epoch, []) if r["installed"]]
     run_s = SIM_FLOW_S + len(intruders) * UPDATES_PER_PEER / PUBLISH_HZ
     assert len(installed_sim) >= MIN_SIM_FRACTION * run_s * load_scene(SCENE).sim_rate_hz
