@@ -82,9 +82,10 @@ class StationNetworkConfig:
     # observers only: the energies are still counted, exchanged and logged)
     passivity: str = "tdpa"
     # each station renders its tool's contact with the object on its own side (docs/
-    # stations.md, "The local model at the station"); false, the default until it is shown
-    # to keep the ports passive and the grip over long round trips: the coupling alone
-    local_model: bool = False
+    # stations.md, "The local model at the station"): on by default, it kept the grip and
+    # the ports passive at 50 and 150 ms one way where the coupling alone lost the box;
+    # false: the coupling alone
+    local_model: bool = True
 
     def __post_init__(self) -> None:
         require_safe_state(self.namespace, self.watchdog_ms, self.safe_ramp_ms)
