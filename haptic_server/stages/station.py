@@ -446,11 +446,14 @@ def _hold(s):
     and where the world re-indexed its tool. The spring is clipped at HOLD_SHARE of the
     device's limit, its anchor slipping with the device past it (a friction element: what it
     stores is at most cap^2 / 2K). A spring to a fixed pose and a damper are passive. Into
-    hold_force (world frame) and hold_out (device frame); zero once joined or on a cut."""
+    hold_force (world frame) and hold_out (device frame); zero on a cut. Once joined only
+    hold_force is zeroed (the log's): hold_out is read only before the join."""
     w = s.world[0]
     for c in range(3):
         s.hold_force[c] = 0.0
-    if s.joined == 0 and s.cut == 0:
+    if s.joined == 1:
+        return
+    if s.cut == 0:
         if s.has_hold == 0:
             s.has_hold = 1
             for c in range(3):
