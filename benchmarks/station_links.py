@@ -27,8 +27,9 @@ process it starts stopped by its pid, however it ends.
 `--passivity tdpa off` runs each point with the port links' passivity controllers and
 without (the observers only), one after the other (the machine is shared); `--local-model
 on off` likewise with the stations' local model and without. `--press`: the stations'
-users press their pads into the box and release (PRESS_USERS), and each station's felt
-stiffness is fitted (felt_stiffness).
+users press their pads into the box and release three times (PRESS_USERS), each station's
+felt stiffness is fitted (felt_stiffness), and its drift from the world is measured
+(registration, drift: the world's log is kept for it).
 """
 
 from __future__ import annotations
@@ -55,12 +56,15 @@ from haptic_local_model.benchmarks.stations import (
 )
 from haptic_local_model.haptic_server.stages.station import STATION_DTYPE, pad_depth
 from haptic_local_model.haptic_server.station_records import EXTRAPOLATE_S, local_geometry
+from haptic_local_model.haptic_server.world_runs import read_port_log
 from haptic_local_model.shared.port_config import load_port_scene
 
-#: --press: each station's user presses its pad into the box and releases (their ramps'
-#: times: configs/users/press_*_ramp.toml), the felt stiffness fitted over PRESS_S
+#: --press: each station's user presses its pad into the box and releases, three times
+#: (their ramps' times: configs/users/press_*_ramp.toml), the felt stiffness fitted over the
+#: first press (PRESS_S), the drift measured at rest before it and after each release (REST_S)
 PRESS_USERS = {"left": "press_left_ramp", "right": "press_right_ramp"}
 PRESS_S = (5.0, 12.0)
+REST_S = ((4.0, 5.0), (12.5, 13.0), (20.5, 21.0), (28.9, 29.9))
 BAND_HZ = 5.0  # the force spectrum is summed above this (a grip's own motion is slower)
 SETTLE_S = 1.0  # the spectrum leaves out the first second the station renders (it joins)
 SUMMARY_WAIT_S = 2.0
@@ -158,6 +162,51 @@ def felt_stiffness(rows: np.ndarray, geometry: tuple) -> dict[str, float]:
             "force_max_n": float(force.max()), "ticks": int(sel.sum())}  # fmt: skip
 
 
+def registration(
+    station: np.ndarray, world: np.ndarray, world_start_ns: int, p: int, window: tuple
+) -> np.ndarray:
+    """Where the world has port p's device less where the device is, over `window` (s of the
+    station's clock), x, y (mm) and angle (mrad), the median over the station's ticks in it:
+    the pose the world fed the port's tool (its row's device_pose: the last DeviceState it
+    took, re-indexed and carried on) less the station's own reading (its row's pose) at the
+    same instant of the host's monotonic clock (the world's row nearest it, at world_start_ns
+    + its t; the station's at its wall_ns). In motion it holds the link's lag (the twist times the
+    delay); at rest only the registration the world took when it indexed the port, so a
+    change between two rests is the two ends walking apart: a re-index (the world's offset),
+    a DeviceState the world never got, a bias in its carry-on. NaNs if the window has no
+    ticks, or none the world's rows cover."""
+    t = station["t"]
+    sel = (t >= window[0]) & (t < window[1])
+    at = (station["wall_ns"][sel] - world_start_ns) / 1e9
+    wt = world["t"]
+    k = np.clip(np.searchsorted(wt, at), 1, max(1, len(wt) - 1))
+    k -= (at - wt[k - 1]) < (wt[np.minimum(k, len(wt) - 1)] - at)  # the nearest row
+    ok = (at >= wt[0]) & (at <= wt[-1] + 0.5 * (wt[-1] - wt[-2] if len(wt) > 1 else 0.0))
+    if len(wt) < 2 or not ok.any():
+        return np.full(3, np.nan)
+    e = world["device_pose"][k[ok], p, :] - station["pose"][sel][ok]
+    e[:, 2] = np.arctan2(np.sin(e[:, 2]), np.cos(e[:, 2]))
+    return np.median(e, axis=0) * 1e3
+
+
+def drift(station: np.ndarray, world: np.ndarray, world_start_ns: int, p: int) -> dict[str, Any]:
+    """Port p's drift from the world: its registration (registration) at each rest of REST_S
+    the station's run reached, and how far each later one is from the first, before the
+    first press (x-y, mm; angle, mrad); `drift_mm` is the last rest's (after every release)."""
+    end = float(station["t"][-1]) if len(station) else 0.0
+    rests = [w for w in REST_S if w[1] <= end + 1e-3]
+    regs = [registration(station, world, world_start_ns, p, w) for w in rests]
+    apart = [float(np.hypot(*(r - regs[0])[:2])) for r in regs[1:]]
+    turned = [float(abs(r[2] - regs[0][2])) for r in regs[1:]]
+    return {
+        "rests_s": [list(w) for w in rests],
+        "registration": [r.tolist() for r in regs],
+        "apart_mm": apart,
+        "apart_mrad": turned,
+        "drift_mm": apart[-1] if apart else float("nan"),
+    }
+
+
 def run(
     seconds: float,
     imp: Impairment,
@@ -176,8 +225,9 @@ def run(
         roles = [*net, "--passivity", passivity]
         h.start(h.world_ns, [*CLI, "router", *net]).wait_ready()
         world_json = folder / "world.json"
+        world_log = ["--log", str(folder / "world.mcap")] if press else []
         world = h.start(h.world_ns, [*CLI, "world", *roles, "--duration", str(seconds + 6.0),
-                                     "--json", str(world_json)])  # fmt: skip
+                                     "--json", str(world_json), *world_log])  # fmt: skip
         world.wait_ready()
         stations = {}
         for p in PORTS:
@@ -198,6 +248,8 @@ def run(
     figures["impairment"] = {"delay_ms": imp.delay_s * 1e3, "jitter_ms": imp.jitter_s * 1e3,
                              "loss": imp.loss, "reorder": imp.reorder}  # fmt: skip
     scene = load_port_scene("grasp_vertical")
+    world_summary = json.loads(world_json.read_text())
+    world_rows = read_port_log(folder / "world.mcap")[0] if press else None
     for i, p in enumerate(PORTS):
         summary = json.loads((folder / f"{p}.json").read_text())
         rows = station_rows(folder / f"{p}.mcap")
@@ -205,9 +257,12 @@ def run(
         geometry = local_geometry(scene, i)
         if press and geometry is not None:
             figures[p]["felt"] = felt_stiffness(rows, geometry)
+        if world_rows is not None:
+            figures[p]["drift"] = drift(rows, world_rows, world_summary["started_ns"], i)
         last = h.forwarders[p].events[-1:]
         figures[p]["link"] = last[0].get("counts") if last else None
-    box = json.loads(world_json.read_text())["bodies"]["box"]
+    figures["world_ticks_skipped"] = world_summary["ticks_skipped"]  # its rows' t lag by these
+    box = world_summary["bodies"]["box"]
     figures["box_sank_mm"] = float(box["start"][1] - box["lowest_y"]) * 1e3
     figures["box_moved_mm"] = float(np.hypot(*np.subtract(box["end"][:2], box["start"][:2]))) * 1e3
     return figures
@@ -223,6 +278,13 @@ def felt_text(ports: list[dict[str, Any]]) -> str:
     if not all("felt" in f for f in ports):
         return "–"
     return " / ".join(f"{f['felt']['n_per_m']:.0f}" for f in ports)
+
+
+def drift_text(ports: list[dict[str, Any]]) -> str:
+    """Each station's drift from the world after the last release (mm), or a dash."""
+    if not all("drift" in f for f in ports):
+        return "–"
+    return " / ".join(f"{f['drift']['drift_mm']:.2f}" for f in ports)
 
 
 def unimpaired(points: list[dict[str, Any]]) -> dict[str, Any] | None:
@@ -244,8 +306,8 @@ def report(
         "| one-way ms | jitter ms | loss | PC | local model | energy out J | >5 Hz RMS N "
         "| ×0 ms | box sank / moved mm | coupled | watchdog trips "
         "| ToolState gap ms p50 / p99 / max | age since arrival ms p50 / p99 "
-        "| felt stiffness N/m |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| felt stiffness N/m | drift mm |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for pt in points:
         imp, lr = pt["impairment"], [pt[p] for p in PORTS]
@@ -267,7 +329,7 @@ def report(
             f"| {box_text(pt['box_sank_mm'])} / {box_text(pt['box_moved_mm'])} "
             f"| {lr[0]['coupled_fraction']:.0%} / {lr[1]['coupled_fraction']:.0%} "
             f"| {lr[0]['watchdog_trips']} / {lr[1]['watchdog_trips']} | {gap} | {age} "
-            f"| {felt_text(lr)} |"
+            f"| {felt_text(lr)} | {drift_text(lr)} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -294,7 +356,7 @@ def main(argv: list[str] | None = None) -> int:
         help="the stations' local model; both: each point with and without",
     )
     ap.add_argument("--press", action="store_true",
-                    help="the users press into the box and release: the felt stiffness")  # fmt: skip
+                    help="the users press into the box and release: the felt stiffness, the drift")  # fmt: skip
     ap.add_argument("--json", type=Path, default=None, help="write the figures here")
     ap.add_argument("--md", type=Path, default=None, help="write the report's table here")
     ap.add_argument("--base", type=Path, default=None,

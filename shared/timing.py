@@ -206,9 +206,10 @@ class Pacer:
         self.ticks = 0
         self.late_ns = 0
         self.worst = (0, 0)  # the latest tick: ns late, its index
+        self.started_ns = 0  # the clock at the first deadline (0 before start)
 
     def start(self) -> None:
-        self.deadline = self.last = time.perf_counter_ns()
+        self.deadline = self.last = self.started_ns = time.perf_counter_ns()
         self.end = self.deadline + int(self.duration_s * 1e9) if self.duration_s else None
 
     def wait(self) -> int:
@@ -264,6 +265,9 @@ class Pacer:
             "overruns": self.overruns,
             "ticks_skipped": self.skipped,
             "latest_tick": {"late_ms": self.worst[0] / 1e6, "tick": self.worst[1]},
+            # the loop's clock (perf_counter: CLOCK_MONOTONIC, one for every process on the
+            # host) at its first deadline: another process's rows are matched in time on it
+            "started_ns": self.started_ns,
         }
 
 
