@@ -101,7 +101,6 @@ def station_record(setup: StationSetup) -> np.ndarray:
     s["watchdog_s"] = setup.watchdog_s
     s["ramp_s"] = setup.ramp_s
     s["limits"] = device.limits().max_wrench
-    s["safe_damping"] = device.rendering.safe_damping
     s["stiffness"] = stiffness
     s["damping"] = damping
     s["max_stiffness"] = stiffness

@@ -224,8 +224,16 @@ def test_the_station_goes_safe_within_the_ramp_of_its_watchdog_and_ramps_back() 
     assert rows["tool_age"][wd] >= 0.1 and rows["tool_age"][wd - 1] < 0.1
     safe = wd + first(rows["gain"][wd:] == 0.0, "the safe state")
     assert 0.030 <= (safe - wd) * 1e-3 <= 0.040 + 1e-9
-    damping = st.device.rendering.safe_damping[0]  # the safe state: damping on its motion only
-    assert rows["out"][safe:back_at, 0] == pytest.approx(-damping * rows["twist"][safe:back_at, 0])
+    # the safe state: the hold, its anchor where the coupling last put the device (K = 2 kN/m,
+    # B = 40 N s/m of the scene's coupling), so the 2 N the coupling rendered goes on
+    hold = rows["hold_force"][safe:back_at, 0]
+    assert rows["out"][safe:back_at, 0] == pytest.approx(hold, rel=1e-12, abs=1e-12)
+    x_h = st.station[0]["hold_pose"][0]  # the anchor: fixed (2 N is under the 5 N cap)
+    pose, twist = rows["pose"][safe:back_at, 0], rows["twist"][safe:back_at, 0]
+    assert hold == pytest.approx(2000.0 * (x_h - pose) - 40.0 * twist, rel=1e-9, abs=1e-9)
+    assert x_h == pytest.approx(rows["pose"][wd, 0] + rows["spring"][wd, 0] / 2000.0, abs=1e-15)
+    # on the tick it went safe the hold is the coupling (the tool at rest): the force goes on
+    assert rows["hold_force"][wd, 0] == pytest.approx(rows["coupling"][wd, 0], abs=1e-9)
     assert rows["gain"][back_at + 39] == pytest.approx(1.0)
     assert rows["out"][back_at + 60, 0] == pytest.approx(rows["coupling"][back_at + 60, 0])
     step = np.abs(np.diff(rows["out"][back_at - 1 : back_at + 60, 0]))
@@ -315,26 +323,87 @@ def test_a_station_holds_its_device_until_its_first_tool_state_and_joins_without
         assert np.all(join["hold_force"][41:] == 0.0)  # joined: the hold is gone
 
 
-def test_the_hold_slips_past_its_cap_and_a_joined_station_goes_safe_on_damping_only() -> None:
+def test_the_hold_slips_past_its_cap_and_holds_again_on_every_safe_entry() -> None:
     """A user pushing 8 N, more than the hold's cap (a tenth of the ideal device's 50 N
     limit): the hold's spring stays at the cap, its anchor slipping on with the device, so
     the user meets at most 5 N plus the damping, never a spring wound up to the limit. Once
-    it has been fully coupled, the station's safe state is the damping only, as before."""
+    it has been fully coupled and goes safe again (the world holds it), the station holds
+    its device again, its anchor where the coupling last put it (x + spring / K on the tick
+    the gain left 1): F = K (x_h - x) - B v, bounded by the cap plus B |v|."""
     st = _squeezing(8.0)
     rows = _ticks(st, 500, lambda k: None)
     s = st.station[0]
-    cap = 0.1 * 50.0
-    spring = rows["hold_force"][:, 0] + 40.0 * rows["twist"][:, 0]
+    cap, k, b = 0.1 * 50.0, 2000.0, 40.0
+    spring = rows["hold_force"][:, 0] + b * rows["twist"][:, 0]
     assert spring.min() == pytest.approx(-cap, rel=1e-12) and spring.min() >= -cap * (1 + 1e-12)
-    assert rows["pose"][-1, 0] - s["hold_pose"][0] == pytest.approx(cap / 2000.0, rel=1e-9)
+    assert rows["pose"][-1, 0] - s["hold_pose"][0] == pytest.approx(cap / k, rel=1e-9)
     st = _station()
     st.station[0]["tool_pose"][0] += 0.001
-    _ticks(st, 100, lambda k: 0.0)
+    coupled = _ticks(st, 100, lambda k: 0.0)
+    assert coupled["gain"][-1] == 1.0 and np.all(coupled["hold_force"][-1] == 0.0)
     st.station[0]["held"] = 1
     rows = _ticks(st, 100, lambda k: 0.0)
-    damping = st.device.rendering.safe_damping[0]
-    assert rows["out"][60:, 0] == pytest.approx(-damping * rows["twist"][60:, 0])
-    assert np.all(rows["hold_force"] == 0.0)
+    s = st.station[0]
+    assert s["hold_pose"][0] == pytest.approx(rows["pose"][0, 0] + rows["spring"][0, 0] / k,
+                                              abs=1e-15)  # fmt: skip
+    hold = rows["hold_force"][:, 0]
+    x, v = rows["pose"][:, 0], rows["twist"][:, 0]
+    assert hold == pytest.approx(k * (s["hold_pose"][0] - x) - b * v, rel=1e-9, abs=1e-9)
+    assert np.all(np.abs(hold) <= cap + b * np.abs(v) + 1e-12)
+    assert rows["out"][60:, 0] == pytest.approx(hold[60:], rel=1e-12, abs=1e-12)  # g = 0
+    assert hold[0] == pytest.approx(rows["coupling"][0, 0], abs=1e-9)  # the force goes on
+
+
+@pytest.mark.parametrize("stop_ms", [130, 500])
+def test_a_joined_station_whose_link_stops_mid_press_holds_its_device_and_rejoins_smoothly(
+    stop_ms: int,
+) -> None:
+    """A joined station (ideal device, 1 kg; its user pushing F_u = 2 N along x with no
+    spring of its own) squeezing a tool the world holds still (K = 2 kN/m, B = 40 N s/m):
+    its tool states stop for `stop_ms` (the watchdog's 100 ms, then the ramp to the hold).
+    On the safe damping alone the push carried the device at F_u / (b_safe + b_u) = 0.2 m/s
+    (26 mm in the 130 ms after the watchdog): the hold, anchored where the coupling put it,
+    renders the same spring, so the device does not move (it would move F_u / K = 1 mm with
+    the anchor at the device's own pose). Then the push rises to 4 N while it is safe (over
+    500 ms only): the device comes to rest at x_h + F_2 / K, bounded. The world re-indexes it
+    where it is (INDEXED, the anchor's stretch F_u / K): the command steps by at most the
+    ramp's share of |f_c - F_hold| plus the two forces' own steps, and by under 1 % of the
+    push where the push stayed as it was."""
+    force, k, b, ramp = 2.0, 2000.0, 40.0, 40
+    st = _squeezing(force)
+    s = st.station[0]
+    s["local_model"] = 0  # no object here: the coupling alone, to a tool the world holds still
+    s["tool_pose"] = s["world"][0]["pose"] - np.array([force / k, 0.0, 0.0])
+    coupled = _ticks(st, 1500, lambda n: 0.0)
+    x0 = coupled["pose"][-1, 0]
+    assert coupled["gain"][-1] == 1.0 and abs(coupled["twist"][-1, 0]) < 1e-6
+    assert coupled["out"][-1, 0] == pytest.approx(-force, rel=1e-4)
+    stop = _ticks(st, stop_ms, lambda n: (n + 1) * 1e-3)  # the newest tool state, older a tick
+    assert 0.0 < stop["gain"].min() < 1.0 if stop_ms < 140 else stop["gain"][-1] == 0.0
+    assert np.abs(stop["pose"][:, 0] - x0).max() < 1e-9  # held where the coupling put it
+    x_h = s["hold_pose"][0]
+    assert x_h == pytest.approx(x0 - force / k, abs=1e-12)
+    pushed = 2.0 * force
+    if stop_ms >= 500:  # the user pushes harder while it is safe: held, not run off
+        s["user"][0]["wrench"][0] = pushed
+        more = _ticks(st, 400, lambda n: (stop_ms + n + 1) * 1e-3)
+        spring = more["hold_force"][:, 0] + b * more["twist"][:, 0]
+        assert more["gain"].max() == 0.0 and np.all(np.abs(spring) <= 0.1 * 50.0 + 1e-12)
+        assert more["pose"][-1, 0] - x_h == pytest.approx(pushed / k, rel=1e-3)
+        stop = np.concatenate([stop, more])
+    here = s["world"][0]["pose"].copy()
+    s["indexed"], s["device_echo"] = 1, here  # the world re-indexes it where it is
+    s["tool_pose"] = here - np.array([force / k, 0.0, 0.0])  # its anchor's stretch
+    back = _ticks(st, 200, lambda n: 0.0)
+    assert back["gain"][-1] == 1.0 and back["fresh"][0] == 1  # no wait, no brake: at rest
+    out = np.concatenate([stop["out"][-1:, 0], back["out"][:, 0]])
+    hold = np.concatenate([stop["hold_force"][-1:, 0], back["hold_force"][:ramp, 0]])
+    coupling = back["coupling"][: ramp + 1, 0]
+    gap = abs(stop["hold_force"][-1, 0] - back["coupling"][0, 0])  # |F_hold - f_c|
+    bound = gap / ramp + np.abs(np.diff(coupling)).max() + np.abs(np.diff(hold)).max()
+    assert np.abs(np.diff(out[: ramp + 2])).max() <= bound + 1e-12
+    if stop_ms < 500:
+        assert np.abs(np.diff(out[: ramp + 2])).max() < 0.01 * force
 
 
 def test_a_reading_or_a_coupling_that_is_not_finite_commands_zero() -> None:

@@ -11,15 +11,14 @@ tool state is not carried on into a guess):
 
 mapped to the device, clipped at its limits. Without a fresh tool state (none for the
 watchdog's period, or the world says it holds the port) the command ramps over `ramp_s` to
-the safe state, damping on the handle's own motion (until the station has been fully
-coupled once: a hold where its device first read, _hold); it ramps back the same way when
-tool states return (into about the squeeze it left with: _rejoins). With the local model
-on, the pad's contact with the object the world last sent (low-passed: _see_object) is
-rendered here, and the coupling only along its tangent (_local_contact). A reading that is
-not finite renders zero for the tick; a coupling or a command that is not finite is zeroed
-and counted. No I/O: the loop
-(haptic_server/station.py) feeds the tool state and its age and publishes the device state
-this leaves in `world`.
+the safe state, a hold: the scene's coupling to a fixed anchor, where the device first read
+before the join, where the coupling last put it on every later entry (_hold); it ramps back
+the same way when tool states return (into about the squeeze it left with: _rejoins).
+With the local model on, the pad's contact with the object the world last sent (low-passed:
+_see_object) is rendered here, and the coupling only along its tangent (_local_contact). A
+reading that is not finite renders zero for the tick; a coupling or a command that is not
+finite is zeroed and counted. No I/O: the loop (haptic_server/station.py) feeds the tool
+state and its age and publishes the device state this leaves in `world`.
 """
 
 from __future__ import annotations
@@ -57,7 +56,6 @@ STATION_DTYPE = np.dtype(
         ("max_stiffness", F8, (3,)),  # the station's own scene's coupling: received gains
         ("max_damping", F8, (3,)),  # are clamped to these
         ("limits", F8, (3,)),  # the device's max_wrench, device frame
-        ("safe_damping", F8, (3,)),  # device frame
         # the newest tool state: set by the loop
         ("have_tool", I8),
         ("held", I8),  # the world holds this port (it lost us, or re-indexes us)
@@ -116,10 +114,9 @@ STATION_DTYPE = np.dtype(
         ("has_seen", I8),  # object_seen is set (0: taken as it is on the next contact tick)
         ("object_seen", F8, (3,)),  # the object as the local contact renders it: low-passed
         ("object_seen_twist", F8, (3,)),
-        # the hold (_hold; docs/stations.md, "The join"): until the station has been fully
-        # coupled once, its safe state holds the device where it was, not damping only
+        # the hold (_hold; docs/stations.md, "The join"): the safe state, on every entry
         ("joined", I8),  # 1 once the ramp reached the full coupling
-        ("has_hold", I8),  # hold_pose is set (the first finite reading)
+        ("has_hold", I8),  # hold_pose is set (this safe episode's first finite reading)
         ("hold_pose", F8, (3,)),  # world frame: where the device is held (it slips past the cap)
         ("hold_force", F8, (3,)),  # world frame: K (x_hold - x) - B v, clipped
         ("hold_out", F8, (3,)),  # device frame: the hold mapped to the device
@@ -164,7 +161,7 @@ STATION_ROW_DTYPE = np.dtype(
         ("contact_w", F8),
         ("depth", F8),
         ("local_force", F8, (3,)),
-        ("hold_force", F8, (3,)),  # the hold (before the ramp's blend; 0 once joined)
+        ("hold_force", F8, (3,)),  # the hold (before the ramp's blend; 0 at the full coupling)
     ]
 )
 
@@ -438,26 +435,32 @@ HOLD_SHARE = 0.1
 
 @njit(cache=True)
 def _hold(s):
-    """The station's safe state until it has been fully coupled once (docs/stations.md, "The
-    join"): its device held where it first read it, by its own scene's coupling (the spring
-    K and damper B of `max_stiffness`, `max_damping`, world frame) to a fixed pose,
-    F = K (x_hold - x) - B v, so that its user's push does not carry it off on the safe
-    damping for the round trip before its first tool state: it comes to the coupling at rest
-    and where the world re-indexed its tool. The spring is clipped at HOLD_SHARE of the
-    device's limit, its anchor slipping with the device past it (a friction element: what it
-    stores is at most cap^2 / 2K). A spring to a fixed pose and a damper are passive. Into
-    hold_force (world frame) and hold_out (device frame); zero on a cut. Once joined only
-    hold_force is zeroed (the log's): hold_out is read only before the join."""
+    """The station's safe state (docs/stations.md, "The join"), acting whenever its ramp's
+    gain is below 1: its device held by its own scene's coupling (the spring K and damper B
+    of `max_stiffness`, `max_damping`, world frame) to a fixed anchor, F = K (x_h - x) - B v,
+    so that its user's push does not carry it off while it has no world: it comes back to
+    the coupling at rest and where the world re-indexes its tool. The anchor is taken on the
+    first finite reading of each safe episode (the start, or the tick the gain leaves 1):
+    where the coupling last put the device, x_h = x + spring / K (the spring the tick
+    renders: none before the first tool state, so the device's pose then), so the force
+    its user meets goes on as it was and a constant push does not move it. The episode ends
+    when the gain is back at 1. The spring is clipped at HOLD_SHARE of the device's limit,
+    its anchor slipping with the device past it (a friction element: what it stores is at
+    most cap^2 / 2K). A spring to a fixed anchor and a damper are passive. Into hold_force
+    (world frame) and hold_out (device frame); zero on a cut. At the full coupling only
+    hold_force is zeroed (the log's): hold_out is read with the weight 1 - gain."""
     w = s.world[0]
     for c in range(3):
         s.hold_force[c] = 0.0
-    if s.joined == 1:
+    if s.gain == 1.0:
+        s.has_hold = 0  # coupled: the next safe entry takes its own anchor
         return
     if s.cut == 0:
         if s.has_hold == 0:
             s.has_hold = 1
             for c in range(3):
-                s.hold_pose[c] = w.pose[c]
+                k = s.max_stiffness[c]
+                s.hold_pose[c] = w.pose[c] + (s.spring[c] / k if k > 0.0 else 0.0)
         for c in range(3):
             k = s.max_stiffness[c]
             err = s.hold_pose[c] - w.pose[c]
@@ -512,10 +515,7 @@ def station_tick(station, dev):
         s.joined = 1
     map_command_to_device(s.map, s.coupling, s.limits, s.scratch)
     for c in range(3):
-        safe = -s.safe_damping[c] * sen.twist[c] if s.cut == 0 else 0.0
-        if s.joined == 0:
-            safe = s.hold_out[c]  # zero on a cut
-        v = s.gain * s.scratch[c] + (1.0 - s.gain) * safe
+        v = s.gain * s.scratch[c] + (1.0 - s.gain) * s.hold_out[c]  # the hold: 0 on a cut
         if not math.isfinite(v):
             bad = True
             v = 0.0
