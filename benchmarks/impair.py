@@ -16,8 +16,14 @@ harness moves each device into its namespace (an open TUN descriptor stays attac
 device when the device changes namespace). Each direction draws from its own seeded
 generator, so a run is repeatable packet by packet for the same packet arrivals.
 
+A pause stops the link for a window, as a stalled queue does: each SIGUSR1 the forwarder
+takes holds every packet that arrives in the next `--pause-ms` (in one direction or both,
+`--pause-dir`) until the window ends, then lets them on with their delays, in order (none
+is lost: TCP sees a stall, not a loss).
+
     sudo .venv/bin/python -m haptic_local_model.benchmarks.impair --tun hw0 hs0 \
-        --delay-ms 50 --jitter-ms 10 --loss 0.05 [--reorder] [--seed 1]
+        --delay-ms 50 --jitter-ms 10 --loss 0.05 [--reorder] [--seed 1] \
+        [--pause-ms 130 --pause-dir both]
 """
 
 from __future__ import annotations
@@ -43,6 +49,7 @@ IFF_NO_PI = 0x1000
 MAX_PACKET = 65536
 IP_PROTOCOLS = {6: "tcp", 17: "udp"}  # IPv4 header byte 9
 IDLE_WAIT_S = 0.05  # how long the loop waits with nothing due (a stop is seen within this)
+PAUSE_DIRS = ("both", "a_to_b", "b_to_a")
 
 
 @dataclass(frozen=True)
@@ -50,13 +57,16 @@ class Impairment:
     """What a link does to each packet, each direction alike: a one-way delay drawn uniformly
     from [delay_s - jitter_s, delay_s + jitter_s], a loss with probability `loss`; unless
     `reorder`, a packet leaves no earlier than the one before it (jitter then bunches
-    packets instead of swapping them, as a single queue does)."""
+    packets instead of swapping them, as a single queue does). A pause (Forwarder.pause, the
+    forwarder's SIGUSR1) holds `pause_dir`'s packets for `pause_s` (module docstring)."""
 
     delay_s: float = 0.0
     jitter_s: float = 0.0
     loss: float = 0.0
     reorder: bool = False
     seed: int = 1
+    pause_s: float = 0.0
+    pause_dir: str = "both"
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.delay_s) and self.delay_s >= 0.0):
@@ -67,11 +77,16 @@ class Impairment:
             )
         if not 0.0 <= self.loss < 1.0:
             raise ValueError(f"impairment: loss must be in [0, 1), got {self.loss}")
+        if not (np.isfinite(self.pause_s) and self.pause_s >= 0.0):
+            raise ValueError(f"impairment: pause_s must be >= 0, got {self.pause_s}")
+        if self.pause_dir not in PAUSE_DIRS:
+            raise ValueError(f"impairment: pause_dir must be one of {PAUSE_DIRS}")
 
     def argv(self) -> list[str]:
         """The forwarder's command-line flags for this impairment."""
         out = ["--delay-ms", f"{self.delay_s * 1e3:g}", "--jitter-ms", f"{self.jitter_s * 1e3:g}",
                "--loss", f"{self.loss:g}", "--seed", str(self.seed)]  # fmt: skip
+        out += ["--pause-ms", f"{self.pause_s * 1e3:g}", "--pause-dir", self.pause_dir]
         return out + (["--reorder"] if self.reorder else [])
 
 
@@ -85,6 +100,7 @@ class Direction:
         self.passed = 0
         self.dropped = 0
         self.protocols = dict.fromkeys(IP_PROTOCOLS.values(), 0)  # IPv4 packets arrived
+        self.paused_until = -np.inf  # a packet arriving before this enters the link then
 
     def release_at(self, now_s: float) -> float | None:
         """The time a packet arriving at now_s leaves, or None if it is lost."""
@@ -92,7 +108,11 @@ class Direction:
         if imp.loss > 0.0 and self.rng.random() < imp.loss:
             self.dropped += 1
             return None
-        t = now_s + imp.delay_s + imp.jitter_s * (2.0 * self.rng.random() - 1.0)
+        t = (
+            max(now_s, self.paused_until)
+            + imp.delay_s
+            + imp.jitter_s * (2.0 * self.rng.random() - 1.0)
+        )
         if not imp.reorder:
             t = max(t, self.last_release)
         self.last_release = t
@@ -112,6 +132,15 @@ class Forwarder:
         self.in_flight: list[tuple[float, int, int, bytes]] = []
         self.sent = 0
         self.stop = False
+
+    def pause(self, now_s: float, seconds: float, which: str = "both") -> None:
+        """Hold the packets arriving in [now_s, now_s + seconds) of `which` direction(s)
+        (PAUSE_DIRS) until the window ends."""
+        a, b = self.fds
+        chosen = {"both": (a, b), "a_to_b": (a,), "b_to_a": (b,)}[which]
+        for fd in chosen:
+            d = self.directions[fd]
+            d.paused_until = max(d.paused_until, now_s + seconds)
 
     def run(self, until_s: float = np.inf) -> None:
         """Forward until `stop` is set or the monotonic clock passes until_s."""
@@ -175,16 +204,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--loss", type=float, default=0.0, help="probability a packet is lost")
     ap.add_argument("--reorder", action="store_true", help="a later packet may overtake")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--pause-ms", type=float, default=0.0, help="each SIGUSR1: hold this long")
+    ap.add_argument("--pause-dir", choices=PAUSE_DIRS, default="both")
     args = ap.parse_args(argv)
-    imp = Impairment(args.delay_ms / 1e3, args.jitter_ms / 1e3, args.loss, args.reorder, args.seed)
+    imp = Impairment(args.delay_ms / 1e3, args.jitter_ms / 1e3, args.loss, args.reorder,
+                     args.seed, args.pause_ms / 1e3, args.pause_dir)  # fmt: skip
     a, b = (open_tun(n) for n in args.tun)
     fwd = Forwarder(a, b, imp)
 
     def stop(*_: object) -> None:
         fwd.stop = True
 
+    def pause(*_: object) -> None:
+        fwd.pause(time.monotonic(), imp.pause_s, imp.pause_dir)
+
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGUSR1, pause)
     print(json.dumps({"event": "ready", "tun": args.tun}), flush=True)
     fwd.run()
     print(json.dumps({"event": "summary", "counts": fwd.counts()}), flush=True)
