@@ -11,12 +11,11 @@ From the processes' own logs, per run:
   tool state after the pause over `STEP_WINDOW` ticks, beside `steady_step_n` and
   `steady_step_max_n`, the same's 99th percentile and largest over the `STEADY` ticks
   before the pause;
-- `registration_mm`: the world's offset of the port along x (the device as the world takes
-  it, its pose plus the offset, less the device as the station read it; the tool's world
-  pose less the device's is that less the coupling's stretch) before and after, and their
-  difference: how far the station's device and its tool walked apart; over the station's
-  `BEFORE` ticks before the pause and `AFTER` ticks after it, both in the press's hold (the
-  users' targets still), each matched to the world's ticks that took them (offset_x).
+- `registration_mm`: where the world has the right station's device less where it is
+  (station_links.registration: the two logs matched on the host's monotonic clock), x-y,
+  over the station's `BEFORE` s before the pause and `AFTER` s after it, both in the
+  press's hold (the users' targets still), and how far the second is from the first: how far
+  the station's device and its tool walked apart.
 
 Needs root; everything it creates is removed and every process it starts stopped by its pid.
 
@@ -39,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from haptic_local_model.benchmarks.impair import Impairment
-from haptic_local_model.benchmarks.station_links import PRESS_USERS
+from haptic_local_model.benchmarks.station_links import PRESS_USERS, registration
 from haptic_local_model.benchmarks.stations import (
     CLI,
     PORTS,
@@ -49,36 +48,21 @@ from haptic_local_model.benchmarks.stations import (
     netns_unavailable,
     station_rows,
 )
-from haptic_local_model.haptic_server.log import _iter_messages
-from haptic_local_model.haptic_server.ports import PORT_ROW_DTYPE
+from haptic_local_model.haptic_server.world_runs import read_port_log
 
 NETWORK = "stations_three_hosts"
 SECONDS = 10.0
 STEP_WINDOW = 200
 STEADY = 300
-BEFORE = (400, 20)  # the station's ticks before the pause: from, to
-AFTER = (350, 650)  # and after it: in the press's hold (press_*_ramp: 8 to 9 s)
+BEFORE = (0.4, 0.02)  # s of the station's clock before the pause: from, to
+AFTER = (0.35, 0.65)  # and after it: in the press's hold (press_*_ramp: 8 to 9 s)
 
 
-def world_rows(path: Path) -> np.ndarray:
-    chunks = [data for topic, data, _ in _iter_messages(path) if topic == "/ports/tick"]
-    return np.frombuffer(b"".join(chunks), PORT_ROW_DTYPE)
-
-
-def offset_x(world_x: np.ndarray, station_x: np.ndarray) -> tuple[float, float]:
-    """The world's offset of a port along x while the station read `station_x` (its
-    device's poses, consecutive ticks): the world takes each DeviceState's pose plus the
-    offset (`world_x`, its log's device pose, every tick), so the world's ticks that match
-    are those whose difference from station_x varies least (the maglev's noise makes the
-    match unique); the offset is its mean there. Its spread (m) beside it."""
-    n = len(station_x)
-    spreads = np.array([np.std(world_x[k : k + n] - station_x) for k in range(len(world_x) - n)])
-    k = int(np.argmin(spreads))
-    return float(np.mean(world_x[k : k + n] - station_x)), float(spreads[k])
-
-
-def figures(right: np.ndarray, world: np.ndarray, pause_ns: int, port: int) -> dict[str, Any]:
+def figures(
+    right: np.ndarray, world: np.ndarray, world_start_ns: int, pause_ns: int, port: int
+) -> dict[str, Any]:
     p = after(right, pause_ns)
+    t = float(right["t"][p])
     x0 = float(right["pose"][p, 0])
     back = p + int(np.argmax(right["fresh"][p:] == 0))  # the watchdog (or p if none)
     back += int(np.argmax(right["fresh"][back:] == 1))
@@ -87,9 +71,8 @@ def figures(right: np.ndarray, world: np.ndarray, pause_ns: int, port: int) -> d
     out = right["out"][:, 0]
     step = np.abs(np.diff(out[back - 1 : back + STEP_WINDOW]))
     steady = np.abs(np.diff(out[p - STEADY : p]))
-    wx = world["device_pose"][:, port, 0]
-    before, spread0 = offset_x(wx, right["pose"][p - BEFORE[0] : p - BEFORE[1], 0])
-    later, spread1 = offset_x(wx, right["pose"][p + AFTER[0] : p + AFTER[1], 0])
+    before = registration(right, world, world_start_ns, port, (t - BEFORE[0], t - BEFORE[1]))
+    later = registration(right, world, world_start_ns, port, (t + AFTER[0], t + AFTER[1]))
     return {
         "into_box_mm": into * 1e3,
         "went_safe": bool(right["gain"][p:full].min() < 1.0),
@@ -97,11 +80,10 @@ def figures(right: np.ndarray, world: np.ndarray, pause_ns: int, port: int) -> d
         "rejoin_step_n": float(step.max()),
         "steady_step_n": float(np.percentile(steady, 99)),
         "steady_step_max_n": float(steady.max()),
-        "offset_spread_mm": max(spread0, spread1) * 1e3,
         "registration_mm": {
-            "before": before * 1e3,
-            "after": later * 1e3,
-            "change": (later - before) * 1e3,
+            "before": before[:2].tolist(),
+            "after": later[:2].tolist(),
+            "change": float(np.hypot(*(later - before)[:2])),
         },
     }
 
@@ -112,7 +94,8 @@ def run(folder: Path, delay_ms: float, pause_ms: float, pause_at_s: float) -> di
         net = ["--network", NETWORK]
         h.start(h.world_ns, [*CLI, "router", *net]).wait_ready()
         world = h.start(h.world_ns, [*CLI, "world", *net, "--duration", str(SECONDS + 6.0),
-                                     "--log", str(folder / "world.mcap")])  # fmt: skip
+                                     "--log", str(folder / "world.mcap"),
+                                     "--json", str(folder / "world.json")])  # fmt: skip
         world.wait_ready()
         stations = {}
         for p in PORTS:
@@ -127,8 +110,9 @@ def run(folder: Path, delay_ms: float, pause_ms: float, pause_at_s: float) -> di
         codes = {p: s.proc.wait(SECONDS + STOP_S) for p, s in stations.items()}
         world.stop()
         codes["world"] = world.proc.wait(STOP_S)
-    out = figures(station_rows(folder / "right.mcap"), world_rows(folder / "world.mcap"),
-                  pause_ns, PORTS.index("right"))  # fmt: skip
+    started_ns = json.loads((folder / "world.json").read_text())["started_ns"]
+    out = figures(station_rows(folder / "right.mcap"), read_port_log(folder / "world.mcap")[0],
+                  started_ns, pause_ns, PORTS.index("right"))  # fmt: skip
     out["exit_codes"] = codes
     out["left_over"] = h.leftovers()
     return out
