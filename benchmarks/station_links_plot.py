@@ -2,7 +2,8 @@
 issue 46's targets, one line per configuration: each port's energy out (J, ≤ 0.05), its force
 above 5 Hz over the unimpaired run's (≤ 3×), how far the box ended from its start (mm, ≤ 2;
 "fell" drawn at the top) and, for a press sweep, the felt stiffness over the 0 ms run's
-(≥ 80 % at 50 ms, ≥ 50 % at 150 ms), each against the one-way delay.
+(≥ 80 % at 50 ms, ≥ 50 % at 150 ms) and the station's drift from the world after the last
+release (mm, ≤ 1), each against the one-way delay.
 
     python -m haptic_local_model.benchmarks.station_links_plot SWEEP.json [SWEEP.json ...] \\
         --out docs/bench/station_links.png [--base BASE.json]
@@ -29,7 +30,9 @@ ENERGY_MAX_J = 0.05  # issue 46: energy out of every port over the run
 RATIO_MAX = 3.0  # force above 5 Hz within 3x the unimpaired run's
 DRIFT_MAX_MM = 2.0  # the box held
 FELT_MIN = {50.0: 0.8, 150.0: 0.5}  # the felt stiffness's share of the 0 ms run's
+STATION_DRIFT_MAX_MM = 1.0  # a station and the world apart after pressing and releasing
 ENERGY_FLOOR_J = 1e-4  # 0 J drawn here on the log axis
+DRIFT_FLOOR_MM = 1e-3  # a drift below a micrometre drawn here
 FELL_AT_MM = 200.0  # a box that fell, drawn here
 
 
@@ -42,9 +45,9 @@ def config_label(stem: str, point: dict[str, Any]) -> str:
 
 def series(sweeps: dict[str, list[dict[str, Any]]], base: dict[str, Any] | None) -> dict:
     """Per configuration, its points by one-way delay: {label: {"delay_ms": [...],
-    "energy_j": [...], "ratio": [...], "moved_mm": [...], "felt": [...]}}; each port's
-    figure is the worse of the two (the larger energy, ratio and drift, the smaller felt
-    stiffness share)."""
+    "energy_j": [...], "ratio": [...], "moved_mm": [...], "felt": [...], "drift_mm": [...]}};
+    each port's figure is the worse of the two (the larger energy, ratio and drift, the
+    smaller felt stiffness share)."""
     groups: dict[str, list[dict[str, Any]]] = {}
     for stem, points in sweeps.items():
         for p in points:
@@ -55,7 +58,7 @@ def series(sweeps: dict[str, list[dict[str, Any]]], base: dict[str, Any] | None)
         ref = next((p for p in points if p["impairment"]["delay_ms"] == 0.0), None)
         rms_ref = unimpaired(points) or base
         s: dict[str, list[float]] = {k: [] for k in ("delay_ms", "energy_j", "ratio",
-                                                     "moved_mm", "felt")}  # fmt: skip
+                                                     "moved_mm", "felt", "drift_mm")}  # fmt: skip
         for p in points:
             ports = [p[name] for name in PORTS]
             s["delay_ms"].append(p["impairment"]["delay_ms"])
@@ -66,6 +69,10 @@ def series(sweeps: dict[str, list[dict[str, Any]]], base: dict[str, Any] | None)
             )  # fmt: skip
             s["moved_mm"].append(p["box_moved_mm"])
             s["felt"].append(_felt_share(ports, ref))
+            s["drift_mm"].append(
+                max(f["drift"]["drift_mm"] for f in ports)
+                if all("drift" in f for f in ports) else math.nan
+            )  # fmt: skip
         out[label] = s
     return out
 
@@ -81,21 +88,24 @@ def _felt_share(ports: list[dict[str, Any]], ref: dict[str, Any] | None) -> floa
 
 
 def plot(data: dict[str, dict[str, list[float]]], out: Path) -> None:
-    """The four panels, targets dashed, into `out` (PNG)."""
+    """The five panels, targets dashed, into `out` (PNG)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(2, 2, figsize=(12, 10), sharex=True)
+    fig, axes = plt.subplots(2, 3, figsize=(17, 10), sharex=True)
     colours = plt.get_cmap("tab20").colors
     panels = (
         ("energy_j", "energy out of the worse port (J)", ENERGY_MAX_J, "log"),
         ("ratio", "force above 5 Hz / the unimpaired run's", RATIO_MAX, "log"),
         ("moved_mm", "box's distance from its start at the end (mm)", DRIFT_MAX_MM, "log"),
         ("felt", "felt stiffness / 0 ms (press sweeps)", None, "linear"),
-    )
-    for ax, (key, title, limit, scale) in zip(axes.flat, panels, strict=True):
+        ("drift_mm", "station-world drift after the last release (mm, press sweeps)",
+         STATION_DRIFT_MAX_MM, "log"),
+    )  # fmt: skip
+    axes.flat[-1].axis("off")
+    for ax, (key, title, limit, scale) in zip(axes.flat, panels, strict=False):
         for i, (label, s) in enumerate(data.items()):
             y = [_drawn(key, v) for v in s[key]]
             if all(math.isnan(v) for v in y):
@@ -127,11 +137,14 @@ def plot(data: dict[str, dict[str, list[float]]], out: Path) -> None:
 
 
 def _drawn(key: str, v: float) -> float:
-    """A figure where the log axes can draw it: 0 J at the floor, a fallen box at the top."""
+    """A figure where the log axes can draw it: 0 J and no drift at the floor, a fallen box
+    at the top."""
     if key == "energy_j":
         return max(v, ENERGY_FLOOR_J)
     if key == "moved_mm":
         return FELL_AT_MM if v > FELL_MM else max(v, 0.1)
+    if key == "drift_mm":
+        return max(v, DRIFT_FLOOR_MM)
     return v
 
 

@@ -22,8 +22,9 @@ from haptic_local_model.benchmarks.station_links_plot import (
 
 def _port(energy: float, rms: float, felt: float | None) -> dict[str, Any]:
     port: dict[str, Any] = {"energy_out_j": energy, "rms_above_5hz_n": rms}
-    if felt is not None:
+    if felt is not None:  # a press run: its felt stiffness and its drift
         port["felt"] = {"n_per_m": felt}
+        port["drift"] = {"drift_mm": felt / 1e4}
     return port
 
 
@@ -56,9 +57,11 @@ def test_each_configuration_has_the_worse_ports_figures_over_its_reference() -> 
     # 1500 / 1875 on the left, 1800 / 2000 on the right: the smaller share, 0.8
     assert lossless["felt"] == pytest.approx([1.0, 0.8])
     assert lossless["moved_mm"] == [1.0, 1.5]
+    assert lossless["drift_mm"] == pytest.approx([0.2, 0.18])  # the larger port's
     lossy = data[config_label("sweep", SWEEP[2])]
     assert math.isnan(lossy["ratio"][0])  # no reference of its own, no base
     assert math.isnan(lossy["felt"][0])  # no press, no 0 ms run of its own
+    assert math.isnan(lossy["drift_mm"][0])  # no press
 
 
 def test_a_configuration_without_its_own_unimpaired_run_is_over_the_base() -> None:
@@ -73,9 +76,10 @@ def test_the_log_axes_draw_zero_energy_and_a_fallen_box() -> None:
     assert _drawn("moved_mm", 300.0) == FELL_AT_MM
     assert _drawn("moved_mm", 1.5) == 1.5
     assert _drawn("ratio", 2.0) == 2.0
+    assert _drawn("drift_mm", 0.0) > 0.0 and _drawn("drift_mm", 0.3) == 0.3
 
 
-@pytest.mark.slow  # matplotlib draws the four panels
+@pytest.mark.slow  # matplotlib draws the five panels
 def test_the_command_writes_the_png(tmp_path: Path) -> None:
     sweep = tmp_path / "sweep.json"
     sweep.write_text(json.dumps(SWEEP))
