@@ -29,12 +29,19 @@ from haptic_local_model.haptic_server.hand_ports import (
     scene_contact,
     track_hand,
 )
+from haptic_local_model.haptic_server.paced import paced_ticks
 from haptic_local_model.haptic_server.stages.hand_grasp import (
     MAX_HANDS,
     grasp_records,
     grasp_tick,
 )
-from haptic_local_model.haptic_server.world import WorldKind, run_ticks, run_virtual
+from haptic_local_model.haptic_server.world import (
+    Compiled,
+    WorldKind,
+    compiled_burst,
+    run_ticks,
+    run_virtual,
+)
 from haptic_local_model.shared.config import UserConfig, load_user
 from haptic_local_model.shared.kinematics import MAX_DOF
 from haptic_local_model.shared.port_config import HandSceneConfig
@@ -128,6 +135,20 @@ def run_hand_grasp_ticks(grasp, io, devices, rows, start, stop):
     return stop
 
 
+@njit(cache=True)
+def hand_grasp_burst(w, rows, start, stop):
+    """run_hand_grasp_ticks over the world's records ((chains, models, datas, grasp model,
+    grasp data), both ports' I/O, both devices'): the kind's compiled ticks as the runners
+    call them (world.Compiled)."""
+    return run_hand_grasp_ticks(w[0], w[1], w[2], rows, start, stop)
+
+
+@njit(cache=True)
+def hand_grasp_paced(w, rows, loop, windows, ts):
+    """The real-time runner's compiled loop over hand_grasp_burst (haptic_server.paced)."""
+    return paced_ticks(hand_grasp_burst, w, rows, loop, windows, ts)
+
+
 def grasp_port_records(
     scene: HandSceneConfig, limits: list[tuple[float, float, float]]
 ) -> tuple[tuple, tuple, tuple, np.ndarray, np.ndarray]:
@@ -178,11 +199,18 @@ class HandGraspRun:
             place_device(self.io[p], self.devices[p], self.users[p], self.specs[p],
                          port.device_start)  # fmt: skip
 
-    def burst(self, rows: np.ndarray, start: int, stop: int) -> int:
-        """The World protocol's compiled ticks (run_hand_grasp_ticks)."""
+    @property
+    def compiled(self) -> Compiled:
+        """The compiled ticks (hand_grasp_burst, hand_grasp_paced) and the records they
+        take."""
         grasp = (self.chains, self.models, self.datas, self.gmodel, self.gdata)
         d0, d1 = self.devices
-        return run_hand_grasp_ticks(grasp, self.io, (d0.records, d1.records), rows, start, stop)
+        return Compiled(hand_grasp_burst, hand_grasp_paced,
+                        (grasp, self.io, (d0.records, d1.records)))  # fmt: skip
+
+    def burst(self, rows: np.ndarray, start: int, stop: int) -> int:
+        """The World protocol's compiled ticks (hand_grasp_burst)."""
+        return compiled_burst(self, rows, start, stop)
 
     def ticks(self, rows: np.ndarray, start: int, stop: int) -> int:
         """Ticks start..stop-1 into rows (refilling the devices' noise as they need)."""

@@ -30,6 +30,7 @@ from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import (
     MAP_DTYPE,
 )
+from haptic_local_model.haptic_server.paced import paced_ticks
 from haptic_local_model.haptic_server.port_scene import MAX_GLOVE_ROWS, glove_script
 from haptic_local_model.haptic_server.stages.cosim import body_core
 from haptic_local_model.haptic_server.stages.hand import glove_at, hand_records, hand_tick
@@ -40,7 +41,7 @@ from haptic_local_model.haptic_server.stages.port_io import (
     rest_device,
 )
 from haptic_local_model.haptic_server.users import USER_DTYPE
-from haptic_local_model.haptic_server.world import WorldKind, run_virtual
+from haptic_local_model.haptic_server.world import Compiled, WorldKind, compiled_burst, run_virtual
 from haptic_local_model.shared.config import UserConfig, load_user
 from haptic_local_model.shared.kinematics import MAX_DOF
 from haptic_local_model.shared.port_config import HandSceneConfig, HandTable
@@ -149,6 +150,19 @@ def run_hand_port_ticks(chain, model, data, io, dev, rows, start, stop):
     return stop
 
 
+@njit(cache=True)
+def hand_burst(w, rows, start, stop):
+    """run_hand_port_ticks over the world's records (its chain, model, data, I/O, the
+    device's): the kind's compiled ticks as the runners call them (world.Compiled)."""
+    return run_hand_port_ticks(w[0], w[1], w[2], w[3], w[4], rows, start, stop)
+
+
+@njit(cache=True)
+def hand_paced(w, rows, loop, windows, ts):
+    """The real-time runner's compiled loop over hand_burst (haptic_server.paced)."""
+    return paced_ticks(hand_burst, w, rows, loop, windows, ts)
+
+
 def _walls(scene: HandSceneConfig) -> list[tuple[np.ndarray, float, tuple[float, float, float]]]:
     out = []
     for b in scene.walls:
@@ -235,10 +249,15 @@ class HandPortRun:
         self.chain, self.model, self.data = port_hand_records(scene, limits)
         place_device(self.io[0], self.device, self.user, self.spec, port.device_start)
 
+    @property
+    def compiled(self) -> Compiled:
+        """The compiled ticks (hand_burst, hand_paced) and the records they take."""
+        records = (self.chain, self.model, self.data, self.io, self.device.records)
+        return Compiled(hand_burst, hand_paced, records)
+
     def burst(self, rows: np.ndarray, start: int, stop: int) -> int:
-        """The World protocol's compiled ticks (run_hand_port_ticks)."""
-        return run_hand_port_ticks(self.chain, self.model, self.data, self.io,
-                                   self.device.records, rows, start, stop)  # fmt: skip
+        """The World protocol's compiled ticks (hand_burst)."""
+        return compiled_burst(self, rows, start, stop)
 
     def limits(self) -> list[list[float]]:
         return [list(map(float, self.model[0]["max_wrench"]))]

@@ -367,7 +367,7 @@ class LogDrain:
 
 class TickDeadlines:
     """A real-time loop's tick deadlines, from its start, rebuilt from the rows' lateness
-    by the loop's own rule (haptic_server.realtime._open_tick): a tick starts its lateness
+    by the loop's own rule (haptic_server.paced.open_tick_at): a tick starts its lateness
     after its deadline; one later than a whole period restarts the deadlines from its start;
     the next deadline is a period on."""
 

@@ -38,13 +38,8 @@ from haptic_local_model.haptic_server.mailbox import (
     compile_loop_kernels,
     push_row,
 )
-from haptic_local_model.haptic_server.realtime import (
-    RETURNED_TO_PYTHON,
-    compile_realtime_kernels,
-    loop_record,
-    open_tick,
-    realtime_ticks,
-)
+from haptic_local_model.haptic_server.paced import RETURNED_TO_PYTHON, loop_record, open_tick
+from haptic_local_model.haptic_server.realtime import compile_realtime_kernels, realtime_ticks
 from haptic_local_model.haptic_server.sidecar import LoopIO
 from haptic_local_model.haptic_server.supervisor import Event, TickEvents, WatchdogClock, supervise
 from haptic_local_model.shared.config import SceneConfig, UserConfig

@@ -10,12 +10,13 @@ command mapped back, clipped at the device's limits, and the device's physics.
 
 from __future__ import annotations
 
-import numpy as np
 from numba import njit
 
 from haptic_local_model.device_models.kernels import device_noise_ready
+from haptic_local_model.haptic_server.paced import paced_ticks
 from haptic_local_model.haptic_server.ports import PortRun, port_in, port_out, port_row
 from haptic_local_model.haptic_server.stages.cosim import cosim_tick
+from haptic_local_model.haptic_server.world import Compiled
 
 
 @njit(cache=True)
@@ -35,10 +36,25 @@ def run_one_port_ticks(cosim, data, io, dev, rows, start, stop):
     return stop
 
 
-class OnePortRun(PortRun):
-    """A port scene of one port with its device and user, ready to run: a World."""
+@njit(cache=True)
+def one_port_burst(w, rows, start, stop):
+    """run_one_port_ticks over the world's records (its model, data, I/O, the device's):
+    the kind's compiled ticks as the runners call them (world.Compiled)."""
+    return run_one_port_ticks(w[0], w[1], w[2], w[3], rows, start, stop)
 
-    def burst(self, rows: np.ndarray, start: int, stop: int) -> int:
-        """The World protocol's compiled ticks (run_one_port_ticks)."""
-        return run_one_port_ticks(self.model, self.data, self.io, self.devices[0].records,
-                                  rows, start, stop)  # fmt: skip
+
+@njit(cache=True)
+def one_port_paced(w, rows, loop, windows, ts):
+    """The real-time runner's compiled loop over one_port_burst (haptic_server.paced)."""
+    return paced_ticks(one_port_burst, w, rows, loop, windows, ts)
+
+
+class OnePortRun(PortRun):
+    """A port scene of one port with its device and user, ready to run: a World (its
+    `burst` is PortRun's, over the compiled ticks below)."""
+
+    @property
+    def compiled(self) -> Compiled:
+        """The compiled ticks (one_port_burst, one_port_paced) and the records they take."""
+        records = (self.model, self.data, self.io, self.devices[0].records)
+        return Compiled(one_port_burst, one_port_paced, records)

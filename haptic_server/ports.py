@@ -30,6 +30,7 @@ from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import (
     MAP_DTYPE,
 )
+from haptic_local_model.haptic_server.paced import paced_ticks
 from haptic_local_model.haptic_server.stages.cosim import (
     MAX_COSIM_BODIES,
     MAX_COSIM_DOF,
@@ -46,7 +47,7 @@ from haptic_local_model.haptic_server.stages.port_io import (
     rest_device,
 )
 from haptic_local_model.haptic_server.users import USER_DTYPE
-from haptic_local_model.haptic_server.world import WorldKind, run_virtual
+from haptic_local_model.haptic_server.world import Compiled, WorldKind, compiled_burst, run_virtual
 from haptic_local_model.shared.config import UserConfig, load_user
 from haptic_local_model.shared.port_config import MAX_PORTS, MAX_SIM_BODIES, PortSceneConfig
 
@@ -165,6 +166,19 @@ def run_port_ticks(cosim, data, io, dev0, dev1, rows, start, stop):
     return stop
 
 
+@njit(cache=True)
+def port_burst(w, rows, start, stop):
+    """run_port_ticks over the world's records (its model, data, I/O, both devices'): the
+    kind's compiled ticks as the runners call them (world.Compiled)."""
+    return run_port_ticks(w[0], w[1], w[2], w[3], w[4], rows, start, stop)
+
+
+@njit(cache=True)
+def port_paced(w, rows, loop, windows, ts):
+    """The real-time runner's compiled loop over port_burst (haptic_server.paced)."""
+    return paced_ticks(port_burst, w, rows, loop, windows, ts)
+
+
 @dataclass
 class PortResult:
     """What a port run produced."""
@@ -218,11 +232,16 @@ class PortRun:
         io["users"][p] = u
         io["maps"][p] = wm
 
-    def burst(self, rows: np.ndarray, start: int, stop: int) -> int:
-        """The World protocol's compiled ticks (run_port_ticks)."""
+    @property
+    def compiled(self) -> Compiled:
+        """The compiled ticks (port_burst, port_paced) and the records they take."""
         d0, d1 = self.devices
-        return run_port_ticks(self.model, self.data, self.io, d0.records, d1.records, rows,
-                              start, stop)  # fmt: skip
+        return Compiled(port_burst, port_paced,
+                        (self.model, self.data, self.io, d0.records, d1.records))  # fmt: skip
+
+    def burst(self, rows: np.ndarray, start: int, stop: int) -> int:
+        """The World protocol's compiled ticks (port_burst)."""
+        return compiled_burst(self, rows, start, stop)
 
     def limits(self) -> list[list[float]]:
         return [list(map(float, w)) for w in self.model[0]["max_wrench"][: len(self.devices)]]

@@ -5,7 +5,8 @@ it waits for each deadline (sleep, then spin, on the monotonic clock), validates
 installs what waits in the mailbox (haptic_server.mailbox.take_updates), re-arms the
 watchdog on an install, runs the tick (haptic_server.simulated) and pushes its row and
 timing into the sidecar's ring. It returns — with the tick it has opened (its start,
-lateness and dt in the LOOP_DTYPE record) but not run — as soon as that tick needs the
+lateness and dt in the LOOP_DTYPE record, haptic_server.paced: the wait and the opening
+are every compiled loop's) but not run — as soon as that tick needs the
 supervisor's Python side: the run's end, a watchdog that may trip, an update that may start
 a new epoch or needs the engine's follow-up (after a trip, FOH setpoints), the device's
 noise block spent. It also returns, between two ticks, once `return_at_ns` has passed, so
@@ -29,87 +30,19 @@ from haptic_local_model.haptic_server.mailbox import (
     take_updates,
 )
 from haptic_local_model.haptic_server.model import TICK_DTYPE
+from haptic_local_model.haptic_server.paced import (
+    RETURNED_NOISE,
+    RETURNED_SUPERVISE,
+    RETURNED_TO_PYTHON,
+    loop_record,
+    open_tick,
+    open_tick_at,
+)
 from haptic_local_model.haptic_server.simulated import simulated_tick
 from haptic_local_model.haptic_server.stages.install import EPOCH_LAW_LIVE
 from haptic_local_model.shared.atomics import load_acquire
 from haptic_local_model.shared.clock import monotonic_ns, realtime_ns, wait_until_ns
 from haptic_local_model.shared.protocol.update import epoch_of
-from haptic_local_model.shared.timing import spin_for
-
-I8, F8 = np.int64, np.float64
-
-#: Why realtime_ticks returned (LOOP_DTYPE.status).
-RETURNED_TO_PYTHON = 0  # return_at_ns passed, between two ticks: signals, stop requests
-RETURNED_SUPERVISE = 1  # the opened tick needs the supervisor (end, watchdog, epoch, follow)
-RETURNED_NOISE = 2  # the device's noise block is spent: refill, then run the tick
-
-#: The loop's timing state, shared by its Python side and realtime_ticks.
-LOOP_DTYPE = np.dtype(
-    [
-        ("period_ns", I8),
-        ("spin_ns", I8),  # the wait spins this long before a deadline (shared.timing.spin_for)
-        ("deadline_ns", I8),  # of the next tick
-        ("last_start_ns", I8),  # start of the last tick opened
-        ("dt_min", F8),  # measured dt is clamped to [dt_min, dt_max] s
-        ("dt_max", F8),
-        ("tick", I8),  # ticks run
-        ("overruns", I8),
-        ("late_over_1ms", I8),
-        ("work_prev_us", F8),  # work of the last tick run (into the next row)
-        ("return_at_ns", I8),  # hand the loop back to Python at the first tick from here
-        ("end_ns", I8),  # the supervisor's: the run ends
-        ("trip_at_ns", I8),  # the supervisor's: the watchdog may trip after this
-        ("watchdog_ns", I8),
-        ("last_valid_ns", I8),  # the newest install (monotonic)
-        ("budget", I8),  # updates taken per tick at most
-        ("received", I8),  # updates taken from the mailbox by the kernel
-        ("installed", I8),  # of which installed
-        ("newest_seq", I8),
-        ("newest_age_ms", F8),
-        ("age_count", I8),  # samples written into the update-age window
-        ("age_max", F8),
-        ("now_ns", I8),  # the opened tick: its start, lateness and dt
-        ("lateness_ns", I8),
-        ("dt", F8),
-        ("status", I8),
-        ("fault_reported", I8),  # the state's fault the Python side has logged
-    ]
-)
-
-
-def loop_record(period_ns: int, dt_clamp: tuple[float, float], watchdog_ns: int) -> np.ndarray:
-    rec = np.zeros(1, LOOP_DTYPE)
-    lp = rec[0]
-    lp["period_ns"] = period_ns
-    lp["spin_ns"] = spin_for(period_ns)
-    lp["dt_min"] = dt_clamp[0] * period_ns / 1e9
-    lp["dt_max"] = dt_clamp[1] * period_ns / 1e9
-    lp["watchdog_ns"] = watchdog_ns
-    lp["newest_seq"] = -1
-    lp["newest_age_ms"] = np.nan
-    return rec
-
-
-@njit(cache=True)
-def open_tick(loop, now):
-    """_open_tick, callable from Python (the loop's ticks that run there)."""
-    _open_tick(loop[0], now)
-
-
-@njit(cache=True)
-def _open_tick(lp, now):
-    """The tick starting at `now`: lateness, dt (measured, clamped), overrun resync."""
-    lateness = now - lp.deadline_ns
-    dt_ns = now - lp.last_start_ns if lp.tick > 0 else lp.period_ns
-    lp.last_start_ns = now
-    if lateness > lp.period_ns:
-        lp.overruns += 1
-        lp.deadline_ns = now  # resynchronise: no burst of catch-up ticks
-    if lateness > 1_000_000:
-        lp.late_over_1ms += 1
-    lp.now_ns = now
-    lp.lateness_ns = lateness
-    lp.dt = min(max(dt_ns / 1e9, lp.dt_min), lp.dt_max)
 
 
 @njit(cache=True)
@@ -163,7 +96,7 @@ def realtime_ticks(recs, dev, user, ring_io, loop, ts):
     peaks, row = ring_io[6], ring_io[7]
     tick_recs = (recs[0], recs[1], recs[2], recs[3], recs[4])
     while True:
-        _open_tick(lp, wait_until_ns(ts, lp.deadline_ns, lp.spin_ns))
+        open_tick_at(lp, wait_until_ns(ts, lp.deadline_ns, lp.spin_ns))
         now = lp.now_ns
         if now >= lp.end_ns or now > lp.trip_at_ns or not _quiet_installs(lp, ring_io, recs, ts):
             lp.status = RETURNED_SUPERVISE

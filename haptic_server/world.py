@@ -12,8 +12,11 @@ The runners are written once for every world:
 - `run_ticks`: ticks start..stop-1, each device's noise block refilled when a burst says so;
 - `run_virtual`: the virtual clock, as fast as the ticks compute, with what reaches the world
   between its ticks (a `Feed`: a sim's updates) if it has any;
-- `run_real_time`: the wall clock, one tick a period (shared.timing.Pacer, the paced loop of
-  the network's processes too), after the kernels are compiled on a spare world.
+- `run_real_time`: the wall clock, one tick a period in one compiled loop (paced_ticks of
+  haptic_server.paced, whose wait and tick opening are the local model's loop's too), which
+  returns to Python only for a spent noise block, the next one drawn ahead, or every
+  RETURN_EVERY_NS for signals and stop requests; after the kernels are compiled on a spare
+  world.
 
 The single-device engine (a local model, a god-object, from a sim's updates; engine.py) is a
 world too on the virtual clock, its sim's steps and updates its feed (harness.virtual); it
@@ -26,21 +29,41 @@ import signal
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
 from haptic_local_model.device_models.base import SimulatedDevice
 from haptic_local_model.device_models.common import refill_noise
-from haptic_local_model.device_models.kernels import noise_ready
-from haptic_local_model.shared.timing import Pacer, SampleWindow, enter_loop
+from haptic_local_model.haptic_server.paced import (
+    PEAK_LATE,
+    PEAK_LATE_TICK,
+    PEAK_WORK,
+    RETURNED_DONE,
+    RETURNED_NOISE,
+    RETURNED_TO_PYTHON,
+    loop_record,
+)
+from haptic_local_model.shared.timing import SampleWindow, enter_loop, paced_figures
 
 #: Replay a kind's rows: (scene, each port's world-frame limits, rows) -> (ticks compared,
 #: the first tick whose outputs differ in any bit, or None).
 Replay = Callable[[Any, list[tuple[float, float, float]], np.ndarray], tuple[int, int | None]]
 
 SPIN_NS = 100_000  # the real-time runner spins this long before each deadline
-REFILL_AHEAD = 16  # ticks: the real-time runner refills a noise block this long before need
+RETURN_EVERY_NS = 50_000_000  # the real-time runner's compiled loop returns this often
+
+
+class Compiled(NamedTuple):
+    """A port world kind's compiled ticks as the runners call them, and its records."""
+
+    #: burst(records, rows, start, stop) -> the first tick not run (stop, or earlier when
+    #: a device's noise block needs a refill)
+    burst: Any
+    #: paced(records, rows, loop, windows, ts): haptic_server.paced.paced_ticks over burst,
+    #: a cached entry point of the kind's own
+    paced: Any
+    records: tuple[Any, ...]
 
 
 @dataclass(frozen=True)
@@ -118,40 +141,131 @@ def run_virtual(
     return rows, time.perf_counter() - entered
 
 
-def refill_ahead(world: World) -> bool:
-    """After a tick, in the period's slack: draw the next noise block of the first device
-    whose block will not last REFILL_AHEAD more ticks (one a tick: a block of normals takes
-    0.3-1 ms on these machines, and the devices of one world spend theirs at the same pace,
-    so drawn at need they all draw in one tick and overrun it). The refill at need copies
-    it in: the normals read are the same, and a real-time run's rows are the virtual
-    clock's. Whether one was drawn."""
-    ahead = REFILL_AHEAD * world.period_s
-    for dev in world.devices:
-        if not noise_ready(dev.records, ahead) and dev.noise.prefetch():
-            return True
-    return False
+def draw_ahead(world: World) -> bool:
+    """Between two ticks, in the period's slack: the next noise block of the first device
+    that has none waiting (one a tick: a block of normals takes 0.3-1 ms on these machines,
+    and the devices of one world spend theirs at the same pace, so drawn at need they all
+    draw in one tick and overrun it). The refill at need copies it in: the normals read are
+    the same, and a real-time run's rows are the virtual clock's. Whether one was drawn."""
+    return any(dev.noise.prefetch() for dev in world.devices)
 
 
-def _warm(spare: World, world: World, rows: np.ndarray) -> None:
-    """The world's kernels compiled (or loaded from numba's cache) on a spare world, then
-    called on the world's own records for no tick (the first call on new arrays costs
-    milliseconds: it overran the first tick)."""
+class PortWorld(World, Protocol):
+    """A world whose ticks the real-time runner paces in compiled code (the port worlds)."""
+
+    @property
+    def compiled(self) -> Compiled:
+        """Its compiled ticks and the records they take (Compiled)."""
+        ...
+
+
+def compiled_burst(world: PortWorld, rows: np.ndarray, start: int, stop: int) -> int:
+    """The World protocol's `burst` of a port world: its compiled ticks on its records."""
+    kernels = world.compiled
+    return int(kernels.burst(kernels.records, rows, start, stop))
+
+
+@dataclass
+class PacedTimes:
+    """What the compiled paced loop keeps of each tick (preallocated): its lateness, its
+    work and its interval from the tick before, and their peaks (haptic_server.paced)."""
+
+    late_us: SampleWindow
+    work_us: SampleWindow
+    intervals_ms: SampleWindow
+    peaks: np.ndarray
+
+    @classmethod
+    def of(cls, ticks: int) -> PacedTimes:
+        return cls(SampleWindow(100_000), SampleWindow(max(ticks, 1)),
+                   SampleWindow(1_000_000), np.zeros(3))  # fmt: skip
+
+    @property
+    def windows(self) -> tuple[np.ndarray, ...]:
+        """What paced_ticks writes: (lateness, work, intervals, peaks)."""
+        return self.late_us.buffer, self.work_us.buffer, self.intervals_ms.buffer, self.peaks
+
+    def ran(self, ticks: int) -> None:
+        """`ticks` ticks have been run and written."""
+        self.late_us.filled(ticks, float(self.peaks[PEAK_LATE]))
+        self.work_us.filled(ticks, float(self.peaks[PEAK_WORK]))
+        self.intervals_ms.filled(max(ticks - 1, 0), 0.0)
+
+
+def paced_loop(period_ns: int) -> np.ndarray:
+    """A port world's LOOP_DTYPE record: its period, the wait's spin (SPIN_NS), the clock
+    not started."""
+    loop = loop_record(period_ns, (1.0, 1.0), 0)
+    loop[0]["spin_ns"] = SPIN_NS
+    return loop
+
+
+def run_paced(
+    world: PortWorld,
+    rows: np.ndarray,
+    loop: np.ndarray,
+    times: PacedTimes,
+    stopped: Callable[[], bool],
+) -> int:
+    """The compiled paced loop (paced_ticks) over rows from `loop`'s deadline (its first
+    tick's) until every row is run or `stopped()` (asked between two ticks, at least every
+    RETURN_EVERY_NS): a device's spent noise block refilled for the tick it stopped at, the
+    next blocks drawn ahead in the slack after a tick (draw_ahead). The blocks drawn ahead."""
+    lp = loop[0]
+    kernels = world.compiled
+    windows, ts = times.windows, np.zeros(2, np.int64)
+    drawn, status = 0, RETURNED_TO_PYTHON
+    while True:
+        if status == RETURNED_NOISE:
+            for dev in world.devices:
+                refill_noise(dev.noise, dev.records, world.period_s)
+            lp["return_at_ns"] = 0  # back after that tick: the next blocks drawn in its slack
+        elif stopped():
+            break
+        else:
+            ahead = draw_ahead(world)
+            drawn += ahead
+            lp["return_at_ns"] = 0 if ahead else time.perf_counter_ns() + RETURN_EVERY_NS
+        status = kernels.paced(kernels.records, rows, loop, windows, ts)
+        if status == RETURNED_DONE:
+            break
+    times.ran(int(lp["tick"]))
+    return drawn
+
+
+def compile_paced(world: PortWorld) -> None:
+    """The world's paced loop compiled (or loaded from numba's cache) for its kind and its
+    devices, and run for no tick."""
+    run_paced(world, np.zeros(0, world.kind.rows), paced_loop(1), PacedTimes.of(0),
+              lambda: False)  # fmt: skip
+
+
+def _warm(spare: PortWorld, world: PortWorld) -> None:
+    """The world's kernels and its paced loop compiled (or loaded from numba's cache) on a
+    spare world, then the loop called on the world's own records for no tick (the first
+    call on new arrays costs milliseconds: it overran the first tick); each device's next
+    noise block drawn before the clock starts."""
     run_ticks(spare, np.zeros(2, spare.kind.rows), 0, 2)
-    refill_ahead(spare)
-    world.burst(rows, 0, 0)
+    for dev in spare.devices:  # the refill's check loaded (at a tick, loading it took 140 ms)
+        refill_noise(dev.noise, dev.records, spare.period_s)
+    compile_paced(spare)
+    compile_paced(world)
+    while draw_ahead(world):
+        pass
 
 
 def run_real_time(
-    world: World,
-    spare: World,
+    world: PortWorld,
+    spare: PortWorld,
     duration_s: float,
     stopped: Callable[[], bool] = lambda: False,
     rows: np.ndarray | None = None,
 ) -> tuple[np.ndarray, dict[str, Any]]:
-    """`duration_s` on the wall clock, one tick a period (a SIGINT or SIGTERM, or
-    `stopped()`, ends it early): (the rows of the ticks run, the loop's figures). The
-    kernels are compiled (or loaded) on `spare`, a world built as `world` is, first. The
-    rows go into `rows` if given (zeroed, one per tick: shared memory a live view reads).
+    """`duration_s` on the wall clock, one tick a period in compiled code (run_paced; a
+    SIGINT or SIGTERM, or `stopped()`, ends it early): (the rows of the ticks run, the
+    loop's figures). The kernels are compiled (or loaded) on `spare`, a world built as
+    `world` is, first. The rows go into `rows` if given (zeroed, one per tick: shared memory
+    a live view reads).
 
     Ticks delivered is the ticks run over the periods that passed between the first tick
     and the last (a tick later than a whole period starts the deadlines afresh: the
@@ -163,35 +277,36 @@ def run_real_time(
         raise ValueError(f"rows: {rows.shape} of {rows.dtype}, not ({n},) of the world's rows")
     rows.view(np.uint8)[:] = 0  # every page touched now, not in the loop
     period_ns = round(world.period_s * 1e9)
-    work = SampleWindow(n)
-    pacer = Pacer(period_ns, SPIN_NS, None)
-    first = [0]
-    asked = [False]
-
-    def tick(now: int, seq: int) -> None:
-        if seq == 0:
-            first[0] = pacer.deadline  # the first tick's: the periods are counted from it
-        run_ticks(world, rows, seq, seq + 1)
-        work.add((time.perf_counter_ns() - now) / 1e3)
-        refill_ahead(world)
+    loop, times = paced_loop(period_ns), PacedTimes.of(n)
+    asked, first = [False], 0
 
     def stop(*_: object) -> None:
         asked[0] = True
 
     previous = [signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)]
     try:
-        enter_loop(lambda: _warm(spare, world, rows), None)
-        ran = pacer.run(tick, lambda: asked[0] or stopped() or pacer.ticks >= n)
+        enter_loop(lambda: _warm(spare, world), None)
+        first = loop[0]["deadline_ns"] = time.perf_counter_ns()  # the periods count from it
+        run_paced(world, rows, loop, times, lambda: asked[0] or stopped())
     finally:
         for s, handler in zip((signal.SIGINT, signal.SIGTERM), previous, strict=True):
             signal.signal(s, handler)
-    periods = (pacer.last - first[0]) // period_ns + 1 if ran else 0
-    figures = {
+    return rows[: times.work_us.count], loop_figures(loop[0], times, first, n)
+
+
+def loop_figures(lp: np.void, times: PacedTimes, first: int, n: int) -> dict[str, Any]:
+    """A paced run's figures (Pacer.figures' and the work's, the ticks delivered) from its
+    loop record, its tick times and its first deadline."""
+    ran, period_ns = int(lp["tick"]), int(lp["period_ns"])
+    last = int(lp["last_start_ns"])
+    periods = (last - first) // period_ns + 1 if ran else 0
+    late_ms, tick = float(times.peaks[PEAK_LATE]) / 1e3, int(times.peaks[PEAK_LATE_TICK])
+    return {
         "ticks": ran,
         "ticks_delivered": ran / periods if periods else 0.0,
-        "wall_s": (pacer.last - first[0]) / 1e9 if ran else 0.0,
-        **pacer.figures(),
-        "work_us": work.percentiles(50, 99, 99.9),
+        "wall_s": (last - first) / 1e9 if ran else 0.0,
+        **paced_figures(times.intervals_ms, times.late_us, int(lp["overruns"]),
+                        int(lp["skipped"]), (late_ms, tick), first),
+        "work_us": times.work_us.percentiles(50, 99, 99.9),
         "stopped_early": ran < n,
-    }
-    return rows[:ran], figures
+    }  # fmt: skip

@@ -51,7 +51,7 @@ from haptic_local_model.haptic_server.station_records import (
     replay_station_rows,
     setup_from_log,
 )
-from haptic_local_model.haptic_server.world import World, WorldKind, run_real_time, run_virtual
+from haptic_local_model.haptic_server.world import PortWorld, WorldKind, run_real_time, run_virtual
 from haptic_local_model.shared import __version__
 from haptic_local_model.shared.config import (
     ConfigError,
@@ -142,7 +142,7 @@ class PortScene:
     devices: list[str]
     users: list[str]
 
-    def world(self) -> World:
+    def world(self) -> PortWorld:
         """The scene's world with its devices and users, at their start."""
         sim = [load_simulated_device(name) for name in self.devices]
         scene = self.config
@@ -213,7 +213,7 @@ def run_port_scene(
 
 
 def _run_viewed(
-    scene: PortScene, world: World, duration_s: float, view: ViewAddress
+    scene: PortScene, world: PortWorld, duration_s: float, view: ViewAddress
 ) -> tuple[np.ndarray, dict[str, Any]]:
     """run_real_time with the rows in shared memory and the port view reading them."""
     from haptic_local_model.haptic_server.port_view import PortRows, PortViewProcess

@@ -243,11 +243,11 @@ class Pacer:
         return self.end is None or self.last < self.end
 
     def run(self, tick: Callable[[int, int], None], stopped: Callable[[], bool]) -> int:
-        """The paced loop, written once for every loop on the wall clock that is not the
-        local model's (the shared world, a station, the sim's mirror, a local port world):
-        start the clock, then until the duration is over or `stopped()`, wait for each
-        deadline and run tick(now_ns, seq) (seq counts the ticks from 0). Returns the ticks
-        run."""
+        """The paced loop, written once for every loop on the wall clock that is not
+        compiled (the shared world, a station, the sim's mirror; the local model's and a
+        local port world's are, haptic_server.paced): start the clock, then until the
+        duration is over or `stopped()`, wait for each deadline and run tick(now_ns, seq)
+        (seq counts the ticks from 0). Returns the ticks run."""
         self.start()
         seq = 0
         while not stopped():
@@ -259,16 +259,32 @@ class Pacer:
         return seq
 
     def figures(self) -> dict[str, Any]:
-        return {
-            "tick_rate_hz": rate_per_second(self.intervals_ms.values()),
-            "late_us": self.late_us.percentiles(50, 99, 99.9),
-            "overruns": self.overruns,
-            "ticks_skipped": self.skipped,
-            "latest_tick": {"late_ms": self.worst[0] / 1e6, "tick": self.worst[1]},
-            # the loop's clock (perf_counter: CLOCK_MONOTONIC, one for every process on the
-            # host) at its first deadline: another process's rows are matched in time on it
-            "started_ns": self.started_ns,
-        }
+        latest = (self.worst[0] / 1e6, self.worst[1])
+        return paced_figures(self.intervals_ms, self.late_us, self.overruns, self.skipped,
+                             latest, self.started_ns)  # fmt: skip
+
+
+def paced_figures(
+    intervals_ms: SampleWindow,
+    late_us: SampleWindow,
+    overruns: int,
+    skipped: int,
+    latest: tuple[float, int],
+    started_ns: int,
+) -> dict[str, Any]:
+    """A paced loop's figures (a Pacer's, or a compiled loop's that kept the same): the tick
+    rate, the lateness, the overruns and the periods they skipped, the latest tick (ms late,
+    its index), and the clock at the first deadline."""
+    return {
+        "tick_rate_hz": rate_per_second(intervals_ms.values()),
+        "late_us": late_us.percentiles(50, 99, 99.9),
+        "overruns": overruns,
+        "ticks_skipped": skipped,
+        "latest_tick": {"late_ms": latest[0], "tick": latest[1]},
+        # the loop's clock (perf_counter: CLOCK_MONOTONIC, one for every process on the
+        # host) at its first deadline: another process's rows are matched in time on it
+        "started_ns": started_ns,
+    }
 
 
 def enter_loop(warm: Callable[[], None], ready: Callable[[], None] | None) -> None:

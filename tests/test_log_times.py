@@ -1,6 +1,6 @@
 """A real-time log's tick times (haptic_server.logger.TickDeadlines): each tick is logged at
 its deadline on the wall clock, rebuilt from the rows' lateness, and agrees with the
-deadlines the loop's own rule (haptic_server.realtime.open_tick) kept, stalls included;
+deadlines the loop's own rule (haptic_server.paced.open_tick) kept, stalls included;
 the rows' time t (clamped dts) would fall behind."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from haptic_local_model.haptic_server.logger import TickDeadlines
-from haptic_local_model.haptic_server.realtime import loop_record, open_tick
+from haptic_local_model.haptic_server.paced import loop_record, open_tick
 from haptic_local_model.shared.timing import wall_clock_at
 
 PERIOD_NS = 1_000_000

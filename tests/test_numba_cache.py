@@ -11,11 +11,11 @@ from pathlib import Path
 import numba.core.config
 import pytest
 
-from haptic_local_model.haptic_server import realtime
+from haptic_local_model.haptic_server import paced
 from haptic_local_model.shared import numba_cache
 from haptic_local_model.shared.numba_cache import LOCATORS, ProjectCacheLocator, project_subpath
 
-KERNEL = realtime.open_tick  # any of the project's cached kernels
+KERNEL = paced.open_tick  # any of the project's cached kernels
 
 
 def _clone(tmp_path: Path, name: str) -> tuple[Path, Path]:

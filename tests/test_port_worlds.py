@@ -15,7 +15,7 @@ from haptic_local_model.haptic_server.harness.replay import main as haptic_repla
 from haptic_local_model.haptic_server.harness.run import main as haptic_run
 from haptic_local_model.haptic_server.log import LogWriter
 from haptic_local_model.haptic_server.ports import replay_rows
-from haptic_local_model.haptic_server.world import refill_ahead, run_ticks, run_virtual
+from haptic_local_model.haptic_server.world import PacedTimes, paced_loop, run_paced, run_virtual
 from haptic_local_model.haptic_server.world_runs import (
     port_scene,
     read_port_log,
@@ -121,20 +121,29 @@ def test_a_port_scene_refuses_what_only_a_single_device_run_has(capsys):
 
 @pytest.mark.parametrize("scene", ["grasp_vertical", "hand_grasp", "box_push"])
 def test_the_real_time_runner_gives_the_virtual_clock_s_rows_bit_for_bit(scene):
-    """The real-time runner's path, tick by tick with each device's next noise block drawn
-    ahead of need in the slack after a tick (world.refill_ahead), reads the same normals as
+    """The real-time runner's compiled loop (world.run_paced: a tick a period through the
+    kind's compiled ticks, a spent noise block refilled for the tick it stopped at, each
+    device's next block drawn ahead in the slack after a tick) reads the same normals as
     the virtual clock's refills at need: the rows are the same, bit for bit, so a real-time
-    run's figures are the virtual clock's."""
+    run's figures are the virtual clock's. Its deadlines here are a nanosecond apart: it
+    runs as fast as it computes, every tick counted late."""
     made = port_scene(scene, ["maglev"], None)
     virtual, _ = run_virtual(made.world(), 3.0)
     world = made.world()
     rows = np.zeros(len(virtual), world.kind.rows)
-    topped = 0
-    for k in range(len(rows)):
-        run_ticks(world, rows, k, k + 1)
-        topped += refill_ahead(world)
-    assert topped >= 2  # the blocks ran low in 3 s and the next ones were drawn ahead
+    loop, times = paced_loop(1), PacedTimes.of(len(rows))
+    drawn = run_paced(world, rows, loop, times, lambda: False)
     assert rows.tobytes() == virtual.tobytes()
+    # each device's next block drawn at the start, and again after the blocks ran out
+    assert drawn > len(world.devices)
+    lp = loop[0]
+    assert lp["tick"] == times.work_us.count == times.late_us.count == len(rows)
+    assert lp["overruns"] == len(rows)  # each tick started more than a period late
+    # the first deadline was 0: the first tick's lateness is its start; the intervals kept
+    # between the ticks' starts add up to the time from it to the last (to the clock's ns)
+    first = times.late_us.values()[0] * 1e3
+    span_ms = (lp["last_start_ns"] - first) / 1e6
+    assert times.intervals_ms.values().sum() == pytest.approx(span_ms, abs=1e-6)
 
 
 def test_one_device_pushes_a_box_into_a_wall_and_holds_it_there():

@@ -36,6 +36,8 @@ from haptic_local_model.haptic_server.mailbox import compile_loop_kernels
 from haptic_local_model.haptic_server.realtime import compile_realtime_kernels
 from haptic_local_model.haptic_server.shared_world import SharedWorld
 from haptic_local_model.haptic_server.station import Station
+from haptic_local_model.haptic_server.world import compile_paced
+from haptic_local_model.haptic_server.world_runs import port_scene
 from haptic_local_model.shared.config import load_scene, load_user
 from haptic_local_model.shared.net.stations import load_station_network
 from haptic_local_model.shared.port_config import load_hand_scene, load_port_scene
@@ -102,9 +104,18 @@ def _hand_port_kernels() -> None:
         HandGraspRun(grasp, [load_simulated_device(c) for c in pair]).run(0.002)
 
 
+def _paced_kernels() -> None:
+    """The real-time runner's compiled loop of each port world kind, each device model on
+    every port (`haptic-run --scene NAME --device MODEL`)."""
+    for config in built_in_models():
+        for scene in ("box_push", "grasp_vertical", "hand_press", "hand_grasp"):
+            compile_paced(port_scene(scene, [config], None).world())
+
+
 def _port_kernels() -> None:
     _station_kernels()
     _hand_port_kernels()
+    _paced_kernels()
 
 
 #: one run's kernels: (scene, device, user, seconds of the virtual run that compiles them)

@@ -1,0 +1,153 @@
+"""The compiled paced loop: wait for a tick's deadline and open the tick, once for the local
+model's loop (haptic_server.realtime) and every port world's (`paced_ticks`).
+
+`LOOP_DTYPE` is a real-time loop's timing state, shared by its Python side and its compiled
+part; `open_tick_at` is the one rule of a tick's start (lateness, dt, an overrun's resync).
+`paced_ticks` runs a world kind's compiled ticks one a period without returning to Python:
+it waits for each deadline (sleep, then spin, on the monotonic clock), opens the tick, runs
+it through the kind's kernel (an argument: the loop is inlined into a cached entry point
+of each kind's own, `*_paced`, where it is a direct call) and keeps each tick's lateness,
+interval and work. It returns only when Python is needed: a device's noise block is spent
+(the tick is left opened: refill, then call again and it runs without waiting),
+`return_at_ns` has passed after a tick (signals, stop requests, the next noise block drawn
+in the slack), or every row is run.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from haptic_local_model.shared.clock import monotonic_ns, wait_until_ns
+from haptic_local_model.shared.timing import spin_for
+
+I8, F8 = np.int64, np.float64
+
+#: Why a compiled loop returned (LOOP_DTYPE.status).
+RETURNED_TO_PYTHON = 0  # return_at_ns passed, between two ticks: signals, stop requests
+RETURNED_SUPERVISE = 1  # the opened tick needs the supervisor (end, watchdog, epoch, follow)
+RETURNED_NOISE = 2  # a device's noise block is spent: refill, then run the opened tick
+RETURNED_DONE = 3  # every row is run (paced_ticks)
+
+#: A real-time loop's timing state, shared by its Python side and its compiled part (the
+#: install and watchdog fields are the local model's loop's; a port world's leaves them).
+LOOP_DTYPE = np.dtype(
+    [
+        ("period_ns", I8),
+        ("spin_ns", I8),  # the wait spins this long before a deadline (shared.timing.spin_for)
+        ("deadline_ns", I8),  # of the next tick
+        ("last_start_ns", I8),  # start of the last tick opened
+        ("dt_min", F8),  # measured dt is clamped to [dt_min, dt_max] s
+        ("dt_max", F8),
+        ("tick", I8),  # ticks run
+        ("overruns", I8),
+        ("skipped", I8),  # whole periods the overruns spanned: ticks never run
+        ("late_over_1ms", I8),
+        ("work_prev_us", F8),  # work of the last tick run (into the next row)
+        ("return_at_ns", I8),  # hand the loop back to Python at the first tick from here
+        ("end_ns", I8),  # the supervisor's: the run ends
+        ("trip_at_ns", I8),  # the supervisor's: the watchdog may trip after this
+        ("watchdog_ns", I8),
+        ("last_valid_ns", I8),  # the newest install (monotonic)
+        ("budget", I8),  # updates taken per tick at most
+        ("received", I8),  # updates taken from the mailbox by the kernel
+        ("installed", I8),  # of which installed
+        ("newest_seq", I8),
+        ("newest_age_ms", F8),
+        ("age_count", I8),  # samples written into the update-age window
+        ("age_max", F8),
+        ("now_ns", I8),  # the opened tick: its start, lateness and dt
+        ("lateness_ns", I8),
+        ("dt", F8),
+        ("status", I8),
+        ("fault_reported", I8),  # the state's fault the Python side has logged
+    ]
+)
+
+#: paced_ticks' peaks (float64[3]): the latest tick's lateness (µs), the longest work (µs),
+#: the latest tick's index
+PEAK_LATE, PEAK_WORK, PEAK_LATE_TICK = 0, 1, 2
+
+
+def loop_record(period_ns: int, dt_clamp: tuple[float, float], watchdog_ns: int) -> np.ndarray:
+    rec = np.zeros(1, LOOP_DTYPE)
+    lp = rec[0]
+    lp["period_ns"] = period_ns
+    lp["spin_ns"] = spin_for(period_ns)
+    lp["dt_min"] = dt_clamp[0] * period_ns / 1e9
+    lp["dt_max"] = dt_clamp[1] * period_ns / 1e9
+    lp["watchdog_ns"] = watchdog_ns
+    lp["newest_seq"] = -1
+    lp["newest_age_ms"] = np.nan
+    return rec
+
+
+@njit(cache=True)
+def open_tick(loop, now):
+    """open_tick_at, callable from Python (the loop's ticks that run there)."""
+    open_tick_at(loop[0], now)
+
+
+@njit(cache=True)
+def open_tick_at(lp, now):
+    """The tick starting at `now`: lateness, dt (measured, clamped), overrun resync (the
+    whole periods it spanned counted as skipped)."""
+    lateness = now - lp.deadline_ns
+    dt_ns = now - lp.last_start_ns if lp.tick > 0 else lp.period_ns
+    lp.last_start_ns = now
+    if lateness > lp.period_ns:
+        lp.overruns += 1
+        lp.skipped += lateness // lp.period_ns
+        lp.deadline_ns = now  # resynchronise: no burst of catch-up ticks
+    if lateness > 1_000_000:
+        lp.late_over_1ms += 1
+    lp.now_ns = now
+    lp.lateness_ns = lateness
+    lp.dt = min(max(dt_ns / 1e9, lp.dt_min), lp.dt_max)
+
+
+@njit(cache=True)
+def _opened(lp, previous, late_w, interval_w, peaks):
+    """The opened tick's lateness (µs, at its index) and its interval from the tick before
+    (ms, at the index before: a first tick has none) into their windows."""
+    late_us = lp.lateness_ns / 1e3
+    late_w[lp.tick % late_w.shape[0]] = late_us
+    if late_us > peaks[PEAK_LATE]:
+        peaks[PEAK_LATE] = late_us
+        peaks[PEAK_LATE_TICK] = lp.tick
+    if lp.tick > 0:
+        interval_w[(lp.tick - 1) % interval_w.shape[0]] = (lp.now_ns - previous) / 1e6
+
+
+# Inlined (numba's IR) into each kind's cached entry point, where `burst` is then a direct
+# call of the kind's kernel: a kernel passed as a value keys numba's cache by the object
+# (another process never finds it again) and lowers as an address that stops the caching.
+@njit(inline="always")
+def paced_ticks(burst, world, rows, loop, windows, ts):
+    """A world's ticks, one a period, until Python is needed (the module docstring); the
+    status. burst(world, rows, start, stop): the kind's compiled ticks (the first tick not
+    run: stop, or start when a device's noise block needs a refill); world: the records it
+    takes; rows: one per tick of the run (tick k into rows[k]); loop: LOOP_DTYPE[1];
+    windows: (lateness µs, work µs, interval ms, peaks float64[3]); ts: int64[2] scratch."""
+    lp = loop[0]
+    late_w, work_w, interval_w, peaks = windows
+    while True:
+        if lp.status != RETURNED_NOISE:  # an opened tick runs without waiting again
+            if lp.tick >= rows.shape[0]:
+                lp.status = RETURNED_DONE
+                return lp.status
+            previous = lp.last_start_ns
+            open_tick_at(lp, wait_until_ns(ts, lp.deadline_ns, lp.spin_ns))
+            _opened(lp, previous, late_w, interval_w, peaks)
+        if burst(world, rows, lp.tick, lp.tick + 1) == lp.tick:
+            lp.status = RETURNED_NOISE
+            return lp.status
+        end = monotonic_ns(ts)
+        work_us = (end - lp.now_ns) / 1e3
+        work_w[lp.tick % work_w.shape[0]] = work_us
+        peaks[PEAK_WORK] = max(peaks[PEAK_WORK], work_us)
+        lp.tick += 1
+        lp.deadline_ns += lp.period_ns
+        lp.status = RETURNED_TO_PYTHON
+        if end >= lp.return_at_ns:
+            return lp.status
