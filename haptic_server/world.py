@@ -20,7 +20,8 @@ The runners are written once for every world:
 
 The single-device engine (a local model, a god-object, from a sim's updates; engine.py) is a
 world too on the virtual clock, its sim's steps and updates its feed (harness.virtual); it
-keeps its own real-time loop (haptic_server.loop, the compiled burst with the supervisor).
+keeps its own real-time loop (haptic_server.loop, the compiled burst with the supervisor),
+whose wait and opening of a tick are paced_ticks' (haptic_server.paced).
 """
 
 from __future__ import annotations
