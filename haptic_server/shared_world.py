@@ -60,7 +60,6 @@ from haptic_local_model.haptic_server.log import rows_in_order
 from haptic_local_model.haptic_server.port_scene import port_gains
 from haptic_local_model.haptic_server.sim_link import SimLink
 from haptic_local_model.haptic_server.stages.port_io import push_stretch
-from haptic_local_model.haptic_server.stages.station_messages import STALE, reason_counts
 from haptic_local_model.haptic_server.stages.world_ports import (
     EVENT_DTYPE,
     MAX_EVENTS,
@@ -80,12 +79,14 @@ from haptic_local_model.shared.net.stations import (
 )
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
 from haptic_local_model.shared.protocol.station import (
+    STALE,
     DeviceState,
     Vec3,
     encode_device,
     tool_record,
     vec3,
 )
+from haptic_local_model.shared.protocol.station_codec import reason_counts
 from haptic_local_model.shared.timing import Pacer, SampleWindow, enter_loop
 
 DEVICE_RING = 64

@@ -33,7 +33,6 @@ from haptic_local_model.haptic_server.stages.station_link import (
     station_step,
     take_tool,
 )
-from haptic_local_model.haptic_server.stages.station_messages import reason_counts
 from haptic_local_model.haptic_server.station_records import (
     STATION_SCHEMA,
     STATION_TOPIC,
@@ -51,6 +50,7 @@ from haptic_local_model.shared.net.stations import (
 )
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
 from haptic_local_model.shared.protocol.station import TOOL_RECORD, device_record
+from haptic_local_model.shared.protocol.station_codec import reason_counts
 from haptic_local_model.shared.timing import Pacer, SampleWindow, enter_loop
 
 TOOL_RING = 64  # tool states kept between two ticks: a stalled tick's worth and more

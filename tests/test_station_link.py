@@ -21,12 +21,6 @@ from haptic_local_model.haptic_server.stages.station_link import (
     station_step,
     take_tool,
 )
-from haptic_local_model.haptic_server.stages.station_messages import (
-    REASONS,
-    TOOL_BYTES,
-    TOOL_FLOATS,
-    tool_refusal,
-)
 from haptic_local_model.haptic_server.station import Station
 from haptic_local_model.haptic_server.stations_cli import _scene
 from haptic_local_model.shared.config import load_user
@@ -35,12 +29,18 @@ from haptic_local_model.shared.port_config import load_port_scene
 from haptic_local_model.shared.protocol.station import (
     CUT,
     GLOVE,
+    REASONS,
     SAFE,
     STATION_VERSION,
     ToolState,
     decode_device,
     decode_tool,
     encode_tool,
+)
+from haptic_local_model.shared.protocol.station_codec import (
+    TOOL_BYTES,
+    TOOL_FLOATS,
+    tool_refusal,
 )
 from haptic_local_model.shared.protocol.update import MessageError
 

@@ -21,11 +21,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from haptic_local_model.haptic_server.shared_world import SharedWorld
-from haptic_local_model.haptic_server.stages.station_messages import (
-    DEVICE_BYTES,
-    REASONS,
-    device_refusal,
-)
 from haptic_local_model.haptic_server.stages.world_ports import (
     EXTRAPOLATE_S,
     port_links,
@@ -38,12 +33,17 @@ from haptic_local_model.shared.port_config import load_port_scene
 from haptic_local_model.shared.protocol.station import (
     HELD,
     MAX_GLOVE_JOINTS,
+    REASONS,
     SAFE,
     DeviceState,
     decode_device,
     decode_tool,
     encode_device,
     order_refusal,
+)
+from haptic_local_model.shared.protocol.station_codec import (
+    DEVICE_BYTES,
+    device_refusal,
 )
 from haptic_local_model.shared.protocol.update import MessageError
 

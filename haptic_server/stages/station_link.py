@@ -2,10 +2,11 @@
 runs it; docs/stations.md):
 
 - `take_tool`: one ToolState received on the port's key, checked
-  (station_messages.tool_refusal) and ordered, its tool, gains and object into the station's
-  record, or refused and counted by reason. Within the world's epoch a message must be newer than
-  the last taken; another epoch (a world restarted, or a second one) is taken only once the
-  present one has been silent for the station's watchdog;
+  (shared/protocol/station_codec.tool_refusal) and ordered, its tool, gains and object into
+  the station's record, or refused and counted by reason. Within the world's epoch a
+  message must be newer than the last taken; another epoch (a world restarted, or a second
+  one) is taken only once the present one has been silent for the station's watchdog (the
+  links' one order rule, shared/protocol/station.py's `order_code`);
 - `station_step`: the tool's age, the station's tick (stages/station.py) and the tick's
   DeviceState (DEVICE_RECORD, filled in place: the device's pose and twist in the world
   unless its reading was not finite, SAFE while not rendering the coupling, CUT, a hand's
@@ -24,15 +25,21 @@ from numba import njit
 from haptic_local_model.haptic_server.physics.passivity import carry_budget
 from haptic_local_model.haptic_server.stages.hand import glove_at
 from haptic_local_model.haptic_server.stages.station import station_row, station_tick
-from haptic_local_model.haptic_server.stages.station_messages import (
+from haptic_local_model.shared.protocol.station import (
+    CUT,
+    GLOVE,
+    HELD,
+    INDEXED,
     REASONS,
+    SAFE,
+)
+from haptic_local_model.shared.protocol.station_codec import (
     TOOL_FLOATS,
     admit,
     message_flags,
     message_floats,
     tool_refusal,
 )
-from haptic_local_model.shared.protocol.station import CUT, GLOVE, HELD, INDEXED, SAFE
 
 I8 = np.int64
 TOOL_ENERGY = TOOL_FLOATS - 3  # a ToolState's energy: its last three numbers

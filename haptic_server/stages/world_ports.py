@@ -1,10 +1,10 @@
 """A shared world's ports, compiled (haptic_server/shared_world.py runs them; docs/stations.md):
 
 - `take_device`: one DeviceState received on a port's key, checked
-  (station_messages.device_refusal) and ordered as shared/protocol/station.py's
-  `order_refusal` does (the reference: tests/test_world_ports.py checks that both refuse
-  the same messages, for the same reason), its fields taken, or refused and counted by
-  reason;
+  (shared/protocol/station_codec.device_refusal) and ordered by the links' one order rule
+  (shared/protocol/station.py's `order_code`; tests/test_world_ports.py checks the compiled
+  take against the reference decoder and the rule run as Python, `order_refusal`), its
+  fields taken, or refused and counted by reason;
 - `step_ports`: each port's state this tick (HELD, INDEXING, COUPLED: shared_world's
   docstring) and the device pose and twist it feeds its tool;
 - `fill_tool`: a port's ToolState, its TOOL_RECORD filled in place.
@@ -31,22 +31,22 @@ from haptic_local_model.haptic_server.physics.passivity import (
     carry_budget,
     pc_damping,
 )
-from haptic_local_model.haptic_server.stages.station_messages import (
-    DEVICE_FLOATS,
-    REASONS,
-    admit,
-    device_refusal,
-    message_flags,
-    message_floats,
-)
 from haptic_local_model.shared.protocol.station import (
     CUT,
     GLOVE,
     HELD,
     INDEXED,
     MAX_GLOVE_JOINTS,
+    REASONS,
     SAFE,
     tool_record,
+)
+from haptic_local_model.shared.protocol.station_codec import (
+    DEVICE_FLOATS,
+    admit,
+    device_refusal,
+    message_flags,
+    message_floats,
 )
 
 HELD_STATE, INDEXING, COUPLED = 0, 1, 2

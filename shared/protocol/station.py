@@ -33,6 +33,7 @@ from functools import cached_property
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from haptic_local_model.shared.protocol.update import MessageError
 
@@ -154,7 +155,7 @@ class StationMessage:
     the header (magic, version, port, epoch, seq, publish time), its numbers in order, its
     flags. From it: the record of exactly its bytes (`dtype`, which a loop fills in place
     and sends), the reference decoder and encoder below, and the compiled checks
-    (haptic_server/stages/station_messages.py: `limits`, `nonneg`)."""
+    (shared/protocol/station_codec.py: `limits`, `nonneg`)."""
 
     name: str
     magic: bytes
@@ -333,18 +334,36 @@ def decode_bodies(raw: bytes, magic: bytes, count: int) -> BodiesState:
     return BodiesState(magic, f[3], f[4], f[5], bodies, period, follows, impulse)
 
 
+#: A refusal's reason, by code (the compiled checks count them so: station_codec.py): the
+#: decoders' MessageError reasons, then the order rule's.
+REASONS = ("size", "magic", "version", "port", "value", "flags", "stale", "other_epoch")
+SIZE, MAGIC, VERSION, PORT, VALUE, FLAGS, STALE, OTHER_EPOCH = range(len(REASONS))
+
+
+@njit(cache=True)
+def order_code(has_last, last_epoch, last_seq, epoch, seq, silent):
+    """The order rule of every link, as a REASONS code (-1: taken): after the last message
+    taken (if any: `has_last`), one of its sender's epoch must be newer ("stale"); another
+    epoch (a restarted sender, or a second one) is taken only once the present one is
+    `silent` ("other_epoch"; each receiver's own silence rule). Compiled in the loops that
+    take messages (station_codec.admit); run as Python by order_refusal."""
+    if has_last == 0:
+        return -1
+    if epoch == last_epoch and seq <= last_seq:
+        return STALE
+    if epoch != last_epoch and not silent:
+        return OTHER_EPOCH
+    return -1
+
+
 def order_refusal(last: Any, epoch: int, seq: int, silent: bool) -> str | None:
     """Why a message of a sender's `epoch` and `seq` is not taken after `last` (the last one
-    taken, with its epoch and seq, or None), or None: within its sender's epoch it must be
-    newer ("stale"); another epoch (a restarted sender, or a second one) only once the
-    present one is `silent` ("other_epoch")."""
-    if last is None:
-        return None
-    if epoch == last.epoch and seq <= last.seq:
-        return "stale"
-    if epoch != last.epoch and not silent:
-        return "other_epoch"
-    return None
+    taken, with its epoch and seq, or None), or None: order_code's rule, run as Python (its
+    callers take messages on Zenoh's threads, where nothing is compiled)."""
+    has_last = last is not None
+    code = order_code.py_func(has_last, last.epoch if has_last else 0,
+                              last.seq if has_last else 0, epoch, seq, silent)  # fmt: skip
+    return None if code < 0 else REASONS[code]
 
 
 class BodiesReceiver:

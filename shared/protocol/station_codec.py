@@ -1,4 +1,4 @@
-"""The stations' messages (shared/protocol/station.py), compiled: a DeviceState or a
+"""The stations' messages (station.py, beside it), compiled: a DeviceState or a
 ToolState checked in place as the reference decoders check it, from the same table
 (`StationMessage`: its limits, its non-negative numbers, its flags; the decoders stay the
 reference; tests/test_world_ports.py and tests/test_station_link.py check that both refuse
@@ -18,14 +18,18 @@ from numba import njit
 from haptic_local_model.shared.protocol.station import (
     DEVICE,
     DEVICE_RECORD,
+    FLAGS,
+    MAGIC,
+    PORT,
+    REASONS,
+    SIZE,
     STATION_VERSION,
     TOOL,
     TOOL_RECORD,
+    VALUE,
+    VERSION,
+    order_code,
 )
-
-#: A refusal's reason, by code: the decoders' MessageError reasons, then order_refusal's.
-REASONS = ("size", "magic", "version", "port", "value", "flags", "stale", "other_epoch")
-SIZE, MAGIC, VERSION, PORT, VALUE, FLAGS, STALE, OTHER_EPOCH = range(len(REASONS))
 
 HEAD_BYTES = struct.calcsize("<4sHHQQq")
 # each message's table (shared/protocol/station.py) as the constants its compiled check reads
@@ -93,23 +97,9 @@ def tool_refusal(raw, p):
 
 
 @njit(cache=True)
-def order_code(has_last, last_epoch, last_seq, epoch, seq, silent):
-    """shared/protocol/station.py's `order_refusal` as a REASONS code (-1: taken): within
-    the sender's epoch a message must be newer; another epoch only once the taken one is
-    `silent` (each side's own silence rule)."""
-    if has_last == 0:
-        return -1
-    if epoch == last_epoch and seq <= last_seq:
-        return STALE
-    if epoch != last_epoch and not silent:
-        return OTHER_EPOCH
-    return -1
-
-
-@njit(cache=True)
 def admit(link, raw, why, silent):
     """A message that its own check gave `why` (a REASONS code, -1: passed) judged by the
-    order rule (order_code) against the last one `link` took (a record with has_last, epoch,
+    order rule (station.order_code) against the last one `link` took (a record with has_last, epoch,
     seq, rejected and reasons; `silent`: its sender's silence rule): (taken, its epoch, its
     seq, the first of its sender's epoch: nothing taken before, or another epoch). A refused
     one is counted in `link`; a taken one is the caller's to record."""
