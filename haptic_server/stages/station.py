@@ -115,7 +115,6 @@ STATION_DTYPE = np.dtype(
         ("object_seen", F8, (3,)),  # the object as the local contact renders it: low-passed
         ("object_seen_twist", F8, (3,)),
         # the hold (_hold; docs/stations.md, "The join"): the safe state, on every entry
-        ("joined", I8),  # 1 once the ramp reached the full coupling
         ("has_hold", I8),  # hold_pose is set (this safe episode's first finite reading)
         ("hold_pose", F8, (3,)),  # world frame: where the device is held (it slips past the cap)
         ("hold_force", F8, (3,)),  # world frame: K (x_hold - x) - B v, clipped
@@ -511,8 +510,6 @@ def station_tick(station, dev):
     _note_squeeze(s)
     _passivity(s)
     _hold(s)
-    if s.gain == 1.0:
-        s.joined = 1
     map_command_to_device(s.map, s.coupling, s.limits, s.scratch)
     for c in range(3):
         v = s.gain * s.scratch[c] + (1.0 - s.gain) * s.hold_out[c]  # the hold: 0 on a cut
