@@ -29,7 +29,7 @@ from haptic_local_model.haptic_server.hand_ports import (
     scene_contact,
     track_hand,
 )
-from haptic_local_model.haptic_server.paced import paced_ticks
+from haptic_local_model.haptic_server.paced import never_asks, paced_ticks
 from haptic_local_model.haptic_server.stages.hand_grasp import (
     MAX_HANDS,
     grasp_records,
@@ -146,7 +146,7 @@ def hand_grasp_burst(w, rows, start, stop):
 @njit(cache=True)
 def hand_grasp_paced(w, rows, loop, windows, ts):
     """The real-time runner's compiled loop over hand_grasp_burst (haptic_server.paced)."""
-    return paced_ticks(hand_grasp_burst, w, rows, loop, windows, ts)
+    return paced_ticks(never_asks, hand_grasp_burst, w, rows, loop, windows, ts)
 
 
 def grasp_port_records(

@@ -30,7 +30,7 @@ from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import (
     MAP_DTYPE,
 )
-from haptic_local_model.haptic_server.paced import paced_ticks
+from haptic_local_model.haptic_server.paced import never_asks, paced_ticks
 from haptic_local_model.haptic_server.port_scene import MAX_GLOVE_ROWS, glove_script
 from haptic_local_model.haptic_server.stages.cosim import body_core
 from haptic_local_model.haptic_server.stages.hand import glove_at, hand_records, hand_tick
@@ -160,7 +160,7 @@ def hand_burst(w, rows, start, stop):
 @njit(cache=True)
 def hand_paced(w, rows, loop, windows, ts):
     """The real-time runner's compiled loop over hand_burst (haptic_server.paced)."""
-    return paced_ticks(hand_burst, w, rows, loop, windows, ts)
+    return paced_ticks(never_asks, hand_burst, w, rows, loop, windows, ts)
 
 
 def _walls(scene: HandSceneConfig) -> list[tuple[np.ndarray, float, tuple[float, float, float]]]:

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from haptic_local_model.device_models.base import Device
+from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.haptic_server.engine import HapticEngine, warm_kernels
 from haptic_local_model.haptic_server.live_view import ViewAddress
 from haptic_local_model.haptic_server.log import run_metadata
@@ -38,8 +39,18 @@ from haptic_local_model.haptic_server.mailbox import (
     compile_loop_kernels,
     push_row,
 )
-from haptic_local_model.haptic_server.paced import RETURNED_TO_PYTHON, loop_record, open_tick
-from haptic_local_model.haptic_server.realtime import compile_realtime_kernels, realtime_ticks
+from haptic_local_model.haptic_server.paced import (
+    RETURNED_NOISE,
+    RETURNED_TO_PYTHON,
+    loop_record,
+    open_tick,
+)
+from haptic_local_model.haptic_server.realtime import (
+    compile_realtime_kernels,
+    local_paced,
+    local_windows,
+    local_world,
+)
 from haptic_local_model.haptic_server.sidecar import LoopIO
 from haptic_local_model.haptic_server.supervisor import Event, TickEvents, WatchdogClock, supervise
 from haptic_local_model.shared.config import SceneConfig, UserConfig
@@ -64,7 +75,7 @@ MAX_UPDATES_PER_TICK = 8
 # pause), everything that arrived meanwhile is judged in that tick before silence is: up to
 # the mailbox (~10 us each), once per such stall
 WINDOW_TICKS = 600_000  # percentiles over the newest 10 min at 1 kHz
-# the compiled burst hands back to Python this often (signals, stop requests): each return
+# the compiled paced loop hands back to Python this often (signals, stop requests): each return
 # costs Python work between two ticks, which at 10 kHz eats into a 100 us period (haptic-run
 # --haptic-rate 10000, 5 interleaved pairs: overruns median 183 every 10 ms, 113 every 50 ms)
 RETURN_EVERY_NS = 50_000_000
@@ -188,7 +199,7 @@ class HapticServer:
         self._duration_ns: int | None = None
         self._newest_seq = -1
         self._newest_age_ms = float("nan")
-        self._peaks = np.zeros(2)  # the largest lateness and work of the run (us)
+        self._peaks = np.zeros(3)  # the largest lateness and work of the run (us; paced.PEAK_*)
         self._io_stalled = False
         self._io_check_ticks = max(1, round(IO_CHECK_S * scene.haptic_rate_hz))
 
@@ -306,8 +317,9 @@ class HapticServer:
 
     def _ticks(self, io: LoopIO, supervisor: WatchdogClock, loop: np.ndarray) -> None:
         """Tick until the stop ramp has ended. Quiet ticks of a simulated device run in the
-        compiled burst (haptic_server.realtime); a tick that needs the supervisor, every
-        tick of a hardware driver, and every tick under an injected fault run here."""
+        compiled paced loop (haptic_server.paced over the local model's kind,
+        haptic_server.realtime); a tick that needs the supervisor, every tick of a hardware
+        driver, and every tick under an injected fault run here."""
         engine, stats = self.engine, self.stats
         period_ns = int(loop[0]["period_ns"])
         spin_ns = int(loop[0]["spin_ns"])
@@ -317,7 +329,7 @@ class HapticServer:
         work_v = loop["work_prev_us"]
         ring, ctl = io.block.ticks, io.block.ctl
         lateness_window, work_window = stats.lateness_us.buffer, stats.work_us.buffer
-        self._peaks = peaks = np.zeros(2)
+        self._peaks = peaks = np.zeros(3)
         ring_io = (
             ring, ctl, io.block.mailbox, lateness_window, work_window,
             stats.update_age_ms.buffer, peaks, engine.row,
@@ -420,8 +432,10 @@ class HapticServer:
     def _burst(
         self, supervisor: WatchdogClock, loop: np.ndarray, ring_io: tuple[Any, ...], ts: np.ndarray
     ) -> int:
-        """Run quiet ticks compiled until one needs this side (that tick is left opened) or
-        until it is time to look at signals (between two ticks); returns the status."""
+        """Run quiet ticks compiled (local_paced) until one needs this side (that tick is left
+        opened) or until it is time to look at signals or to report a fault (between two
+        ticks); a spent noise block is refilled for the opened tick, which then runs
+        compiled. Returns the status."""
         engine, stats = self.engine, self.stats
         sim = engine.sim_device
         assert sim is not None
@@ -431,8 +445,11 @@ class HapticServer:
         lp["return_at_ns"] = lp["deadline_ns"] + RETURN_EVERY_NS
         lp["newest_seq"], lp["newest_age_ms"] = self._newest_seq, self._newest_age_ms
         lp["age_count"], lp["received"], lp["installed"] = stats.update_age_ms.count, 0, 0
-        recs = (*engine.recs, engine.install)
-        status = realtime_ticks(recs, sim.records, engine.user, ring_io, loop, ts)
+        world, windows = local_world(engine, loop, ring_io), local_windows(ring_io)
+        status = local_paced(world, ring_io[0], loop, windows, ts)
+        while status == RETURNED_NOISE:
+            refill_noise(sim.noise, sim.records, float(lp["dt"]))
+            status = local_paced(world, ring_io[0], loop, windows, ts)
         lp = loop[0]
         supervisor.trip_at_ns, supervisor.last_valid_ns = (
             int(lp["trip_at_ns"]),
@@ -443,7 +460,7 @@ class HapticServer:
         stats.updates_installed += int(lp["installed"])
         stats.update_age_ms.filled(int(lp["age_count"]), float(lp["age_max"]))
         engine.set_update(self._newest_seq, self._newest_age_ms)
-        return int(status)  # RETURNED_NOISE: engine.tick refills the block for the opened tick
+        return int(status)
 
     def _open_io(self, cpu: int | None, period_ns: int) -> LoopIO:
         """Start the I/O sidecar (Zenoh session, MCAP writer) and map its shared memory; it

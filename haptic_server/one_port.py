@@ -13,7 +13,7 @@ from __future__ import annotations
 from numba import njit
 
 from haptic_local_model.device_models.kernels import device_noise_ready
-from haptic_local_model.haptic_server.paced import paced_ticks
+from haptic_local_model.haptic_server.paced import never_asks, paced_ticks
 from haptic_local_model.haptic_server.ports import PortRun, port_in, port_out, port_row
 from haptic_local_model.haptic_server.stages.cosim import cosim_tick
 from haptic_local_model.haptic_server.world import Compiled
@@ -46,7 +46,7 @@ def one_port_burst(w, rows, start, stop):
 @njit(cache=True)
 def one_port_paced(w, rows, loop, windows, ts):
     """The real-time runner's compiled loop over one_port_burst (haptic_server.paced)."""
-    return paced_ticks(one_port_burst, w, rows, loop, windows, ts)
+    return paced_ticks(never_asks, one_port_burst, w, rows, loop, windows, ts)
 
 
 class OnePortRun(PortRun):

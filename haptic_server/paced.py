@@ -1,16 +1,22 @@
-"""The compiled paced loop: wait for a tick's deadline and open the tick, once for the local
-model's loop (haptic_server.realtime) and every port world's (`paced_ticks`).
+"""The one compiled real-time loop, `paced_ticks`: it serves every world that runs in this
+process, the local model's (haptic_server.realtime, driven by the supervisor of
+haptic_server.loop) and every port world's (driven by haptic_server.world.run_paced).
 
 `LOOP_DTYPE` is a real-time loop's timing state, shared by its Python side and its compiled
 part; `open_tick_at` is the one rule of a tick's start (lateness, dt, an overrun's resync).
 `paced_ticks` runs a world kind's compiled ticks one a period without returning to Python:
-it waits for each deadline (sleep, then spin, on the monotonic clock), opens the tick, runs
-it through the kind's kernel (an argument: the loop is inlined into a cached entry point
-of each kind's own, `*_paced`, where it is a direct call) and keeps each tick's lateness,
-interval and work. It returns only when Python is needed: a device's noise block is spent
+it waits for each deadline (sleep, then spin, on the monotonic clock), opens the tick, asks
+the kind whether the opened tick needs the Python side (`asks`: the local model's end,
+watchdog and installs that need the engine's Python side; a port world's never does), runs
+it through the kind's kernel (`burst`: its rows into a rows array, or the local model's into
+the sidecar's ring) and keeps each tick's lateness, interval and work. The kind's functions
+are arguments: the loop is inlined into a cached entry point of each kind's own, `*_paced`,
+where they are direct calls. It returns only when Python is needed: the opened tick needs
+the supervisor (it is left opened: the Python side runs it), a device's noise block is spent
 (the tick is left opened: refill, then call again and it runs without waiting),
 `return_at_ns` has passed after a tick (signals, stop requests, the next noise block drawn
-in the slack), or every row is run.
+in the slack; a kind's burst sets it to 0 to be back after its tick: the local model's new
+fault, for Python to report), or `stop_tick` ticks are run.
 """
 
 from __future__ import annotations
@@ -27,10 +33,12 @@ I8, F8 = np.int64, np.float64
 RETURNED_TO_PYTHON = 0  # return_at_ns passed, between two ticks: signals, stop requests
 RETURNED_SUPERVISE = 1  # the opened tick needs the supervisor (end, watchdog, epoch, follow)
 RETURNED_NOISE = 2  # a device's noise block is spent: refill, then run the opened tick
-RETURNED_DONE = 3  # every row is run (paced_ticks)
+RETURNED_DONE = 3  # stop_tick ticks are run (a port world's rows)
 
-#: A real-time loop's timing state, shared by its Python side and its compiled part (the
-#: install and watchdog fields are the local model's loop's; a port world's leaves them).
+#: A real-time loop's timing state, shared by its Python side and its compiled part. Every
+#: field down to stop_tick, and now_ns..status, are paced_ticks' (every world's); end_ns
+#: to age_max and fault_reported are the local model's kind's (its hook, its burst and its
+#: supervisor: haptic_server.realtime, haptic_server.loop); a port world's leaves them.
 LOOP_DTYPE = np.dtype(
     [
         ("period_ns", I8),
@@ -43,8 +51,9 @@ LOOP_DTYPE = np.dtype(
         ("overruns", I8),
         ("skipped", I8),  # whole periods the overruns spanned: ticks never run
         ("late_over_1ms", I8),
-        ("work_prev_us", F8),  # work of the last tick run (into the next row)
+        ("work_prev_us", F8),  # work of the last tick run (the local model's next row)
         ("return_at_ns", I8),  # hand the loop back to Python at the first tick from here
+        ("stop_tick", I8),  # the run's ticks: returns RETURNED_DONE at it (a port world's rows)
         ("end_ns", I8),  # the supervisor's: the run ends
         ("trip_at_ns", I8),  # the supervisor's: the watchdog may trip after this
         ("watchdog_ns", I8),
@@ -77,6 +86,7 @@ def loop_record(period_ns: int, dt_clamp: tuple[float, float], watchdog_ns: int)
     lp["dt_min"] = dt_clamp[0] * period_ns / 1e9
     lp["dt_max"] = dt_clamp[1] * period_ns / 1e9
     lp["watchdog_ns"] = watchdog_ns
+    lp["stop_tick"] = np.iinfo(np.int64).max  # no end of its own (a port run sets its rows')
     lp["newest_seq"] = -1
     lp["newest_age_ms"] = np.nan
     return rec
@@ -119,26 +129,39 @@ def _opened(lp, previous, late_w, interval_w, peaks):
         interval_w[(lp.tick - 1) % interval_w.shape[0]] = (lp.now_ns - previous) / 1e6
 
 
-# Inlined (numba's IR) into each kind's cached entry point, where `burst` is then a direct
-# call of the kind's kernel: a kernel passed as a value keys numba's cache by the object
-# (another process never finds it again) and lowers as an address that stops the caching.
+@njit(cache=True)
+def never_asks(world, lp, ts):
+    """A port world's kind hook: its opened tick never needs the Python side."""
+    return False
+
+
+# Inlined (numba's IR) into each kind's cached entry point, where `asks` and `burst` are
+# then direct calls of the kind's kernels: a kernel passed as a value keys numba's cache by
+# the object (another process never finds it again) and lowers as an address that stops
+# the caching.
 @njit(inline="always")
-def paced_ticks(burst, world, rows, loop, windows, ts):
+def paced_ticks(asks, burst, world, rows, loop, windows, ts):
     """A world's ticks, one a period, until Python is needed (the module docstring); the
-    status. burst(world, rows, start, stop): the kind's compiled ticks (the first tick not
-    run: stop, or start when a device's noise block needs a refill); world: the records it
-    takes; rows: one per tick of the run (tick k into rows[k]); loop: LOOP_DTYPE[1];
-    windows: (lateness µs, work µs, interval ms, peaks float64[3]); ts: int64[2] scratch."""
+    status. asks(world, lp, ts): whether the opened tick (lp: loop[0]) needs the Python side
+    (it returns RETURNED_SUPERVISE, the tick left opened); burst(world, rows, start, stop):
+    the kind's compiled ticks (the first tick not run: stop, or start when a device's noise
+    block needs a refill); world: the records they take; rows: where the ticks' rows go (a
+    port world's one per tick, tick k into rows[k]; the local model's sidecar ring);
+    loop: LOOP_DTYPE[1]; windows: (lateness µs, work µs, interval ms, peaks float64[3]),
+    each tick's at its index; ts: int64[2] scratch."""
     lp = loop[0]
     late_w, work_w, interval_w, peaks = windows
     while True:
         if lp.status != RETURNED_NOISE:  # an opened tick runs without waiting again
-            if lp.tick >= rows.shape[0]:
+            if lp.tick >= lp.stop_tick:
                 lp.status = RETURNED_DONE
                 return lp.status
             previous = lp.last_start_ns
             open_tick_at(lp, wait_until_ns(ts, lp.deadline_ns, lp.spin_ns))
             _opened(lp, previous, late_w, interval_w, peaks)
+            if asks(world, lp, ts):
+                lp.status = RETURNED_SUPERVISE
+                return lp.status
         if burst(world, rows, lp.tick, lp.tick + 1) == lp.tick:
             lp.status = RETURNED_NOISE
             return lp.status
@@ -146,6 +169,7 @@ def paced_ticks(burst, world, rows, loop, windows, ts):
         work_us = (end - lp.now_ns) / 1e3
         work_w[lp.tick % work_w.shape[0]] = work_us
         peaks[PEAK_WORK] = max(peaks[PEAK_WORK], work_us)
+        lp.work_prev_us = work_us
         lp.tick += 1
         lp.deadline_ns += lp.period_ns
         lp.status = RETURNED_TO_PYTHON

@@ -30,7 +30,7 @@ from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import (
     MAP_DTYPE,
 )
-from haptic_local_model.haptic_server.paced import paced_ticks
+from haptic_local_model.haptic_server.paced import never_asks, paced_ticks
 from haptic_local_model.haptic_server.stages.cosim import (
     MAX_COSIM_BODIES,
     MAX_COSIM_DOF,
@@ -176,7 +176,7 @@ def port_burst(w, rows, start, stop):
 @njit(cache=True)
 def port_paced(w, rows, loop, windows, ts):
     """The real-time runner's compiled loop over port_burst (haptic_server.paced)."""
-    return paced_ticks(port_burst, w, rows, loop, windows, ts)
+    return paced_ticks(never_asks, port_burst, w, rows, loop, windows, ts)
 
 
 @dataclass

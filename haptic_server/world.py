@@ -13,15 +13,16 @@ The runners are written once for every world:
 - `run_virtual`: the virtual clock, as fast as the ticks compute, with what reaches the world
   between its ticks (a `Feed`: a sim's updates) if it has any;
 - `run_real_time`: the wall clock, one tick a period in one compiled loop (paced_ticks of
-  haptic_server.paced, whose wait and tick opening are the local model's loop's too), which
+  haptic_server.paced, the one real-time loop: the local model's runs on it too), which
   returns to Python only for a spent noise block, the next one drawn ahead, or every
   RETURN_EVERY_NS for signals and stop requests; after the kernels are compiled on a spare
   world.
 
 The single-device engine (a local model, a god-object, from a sim's updates; engine.py) is a
-world too on the virtual clock, its sim's steps and updates its feed (harness.virtual); it
-keeps its own real-time loop (haptic_server.loop, the compiled burst with the supervisor),
-whose wait and opening of a tick are paced_ticks' (haptic_server.paced).
+world too on the virtual clock, its sim's steps and updates its feed (harness.virtual); on
+the wall clock its supervisor (haptic_server.loop) drives the same paced_ticks over the
+local model's kind (haptic_server.realtime: its hook hands a tick that needs the supervisor
+back to Python, its burst writes its rows into the sidecar's ring).
 """
 
 from __future__ import annotations
@@ -213,6 +214,7 @@ def run_paced(
     RETURN_EVERY_NS): a device's spent noise block refilled for the tick it stopped at, the
     next blocks drawn ahead in the slack after a tick (draw_ahead). The blocks drawn ahead."""
     lp = loop[0]
+    lp["stop_tick"] = rows.shape[0]
     kernels = world.compiled
     windows, ts = times.windows, np.zeros(2, np.int64)
     drawn, status = 0, RETURNED_TO_PYTHON
