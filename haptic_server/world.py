@@ -62,8 +62,9 @@ class Compiled(NamedTuple):
     #: burst(records, rows, start, stop) -> the first tick not run (stop, or earlier when
     #: a device's noise block needs a refill)
     burst: Any
-    #: paced(records, rows, loop, windows, ts): haptic_server.paced.paced_ticks over burst,
-    #: a cached entry point of the kind's own
+    #: paced(records, rows, loop, windows, ts): haptic_server.paced.paced_ticks over
+    #: paced.never_asks (a port world's opened tick never needs Python) and burst, a cached
+    #: entry point of the kind's own
     paced: Any
     records: tuple[Any, ...]
 
