@@ -72,7 +72,10 @@ def _env(tree: Path) -> dict[str, str]:
             if not link.is_symlink():
                 link.symlink_to(tree / package)
     env["PYTHONPATH"] = str(root)
-    env.pop("NUMBA_CACHE_DIR", None)  # each tree keeps its own cache
+    # each tree keeps its own cache, and names its own cache locator (a build before
+    # shared/numba_cache.py cannot import this one's: its warm-up would fail)
+    env.pop("NUMBA_CACHE_DIR", None)
+    env.pop("NUMBA_CACHE_LOCATOR_CLASSES", None)
     return env
 
 
