@@ -344,12 +344,14 @@ class HapticServer:
         )
         sim = engine.sim_device
         compiled = sim is not None and not leak_bytes and nan_tick < 0
+        # the compiled loop's arguments, once a run (the records live as long as the engine)
+        burst_io = (local_world(engine, loop, ring_io), local_windows(ring_io)) if compiled else ()
         fault_state = engine.state["fault"]
         fault_seen = loop["fault_reported"]
         check_io_at = 0
         while True:
             if compiled and not (self._stop or supervisor.stopping):
-                status = self._burst(supervisor, loop, ring_io, ts)
+                status = self._burst(supervisor, loop, (*burst_io, ring), ts)
                 if fault_state[0] != fault_seen[0]:
                     self._report_fault(io, int(tick_count[0]) - 1, fault_seen)
                 if int(tick_count[0]) >= check_io_at:
@@ -430,12 +432,12 @@ class HapticServer:
         io.event(tick, Event.FAULT, f"{tag}: device to the safe state until the next update")
 
     def _burst(
-        self, supervisor: WatchdogClock, loop: np.ndarray, ring_io: tuple[Any, ...], ts: np.ndarray
+        self, supervisor: WatchdogClock, loop: np.ndarray, burst_io: tuple[Any, ...], ts: np.ndarray
     ) -> int:
         """Run quiet ticks compiled (local_paced) until one needs this side (that tick is left
         opened) or until it is time to look at signals or to report a fault (between two
         ticks); a spent noise block is refilled for the opened tick, which then runs
-        compiled. Returns the status."""
+        compiled. burst_io: local_paced's world, windows and ring. Returns the status."""
         engine, stats = self.engine, self.stats
         sim = engine.sim_device
         assert sim is not None
@@ -445,11 +447,11 @@ class HapticServer:
         lp["return_at_ns"] = lp["deadline_ns"] + RETURN_EVERY_NS
         lp["newest_seq"], lp["newest_age_ms"] = self._newest_seq, self._newest_age_ms
         lp["age_count"], lp["received"], lp["installed"] = stats.update_age_ms.count, 0, 0
-        world, windows = local_world(engine, loop, ring_io), local_windows(ring_io)
-        status = local_paced(world, ring_io[0], loop, windows, ts)
+        world, windows, ring = burst_io
+        status = local_paced(world, ring, loop, windows, ts)
         while status == RETURNED_NOISE:
             refill_noise(sim.noise, sim.records, float(lp["dt"]))
-            status = local_paced(world, ring_io[0], loop, windows, ts)
+            status = local_paced(world, ring, loop, windows, ts)
         lp = loop[0]
         supervisor.trip_at_ns, supervisor.last_valid_ns = (
             int(lp["trip_at_ns"]),
