@@ -29,7 +29,7 @@ from haptic_local_model.haptic_server.hand_ports import (
     scene_contact,
     track_hand,
 )
-from haptic_local_model.haptic_server.paced import never_asks, paced_ticks
+from haptic_local_model.haptic_server.paced import kind_kernel, never_asks, paced_entry, paced_ticks
 from haptic_local_model.haptic_server.stages.hand_grasp import (
     MAX_HANDS,
     grasp_records,
@@ -135,7 +135,7 @@ def run_hand_grasp_ticks(grasp, io, devices, rows, start, stop):
     return stop
 
 
-@njit(cache=True)
+@kind_kernel
 def hand_grasp_burst(w, rows, start, stop):
     """run_hand_grasp_ticks over the world's records ((chains, models, datas, grasp model,
     grasp data), both ports' I/O, both devices'): the kind's compiled ticks as the runners
@@ -143,7 +143,7 @@ def hand_grasp_burst(w, rows, start, stop):
     return run_hand_grasp_ticks(w[0], w[1], w[2], rows, start, stop)
 
 
-@njit(cache=True)
+@paced_entry(never_asks, hand_grasp_burst)
 def hand_grasp_paced(w, rows, loop, windows, ts):
     """The real-time runner's compiled loop over hand_grasp_burst (haptic_server.paced)."""
     return paced_ticks(never_asks, hand_grasp_burst, w, rows, loop, windows, ts)

@@ -30,7 +30,7 @@ from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import (
     MAP_DTYPE,
 )
-from haptic_local_model.haptic_server.paced import never_asks, paced_ticks
+from haptic_local_model.haptic_server.paced import kind_kernel, never_asks, paced_entry, paced_ticks
 from haptic_local_model.haptic_server.port_scene import MAX_GLOVE_ROWS, glove_script
 from haptic_local_model.haptic_server.stages.cosim import body_core
 from haptic_local_model.haptic_server.stages.hand import glove_at, hand_records, hand_tick
@@ -150,14 +150,14 @@ def run_hand_port_ticks(chain, model, data, io, dev, rows, start, stop):
     return stop
 
 
-@njit(cache=True)
+@kind_kernel
 def hand_burst(w, rows, start, stop):
     """run_hand_port_ticks over the world's records (its chain, model, data, I/O, the
     device's): the kind's compiled ticks as the runners call them (world.Compiled)."""
     return run_hand_port_ticks(w[0], w[1], w[2], w[3], w[4], rows, start, stop)
 
 
-@njit(cache=True)
+@paced_entry(never_asks, hand_burst)
 def hand_paced(w, rows, loop, windows, ts):
     """The real-time runner's compiled loop over hand_burst (haptic_server.paced)."""
     return paced_ticks(never_asks, hand_burst, w, rows, loop, windows, ts)

@@ -13,7 +13,7 @@ from __future__ import annotations
 from numba import njit
 
 from haptic_local_model.device_models.kernels import device_noise_ready
-from haptic_local_model.haptic_server.paced import never_asks, paced_ticks
+from haptic_local_model.haptic_server.paced import kind_kernel, never_asks, paced_entry, paced_ticks
 from haptic_local_model.haptic_server.ports import PortRun, port_in, port_out, port_row
 from haptic_local_model.haptic_server.stages.cosim import cosim_tick
 from haptic_local_model.haptic_server.world import Compiled
@@ -36,14 +36,14 @@ def run_one_port_ticks(cosim, data, io, dev, rows, start, stop):
     return stop
 
 
-@njit(cache=True)
+@kind_kernel
 def one_port_burst(w, rows, start, stop):
     """run_one_port_ticks over the world's records (its model, data, I/O, the device's):
     the kind's compiled ticks as the runners call them (world.Compiled)."""
     return run_one_port_ticks(w[0], w[1], w[2], w[3], rows, start, stop)
 
 
-@njit(cache=True)
+@paced_entry(never_asks, one_port_burst)
 def one_port_paced(w, rows, loop, windows, ts):
     """The real-time runner's compiled loop over one_port_burst (haptic_server.paced)."""
     return paced_ticks(never_asks, one_port_burst, w, rows, loop, windows, ts)

@@ -21,6 +21,8 @@ fault, for Python to report), or `stop_tick` ticks are run.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numba import njit
 
@@ -129,10 +131,58 @@ def _opened(lp, previous, late_w, interval_w, peaks):
         interval_w[(lp.tick - 1) % interval_w.shape[0]] = (lp.now_ns - previous) / 1e6
 
 
-@njit(cache=True)
+#: The decorator of a kind's two kernels (its hook and its burst): inlined (numba's IR) into
+#: the kind's entry point (PacedEntry), where they run without reference counting too; a
+#: runner that calls the burst from Python (the virtual clock's) gets it compiled on its own.
+kind_kernel = njit(cache=True, inline="always")
+
+
+@kind_kernel
 def never_asks(world, lp, ts):
     """A port world's kind hook: its opened tick never needs the Python side."""
     return False
+
+
+_WITHOUT_NRT: dict[str, Any] = {"_nrt": False}  # numba's flag; its type stubs do not name it
+
+
+class PacedEntry:
+    """A kind's cached entry point over paced_ticks (`*_paced`, decorated `paced_entry`),
+    compiled without numba's reference counting (NRT).
+
+    Every numba function increfs each array it is passed on entry and decrefs it on return:
+    calling the kind's two kernels with the world every tick cost the local model's loop 80
+    pairs of atomic operations a tick, 0.82 against 0.44 µs of work on the testbed in a
+    burst without waits (`benchmarks/paced_overhead.py`). Without NRT the entry point itself
+    counts nothing: it allocates nothing and keeps no array past its return, and its
+    caller's references keep the world alive through the call.
+
+    The kind's two kernels (`kind_kernel`) are inlined into it and count nothing either;
+    what they call keeps its NRT. A function compiled from inside the entry point would be
+    compiled in its context, without NRT too (numba's nested target context), and one that
+    allocates (the install path's eigen-solver) would fail to compile. So on a world not seen
+    before, the kind's kernels are compiled (or loaded from the cache) first on their own,
+    with NRT, and with them everything they call: the entry point then only calls those."""
+
+    def __init__(self, fn: Any, asks: Any, burst: Any) -> None:
+        self.dispatcher = njit(cache=True, **_WITHOUT_NRT)(fn)
+        self.asks, self.burst = asks, burst
+        self._world: Any = None  # the last world the kernels were compiled for (kept)
+        self.__doc__ = fn.__doc__
+
+    def __call__(self, world: Any, rows: Any, loop: Any, windows: Any, ts: Any) -> Any:
+        if world is not self._world:
+            from numba import typeof, types
+
+            self.asks.compile((typeof(world), typeof(loop[0]), typeof(ts)))
+            self.burst.compile((typeof(world), typeof(rows), types.int64, types.int64))
+            self._world = world
+        return self.dispatcher(world, rows, loop, windows, ts)
+
+
+def paced_entry(asks: Any, burst: Any) -> Any:
+    """The decorator of a kind's entry point over paced_ticks with its kernels (PacedEntry)."""
+    return lambda fn: PacedEntry(fn, asks, burst)
 
 
 # Inlined (numba's IR) into each kind's cached entry point, where `asks` and `burst` are

@@ -30,7 +30,7 @@ from haptic_local_model.device_models.registry import load_simulated_device
 from haptic_local_model.device_models.world_map import (
     MAP_DTYPE,
 )
-from haptic_local_model.haptic_server.paced import never_asks, paced_ticks
+from haptic_local_model.haptic_server.paced import kind_kernel, never_asks, paced_entry, paced_ticks
 from haptic_local_model.haptic_server.stages.cosim import (
     MAX_COSIM_BODIES,
     MAX_COSIM_DOF,
@@ -166,14 +166,14 @@ def run_port_ticks(cosim, data, io, dev0, dev1, rows, start, stop):
     return stop
 
 
-@njit(cache=True)
+@kind_kernel
 def port_burst(w, rows, start, stop):
     """run_port_ticks over the world's records (its model, data, I/O, both devices'): the
     kind's compiled ticks as the runners call them (world.Compiled)."""
     return run_port_ticks(w[0], w[1], w[2], w[3], w[4], rows, start, stop)
 
 
-@njit(cache=True)
+@paced_entry(never_asks, port_burst)
 def port_paced(w, rows, loop, windows, ts):
     """The real-time runner's compiled loop over port_burst (haptic_server.paced)."""
     return paced_ticks(never_asks, port_burst, w, rows, loop, windows, ts)

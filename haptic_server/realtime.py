@@ -32,7 +32,13 @@ from haptic_local_model.haptic_server.mailbox import (
     take_updates,
 )
 from haptic_local_model.haptic_server.model import TICK_DTYPE
-from haptic_local_model.haptic_server.paced import loop_record, open_tick, paced_ticks
+from haptic_local_model.haptic_server.paced import (
+    kind_kernel,
+    loop_record,
+    open_tick,
+    paced_entry,
+    paced_ticks,
+)
 from haptic_local_model.haptic_server.simulated import simulated_tick
 from haptic_local_model.haptic_server.stages.install import EPOCH_LAW_LIVE
 from haptic_local_model.shared.atomics import load_acquire
@@ -78,7 +84,7 @@ def _quiet_installs(lp, ring_io, recs, ts):
     return True
 
 
-@njit(cache=True)
+@kind_kernel
 def local_asks(w, lp, ts):
     """The local model's kind hook, after a tick's opening: the quiet installs taken; whether
     the opened tick needs the supervisor (the run's end, a watchdog that may trip, an
@@ -87,7 +93,7 @@ def local_asks(w, lp, ts):
     return now >= lp.end_ns or now > lp.trip_at_ns or not _quiet_installs(lp, w[4], w[0], ts)
 
 
-@njit(cache=True)
+@kind_kernel
 def local_burst(w, ring, start, stop):
     """Ticks start..stop-1 of the simulated device (paced_ticks runs one: the opened tick's
     dt, lateness and the work of the tick before, from the loop record), each row pushed
@@ -108,7 +114,7 @@ def local_burst(w, ring, start, stop):
     return stop
 
 
-@njit(cache=True)
+@paced_entry(local_asks, local_burst)
 def local_paced(w, ring, loop, windows, ts):
     """The local model's real-time loop: paced_ticks over local_asks and local_burst."""
     return paced_ticks(local_asks, local_burst, w, ring, loop, windows, ts)
