@@ -164,8 +164,8 @@ class PacedEntry:
     before, the kind's kernels are compiled (or loaded from the cache) first on their own,
     with NRT, and with them everything they call: the entry point then only calls those."""
 
-    def __init__(self, fn: Any, asks: Any, burst: Any) -> None:
-        self.dispatcher = njit(cache=True, **_WITHOUT_NRT)(fn)
+    def __init__(self, fn: Any, asks: Any, burst: Any, cache: bool = True) -> None:
+        self.dispatcher = njit(cache=cache, **_WITHOUT_NRT)(fn)
         self.asks, self.burst = asks, burst
         self._world: Any = None  # the last world the kernels were compiled for (kept)
         self.__doc__ = fn.__doc__
