@@ -6,13 +6,16 @@ per tick, 0..32 contacts) and (2) a real-time run of the two servers (`haptic-ru
 (default testbed), default device, with the MCAP log), from which the loop's work per tick is read. With
 --stations, instead: `loop_timing --stations` once per repeat in each tree (a shared world and
 two stations on loopback, every shipped port scene), the world's and the stations' work per
-tick read. The order
+tick read. With --ports, instead: one tick's cost (a compiled call timed from Python) in
+grasp_vertical, grasp_clutter and hand_grasp (benchmarks.grasp, benchmarks.hand), for a base
+that did not run those scenes in one real-time process. The order
 alternates between repeats so slow spells of a shared host hit both builds; every figure is
 the median over repeats.
 
     python -m haptic_local_model.benchmarks.compare_builds [--base 2ccdfb6] [--repeat 5] [--seconds 10]
         [--scene testbed] [--loop-only]
     python -m haptic_local_model.benchmarks.compare_builds --stations [--base REV] [--repeat 3]
+    python -m haptic_local_model.benchmarks.compare_builds --ports [--base REV] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -161,6 +164,36 @@ def stations_work(tree: Path, seconds: float) -> dict[str, float]:
     return figures
 
 
+_PORT_TICKS = """
+import json
+from {ns}benchmarks.grasp import tick_cost
+from {ns}benchmarks.hand import hand_grasp_port
+from {ns}shared.port_config import load_port_scene
+out = {{}}
+for scene in ("grasp_vertical", "grasp_clutter"):
+    cost = tick_cost(load_port_scene(scene))
+    out[scene + " p50"], out[scene + " p99"] = cost["p50_us"], cost["p99_us"]
+hand = hand_grasp_port(("maglev", "maglev"))
+out["hand_grasp p50"], out["hand_grasp p99"] = hand["tick_p50_us"], hand["tick_p99_us"]
+print(json.dumps(out))
+"""
+
+
+def port_ticks(tree: Path, seconds: float) -> dict[str, float]:
+    """One tick of both ports of grasp_vertical and grasp_clutter (the co-simulation and two
+    maglev models, benchmarks.grasp's tick_cost: 20000 ticks) and of hand_grasp (both hands
+    and the box, two maglevs, benchmarks.hand's hand_grasp_port: 5.2 s), each tick a
+    compiled call timed from Python: p50 and p99 (µs). `seconds` is not used (the
+    benchmarks' own lengths, the same in every build that has them)."""
+    code = _PORT_TICKS.format(ns=f"{_NAMESPACE}." if _namespaced(tree) else "")
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=tree, env=_env(tree), check=True,
+        capture_output=True, text=True,
+    ).stdout  # fmt: skip
+    figures: dict[str, float] = json.loads(out.splitlines()[-1])
+    return figures
+
+
 def _median(runs: list[dict[str, float]]) -> dict[str, float]:
     return {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
 
@@ -177,12 +210,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--loop-only", action="store_true", help="skip kernel_cost")
     parser.add_argument("--scene", default="testbed", help="the real-time runs' scene")
     parser.add_argument("--stations", action="store_true", help="instead: the shared world's work")
+    parser.add_argument(
+        "--ports", action="store_true", help="instead: a tick's cost in the port and hand scenes"
+    )
     args = parser.parse_args(argv)
     trees = {"base": checkout(args.base), "this": REPO_ROOT}
     for tree in trees.values():
         warm(tree)
     if args.stations:
-        return _compare_stations(trees, args)
+        return _compare(trees, args, stations_work, f"of {args.seconds:g} s")
+    if args.ports:
+        return _compare(trees, args, port_ticks, "(one compiled call a tick)")
     kernels: dict[str, list[dict[int, dict[str, float]]]] = {k: [] for k in trees}
     loops: dict[str, list[dict[str, float]]] = {k: [] for k in trees}
     for i in range(args.repeat):
@@ -217,15 +255,17 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _compare_stations(trees: dict[str, Path], args: argparse.Namespace) -> int:
+def _compare(trees: dict[str, Path], args: argparse.Namespace, measure: Any, what: str) -> int:
+    """`measure(tree, seconds)` in each tree, interleaved, `--repeat` times: the medians."""
     runs: dict[str, list[dict[str, float]]] = {k: [] for k in trees}
     for i in range(args.repeat):
         for name in list(trees) if i % 2 == 0 else list(reversed(trees)):
-            runs[name].append(stations_work(trees[name], args.seconds))
+            runs[name].append(measure(trees[name], args.seconds))
             print(f"  {name}: {runs[name][-1]}", file=sys.stderr)
     medians = {name: _median(runs[name]) for name in trees}
-    print(f"work per tick (us), medians of {args.repeat} interleaved runs of "
-          f"{args.seconds:g} s; base = {args.base}")  # fmt: skip
+    print(
+        f"work per tick (us), medians of {args.repeat} interleaved runs {what}; base = {args.base}"
+    )
     print(f"{'scene':<24}{'base':>10}{'this':>10}")
     for key in medians["base"]:
         print(
