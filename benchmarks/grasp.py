@@ -534,7 +534,7 @@ def tick_cost(scene: PortSceneConfig, ticks: int = 20000) -> dict:
     run = PortRun(scene, users=squeeze_users(scene, 2.0))
     rows = np.zeros(ticks, PORT_ROW_DTYPE)
     d0, d1 = run.devices
-    args = (run.model, run.data, run.io, d0.records, d1.records, rows)
+    args = (run.model, run.data, run.io, (d0.records, d1.records), rows)
     run_port_ticks(*args, 0, 1)  # compile
     ns = np.zeros(ticks)
     clock = time.perf_counter_ns

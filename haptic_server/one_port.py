@@ -10,37 +10,16 @@ command mapped back, clipped at the device's limits, and the device's physics.
 
 from __future__ import annotations
 
-from numba import njit
-
-from haptic_local_model.device_models.kernels import device_noise_ready
 from haptic_local_model.haptic_server.paced import kind_kernel, never_asks, paced_entry, paced_ticks
-from haptic_local_model.haptic_server.ports import PortRun, port_in, port_out, port_row
-from haptic_local_model.haptic_server.stages.cosim import cosim_tick
+from haptic_local_model.haptic_server.ports import PortRun, run_port_ticks
 from haptic_local_model.haptic_server.world import Compiled
-
-
-@njit(cache=True)
-def run_one_port_ticks(cosim, data, io, dev, rows, start, stop):
-    """Ticks start..stop-1, row k into rows[k]; the first tick not run (stop, or earlier
-    when the device's noise block needs a refill)."""
-    cd = data[0]
-    s = io[0]
-    for k in range(start, stop):
-        if not device_noise_ready(dev, cd.dt):
-            return k
-        port_in(cd, s, 0, dev)
-        cosim_tick(cosim, data)
-        port_out(cd, s, 0, dev)
-        port_row(cosim[0], cd, s, rows[k])
-        s.t += cd.dt
-    return stop
 
 
 @kind_kernel
 def one_port_burst(w, rows, start, stop):
-    """run_one_port_ticks over the world's records (its model, data, I/O, the device's):
+    """ports.run_port_ticks over the world's records (its model, data, I/O, the device's):
     the kind's compiled ticks as the runners call them (world.Compiled)."""
-    return run_one_port_ticks(w[0], w[1], w[2], w[3], rows, start, stop)
+    return run_port_ticks(w[0], w[1], w[2], (w[3],), rows, start, stop)
 
 
 @paced_entry(never_asks, one_port_burst)

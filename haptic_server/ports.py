@@ -13,9 +13,11 @@ its devices, run by haptic_server.world on the virtual clock (as fast as it comp
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
+from numba.extending import overload
 
 from haptic_local_model.device_models.base import (
     SENSOR_DTYPE,
@@ -146,21 +148,69 @@ def port_row(m, cd, io, r):
             r.hand_wrench[p, c] = io.hand[p, c]
 
 
+def ports_ready(devices: Any, dt: float) -> bool:
+    """Whether every port's device's noise block covers this dt's advance (compiled only)."""
+    raise NotImplementedError("compiled only")
+
+
+def ports_in(cd: Any, s: Any, devices: Any) -> None:
+    """port_in for each port, port p's device at devices[p] (compiled only)."""
+    raise NotImplementedError("compiled only")
+
+
+def ports_out(cd: Any, s: Any, devices: Any) -> None:
+    """port_out for each port, port p's device at devices[p] (compiled only)."""
+    raise NotImplementedError("compiled only")
+
+
+# One port or two, by the devices tuple's length at compile time: the devices may be of
+# different models (a heterogeneous tuple, which numba indexes by constants only).
+@overload(ports_ready)
+def _ports_ready(devices, dt):
+    if len(devices) == 1:
+        return lambda devices, dt: device_noise_ready(devices[0], dt)
+    return lambda devices, dt: (
+        device_noise_ready(devices[0], dt) and device_noise_ready(devices[1], dt)
+    )
+
+
+@overload(ports_in)
+def _ports_in(cd, s, devices):
+    if len(devices) == 1:
+        return lambda cd, s, devices: port_in(cd, s, 0, devices[0])
+
+    def impl(cd, s, devices):
+        port_in(cd, s, 0, devices[0])
+        port_in(cd, s, 1, devices[1])
+
+    return impl
+
+
+@overload(ports_out)
+def _ports_out(cd, s, devices):
+    if len(devices) == 1:
+        return lambda cd, s, devices: port_out(cd, s, 0, devices[0])
+
+    def impl(cd, s, devices):
+        port_out(cd, s, 0, devices[0])
+        port_out(cd, s, 1, devices[1])
+
+    return impl
+
+
 @njit(cache=True)
-def run_port_ticks(cosim, data, io, dev0, dev1, rows, start, stop):
-    """Ticks start..stop-1, row k into rows[k]. Returns the first tick not run: stop, or
-    earlier when a device's noise block needs a refill (the caller refills and calls
-    again)."""
+def run_port_ticks(cosim, data, io, devices, rows, start, stop):
+    """Ticks start..stop-1, row k into rows[k]; devices: the ports' devices' records, port
+    p's at p (one port or two). Returns the first tick not run: stop, or earlier when a
+    device's noise block needs a refill (the caller refills and calls again)."""
     cd = data[0]
     s = io[0]
     for k in range(start, stop):
-        if not device_noise_ready(dev0, cd.dt) or not device_noise_ready(dev1, cd.dt):
+        if not ports_ready(devices, cd.dt):
             return k
-        port_in(cd, s, 0, dev0)
-        port_in(cd, s, 1, dev1)
+        ports_in(cd, s, devices)
         cosim_tick(cosim, data)
-        port_out(cd, s, 0, dev0)
-        port_out(cd, s, 1, dev1)
+        ports_out(cd, s, devices)
         port_row(cosim[0], cd, s, rows[k])
         s.t += cd.dt
     return stop
@@ -170,7 +220,7 @@ def run_port_ticks(cosim, data, io, dev0, dev1, rows, start, stop):
 def port_burst(w, rows, start, stop):
     """run_port_ticks over the world's records (its model, data, I/O, both devices'): the
     kind's compiled ticks as the runners call them (world.Compiled)."""
-    return run_port_ticks(w[0], w[1], w[2], w[3], w[4], rows, start, stop)
+    return run_port_ticks(w[0], w[1], w[2], (w[3], w[4]), rows, start, stop)
 
 
 @paced_entry(never_asks, port_burst)

@@ -19,13 +19,18 @@ _ROOT = Path(__file__).resolve().parent.parent
 _PACKAGES = ("shared", "haptic_server", "sim_server", "device_models", "benchmarks")
 
 
+#: What a module of numba kernels says: njit, or the decorators of a paced world kind's
+#: kernels and entry point (haptic_server.paced), which a module may use without njit.
+_KERNEL_MARKS = (b"njit", b"kind_kernel", b"paced_entry")
+
+
 def _source_hash() -> str:
     """Hash of the modules that hold numba kernels (numba tracks each file on its own)."""
     digest = hashlib.sha1()
     for package in _PACKAGES:
         for path in sorted((_ROOT / package).rglob("*.py")):
             text = path.read_bytes()
-            if b"njit" in text:
+            if any(mark in text for mark in _KERNEL_MARKS):
                 digest.update(path.relative_to(_ROOT).as_posix().encode())
                 digest.update(text)
     return digest.hexdigest()[:12]
