@@ -153,13 +153,8 @@ def ports_ready(devices: Any, dt: float) -> bool:
     raise NotImplementedError("compiled only")
 
 
-def ports_in(cd: Any, s: Any, devices: Any) -> None:
-    """port_in for each port, port p's device at devices[p] (compiled only)."""
-    raise NotImplementedError("compiled only")
-
-
-def ports_out(cd: Any, s: Any, devices: Any) -> None:
-    """port_out for each port, port p's device at devices[p] (compiled only)."""
+def each_port(io_fn: Any, cd: Any, s: Any, devices: Any) -> None:
+    """io_fn(cd, s, p, devices[p]) for each port p: port_in or port_out (compiled only)."""
     raise NotImplementedError("compiled only")
 
 
@@ -174,26 +169,16 @@ def _ports_ready(devices, dt):
     )
 
 
-@overload(ports_in)
-def _ports_in(cd, s, devices):
+# inlined (numba's IR), io_fn is then a direct call: a kernel passed as a value would key
+# numba's cache by the object (haptic_server.paced says more)
+@overload(each_port, inline="always")
+def _each_port(io_fn, cd, s, devices):
     if len(devices) == 1:
-        return lambda cd, s, devices: port_in(cd, s, 0, devices[0])
+        return lambda io_fn, cd, s, devices: io_fn(cd, s, 0, devices[0])
 
-    def impl(cd, s, devices):
-        port_in(cd, s, 0, devices[0])
-        port_in(cd, s, 1, devices[1])
-
-    return impl
-
-
-@overload(ports_out)
-def _ports_out(cd, s, devices):
-    if len(devices) == 1:
-        return lambda cd, s, devices: port_out(cd, s, 0, devices[0])
-
-    def impl(cd, s, devices):
-        port_out(cd, s, 0, devices[0])
-        port_out(cd, s, 1, devices[1])
+    def impl(io_fn, cd, s, devices):
+        io_fn(cd, s, 0, devices[0])
+        io_fn(cd, s, 1, devices[1])
 
     return impl
 
@@ -208,9 +193,9 @@ def run_port_ticks(cosim, data, io, devices, rows, start, stop):
     for k in range(start, stop):
         if not ports_ready(devices, cd.dt):
             return k
-        ports_in(cd, s, devices)
+        each_port(port_in, cd, s, devices)
         cosim_tick(cosim, data)
-        ports_out(cd, s, devices)
+        each_port(port_out, cd, s, devices)
         port_row(cosim[0], cd, s, rows[k])
         s.t += cd.dt
     return stop
