@@ -345,13 +345,15 @@ class HapticServer:
         sim = engine.sim_device
         compiled = sim is not None and not leak_bytes and nan_tick < 0
         # the compiled loop's arguments, once a run (the records live as long as the engine)
-        burst_io = (local_world(engine, loop, ring_io), local_windows(ring_io)) if compiled else ()
+        burst_io = (
+            (local_world(engine, loop, ring_io), local_windows(ring_io), ring) if compiled else ()
+        )
         fault_state = engine.state["fault"]
         fault_seen = loop["fault_reported"]
         check_io_at = 0
         while True:
             if compiled and not (self._stop or supervisor.stopping):
-                status = self._burst(supervisor, loop, (*burst_io, ring), ts)
+                status = self._burst(supervisor, loop, burst_io, ts)
                 if fault_state[0] != fault_seen[0]:
                     self._report_fault(io, int(tick_count[0]) - 1, fault_seen)
                 if int(tick_count[0]) >= check_io_at:
