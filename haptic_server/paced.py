@@ -167,17 +167,40 @@ class PacedEntry:
     def __init__(self, fn: Any, asks: Any, burst: Any, cache: bool = True) -> None:
         self.dispatcher = njit(cache=cache, **_WITHOUT_NRT)(fn)
         self.asks, self.burst = asks, burst
-        self._world: Any = None  # the last world the kernels were compiled for (kept)
+        self._world: Any = None  # the last world it was called with (kept)
+        self._layouts: set[Any] = set()  # the arguments' layouts its kernels are compiled for
         self.__doc__ = fn.__doc__
 
     def __call__(self, world: Any, rows: Any, loop: Any, windows: Any, ts: Any) -> Any:
-        if world is not self._world:
-            from numba import typeof, types
-
-            self.asks.compile((typeof(world), typeof(loop[0]), typeof(ts)))
-            self.burst.compile((typeof(world), typeof(rows), types.int64, types.int64))
+        if world is not self._world:  # a run's first call: its world, built once a run
+            self._compile_kernels(world, rows, loop, ts)
             self._world = world
         return self.dispatcher(world, rows, loop, windows, ts)
+
+    def _compile_kernels(self, world: Any, rows: Any, loop: Any, ts: Any) -> None:
+        """The kind's kernels compiled (or loaded) for these arguments' types, unless they
+        are for their layout already: numba's typeof of a world is ~10 ms (its record
+        dtypes), and a run's first call, already opened, would wait for it (the warm-up
+        compiled them on copies of the same layout)."""
+        layout = _layout((world, rows, loop, ts))
+        if layout in self._layouts:
+            return
+        from numba import typeof, types
+
+        self.asks.compile((typeof(world), typeof(loop[0]), typeof(ts)))
+        self.burst.compile((typeof(world), typeof(rows), types.int64, types.int64))
+        self._layouts.add(layout)
+
+
+def _layout(value: Any) -> Any:
+    """What numba's type of `value` depends on, cheaply: an array's dtype, dimensions and
+    flags, a tuple's members' (a record's or a scalar's Python type otherwise)."""
+    if isinstance(value, tuple):
+        return tuple(_layout(v) for v in value)
+    if isinstance(value, np.ndarray):
+        f = value.flags
+        return (value.dtype, value.ndim, f.c_contiguous, f.f_contiguous, f.writeable, f.aligned)
+    return type(value)
 
 
 def paced_entry(asks: Any, burst: Any) -> Any:
