@@ -6,7 +6,7 @@ per tick, 0..32 contacts) and (2) a real-time run of the two servers (`haptic-ru
 (default testbed), default device, with the MCAP log), from which the loop's work per tick is read. With
 --stations, instead: `loop_timing --stations` once per repeat in each tree (a shared world and
 two stations on loopback, every shipped port scene), the world's and the stations' work per
-tick read. With --ports, instead: one tick's cost (a compiled call timed from Python) in
+tick read. With --ports, instead: one tick's cost (a compiled call timed inside compiled code) in
 grasp_vertical, grasp_clutter and hand_grasp (benchmarks.grasp, benchmarks.hand), for a base
 that did not run those scenes in one real-time process. The order
 alternates between repeats so slow spells of a shared host hit both builds; every figure is
@@ -166,25 +166,74 @@ def stations_work(tree: Path, seconds: float) -> dict[str, float]:
 
 _PORT_TICKS = """
 import json
-from {ns}benchmarks.grasp import tick_cost
-from {ns}benchmarks.hand import hand_grasp_port
-from {ns}shared.port_config import load_port_scene
+import numpy as np
+from numba import njit
+from {ns}benchmarks.grasp import squeeze_users
+from {ns}device_models.common import refill_noise
+from {ns}device_models.registry import load_simulated_device
+from {ns}haptic_server import hand_grasp_ports, ports
+from {ns}shared.clock import monotonic_ns
+from {ns}shared.port_config import load_hand_scene, load_port_scene
+
+
+@njit
+def timed(tick, head, rows, start, ns, ts):
+    # each tick its own call of the world's compiled ticks, timed inside compiled code
+    for k in range(start, rows.shape[0]):
+        t0 = monotonic_ns(ts)
+        done = tick(*head, rows, k, k + 1)
+        ns[k] = monotonic_ns(ts) - t0
+        if done == k:
+            return k
+    return rows.shape[0]
+
+
+def cost(run, tick, head, ticks):
+    rows = np.zeros(ticks, run.rows_dtype)
+    ns, ts = np.zeros(ticks, np.int64), np.zeros(2, np.int64)
+    k = timed(tick, head, rows, 0, ns, ts)  # compiles
+    rows[:], k = 0, 0
+    while k < ticks:
+        k = timed(tick, head, rows, k, ns, ts)
+        if k < ticks:  # a device's noise ran out: refill, and time that tick again
+            for dev in run.devices:
+                refill_noise(dev.noise, dev.records, run.period)
+    us = ns[100:] / 1e3
+    return float(np.percentile(us, 50)), float(np.percentile(us, 99))
+
+
+def ticks_of(run):
+    # this build's compiled ticks and their records: the World's (Compiled), or before
+    # there was one, the function the benchmarks called
+    if hasattr(run, "compiled"):
+        return run.compiled.burst, (run.compiled.records,)
+    d = tuple(dev.records for dev in run.devices)
+    if isinstance(run, ports.PortRun):
+        return ports.run_port_ticks, (run.model, run.data, run.io) + d
+    grasp = (run.chains, run.models, run.datas, run.gmodel, run.gdata)
+    return hand_grasp_ports.run_hand_grasp_ticks, (grasp, run.io, d)
+
+
 out = {{}}
 for scene in ("grasp_vertical", "grasp_clutter"):
-    cost = tick_cost(load_port_scene(scene))
-    out[scene + " p50"], out[scene + " p99"] = cost["p50_us"], cost["p99_us"]
-hand = hand_grasp_port(("maglev", "maglev"))
-out["hand_grasp p50"], out["hand_grasp p99"] = hand["tick_p50_us"], hand["tick_p99_us"]
+    config = load_port_scene(scene)
+    run = ports.PortRun(config, users=squeeze_users(config, 2.0))
+    run.rows_dtype, run.period = ports.PORT_ROW_DTYPE, config.period_s
+    out[scene + " p50"], out[scene + " p99"] = cost(run, *ticks_of(run), 20000)
+config = load_hand_scene("hand_grasp")
+run = hand_grasp_ports.HandGraspRun(config, [load_simulated_device("maglev") for _ in "lr"])
+run.rows_dtype, run.period = hand_grasp_ports.HAND_GRASP_ROW_DTYPE, config.period_s
+out["hand_grasp p50"], out["hand_grasp p99"] = cost(run, *ticks_of(run), 5200)
 print(json.dumps(out))
 """
 
 
 def port_ticks(tree: Path, seconds: float) -> dict[str, float]:
     """One tick of both ports of grasp_vertical and grasp_clutter (the co-simulation and two
-    maglev models, benchmarks.grasp's tick_cost: 20000 ticks) and of hand_grasp (both hands
-    and the box, two maglevs, benchmarks.hand's hand_grasp_port: 5.2 s), each tick a
-    compiled call timed from Python: p50 and p99 (µs). `seconds` is not used (the
-    benchmarks' own lengths, the same in every build that has them)."""
+    maglev models squeezing 2 N: 20000 ticks) and of hand_grasp (both hands and the box, two
+    maglevs: 5200 ticks), each tick its own call of the world's compiled ticks timed inside
+    compiled code (clock_gettime around it: what the real-time loop pays, without Python's
+    call): p50 and p99 (µs), the first 100 ticks left out. `seconds` is not used."""
     code = _PORT_TICKS.format(ns=f"{_NAMESPACE}." if _namespaced(tree) else "")
     out = subprocess.run(
         [sys.executable, "-c", code], cwd=tree, env=_env(tree), check=True,
@@ -220,7 +269,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.stations:
         return _compare(trees, args, stations_work, f"of {args.seconds:g} s")
     if args.ports:
-        return _compare(trees, args, port_ticks, "(one compiled call a tick)")
+        return _compare(
+            trees, args, port_ticks, "(each tick a compiled call, timed in compiled code)"
+        )
     kernels: dict[str, list[dict[int, dict[str, float]]]] = {k: [] for k in trees}
     loops: dict[str, list[dict[str, float]]] = {k: [] for k in trees}
     for i in range(args.repeat):
