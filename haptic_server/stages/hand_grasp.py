@@ -98,7 +98,9 @@ GRASP_DATA_DTYPE = np.dtype(
         # hands' own blocks added: the step's K and B
         ("kg", F8, (MAX_SYS, MAX_SYS)),
         ("bg", F8, (MAX_SYS, MAX_SYS)),
-        ("mass_all", F8, (MAX_SYS, MAX_SYS)),  # D over all of q: the hands' and the box's
+        # D over all of q: the hands' blocks and the box's diagonal, written each step; the
+        # rest is zero from the record's making on (solve_all does not clear it)
+        ("mass_all", F8, (MAX_SYS, MAX_SYS)),
         ("f_all", F8, (MAX_SYS,)),  # the step's force over all of q
         ("system", F8, (MAX_SYS, MAX_SYS)),
         ("chol", F8, (MAX_SYS, MAX_SYS)),
@@ -236,9 +238,6 @@ def solve_all(hms, hds, gm, gd):
     n = gm.n
     h = gd.h
     th = gm.theta
-    for i in range(n):
-        for j in range(n):
-            gd.mass_all[i, j] = 0.0
     for i in range(gm.n_hands):
         hm = hms[i][0]
         hd = hds[i][0]
