@@ -255,7 +255,7 @@ def hand_records(
     return chain, model, data
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def hit_force(law, hit, vx, vy, touching, stick, key, h):
     """The force at the contact in `hit` (point, depth, normal) whose point moves at (vx,
     vy) against what it touches: penalty and stick-spring friction, law a record with the
@@ -278,7 +278,7 @@ def hit_force(law, hit, vx, vy, touching, stick, key, h):
     return f_n * nx + f_t * tx, f_n * ny + f_t * ty, f_n, sticking
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def hit_rows(jac, n, hit, fx, fy, f, jn, jt):
     """The force (fx, fy) at the contact in `hit` through the point's Jacobian (jac, n
     columns) into the generalised forces f, and the contact's normal and tangent rows."""
@@ -292,7 +292,7 @@ def hit_rows(jac, n, hit, fx, fy, f, jn, jt):
         jt[a] = tx * jac[0, a] + ty * jac[1, a]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def hit_stiffness(law, sticking, kmat, bmat, cols, jn, jt, count):
     """A pressing contact's rows (cols[:count]) into the implicit step's K and B: the
     tangent's spring and damper only while it sticks. At the step's end, not at theta of

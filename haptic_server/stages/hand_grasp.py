@@ -371,7 +371,7 @@ def _box_start_clear(chains, hms, hds, gm):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def keep_box_in_range(chains, hms, hds, gm, gd):
     """A box beyond the range (|x| or |y| > range_m) back at its start at rest, its contacts
     forgotten, when no hand is there; else held at rest clamped to the range."""
