@@ -46,13 +46,15 @@ typecheck: $(DEV)
 	$(VENV)/bin/mypy
 
 # The tiers (tests/conftest.py enforces them): the fast tier is every test not marked slow
-# or processes, independent, run on both cores; the marked ones start processes, run real
-# time or run long, and run one at a time so that they measure the machine, not each other
-# (the 25 slowest are listed at the end: where the suite's time goes).
+# or processes, independent, run on both cores; so are the slow tests that start no process
+# (each computes in its own process, or paces itself on its own core: 196 s serial, 115 s
+# on both cores); the tests that start processes run one at a time, so that they measure
+# the machine, not each other (the 25 slowest are listed at the end: where the time goes).
 FAST := -m "not slow and not processes"
 pytest: $(DEV) warm browser
 	$(PY) -m pytest -q -n 2 $(FAST)
-	$(PY) -m pytest -q -m "slow or processes" --durations=25
+	$(PY) -m pytest -q -n 2 -m "slow and not processes" --durations=10
+	$(PY) -m pytest -q -m processes --durations=25
 
 # before each commit: lint, types and the fast tier (README: 1-1.5 min on two cores)
 check: lint typecheck warm
