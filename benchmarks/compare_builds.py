@@ -6,9 +6,9 @@ per tick, 0..32 contacts) and (2) a real-time run of the two servers (`haptic-ru
 (default testbed), default device, with the MCAP log), from which the loop's work per tick is read. With
 --stations, instead: `loop_timing --stations` once per repeat in each tree (a shared world and
 two stations on loopback, every shipped port scene), the world's and the stations' work per
-tick read. With --ports, instead: one tick's cost (a compiled call timed inside compiled code) in
-grasp_vertical, grasp_clutter and hand_grasp (benchmarks.grasp, benchmarks.hand), for a base
-that did not run those scenes in one real-time process. The order
+tick read. With --ports, instead: one tick's cost in grasp_vertical, grasp_clutter and
+hand_grasp (each tick one call of the world's compiled ticks, timed inside compiled code),
+for a base that did not run those scenes in one real-time process. The order
 alternates between repeats so slow spells of a shared host hit both builds; every figure is
 the median over repeats.
 
@@ -191,8 +191,7 @@ def timed(tick, head, rows, start, ns, ts):
 def cost(run, tick, head, ticks):
     rows = np.zeros(ticks, run.rows_dtype)
     ns, ts = np.zeros(ticks, np.int64), np.zeros(2, np.int64)
-    k = timed(tick, head, rows, 0, ns, ts)  # compiles
-    rows[:], k = 0, 0
+    k = 0  # (timed compiles at its first call, before its clock runs)
     while k < ticks:
         k = timed(tick, head, rows, k, ns, ts)
         if k < ticks:  # a device's noise ran out: refill, and time that tick again
