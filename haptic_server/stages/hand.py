@@ -550,8 +550,8 @@ def copy_state(n, src, dst):
     """The state a retried tick starts again from, src = (q, qd, stick, touching) into dst
     of the same: the first n of q and qd, every stick spring and touching flag. Inlined
     (with _live and _kept) where numba compiles its caller: called, the tuples' eight arrays
-    were counted in and out (NRT) at each call, every tick (0.4 us a tick on hand_grasp,
-    compare_builds --ports)."""
+    were counted in and out (NRT) at each call, every tick (0.5 us a tick on hand_grasp,
+    timed in compiled code)."""
     q, qd, stick, touching = src
     q_to, qd_to, stick_to, touching_to = dst
     for a in range(n):
