@@ -188,15 +188,16 @@ def timed(tick, head, rows, start, ns, ts):
     return rows.shape[0]
 
 
-def cost(run, tick, head, ticks):
-    rows = np.zeros(ticks, run.rows_dtype)
+def cost(run, rows_dtype, period_s, ticks):
+    tick, head = ticks_of(run)
+    rows = np.zeros(ticks, rows_dtype)
     ns, ts = np.zeros(ticks, np.int64), np.zeros(2, np.int64)
     k = 0  # (timed compiles at its first call, before its clock runs)
     while k < ticks:
         k = timed(tick, head, rows, k, ns, ts)
         if k < ticks:  # a device's noise ran out: refill, and time that tick again
             for dev in run.devices:
-                refill_noise(dev.noise, dev.records, run.period)
+                refill_noise(dev.noise, dev.records, period_s)
     us = ns[100:] / 1e3
     return float(np.percentile(us, 50)), float(np.percentile(us, 99))
 
@@ -217,12 +218,12 @@ out = {{}}
 for scene in ("grasp_vertical", "grasp_clutter"):
     config = load_port_scene(scene)
     run = ports.PortRun(config, users=squeeze_users(config, 2.0))
-    run.rows_dtype, run.period = ports.PORT_ROW_DTYPE, config.period_s
-    out[scene + " p50"], out[scene + " p99"] = cost(run, *ticks_of(run), 20000)
+    figures = cost(run, ports.PORT_ROW_DTYPE, config.period_s, 20000)
+    out[scene + " p50"], out[scene + " p99"] = figures
 config = load_hand_scene("hand_grasp")
 run = hand_grasp_ports.HandGraspRun(config, [load_simulated_device("maglev") for _ in "lr"])
-run.rows_dtype, run.period = hand_grasp_ports.HAND_GRASP_ROW_DTYPE, config.period_s
-out["hand_grasp p50"], out["hand_grasp p99"] = cost(run, *ticks_of(run), 5200)
+figures = cost(run, hand_grasp_ports.HAND_GRASP_ROW_DTYPE, config.period_s, 5200)
+out["hand_grasp p50"], out["hand_grasp p99"] = figures
 print(json.dumps(out))
 """
 
