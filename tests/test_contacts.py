@@ -20,19 +20,20 @@ EXACT = 1e-12  # impulses are solved exactly when the contacts are independent
 
 
 def contact_row(
-    tool_point, env_point, normal, restitution, friction=0.0, stiffness=K_TINY, damping=0.0
-):
+    tool_point, env_point, normal, restitution, friction=0.0, stiffness=K_TINY, damping=0.0,
+    env_velocity=(0.0, 0.0),
+):  # fmt: skip
     """A contact row in wire order (shared.protocol.layout.CONTACT_COLUMNS); the stick
     stiffness of friction equals the normal stiffness."""
     return [
-        *tool_point, *env_point, *normal, 0.0, 0.0, friction, restitution, stiffness, damping,
-        stiffness,
+        *tool_point, *env_point, *normal, *env_velocity, friction, restitution, stiffness,
+        damping, stiffness,
     ]  # fmt: skip
 
 
-def engine_with(q, qd, rows, impulses=True, mass=MASS, inertia=INERTIA) -> HapticEngine:
-    """A free body (mass, inertia) at q moving at qd with the given contacts; no coupling,
-    no hand force."""
+def engine_with(q, qd, rows, impulses=True, mass=MASS, inertia=INERTIA, lead_s=0.0) -> HapticEngine:
+    """A free body (mass, inertia) at q moving at qd with the given contacts, its state
+    holding lead_s after publication; no coupling, no hand force."""
     scene = load_scene("free_box")
     rendering = dataclasses.replace(
         scene.rendering, coordination_stiffness=(0.0, 0.0, 0.0),
@@ -51,7 +52,7 @@ def engine_with(q, qd, rows, impulses=True, mass=MASS, inertia=INERTIA) -> Hapti
         lambda_inv=np.diag([1 / mass, 1 / mass, 1 / inertia]), tool_pose=np.array(q, float),
         gravity=None, velocity_torque=None, resisted=None, characteristic_length=0.05,
         contacts=ContactSet(np.full(n, 2), np.arange(n), np.reshape(rows, (n, CONTACT_FLOATS))),
-        tool_touching=True,
+        tool_touching=True, state_lead_s=lead_s,
     )  # fmt: skip
     assert engine.receive(encode_update(update)) == ""
     return engine
@@ -159,3 +160,47 @@ def test_coulomb_friction_sticks_then_slips() -> None:
     eng = engine_with([0.0, 0.0, 0.0], [0.5, 0.0, 0.0], rows, impulses=False)  # sliding fast
     _, row = after_one_tick(eng)
     np.testing.assert_allclose(row["contact_force_world"][:2], [-mu * f_n, f_n], rtol=1e-9)
+
+
+K_DEEP, LEAD_S = 15000.0, 0.01  # N/m; the state holds 10 ms after publication (age -10 ms)
+
+
+@pytest.mark.parametrize(("speed", "rendered"), [(1.0, 0.0), (0.3, 0.005), (0.0, 0.008)])
+def test_a_contact_the_install_carried_into_the_proxy_renders_only_what_it_was_not(
+    speed: float, rendered: float
+) -> None:
+    """A new contact 8 mm deep at the proxy once its wall, leaving the tool at `speed`, is
+    carried back the 10 ms to now: of the depth, the carry's speed x 10 ms (all of it at
+    1 m/s, 3 mm at 0.3 m/s, none for a still wall) was drawn by the install and is not
+    rendered (contacts.carried_depth); the rest is, F = K (depth - carry). At the wall's
+    state the tool is 2 mm clear of it at 1 m/s (the case of a ball the sim's hand struck)."""
+    depth = 0.008
+    at_state = depth - speed * LEAD_S  # how deep the tool is at the time the state holds
+    rows = [
+        contact_row(
+            (-0.03, 0.0), (-0.03 + at_state, 0.0), (1.0, 0.0), 0.0, stiffness=K_DEEP,
+            env_velocity=(-speed, 0.0),
+        )
+    ]  # fmt: skip
+    _, row = after_one_tick(engine_with([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], rows, lead_s=LEAD_S))
+    np.testing.assert_allclose(row["penetration"], depth, rtol=1e-9)  # the geometry's depth
+    np.testing.assert_allclose(row["contact_force_world"][:2], [K_DEEP * rendered, 0.0], atol=1e-9)
+
+
+def test_a_carried_contact_gives_back_no_energy_as_its_wall_leaves() -> None:
+    """The 1 m/s wall of the test above, over 20 ticks: its depth shrinks at 1 mm a tick and
+    the depth not rendered with it, so the free body, at rest, is never pushed (the whole
+    depth rendered would push it with K d^2 / 2v = 0.48 N s: to 0.24 m/s, 0.06 J from
+    nothing)."""
+    rows = [
+        contact_row(
+            (-0.03, 0.0), (-0.03 - 0.002, 0.0), (1.0, 0.0), 0.0, stiffness=K_DEEP,
+            env_velocity=(-1.0, 0.0),
+        )
+    ]  # fmt: skip
+    eng = engine_with([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], rows, lead_s=LEAD_S)
+    for _ in range(20):
+        qd, row = after_one_tick(eng)
+        assert row["contact_force_world"][0] == 0.0
+    np.testing.assert_array_equal(qd, [0.0, 0.0, 0.0])
+    assert row["n_active"] == 0  # the wall has left the tool: 8 mm in 10 ms at 1 m/s, + 2 mm

@@ -125,10 +125,14 @@ def install_update(m, d, ins, new_epoch, latency_s):
 @njit(cache=True)
 def inherit_contact_state(new, new_state, old, old_state, match_radius):
     """Carry contact state (in contact, stick displacement) from the previous model to the
-    new one for contacts with the same key whose tool points lie within match_radius."""
+    new one for contacts with the same key whose tool points lie within match_radius
+    (and the depth not rendered, `offset`). A contact not in contact before is fresh: its
+    first tick measures the depth the install drew it in (contacts.carried_depth)."""
     for i in range(new.n_contacts):
         new_state.in_contact[i] = 0
         new_state.stick[i] = 0.0
+        new_state.offset[i] = 0.0
+        new_state.fresh[i] = 1
         if old.valid != 1:
             continue
         best = -1
@@ -145,3 +149,5 @@ def inherit_contact_state(new, new_state, old, old_state, match_radius):
         if best >= 0:
             new_state.in_contact[i] = old_state.in_contact[best]
             new_state.stick[i] = old_state.stick[best]
+            new_state.offset[i] = old_state.offset[best]
+            new_state.fresh[i] = 1 - new_state.in_contact[i]
