@@ -10,12 +10,15 @@ tick read. With --ports, instead: one tick's cost in grasp_vertical, grasp_clutt
 hand_grasp (each tick one call of the world's compiled ticks, timed inside compiled code),
 for a base that did not run those scenes in one real-time process. The order
 alternates between repeats so slow spells of a shared host hit both builds; every figure is
-the median over repeats.
+the median over repeats. With --fresh-caches each build compiles into a new, empty numba
+cache of its own, filled by its warm-up (as a user's first run fills it), instead of the
+cache its checkout has already filled (this one's: `make check`'s and every test's).
 
     python -m haptic_local_model.benchmarks.compare_builds [--base 2ccdfb6] [--repeat 5] [--seconds 10]
         [--scene testbed] [--loop-only]
     python -m haptic_local_model.benchmarks.compare_builds --stations [--base REV] [--repeat 3]
     python -m haptic_local_model.benchmarks.compare_builds --ports [--base REV] [--repeat 3]
+        [--fresh-caches]
 """
 
 from __future__ import annotations
@@ -54,6 +57,8 @@ def checkout(rev: str) -> Path:
 
 
 _PACKAGES = ("shared", "sim_server", "haptic_server", "device_models", "benchmarks")
+#: a tree -> the numba cache it compiles into (--fresh-caches); absent: its own default
+CACHES: dict[Path, Path] = {}
 _NAMESPACE = "haptic_local_model"
 
 
@@ -79,6 +84,8 @@ def _env(tree: Path) -> dict[str, str]:
     # shared/numba_cache.py cannot import this one's: its warm-up would fail)
     env.pop("NUMBA_CACHE_DIR", None)
     env.pop("NUMBA_CACHE_LOCATOR_CLASSES", None)
+    if tree in CACHES:
+        env["NUMBA_CACHE_DIR"] = str(CACHES[tree])
     return env
 
 
@@ -262,8 +269,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--ports", action="store_true", help="instead: a tick's cost in the port and hand scenes"
     )
+    parser.add_argument(
+        "--fresh-caches", action="store_true", help="each build on a new, empty numba cache"
+    )
     args = parser.parse_args(argv)
     trees = {"base": checkout(args.base), "this": REPO_ROOT}
+    if not args.fresh_caches:
+        return _run(trees, args)
+    with tempfile.TemporaryDirectory(prefix="hlm-compare-caches-") as caches:
+        CACHES.update({tree: Path(caches) / name for name, tree in trees.items()})
+        return _run(trees, args)
+
+
+def _run(trees: dict[str, Path], args: argparse.Namespace) -> int:
+    """Warm both trees, then the comparison `args` asks for."""
     for tree in trees.values():
         warm(tree)
     if args.stations:
