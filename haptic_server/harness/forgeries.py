@@ -218,7 +218,10 @@ class Forger:
         # a period or two: at + 2 the sim's update of that seq came first, `sequence`); at
         # most + 3, the sequence's rate the jump check allows one period after the last
         seq = proxy.update_seq + 3
-        world.time = seq * world.period
+        # the sim's time as the sim stamps update seq: the end of its step, (seq + 1) periods
+        # (one period less, the sim's own update seq - 1, installed first on a loaded host,
+        # held the same time, and the forgery was refused as a jump, not judged for itself)
+        world.time = (seq + 1) * world.period
         update = FORGERIES[name](world.local_model(self.epoch, seq, 0), self.scene)
         # stamped as it goes out, as the sim stamps: building a forgery (teleport makes a world)
         # may take longer on a loaded host than max_update_age_ms, and "late" is not its point
