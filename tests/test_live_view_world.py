@@ -22,6 +22,7 @@ from test_live_view import ARTIFACTS, SCENE, SETTLE_S, Proc, _browser, procs  # 
 
 from haptic_local_model.benchmarks.browser import free_ports, open_page, open_pages, pixels
 from haptic_local_model.haptic_server.log import read_log
+from haptic_local_model.haptic_server.port_view import DEVICE_COLOR, TOOL_COLOR
 from haptic_local_model.haptic_server.view_world import ROLE_COLORS, world_vertices
 from haptic_local_model.shared.protocol.world_view import (
     ROLE_DYNAMIC,
@@ -392,6 +393,7 @@ def test_a_hand_scenes_box_hands_and_devices_are_drawn_where_the_rows_have_them(
 # -- a shared world and its stations: each drawn from its own process's rows --------------
 
 STATIONS_RUN_S = 30  # the stations' run (two views loaded in turn); the world runs past it
+STATION_DRAWN_WITHIN_S = 14.0  # after SETTLE_S: shot by then, inside the stations' run
 
 
 def _wait_event(proc: Proc, event: str, timeout_s: float = 120.0) -> None:
@@ -419,7 +421,6 @@ def test_a_shared_worlds_box_and_pads_are_drawn_from_the_worlds_process(
     world's log has them (as the port case); the station's view draws its device and its
     tool, and both views count their frames."""
     from haptic_local_model.benchmarks.stations import loopback_network
-    from haptic_local_model.haptic_server.port_view import DEVICE_COLOR
     from haptic_local_model.haptic_server.world_runs import port_scene, read_port_log
 
     browser = _browser()
@@ -448,8 +449,15 @@ def test_a_shared_worlds_box_and_pads_are_drawn_from_the_worlds_process(
     ]
     procs.extend(stations)
     with open_pages([world.url(), stations[0].url()], browser) as pages:
-        time.sleep(SETTLE_S + 4.0)  # both at once: each view lives as long as its run
-        png, station_png = (page.screenshot() for page in pages)
+        time.sleep(SETTLE_S)  # both at once: each view lives as long as its run
+        # shot once the station draws its device and the tool the world sends it (a loaded
+        # host may take longer to couple it), within its run
+        end = time.monotonic() + STATION_DRAWN_WITHIN_S
+        while True:
+            png, station_png = (page.screenshot() for page in pages)
+            if _station_drawn(station_png) or time.monotonic() > end:
+                break
+            time.sleep(0.5)
     for proc in (*stations, world):  # shot: the rest of the run adds nothing
         assert proc.stop() == 0, proc.lines
     assert _frames(world) > 0 and _frames(stations[0]) > 0
@@ -468,7 +476,11 @@ def test_a_shared_worlds_box_and_pads_are_drawn_from_the_worlds_process(
     gap_px = min(abs(d[0]) for d, _e in found.values())
     assert gap_px > 10 * PIXEL_TOL, f"the pads drawn {gap_px:.0f} px from the box's centre"
     station_img = pixels(station_png)[SCENE]
-    from haptic_local_model.haptic_server.port_view import TOOL_COLOR
-
     for name, colour in (("tool", TOOL_COLOR), ("device", DEVICE_COLOR)):
         assert _mask(station_img, colour).sum() > 50, f"the station's {name} is not drawn"
+
+
+def _station_drawn(png: bytes) -> bool:
+    """The station's view shows its device and its tool."""
+    img = pixels(png)[SCENE]
+    return all(_mask(img, c).sum() > 50 for c in (TOOL_COLOR, DEVICE_COLOR))
