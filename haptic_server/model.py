@@ -107,7 +107,7 @@ CONTACT_STATE_DTYPE = np.dtype(
         # the depth the install's carry back drew a new contact into the proxy (m), not
         # rendered; it only shrinks with the depth (stages/contacts.py, carried_depth)
         ("offset", F8, (MAX_CONTACTS,)),
-        ("fresh", I8, (MAX_CONTACTS,)),  # 1: installed, not yet evaluated, not inherited
+        ("fresh", I8, (MAX_CONTACTS,)),  # 1: installed not in contact before, not yet evaluated
     ]
 )
 
