@@ -13,6 +13,7 @@ from haptic_local_model.shared.cli import (
     EXIT_FAILED,
     EXIT_LOG_FAILED,
     add_config_args,
+    done_with_signals,
     emit,
     log_file,
     run_main,
@@ -117,7 +118,8 @@ def main(argv: list[str] | None = None) -> int:
             return EXIT_LOG_FAILED
         return 0
 
-    return run_main(body)
+    code = run_main(body)
+    return done_with_signals(code) if argv is None else code  # a process of its own
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ import argparse
 import json
 import math
 import os
+import signal
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -154,6 +155,17 @@ def print_shipped(extra: Sequence[str] = ()) -> None:
         print("\n".join(lines), flush=True)
     except BrokenPipeError:  # `haptic-run --list | head`
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
+def done_with_signals(code: int) -> int:
+    """A server's or haptic-run's process has done its work (its log closed, its summary
+    written): a SIGTERM or SIGINT during its exit must not kill it with -15 and turn a clean
+    stop into a failure. Python restores the default handlers as it finalises, and a
+    teardown of threads and sessions takes long enough for a stop sent as the run ends
+    to land in it; ignored handlers are left as they are. Returns `code`."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return code
 
 
 def run_main(body: Callable[[], int]) -> int:

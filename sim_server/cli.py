@@ -14,6 +14,7 @@ from typing import Any
 from haptic_local_model.shared.cli import (
     EXIT_FAILED,
     add_config_args,
+    done_with_signals,
     emit,
     run_main,
     seconds,
@@ -78,7 +79,8 @@ def main(argv: list[str] | None = None) -> int:
             return EXIT_FAILED
         return 0
 
-    return run_main(body)
+    code = run_main(body)
+    return done_with_signals(code) if argv is None else code  # a process of its own
 
 
 def _mirror(args: argparse.Namespace) -> int:

@@ -20,7 +20,8 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
@@ -29,6 +30,7 @@ from haptic_local_model.shared.cli import (
     EXIT_CONFIG,
     EXIT_LOG_FAILED,
     add_config_args,
+    done_with_signals,
     emit,
     log_file,
     print_shipped,
@@ -154,6 +156,24 @@ def compile_first(args: argparse.Namespace) -> None:
               file=sys.stderr)  # fmt: skip
 
 
+@contextmanager
+def signals_kept(restore: bool) -> Iterator[None]:
+    """SIGTERM's and SIGINT's handlers as they are on leaving, restored only if `restore`.
+    A real-time run sets its own (they set the stop it watches) once it has compiled, and
+    they must stay until its summary is written and printed: a signal while the run
+    finishes is the stop it is already making. (Restored as soon as the servers were
+    stopped, a SIGTERM that came as the run ended found the default handler, and haptic-run
+    died with -15 while it wrote its summary.) haptic-run as a process of its own keeps
+    them to its exit; called in another program's process, that program's come back."""
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        if restore:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+
 def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
     """The two-process system: haptic (listener) first, then the sim, then the duration.
 
@@ -196,9 +216,8 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
     if view is not None:
         haptic_extra += view.argv()
     stop = threading.Event()
-    previous = {
-        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGTERM, signal.SIGINT)
-    }
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
     failure: str | None = None
     haptic = Child(
         "haptic", _server_argv("haptic_local_model.haptic_server.cli", args, haptic_extra)
@@ -245,8 +264,7 @@ def run_real_time(args: argparse.Namespace) -> dict[str, Any]:
         codes = {"haptic": haptic.stop()}  # the haptic side first: it ramps the device to safe
         if sim is not None:
             codes["sim"] = sim.stop()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        # the handlers stay until haptic-run has written its summary (signals_kept)
     summary: dict[str, Any] = _read_summary(haptic_json) or {"clock": "real-time"}
     summary["sim"] = _read_summary(sim_json)
     shutil.rmtree(summary_dir, ignore_errors=True)
@@ -415,18 +433,25 @@ def main(argv: list[str] | None = None) -> int:
                 "needs --clock real (a virtual-clock run outpaces any view: draw its log with "
                 "haptic-replay LOG --view)",
             )  # fmt: skip
-        summary = run_virtual_clock(args) if args.clock == "virtual" else run_real_time(args)
-        if not write_summary(args.summary_json, summary, "haptic-run"):
-            summary.setdefault("failure", "the summary was not written")
-        if summary.get("config_error"):
-            return EXIT_CONFIG
-        if "failure" in summary:
-            print(f"haptic-run: {summary['failure']}", file=sys.stderr)
-            return EXIT_LOG_FAILED if summary["failure"].startswith("logging stopped") else 1
-        print_summary(summary)
-        return 0
+        with signals_kept(restore=argv is not None):
+            summary = run_virtual_clock(args) if args.clock == "virtual" else run_real_time(args)
+            return _finish(args, summary)
 
-    return run_main(body)
+    code = run_main(body)
+    return done_with_signals(code) if argv is None else code  # a process of its own
+
+
+def _finish(args: argparse.Namespace, summary: dict[str, Any]) -> int:
+    """The run's summary written (--summary-json) and printed; haptic-run's exit code."""
+    if not write_summary(args.summary_json, summary, "haptic-run"):
+        summary.setdefault("failure", "the summary was not written")
+    if summary.get("config_error"):
+        return EXIT_CONFIG
+    if "failure" in summary:
+        print(f"haptic-run: {summary['failure']}", file=sys.stderr)
+        return EXIT_LOG_FAILED if summary["failure"].startswith("logging stopped") else 1
+    print_summary(summary)
+    return 0
 
 
 if __name__ == "__main__":
