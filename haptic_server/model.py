@@ -104,10 +104,10 @@ CONTACT_STATE_DTYPE = np.dtype(
         # move with their environment velocity by it
         ("in_contact", I8, (MAX_CONTACTS,)),  # in penetration last tick
         ("stick", F8, (MAX_CONTACTS,)),  # tangential stick displacement (m)
-        # the depth the install's carry back drew a new contact into the proxy (m), not
-        # rendered; it only shrinks with the depth (stages/contacts.py, carried_depth)
+        # the depth not rendered (m): set at install to how far the carry back drew a contact
+        # not in contact before toward the tool (stages/install.py, carried_in); it only
+        # shrinks with the depth (stages/contacts.py)
         ("offset", F8, (MAX_CONTACTS,)),
-        ("fresh", I8, (MAX_CONTACTS,)),  # 1: installed not in contact before, not yet evaluated
     ]
 )
 

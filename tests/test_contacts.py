@@ -172,7 +172,7 @@ def test_a_contact_the_install_carried_into_the_proxy_renders_only_what_it_was_n
     """A new contact 8 mm deep at the proxy once its wall, leaving the tool at `speed`, is
     carried back the 10 ms to now: of the depth, the carry's speed x 10 ms (all of it at
     1 m/s, 3 mm at 0.3 m/s, none for a still wall) was drawn by the install and is not
-    rendered (contacts.carried_depth); the rest is, F = K (depth - carry). At the wall's
+    rendered (install.carried_in); the rest is, F = K (depth - carry). At the wall's
     state the tool is 2 mm clear of it at 1 m/s (the case of a ball the sim's hand struck)."""
     depth = 0.008
     at_state = depth - speed * LEAD_S  # how deep the tool is at the time the state holds

@@ -252,7 +252,7 @@ def test_a_ball_the_hand_strikes_gives_the_device_no_energy(tmp_path: Path, gap_
     gravity, on the virtual clock. The sim's hand strikes it within a step and it leaves at
     its new velocity; the update carries it back to the tick's time along that velocity,
     11-25 mm into the proxy (the geometry's penetration). That depth is not rendered
-    (stages/contacts.py carried_depth): the passivity observer never trips. Rendered, its
+    (stages/install.py carried_in): the passivity observer never trips. Rendered, its
     spring gave the device 0.52-2.2 J and tripped the observer (5-11 fault ticks at these
     gaps), as pymunk's bouncing balls did live; the log replays bit for bit."""
     space = pymunk.Space()

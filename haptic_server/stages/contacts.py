@@ -78,26 +78,6 @@ def collisions(m, d):
             queue_collision(m, d, i, vn)
 
 
-@njit(cache=True, inline="always")
-def carried_depth(slot, cs, i, gap):
-    """How deep installing it drew contact i (not in contact before) into the proxy: the
-    depth it is not rendered at (CONTACT_STATE_DTYPE's `offset`, which then only shrinks with
-    the depth, so no depth it gives is energy the proxy never put in).
-
-    The install carries a contact's environment back from the time its state holds (age
-    < 0, docs/god-object.md "One clock"): along a velocity leaving the tool (n . v < 0) that
-    brings it nearer by n . v age. Right for a shape that moved so over the sim's step; not
-    for one the sim's tool struck in it (pymunk's bouncing_balls: a ball hit by the hand
-    leaves it at 1.24 m/s, carried back 14 ms it lands 14 mm inside the proxy, and its
-    spring gave 0.5 J the passivity observer saw). The previous model, which did not have
-    it touching, is trusted about the past: of the depth, up to that carry is not rendered."""
-    carry = (
-        slot.c_normal[i, 0] * slot.c_env_velocity[i, 0]
-        + slot.c_normal[i, 1] * slot.c_env_velocity[i, 1]
-    ) * cs.age_s
-    return min(max(-gap, 0.0), max(carry, 0.0))
-
-
 @njit(cache=True)
 def contact_stage(m, d, k, weight, detect):
     """Penalty + friction of slot k's continuous contacts (seed 001 eq 8), weighted by its
@@ -120,15 +100,12 @@ def contact_stage(m, d, k, weight, detect):
         ny = slot.c_normal[i, 1]
         tx = -ny
         ty = nx
-        if cs.fresh[i] == 1:
-            cs.fresh[i] = 0
-            cs.offset[i] = carried_depth(slot, cs, i, gap)
         if gap > 0.0:
             cs.in_contact[i] = 0
             cs.stick[i] = 0.0
             cs.offset[i] = 0.0
             continue
-        cs.offset[i] = min(cs.offset[i], -gap)
+        cs.offset[i] = min(cs.offset[i], -gap)  # the depth not rendered (install.carried_in)
         active += 1
         if k == 0 and -gap > ws.penetration:
             ws.penetration = -gap
