@@ -40,7 +40,6 @@ from haptic_local_model.haptic_server.mailbox import (
     push_row,
 )
 from haptic_local_model.haptic_server.paced import (
-    RETURNED_NOISE,
     RETURNED_TO_PYTHON,
     loop_record,
     open_tick,
@@ -53,6 +52,7 @@ from haptic_local_model.haptic_server.realtime import (
 )
 from haptic_local_model.haptic_server.sidecar import LoopIO
 from haptic_local_model.haptic_server.supervisor import Event, TickEvents, WatchdogClock, supervise
+from haptic_local_model.haptic_server.world import RETURN_EVERY_NS, drive_paced
 from haptic_local_model.shared.config import SceneConfig, UserConfig
 from haptic_local_model.shared.net.config import NetworkConfig
 from haptic_local_model.shared.protocol.codes import Fault
@@ -75,10 +75,6 @@ MAX_UPDATES_PER_TICK = 8
 # pause), everything that arrived meanwhile is judged in that tick before silence is: up to
 # the mailbox (~10 us each), once per such stall
 WINDOW_TICKS = 600_000  # percentiles over the newest 10 min at 1 kHz
-# the compiled paced loop hands back to Python this often (signals, stop requests): each return
-# costs Python work between two ticks, which at 10 kHz eats into a 100 us period (haptic-run
-# --haptic-rate 10000, 5 interleaved pairs: overruns median 183 every 10 ms, 113 every 50 ms)
-RETURN_EVERY_NS = 50_000_000
 IO_CHECK_S = 0.05  # how often the loop's Python side looks whether its I/O process is awake
 
 
@@ -349,16 +345,12 @@ class HapticServer:
             (local_world(engine, loop, ring_io), local_windows(ring_io), ring) if compiled else ()
         )
         fault_state = engine.state["fault"]
-        fault_seen = loop["fault_reported"]
-        check_io_at = 0
+        self._fault_seen = fault_seen = loop["fault_reported"]
+        self._check_io_at = 0
         while True:
             if compiled and not (self._stop or supervisor.stopping):
-                status = self._burst(supervisor, loop, burst_io, ts)
-                if fault_state[0] != fault_seen[0]:
-                    self._report_fault(io, int(tick_count[0]) - 1, fault_seen)
-                if int(tick_count[0]) >= check_io_at:
-                    check_io_at = int(tick_count[0]) + self._io_check_ticks
-                    self._check_io(io, int(tick_count[0]), supervisor)
+                status = self._burst(io, supervisor, loop, burst_io, ts)
+                self._after_burst(io, int(tick_count[0]), supervisor)
                 if status == RETURNED_TO_PYTHON:
                     continue  # between two ticks: signals, then the next burst
             else:
@@ -391,8 +383,8 @@ class HapticServer:
             push_row(ring, ctl, row, lateness_window, work_window, peaks)
             if fault_state[0] != fault_seen[0]:
                 self._report_fault(io, tick, fault_seen)
-            if tick >= check_io_at:
-                check_io_at = tick + self._io_check_ticks
+            if tick >= self._check_io_at:
+                self._check_io_at = tick + self._io_check_ticks
                 self._check_io(io, tick, supervisor)
             tick_count[0] = tick + 1
             work_v[0] = (time.perf_counter_ns() - now) / 1e3
@@ -433,13 +425,28 @@ class HapticServer:
         trips[tag] = trips.get(tag, 0) + 1
         io.event(tick, Event.FAULT, f"{tag}: device to the safe state until the next update")
 
+    def _after_burst(self, io: LoopIO, tick: int, supervisor: WatchdogClock) -> None:
+        """Between two ticks after compiled ones (`tick`: the next): a fault they brought
+        reported, the I/O process looked at when due."""
+        if self.engine.state[0]["fault"] != self._fault_seen[0]:
+            self._report_fault(io, tick - 1, self._fault_seen)
+        if tick >= self._check_io_at:
+            self._check_io_at = tick + self._io_check_ticks
+            self._check_io(io, tick, supervisor)
+
     def _burst(
-        self, supervisor: WatchdogClock, loop: np.ndarray, burst_io: tuple[Any, ...], ts: np.ndarray
+        self,
+        io: LoopIO,
+        supervisor: WatchdogClock,
+        loop: np.ndarray,
+        burst_io: tuple[Any, ...],
+        ts: np.ndarray,
     ) -> int:
-        """Run quiet ticks compiled (local_paced) until one needs this side (that tick is left
-        opened) or until it is time to look at signals or to report a fault (between two
-        ticks); a spent noise block is refilled for the opened tick, which then runs
-        compiled. burst_io: local_paced's world, windows and ring. Returns the status."""
+        """Run quiet ticks compiled (local_paced, driven by drive_paced) until one needs this
+        side (that tick is left opened), or, between two ticks, a stop is asked (every
+        RETURN_EVERY_NS, or after a tick that brought a fault, which is reported there); a
+        spent noise block is refilled for the opened tick, which then runs compiled.
+        burst_io: local_paced's world, windows and ring. Returns the status."""
         engine, stats = self.engine, self.stats
         sim = engine.sim_device
         assert sim is not None
@@ -450,10 +457,19 @@ class HapticServer:
         lp["newest_seq"], lp["newest_age_ms"] = self._newest_seq, self._newest_age_ms
         lp["age_count"], lp["received"], lp["installed"] = stats.update_age_ms.count, 0, 0
         world, windows, ring = burst_io
-        status = local_paced(world, ring, loop, windows, ts)
-        while status == RETURNED_NOISE:
-            refill_noise(sim.noise, sim.records, float(lp["dt"]))
-            status = local_paced(world, ring, loop, windows, ts)
+
+        def between() -> bool:
+            self._after_burst(io, int(lp["tick"]), supervisor)
+            if self._stop or supervisor.stopping:  # the stop ramp is the supervisor's, in Python
+                return False
+            lp["return_at_ns"] = lp["deadline_ns"] + RETURN_EVERY_NS
+            return True
+
+        status = drive_paced(
+            lambda: local_paced(world, ring, loop, windows, ts),
+            lambda: refill_noise(sim.noise, sim.records, float(lp["dt"])),
+            between,
+        )
         lp = loop[0]
         supervisor.trip_at_ns, supervisor.last_valid_ns = (
             int(lp["trip_at_ns"]),
@@ -464,7 +480,7 @@ class HapticServer:
         stats.updates_installed += int(lp["installed"])
         stats.update_age_ms.filled(int(lp["age_count"]), float(lp["age_max"]))
         engine.set_update(self._newest_seq, self._newest_age_ms)
-        return int(status)
+        return status
 
     def _open_io(self, cpu: int | None, period_ns: int) -> LoopIO:
         """Start the I/O sidecar (Zenoh session, MCAP writer) and map its shared memory; it

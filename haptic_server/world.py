@@ -20,9 +20,10 @@ The runners are written once for every world:
 
 The single-device engine (a local model, a god-object, from a sim's updates; engine.py) is a
 world too on the virtual clock, its sim's steps and updates its feed (harness.virtual); on
-the wall clock its supervisor (haptic_server.loop) drives the same paced_ticks over the
+the wall clock its supervisor (haptic_server.loop) runs the same paced_ticks over the
 local model's kind (haptic_server.realtime: its hook hands a tick that needs the supervisor
-back to Python, its burst writes its rows into the sidecar's ring).
+back to Python, its burst writes its rows into the sidecar's ring) through the same Python
+side, `drive_paced`.
 """
 
 from __future__ import annotations
@@ -41,7 +42,6 @@ from haptic_local_model.haptic_server.paced import (
     PEAK_LATE,
     PEAK_LATE_TICK,
     PEAK_WORK,
-    RETURNED_DONE,
     RETURNED_NOISE,
     RETURNED_TO_PYTHON,
     loop_record,
@@ -53,7 +53,10 @@ from haptic_local_model.shared.timing import SampleWindow, enter_loop, paced_fig
 Replay = Callable[[Any, list[tuple[float, float, float]], np.ndarray], tuple[int, int | None]]
 
 SPIN_NS = 100_000  # the real-time runner spins this long before each deadline
-RETURN_EVERY_NS = 50_000_000  # the real-time runner's compiled loop returns this often
+# the compiled paced loop hands back to Python this often (signals, stop requests): each return
+# costs Python work between two ticks, which at 10 kHz eats into a 100 us period (haptic-run
+# --haptic-rate 10000, 5 interleaved pairs: overruns median 183 every 10 ms, 113 every 50 ms)
+RETURN_EVERY_NS = 50_000_000
 
 
 class Compiled(NamedTuple):
@@ -203,6 +206,25 @@ def paced_loop(period_ns: int) -> np.ndarray:
     return loop
 
 
+def drive_paced(
+    entry: Callable[[], int], refill: Callable[[], None], between: Callable[[], bool]
+) -> int:
+    """The one Python side of the compiled paced loop (paced_ticks), for every world that
+    runs in this process, the local model's included: `entry()` enters a kind's entry point
+    on its arguments. A spent noise block (RETURNED_NOISE) is refilled by `refill()` for the
+    opened tick, and the loop entered again; between two ticks (RETURNED_TO_PYTHON)
+    `between()` does what waits there and says whether to go on (it sets `return_at_ns`,
+    when the loop is next back). Returns the status that ended it: RETURNED_DONE,
+    RETURNED_SUPERVISE (the opened tick is the caller's), or RETURNED_TO_PYTHON when
+    `between()` said stop."""
+    while True:
+        status = int(entry())
+        if status == RETURNED_NOISE:
+            refill()
+        elif status != RETURNED_TO_PYTHON or not between():
+            return status
+
+
 def run_paced(
     world: PortWorld,
     rows: np.ndarray,
@@ -210,31 +232,35 @@ def run_paced(
     times: PacedTimes,
     stopped: Callable[[], bool],
 ) -> int:
-    """The compiled paced loop (paced_ticks) over rows from `loop`'s deadline (its first
-    tick's) until every row is run or `stopped()` (asked between two ticks, at least every
-    RETURN_EVERY_NS): a device's spent noise block refilled for the tick it stopped at, the
-    next blocks drawn ahead in the slack after a tick (draw_ahead). The blocks drawn ahead."""
+    """A port world's rows run by the compiled paced loop (drive_paced) from `loop`'s
+    deadline (its first tick's) until every row is run or `stopped()` (asked between two
+    ticks, at least every RETURN_EVERY_NS): a device's spent noise block refilled for the
+    tick it stopped at, the next blocks drawn ahead in the slack after a tick (draw_ahead).
+    The blocks drawn ahead."""
     lp = loop[0]
     lp["stop_tick"] = rows.shape[0]
     kernels = world.compiled
     windows, ts = times.windows, np.zeros(2, np.int64)
-    drawn, status = 0, RETURNED_TO_PYTHON
-    while True:
-        if status == RETURNED_NOISE:
-            for dev in world.devices:
-                refill_noise(dev.noise, dev.records, world.period_s)
-            lp["return_at_ns"] = 0  # back after that tick: the next blocks drawn in its slack
-        elif stopped():
-            break
-        else:
-            ahead = draw_ahead(world)
-            drawn += ahead
-            lp["return_at_ns"] = 0 if ahead else time.perf_counter_ns() + RETURN_EVERY_NS
-        status = kernels.paced(kernels.records, rows, loop, windows, ts)
-        if status == RETURNED_DONE:
-            break
+    drawn = [0]
+
+    def refill() -> None:
+        for dev in world.devices:
+            refill_noise(dev.noise, dev.records, world.period_s)
+        lp["return_at_ns"] = 0  # back after that tick: the next blocks drawn in its slack
+
+    def between() -> bool:
+        if stopped():
+            return False
+        ahead = draw_ahead(world)
+        drawn[0] += ahead
+        lp["return_at_ns"] = 0 if ahead else time.perf_counter_ns() + RETURN_EVERY_NS
+        return True
+
+    if between():
+        drive_paced(lambda: kernels.paced(kernels.records, rows, loop, windows, ts), refill,
+                    between)  # fmt: skip
     times.ran(int(lp["tick"]))
-    return drawn
+    return drawn[0]
 
 
 def compile_paced(world: PortWorld) -> None:

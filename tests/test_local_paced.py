@@ -32,6 +32,7 @@ from haptic_local_model.haptic_server.paced import (
 )
 from haptic_local_model.haptic_server.realtime import local_paced, local_windows, local_world
 from haptic_local_model.haptic_server.simulated import run_ticks
+from haptic_local_model.haptic_server.world import drive_paced
 from haptic_local_model.shared.config import load_scene, load_user
 
 NEVER = np.iinfo(np.int64).max
@@ -60,16 +61,46 @@ class Local:
         self.ts = np.zeros(2, np.int64)
 
     def run(self) -> int:
-        """local_paced until it returns other than for a spent noise block (refilled)."""
+        """local_paced, driven as the loop drives it (drive_paced), until it returns other
+        than for a spent noise block (refilled at the opened tick's dt)."""
         engine, ring_io = self.engine, self.ring_io
         world, windows = local_world(engine, self.loop, ring_io), local_windows(ring_io)
         sim = engine.sim_device
         assert sim is not None
-        while True:
-            status = int(local_paced(world, ring_io[0], self.loop, windows, self.ts))
-            if status != RETURNED_NOISE:
-                return status
-            refill_noise(sim.noise, sim.records, float(self.loop[0]["dt"]))
+        return drive_paced(
+            lambda: local_paced(world, ring_io[0], self.loop, windows, self.ts),
+            lambda: refill_noise(sim.noise, sim.records, float(self.loop[0]["dt"])),
+            lambda: False,
+        )
+
+
+@pytest.mark.parametrize(
+    ("statuses", "goes_on", "ended", "refills", "asked"),
+    [
+        ([RETURNED_NOISE, RETURNED_NOISE, RETURNED_DONE], True, RETURNED_DONE, 2, 0),
+        ([RETURNED_TO_PYTHON, RETURNED_NOISE, RETURNED_SUPERVISE], True, RETURNED_SUPERVISE, 1, 1),
+        ([RETURNED_TO_PYTHON, RETURNED_TO_PYTHON, RETURNED_DONE], True, RETURNED_DONE, 0, 2),
+        ([RETURNED_NOISE, RETURNED_TO_PYTHON, RETURNED_DONE], False, RETURNED_TO_PYTHON, 1, 1),
+    ],
+)
+def test_the_paced_loop_s_python_side_refills_asks_between_ticks_and_returns_the_rest(
+    statuses, goes_on, ended, refills, asked
+):
+    """drive_paced, the one Python side of the compiled loop for every world: a spent noise
+    block refilled and the loop entered again; between two ticks, `between` asked whether
+    to go on; the rows all run or a tick for the supervisor returned as they are."""
+    script, seen = iter(statuses), {"refill": 0, "between": 0}
+
+    def between() -> bool:
+        seen["between"] += 1
+        return goes_on
+
+    def refill() -> None:
+        seen["refill"] += 1
+
+    assert drive_paced(lambda: next(script), refill, between) == ended
+    assert seen == {"refill": refills, "between": asked}
+    assert list(script) == statuses[statuses.index(ended) + 1 :]  # not entered again
 
 
 def test_the_local_loop_runs_the_engine_s_ticks_into_the_ring():
