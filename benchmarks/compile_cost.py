@@ -1,10 +1,11 @@
 """Where a cold start's compile time goes: per kernel, per compiler pass, per LLVM level.
 
 For each `--opt` level (numba's NUMBA_OPT, 3 by default), one process on a fresh, empty
-numba cache compiles a run's kernels as the warm-up does (harness.warmup.run_groups: its sim
-and rendering, then its real-time loop), one group after the other so that every second is
-attributed, and records numba's compile events (numba.core.event: "numba:compile", one a
-kernel compiled, and "numba:run_pass", one a compiler pass). A kernel's or a pass's own time
+numba cache compiles a run's kernels as the warm-up does (harness.warmup.run_groups: its two
+groups, the rendering and update kernels, then the sim's and the real-time loop's), one
+group after the other so that every second is attributed, and records numba's compile
+events (numba.core.event: "numba:compile", one a kernel compiled, and "numba:run_pass",
+one a compiler pass). A kernel's or a pass's own time
 is its events' time less that of the compiles nested in it (numba compiles a callee while
 it types its caller), so the figures add up to the compiling wall time. It prints each
 level's wall time per group, the kernels with the most time of their own and the passes'

@@ -77,10 +77,10 @@ def test_the_demo_warms_the_run_make_demo_starts() -> None:
     defaults = parser.parse_args([])
     scene, device, user, _ = warmup.DEMO_RUN
     assert (defaults.scene, defaults.device, defaults.user) == (scene, device, user)
-    (_, run), (_, loop) = warmup.run_groups(warmup.DEMO_RUN)
-    assert isinstance(run, partial) and run.args == ([warmup.DEMO_RUN],)
-    assert isinstance(loop, partial) and loop.func is warmup._loop_kernels
-    assert loop.args == ([device],)
+    (_, updates), (_, loop) = warmup.run_groups(warmup.DEMO_RUN)
+    assert isinstance(updates, partial) and updates.func is warmup._updates_lane
+    assert isinstance(loop, partial) and loop.func is warmup._loop_lane
+    assert updates.args == loop.args == (warmup.DEMO_RUN,)
 
 
 def test_a_cold_run_compiles_first_once_and_says_where(

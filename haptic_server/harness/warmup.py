@@ -23,6 +23,8 @@ from functools import partial
 from pathlib import Path
 from typing import Any, TextIO
 
+import numba
+
 from haptic_local_model.device_models.registry import (
     installed_models,
     load_device,
@@ -35,12 +37,14 @@ from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
 from haptic_local_model.haptic_server.mailbox import compile_loop_kernels
 from haptic_local_model.haptic_server.realtime import compile_realtime_kernels
 from haptic_local_model.haptic_server.shared_world import SharedWorld
+from haptic_local_model.haptic_server.stages.tick import finger_tick, haptic_tick
 from haptic_local_model.haptic_server.station import Station
 from haptic_local_model.haptic_server.world import compile_paced
 from haptic_local_model.haptic_server.world_runs import port_scene
 from haptic_local_model.shared.config import load_scene, load_user
 from haptic_local_model.shared.net.stations import load_station_network
 from haptic_local_model.shared.port_config import load_hand_scene, load_port_scene
+from haptic_local_model.sim_server.world import warm_kernels as warm_sim_kernels
 
 #: (scene, user, seconds) run with the ideal device: every rendering stage and the sim
 SCENE_RUNS = (
@@ -127,13 +131,52 @@ DEMO_RUN: Run = ("testbed", "ideal", "swing", 1.0)
 ALL_WARMED = "all"
 
 
+def _engine(run: Run, real: bool = False) -> HapticEngine:
+    """An engine of the run's scene, device and user (its device as a server loads it with
+    `real`, else the simulated model), for compiling on."""
+    device = load_device(run[1]) if real else load_simulated_device(run[1])
+    return HapticEngine(load_scene(run[0]), device, load_user(run[2]))
+
+
+def _method_tick(run: Run, method_tick: Any) -> None:
+    """A rendering method's tick (stages.tick: the god-object's or the local model's, each
+    run's step calls either) compiled on the run's records, not run."""
+    engine = _engine(run)
+    method_tick.compile((numba.typeof(engine.model), numba.typeof(engine.data)))
+
+
+def _updates_lane(run: Run) -> None:
+    """The god-object's tick, the update's parser and install, the real-time loop's
+    mailbox and ring; then the run on the virtual clock (what is left: its burst)."""
+    _method_tick(run, finger_tick)
+    _engine(run).receive(bytes(8))  # the parser and the install route (rejected: too short)
+    compile_loop_kernels(_engine(run, real=True))
+    _run_virtual([run])
+
+
+def _loop_lane(run: Run) -> None:
+    """The local model's tick, the sim's kernels, the engine's step and the real-time loop
+    (its compiled paced loop over the local model's kind, the device's physics in it)."""
+    _method_tick(run, haptic_tick)
+    warm_sim_kernels(load_scene(run[0]))
+    engine = _engine(run)
+    engine.clock[0]["ready"] = 1  # the stages run on the empty model
+    engine.tick(engine.dt_nominal)
+    compile_realtime_kernels(_engine(run, real=True))
+
+
 def run_groups(run: Run) -> list[tuple[str, Callable[[], None]]]:
-    """One run's kernels: its sim and rendering, and its real-time loop."""
+    """One run's kernels in two groups of about the same compiling time, so that on two
+    cores (LANES) neither waits for, or compiles again, what the other compiles first: the
+    god-object's tick, the update's parser and the mailbox (then the virtual run loads
+    them); the local model's tick, the sim, the engine's step that calls both ticks
+    (loaded by then) and the real-time loop. One after the other, the same kernels."""
     scene, device = Path(run[0]).stem, Path(run[1]).stem
     return [
-        (f"sim + rendering kernels, {scene} scene", partial(_run_virtual, [run])),
-        (f"real-time loop kernels: {device} device", partial(_loop_kernels, [run[1]])),
-    ]
+        (f"rendering and update kernels, {scene} scene", partial(_updates_lane, run)),
+        (f"sim and real-time loop kernels: {scene} scene, {device} device",
+         partial(_loop_lane, run)),
+    ]  # fmt: skip
 
 
 def warm_groups(run: Run | None = None) -> list[tuple[str, Callable[[], None]]]:
