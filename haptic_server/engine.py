@@ -565,6 +565,7 @@ def warm_kernels(
     if engine.sim_device is not None:
         engine.sim_device.true_state(np.zeros(3), np.zeros(3))
         engine.sim_device.reset(np.zeros(3))
+        engine.sim_device.safe_stop()  # the loop's at the run's end (compiled then otherwise)
     engine._joint_velocity(engine.slots[0], np.zeros(3))
     min_norm_least_squares(np.eye(3, MAX_DOF), 3, 3, np.zeros(3), np.zeros(MAX_DOF))
     restart_finger(engine.data[0], 0.0, 0.0)  # a god-object's re-initialisation

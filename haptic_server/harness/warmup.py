@@ -44,6 +44,7 @@ from haptic_local_model.haptic_server.world_runs import port_scene
 from haptic_local_model.shared.config import load_scene, load_user
 from haptic_local_model.shared.net.stations import load_station_network
 from haptic_local_model.shared.port_config import load_hand_scene, load_port_scene
+from haptic_local_model.shared.protocol.update import UpdateParser
 from haptic_local_model.sim_server.world import warm_kernels as warm_sim_kernels
 
 #: (scene, user, seconds) run with the ideal device: every rendering stage and the sim
@@ -77,11 +78,13 @@ def _run_virtual(runs: list[tuple[str, str, str, float]]) -> None:
 
 
 def _loop_kernels(configs: list[str] | None = None) -> None:
-    """The real-time loop's kernels, per device model (every built-in one by default)."""
+    """The real-time loop's kernels, per device model (every built-in one by default), and
+    the update's parser as its log writer calls it."""
     for config in built_in_models() if configs is None else configs:
         engine = HapticEngine(load_scene("testbed"), load_device(config), load_user("swing"))
         compile_loop_kernels(engine)
         compile_realtime_kernels(engine)
+    UpdateParser().parse(bytes(8))
 
 
 def _station_kernels() -> None:
@@ -146,10 +149,12 @@ def _method_tick(run: Run, method_tick: Any) -> None:
 
 
 def _updates_lane(run: Run) -> None:
-    """The god-object's tick, the update's parser and install, the real-time loop's
-    mailbox and ring; then the run on the virtual clock (what is left: its burst)."""
+    """The god-object's tick, the update's parser and install (and the parser called from
+    Python, as the log writer decodes each update), the real-time loop's mailbox and ring;
+    then the run on the virtual clock (what is left: its burst)."""
     _method_tick(run, finger_tick)
     _engine(run).receive(bytes(8))  # the parser and the install route (rejected: too short)
+    UpdateParser().parse(bytes(8))  # the parser as the log writer calls it, from Python
     compile_loop_kernels(_engine(run, real=True))
     _run_virtual([run])
 
