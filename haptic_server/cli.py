@@ -118,8 +118,7 @@ def main(argv: list[str] | None = None) -> int:
             return EXIT_LOG_FAILED
         return 0
 
-    code = run_main(body)
-    return done_with_signals(code) if argv is None else code  # a process of its own
+    return done_with_signals(run_main(body), argv)
 
 
 if __name__ == "__main__":

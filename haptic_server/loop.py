@@ -350,7 +350,6 @@ class HapticServer:
         while True:
             if compiled and not (self._stop or supervisor.stopping):
                 status = self._burst(io, supervisor, loop, burst_io, ts)
-                self._after_burst(io, int(tick_count[0]), supervisor)
                 if status == RETURNED_TO_PYTHON:
                     continue  # between two ticks: signals, then the next burst
             else:
@@ -427,7 +426,9 @@ class HapticServer:
 
     def _after_burst(self, io: LoopIO, tick: int, supervisor: WatchdogClock) -> None:
         """Between two ticks after compiled ones (`tick`: the next): a fault they brought
-        reported, the I/O process looked at when due."""
+        reported, the I/O process looked at when due. (The compiled loop comes back between
+        two ticks after any tick that brought a fault, before it hands a tick to the
+        supervisor; a tick the supervisor runs looks at the I/O process itself.)"""
         if self.engine.state[0]["fault"] != self._fault_seen[0]:
             self._report_fault(io, tick - 1, self._fault_seen)
         if tick >= self._check_io_at:

@@ -157,14 +157,17 @@ def print_shipped(extra: Sequence[str] = ()) -> None:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
 
-def done_with_signals(code: int) -> int:
-    """A server's or haptic-run's process has done its work (its log closed, its summary
-    written): a SIGTERM or SIGINT during its exit must not kill it with -15 and turn a clean
-    stop into a failure. Python restores the default handlers as it finalises, and a
-    teardown of threads and sessions takes long enough for a stop sent as the run ends
-    to land in it; ignored handlers are left as they are. Returns `code`."""
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+def done_with_signals(code: int, argv: list[str] | None) -> int:
+    """A server's or haptic-run's main has done its work (its log closed, its summary
+    written): as a process of its own (`argv` None: its arguments are the command line's), a
+    SIGTERM or SIGINT during its exit must not kill it with -15 and turn a clean stop into a
+    failure. Python restores the default handlers as it finalises, and a teardown of
+    threads and sessions takes long enough for a stop sent as the run ends to land in it;
+    ignored handlers are left as they are. Called in another program's process (`argv`
+    given), its handlers are left alone. Returns `code`."""
+    if argv is None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     return code
 
 

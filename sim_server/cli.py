@@ -79,8 +79,7 @@ def main(argv: list[str] | None = None) -> int:
             return EXIT_FAILED
         return 0
 
-    code = run_main(body)
-    return done_with_signals(code) if argv is None else code  # a process of its own
+    return done_with_signals(run_main(body), argv)
 
 
 def _mirror(args: argparse.Namespace) -> int:

@@ -437,8 +437,7 @@ def main(argv: list[str] | None = None) -> int:
             summary = run_virtual_clock(args) if args.clock == "virtual" else run_real_time(args)
             return _finish(args, summary)
 
-    code = run_main(body)
-    return done_with_signals(code) if argv is None else code  # a process of its own
+    return done_with_signals(run_main(body), argv)
 
 
 def _finish(args: argparse.Namespace, summary: dict[str, Any]) -> int:
