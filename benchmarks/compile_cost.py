@@ -2,7 +2,7 @@
 
 For each `--opt` level (numba's NUMBA_OPT, 3 by default), one process on a fresh, empty
 numba cache compiles a run's kernels as the warm-up does (harness.warmup.run_groups: its two
-groups, the rendering and update kernels, then the sim's and the real-time loop's), one
+groups, the sim's and the update's kernels, then the rendering and real-time loop's), one
 group after the other so that every second is attributed, and records numba's compile
 events (numba.core.event: "numba:compile", one a kernel compiled, and "numba:run_pass",
 one a compiler pass). A kernel's or a pass's own time

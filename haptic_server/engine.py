@@ -11,6 +11,7 @@ import itertools
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -42,7 +43,11 @@ from haptic_local_model.haptic_server.stages.install import (
     EPOCH_LAW_LIVE,
     accept_update,
 )
-from haptic_local_model.haptic_server.stages.tick import engine_step, store_applied
+from haptic_local_model.haptic_server.stages.tick import (
+    engine_step,
+    method_marker,
+    store_applied,
+)
 from haptic_local_model.haptic_server.stages.train import restart_train, train_model
 from haptic_local_model.haptic_server.users import USER_GIVEN, USER_POINTER, user_record
 from haptic_local_model.haptic_server.world import WorldKind
@@ -184,7 +189,11 @@ class HapticEngine:
         # a hand that follows a pointer: its targets arrive through the real-time server's
         # I/O sidecar (share_user); anywhere else it holds where it took hold
         self.follows_pointer = bool(self.user[0]["kind"] == USER_POINTER)
-        self.recs = (self.model, self.data, self.io, self.world_map, self.clock)
+        # the compiled step's records; the last, the method as a type, picks its tick
+        self.recs = (
+            self.model, self.data, self.io, self.world_map, self.clock, method_marker(self.method)
+        )  # fmt: skip
+        self.loop_recs = (*self.recs, self.install)  # and the install's: the loop's kernels'
         self._true_pose = np.zeros(3)
         self._true_twist = np.zeros(3)
         self.counters = EngineCounters(self.install)
@@ -226,7 +235,8 @@ class HapticEngine:
         real-time server does the same from its mailbox (`haptic_server.mailbox`,
         `take_updates`), then calls `installed`.
         """
-        code = int(accept_update(buf, nbytes, latency_s, self.model, self.data, self.install))
+        god = self.recs[-1]
+        code = int(accept_update(buf, nbytes, latency_s, self.model, self.data, self.install, god))
         if code:
             self.counters.reject_counts[code] += 1
             return code
@@ -483,7 +493,7 @@ class HapticEngine:
         if sim is None:
             dev = self.device
             dev.read(self.sensors)
-            engine_step(*self.recs, dt, lateness_us, work_us)
+            engine_step(self.recs, dt, lateness_us, work_us)
             store_applied(self.world_map, dev.command(self._command), self.data)
             return self.row
         user = self.user
@@ -494,6 +504,12 @@ class HapticEngine:
             refill_noise(sim.noise, sim.records, dt)  # raises if a block cannot cover dt
             simulated_tick(self.recs, sim.records, user, dt, lateness_us, work_us)
         return self.row
+
+    def loop_recs_copy(self) -> tuple[Any, ...]:
+        """A copy of each record of `loop_recs` (the method marker as it is: a type), to
+        compile the loop's kernels on without touching the engine's."""
+        marker = self.recs[-1]
+        return (*(r.copy() for r in self.recs[:-1]), marker, self.install.copy())
 
     def set_update(self, seq: int, age_ms: float) -> None:
         """The newest installed update's seq and age, for the rows of the ticks that follow."""

@@ -282,7 +282,7 @@ def age_s(now_ns, published_ns):
 
 
 @njit(cache=True)
-def take_updates(ctl, mailbox, tick, now_ns, budget, model, data, install):
+def take_updates(ctl, mailbox, tick, now_ns, budget, recs):
     """Validate and install the updates waiting in the mailbox, oldest first, in one call.
 
     Takes up to `budget` updates, and stops after an install that needs the engine's Python
@@ -291,8 +291,10 @@ def take_updates(ctl, mailbox, tick, now_ns, budget, model, data, install):
     publish -> now latency it was installed with go next to its update in the mailbox (the
     log writer logs them, so a replay is exact); only then is the update marked read (the
     writer and the Zenoh thread read the mark). Returns (taken, installed, follow-up
-    needed, seq of the newest install, its latency in s).
+    needed, seq of the newest install, its latency in s). recs is the engine's `loop_recs`
+    (its step's records and its install record).
     """
+    model, data, god, install = recs[0], recs[1], recs[5], recs[6]
     ins = install[0]
     ins.bound = load_acquire(ctl, C_SIM_BOUND)  # the sim's liveliness, as the sidecar saw it
     ins.owner = load_acquire(ctl, C_SIM_OWNER)
@@ -310,7 +312,7 @@ def take_updates(ctl, mailbox, tick, now_ns, budget, model, data, install):
         latency = 0.0
         if n >= PUBLISH_TIME_END:
             latency = age_s(now_ns, publish_time_ns(slot.raw))
-        code = accept_update(slot.raw, n, latency, model, data, install)
+        code = accept_update(slot.raw, n, latency, model, data, install, god)
         if code != 0:
             ins.reject_counts[code] += 1
         slot.tick = tick
@@ -339,5 +341,4 @@ def compile_loop_kernels(engine: HapticEngine) -> None:
     ctl[C_UPD_HEAD] = 1
     mailbox = np.zeros(1, MAILBOX_DTYPE)
     mailbox[0]["length"] = 8
-    install = engine.install.copy()
-    take_updates(ctl, mailbox, 0, 0, 1, engine.model.copy(), engine.data.copy(), install)
+    take_updates(ctl, mailbox, 0, 0, 1, engine.loop_recs_copy())

@@ -51,7 +51,7 @@ def _quiet_installs(lp, ring_io, recs, ts):
     """Take the waiting updates that need no Python; False if the tick needs the supervisor
     (the next one may start a new epoch, or the engine awaits a follow-up)."""
     ctl, mailbox, age_window = ring_io[1], ring_io[2], ring_io[5]
-    model, data, clock, install = recs[0], recs[1], recs[4], recs[5]
+    data, clock, install = recs[1], recs[4], recs[6]
     ins = install[0]
     taken = 0
     while taken < lp.budget:
@@ -64,7 +64,7 @@ def _quiet_installs(lp, ring_io, recs, ts):
         if ins.epoch_law != EPOCH_LAW_LIVE and epoch_of(slot.raw, slot.length) != ins.epoch:
             return False  # the update may begin an epoch (live, another is only rejected)
         n, installed, follow, seq, latency = take_updates(
-            ctl, mailbox, lp.tick, realtime_ns(ts), 1, model, data, install
+            ctl, mailbox, lp.tick, realtime_ns(ts), 1, recs
         )
         taken += n
         lp.received += n
@@ -100,11 +100,11 @@ def local_burst(w, ring, start, stop):
     into the sidecar's `ring` with its timing; the first tick not run (stop, or start when
     the device's noise block needs a refill). After a tick that brought a new fault, the
     loop is to be back in Python (return_at_ns = 0). w: (the engine's records (model, data,
-    io, world_map, clock, install), the device's DeviceRecords, USER_DTYPE[1], the loop
-    record, (ring, ctl, mailbox, lateness window, work window, update-age window, peaks,
-    the engine's row view))."""
+    io, world_map, clock, method marker, install), the device's DeviceRecords,
+    USER_DTYPE[1], the loop record, (ring, ctl, mailbox, lateness window, work window,
+    update-age window, peaks, the engine's row view))."""
     recs, dev, user, lp, ring_io = w[0], w[1], w[2], w[3][0], w[4]
-    tick_recs = (recs[0], recs[1], recs[2], recs[3], recs[4])
+    tick_recs = (recs[0], recs[1], recs[2], recs[3], recs[4], recs[5])
     for k in range(start, stop):
         if not simulated_tick(tick_recs, dev, user, lp.dt, lp.lateness_ns / 1e3, lp.work_prev_us):
             return k
@@ -130,8 +130,7 @@ def local_windows(ring_io: tuple[Any, ...]) -> tuple[np.ndarray, ...]:
 def local_world(engine: Any, loop: np.ndarray, ring_io: tuple[Any, ...]) -> tuple[Any, ...]:
     """local_paced's world: the engine's records, its simulated device's, the user, the
     loop record, the ring's I/O (local_burst)."""
-    recs = (*engine.recs, engine.install)
-    return recs, engine.sim_device.records, engine.user, loop, ring_io
+    return engine.loop_recs, engine.sim_device.records, engine.user, loop, ring_io
 
 
 def compile_realtime_kernels(engine: Any) -> None:
@@ -143,7 +142,7 @@ def compile_realtime_kernels(engine: Any) -> None:
     open_tick(loop, 0)
     if sim is None:
         return
-    copies = tuple(r.copy() for r in (*engine.recs, engine.install))
+    copies = engine.loop_recs_copy()
     dev = tuple(r.copy() for r in sim.records)
     ring_io = (
         np.zeros(2, TICK_DTYPE), np.zeros(N_CTL, np.int64), np.zeros(1, MAILBOX_DTYPE),

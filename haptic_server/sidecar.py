@@ -139,8 +139,7 @@ class LoopIO:
         newest_seq, newest_latency_s = -1, 0.0
         while budget > 0:
             taken, installed, follow, seq, latency_s = take_updates(
-                b.ctl, b.mailbox, tick, time.time_ns(), budget, engine.model, engine.data,
-                engine.install,
+                b.ctl, b.mailbox, tick, time.time_ns(), budget, engine.loop_recs
             )  # fmt: skip
             taken_all += taken
             installed_all += installed

@@ -29,22 +29,22 @@ def simulated_tick(recs, dev, user, dt, lateness_us, work_us):
     """One tick: the hand on the device's true state -> the device's reading -> the engine
     step -> the command held by the device -> the device's physics over dt.
 
-    recs is the engine's (model, data, io, world_map, clock), dev the device's
+    recs is the engine's (model, data, io, world_map, clock, method marker), dev the device's
     DeviceRecords, user a USER_DTYPE[1] (kind USER_GIVEN: the hand is already in io.hand).
     Returns False, having done nothing, if the device's noise block does not cover dt: the
     caller refills it (NoiseBuffer.refill) and calls again."""
     if not device_noise_ready(dev, dt):
         return False
-    model, data, io, world_map, clock = recs
+    io, world_map, clock = recs[2], recs[3], recs[4]
     u = user[0]
     hand = io[0].hand
     device_true_state(dev, u.device_pose, u.device_twist)
     hand_wrench(user, clock[0].t - u.start_s, u.device_pose, u.device_twist, hand)
     device_sense_hand(dev, hand)
     device_read(dev, io[0].sensors)
-    engine_step(model, data, io, world_map, clock, dt, lateness_us, work_us)
+    engine_step(recs, dt, lateness_us, work_us)
     device_command(dev, io[0].command)
-    store_applied(world_map, device_applied(dev), data)
+    store_applied(world_map, device_applied(dev), recs[1])
     device_advance(dev, dt, hand)
     return True
 

@@ -44,9 +44,12 @@ from haptic_local_model.haptic_server.world_runs import port_scene
 from haptic_local_model.shared.config import load_scene, load_user
 from haptic_local_model.shared.net.stations import load_station_network
 from haptic_local_model.shared.port_config import load_hand_scene, load_port_scene
+from haptic_local_model.shared.protocol.codes import Method
 from haptic_local_model.shared.protocol.update import UpdateParser
 from haptic_local_model.sim_server.world import warm_kernels as warm_sim_kernels
 
+#: a god-object scene: each device model's step for that method is compiled on it
+GOD_SCENE = "god_rotating_box"
 #: (scene, user, seconds) run with the ideal device: every rendering stage and the sim
 SCENE_RUNS = (
     ("free_box", "waypoints", 1.0), ("testbed", "swing", 1.0), ("linkage_distal", "push_04n", 1.0),
@@ -66,9 +69,11 @@ def built_in_models() -> list[str]:
 
 def warm_runs() -> list[tuple[str, str, str, float]]:
     """The virtual-clock runs that compile everything: (scene, device config, user, s).
-    Every registered device model runs the FOH scene, so its kernels are in the cache."""
+    Every registered device model runs the FOH scene and a god-object's, so its kernels
+    for either rendering method (a step is compiled per method) are in the cache."""
     runs = [(scene, "ideal", user, s) for scene, user, s in SCENE_RUNS]
-    runs += [("maglev_scoop", config, "scoop", 0.3) for config in built_in_models()]
+    for config in built_in_models():
+        runs += [("maglev_scoop", config, "scoop", 0.3), (GOD_SCENE, config, "press_down", 0.3)]
     return runs
 
 
@@ -81,9 +86,10 @@ def _loop_kernels(configs: list[str] | None = None) -> None:
     """The real-time loop's kernels, per device model (every built-in one by default), and
     the update's parser as its log writer calls it."""
     for config in built_in_models() if configs is None else configs:
-        engine = HapticEngine(load_scene("testbed"), load_device(config), load_user("swing"))
-        compile_loop_kernels(engine)
-        compile_realtime_kernels(engine)
+        for scene in ("testbed", GOD_SCENE):  # either rendering method's loop
+            engine = HapticEngine(load_scene(scene), load_device(config), load_user("swing"))
+            compile_loop_kernels(engine)
+            compile_realtime_kernels(engine)
     UpdateParser().parse(bytes(8))
 
 
@@ -141,45 +147,46 @@ def _engine(run: Run, real: bool = False) -> HapticEngine:
     return HapticEngine(load_scene(run[0]), device, load_user(run[2]))
 
 
-def _method_tick(run: Run, method_tick: Any) -> None:
-    """A rendering method's tick (stages.tick: the god-object's or the local model's, each
-    run's step calls either) compiled on the run's records, not run."""
+def _method_tick(run: Run) -> None:
+    """The run's rendering method's tick (stages.tick: the god-object's or the local
+    model's, the only one its step calls) compiled on the run's records, not run."""
     engine = _engine(run)
+    method_tick = finger_tick if engine.method == Method.GOD_OBJECT else haptic_tick
     method_tick.compile((numba.typeof(engine.model), numba.typeof(engine.data)))
 
 
 def _updates_lane(run: Run) -> None:
-    """The god-object's tick, the update's parser and install (and the parser called from
-    Python, as the log writer decodes each update), the real-time loop's mailbox and ring;
-    then the run on the virtual clock (what is left: its burst)."""
-    _method_tick(run, finger_tick)
+    """The sim's kernels, the update's parser and install (and the parser called from
+    Python, as the log writer decodes each update); then the run on the virtual clock (what
+    is left: its burst, over the step the other lane compiled by then)."""
+    warm_sim_kernels(load_scene(run[0]))
     _engine(run).receive(bytes(8))  # the parser and the install route (rejected: too short)
     UpdateParser().parse(bytes(8))  # the parser as the log writer calls it, from Python
-    compile_loop_kernels(_engine(run, real=True))
     _run_virtual([run])
 
 
 def _loop_lane(run: Run) -> None:
-    """The local model's tick, the sim's kernels, the engine's step and the real-time loop
-    (its compiled paced loop over the local model's kind, the device's physics in it)."""
-    _method_tick(run, haptic_tick)
-    warm_sim_kernels(load_scene(run[0]))
+    """The rendering method's tick, the engine's step around it, the real-time loop's
+    mailbox and ring, and the real-time loop (its compiled paced loop over the local
+    model's kind, the device's physics in it)."""
+    _method_tick(run)
     engine = _engine(run)
     engine.clock[0]["ready"] = 1  # the stages run on the empty model
     engine.tick(engine.dt_nominal)
+    compile_loop_kernels(_engine(run, real=True))
     compile_realtime_kernels(_engine(run, real=True))
 
 
 def run_groups(run: Run) -> list[tuple[str, Callable[[], None]]]:
     """One run's kernels in two groups of about the same compiling time, so that on two
     cores (LANES) neither waits for, or compiles again, what the other compiles first: the
-    god-object's tick, the update's parser and the mailbox (then the virtual run loads
-    them); the local model's tick, the sim, the engine's step that calls both ticks
-    (loaded by then) and the real-time loop. One after the other, the same kernels."""
+    sim, the update's parser and install (then the virtual run, whose step the other has
+    compiled by then); the method's tick, the engine's step, the mailbox and the real-time
+    loop. One after the other, the same kernels."""
     scene, device = Path(run[0]).stem, Path(run[1]).stem
     return [
-        (f"rendering and update kernels, {scene} scene", partial(_updates_lane, run)),
-        (f"sim and real-time loop kernels: {scene} scene, {device} device",
+        (f"sim and update kernels, {scene} scene", partial(_updates_lane, run)),
+        (f"rendering and real-time loop kernels: {scene} scene, {device} device",
          partial(_loop_lane, run)),
     ]  # fmt: skip
 

@@ -12,7 +12,7 @@ from numba import njit
 from haptic_local_model.haptic_server.stages.finger import install_finger_shapes
 from haptic_local_model.haptic_server.stages.plausible import check_plausible
 from haptic_local_model.shared.mechanism import body_count
-from haptic_local_model.shared.protocol.codes import Method, Reason
+from haptic_local_model.shared.protocol.codes import Reason
 from haptic_local_model.shared.protocol.layout import (
     DEFAULT_CLOCK_SKEW_MS,
     DEFAULT_MAX_UPDATE_AGE_MS,
@@ -38,13 +38,15 @@ DEFAULT_MAX_SKEW_S = DEFAULT_CLOCK_SKEW_MS / 1e3
 
 
 @njit(cache=True)
-def accept_update(buf, nbytes, age_s, model, data, install):
+def accept_update(buf, nbytes, age_s, model, data, install, god):
     """Parse, validate, order-check and install the update in buf[:nbytes]: 0 or the reason.
 
     age_s is the receiver's clock minus the update's publish time, as it was taken (negative
     if the sim's clock runs ahead): its moving contacts have moved on by that much. The
     epoch and time checks follow install.epoch_law (above). nbytes < 0 or beyond the buffer
-    is a message too large for it (the mailbox marks one so): rejected as SIZE.
+    is a message too large for it (the mailbox marks one so): rejected as SIZE. `god` is
+    the engine's method marker (stages.tick.method_marker): an install compiled for the
+    local model has no god-object's shapes to install.
     """
     ins = install[0]
     if nbytes < 0 or nbytes > buf.shape[0]:
@@ -78,7 +80,8 @@ def accept_update(buf, nbytes, age_s, model, data, install):
         code = check_plausible(u, model[0].slots[0], live, env)
         if code != 0:
             return code
-    install_update(model[0], data[0], ins, new_epoch, min(max(age_s, 0.0), MAX_LATENCY_S))
+    latency_s = min(max(age_s, 0.0), MAX_LATENCY_S)
+    install_update(model[0], data[0], ins, new_epoch, latency_s, god)
     ins.epoch = u.epoch
     ins.seq = u.seq
     ins.ready = 1
@@ -102,7 +105,7 @@ def admit_live(u, age_s, ins):
 
 
 @njit(cache=True)
-def install_update(m, d, ins, new_epoch, latency_s):
+def install_update(m, d, ins, new_epoch, latency_s, god):
     """Make the parsed model the newest slot; the previous one fades out over blend_s (a new
     epoch drops it). The new model's contacts inherit their state by key."""
     if new_epoch:
@@ -116,7 +119,7 @@ def install_update(m, d, ins, new_epoch, latency_s):
     cs.age_s += latency_s
     inherit_contact_state(m.slots[0], cs, m.slots[1], d.contacts[1], ins.match_radius_m)
     d.state.blend = 1.0 if m.slots[1].valid == 0 else 0.0
-    if m.params.method == Method.GOD_OBJECT:
+    if god is not None:  # the god-object's (method_marker)
         # a re-initialisation follows (new epoch, watchdog, fault): no stale shapes to blend
         restart = new_epoch or ins.stale == 1 or d.state.fault != 0
         install_finger_shapes(m, d, restart)

@@ -49,13 +49,24 @@ def haptic_tick(model, data):
     fill_row(m, d)
 
 
+def method_marker(method: int) -> bool | None:
+    """The scene's rendering method as the type the compiled step is specialised on, the
+    last of the engine's records: None for the local model, True for the god-object. numba
+    prunes a branch on an argument tested `is None` before it types the function, so a step
+    compiled for one method holds that method's tick only: a local-model run neither
+    compiles nor loads the god-object's (21 s of a cold start's compiling), nor the other way
+    round."""
+    return True if method == Method.GOD_OBJECT else None
+
+
 @njit(cache=True)
-def rendering_tick(model, data):
-    """The scene's method's tick: the god-object's (finger_tick) or the local model's."""
-    if model[0].params.method == Method.GOD_OBJECT:
-        finger_tick(model, data)
-    else:
+def rendering_tick(model, data, god):
+    """The scene's method's tick: the god-object's (finger_tick; `god` True) or the local
+    model's (`god` None: method_marker)."""
+    if god is None:
         haptic_tick(model, data)
+    else:
+        finger_tick(model, data)
 
 
 @njit(cache=True)
@@ -105,12 +116,15 @@ def begin_tick(data, io, world_map, clock):
 
 
 @njit(cache=True)
-def engine_step(model, data, io, world_map, clock, dt, lateness_us, work_us):
+def engine_step(recs, dt, lateness_us, work_us):
     """One tick in one Python -> numba transition: the reading mapped to the world, the
-    local model and control (haptic_tick), the command mapped back to the device frame and
-    clipped at the device's own limits, then the map's rate-control step (seed 002 §4).
-    dt, lateness_us and work_us are what the loop measured for this tick (arguments, not
-    record fields: a field write from Python costs more than the whole call)."""
+    scene's method's tick (rendering_tick: the local model and control, or the god-object),
+    the command mapped back to the device frame and clipped at the device's own limits, then
+    the map's rate-control step (seed 002 §4). recs is the engine's (model, data, io,
+    world_map, clock, method marker). dt, lateness_us and work_us are what the loop measured
+    for this tick (arguments, not record fields: a field write from Python costs more than
+    the whole call)."""
+    model, data, io, world_map, clock, god = recs
     begin_tick(data, io, world_map, clock)
     d = data[0]
     d.dt = dt
@@ -122,7 +136,7 @@ def engine_step(model, data, io, world_map, clock, dt, lateness_us, work_us):
     r.update_epoch = slot.epoch
     r.dof = slot.dof
     if clock[0].ready == 1:
-        rendering_tick(model, data)
+        rendering_tick(model, data, god)
     dio = io[0]
     map_command_to_device(world_map, r.wrench_command, dio.max_wrench, dio.command)
     map_rate_step(world_map, dio.sensors[0].pose, dt)
