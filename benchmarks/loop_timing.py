@@ -47,8 +47,8 @@ import numpy as np
 from numba import njit
 
 from haptic_local_model.benchmarks.stations import loopback_run
-from haptic_local_model.haptic_server.live_view import ViewAddress
 from haptic_local_model.haptic_server.log import read_ticks
+from haptic_local_model.haptic_server.view_address import ViewAddress
 from haptic_local_model.shared.clock import monotonic_ns, wait_until_ns
 from haptic_local_model.shared.port_config import shipped_station_scenes
 from haptic_local_model.shared.timing import spin_for, try_realtime_priority

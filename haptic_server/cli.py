@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from haptic_local_model.haptic_server.live_view import add_view_args, view_address
+from haptic_local_model.haptic_server.view_address import add_view_args, view_address
 from haptic_local_model.shared.cli import (
     EXIT_FAILED,
     EXIT_LOG_FAILED,
@@ -103,10 +103,12 @@ def main(argv: list[str] | None = None) -> int:
         # the warm-up compiles on a throwaway engine and device: a hardware driver is built
         # once only (building one opens the hardware), its loop's kernels warm on the ideal
         simulated = isinstance(device, SimulatedDevice)
-        server.warm_up(lambda: load_device(args.device if simulated else "ideal"), user)
         summary = server.run(
             args.duration,
             ready=lambda: emit("ready", process="haptic", loop_cpu=server.stats.loop_cpu),
+            warm=lambda: server.warm_up(
+                lambda: load_device(args.device if simulated else "ideal"), user
+            ),
         )
         emit("stopped", process="haptic", **summary)
         if not write_summary(args.summary_json, summary, "haptic-server"):

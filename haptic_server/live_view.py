@@ -15,7 +15,6 @@ reads, and it stops drawing (never the run) if it fails.
 
 from __future__ import annotations
 
-import argparse
 import base64
 import contextlib
 import json
@@ -27,7 +26,6 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -45,18 +43,17 @@ from haptic_local_model.haptic_server.mailbox import (
     RING_TICKS,
     SharedBlock,
 )
+from haptic_local_model.haptic_server.view_address import ViewAddress
 from haptic_local_model.haptic_server.view_board import ViewBoard
 from haptic_local_model.haptic_server.view_degrade import DegradePolicy, InstallGap
 from haptic_local_model.haptic_server.view_world import WorldLayer
-from haptic_local_model.shared.config import BodySpec, ConfigError, static_bodies
+from haptic_local_model.shared.config import BodySpec, static_bodies
 from haptic_local_model.shared.protocol.layout import MAX_DOF
 
 if TYPE_CHECKING:
     from haptic_local_model.haptic_server.log import LogContents
 
 VIEW_HZ = 60.0  # frames a second (of wall time live, of log time in a replay)
-GRPC_PORT = 9876  # Rerun's defaults
-WEB_PORT = 9090
 SERVER_MEMORY = "256MiB"  # what the Rerun server keeps for a browser that connects late
 START_TIMEOUT_S = 20.0
 FORCE_M_PER_N = 0.01  # force arrows: 1 cm per newton (as in the Foxglove channels)
@@ -67,70 +64,6 @@ _DEVICE = (51, 115, 242)
 _PROXY = (242, 89, 51)
 _LINKAGE = (90, 90, 90)
 _CONTACT = (26, 191, 77)
-
-
-@dataclass(frozen=True)
-class ViewAddress:
-    """Where the view is served: the browser opens `url`."""
-
-    bind: str = "127.0.0.1"
-    web_port: int = WEB_PORT
-    grpc_port: int = GRPC_PORT
-
-    @property
-    def host(self) -> str:
-        return "127.0.0.1" if self.bind in ("0.0.0.0", "::") else self.bind
-
-    @property
-    def grpc_url(self) -> str:
-        return f"rerun+http://{self.host}:{self.grpc_port}/proxy"
-
-    @property
-    def url(self) -> str:
-        return f"http://{self.host}:{self.web_port}/?url={self.grpc_url}"
-
-    def argv(self) -> list[str]:
-        """The options (add_view_args) that ask a child for this view."""
-        return [
-            "--view", "--view-port", str(self.web_port), "--view-grpc-port", str(self.grpc_port),
-            "--view-bind", self.bind,
-        ]  # fmt: skip
-
-
-def add_view_args(parser: argparse.ArgumentParser, what: str = "the run") -> None:
-    """--view, --view-port, --view-grpc-port, --view-bind."""
-    parser.add_argument(
-        "--view", action="store_true",
-        help=f"draw {what} live in a browser (Rerun's web viewer; the URL is printed)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--view-port", type=_port, default=WEB_PORT, metavar="PORT",
-        help=f"the view's web page port (default {WEB_PORT})",
-    )  # fmt: skip
-    parser.add_argument(
-        "--view-grpc-port", type=_port, default=GRPC_PORT, metavar="PORT",
-        help=f"the view's data port (default {GRPC_PORT})",
-    )  # fmt: skip
-    parser.add_argument(
-        "--view-bind", default="127.0.0.1", metavar="ADDR",
-        help="the address the view listens on (default 127.0.0.1: this machine only)",
-    )  # fmt: skip
-
-
-def view_address(args: argparse.Namespace) -> ViewAddress | None:
-    """The view asked for on the command line (None without --view)."""
-    if not args.view:
-        return None
-    if args.view_port == args.view_grpc_port:
-        raise ConfigError("command line", "--view-port", "must differ from --view-grpc-port")
-    return ViewAddress(args.view_bind, args.view_port, args.view_grpc_port)
-
-
-def _port(text: str) -> int:
-    port = int(text)
-    if not 1 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"{text} is not a port (1-65535)")
-    return port
 
 
 def _rr() -> Any:

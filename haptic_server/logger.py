@@ -98,22 +98,29 @@ class BlockChild:
 
 
 class LogProcess(BlockChild):
-    """Starts the writer on a shared block and waits until its file is open."""
+    """Starts the writer on a shared block and (unless `wait` is False: then wait_ready)
+    waits until its file is open."""
 
     def __init__(
         self,
         shm_name: str,
         block: SharedBlock,
         config: dict[str, Any],
-        ready_timeout_s: float = 60.0,
+        wait: bool = True,
     ) -> None:
         self.block = block
+        self._path = config["log_path"]
         super().__init__("haptic_local_model.haptic_server.logger", shm_name, config)
-        end = time.monotonic() + ready_timeout_s
-        while block.ctl[C_LOG_READY] == 0:
+        if wait:
+            self.wait_ready()
+
+    def wait_ready(self, timeout_s: float = 60.0) -> None:
+        """Return once the writer has opened its file; raise if it died or did not."""
+        end = time.monotonic() + timeout_s
+        while self.block.ctl[C_LOG_READY] == 0:
             if self._proc.poll() is not None or time.monotonic() > end:
                 self.join(0.0)
-                raise RuntimeError(f"the log writer did not start ({config['log_path']})")
+                raise RuntimeError(f"the log writer did not start ({self._path})")
             time.sleep(0.01)
 
     def wait_closed(self, timeout_s: float) -> bool:

@@ -29,7 +29,6 @@ import numpy as np
 from haptic_local_model.device_models.base import Device
 from haptic_local_model.device_models.common import refill_noise
 from haptic_local_model.haptic_server.engine import HapticEngine, warm_kernels
-from haptic_local_model.haptic_server.live_view import ViewAddress
 from haptic_local_model.haptic_server.log import run_metadata
 from haptic_local_model.haptic_server.mailbox import (
     C_UPD_HEAD,
@@ -52,6 +51,7 @@ from haptic_local_model.haptic_server.realtime import (
 )
 from haptic_local_model.haptic_server.sidecar import LoopIO
 from haptic_local_model.haptic_server.supervisor import Event, TickEvents, WatchdogClock, supervise
+from haptic_local_model.haptic_server.view_address import ViewAddress
 from haptic_local_model.haptic_server.world import RETURN_EVERY_NS, drive_paced
 from haptic_local_model.shared.config import SceneConfig, UserConfig
 from haptic_local_model.shared.net.config import NetworkConfig
@@ -250,14 +250,19 @@ class HapticServer:
             silent_ms = (supervisor.now_ns - supervisor.last_valid_ns) / 1e6
             io.event(tick, Event.WATCHDOG, f"no valid update for {silent_ms:.1f} ms")
 
-    def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
-        """The loop; returns the summary. `ready` is called once the loop is about to start."""
+    def run(self, duration_s: float | None, ready: Any = None, warm: Any = None) -> dict[str, Any]:
+        """The loop; returns the summary. `ready` is called once the loop is about to start;
+        `warm` (warm_up), if given, while the I/O process starts (the kernels load from the
+        cache in about a second, as long as the I/O process takes to start)."""
         engine = self.engine
         stats = self.stats
         cpu = loop_cpu()
         period_ns = round(1e9 / self.scene.haptic_rate_hz)
         io = self._open_io(cpu, period_ns)
         try:  # from here on every exit path closes the I/O process (its log, its session)
+            if warm is not None:
+                warm()
+            io.wait_ready()
             if engine.follows_pointer:  # its targets come from the sidecar
                 engine.share_user(io.block.user)
             watchdog_ns = int(self.network.watchdog_ms * 1e6)

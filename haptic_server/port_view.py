@@ -34,12 +34,12 @@ import numpy as np
 from haptic_local_model.haptic_server.live_view import (
     VIEW_HZ,
     RerunServer,
-    ViewAddress,
     enter_view_process,
     open_recording,
     view_main,
 )
 from haptic_local_model.haptic_server.logger import BlockChild
+from haptic_local_model.haptic_server.view_address import ViewAddress
 from haptic_local_model.haptic_server.view_world import ROLE_COLORS
 from haptic_local_model.shared.config import BodySpec, load_config_text
 from haptic_local_model.shared.kinematics import MAX_DOF

@@ -89,9 +89,12 @@ RING_MARGIN = 64  # ring slots the impulse sum leaves alone: the loop may be wri
 
 
 class LoopIO:
-    """The loop's side: take updates, give verdicts, push ticks and events. No syscalls."""
+    """The loop's side: take updates, give verdicts, push ticks and events. No syscalls.
 
-    def __init__(self, config: dict[str, Any], ready_timeout_s: float = 120.0) -> None:
+    Built, it has started its processes (the log writer and the sidecar, side by side);
+    `wait_ready` waits for both (the loop compiles its kernels meanwhile)."""
+
+    def __init__(self, config: dict[str, Any]) -> None:
         self.block = SharedBlock.create()  # its pages touched: the loop's memory stays flat
         self._shm = self.block.shm
         # the sim's world for the live view (and the log), only when a view is asked for
@@ -105,24 +108,36 @@ class LoopIO:
                 keys = ("log_path", "metadata", "wall_start_ns", "loop_cpu", "tick_period_ns")
                 log_config = {k: config[k] for k in keys}
                 log_config["view_board"] = config.get("view_board")
-                self._logger = LogProcess(self._shm.name, self.block, log_config)
+                self._logger = LogProcess(self._shm.name, self.block, log_config, wait=False)
             except BaseException:
                 self._release()
                 raise
+        self._config = config
+        self._view: ViewProcess | None = None
         ctx = mp.get_context("spawn")
         self._proc = ctx.Process(
             target=_sidecar_main, args=(self._shm.name, config, os.getpid()),
             name="haptic-io", daemon=False,
         )  # fmt: skip
         self._proc.start()
-        end = time.monotonic() + ready_timeout_s
-        while self.block.ctl[C_READY] == 0:
-            if not self._proc.is_alive() or time.monotonic() > end:
-                self.close()
-                raise RuntimeError("the haptic I/O process did not start")
-            time.sleep(0.01)
-        self._view: ViewProcess | None = None
-        if config.get("view"):  # after the sidecar: the view never delays a start
+
+    def wait_ready(self, timeout_s: float = 120.0) -> None:
+        """Return once the sidecar has opened its session and the writer its file (then the
+        live view is started, if asked for: it never delays a start); close both and raise
+        if either did not start."""
+        end = time.monotonic() + timeout_s
+        try:
+            while self.block.ctl[C_READY] == 0:
+                if not self._proc.is_alive() or time.monotonic() > end:
+                    raise RuntimeError("the haptic I/O process did not start")
+                time.sleep(0.01)
+            if self._logger is not None:
+                self._logger.wait_ready(max(end - time.monotonic(), 1.0))
+        except BaseException:
+            self.close()
+            raise
+        config = self._config
+        if config.get("view"):
             view_config = {**config["view"], "loop_cpu": config.get("loop_cpu"),
                            "view_board": config["view_board"]}  # fmt: skip
             self._view = ViewProcess(self._shm.name, view_config)

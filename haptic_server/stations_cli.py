@@ -27,7 +27,6 @@ import zenoh
 
 from haptic_local_model.device_models.registry import device_config, load_simulated_device
 from haptic_local_model.haptic_server.hand_grasp_ports import HAND_GRASP_KIND
-from haptic_local_model.haptic_server.live_view import add_view_args, view_address
 from haptic_local_model.haptic_server.log import write_rows_log
 from haptic_local_model.haptic_server.port_scene import load_glove_users
 from haptic_local_model.haptic_server.port_view import rows_viewed
@@ -35,6 +34,7 @@ from haptic_local_model.haptic_server.ports import PORT_KIND
 from haptic_local_model.haptic_server.shared_world import SharedWorld
 from haptic_local_model.haptic_server.station import MAX_LOG_S, RING_S, Station
 from haptic_local_model.haptic_server.station_records import STATION_TOPIC
+from haptic_local_model.haptic_server.view_address import add_view_args, view_address
 from haptic_local_model.shared import __version__
 from haptic_local_model.shared.cli import (
     add_version,

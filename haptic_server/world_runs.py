@@ -64,7 +64,7 @@ from haptic_local_model.shared.config import (
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig, is_hand_scene
 
 if TYPE_CHECKING:
-    from haptic_local_model.haptic_server.live_view import ViewAddress
+    from haptic_local_model.haptic_server.view_address import ViewAddress
 
 PORT_TICK_TOPIC = PORT_KIND.topic
 HAND_TICK_TOPIC = HAND_KIND.topic

@@ -12,6 +12,13 @@ from pathlib import Path
 import pytest
 
 from haptic_local_model.haptic_server.harness import warmup
+from haptic_local_model.haptic_server.harness.warm_marks import (
+    ALL_WARMED,
+    Run,
+    mark_warmed,
+    run_key,
+    runs_warmed,
+)
 
 
 @pytest.fixture
@@ -96,23 +103,23 @@ def test_a_cold_run_compiles_first_once_and_says_where(
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     calls = []
 
-    def fake_warm(out: object, jobs: int = 1, run: warmup.Run | None = None) -> float:
+    def fake_warm(out: object, jobs: int = 1, run: Run | None = None) -> float:
         calls.append((jobs, run))
-        warmup._mark_warmed(tmp_path, warmup._run_key(run) if run else warmup.ALL_WARMED)
+        mark_warmed(tmp_path, run_key(run) if run else ALL_WARMED)
         return 0.0
 
     monkeypatch.setattr(warmup, "warm_all", fake_warm)
     args = argparse.Namespace(scene="testbed", device="ideal", user="swing")
-    assert not warmup.runs_warmed(warmup.DEMO_RUN)
+    assert not runs_warmed(warmup.DEMO_RUN)
     run_cli.compile_first(args)
     run_cli.compile_first(args)  # warmed now: nothing more
     assert calls == [(2, warmup.DEMO_RUN)]
     err = capsys.readouterr().err
     assert err.count("the first run of testbed with ideal") == 1 and str(tmp_path) in err
     other = ("god_slabs", "maglev", "press_lift", 1.0)
-    assert not warmup.runs_warmed(other)
-    warmup._mark_warmed(tmp_path, warmup.ALL_WARMED)
-    assert warmup.runs_warmed(other)
+    assert not runs_warmed(other)
+    mark_warmed(tmp_path, ALL_WARMED)
+    assert runs_warmed(other)
 
 
 def test_the_cold_start_benchmark_reads_what_the_warm_up_prints(

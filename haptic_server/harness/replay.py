@@ -32,18 +32,17 @@ import numpy as np
 from haptic_local_model.haptic_server.engine import EngineCounters, HapticEngine
 from haptic_local_model.haptic_server.harness.plot import plot_run
 from haptic_local_model.haptic_server.harness.summary import ReplayError, print_summary, summarise
-from haptic_local_model.haptic_server.live_view import (
-    EmptyLogError,
-    ViewAddress,
-    add_view_args,
-    view_address,
-    view_log,
-)
+from haptic_local_model.haptic_server.live_view import EmptyLogError, view_log
 from haptic_local_model.haptic_server.log import LogContents, read_log, recover_log
 from haptic_local_model.haptic_server.model import TICK_DTYPE
 from haptic_local_model.haptic_server.stages.install import EPOCH_LAW_HIGHER
 from haptic_local_model.haptic_server.stages.tick import store_row
 from haptic_local_model.haptic_server.supervisor import Event, LoggedEvents, supervise
+from haptic_local_model.haptic_server.view_address import (
+    ViewAddress,
+    add_view_args,
+    view_address,
+)
 from haptic_local_model.shared import source_hash
 from haptic_local_model.shared.cli import add_version, seconds, speed
 from haptic_local_model.shared.config import (

@@ -25,7 +25,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
-from haptic_local_model.haptic_server.live_view import add_view_args, view_address
+from haptic_local_model.haptic_server.view_address import add_view_args, view_address
 from haptic_local_model.shared.cli import (
     EXIT_CONFIG,
     EXIT_LOG_FAILED,
@@ -138,11 +138,13 @@ def compile_first(args: argparse.Namespace) -> None:
     starts, and says so: started cold, the two servers compile side by side and the haptic
     loop waits on a sim that is still compiling (a watchdog trip that is no fault). Once per
     run and build; `make warm` compiles every feature's at once."""
-    from haptic_local_model.haptic_server.harness import warmup
+    from haptic_local_model.haptic_server.harness.warm_marks import runs_warmed
 
     run = (args.scene, args.device, args.user, 1.0)
-    if warmup.runs_warmed(run):
+    if runs_warmed(run):
         return
+    from haptic_local_model.haptic_server.harness import warmup  # numba: only to compile
+
     print(
         f"haptic-run: the first run of {Path(args.scene).stem} with {Path(args.device).stem} "
         f"on this build compiles its kernels (about 70 s on two cores, once) into "

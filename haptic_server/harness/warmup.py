@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import hashlib
 import itertools
 import os
 import queue
@@ -34,6 +33,12 @@ from haptic_local_model.haptic_server.engine import HapticEngine
 from haptic_local_model.haptic_server.hand_grasp_ports import HandGraspRun
 from haptic_local_model.haptic_server.hand_ports import HandPortRun
 from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
+from haptic_local_model.haptic_server.harness.warm_marks import (
+    ALL_WARMED,
+    Run,
+    mark_warmed,
+    run_key,
+)
 from haptic_local_model.haptic_server.mailbox import compile_loop_kernels
 from haptic_local_model.haptic_server.realtime import compile_realtime_kernels
 from haptic_local_model.haptic_server.shared_world import SharedWorld
@@ -131,13 +136,8 @@ def _port_kernels() -> None:
     _paced_kernels()
 
 
-#: one run's kernels: (scene, device, user, seconds of the virtual run that compiles them)
-Run = tuple[str, str, str, float]
 #: `--demo`: the kernels of `make demo`'s run (haptic-run's defaults) and nothing else
 DEMO_RUN: Run = ("testbed", "ideal", "swing", 1.0)
-#: what make warm leaves in the cache once every group is compiled (haptic-run's first-run
-#: check: runs_warmed)
-ALL_WARMED = "all"
 
 
 def _engine(run: Run, real: bool = False) -> HapticEngine:
@@ -258,29 +258,11 @@ def warm_all(out: TextIO | None = None, jobs: int = 1, run: Run | None = None) -
             how = f"compiled, {written} cached" if written else "loaded from the cache"
             say(f" {time.perf_counter() - t0:.1f} s ({how})")
     total = time.perf_counter() - started
-    _mark_warmed(cache, ALL_WARMED if run is None else _run_key(run))
+    mark_warmed(cache, ALL_WARMED if run is None else run_key(run))
     written = _written(before, cache)
     how = f"{written} kernels compiled" if written else "all loaded from the cache"
     say(f"numba kernels ready in {total:.1f} s ({how})")
     return total
-
-
-def _run_key(run: Run) -> str:
-    """A run's name in the cache's list of warmed runs (its configs, as given)."""
-    return hashlib.sha1("\0".join(run[:3]).encode()).hexdigest()[:16]
-
-
-def _mark_warmed(cache: Path, key: str) -> None:
-    with contextlib.suppress(OSError):  # a read-only cache: the next run checks again
-        (cache / "warmed").mkdir(parents=True, exist_ok=True)
-        (cache / "warmed" / key).touch()
-
-
-def runs_warmed(run: Run) -> bool:
-    """Whether the cache holds `run`'s kernels: make warm has compiled every group, or a
-    warm-up of this run has (haptic-run's first-run check)."""
-    marks = Path(os.environ["NUMBA_CACHE_DIR"]) / "warmed"
-    return (marks / ALL_WARMED).exists() or (marks / _run_key(run)).exists()
 
 
 def _written(before: dict[Path, int], cache: Path) -> int:
