@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 DEV := $(VENV)/.dev
 
-.PHONY: demo test check lint typecheck pytest bench soak-ci soak warm warm-demo clean browser
+.PHONY: demo test check lint typecheck pytest bench soak-ci soak warm warm-demo clean browser view
 
 # what running needs (make demo: 24 s of pip on a fresh machine, against 37 s with the
 # test tools), then the test tools (lint, types, pytest, the browser driver)
@@ -13,6 +13,11 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e .
 	touch $(STAMP)
+
+# the live view's SDK (haptic-run --view): an extra that make demo leaves out (660 MB);
+# make test installs it with the test tools
+view: $(STAMP)
+	$(PY) -m pip install --quiet -e '.[view]'
 
 $(DEV): $(STAMP)
 	$(PY) -m pip install --quiet -e '.[dev]'

@@ -7,6 +7,7 @@ parent process starts its servers without either.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 from dataclasses import dataclass
 
 from haptic_local_model.shared.config import ConfigError
@@ -63,10 +64,18 @@ def add_view_args(parser: argparse.ArgumentParser, what: str = "the run") -> Non
     )  # fmt: skip
 
 
+#: what installs the live view's SDK (an extra: 660 MB with pyarrow, which a run without a
+#: view does not need)
+VIEW_EXTRA = "pip install 'haptic-local-model[view]' (in a checkout: make view)"
+
+
 def view_address(args: argparse.Namespace) -> ViewAddress | None:
-    """The view asked for on the command line (None without --view)."""
+    """The view asked for on the command line (None without --view); refused, saying what to
+    install, where the Rerun SDK is not installed."""
     if not args.view:
         return None
+    if importlib.util.find_spec("rerun") is None:
+        raise ConfigError("command line", "--view", f"needs the Rerun SDK: {VIEW_EXTRA}")
     if args.view_port == args.view_grpc_port:
         raise ConfigError("command line", "--view-port", "must differ from --view-grpc-port")
     return ViewAddress(args.view_bind, args.view_port, args.view_grpc_port)

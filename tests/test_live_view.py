@@ -192,6 +192,31 @@ def test_view_options_are_checked() -> None:
         assert "--view" in out.stderr and "Traceback" not in out.stderr
 
 
+def test_a_view_without_the_rerun_sdk_says_what_to_install(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The Rerun SDK is an extra (`[view]`): --view without it is refused on the command
+    line, naming the option and what installs it; without --view nothing asks for it."""
+    import argparse
+    import importlib.util
+
+    from haptic_local_model.haptic_server import view_address as va
+    from haptic_local_model.shared.config import ConfigError
+
+    parser = argparse.ArgumentParser()
+    va.add_view_args(parser)
+    found = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "rerun" else found(name, *a)
+    )
+    assert va.view_address(parser.parse_args([])) is None
+    with pytest.raises(ConfigError) as refused:
+        va.view_address(parser.parse_args(["--view"]))
+    assert "--view" in str(refused.value) and "haptic-local-model[view]" in str(refused.value)
+    monkeypatch.setattr(importlib.util, "find_spec", found)
+    assert va.view_address(parser.parse_args(["--view"])) == va.ViewAddress()
+
+
 @pytest.mark.processes
 def test_a_file_without_ticks_is_refused(tmp_path: Path) -> None:
     """haptic-replay NOT_A_LOG --view: one line naming the file, exit 2, no server left."""
