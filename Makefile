@@ -6,8 +6,8 @@ DEV := $(VENV)/.dev
 
 .PHONY: demo test check lint typecheck pytest bench soak-ci soak warm warm-demo clean browser view
 
-# what running needs (make demo: 24 s of pip on a fresh machine, against 37 s with the
-# test tools), then the test tools (lint, types, pytest, the browser driver)
+# what running needs (make demo: 20 s of pip on a fresh machine), then the test tools
+# (lint, types, pytest, the browser driver) and the live view's SDK
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
