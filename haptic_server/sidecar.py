@@ -37,6 +37,7 @@ from haptic_local_model.haptic_server.mailbox import (
     C_EVT_LOST,
     C_IO_BEAT,
     C_LOG_FAILED,
+    C_LOG_READY,
     C_LOWER_IO,
     C_PTR_REASONS,
     C_PTR_RECEIVED,
@@ -114,6 +115,7 @@ class LoopIO:
                 raise
         self._config = config
         self._view: ViewProcess | None = None
+        self._closed: dict[str, int] | None = None  # close()'s counters, once closed
         ctx = mp.get_context("spawn")
         self._proc = ctx.Process(
             target=_sidecar_main, args=(self._shm.name, config, os.getpid()),
@@ -123,19 +125,15 @@ class LoopIO:
 
     def wait_ready(self, timeout_s: float = 120.0) -> None:
         """Return once the sidecar has opened its session and the writer its file (then the
-        live view is started, if asked for: it never delays a start); close both and raise
-        if either did not start."""
+        live view is started, if asked for: it never delays a start); raise if either did
+        not start (the caller closes, as on every exit path)."""
         end = time.monotonic() + timeout_s
-        try:
-            while self.block.ctl[C_READY] == 0:
-                if not self._proc.is_alive() or time.monotonic() > end:
-                    raise RuntimeError("the haptic I/O process did not start")
-                time.sleep(0.01)
-            if self._logger is not None:
-                self._logger.wait_ready(max(end - time.monotonic(), 1.0))
-        except BaseException:
-            self.close()
-            raise
+        while self.block.ctl[C_READY] == 0:
+            if not self._proc.is_alive() or time.monotonic() > end:
+                raise RuntimeError("the haptic I/O process did not start")
+            time.sleep(0.01)
+        if self._logger is not None:
+            self._logger.wait_ready(max(end - time.monotonic(), 1.0))
         config = self._config
         if config.get("view"):
             view_config = {**config["view"], "loop_cpu": config.get("loop_cpu"),
@@ -216,7 +214,9 @@ class LoopIO:
 
     def close(self, timeout_s: float = 30.0) -> dict[str, int]:
         """Stop the sidecar and the log writer (it writes what remains); returns the
-        counters."""
+        counters. Once: a second call returns the counters as the first left them."""
+        if self._closed is not None:
+            return self._closed
         self.block.ctl[C_CLOSED] = 1
         self._proc.join(timeout_s)
         if self._proc.is_alive():
@@ -229,6 +229,7 @@ class LoopIO:
         counters = self.counters
         self.refused = self.refused_by_reason  # read before the block is released
         self._release()
+        self._closed = counters
         return counters
 
     def _release(self) -> None:
@@ -327,7 +328,9 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         while True:
             ctl[C_IO_BEAT] = time.monotonic_ns()  # the loop watches it (HapticServer)
             closing = ctl[C_CLOSED] == 1 or os.getppid() != parent_pid or terminated.is_set()
-            if ctl[C_LOG_FAILED] and not log_failure_told:
+            # a writer that failed before it opened its file never started logging: the loop
+            # refuses to start (LoopIO.wait_ready) and says why
+            if ctl[C_LOG_FAILED] and ctl[C_LOG_READY] and not log_failure_told:
                 log_failure_told = True  # the I/O process says so: the loop does no I/O
                 _tell_log_failure(block)
             if ctl[C_LOWER_IO] == 1 and not lowered and not realtime:

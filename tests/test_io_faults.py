@@ -295,3 +295,26 @@ def test_the_loop_stalled_resumes_without_a_jump(
            pushed_n=pushed.tolist(), after_max_n=np.abs(after).max(axis=0).tolist())  # fmt: skip
     assert steady < 1e-3 and step <= FADE_STEP_BOUND_N, (step, steady)  # a steady push before
     assert np.all(np.abs(after).max(axis=0) <= 1.1 * pushed + 1e-3), (after, pushed)
+
+
+@pytest.mark.processes
+def test_a_log_writer_that_cannot_open_its_file_stops_the_start_once(
+    tmp_path: Path, network_file: Path
+) -> None:
+    """The log writer and the sidecar start side by side: a writer that cannot open its file
+    (its folder cannot be made) keeps the loop from starting, said once as the writer not
+    starting, exit 1. The sidecar, which saw the writer fail, does not say that logging
+    stopped with rendering going on (it never started), and closing the I/O process after
+    the refusal raises nothing more."""
+    res = subprocess.run(
+        [
+            sys.executable, "-m", "haptic_local_model.haptic_server.cli", "--scene", "testbed",
+            "--network", str(network_file), "--duration", "1",
+            "--log", "/proc/no-such-dir/run.mcap",
+        ],
+        cwd=REPO, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert res.returncode == 1, res.stderr[-2000:]
+    assert "the log writer did not start (/proc/no-such-dir/run.mcap)" in res.stderr
+    assert "rendering goes on" not in res.stdout + res.stderr
+    assert "TypeError" not in res.stderr and '"event": "ready"' not in res.stdout
