@@ -328,8 +328,6 @@ def _sidecar_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> Non
         while True:
             ctl[C_IO_BEAT] = time.monotonic_ns()  # the loop watches it (HapticServer)
             closing = ctl[C_CLOSED] == 1 or os.getppid() != parent_pid or terminated.is_set()
-            # a writer that failed before it opened its file never started logging: the loop
-            # refuses to start (LoopIO.wait_ready) and says why
             if ctl[C_LOG_FAILED] and ctl[C_LOG_READY] and not log_failure_told:
                 log_failure_told = True  # the I/O process says so: the loop does no I/O
                 _tell_log_failure(block)
@@ -545,7 +543,9 @@ class ViewSubscription:
 
 def _tell_log_failure(block: SharedBlock) -> None:
     """The log writer has stopped (a full disk, an I/O error): one event line for haptic-run
-    and people, into the event ring for the live view. Rendering and networking go on."""
+    and people, into the event ring for the live view. Rendering and networking go on. Not
+    for a writer that failed before it opened its file (C_LOG_READY 0): logging never
+    started, and the loop refuses to start (LoopIO.wait_ready) and says why."""
     from haptic_local_model.shared.cli import emit
 
     reason = block.log_failure
