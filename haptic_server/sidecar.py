@@ -115,7 +115,6 @@ class LoopIO:
                 raise
         self._config = config
         self._view: ViewProcess | None = None
-        self._closed: dict[str, int] | None = None  # close()'s counters, once closed
         ctx = mp.get_context("spawn")
         self._proc = ctx.Process(
             target=_sidecar_main, args=(self._shm.name, config, os.getpid()),
@@ -214,9 +213,7 @@ class LoopIO:
 
     def close(self, timeout_s: float = 30.0) -> dict[str, int]:
         """Stop the sidecar and the log writer (it writes what remains); returns the
-        counters. Once: a second call returns the counters as the first left them."""
-        if self._closed is not None:
-            return self._closed
+        counters."""
         self.block.ctl[C_CLOSED] = 1
         self._proc.join(timeout_s)
         if self._proc.is_alive():
@@ -229,7 +226,6 @@ class LoopIO:
         counters = self.counters
         self.refused = self.refused_by_reason  # read before the block is released
         self._release()
-        self._closed = counters
         return counters
 
     def _release(self) -> None:

@@ -1,8 +1,9 @@
 """The rendering method is a type of the compiled step, not a branch taken at each tick
 (stages.tick.method_marker): the engine's records end with a marker, None for the local
-model and True for the god-object, and numba prunes the other method's tick and shape
-install before it types the step. A local-model run compiles no god-object code: checked in
-a process of its own on an empty numba cache, by the kernels that cache holds after it."""
+model and True for the god-object, and numba prunes the god-object's tick and shape install
+from a local-model step before it types it. A local-model run compiles no god-object code:
+checked in a process of its own on an empty numba cache, by the kernels that cache holds
+after it. (A god-object step still holds the local model's tick: not pruned, never run.)"""
 
 from __future__ import annotations
 

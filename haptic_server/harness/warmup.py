@@ -42,14 +42,13 @@ from haptic_local_model.haptic_server.harness.warm_marks import (
 from haptic_local_model.haptic_server.mailbox import compile_loop_kernels
 from haptic_local_model.haptic_server.realtime import compile_realtime_kernels
 from haptic_local_model.haptic_server.shared_world import SharedWorld
-from haptic_local_model.haptic_server.stages.tick import finger_tick, haptic_tick
+from haptic_local_model.haptic_server.stages.tick import rendering_tick
 from haptic_local_model.haptic_server.station import Station
 from haptic_local_model.haptic_server.world import compile_paced
 from haptic_local_model.haptic_server.world_runs import port_scene
 from haptic_local_model.shared.config import load_scene, load_user
 from haptic_local_model.shared.net.stations import load_station_network
 from haptic_local_model.shared.port_config import load_hand_scene, load_port_scene
-from haptic_local_model.shared.protocol.codes import Method
 from haptic_local_model.shared.protocol.update import UpdateParser
 from haptic_local_model.sim_server.world import warm_kernels as warm_sim_kernels
 
@@ -148,11 +147,12 @@ def _engine(run: Run, real: bool = False) -> HapticEngine:
 
 
 def _method_tick(run: Run) -> None:
-    """The run's rendering method's tick (stages.tick: the god-object's or the local
-    model's, the only one its step calls) compiled on the run's records, not run."""
+    """The run's rendering method's tick (stages.tick.rendering_tick on the engine's method
+    marker: the god-object's or the local model's, the only one its step calls) compiled on
+    the run's records, not run."""
     engine = _engine(run)
-    method_tick = finger_tick if engine.method == Method.GOD_OBJECT else haptic_tick
-    method_tick.compile((numba.typeof(engine.model), numba.typeof(engine.data)))
+    marker = engine.recs[-1]
+    rendering_tick.compile(tuple(numba.typeof(r) for r in (engine.model, engine.data, marker)))
 
 
 def _updates_lane(run: Run) -> None:

@@ -52,10 +52,11 @@ def haptic_tick(model, data):
 def method_marker(method: int) -> bool | None:
     """The scene's rendering method as the type the compiled step is specialised on, the
     last of the engine's records: None for the local model, True for the god-object. numba
-    prunes a branch on an argument tested `is None` before it types the function, so a step
-    compiled for one method holds that method's tick only: a local-model run neither
-    compiles nor loads the god-object's (21 s of a cold start's compiling), nor the other way
-    round."""
+    prunes a branch on an argument tested `is None` before it types the function only when
+    that argument is None, so a step compiled for the local model holds its tick alone: a
+    local-model run neither compiles nor loads the god-object's (21 s of a cold start's
+    compiling). A god-object step still holds both ticks (the local model's never runs in
+    it): pruning that side too would take a choice made in typing (numba's overload)."""
     return True if method == Method.GOD_OBJECT else None
 
 
