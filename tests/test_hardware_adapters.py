@@ -31,6 +31,7 @@ from haptic_local_model.device_models.base import (
     FAULT_INVALID_COMMAND,
     FAULT_SATURATED,
     SENSOR_DTYPE,
+    DeviceError,
 )
 from haptic_local_model.device_models.hardware.base import HOLD_FADE_S, PlanarHardware
 from haptic_local_model.device_models.registry import (
@@ -298,6 +299,26 @@ def test_the_touch_servo_zeroes_a_stale_command(fake_vendor: Path) -> None:
     assert late and all(f[1:4] == (0.0, 0.0, 0.0) for f in late)
     early = [f for f in h.forces if sent < f[0] < sent + (timeout_s - 0.005) * 1e9]
     assert early and all(abs(f[1] - 1.0) < 1e-12 for f in early)
+    device.safe_stop()
+
+
+@pytest.mark.slow
+def test_a_starved_touch_servo_is_not_taken_for_a_stopped_one(fake_vendor: Path) -> None:
+    """A servo that has not ticked for servo_timeout_ms stops the run only if it does not
+    tick while the read yields: one kept from running (a loaded machine) goes on, one that
+    OpenHaptics unscheduled does not. The timeout set to zero makes every read suspect."""
+    device = load_device("touch")
+    assert isinstance(device, PlanarHardware)
+    link: Any = device._link
+    sensors = np.zeros(1, SENSOR_DTYPE)
+    link._servo_timeout_ns = 0  # every reading finds the servo silent "too long"
+    for _ in range(20):
+        device.read(sensors)  # alive: it ticks within the grace, every time
+    scheduler = link._device
+    scheduler._running = False  # the servo stops, as after a callback's error
+    scheduler._thread.join(1.0)
+    with pytest.raises(DeviceError, match="the servo callback has not run"):
+        device.read(sensors)
     device.safe_stop()
 
 
