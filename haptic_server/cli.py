@@ -46,6 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         from haptic_local_model.device_models.base import DeviceError, SafeStopError
         from haptic_local_model.device_models.registry import load_device
+        from haptic_local_model.haptic_server.logger import LogStartError
 
         # every config checked first: a typo must not open (or calibrate) a real device
         scene = load_scene(args.scene, args.haptic_rate)
@@ -72,6 +73,10 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 print(f"haptic-server: device error: {exc}; the device is in its safe state",
                       file=sys.stderr)  # fmt: skip
+            return EXIT_FAILED
+        except LogStartError as exc:  # the loop never started: nothing was commanded
+            device.safe_stop()
+            print(f"haptic-server: {exc}", file=sys.stderr)
             return EXIT_FAILED
         except BaseException:
             device.safe_stop()  # whatever failed, a real device is left without force

@@ -97,6 +97,13 @@ class BlockChild:
                 os.unlink(self._config_path)
 
 
+class LogStartError(RuntimeError):
+    """The log writer could not open its file (or died before it had): why, if it said."""
+
+    def __init__(self, path: str, why: str) -> None:
+        super().__init__(f"the log writer did not start ({path})" + (f": {why}" if why else ""))
+
+
 class LogProcess(BlockChild):
     """Starts the writer on a shared block and (unless `wait` is False: then wait_ready)
     waits until its file is open."""
@@ -120,7 +127,7 @@ class LogProcess(BlockChild):
         while self.block.ctl[C_LOG_READY] == 0:
             if self._proc.poll() is not None or time.monotonic() > end:
                 self.join(0.0)
-                raise RuntimeError(f"the log writer did not start ({self._path})")
+                raise LogStartError(self._path, self.block.log_failure)
             time.sleep(0.01)
 
     def wait_closed(self, timeout_s: float) -> bool:
@@ -159,9 +166,11 @@ def _logger_main(shm_name: str, config: dict[str, Any], parent_pid: int) -> None
     ctl = block.ctl
     try:
         log = LogWriter(config["log_path"], config["metadata"])
-    except Exception as exc:
-        block.fail_log(f"{config['log_path']}: {exc}")
-        raise
+    except Exception as exc:  # its folder cannot be made, no permission: the start stops
+        block.fail_log(_io_error(exc, Path(config["log_path"])))  # the server says it, once
+        block.release()
+        shm.close()
+        sys.exit(1)
     drain = LogDrain(
         block, log, int(config["wall_start_ns"]), int(config.get("update_time_offset_ns", 0)),
         int(config.get("tick_period_ns", 0)),

@@ -132,6 +132,25 @@ def log_file(text: str) -> Path:
     return path
 
 
+def check_log_writable(path: Path) -> None:
+    """Before a run, not after it: its log's folder made and a file written there, or a
+    ConfigError naming --log (a folder that is a file, no permission)."""
+    part = path.with_name(path.name + ".part")
+    for folder in (path.parent, *path.parent.parents):
+        if folder.exists():
+            if not folder.is_dir():
+                why = f"cannot write {path}: {folder} is a file, not a folder"
+                raise ConfigError("command line", "--log", why)
+            break
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with part.open("wb"):
+            pass
+        part.unlink()
+    except OSError as exc:
+        raise ConfigError("command line", "--log", f"cannot write {path}: {exc}") from None
+
+
 def add_version(parser: argparse.ArgumentParser) -> None:
     """`--version`: the installed distribution's version."""
     parser.add_argument(

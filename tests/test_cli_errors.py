@@ -87,3 +87,26 @@ def test_replay_of_a_missing_or_foreign_file_is_one_line_and_exit_2(tmp_path: Pa
         assert "Traceback" not in res.stderr + res.stdout
         lines = res.stderr.strip().splitlines()
         assert len(lines) == 1 and "haptic-replay" in lines[0], res.stderr
+
+
+@pytest.mark.processes
+@pytest.mark.parametrize("scene", ["testbed", "grasp_vertical"])
+@pytest.mark.parametrize("clock", ["real", "virtual"])
+def test_a_log_that_cannot_be_written_is_refused_before_the_run(
+    tmp_path: Path, scene: str, clock: str
+) -> None:
+    """A --log whose folder cannot be made (a file stands where it would be) is one line
+    naming --log and why, exit 2, before anything runs: a port scene, which writes its log
+    after the run, would otherwise lose the run to a traceback."""
+    (tmp_path / "taken").write_text("a file, not a folder\n")
+    res = subprocess.run(
+        [str(BIN / "haptic-run"), "--scene", scene, "--clock", clock, "--duration", "1",
+         "--log", "taken/run.mcap"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert res.returncode == 2, res.stderr + res.stdout
+    assert "Traceback" not in res.stderr + res.stdout
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1, res.stderr
+    assert "'--log'" in lines[0] and "taken is a file, not a folder" in lines[0], lines[0]
+    assert not (tmp_path / "taken" / "run.mcap.part").exists()

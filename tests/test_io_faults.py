@@ -303,9 +303,9 @@ def test_a_log_writer_that_cannot_open_its_file_stops_the_start_once(
 ) -> None:
     """The log writer and the sidecar start side by side: a writer that cannot open its file
     (its folder cannot be made) keeps the loop from starting, said once as the writer not
-    starting, exit 1. The sidecar, which saw the writer fail, does not say that logging
-    stopped with rendering going on (it never started), and closing the I/O process after
-    the refusal raises nothing more."""
+    starting with the writer's reason, exit 1, no traceback. The sidecar, which saw the
+    writer fail, does not say that logging stopped with rendering going on (it never
+    started), and closing the I/O process after the refusal raises nothing more."""
     res = subprocess.run(
         [
             sys.executable, "-m", "haptic_local_model.haptic_server.cli", "--scene", "testbed",
@@ -315,6 +315,11 @@ def test_a_log_writer_that_cannot_open_its_file_stops_the_start_once(
         cwd=REPO, capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert res.returncode == 1, res.stderr[-2000:]
-    assert "the log writer did not start (/proc/no-such-dir/run.mcap)" in res.stderr
+    assert "Traceback" not in res.stderr, res.stderr[-2000:]
+    # one line: the writer's own reason, said by the server, not the writer's traceback
+    assert res.stderr.strip().splitlines()[-1] == (
+        "haptic-server: the log writer did not start (/proc/no-such-dir/run.mcap): "
+        "[Errno 2] No such file or directory: '/proc/no-such-dir'"
+    ), res.stderr
     assert "rendering goes on" not in res.stdout + res.stderr
     assert "TypeError" not in res.stderr and '"event": "ready"' not in res.stdout

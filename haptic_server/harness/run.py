@@ -30,6 +30,7 @@ from haptic_local_model.shared.cli import (
     EXIT_CONFIG,
     EXIT_LOG_FAILED,
     add_config_args,
+    check_log_writable,
     done_with_signals,
     emit,
     log_file,
@@ -424,6 +425,8 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         from haptic_local_model.haptic_server.world_runs import is_port_scene
 
+        if args.log is not None:
+            check_log_writable(args.log)
         if is_port_scene(args.scene):
             return run_port_world(args)
         args.device = single(args.device, "ideal", "--device")
