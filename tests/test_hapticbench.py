@@ -41,6 +41,7 @@ from haptic_local_model.haptic_server.harness.virtual import run_virtual
 from haptic_local_model.haptic_server.model import TICK_DTYPE
 from haptic_local_model.haptic_server.users import user_record
 from haptic_local_model.shared.config import load_scene, load_user
+from haptic_local_model.shared.reference import Integrator
 from haptic_local_model.shared.reference_avar import ellipse_train
 
 #: written by `haptic-bench --suite reduced --repeat 1 --out DIR` (DIR/hapticbench.json),
@@ -121,13 +122,35 @@ def test_a_plugged_in_baseline_appears_in_the_result_and_the_table(tmp_path: Pat
     assert (tmp_path / "hapticbench.png").stat().st_size > 0
 
 
+def _within_the_linkage_reference(key: tuple[str, str], name: str, a: float, b: float) -> bool:
+    """The linkage cases' reference is scipy's ODE solver over LAPACK (shared/reference.py:
+    cholesky, solve, matrix products), whose kernels OpenBLAS picks by CPU: on an AMD EPYC
+    with AVX-512 its last bits differ from the stored result's machine (where OpenBLAS chose
+    its SkylakeX kernels: the same figures bit for bit here with OPENBLAS_CORETYPE=SkylakeX).
+    Every other case's figures are equal bit for bit on both machines, and must be. The
+    reference's positions are only accurate to the solver's rtol of their size (the
+    linkage's reach), so a distance to it (`*_mm`) agrees within that: nothing the run
+    itself computes is let through."""
+    if not key[0].startswith("linkage") or not name.endswith("_mm"):
+        return False
+    reach_mm = 1e3 * sum(load_scene("linkage_distal").tool_linkage.lengths)
+    return abs(a - b) <= Integrator().rtol * reach_mm
+
+
 @pytest.mark.slow
 def test_the_reduced_suite_gives_the_stored_error_figures_bit_for_bit(tmp_path: Path) -> None:
     assert tuple(BASELINES) == BUILT_IN_NAMES
     assert bench_main(["--suite", "reduced", "--repeat", "1", "--out", str(tmp_path)]) == 0
     doc = json.loads((tmp_path / "hapticbench.json").read_text())
     validate(doc)
-    assert error_figures(doc) == error_figures(stored())
+    ours, theirs = error_figures(doc), error_figures(stored())
+    assert ours.keys() == theirs.keys()
+    for key, figures in ours.items():
+        assert figures.keys() == theirs[key].keys(), key
+        for name, value in figures.items():
+            assert value == theirs[key][name] or _within_the_linkage_reference(
+                key, name, value, theirs[key][name]
+            ), (key, name, value, theirs[key][name])
     assert [(r["sim_hz"], r["substeps"]) for r in doc["results"]] == [
         (r["sim_hz"], r["substeps"]) for r in stored()["results"]
     ]

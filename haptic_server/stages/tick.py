@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from numba import njit
+from numba import njit, types
+from numba.extending import overload
 
 from haptic_local_model.device_models.world_map import (
     map_command_to_device,
@@ -51,23 +52,42 @@ def haptic_tick(model, data):
 
 def method_marker(method: int) -> bool | None:
     """The scene's rendering method as the type the compiled step is specialised on, the
-    last of the engine's records: None for the local model, True for the god-object. numba
-    prunes a branch on an argument tested `is None` before it types the function only when
-    that argument is None, so a step compiled for the local model holds its tick alone: a
-    local-model run neither compiles nor loads the god-object's (21 s of a cold start's
-    compiling). A god-object step still holds both ticks (the local model's never runs in
-    it): pruning that side too would take a choice made in typing (numba's overload)."""
+    last of the engine's records: None for the local model, True for the god-object. The
+    step's tick is chosen on the marker's type as numba types it (`method_tick`'s overload),
+    so each step holds its own method's tick alone: a local-model run neither compiles nor
+    loads the god-object's (21 s of a cold start's compiling), nor a god-object run the
+    local model's."""
     return True if method == Method.GOD_OBJECT else None
 
 
 @njit(cache=True)
 def rendering_tick(model, data, god):
     """The scene's method's tick: the god-object's (finger_tick; `god` True) or the local
-    model's (`god` None: method_marker)."""
-    if god is None:
-        haptic_tick(model, data)
-    else:
+    model's (`god` None: method_marker), chosen by the marker's type as numba types the
+    step (`method_tick`): a step holds one tick, never both."""
+    method_tick(model, data, god)
+
+
+def method_tick(model, data, god):
+    """The tick of the method `god` marks; called from compiled code only."""
+    raise NotImplementedError("method_tick runs compiled only (rendering_tick)")
+
+
+@overload(method_tick)
+def _method_tick_for(model, data, god):
+    """The tick for the marker's type, chosen in typing: the other is neither typed nor
+    compiled into the step."""
+    if isinstance(god, types.NoneType):
+
+        def local_model(model, data, god):
+            haptic_tick(model, data)
+
+        return local_model
+
+    def god_object(model, data, god):
         finger_tick(model, data)
+
+    return god_object
 
 
 @njit(cache=True)
