@@ -6,6 +6,7 @@ every warm run is checked."""
 
 from __future__ import annotations
 
+import os
 from functools import partial
 from pathlib import Path
 
@@ -14,8 +15,12 @@ import pytest
 from haptic_local_model.haptic_server.harness import warmup
 from haptic_local_model.haptic_server.harness.warm_marks import (
     ALL_WARMED,
+    KEEP_BUILDS,
+    MAX_UNUSED_DAYS,
     Run,
+    mark_used,
     mark_warmed,
+    prune_builds,
     run_key,
     runs_warmed,
 )
@@ -136,3 +141,34 @@ def test_the_cold_start_benchmark_reads_what_the_warm_up_prints(
     assert set(parts) == {"scene kernels", "device kernels", "warm-up total"}
     assert all(v >= 0.0 for v in parts.values())
     assert _kernels("numba kernels ready in 0.4 s (all loaded from the cache)") == 0
+
+
+def test_old_builds_caches_are_pruned_and_the_users_own_cache_is_left_alone(
+    tmp_path: Path,
+) -> None:
+    """Beside the build in use, the KEEP_BUILDS most recently used builds' caches stay, and
+    of those only the ones used within MAX_UNUSED_DAYS; other folders are never touched, and
+    neither is anything when the cache in use is one the user chose elsewhere."""
+    root = tmp_path / "numba"
+    now = 1_000_000_000.0
+    day = 86400.0
+
+    def build(name: str, used_days_ago: float) -> Path:
+        folder = root / name
+        (folder / "shared").mkdir(parents=True)
+        (folder / "shared" / "kernel.nbc").write_bytes(b"x" * 1000)
+        mark_used(folder)
+        os.utime(folder / "used", (now - used_days_ago * day,) * 2)
+        return folder
+
+    current = build("0123456789ab", 400.0)  # in use: never removed, however old its mark
+    recent = [build(f"{k:012x}", k) for k in range(1, KEEP_BUILDS + 2)]  # 1..5 days ago
+    stale = build("fedcba987654", MAX_UNUSED_DAYS + 1)
+    (root / "notes").mkdir()  # not a build's cache
+    removed = prune_builds(current, root, now)
+    assert {p for p, _ in removed} == {recent[-1], stale}
+    assert all(size == 1000 for _, size in removed)
+    assert current.exists() and (root / "notes").exists()
+    assert all(p.exists() for p in recent[:KEEP_BUILDS])
+    assert prune_builds(tmp_path / "mine" / "0123456789ab", root, now) == []
+    assert all(p.exists() for p in recent[:KEEP_BUILDS])

@@ -36,7 +36,9 @@ from haptic_local_model.haptic_server.harness.virtual import run_virtual_named
 from haptic_local_model.haptic_server.harness.warm_marks import (
     ALL_WARMED,
     Run,
+    mark_used,
     mark_warmed,
+    prune_builds,
     run_key,
 )
 from haptic_local_model.haptic_server.mailbox import compile_loop_kernels
@@ -46,6 +48,7 @@ from haptic_local_model.haptic_server.stages.tick import rendering_tick
 from haptic_local_model.haptic_server.station import Station
 from haptic_local_model.haptic_server.world import compile_paced
 from haptic_local_model.haptic_server.world_runs import port_scene
+from haptic_local_model.shared import cache_dir
 from haptic_local_model.shared.config import load_scene, load_user
 from haptic_local_model.shared.net.stations import load_station_network
 from haptic_local_model.shared.port_config import load_hand_scene, load_port_scene
@@ -259,9 +262,15 @@ def warm_all(out: TextIO | None = None, jobs: int = 1, run: Run | None = None) -
             say(f" {time.perf_counter() - t0:.1f} s ({how})")
     total = time.perf_counter() - started
     mark_warmed(cache, ALL_WARMED if run is None else run_key(run))
+    mark_used(cache)
     written = _written(before, cache)
     how = f"{written} kernels compiled" if written else "all loaded from the cache"
     say(f"numba kernels ready in {total:.1f} s ({how})")
+    if written:  # a new build's cache: the old builds' beyond what prune_builds keeps go
+        removed = prune_builds(cache, cache_dir() / "numba")
+        if removed:
+            mb = sum(size for _, size in removed) / 1e6
+            say(f"removed {len(removed)} older builds' caches ({mb:.0f} MB) from {cache.parent}")
     return total
 
 
