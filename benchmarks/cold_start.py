@@ -1,7 +1,7 @@
 """Time to first force on a fresh machine, as a newcomer meets it (issue 45):
 
-1. a clean clone of this checkout's HEAD, a fresh numba cache and no pip cache:
-   `make demo` (the venv, `pip install`, the demo's kernels, 10 s of the two servers, the
+1. a clean clone of this checkout's HEAD, a fresh numba cache and no pip or uv cache:
+   `make demo` (the venv, its install (uv, else pip), the demo's kernels, 10 s of the two servers, the
    replay and its plot), wall clock, and its parts as it prints them;
 2. a second clone in another directory, the same cache: `make demo` again, and how many
    kernels its warm-up compiled (none, if the cache is keyed by the sources and not by the
@@ -46,7 +46,7 @@ def _timed(cmd: list[str], cwd: Path, env: dict[str, str], log: Path) -> tuple[f
 def _env(cache: Path) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith(("VIRTUAL_ENV", "PYTHON"))}
     env["PATH"] = ":".join(p for p in env["PATH"].split(":") if ".venv" not in p)
-    env.update(NUMBA_CACHE_DIR=str(cache), PIP_NO_CACHE_DIR="1")
+    env.update(NUMBA_CACHE_DIR=str(cache), PIP_NO_CACHE_DIR="1", UV_NO_CACHE="1")
     return env
 
 
