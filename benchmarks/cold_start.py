@@ -1,8 +1,8 @@
 """Time to first force on a fresh machine, as a newcomer meets it (issue 45):
 
 1. a clean clone of this checkout's HEAD, a fresh numba cache and no pip or uv cache:
-   `make demo` (the venv, its install (uv, else pip), the demo's kernels, 10 s of the two servers, the
-   replay and its plot), wall clock, and its parts as it prints them;
+   `make demo` (the venv, its install (uv, else pip), the demo's kernels, 10 s of the two
+   servers, the replay and its plot), wall clock, and its parts as it prints them;
 2. a second clone in another directory, the same cache: `make demo` again, and how many
    kernels its warm-up compiled (none, if the cache is keyed by the sources and not by the
    checkout's path);
