@@ -61,6 +61,7 @@ from haptic_local_model.shared.config import (
     parse_toml_text,
     resolve,
 )
+from haptic_local_model.shared.memory import available_bytes
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig, is_hand_scene
 
 if TYPE_CHECKING:
@@ -183,8 +184,10 @@ def run_port_scene(
     write its log; the run's figures. With `view` (real time only), a live view of its
     bodies and devices (port_view.py)."""
     world = scene.world()
-    if round(duration_s / world.period_s) < 1:
+    ticks = round(duration_s / world.period_s)
+    if ticks < 1:
         raise ConfigError("--duration", "--duration", "shorter than one tick")
+    _check_rows_fit(world, ticks, copies=1 if view is None else 2)
     print(f"{world.kind.name} world, {len(world.devices)} simulated device(s): loading its "
           f"kernels (a first run compiles them, about 30 s on 2 cores, into "
           f"{os.environ.get('NUMBA_CACHE_DIR', 'the numba cache')})", file=sys.stderr)  # fmt: skip
@@ -210,6 +213,27 @@ def run_port_scene(
         })  # fmt: skip
         print(f"log: {log}")
     return figures
+
+
+#: a run's rows may take this share of the memory available when it starts; the rest is the
+#: run's own and the machine's
+ROWS_SHARE = 0.75
+
+
+def _check_rows_fit(world: PortWorld, ticks: int, copies: int) -> None:
+    """Refuse, before anything runs, a run whose rows do not fit in memory: a port world's
+    run holds every tick's row until it ends (a live view's run holds them twice: in shared
+    memory and the copy logged), and a run that outgrew the machine would be killed midway
+    with nothing logged."""
+    row = world.kind.rows.itemsize
+    need, available = ticks * row * copies, available_bytes()
+    if need > ROWS_SHARE * available:
+        hz = 1.0 / world.period_s
+        raise ConfigError("--duration", "--duration", (
+            f"{ticks * world.period_s:g} s of {world.kind.name} rows take {need / 1e9:.1f} GB "
+            f"({row} B a tick at {hz:g} Hz{', twice with --view' if copies > 1 else ''}, held "
+            f"until the run ends) and {available / 1e9:.1f} GB is available: at most "
+            f"{ROWS_SHARE * available / (row * copies * hz):.1f} s here"))  # fmt: skip
 
 
 def _run_viewed(

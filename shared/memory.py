@@ -1,12 +1,27 @@
-"""What a receiving process does about memory: after a flood of messages, what their buffers
-took handed back to the system (benchmarks/flood.py, docs/security.md)."""
+"""What a process does about memory: how much the machine can give (a run that holds its rows
+asks before it starts), and, in a receiving process, after a flood of messages, what their
+buffers took handed back to the system (benchmarks/flood.py, docs/security.md)."""
 
 from __future__ import annotations
 
 import contextlib
 import ctypes
+import os
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
+
+
+def available_bytes() -> int:
+    """The memory this machine can give a process now without swapping: the kernel's
+    MemAvailable (free memory and what it can reclaim from its caches), or, where there is no
+    /proc/meminfo, the free pages."""
+    with contextlib.suppress(OSError, ValueError):
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
 
 TRIM_EVERY_S = 0.25  # counted this often
 TRIM_AFTER = 250  # messages received in one count's window: a flood's worth (1,000/s)

@@ -4,6 +4,7 @@ replay through `haptic-replay` (haptic_server/world_runs.py)."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -11,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from haptic_local_model.haptic_server import world_runs
 from haptic_local_model.haptic_server.harness.replay import main as haptic_replay
 from haptic_local_model.haptic_server.harness.run import main as haptic_run
 from haptic_local_model.haptic_server.log import LogWriter
@@ -23,6 +25,7 @@ from haptic_local_model.haptic_server.world_runs import (
     write_port_log,
 )
 from haptic_local_model.shared.config import ConfigError
+from haptic_local_model.shared.memory import available_bytes
 from haptic_local_model.shared.port_config import load_port_scene
 
 
@@ -117,6 +120,27 @@ def test_a_port_scene_refuses_what_only_a_single_device_run_has(capsys):
         argv = ["--scene", "grasp_vertical", "--clock", "virtual", "--no-log", *extra]
         assert haptic_run(argv) == 2
         assert extra[0] in capsys.readouterr().err
+
+
+def test_a_run_whose_rows_do_not_fit_in_memory_is_refused_before_it_starts(capsys, monkeypatch):
+    """A port world holds every tick's row until the run ends (832 B a tick in
+    grasp_vertical: 3.0 GB an hour at 1 kHz); a run that would outgrow the machine is one
+    line and exit 2 before anything runs, naming --duration and how long a run fits."""
+    row = port_scene("grasp_vertical", ["maglev"], None).world().kind.rows.itemsize
+    available = row * 1000 * 0.2 / world_runs.ROWS_SHARE  # 0.2 s of rows at 1 kHz fit
+    monkeypatch.setattr(world_runs, "available_bytes", lambda: available)
+    argv = ["--scene", "grasp_vertical", "--device", "maglev", "--clock", "virtual", "--no-log"]
+    assert haptic_run([*argv, "--duration", "0.25"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert "--duration" in lines[0] and f"{row} B a tick" in lines[0], lines[0]
+    assert "at most 0.2 s here" in lines[0], lines[0]
+    assert haptic_run([*argv, "--duration", "0.15"]) == 0  # a run that fits runs
+
+
+def test_the_memory_available_is_a_part_of_the_machine_s():
+    total = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    assert 0 < available_bytes() <= total
 
 
 @pytest.mark.parametrize("scene", ["grasp_vertical", "hand_grasp", "box_push"])
