@@ -8,6 +8,7 @@ import math
 import os
 import signal
 import sys
+import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -135,7 +136,6 @@ def log_file(text: str) -> Path:
 def check_log_writable(path: Path) -> None:
     """Before a run, not after it: its log's folder made and a file written there, or a
     ConfigError naming --log (a folder that is a file, no permission)."""
-    part = path.with_name(path.name + ".part")
     for folder in (path.parent, *path.parent.parents):
         if folder.exists():
             if not folder.is_dir():
@@ -144,9 +144,8 @@ def check_log_writable(path: Path) -> None:
             break
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        with part.open("wb"):
-            pass
-        part.unlink()
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".check"):
+            pass  # a name of its own: another run's log or its .part is left alone
     except OSError as exc:
         raise ConfigError("command line", "--log", f"cannot write {path}: {exc}") from None
 

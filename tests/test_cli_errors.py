@@ -110,3 +110,19 @@ def test_a_log_that_cannot_be_written_is_refused_before_the_run(
     assert len(lines) == 1, res.stderr
     assert "'--log'" in lines[0] and "taken is a file, not a folder" in lines[0], lines[0]
     assert not (tmp_path / "taken" / "run.mcap.part").exists()
+
+
+def test_the_log_check_leaves_nothing_and_no_other_run_s_file_touched(tmp_path: Path) -> None:
+    """check_log_writable makes the log's folder and writes a file of its own name there,
+    then removes it: another run's log and its .part (written beside the log, renamed when
+    whole) keep their bytes."""
+    from haptic_local_model.shared.cli import check_log_writable
+
+    log = tmp_path / "new" / "deeper" / "run.mcap"
+    check_log_writable(log)
+    assert log.parent.is_dir() and list(log.parent.iterdir()) == []
+    other = tmp_path / "run.mcap.part"
+    other.write_bytes(b"another run's rows")
+    check_log_writable(tmp_path / "run.mcap")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new", "run.mcap.part"]
+    assert other.read_bytes() == b"another run's rows"
