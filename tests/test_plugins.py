@@ -98,8 +98,8 @@ def test_a_driver_package_is_found_and_drives_a_run(
         assert "BROKEN" not in listed.stdout
 
         # a fresh environment compiles its kernels on the first run, and its sim starts
-        # seconds late: meanwhile the driver's hand pushes the handle to its end stop, away
-        # from the wall. Warm up first, as `make warm` does for a checkout.
+        # a minute late: meanwhile the driver's hand pushes the handle for a minute (its
+        # end stops: END_STOP_M). Warm up first, as `make warm` does for a checkout.
         warm = run_installed(
             installed, work, "haptic-run", "--scene", "wall_push", "--device", "recording_arm",
             "--network", "net.toml", "--duration", "1", "--no-log",

@@ -29,6 +29,14 @@ from haptic_local_model.device_models.base import (
 )
 from haptic_local_model.shared.config import Vec3, load_dataclass, require
 
+#: the handle's end stops (m; yaw ±3 rad). The hand pushes from the loop's first read, before
+#: the sim's first update (3.8 s later on a slow 2-core VM, haptic-run starting the sim once
+#: the haptic server is ready); at its terminal speed, hand_force / damping = 1 m/s, the
+#: handle goes 60 m in the haptic server's longest wait for a first update (60 s). Rendering
+#: starts by indexing the handle where it is (the world offset puts it on the tool): one
+#: pinned at an end stop then could never push the tool into the wall.
+END_STOP_M = 100.0
+
 
 @dataclass(frozen=True)
 class RecordingArmConfig:
@@ -59,8 +67,8 @@ class RecordingArm:
     def __init__(self, config: RecordingArmConfig) -> None:
         self.config = config
         self.rendering = config.rendering
-        self._limits = DeviceLimits(config.max_wrench, (-1.0, -1.0, -3.0), (1.0, 1.0, 3.0),
-                                    config.max_rate_hz)  # fmt: skip
+        self._limits = DeviceLimits(config.max_wrench, (-END_STOP_M, -END_STOP_M, -3.0),
+                                    (END_STOP_M, END_STOP_M, 3.0), config.max_rate_hz)  # fmt: skip
         self._inertia = np.array([config.mass, config.mass, config.mass * 1e-3])
         self._pose = np.zeros(3)
         self._twist = np.zeros(3)
