@@ -53,6 +53,19 @@ def _write_fault(tmp_path: Path, option: str, fault: str) -> tuple[str, str]:
     return name, key
 
 
+def _the_one_error_line(argv: list[str], cwd: Path) -> str:
+    """Run a console script (argv[0], installed beside this Python) from `cwd`: it must exit
+    2 with one line on stderr and no traceback; that line."""
+    res = subprocess.run(
+        [str(BIN / argv[0]), *argv[1:]], cwd=cwd, capture_output=True, text=True, timeout=120
+    )
+    assert res.returncode == 2, res.stderr + res.stdout
+    assert "Traceback" not in res.stderr + res.stdout
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1, res.stderr
+    return lines[0]
+
+
 @pytest.mark.processes
 @pytest.mark.parametrize(("script", "option", "fault"), CASES)
 def test_a_bad_config_is_one_line_and_exit_2(
@@ -60,19 +73,12 @@ def test_a_bad_config_is_one_line_and_exit_2(
 ) -> None:
     name, key = _write_fault(tmp_path, option, fault)
     exe, *flags = script.split()
-    res = subprocess.run(
-        [str(BIN / exe), *flags, option, name, "--duration", "1"],
-        cwd=tmp_path, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    assert res.returncode == 2, res.stderr + res.stdout
-    assert "Traceback" not in res.stderr + res.stdout
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1, res.stderr
-    assert name in lines[0]
+    line = _the_one_error_line([exe, *flags, option, name, "--duration", "1"], tmp_path)
+    assert name in line
     if key:
-        assert f"'{key}'" in lines[0]
+        assert f"'{key}'" in line
     else:
-        assert "not found" in lines[0]
+        assert "not found" in line
 
 
 @pytest.mark.processes
@@ -99,16 +105,9 @@ def test_a_log_that_cannot_be_written_is_refused_before_the_run(
     naming --log and why, exit 2, before anything runs: a port scene, which writes its log
     after the run, would otherwise lose the run to a traceback."""
     (tmp_path / "taken").write_text("a file, not a folder\n")
-    res = subprocess.run(
-        [str(BIN / "haptic-run"), "--scene", scene, "--clock", clock, "--duration", "1",
-         "--log", "taken/run.mcap"],
-        cwd=tmp_path, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    assert res.returncode == 2, res.stderr + res.stdout
-    assert "Traceback" not in res.stderr + res.stdout
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1, res.stderr
-    assert "'--log'" in lines[0] and "taken is a file, not a folder" in lines[0], lines[0]
+    argv = ["haptic-run", "--scene", scene, "--clock", clock, "--duration", "1"]
+    line = _the_one_error_line([*argv, "--log", "taken/run.mcap"], tmp_path)
+    assert "'--log'" in line and "taken is a file, not a folder" in line, line
     assert not (tmp_path / "taken" / "run.mcap.part").exists()
 
 
