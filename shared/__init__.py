@@ -49,8 +49,14 @@ def cache_dir() -> Path:
     return user_cache_path("haptic-local-model", appauthor=False)
 
 
+def numba_caches() -> Path:
+    """Where the project's numba caches are by default: one folder per build of the sources,
+    named by source_hash() (a warm-up prunes the old ones: harness.warm_marks.prune_builds)."""
+    return cache_dir() / "numba"
+
+
 if "NUMBA_CACHE_DIR" not in os.environ:
-    os.environ["NUMBA_CACHE_DIR"] = str(cache_dir() / "numba" / _source_hash())
+    os.environ["NUMBA_CACHE_DIR"] = str(numba_caches() / _source_hash())
 # the project's kernels cached by their place in the project, not by the checkout's path:
 # another clone or an installed wheel of the same sources loads them (shared/numba_cache.py)
 NUMBA_CACHE_LOCATORS = (  # the project's, then numba's own, in numba's order

@@ -75,13 +75,13 @@ def prune_builds(cache: Path, root: Path, now: float | None = None) -> list[tupl
         return []
     now = time.time() if now is None else now
     others = sorted(
-        (p for p in root.iterdir() if p != cache and p.is_dir() and _BUILD_NAME.fullmatch(p.name)),
-        key=_last_used,
+        ((_last_used(p), p) for p in root.iterdir()
+         if p != cache and p.is_dir() and _BUILD_NAME.fullmatch(p.name)),
         reverse=True,
-    )
+    )  # fmt: skip
     removed = []
-    for rank, build in enumerate(others):
-        if rank < KEEP_BUILDS and now - _last_used(build) <= MAX_UNUSED_DAYS * 86400:
+    for rank, (used, build) in enumerate(others):
+        if rank < KEEP_BUILDS and now - used <= MAX_UNUSED_DAYS * 86400:
             continue
         size = sum(f.stat().st_size for f in build.rglob("*") if f.is_file())
         shutil.rmtree(build, ignore_errors=True)

@@ -48,7 +48,7 @@ from haptic_local_model.haptic_server.stages.tick import rendering_tick
 from haptic_local_model.haptic_server.station import Station
 from haptic_local_model.haptic_server.world import compile_paced
 from haptic_local_model.haptic_server.world_runs import port_scene
-from haptic_local_model.shared import cache_dir
+from haptic_local_model.shared import numba_caches
 from haptic_local_model.shared.config import load_scene, load_user
 from haptic_local_model.shared.net.stations import load_station_network
 from haptic_local_model.shared.port_config import load_hand_scene, load_port_scene
@@ -267,7 +267,7 @@ def warm_all(out: TextIO | None = None, jobs: int = 1, run: Run | None = None) -
     how = f"{written} kernels compiled" if written else "all loaded from the cache"
     say(f"numba kernels ready in {total:.1f} s ({how})")
     if written:  # a new build's cache: the old builds' beyond what prune_builds keeps go
-        removed = prune_builds(cache, cache_dir() / "numba")
+        removed = prune_builds(cache, numba_caches())
         if removed:
             mb = sum(size for _, size in removed) / 1e6
             say(f"removed {len(removed)} older builds' caches ({mb:.0f} MB) from {cache.parent}")
