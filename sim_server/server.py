@@ -253,6 +253,7 @@ class SimServer:
 
     def summary(self) -> dict[str, Any]:
         q, _ = self.world.tool_state()
+        shapes = self.world.local_shapes
         return {
             "steps": self.stats.steps,
             "overruns": self.stats.overruns,
@@ -266,6 +267,7 @@ class SimServer:
             "update_bytes": self.stats.update_bytes,
             "update_bytes_max": self.stats.update_bytes_max,
             "view_messages": self.stats.view_messages,
+            "twists_clamped": shapes.twists_clamped if shapes is not None else 0,
             "tool_q": np.asarray(q).tolist(),
             "epoch": self.epoch,
         }

@@ -7,6 +7,13 @@ update the rows of the shapes near the tool get their body's pose (the centre of
 position and the angle) and twist (pymunk's body velocity is the centre of gravity's).
 Bodies move ballistically between updates as far as the haptic side knows (Motion.BALLISTIC:
 a free body's centre moves straight; a kinematic body here turns about its centre too).
+
+A twist beyond the protocol's limits (DEFAULT_LIMITS: 100 m/s, 1000 rad/s) is published at the
+limit, and counted (`LocalShapes.twists_clamped`): the parser refuses the whole update for one
+shape beyond them. A small pebble reaches them legitimately: in god_crowd, 2 N of friction at
+the rim of a 5 g, 4 mm pebble for one 60 Hz step spins it at 3000 rad/s, and a CI run lost
+updates that way ('shape'). Over an update's life the haptic side's extrapolation of such a
+spin (more than 16 rad a step) means nothing; the pose it starts from is exact.
 """
 
 from __future__ import annotations
@@ -18,6 +25,7 @@ import numpy as np
 import pymunk
 
 from haptic_local_model.shared.config import Material
+from haptic_local_model.shared.protocol.layout import DEFAULT_LIMITS
 from haptic_local_model.shared.shapes import (
     MAX_SHAPES,
     MIN_EDGE_M,
@@ -31,6 +39,7 @@ from haptic_local_model.shared.shapes import (
 from haptic_local_model.sim_server.membrane import Membrane
 
 _Segment = tuple[Membrane, int, np.ndarray, np.ndarray]  # a string's segment: its nodes
+SAFE_SHARE = 1.0 - 1e-9  # of a limit: a clamped twist is published this far inside it
 
 
 @dataclass(frozen=True)
@@ -61,6 +70,7 @@ class LocalShapes:
         self._membranes = membranes or []
         self.margin_m = margin_m
         self.dropped = 0  # shapes within the margin beyond MAX_SHAPES (the farthest go)
+        self.twists_clamped = 0  # published twists brought within the protocol's limits
 
     def fill(
         self, space: pymunk.Space, record: np.void, proxy: tuple[float, float, float] | None = None
@@ -112,11 +122,22 @@ class LocalShapes:
             body = near.body
             cog = body.local_to_world(body.center_of_gravity)
             rows[k]["pose"] = (cog.x, cog.y, math.remainder(body.angle, 2.0 * math.pi))
-            v = body.velocity
-            rows[k]["twist"] = (v.x, v.y, body.angular_velocity)
+            rows[k]["twist"] = self._twist(body)
         n = min(len(found), MAX_SHAPES)
         record["n_shapes"] = n
         return n
+
+    def _twist(self, body: pymunk.Body) -> tuple[float, float, float]:
+        """The body's twist, within the protocol's limits (a little inside, so that the
+        parser's test of the speed's hypot cannot round it out)."""
+        v, w = body.velocity, body.angular_velocity
+        speed, top = math.hypot(v.x, v.y), SAFE_SHARE * DEFAULT_LIMITS.max_abs_velocity
+        spin = SAFE_SHARE * DEFAULT_LIMITS.max_abs_angular_velocity
+        if speed <= top and abs(w) <= spin:
+            return v.x, v.y, w
+        self.twists_clamped += 1
+        scale = 1.0 if speed <= top else top / speed
+        return v.x * scale, v.y * scale, math.copysign(min(abs(w), spin), w)
 
 
 def _body(shape: pymunk.Shape) -> pymunk.Body:

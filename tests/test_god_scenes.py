@@ -22,6 +22,7 @@ from haptic_local_model.haptic_server.harness.replay import replay
 from haptic_local_model.haptic_server.harness.virtual import run_virtual
 from haptic_local_model.haptic_server.log import read_log
 from haptic_local_model.shared.config import BodySpec, UserConfig, load_scene
+from haptic_local_model.shared.protocol.layout import DEFAULT_LIMITS
 from haptic_local_model.shared.protocol.update import UpdateParser
 from haptic_local_model.sim_server.world import SimWorld, ToolTarget
 
@@ -229,6 +230,33 @@ def test_the_sim_sends_the_shapes_about_the_proxy_not_its_lagging_finger() -> No
     world.step(dataclasses.replace(target, fresh=False))  # the haptic side silent: the finger
     parser.parse(world.local_model_bytes(1, 1, 0))
     assert world.shape_keys[far] not in parser.out[0]["shapes"]["key"][: parser.out[0]["n_shapes"]]
+
+
+def test_a_pebble_spun_past_the_protocols_limits_leaves_the_update_valid() -> None:
+    """A pebble of god_crowd near the finger spinning at 3000 rad/s and flying at 150 m/s
+    (2 N of friction at the rim of a 5 g, 4 mm pebble for one step spins it at 3000 rad/s; a
+    CI run under load lost updates to 'shape' that way): the update parses, the pebble's twist
+    is published at the protocol's limits, in its direction, and the clamp is counted."""
+    world = SimWorld(load_scene("god_crowd"))
+    q, _ = world.tool_state()
+    finger = np.array(q[:2])
+    pebble = min(
+        (s for s in world.shape_keys if s.body is not None and s.body not in world.tool_bodies),
+        key=lambda s: np.hypot(*(np.array(s.body.position) - finger)),
+    )
+    pebble.body.angular_velocity = -3000.0
+    pebble.body.velocity = (90.0, -120.0)
+    raw = world.local_model_bytes(1, 1, 0)
+    parser = UpdateParser()
+    assert parser.parse(raw) == 0
+    out = parser.out[0]
+    rows = out["shapes"][: out["n_shapes"]]
+    twist = rows["twist"][list(rows["key"]).index(world.shape_keys[pebble])]
+    limits = DEFAULT_LIMITS
+    assert twist[2] == pytest.approx(-limits.max_abs_angular_velocity, rel=1e-6)
+    assert np.hypot(twist[0], twist[1]) == pytest.approx(limits.max_abs_velocity, rel=1e-6)
+    assert twist[0] / twist[1] == pytest.approx(90.0 / -120.0)
+    assert world.local_shapes is not None and world.local_shapes.twists_clamped == 1
 
 
 class _Sample:
