@@ -106,6 +106,11 @@ class FloodResult:
         before, after = self.rss_mb[r], self.rss_mb[r + 1]
         return {p: after[p] - before[p] for p in before}
 
+    def own_growth_mb(self, control: FloodResult, r: int) -> dict[str, float]:
+        """The flood's own growth over round r: this run's less its control's (`run` with
+        `control_s`), which grows by a few hundred kB in a round with no flood at all."""
+        return {p: mb - control.growth_mb(r)[p] for p, mb in self.growth_mb(r).items()}
+
 
 def _processes(haptic_pid: int) -> dict[str, int]:
     """The haptic server's processes by name: its loop's, its I/O's and its log writer's."""
@@ -272,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
             control = run(Path(tmp), args.messages, args.rounds, flood.flood_s)
             print("\n".join(report(control)))
             for r in range(args.rounds):
-                own = {p: mb - control.growth_mb(r)[p] for p, mb in flood.growth_mb(r).items()}
+                own = flood.own_growth_mb(control, r)
                 print(f"  round {r + 1}, the flood's own growth (flood - control): "
                       + ", ".join(f"{p} {mb:+.2f} MB" for p, mb in own.items()))  # fmt: skip
                 worst = max(worst, *own.values())
