@@ -52,7 +52,6 @@ import time
 from typing import Any
 
 import numpy as np
-import zenoh
 
 from haptic_local_model.device_models.base import world_limits, world_map_of
 from haptic_local_model.device_models.registry import load_simulated_device
@@ -72,10 +71,10 @@ from haptic_local_model.haptic_server.world_engines import CosimWorld, world_eng
 from haptic_local_model.shared.config import load_user
 from haptic_local_model.shared.memory import FloodTrim
 from haptic_local_model.shared.net.stations import (
+    StateRoute,
     StationNetworkConfig,
     open_client,
     port_keys,
-    state_publisher,
 )
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
 from haptic_local_model.shared.protocol.station import (
@@ -144,6 +143,7 @@ class SharedWorld:
         self.work_rest_us = SampleWindow(100_000)
         self.pacer = Pacer(round(self.engine.dt * 1e9), SPIN_NS, None)
         self._stop = False
+        self.routes: list[StateRoute] = []  # each port's link routes, while it runs
         # the sim that mirrors the world: a port scene with sim bodies (a mirror refuses a
         # scene without), when the network has one
         self.sim: SimLink | None = None
@@ -181,13 +181,12 @@ class SharedWorld:
 
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         session = open_client(self.network.world)
-        subs, pubs = [], []
-        for port in self.scene.ports:
-            device_key, tool_key = port_keys(self.network.namespace, port.name)
-            subs.append(
-                session.declare_subscriber(device_key, zenoh.handlers.RingChannel(DEVICE_RING))
-            )
-            pubs.append(state_publisher(session, tool_key, self.network.state_reliability))
+        routes = [
+            StateRoute(session, port_keys(self.network.namespace, port.name), DEVICE_RING,
+                       self.network.state_reliability)
+            for port in self.scene.ports
+        ]  # fmt: skip
+        self.routes = routes
         if self.sim is not None:
             self.sim.open(session)
         pacer = Pacer(round(self.engine.dt * 1e9), SPIN_NS, duration_s)
@@ -199,18 +198,20 @@ class SharedWorld:
 
         def tick(now: int, seq: int) -> None:
             nonlocal t
-            for p in range(len(subs)):
-                self.receive(p, subs[p], now)
+            for p in range(len(routes)):
+                self.receive(p, routes[p].sub, now)
             sim_tick = self.sim is not None and self.sim.take(now)
             self.step(now, t, seq)
             t += dt
-            for p in range(len(pubs)):
-                pubs[p].put(self._tool_bytes[p].tobytes())
+            for p in range(len(routes)):
+                routes[p].pub.put(self._tool_bytes[p].tobytes())
             if self.sim is not None:
                 sim_tick = self.sim.publish(seq) or sim_tick
             work = (time.perf_counter_ns() - now) / 1e3
             self.work_us.add(work)
             trim.after(now / 1e9, self._messages_received)
+            for p in range(len(routes)):
+                routes[p].check(now, int(self.ports[p]["received"] + self.ports[p]["rejected"]))
             if self.sim is not None:
                 (self.work_sim_us if sim_tick else self.work_rest_us).add(work)
 
@@ -257,6 +258,7 @@ class SharedWorld:
                 "state": self.state(p), "received": int(ps["received"]),
                 "rejected": int(ps["rejected"]), "stale": int(ps["reasons"][STALE]),
                 "rejected_by_reason": self.reasons(p),
+                "routes_redeclared": dict(self.routes[p].redeclared) if self.routes else {},
             }  # fmt: skip
         end = self.engine.poses()
         for i, name in enumerate(self.order):  # over the whole run (not only the rows kept)

@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import zenoh
 
 from haptic_local_model.device_models.base import SimulatedDevice
 from haptic_local_model.device_models.common import refill_noise
@@ -43,10 +42,10 @@ from haptic_local_model.haptic_server.station_records import (
 from haptic_local_model.shared import __version__
 from haptic_local_model.shared.config import UserConfig
 from haptic_local_model.shared.net.stations import (
+    StateRoute,
     StationNetworkConfig,
     open_client,
     port_keys,
-    state_publisher,
 )
 from haptic_local_model.shared.port_config import HandSceneConfig, PortSceneConfig
 from haptic_local_model.shared.protocol.station import TOOL_RECORD, device_record
@@ -138,6 +137,7 @@ class Station:
         self.epoch = time.time_ns()
         self.message = device_record(self.index, self.epoch)  # the tick's DeviceState
         self._stop = False
+        self.route: StateRoute | None = None  # its link's routes, while it runs
         # a hand's station sends its user's glove (finger_angles on its own clock)
         self._glove = np.zeros((0, 1))
         if isinstance(scene, HandSceneConfig):
@@ -165,17 +165,20 @@ class Station:
     def run(self, duration_s: float | None, ready: Any = None) -> dict[str, Any]:
         device_key, tool_key = port_keys(self.network.namespace, self.port)
         session = open_client(self.network.station(self.port))
-        sub = session.declare_subscriber(tool_key, zenoh.handlers.RingChannel(TOOL_RING))
-        pub = state_publisher(session, device_key, self.network.state_reliability)
+        route = StateRoute(
+            session, (tool_key, device_key), TOOL_RING, self.network.state_reliability
+        )
+        self.route = route
         pacer = Pacer(round(float(self.station[0]["dt"]) * 1e9), SPIN_NS, duration_s)
         self.pacer = pacer
         enter_loop(self.warm, ready)
 
         def tick(now: int, seq: int) -> None:
-            self.receive(sub, now)
+            self.receive(route.sub, now)
             self.step(now, seq)
-            pub.put(self.message.tobytes())
+            route.pub.put(self.message.tobytes())
             self.log(now, pacer.late_ns)
+            route.check(now, int(self.link[0]["received"] + self.link[0]["rejected"]))
 
         with session:  # closed however the loop ends
             pacer.run(tick, lambda: self._stop)
@@ -252,6 +255,7 @@ class Station:
                 rows["out"][-min(len(rows), 1000) :].mean(axis=0).tolist() if len(rows) else []
             ),
             "passivity": {**passivity_summary(rows), "events": self.softening.events},
+            "routes_redeclared": dict(self.route.redeclared) if self.route else {},
             "epoch": self.epoch,
         }
 

@@ -8,6 +8,7 @@ import socket
 import struct
 import threading
 import time
+import types
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +20,12 @@ from haptic_local_model.benchmarks import station_links, station_pause
 from haptic_local_model.benchmarks.impair import Direction, Forwarder, Impairment
 from haptic_local_model.benchmarks.stations import PORTS, netns_unavailable
 from haptic_local_model.shared.config import ConfigError, resolve
-from haptic_local_model.shared.net.stations import load_station_network, state_publisher
+from haptic_local_model.shared.net.stations import (
+    ROUTE_CHECK_NS,
+    StateRoute,
+    load_station_network,
+    state_publisher,
+)
 
 N = 20000
 SIGMAS = 4.0  # a sampled figure within this many standard errors of its closed form
@@ -105,6 +111,64 @@ def test_a_pause_holds_one_or_both_directions_for_its_window_and_loses_nothing()
         Impairment(pause_dir="up")
     with pytest.raises(ValueError, match="pause_s"):
         Impairment(pause_s=-1.0)
+
+
+class _Route:
+    """A stand-in for a Zenoh session's declarations: whether a publisher has a matching
+    subscriber is set by the test; undeclared entities are recorded."""
+
+    def __init__(self) -> None:
+        self.matching = False
+        self.declared: list[str] = []
+        self.undeclared: list[str] = []
+
+    def declare_publisher(self, key: str, **_: Any) -> Any:
+        return self._entity("publisher " + key)
+
+    def declare_subscriber(self, key: str, handler: Any) -> Any:
+        return self._entity("subscriber " + key)
+
+    def _entity(self, name: str) -> Any:
+        self.declared.append(name)
+        route = self
+
+        class Entity:
+            @property
+            def matching_status(self) -> Any:
+                return types.SimpleNamespace(matching=route.matching)
+
+            def undeclare(self) -> None:
+                route.undeclared.append(name)
+
+        return Entity()
+
+
+def test_a_state_route_lost_on_a_lossy_link_is_declared_again() -> None:
+    """StateRoute (a station's, and each of the world's ports): once a second, a publisher
+    no subscriber matches is declared again (a client filters its puts by the subscribers
+    its router declared to it, and over UDP a lost declaration is lost for good: in one of
+    four runs at 5 % loss a station's DeviceStates never left it), and a subscriber nothing
+    arrived on since the last look; a route that works is left alone, and nothing is
+    declared again before a second has passed."""
+    session = _Route()
+    keys = ("ns/port/left/tool", "ns/port/left/device")
+    route = StateRoute(session, keys, 64, "best_effort")  # type: ignore[arg-type]
+    assert session.declared == ["subscriber ns/port/left/tool", "publisher ns/port/left/device"]
+    second = ROUTE_CHECK_NS
+    route.check(0, received=0)  # the first look only notes what has arrived
+    route.check(second - 1, received=0)  # too soon
+    assert route.redeclared == {"publisher": 0, "subscriber": 0} and session.undeclared == []
+    route.check(second, received=0)  # nothing either way: both again
+    assert route.redeclared == {"publisher": 1, "subscriber": 1}
+    assert session.undeclared == ["publisher ns/port/left/device", "subscriber ns/port/left/tool"]
+    session.matching = True
+    route.check(2 * second, received=5)  # states arrive and the puts have a subscriber
+    route.check(3 * second, received=9)
+    assert route.redeclared == {"publisher": 1, "subscriber": 1} and len(session.declared) == 4
+    session.matching = False  # the subscriber's declaration lost: only the publisher again
+    route.check(4 * second, received=12)
+    assert route.redeclared == {"publisher": 2, "subscriber": 1}
+    assert session.declared[-1] == "publisher ns/port/left/device"
 
 
 @pytest.mark.processes
