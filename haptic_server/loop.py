@@ -118,6 +118,7 @@ class HapticRunStats:
             "lateness_us": self.lateness_us.percentiles(50, 99, 99.9),
             "late_ticks_over_1ms": c.late_over_1ms,
             "overruns": c.overruns,
+            "ticks_skipped": c.skipped,  # every period of the run is a tick or one of these
             "work_us": self.work_us.percentiles(50, 99),
             "updates_received": self.updates_received,
             "updates_installed": self.updates_installed,
@@ -306,6 +307,7 @@ class HapticServer:
             counters = stats.counters
             counters.ticks, counters.overruns = ticks, int(lp["overruns"])
             counters.late_over_1ms = int(lp["late_over_1ms"])
+            counters.skipped = int(lp["skipped"])
             stats.wall_s = (time.perf_counter_ns() - start_ns) / 1e9
             work_prev_us = float(lp["work_prev_us"])
             work_window = stats.work_us.buffer

@@ -172,6 +172,7 @@ class LoopCounters:
     ticks: int = 0
     late_over_1ms: int = 0
     overruns: int = 0  # ticks that started more than one period late (resynchronised)
+    skipped: int = 0  # whole periods those overruns spanned: ticks never run
 
 
 def rate_per_second(intervals_ms: np.ndarray) -> dict[str, float]:
