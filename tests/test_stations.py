@@ -867,7 +867,8 @@ def test_two_hands_at_two_stations_hold_and_lift_the_box(tmp_path: Path, start_s
     angles). Both ports couple; the box is held and goes up with the devices (so the world
     takes them: a world ignoring them would leave it where it was); the left hand's finger
     goes to the station's angle, the right's stays; no step is held; at the end each station
-    renders its user's 2 N squeeze and the (0.218 + 0.05) kg g it carries; the world's log
+    renders its user's 2 N squeeze, and the two together the (0.1 + 2 x 0.218) kg g they
+    carry (each its hand's and a share of the box's); the world's log
     (two hands on a box) replays bit for bit."""
     mod = "haptic_local_model.haptic_server.stations_cli"
     net = ["--network", loopback_network(tmp_path), "--scene", "hand_grasp"]
@@ -898,14 +899,22 @@ def test_two_hands_at_two_stations_hold_and_lift_the_box(tmp_path: Path, start_s
     box = summary["bodies"]["box"]
     assert box["lowest_y"] > box["start"][1] - 0.001, box
     assert 0.004 < box["end"][1] - box["start"][1] < 0.006, box  # lifted with the devices
-    carried = (0.218 + 0.05) * 9.81
+    box_n, hand_n = 0.1 * 9.81, 0.218 * 9.81  # the box; a hand, its fingers on its palm
+    lifts = []
     for side, p in ((-1.0, "left"), (1.0, "right")):
         r = station_rows(logs[p])
         k = first(r["fresh"] == 1, f"{p}'s first fresh palm state")
         assert r["fresh"][k:].mean() > 0.99, p
         assert r["pose"][-1, 1] - r["pose"][k, 1] > 0.004, p  # its device went up
-        np.testing.assert_allclose(r["out"][-1000:, :2].mean(axis=0), [side * 2.0, -carried],
-                                   atol=0.1, err_msg=p)  # fmt: skip
+        squeeze, lift = r["out"][-1000:, :2].mean(axis=0)
+        assert squeeze == pytest.approx(side * 2.0, abs=0.1), p
+        # how the box's weight splits between two hands gripping it by friction is
+        # statically indeterminate (it follows which lifted first; CI runs saw 2.77 / 2.53 N
+        # against 2.63 each): each carries its hand and between none and all of the box ...
+        assert hand_n - 0.1 < -lift < hand_n + box_n + 0.1, (p, lift)
+        lifts.append(-lift)
+    # ... and the two together carry it all
+    assert sum(lifts) == pytest.approx(box_n + 2 * hand_n, abs=0.1), lifts
     rows, _ = read_port_log(world_log, HAND_GRASP_TOPIC, HAND_GRASP_ROW_DTYPE)
     end = rows[-1]
     assert end["target"][0, 3] == pytest.approx(0.5, abs=1e-9)  # the left station's glove
