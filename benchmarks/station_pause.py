@@ -56,6 +56,7 @@ STEP_WINDOW = 200
 STEADY = 300
 BEFORE = (0.4, 0.02)  # s of the station's clock before the pause: from, to
 AFTER = (0.35, 0.65)  # and after it: in the press's hold (press_*_ramp: 8 to 9 s)
+WORLD_SPARE_S = 60.0  # the world's run beyond the stations' (it is stopped after them)
 
 
 def figures(
@@ -93,7 +94,11 @@ def run(folder: Path, delay_ms: float, pause_ms: float, pause_at_s: float) -> di
     with ThreeHosts(impair=dict.fromkeys(PORTS, imp)) as h:
         net = ["--network", NETWORK]
         h.start(h.world_ns, [*CLI, "router", *net]).wait_ready()
-        world = h.start(h.world_ns, [*CLI, "world", *net, "--duration", str(SECONDS + 6.0),
+        # the world outlives the stations however long they take to start (it is stopped
+        # after them): with --duration SECONDS + 6 a slow start left the window after the
+        # pause past the world's rows (the likely cause of a registration of NaNs, once here)
+        world = h.start(h.world_ns, [*CLI, "world", *net,
+                                     "--duration", str(SECONDS + WORLD_SPARE_S),
                                      "--log", str(folder / "world.mcap"),
                                      "--json", str(folder / "world.json")])  # fmt: skip
         world.wait_ready()
