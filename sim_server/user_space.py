@@ -39,6 +39,7 @@ from haptic_local_model.shared.tool_chain import tool_chain
 from haptic_local_model.sim_server.drive import DRIVE_PROXY, KINEMATIC_DTYPE
 from haptic_local_model.sim_server.held_chain import ChainError, HeldChain, find_held_chain
 from haptic_local_model.sim_server.local_model import TOOL_GROUP, StageStats
+from haptic_local_model.sim_server.shapes import LocalShapes
 from haptic_local_model.sim_server.space_model import SpaceLocalModel
 from haptic_local_model.sim_server.tool_drive import ToolDrive
 from haptic_local_model.sim_server.world import TOOL_FRICTION, ToolTarget
@@ -328,6 +329,9 @@ class UserSpaceWorld:
         # drawn by their index, the held one (or its chain) as the tool
         self.tool_bodies = self._tool_bodies
         self.body_names: dict[pymunk.Body, str] = {tool: "tool"}
+        # a user's space is rendered by the local model's contacts, never as a god-object's
+        # local shapes (SimWorld.local_shapes; the sim server's summary reads it)
+        self.local_shapes: LocalShapes | None = None
         materials: dict[tuple[float, float], Material] = {}
         for shape in rendered:
             _shape_material(shape, contact, materials)

@@ -401,3 +401,17 @@ def test_the_notebook_style_script_plots_the_force_that_holds_the_users_push(
     rendered = float(out.split("rendered ")[1].split(" N")[0])
     held = 150.0 * (0.12 - 0.035) / (1.0 + 150.0 / api.DEFAULT_CONTACT.stiffness_n_per_m)
     assert rendered == pytest.approx(-held, rel=1e-3), out
+
+
+def test_a_sim_server_over_a_users_space_sums_up_its_run() -> None:
+    """The sim server's summary over a user's space (as `touch` runs it): its figures, and
+    no god-object shapes clamped (a user's space has none; a clean-clone CI once found the
+    summary reading them from a world that has no such attribute, and every live run of a
+    user's space failed at its end)."""
+    from haptic_local_model.shared.net.config import NetworkConfig
+    from haptic_local_model.sim_server.server import SimServer
+
+    space, tool, _ = _wall_space()
+    world = UserSpaceWorld(space, tool)
+    summary = SimServer(world.scene, NetworkConfig(), world=world).summary()
+    assert summary["steps"] == 0 and summary["twists_clamped"] == 0
