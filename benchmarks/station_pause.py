@@ -95,8 +95,7 @@ def run(folder: Path, delay_ms: float, pause_ms: float, pause_at_s: float) -> di
         net = ["--network", NETWORK]
         h.start(h.world_ns, [*CLI, "router", *net]).wait_ready()
         # the world outlives the stations however long they take to start (it is stopped
-        # after them): with --duration SECONDS + 6 a slow start left the window after the
-        # pause past the world's rows (the likely cause of a registration of NaNs, once here)
+        # after them)
         world = h.start(h.world_ns, [*CLI, "world", *net,
                                      "--duration", str(SECONDS + WORLD_SPARE_S),
                                      "--log", str(folder / "world.mcap"),
@@ -109,7 +108,11 @@ def run(folder: Path, delay_ms: float, pause_ms: float, pause_at_s: float) -> di
             stations[p] = h.start(h.station_ns[p], [*CLI, "station", *net, *args])
         for s in stations.values():
             s.wait_ready()
-        time.sleep(pause_at_s)
+        # at pause_at_s of the right station's own clock (its loop starts as it says ready):
+        # timed from both ready, a right station that started first (up to 2 s on a loaded
+        # 2-core machine) was paused past its press's hold, its window after the pause past
+        # its run's end (a registration of NaNs, in a run here and in a clean-clone run)
+        time.sleep(max(0.0, stations["right"].ready_at + pause_at_s - time.monotonic()))
         pause_ns = time.perf_counter_ns()
         os.kill(h.forwarders["right"].proc.pid, signal.SIGUSR1)
         codes = {p: s.proc.wait(SECONDS + STOP_S) for p, s in stations.items()}

@@ -87,6 +87,7 @@ class Process:
     def __init__(self, argv: list[str]) -> None:
         self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
         self.ready = threading.Event()
+        self.ready_at = float("nan")  # when it said it was ready (time.monotonic)
         self.events: list[dict[str, Any]] = []  # every JSON event line, in order
         threading.Thread(target=self._read, daemon=True).start()
 
@@ -97,6 +98,7 @@ class Process:
                 event = json.loads(line)
                 self.events.append(event)
                 if event.get("event") == "ready":
+                    self.ready_at = time.monotonic()
                     self.ready.set()
 
     def wait_ready(self, timeout_s: float = READY_S) -> None:
