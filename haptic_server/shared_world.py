@@ -49,6 +49,7 @@ fed) stays in memory; `--log` writes them as a port world's log (haptic_server/w
 from __future__ import annotations
 
 import time
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -195,6 +196,7 @@ class SharedWorld:
         dt, t = self.engine.dt, 0.0
 
         trim = FloodTrim()  # a flood's memory back to the system after it
+        taken = [partial(self._taken, p) for p in range(len(routes))]  # for routes[p].check
 
         def tick(now: int, seq: int) -> None:
             nonlocal t
@@ -211,13 +213,17 @@ class SharedWorld:
             self.work_us.add(work)
             trim.after(now / 1e9, self._messages_received)
             for p in range(len(routes)):
-                routes[p].check(now, int(self.ports[p]["received"] + self.ports[p]["rejected"]))
+                routes[p].check(now, taken[p])
             if self.sim is not None:
                 (self.work_sim_us if sim_tick else self.work_rest_us).add(work)
 
         with session:  # closed however the loop ends
             pacer.run(tick, lambda: self._stop)
         return self.summary()
+
+    def _taken(self, p: int) -> int:
+        """Port p's DeviceStates taken or refused so far."""
+        return int(self.ports[p]["received"] + self.ports[p]["rejected"])
 
     def _messages_received(self) -> int:
         """DeviceStates taken or refused, every port's."""

@@ -173,12 +173,17 @@ class Station:
         self.pacer = pacer
         enter_loop(self.warm, ready)
 
+        link = self.link[0]
+
+        def taken() -> int:  # the tool states taken or refused so far (route.check)
+            return int(link["received"] + link["rejected"])
+
         def tick(now: int, seq: int) -> None:
             self.receive(route.sub, now)
             self.step(now, seq)
             route.pub.put(self.message.tobytes())
             self.log(now, pacer.late_ns)
-            route.check(now, int(self.link[0]["received"] + self.link[0]["rejected"]))
+            route.check(now, taken)
 
         with session:  # closed however the loop ends
             pacer.run(tick, lambda: self._stop)

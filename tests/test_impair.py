@@ -155,18 +155,18 @@ def test_a_state_route_lost_on_a_lossy_link_is_declared_again() -> None:
     route = StateRoute(session, keys, 64, "best_effort")  # type: ignore[arg-type]
     assert session.declared == ["subscriber ns/port/left/tool", "publisher ns/port/left/device"]
     second = ROUTE_CHECK_NS
-    route.check(0, received=0)  # the first look only notes what has arrived
-    route.check(second - 1, received=0)  # too soon
+    route.check(0, lambda: 0)  # the first look only notes what has arrived
+    route.check(second - 1, lambda: 0)  # too soon
     assert route.redeclared == {"publisher": 0, "subscriber": 0} and session.undeclared == []
-    route.check(second, received=0)  # nothing either way: both again
+    route.check(second, lambda: 0)  # nothing either way: both again
     assert route.redeclared == {"publisher": 1, "subscriber": 1}
     assert session.undeclared == ["publisher ns/port/left/device", "subscriber ns/port/left/tool"]
     session.matching = True
-    route.check(2 * second, received=5)  # states arrive and the puts have a subscriber
-    route.check(3 * second, received=9)
+    route.check(2 * second, lambda: 5)  # states arrive and the puts have a subscriber
+    route.check(3 * second, lambda: 9)
     assert route.redeclared == {"publisher": 1, "subscriber": 1} and len(session.declared) == 4
     session.matching = False  # the subscriber's declaration lost: only the publisher again
-    route.check(4 * second, received=12)
+    route.check(4 * second, lambda: 12)
     assert route.redeclared == {"publisher": 2, "subscriber": 1}
     assert session.declared[-1] == "publisher ns/port/left/device"
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -183,23 +184,29 @@ class StateRoute:
         self._next_ns: int | None = None
         self._received = -1
 
-    def check(self, now_ns: int, received: int) -> None:
-        """At now_ns (any monotonic clock, ns), with `received` the states this end has taken
-        or refused so far."""
+    def check(self, now_ns: int, received: Callable[[], int]) -> None:
+        """At now_ns (any monotonic clock, ns); `received()`: the states this end has taken or
+        refused so far, counted only when a look is due (a loop calls this every tick, as
+        FloodTrim.after)."""
         if self._next_ns is not None and now_ns < self._next_ns:
             return
-        if self._next_ns is not None:
-            if not self.pub.matching_status.matching:
-                self.pub.undeclare()
-                self.pub = state_publisher(self._session, self._keys[1], self._reliability)
-                self.redeclared["publisher"] += 1
-            if received == self._received:
-                self.sub.undeclare()
-                self.sub = self._session.declare_subscriber(
-                    self._keys[0], zenoh.handlers.RingChannel(self._ring)
-                )
-                self.redeclared["subscriber"] += 1
-        self._received, self._next_ns = received, now_ns + ROUTE_CHECK_NS
+        count = received()
+        if self._next_ns is not None:  # the first look only notes what has arrived
+            self._look(count)
+        self._received, self._next_ns = count, now_ns + ROUTE_CHECK_NS
+
+    def _look(self, count: int) -> None:
+        """Each route declared again if it is missing (the class's docstring)."""
+        if not self.pub.matching_status.matching:
+            self.pub.undeclare()
+            self.pub = state_publisher(self._session, self._keys[1], self._reliability)
+            self.redeclared["publisher"] += 1
+        if count == self._received:
+            self.sub.undeclare()
+            self.sub = self._session.declare_subscriber(
+                self._keys[0], zenoh.handlers.RingChannel(self._ring)
+            )
+            self.redeclared["subscriber"] += 1
 
 
 def access_control(config: StationNetworkConfig, ports: list[str]) -> dict[str, Any]:
